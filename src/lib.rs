@@ -1,0 +1,17 @@
+//! surgvla: generate, convert and validate datasets for surgical robot learning.
+//!
+//! - [`sim`]: the headless simulator (dVRK PSM, rapier scene, grasp binding).
+//! - [`task`]: the eight benchmark tasks and their seeded scenes.
+//! - [`policy`]: policies, including the waypoint expert controller.
+//! - [`collect`]: rollouts and trajectory recording.
+//! - [`export`]: dataset writers.
+//!
+//! The library never sees command-line types, progress bars or exit codes; `src/bin/surgvla.rs`
+//! owns those. Every output is a pure function of (config, seed).
+
+pub mod collect;
+pub mod export;
+pub mod policy;
+pub mod rng;
+pub mod sim;
+pub mod task;

@@ -1,0 +1,161 @@
+//! What a scene holds, as plain data: movable objects (gauze, needle, block) with real sizes and
+//! masses, and static bodies (tray pad, organs, vessel). Tasks build a [`SceneSpec`]; the physics
+//! and (later) the renderer consume it.
+//!
+//! Every movable object's frame is its *grasp frame*: the origin is the grasp point (the gauze
+//! and block centre, the needle's arc midpoint) and, for the needle, the local x axis is the
+//! wire's tangent there. Sizes are metres, masses kilograms.
+
+use nalgebra::{Isometry3, Vector3};
+
+/// Table top height, metres.
+pub const TABLE_TOP_Z_M: f64 = 0.675;
+/// Tray pad top height, metres.
+pub const TRAY_TOP_Z_M: f64 = 0.678;
+/// Tray pad centre (x, y) and half extents (x, y), metres.
+pub const TRAY_CENTER_XY_M: [f64; 2] = [0.55, 0.0];
+pub const TRAY_HALF_EXTENTS_XY_M: [f64; 2] = [0.12, 0.12];
+
+/// Gauze pad half extents (15 x 25 x 2.6 mm), metres.
+pub const GAUZE_HALF_EXTENTS_M: [f64; 3] = [0.0075, 0.0125, 0.0013];
+pub const GAUZE_MASS_KG: f64 = 0.05;
+/// Needle arc radius and wire radius, metres.
+pub const NEEDLE_ARC_RADIUS_M: f64 = 0.02;
+pub const NEEDLE_WIRE_RADIUS_M: f64 = 0.0005;
+pub const NEEDLE_MASS_KG: f64 = 0.01;
+/// Number of straight capsule segments approximating the needle's half circle.
+pub const NEEDLE_SEGMENTS: usize = 8;
+/// Block half extents (22 x 25 x 3.25 mm), metres.
+pub const BLOCK_HALF_EXTENTS_M: [f64; 3] = [0.011, 0.0125, 0.001625];
+pub const BLOCK_MASS_KG: f64 = 0.01;
+
+/// A movable object's kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ObjectKind {
+    Gauze,
+    Needle,
+    Block,
+}
+
+impl ObjectKind {
+    /// Lower-case name used in output.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObjectKind::Gauze => "gauze",
+            ObjectKind::Needle => "needle",
+            ObjectKind::Block => "block",
+        }
+    }
+
+    /// Mass, kilograms.
+    pub fn mass_kg(self) -> f64 {
+        match self {
+            ObjectKind::Gauze => GAUZE_MASS_KG,
+            ObjectKind::Needle => NEEDLE_MASS_KG,
+            ObjectKind::Block => BLOCK_MASS_KG,
+        }
+    }
+
+    /// Height of the grasp point above the surface the object rests on, metres.
+    pub fn rest_height_m(self) -> f64 {
+        match self {
+            ObjectKind::Gauze => GAUZE_HALF_EXTENTS_M[2],
+            ObjectKind::Needle => NEEDLE_WIRE_RADIUS_M,
+            ObjectKind::Block => BLOCK_HALF_EXTENTS_M[2],
+        }
+    }
+
+    /// Friction coefficient (gauze is high-friction cloth).
+    pub fn friction(self) -> f64 {
+        match self {
+            ObjectKind::Gauze => 1.2,
+            ObjectKind::Needle => 0.6,
+            ObjectKind::Block => 0.8,
+        }
+    }
+}
+
+/// Needle wire centre line in the grasp frame: points on the half circle, from one end to the
+/// other. The arc's centre is at (0, -R, 0) so the midpoint is the origin with tangent along x.
+pub fn needle_arc_points(segments: usize) -> Vec<Vector3<f64>> {
+    let n = segments.max(2);
+    (0..=n)
+        .map(|i| {
+            let theta = std::f64::consts::PI * i as f64 / n as f64;
+            Vector3::new(
+                NEEDLE_ARC_RADIUS_M * theta.cos(),
+                NEEDLE_ARC_RADIUS_M * theta.sin() - NEEDLE_ARC_RADIUS_M,
+                0.0,
+            )
+        })
+        .collect()
+}
+
+/// A movable object in a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectSpec {
+    /// Unique name within the scene (e.g. "gauze", "needle_distractor_1").
+    pub name: String,
+    pub kind: ObjectKind,
+    /// Initial pose of the grasp frame.
+    pub world_from_object: Isometry3<f64>,
+}
+
+/// A static body's kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum OrganKind {
+    Kidney,
+    Spleen,
+    Vessel,
+}
+
+impl OrganKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            OrganKind::Kidney => "kidney",
+            OrganKind::Spleen => "spleen",
+            OrganKind::Vessel => "vessel",
+        }
+    }
+}
+
+/// A static organ body. Until the procedural meshes land its collision shape is a rounded box
+/// with these half extents.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OrganSpec {
+    pub kind: OrganKind,
+    pub world_from_organ: Isometry3<f64>,
+    pub half_extents_m: [f64; 3],
+}
+
+/// Everything a scene holds besides the instrument.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SceneSpec {
+    pub objects: Vec<ObjectSpec>,
+    pub organs: Vec<OrganSpec>,
+}
+
+impl SceneSpec {
+    /// Index of the object with this name.
+    pub fn object_index(&self, name: &str) -> Option<usize> {
+        self.objects.iter().position(|o| o.name == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn needle_arc_midpoint_is_origin_with_x_tangent() {
+        let points = needle_arc_points(8);
+        let mid = points[4];
+        assert!(mid.norm() < 1e-12);
+        let tangent = (points[3] - points[5]).normalize();
+        assert!((tangent.x.abs() - 1.0).abs() < 1e-9);
+        assert!(points.iter().all(|p| {
+            ((p + Vector3::new(0.0, NEEDLE_ARC_RADIUS_M, 0.0)).norm() - NEEDLE_ARC_RADIUS_M).abs()
+                < 1e-12
+        }));
+    }
+}

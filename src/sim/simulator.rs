@@ -1,0 +1,328 @@
+//! The simulator: a PSM moving kinematically through IK, a rapier scene, and the grasp binding.
+//!
+//! One control step (0.2 s at 5 Hz):
+//! 1. the command becomes a clipped tip target, and IK gives the target joints (clamped);
+//! 2. the jaw command is applied: a close command while the jaws are open binds the nearest
+//!    object that satisfies the [`GraspRule`] at the current tip pose; an open command releases
+//!    a bound object (it becomes dynamic again, at rest);
+//! 3. over the physics substeps the joints move linearly to the target, the jaw angle moves at
+//!    a rate that completes a full open/close in one control step, the instrument collider and
+//!    any bound object follow the forward kinematics, and rapier steps.
+
+use crate::sim::control::{
+    JawCommand, NativeCommand, PhysicalAction, Timing, TipTarget, Workspace, native_target,
+    physical_target,
+};
+use crate::sim::grasp::GraspRule;
+use crate::sim::observation::{ObjectState, Observation};
+use crate::sim::physics::{PhysicsParams, PhysicsScene};
+use crate::sim::psm::{
+    IkReport, JAW_CLOSED_RAD, JAW_OPEN_RAD, Joints, Psm, euler_xyz, pointing_down,
+};
+use crate::sim::scene::{ObjectKind, SceneSpec};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+/// A displacement larger than this from the spawn pose counts as "moved", metres.
+pub const MOVED_THRESHOLD_M: f64 = 0.002;
+
+/// Everything that configures a simulator besides the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimConfig {
+    pub timing: Timing,
+    pub workspace: Workspace,
+    pub grasp: GraspRule,
+    pub psm: Psm,
+    /// Start pose of the tip (jaws open).
+    pub world_from_start_tip: Isometry3<f64>,
+    pub physics: PhysicsParams,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        let timing = Timing::default();
+        SimConfig {
+            timing,
+            workspace: Workspace::reference(),
+            grasp: GraspRule::default(),
+            psm: Psm::reference(),
+            world_from_start_tip: Isometry3::from_parts(
+                Translation3::new(0.50, 0.05, 0.7202),
+                pointing_down(std::f64::consts::FRAC_PI_2),
+            ),
+            physics: PhysicsParams {
+                dt_secs: timing.physics_dt_secs(),
+                ..PhysicsParams::default()
+            },
+        }
+    }
+}
+
+/// An object held by the jaws.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Binding {
+    object: usize,
+    tip_from_object: Isometry3<f64>,
+}
+
+/// What one control step did besides moving.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepReport {
+    pub ik: IkReport,
+    /// The workspace clipped the requested position.
+    pub clipped: bool,
+    /// Index of the object bound during this step.
+    pub bound: Option<usize>,
+    /// Index of the object released during this step.
+    pub released: Option<usize>,
+}
+
+/// A headless, deterministic simulation of one scene.
+pub struct Simulator {
+    config: SimConfig,
+    scene: SceneSpec,
+    physics: PhysicsScene,
+    joints: Joints,
+    jaw_angle_rad: f64,
+    jaw_command: JawCommand,
+    binding: Option<Binding>,
+    step_index: u64,
+    last_report: StepReport,
+}
+
+/// Pose of the instrument's shaft frame: origin at the wrist-pitch joint, z from the RCM outward.
+fn world_from_shaft(psm: &Psm, joints: &Joints) -> Isometry3<f64> {
+    let frames = psm.chain(joints);
+    let wrist = frames.rcm_from_link[4].translation;
+    psm.world_from_rcm * Isometry3::from_parts(wrist, frames.rcm_from_link[3].rotation)
+}
+
+impl Simulator {
+    /// A simulator at the configured start pose with jaws open.
+    pub fn new(config: SimConfig, scene: SceneSpec) -> Self {
+        let (joints, ik) = config.psm.inverse(&config.world_from_start_tip, 0.0);
+        let physics = PhysicsScene::build(
+            &scene,
+            &config.physics,
+            &world_from_shaft(&config.psm, &joints),
+        );
+        Simulator {
+            config,
+            scene,
+            physics,
+            joints,
+            jaw_angle_rad: JAW_OPEN_RAD,
+            jaw_command: JawCommand::Open,
+            binding: None,
+            step_index: 0,
+            last_report: StepReport {
+                ik,
+                ..StepReport::default()
+            },
+        }
+    }
+
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    pub fn scene(&self) -> &SceneSpec {
+        &self.scene
+    }
+
+    /// Current joint positions.
+    pub fn joints(&self) -> Joints {
+        self.joints
+    }
+
+    /// Current reported tip pose in the world.
+    pub fn world_from_tip(&self) -> Isometry3<f64> {
+        self.config.psm.forward(&self.joints)
+    }
+
+    /// Index of the bound object, if any.
+    pub fn bound_object(&self) -> Option<usize> {
+        self.binding.map(|b| b.object)
+    }
+
+    /// Applies one native command `[dx, dy, dz, dyaw, jaw]`.
+    pub fn step_native(&mut self, command: &NativeCommand) -> StepReport {
+        let tip = self.world_from_tip();
+        let yaw = euler_xyz(&tip.rotation)[2];
+        let target = native_target(&self.config.workspace, tip.translation.vector, yaw, command);
+        self.step_to(target)
+    }
+
+    /// Applies one physical 7-D action (as recorded in a dataset).
+    pub fn step_physical(&mut self, action: &PhysicalAction) -> StepReport {
+        let tip = self.world_from_tip();
+        let target = physical_target(
+            &self.config.workspace,
+            tip.translation.vector,
+            euler_xyz(&tip.rotation),
+            action,
+        );
+        self.step_to(target)
+    }
+
+    fn step_to(&mut self, target: TipTarget) -> StepReport {
+        let (target_joints, ik) = self
+            .config
+            .psm
+            .inverse(&target.world_from_tip, self.joints[3]);
+        let mut report = StepReport {
+            ik,
+            clipped: target.clipped,
+            ..StepReport::default()
+        };
+        self.apply_jaw_command(target.jaw, &mut report);
+
+        let substeps = self.config.timing.substeps.max(1);
+        let jaw_goal = match self.jaw_command {
+            JawCommand::Open => JAW_OPEN_RAD,
+            JawCommand::Close => JAW_CLOSED_RAD,
+        };
+        let jaw_rate = (JAW_OPEN_RAD - JAW_CLOSED_RAD) / f64::from(substeps);
+        let start = self.joints;
+        for substep in 1..=substeps {
+            let t = f64::from(substep) / f64::from(substeps);
+            let mut joints = start;
+            for (q, (a, b)) in joints
+                .iter_mut()
+                .zip(start.iter().zip(target_joints.iter()))
+            {
+                *q = a + (b - a) * t;
+            }
+            if substep == substeps {
+                joints = target_joints;
+            }
+            self.joints = joints;
+            let delta = (jaw_goal - self.jaw_angle_rad).clamp(-jaw_rate, jaw_rate);
+            self.jaw_angle_rad += delta;
+            self.physics
+                .move_instrument(&world_from_shaft(&self.config.psm, &self.joints));
+            if let Some(binding) = self.binding {
+                let pose = self.world_from_tip() * binding.tip_from_object;
+                self.physics.move_bound_object(binding.object, &pose);
+            }
+            self.physics.step();
+        }
+        self.step_index += 1;
+        self.last_report = report;
+        report
+    }
+
+    fn apply_jaw_command(&mut self, command: JawCommand, report: &mut StepReport) {
+        let jaws_were_open = self.jaw_angle_rad > JAW_CLOSED_RAD + 1e-9;
+        match command {
+            JawCommand::Close if self.binding.is_none() && jaws_were_open => {
+                if let Some(object) = self.grasp_candidate() {
+                    let world_from_object = self.physics.object_pose(object).unwrap_or_default();
+                    let tip_from_object = self.world_from_tip().inverse() * world_from_object;
+                    self.physics.set_object_bound(object, true);
+                    self.binding = Some(Binding {
+                        object,
+                        tip_from_object,
+                    });
+                    report.bound = Some(object);
+                }
+            }
+            JawCommand::Open => {
+                if let Some(binding) = self.binding.take() {
+                    self.physics.set_object_bound(binding.object, false);
+                    report.released = Some(binding.object);
+                }
+            }
+            JawCommand::Close => {}
+        }
+        self.jaw_command = command;
+    }
+
+    /// The object the jaws would bind now: the nearest one satisfying the rule.
+    pub fn grasp_candidate(&self) -> Option<usize> {
+        let tip = self.world_from_tip();
+        let tip_position = tip.translation.vector;
+        let yaw = euler_xyz(&tip.rotation)[2];
+        (0..self.physics.object_count())
+            .filter_map(|i| {
+                let pose = self.physics.object_pose(i)?;
+                let kind = self.scene.objects.get(i)?.kind;
+                self.config
+                    .grasp
+                    .binds(&tip_position, yaw, kind, &pose)
+                    .then(|| ((pose.translation.vector - tip_position).norm(), i))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, i)| i)
+    }
+
+    /// The current observation.
+    pub fn observation(&self) -> Observation {
+        let tip = self.world_from_tip();
+        let block = self
+            .scene
+            .objects
+            .iter()
+            .position(|o| o.kind == ObjectKind::Block);
+        let objects = self
+            .scene
+            .objects
+            .iter()
+            .enumerate()
+            .map(|(i, spec)| {
+                let pose = self
+                    .physics
+                    .object_pose(i)
+                    .unwrap_or(spec.world_from_object);
+                let displacement_m =
+                    (pose.translation.vector - spec.world_from_object.translation.vector).norm();
+                ObjectState {
+                    name: spec.name.clone(),
+                    kind: spec.kind,
+                    world_from_object: pose,
+                    bound: self.bound_object() == Some(i),
+                    on_tray: self.physics.object_on_tray(i),
+                    on_block: block.is_some_and(|b| b != i && self.physics.objects_touching(i, b)),
+                    displacement_m,
+                    moved: displacement_m > MOVED_THRESHOLD_M,
+                    at_rest: self.physics.object_sleeping(i),
+                }
+            })
+            .collect();
+        Observation {
+            step_index: self.step_index,
+            time_secs: self.step_index as f64 * self.config.timing.control_dt_secs(),
+            tip_position_m: tip.translation.vector.into(),
+            tip_euler_xyz_rad: euler_xyz(&tip.rotation),
+            jaw_angle_rad: self.jaw_angle_rad,
+            jaw_command: self.jaw_command,
+            joint_positions: self.joints,
+            objects,
+            bound_object: self.bound_object(),
+            ik: self.last_report.ik,
+        }
+    }
+
+    /// Moves the tip directly (test and setup helper): IK to `world_from_tip` with physics
+    /// stepping as in a control step, jaws unchanged.
+    pub fn teleport_tip(&mut self, world_from_tip: &Isometry3<f64>) -> IkReport {
+        let (joints, ik) = self.config.psm.inverse(world_from_tip, self.joints[3]);
+        self.joints = joints;
+        self.physics
+            .move_instrument(&world_from_shaft(&self.config.psm, &self.joints));
+        ik
+    }
+
+    /// A pose `height_m` above object `index`'s grasp point, pointing down with `yaw_rad`.
+    pub fn above_object(
+        &self,
+        index: usize,
+        height_m: f64,
+        yaw_rad: f64,
+    ) -> Option<Isometry3<f64>> {
+        let pose = self.physics.object_pose(index)?;
+        Some(Isometry3::from_parts(
+            Translation3::from(pose.translation.vector + Vector3::new(0.0, 0.0, height_m)),
+            UnitQuaternion::from(pointing_down(yaw_rad)),
+        ))
+    }
+}

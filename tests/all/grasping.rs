@@ -1,0 +1,204 @@
+//! The binding rule in the simulator: binds exactly inside the rule, follows the jaws, releases.
+
+use crate::util::{simulator, three_objects, tip_at};
+use surgvla::sim::{NativeCommand, Simulator};
+
+const OPEN: NativeCommand = NativeCommand {
+    dx: 0.0,
+    dy: 0.0,
+    dz: 0.0,
+    dyaw: 0.0,
+    jaw: 1.0,
+};
+const CLOSE: NativeCommand = NativeCommand {
+    dx: 0.0,
+    dy: 0.0,
+    dz: 0.0,
+    dyaw: 0.0,
+    jaw: -1.0,
+};
+
+/// A settled scene with the tip placed at an offset from the gauze's grasp point, jaws open.
+fn tip_near_gauze(dx_m: f64, dz_m: f64) -> Simulator {
+    let mut sim = simulator(three_objects(0.0));
+    sim.step_native(&OPEN);
+    let gauze = sim
+        .observation()
+        .object("gauze")
+        .expect("gauze")
+        .world_from_object
+        .translation
+        .vector;
+    let report = sim.teleport_tip(&tip_at(
+        gauze.x + dx_m,
+        gauze.y,
+        gauze.z + dz_m,
+        std::f64::consts::FRAC_PI_2,
+    ));
+    assert!(report.is_exact());
+    sim
+}
+
+#[test]
+fn binds_within_3mm_above_and_9mm_aside() {
+    for (dx, dz) in [(0.0, 0.0029), (0.0089, 0.0), (0.006, 0.002), (0.0, 0.0005)] {
+        let mut sim = tip_near_gauze(dx, dz);
+        let report = sim.step_native(&CLOSE);
+        assert_eq!(report.bound, Some(0), "offset ({dx}, {dz}) should bind");
+        assert_eq!(sim.observation().bound_object, Some(0));
+    }
+}
+
+#[test]
+fn does_not_bind_4mm_above_or_10mm_aside() {
+    for (dx, dz) in [(0.0, 0.004), (0.010, 0.0), (0.0, 0.010)] {
+        let mut sim = tip_near_gauze(dx, dz);
+        let report = sim.step_native(&CLOSE);
+        assert_eq!(report.bound, None, "offset ({dx}, {dz}) must not bind");
+        assert_eq!(sim.observation().bound_object, None);
+    }
+}
+
+#[test]
+fn closed_jaws_do_not_bind_later() {
+    let mut sim = tip_near_gauze(0.0, 0.006);
+    sim.step_native(&CLOSE);
+    sim.teleport_tip(&{
+        let g = sim
+            .observation()
+            .object("gauze")
+            .expect("gauze")
+            .world_from_object
+            .translation
+            .vector;
+        tip_at(g.x, g.y, g.z + 0.001, std::f64::consts::FRAC_PI_2)
+    });
+    let report = sim.step_native(&CLOSE);
+    assert_eq!(report.bound, None, "jaws already closed: nothing to bind");
+}
+
+#[test]
+fn bound_object_follows_the_jaws_and_falls_back_when_released() {
+    let mut sim = tip_near_gauze(0.0, 0.001);
+    let start = sim
+        .observation()
+        .object("gauze")
+        .expect("gauze")
+        .world_from_object;
+    assert_eq!(sim.step_native(&CLOSE).bound, Some(0));
+    let before = sim.observation();
+    let offset = nalgebra::Vector3::from(before.tip_position_m)
+        - before.objects[0].world_from_object.translation.vector;
+    for _ in 0..3 {
+        sim.step_native(&NativeCommand {
+            dz: 1.0,
+            dx: 0.5,
+            ..CLOSE
+        });
+    }
+    let lifted = sim.observation();
+    let gauze = &lifted.objects[0];
+    assert!(gauze.bound && !gauze.on_tray);
+    let follow =
+        nalgebra::Vector3::from(lifted.tip_position_m) - gauze.world_from_object.translation.vector;
+    assert!(
+        (follow - offset).norm() < 1e-5,
+        "the object keeps its offset to the tip"
+    );
+    assert!(gauze.world_from_object.translation.z > start.translation.z + 0.025);
+
+    let report = sim.step_native(&OPEN);
+    assert_eq!(report.released, Some(0));
+    for _ in 0..5 {
+        sim.step_native(&OPEN);
+    }
+    let dropped = sim.observation();
+    let gauze = &dropped.objects[0];
+    assert!(
+        !gauze.bound && gauze.on_tray,
+        "released gauze lands on the tray"
+    );
+    assert!((gauze.world_from_object.translation.z - start.translation.z).abs() < 3e-4);
+    assert!(gauze.moved, "it was carried 15 mm sideways");
+}
+
+#[test]
+fn needle_binds_only_with_jaws_across_the_wire() {
+    for (yaw_deg, expected) in [(90.0, true), (-75.0, true), (0.0, false), (45.0, false)] {
+        let mut sim = simulator(three_objects(0.0));
+        sim.step_native(&OPEN);
+        let needle = sim
+            .observation()
+            .object("needle")
+            .expect("needle")
+            .world_from_object
+            .translation
+            .vector;
+        sim.teleport_tip(&tip_at(
+            needle.x,
+            needle.y,
+            needle.z + 0.001,
+            f64::to_radians(yaw_deg),
+        ));
+        let bound = sim.step_native(&CLOSE).bound;
+        assert_eq!(
+            bound == Some(1),
+            expected,
+            "needle tangent along x, tip yaw {yaw_deg} deg"
+        );
+    }
+}
+
+#[test]
+fn demo_grasps_lifts_and_releases_in_every_object_task() {
+    use surgvla::collect::{demo_plan, rollout};
+    use surgvla::sim::SimConfig;
+    use surgvla::task::TaskId;
+    for task in TaskId::ALL {
+        for seed in 0..3 {
+            let scene = task.scene(seed);
+            if scene.objects.is_empty() {
+                continue;
+            }
+            let mut sim = Simulator::new(SimConfig::default(), scene);
+            let mut policy = demo_plan(&sim);
+            let trajectory = rollout(&mut sim, &mut policy, 80);
+            let bound_at = trajectory
+                .steps
+                .iter()
+                .position(|s| s.report.bound == Some(0));
+            let released_at = trajectory
+                .steps
+                .iter()
+                .position(|s| s.report.released == Some(0));
+            assert!(
+                bound_at.is_some() && released_at > bound_at,
+                "{task} seed {seed}"
+            );
+            let highest = trajectory
+                .steps
+                .iter()
+                .map(|s| s.observation.objects[0].world_from_object.translation.z)
+                .fold(f64::MIN, f64::max);
+            let start_z = trajectory.steps[0].observation.objects[0]
+                .world_from_object
+                .translation
+                .z;
+            assert!(
+                highest > start_z + 0.025,
+                "{task} seed {seed}: lifted only to {highest}"
+            );
+            let last = &trajectory.final_observation.objects[0];
+            assert!(
+                last.on_tray && !last.bound,
+                "{task} seed {seed}: object back on the tray"
+            );
+            if trajectory.final_observation.objects.len() > 1 {
+                assert!(
+                    !trajectory.final_observation.objects[1].moved,
+                    "{task} seed {seed}: distractor moved"
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,8 @@
+//! The one integration test binary: kinematics, physics, grasping, determinism and the CLI.
+
+mod cli;
+mod determinism;
+mod grasping;
+mod kinematics;
+mod physics;
+mod util;
