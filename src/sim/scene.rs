@@ -136,6 +136,28 @@ pub struct SceneSpec {
 }
 
 impl SceneSpec {
+    /// One object of each kind on the tray (gauze at the centre, needle and block beside it),
+    /// each `drop_m` above its resting height: the fixture of tests and benches.
+    pub fn one_of_each(drop_m: f64) -> Self {
+        let place = |name: &str, kind: ObjectKind, x: f64, y: f64| ObjectSpec {
+            name: name.to_string(),
+            kind,
+            world_from_object: Isometry3::translation(
+                x,
+                y,
+                TRAY_TOP_Z_M + kind.rest_height_m() + drop_m,
+            ),
+        };
+        SceneSpec {
+            objects: vec![
+                place("gauze", ObjectKind::Gauze, 0.55, 0.0),
+                place("needle", ObjectKind::Needle, 0.52, -0.03),
+                place("block", ObjectKind::Block, 0.58, 0.03),
+            ],
+            organs: Vec::new(),
+        }
+    }
+
     /// Index of the object with this name.
     pub fn object_index(&self, name: &str) -> Option<usize> {
         self.objects.iter().position(|o| o.name == name)

@@ -28,7 +28,7 @@ fn ik_fk_round_trip_over_the_workspace_grid() {
                         lerp(0, f64::from(ix) / 6.0),
                         lerp(1, f64::from(iy) / 6.0),
                         lerp(2, f64::from(iz) / 5.0),
-                        f64::from(yaw_deg).to_radians(),
+                        f64::to_radians(yaw_deg),
                     );
                     let (joints, report) = psm.inverse(&target, 0.0);
                     assert!(
