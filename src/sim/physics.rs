@@ -4,7 +4,8 @@
 //! Tuning for millimetre-sized light objects (gauze 2.6 mm thick, needle wire 0.5 mm):
 //! - `length_unit = 0.01`: rapier's tolerances scale with it, so the allowed penetration is
 //!   0.05 mm and the contact prediction distance 0.2 mm instead of 5 mm and 20 mm.
-//! - 8 solver iterations, CCD on every movable object, 240 Hz steps.
+//! - 8 solver iterations, contacts stiffened to 240 Hz (480 Hz against static bodies), CCD on
+//!   every movable object, 240 Hz steps.
 //! - Resting bodies fall asleep, so a settled object stays exactly still.
 //!
 //! The instrument is one kinematic body (shaft and wrist as a capsule that ends at the wrist);
@@ -33,6 +34,10 @@ pub struct PhysicsParams {
     pub gravity_m_per_s2: f64,
     pub length_unit_m: f64,
     pub solver_iterations: usize,
+    /// Natural frequency of contacts between movable bodies, Hz (twice that against static
+    /// bodies). Penetration under load scales as g / (2 pi f)^2: rapier's 30 Hz default sinks a
+    /// 50 g gauze 0.3 mm into a 10 g block, and through it; 240 Hz keeps it to micrometres.
+    pub contact_frequency_hz: f64,
 }
 
 impl Default for PhysicsParams {
@@ -42,6 +47,7 @@ impl Default for PhysicsParams {
             gravity_m_per_s2: 9.81,
             length_unit_m: 0.01,
             solver_iterations: 8,
+            contact_frequency_hz: 240.0,
         }
     }
 }
@@ -131,6 +137,15 @@ impl PhysicsScene {
         world.integration_parameters.dt = params.dt_secs as f32;
         world.integration_parameters.length_unit = params.length_unit_m as f32;
         world.integration_parameters.num_solver_iterations = params.solver_iterations.max(1);
+        let frequency = params.contact_frequency_hz as f32;
+        world
+            .integration_parameters
+            .contact_softness
+            .natural_frequency = frequency;
+        world
+            .integration_parameters
+            .static_contact_softness
+            .natural_frequency = 2.0 * frequency;
 
         let table_half_z = 0.01f32;
         world.insert(
