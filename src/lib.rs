@@ -9,9 +9,13 @@
 //! The library never sees command-line types, progress bars or exit codes; `src/bin/surgvla.rs`
 //! owns those. Every output is a pure function of (config, seed).
 
+pub mod assets;
 pub mod collect;
 pub mod export;
 pub mod policy;
+pub mod render;
 pub mod rng;
+pub mod scene;
 pub mod sim;
 pub mod task;
+pub mod view;

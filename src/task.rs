@@ -5,9 +5,12 @@
 //! positions come from a per-task random stream of the episode seed, so a scene is a pure
 //! function of (task, seed).
 
+use crate::assets::organ;
 use crate::rng::SplitMix64;
-use crate::sim::scene::{ObjectKind, ObjectSpec, OrganKind, OrganSpec, SceneSpec, TRAY_TOP_Z_M};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use crate::scene::{
+    MarkColour, MarkSpec, ObjectKind, ObjectSpec, OrganKind, OrganSpec, SceneSpec, TRAY_TOP_Z_M,
+};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::fmt;
 use std::str::FromStr;
 
@@ -145,45 +148,127 @@ impl TaskId {
                 scene
                     .objects
                     .push(object(target.name(), target, gx, gy, yaw_deg.to_radians()));
-                scene.objects.push(object(other_name, other, ox, oy, 0.0));
+                let mut other_object = object(other_name, other, ox, oy, 0.0);
+                other_object.distractor = self != TaskId::PickAndPlace;
+                scene.objects.push(other_object);
             }
-            TaskId::Electrocoagulation | TaskId::VesselClipping | TaskId::Hemostasis => {
+            TaskId::Electrocoagulation => {
                 let (dx, dy) = uniform_xy((-0.03, 0.03), (-0.02, 0.02));
-                let (kind, center, half) = match self {
-                    TaskId::Electrocoagulation => (
-                        OrganKind::Kidney,
-                        [0.65, 0.0, Z0_M - 0.028],
-                        [0.03, 0.055, 0.03],
-                    ),
-                    TaskId::VesselClipping => (
-                        OrganKind::Vessel,
-                        [0.556, -0.14, Z0_M - 0.003],
-                        [0.004, 0.06, 0.004],
-                    ),
-                    _ => (
-                        OrganKind::Spleen,
-                        [0.44, 0.0, Z0_M - 0.04],
-                        [0.05, 0.03, 0.045],
-                    ),
+                let (yaw_deg, shape) = uniform_xy((-15.0, 15.0), (0.0, 1.0));
+                let kidney = solid_organ(
+                    OrganKind::Kidney,
+                    [0.022, 0.04, 0.016],
+                    [0.575 + dx, dy],
+                    yaw_deg,
+                    shape,
+                );
+                let spot = mark_on(
+                    &kidney,
+                    Vector3::new(-0.1, 0.55, 0.83),
+                    "bleeding_spot",
+                    MarkColour::Red,
+                    0.0024,
+                );
+                scene.organs.push(kidney);
+                scene.marks.push(spot);
+            }
+            TaskId::VesselClipping => {
+                let (dx, dy) = uniform_xy((-0.015, 0.015), (-0.01, 0.01));
+                let (shape, order) = uniform_xy((0.0, 1.0), (0.0, 6.0));
+                let radius = 0.0025;
+                let vessel = OrganSpec {
+                    kind: OrganKind::Vessel,
+                    world_from_organ: Isometry3::translation(0.55 + dx, dy, TRAY_TOP_Z_M + radius),
+                    semi_axes_m: [0.006, 0.07, radius],
+                    shape_seed: (shape * u64::MAX as f64) as u64,
                 };
-                scene.organs.push(OrganSpec {
-                    kind,
-                    world_from_organ: Isometry3::translation(
-                        center[0] + dx,
-                        center[1] + dy,
-                        center[2],
-                    ),
-                    half_extents_m: half,
-                });
-                if self == TaskId::Hemostasis {
-                    let (x, y) = uniform_xy((0.57, 0.59), (0.0, 0.02));
-                    scene
-                        .objects
-                        .push(object("gauze", ObjectKind::Gauze, x, y, 0.0));
+                // Three candidate clip sites along the vessel; the red one is the target.
+                let colours = match order as u32 {
+                    0 => [MarkColour::Red, MarkColour::Yellow, MarkColour::Green],
+                    1 => [MarkColour::Yellow, MarkColour::Red, MarkColour::Green],
+                    2 => [MarkColour::Yellow, MarkColour::Green, MarkColour::Red],
+                    3 => [MarkColour::Red, MarkColour::Blue, MarkColour::Yellow],
+                    4 => [MarkColour::Blue, MarkColour::Red, MarkColour::Yellow],
+                    _ => [MarkColour::Green, MarkColour::Blue, MarkColour::Red],
+                };
+                let (path, _) = organ::vessel_path(&vessel, 11);
+                for (site, colour) in [3usize, 5, 7].into_iter().zip(colours) {
+                    let local = path[site] + Vector3::new(0.0, 0.0, radius);
+                    scene.marks.push(MarkSpec {
+                        name: format!("{}_clip_site", colour.name()),
+                        position_m: (vessel.world_from_organ * nalgebra::Point3::from(local))
+                            .coords,
+                        radius_m: 0.0012,
+                        colour,
+                        target: colour == MarkColour::Red,
+                    });
                 }
+                scene.organs.push(vessel);
+            }
+            TaskId::Hemostasis => {
+                let (dx, dy) = uniform_xy((-0.01, 0.01), (-0.015, 0.015));
+                let (yaw_deg, shape) = uniform_xy((-10.0, 10.0), (0.0, 1.0));
+                let spleen = solid_organ(
+                    OrganKind::Spleen,
+                    [0.032, 0.06, 0.02],
+                    [0.475 + dx, dy],
+                    yaw_deg,
+                    shape,
+                );
+                let target = mark_on(
+                    &spleen,
+                    Vector3::new(0.55, 0.0, 0.83),
+                    "bleeding_target",
+                    MarkColour::Red,
+                    0.0024,
+                );
+                scene.organs.push(spleen);
+                scene.marks.push(target);
+                let (x, y) = uniform_xy((0.57, 0.59), (0.0, 0.02));
+                scene
+                    .objects
+                    .push(object("gauze", ObjectKind::Gauze, x, y, 0.0));
             }
         }
         scene
+    }
+}
+
+/// A kidney or spleen resting on the tray (its flattened base on the pad) at `xy`.
+fn solid_organ(
+    kind: OrganKind,
+    semi_axes_m: [f64; 3],
+    xy: [f64; 2],
+    yaw_deg: f64,
+    shape: f64,
+) -> OrganSpec {
+    let z = TRAY_TOP_Z_M + organ::BASE_FRACTION * semi_axes_m[2];
+    OrganSpec {
+        kind,
+        world_from_organ: Isometry3::from_parts(
+            Translation3::new(xy[0], xy[1], z),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_deg.to_radians()),
+        ),
+        semi_axes_m,
+        shape_seed: (shape * u64::MAX as f64) as u64,
+    }
+}
+
+/// A mark on an organ's surface in the organ-frame direction `direction`.
+fn mark_on(
+    organ_spec: &OrganSpec,
+    direction: Vector3<f64>,
+    name: &str,
+    colour: MarkColour,
+    radius_m: f64,
+) -> MarkSpec {
+    let local = organ::surface_point(organ_spec, direction);
+    MarkSpec {
+        name: name.to_string(),
+        position_m: (organ_spec.world_from_organ * nalgebra::Point3::from(local)).coords,
+        radius_m,
+        colour,
+        target: true,
     }
 }
 
@@ -191,6 +276,7 @@ fn object(name: &str, kind: ObjectKind, x: f64, y: f64, yaw_rad: f64) -> ObjectS
     ObjectSpec {
         name: name.to_string(),
         kind,
+        distractor: false,
         world_from_object: Isometry3::from_parts(
             Translation3::new(x, y, TRAY_TOP_Z_M + kind.rest_height_m()),
             UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_rad),

@@ -2,10 +2,15 @@
 //! exit codes (2 for user mistakes, 1 for internal failures).
 
 use clap::{Parser, Subcommand};
+use std::path::PathBuf;
 use std::process::ExitCode;
+use surgvla::assets::{Appearance, SceneAssets};
 use surgvla::collect::{demo_plan, rollout};
+use surgvla::render::image::{ImageError, depth_visualisation, mask_visualisation, write_png_file};
+use surgvla::render::{Camera, Lighting, RenderOptions, Renderer};
 use surgvla::sim::{SimConfig, Simulator};
 use surgvla::task::TaskId;
+use surgvla::view::{contact_sheet, render_simulator};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -23,8 +28,133 @@ enum Command {
     /// Run the demo motion (grasp the first object, lift, release) in a task scene and print
     /// the trajectory.
     Sim(SimArgs),
+    /// Render a task scene from the endoscope: RGB, and optionally depth and mask
+    /// visualisations, as PNG.
+    Render(RenderArgs),
+    /// Render the start frame of all eight tasks into one PNG grid (RGB, depth and mask rows).
+    ContactSheet(ContactSheetArgs),
     /// List the tasks.
     Tasks,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum CameraChoice {
+    /// The endoscope (224 x 224, 60 deg).
+    Endoscope,
+    /// A wider overview of the workspace.
+    Overview,
+}
+
+#[derive(clap::Args, Debug)]
+struct RenderArgs {
+    /// Task name (gauze_pick, ...) or id (T1-1, ...).
+    #[arg(long, default_value = "gauze_pick")]
+    task: TaskId,
+    /// Episode seed: decides the spawn positions and shapes.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Run this many steps of the demo motion before rendering.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=100_000))]
+    steps: u32,
+    /// Output PNG for the RGB image.
+    #[arg(long)]
+    out: PathBuf,
+    /// Also write the depth, colour-mapped (near bright, far dark, background black).
+    #[arg(long)]
+    depth: Option<PathBuf>,
+    /// Also write the segmentation mask, colour-coded by object id.
+    #[arg(long)]
+    mask: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "endoscope")]
+    camera: CameraChoice,
+    #[command(flatten)]
+    look: LookArgs,
+}
+
+#[derive(clap::Args, Debug)]
+struct LookArgs {
+    /// Supersampling of RGB per pixel edge (1 = off, 2 = 4 samples a pixel).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=4))]
+    supersample: u32,
+    /// Randomise light, tissue colour and texture contrast from the seed.
+    #[arg(long)]
+    randomize_appearance: bool,
+}
+
+#[derive(clap::Args, Debug)]
+struct ContactSheetArgs {
+    /// Output PNG.
+    #[arg(long, default_value = "contact_sheet.png")]
+    out: PathBuf,
+    /// Seed of every scene.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[command(flatten)]
+    look: LookArgs,
+}
+
+impl LookArgs {
+    fn options(&self, seed: u64) -> (RenderOptions, Appearance) {
+        let appearance = if self.randomize_appearance {
+            Appearance::randomized(seed)
+        } else {
+            Appearance::default()
+        };
+        let options = RenderOptions {
+            lighting: appearance.lighting(Lighting::default()),
+            supersample: self.supersample,
+        };
+        (options, appearance)
+    }
+}
+
+fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
+    let scene = args.task.scene(args.seed);
+    let mut sim = Simulator::new(SimConfig::default(), scene.clone());
+    if args.steps > 0 {
+        let mut policy = demo_plan(&sim);
+        rollout(&mut sim, &mut policy, args.steps);
+    }
+    let camera = match args.camera {
+        CameraChoice::Endoscope => Camera::endoscope(),
+        CameraChoice::Overview => Camera::overview(),
+    };
+    let (options, appearance) = args.look.options(args.seed);
+    let assets = SceneAssets::new(&scene, args.seed, appearance);
+    let mut renderer = Renderer::new(options);
+    let frame = render_simulator(&assets, &mut renderer, &camera, &sim);
+    let (w, h) = (frame.width_px, frame.height_px);
+    write_png_file(&args.out, w, h, 3, &frame.rgb)?;
+    if let Some(path) = &args.depth {
+        write_png_file(path, w, h, 3, &depth_visualisation(&frame))?;
+    }
+    if let Some(path) = &args.mask {
+        write_png_file(path, w, h, 3, &mask_visualisation(&frame))?;
+    }
+    println!(
+        "{} ({}), seed {}, step {}: {} triangles, wrote {}",
+        args.task.code(),
+        args.task.name(),
+        args.seed,
+        sim.observation().step_index,
+        assets.triangle_count(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn run_contact_sheet(args: &ContactSheetArgs) -> anyhow::Result<()> {
+    let (options, appearance) = args.look.options(args.seed);
+    let sheet = contact_sheet(&TaskId::ALL, args.seed, options, appearance);
+    write_png_file(&args.out, sheet.width_px, sheet.height_px, 3, &sheet.rgb)?;
+    println!(
+        "wrote {} ({}x{}): columns {}; rows RGB, depth, mask",
+        args.out.display(),
+        sheet.width_px,
+        sheet.height_px,
+        TaskId::ALL.map(|t| t.code()).join(", ")
+    );
+    Ok(())
 }
 
 #[derive(clap::Args, Debug)]
@@ -105,8 +235,13 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
-    match cli.command {
-        Command::Sim(args) => run_sim(&args),
+    let result = match cli.command {
+        Command::Sim(args) => {
+            run_sim(&args);
+            Ok(())
+        }
+        Command::Render(args) => run_render(&args),
+        Command::ContactSheet(args) => run_contact_sheet(&args),
         Command::Tasks => {
             for task in TaskId::ALL {
                 println!(
@@ -118,7 +253,34 @@ fn main() -> ExitCode {
                     task.instruction()
                 );
             }
+            Ok(())
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {error:#}");
+            ExitCode::from(exit_code(&error))
         }
     }
-    ExitCode::SUCCESS
+}
+
+/// 2 when the user can fix it (an output path in a missing or forbidden place), 1 otherwise.
+fn exit_code(error: &anyhow::Error) -> u8 {
+    use std::io::ErrorKind;
+    let user_fixable = |kind: ErrorKind| {
+        matches!(
+            kind,
+            ErrorKind::NotFound | ErrorKind::PermissionDenied | ErrorKind::IsADirectory
+        )
+    };
+    let fixable = error
+        .chain()
+        .any(|cause| match cause.downcast_ref::<ImageError>() {
+            Some(ImageError::Io { source, .. }) => user_fixable(source.kind()),
+            _ => cause
+                .downcast_ref::<std::io::Error>()
+                .is_some_and(|io| user_fixable(io.kind())),
+        });
+    if fixable { 2 } else { 1 }
 }

@@ -6,7 +6,7 @@
 //! frame's local z axis (the jaws close along local x) within `needle_yaw_tolerance_rad`.
 //! While bound the object follows the tip rigidly; opening the jaws releases it.
 
-use crate::sim::scene::ObjectKind;
+use crate::scene::ObjectKind;
 use nalgebra::{Isometry3, Vector3};
 use std::f64::consts::{FRAC_PI_2, PI};
 

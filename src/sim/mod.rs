@@ -1,5 +1,5 @@
 //! The headless laparoscopic simulator: dVRK PSM kinematics ([`psm`]), control inputs
-//! ([`control`]), scene description ([`scene`]), the rapier world ([`physics`]), the grasp
+//! ([`control`]), the rapier world ([`physics`]), the grasp
 //! binding rule ([`grasp`]) and the [`Simulator`] that ties them together.
 //!
 //! Units are SI (metres, radians, seconds, kilograms); poses are `world_from_*` nalgebra
@@ -10,12 +10,11 @@ pub mod grasp;
 pub mod observation;
 pub mod physics;
 pub mod psm;
-pub mod scene;
 mod simulator;
 
+pub use crate::scene::{ObjectKind, ObjectSpec, OrganKind, OrganSpec, SceneSpec};
 pub use control::{JawCommand, NativeCommand, PhysicalAction, Timing, Workspace};
 pub use grasp::GraspRule;
 pub use observation::{ObjectState, Observation};
 pub use psm::Psm;
-pub use scene::{ObjectKind, ObjectSpec, OrganKind, OrganSpec, SceneSpec};
 pub use simulator::{MOVED_THRESHOLD_M, SimConfig, Simulator, StepReport};

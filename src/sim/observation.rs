@@ -3,9 +3,9 @@
 //! `state7` is the dataset's `observation.state`: tip x, y, z (m, world), roll, pitch, yaw (rad,
 //! Euler xyz with `R = Rz(yaw) Ry(pitch) Rx(roll)`), jaw angle (rad).
 
+use crate::scene::ObjectKind;
 use crate::sim::control::JawCommand;
 use crate::sim::psm::{IkReport, Joints};
-use crate::sim::scene::ObjectKind;
 use nalgebra::Isometry3;
 
 /// One movable object's state.

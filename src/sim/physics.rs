@@ -12,9 +12,10 @@
 //! the jaws carry no collider: grasping is the binding rule, and a jaw collider pressing a 2.6 mm
 //! gauze into the tray would only inject energy.
 
-use crate::sim::scene::{
-    NEEDLE_SEGMENTS, NEEDLE_WIRE_RADIUS_M, ObjectKind, SceneSpec, TABLE_TOP_Z_M, TRAY_CENTER_XY_M,
-    TRAY_HALF_EXTENTS_XY_M, TRAY_TOP_Z_M, needle_arc_points,
+use crate::assets::organ;
+use crate::scene::{
+    NEEDLE_SEGMENTS, NEEDLE_WIRE_RADIUS_M, ObjectKind, OrganKind, OrganSpec, SceneSpec,
+    TABLE_TOP_Z_M, needle_arc_points, tray_boxes,
 };
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rapier3d::prelude::{
@@ -92,14 +93,41 @@ pub struct PhysicsScene {
     instrument: RigidBodyHandle,
 }
 
+/// The organ's collision shape from the same geometry that is drawn: the convex hull of a solid
+/// organ's surface, a chain of capsules along the vessel.
+fn organ_collider(organ: &OrganSpec) -> ColliderBuilder {
+    if organ.kind == OrganKind::Vessel {
+        let (path, radius) = organ::vessel_path(organ, 16);
+        let shapes = path
+            .windows(2)
+            .map(|pair| {
+                (
+                    Pose::IDENTITY,
+                    SharedShape::capsule(vec32(pair[0]), vec32(pair[1]), radius as f32),
+                )
+            })
+            .collect();
+        return ColliderBuilder::compound(shapes);
+    }
+    let points: Vec<Vector> = organ::organ_mesh(organ)
+        .positions
+        .iter()
+        .map(|p| Vector::new(p[0], p[1], p[2]))
+        .collect();
+    ColliderBuilder::convex_hull(&points).unwrap_or_else(|| {
+        let [a, b, c] = organ.semi_axes_m.map(|v| v as f32);
+        ColliderBuilder::cuboid(a, b, c)
+    })
+}
+
 fn object_collider(kind: ObjectKind) -> ColliderBuilder {
     let builder = match kind {
         ObjectKind::Gauze => {
-            let h = crate::sim::scene::GAUZE_HALF_EXTENTS_M;
+            let h = crate::scene::GAUZE_HALF_EXTENTS_M;
             ColliderBuilder::cuboid(h[0] as f32, h[1] as f32, h[2] as f32)
         }
         ObjectKind::Block => {
-            let h = crate::sim::scene::BLOCK_HALF_EXTENTS_M;
+            let h = crate::scene::BLOCK_HALF_EXTENTS_M;
             ColliderBuilder::cuboid(h[0] as f32, h[1] as f32, h[2] as f32)
         }
         ObjectKind::Needle => {
@@ -150,38 +178,27 @@ impl PhysicsScene {
         let table_half_z = 0.01f32;
         world.insert(
             RigidBodyBuilder::fixed().translation(Vector::new(
-                TRAY_CENTER_XY_M[0] as f32,
-                TRAY_CENTER_XY_M[1] as f32,
+                0.55,
+                0.0,
                 TABLE_TOP_Z_M as f32 - table_half_z,
             )),
             ColliderBuilder::cuboid(0.4, 0.4, table_half_z).friction(0.8),
         );
-        let tray_half_z = ((TRAY_TOP_Z_M - TABLE_TOP_Z_M) / 2.0) as f32;
-        let (_, tray) = world.insert(
-            RigidBodyBuilder::fixed().translation(Vector::new(
-                TRAY_CENTER_XY_M[0] as f32,
-                TRAY_CENTER_XY_M[1] as f32,
-                TRAY_TOP_Z_M as f32 - tray_half_z,
-            )),
-            ColliderBuilder::cuboid(
-                TRAY_HALF_EXTENTS_XY_M[0] as f32,
-                TRAY_HALF_EXTENTS_XY_M[1] as f32,
-                tray_half_z,
-            )
-            .friction(1.0),
-        );
+        // The tray: pad first (its handle answers "on the tray"), then the rim walls.
+        let mut tray = None;
+        for (centre, half) in tray_boxes() {
+            let (_, collider) = world.insert(
+                RigidBodyBuilder::fixed().translation(vec32(Vector3::from(centre))),
+                ColliderBuilder::cuboid(half[0] as f32, half[1] as f32, half[2] as f32)
+                    .friction(1.0),
+            );
+            tray.get_or_insert(collider);
+        }
+        let tray = tray.unwrap_or(ColliderHandle::invalid());
         for organ in &spec.organs {
-            let h = organ.half_extents_m;
-            let radius = (h.iter().cloned().fold(f64::INFINITY, f64::min) * 0.5) as f32;
             world.insert(
                 RigidBodyBuilder::fixed().pose(to_pose(&organ.world_from_organ)),
-                ColliderBuilder::round_cuboid(
-                    h[0] as f32 - radius,
-                    h[1] as f32 - radius,
-                    h[2] as f32 - radius,
-                    radius,
-                )
-                .friction(1.0),
+                organ_collider(organ).friction(1.0),
             );
         }
         let objects = spec

@@ -9,6 +9,7 @@
 //!    a rate that completes a full open/close in one control step, the instrument collider and
 //!    any bound object follow the forward kinematics, and rapier steps.
 
+use crate::scene::{InstrumentPose, ObjectKind, SceneSpec};
 use crate::sim::control::{
     JawCommand, NativeCommand, PhysicalAction, Timing, TipTarget, Workspace, native_target,
     physical_target,
@@ -19,7 +20,6 @@ use crate::sim::physics::{PhysicsParams, PhysicsScene};
 use crate::sim::psm::{
     IkReport, JAW_CLOSED_RAD, JAW_OPEN_RAD, Joints, Psm, euler_xyz, pointing_down,
 };
-use crate::sim::scene::{ObjectKind, SceneSpec};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// A displacement larger than this from the spawn pose counts as "moved", metres.
@@ -137,6 +137,28 @@ impl Simulator {
     /// Current reported tip pose in the world.
     pub fn world_from_tip(&self) -> Isometry3<f64> {
         self.config.psm.forward(&self.joints)
+    }
+
+    /// Pose of the instrument's visible parts (for drawing).
+    pub fn instrument_pose(&self) -> InstrumentPose {
+        let psm = &self.config.psm;
+        let frames = psm.chain(&self.joints);
+        InstrumentPose {
+            world_from_shaft: world_from_shaft(psm, &self.joints),
+            world_from_jaw_pivot: psm.world_from_rcm * frames.rcm_from_link[5],
+            jaw_angle_rad: self.jaw_angle_rad,
+        }
+    }
+
+    /// Current poses of the movable objects' grasp frames, in scene order.
+    pub fn object_poses(&self) -> Vec<Isometry3<f64>> {
+        (0..self.scene.objects.len())
+            .map(|i| {
+                self.physics
+                    .object_pose(i)
+                    .unwrap_or(self.scene.objects[i].world_from_object)
+            })
+            .collect()
     }
 
     /// Index of the bound object, if any.

@@ -227,7 +227,7 @@ fn gauze_released_over_the_block_rests_on_it() {
         .translation
         .z;
     let tip_to_gauze_m = sim.observation().tip_position_m[2] - gauze_z;
-    let top = block.z + surgvla::sim::scene::BLOCK_HALF_EXTENTS_M[2];
+    let top = block.z + surgvla::scene::BLOCK_HALF_EXTENTS_M[2];
     let above = |z: f64, jaw, hold_steps| Waypoint {
         position_m: [block.x, block.y, z],
         yaw_rad: std::f64::consts::FRAC_PI_2,
@@ -238,7 +238,7 @@ fn gauze_released_over_the_block_rests_on_it() {
         vec![
             above(top + 0.03, JawCommand::Close, 0),
             above(
-                top + 0.004 + surgvla::sim::scene::GAUZE_HALF_EXTENTS_M[2] + tip_to_gauze_m,
+                top + 0.004 + surgvla::scene::GAUZE_HALF_EXTENTS_M[2] + tip_to_gauze_m,
                 JawCommand::Close,
                 0,
             ),
@@ -254,7 +254,7 @@ fn gauze_released_over_the_block_rests_on_it() {
     assert!(!observation.object("block").expect("block").on_block);
     let gap = gauze.world_from_object.translation.z - block.z;
     let expected =
-        surgvla::sim::scene::GAUZE_HALF_EXTENTS_M[2] + surgvla::sim::scene::BLOCK_HALF_EXTENTS_M[2];
+        surgvla::scene::GAUZE_HALF_EXTENTS_M[2] + surgvla::scene::BLOCK_HALF_EXTENTS_M[2];
     assert!(
         (gap - expected).abs() < 1e-4,
         "gauze centre {gap} m above the block centre"

@@ -1,7 +1,7 @@
 //! Small light objects rest stably: they settle quickly, stay put, and never tunnel.
 
 use crate::util::{simulator, three_objects};
-use surgvla::sim::scene::TRAY_TOP_Z_M;
+use surgvla::scene::TRAY_TOP_Z_M;
 use surgvla::sim::{NativeCommand, Simulator};
 
 fn idle(sim: &mut Simulator, steps: u32) {

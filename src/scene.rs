@@ -1,6 +1,7 @@
 //! What a scene holds, as plain data: movable objects (gauze, needle, block) with real sizes and
-//! masses, and static bodies (tray pad, organs, vessel). Tasks build a [`SceneSpec`]; the physics
-//! and (later) the renderer consume it.
+//! masses, static bodies (tray, organs, vessel), target marks, and the instrument's pose. Tasks
+//! build a [`SceneSpec`]; the physics, the assets and the renderer consume it. Nothing here
+//! depends on the simulator or the renderer.
 //!
 //! Every movable object's frame is its *grasp frame*: the origin is the grasp point (the gauze
 //! and block centre, the needle's arc midpoint) and, for the needle, the local x axis is the
@@ -12,9 +13,32 @@ use nalgebra::{Isometry3, Vector3};
 pub const TABLE_TOP_Z_M: f64 = 0.675;
 /// Tray pad top height, metres.
 pub const TRAY_TOP_Z_M: f64 = 0.678;
-/// Tray pad centre (x, y) and half extents (x, y), metres.
-pub const TRAY_CENTER_XY_M: [f64; 2] = [0.55, 0.0];
-pub const TRAY_HALF_EXTENTS_XY_M: [f64; 2] = [0.12, 0.12];
+/// Tray pad centre (x, y) and half extents (x, y), metres: the pad fills most of the
+/// endoscope's view as in the reference frame.
+pub const TRAY_CENTER_XY_M: [f64; 2] = [0.5225, 0.0];
+pub const TRAY_HALF_EXTENTS_XY_M: [f64; 2] = [0.0775, 0.085];
+/// The tray's rim around the pad: width and height above the pad top, metres.
+pub const TRAY_RIM_WIDTH_M: f64 = 0.006;
+pub const TRAY_RIM_HEIGHT_M: f64 = 0.008;
+
+/// The tray's static boxes (pad, then four rim walls) as (centre, half extents), metres: one
+/// description for what is drawn and what collides.
+pub fn tray_boxes() -> Vec<([f64; 3], [f64; 3])> {
+    let [cx, cy] = TRAY_CENTER_XY_M;
+    let [hx, hy] = TRAY_HALF_EXTENTS_XY_M;
+    let pad_half_z = (TRAY_TOP_Z_M - TABLE_TOP_Z_M) / 2.0;
+    let rim_top = TRAY_TOP_Z_M + TRAY_RIM_HEIGHT_M;
+    let rim_half_z = (rim_top - TABLE_TOP_Z_M) / 2.0;
+    let rim_z = TABLE_TOP_Z_M + rim_half_z;
+    let w = TRAY_RIM_WIDTH_M / 2.0;
+    vec![
+        ([cx, cy, TABLE_TOP_Z_M + pad_half_z], [hx, hy, pad_half_z]),
+        ([cx - hx - w, cy, rim_z], [w, hy + 2.0 * w, rim_half_z]),
+        ([cx + hx + w, cy, rim_z], [w, hy + 2.0 * w, rim_half_z]),
+        ([cx, cy - hy - w, rim_z], [hx, w, rim_half_z]),
+        ([cx, cy + hy + w, rim_z], [hx, w, rim_half_z]),
+    ]
+}
 
 /// Gauze pad half extents (15 x 25 x 2.6 mm), metres.
 pub const GAUZE_HALF_EXTENTS_M: [f64; 3] = [0.0075, 0.0125, 0.0013];
@@ -99,6 +123,8 @@ pub struct ObjectSpec {
     pub kind: ObjectKind,
     /// Initial pose of the grasp frame.
     pub world_from_object: Isometry3<f64>,
+    /// A distractor: present to be ignored (drawn with its own mask ids).
+    pub distractor: bool,
 }
 
 /// A static body's kind.
@@ -119,13 +145,59 @@ impl OrganKind {
     }
 }
 
-/// A static organ body. Until the procedural meshes land its collision shape is a rounded box
-/// with these half extents.
+/// A static organ body; its procedural shape (see `assets::organ`) follows from the kind, the
+/// semi-axes and the shape seed, for drawing and for collision alike.
 #[derive(Clone, Debug, PartialEq)]
 pub struct OrganSpec {
     pub kind: OrganKind,
+    /// Organ frame: origin at the centre, z up. The vessel runs along its local y axis.
     pub world_from_organ: Isometry3<f64>,
-    pub half_extents_m: [f64; 3],
+    /// Semi-axes of the base shape (the vessel: x = wiggle amplitude, y = half length,
+    /// z = tube radius), metres.
+    pub semi_axes_m: [f64; 3],
+    pub shape_seed: u64,
+}
+
+/// Colour of a mark on tissue.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum MarkColour {
+    Red,
+    Yellow,
+    Green,
+    Blue,
+}
+
+impl MarkColour {
+    pub fn name(self) -> &'static str {
+        match self {
+            MarkColour::Red => "red",
+            MarkColour::Yellow => "yellow",
+            MarkColour::Green => "green",
+            MarkColour::Blue => "blue",
+        }
+    }
+}
+
+/// A mark on an organ: a bleeding spot or a clip site, drawn as a small sphere on the surface.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MarkSpec {
+    pub name: String,
+    pub position_m: Vector3<f64>,
+    pub radius_m: f64,
+    pub colour: MarkColour,
+    /// The mark the instruction refers to.
+    pub target: bool,
+}
+
+/// Pose of the instrument's visible parts, from the robot's kinematics.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstrumentPose {
+    /// Origin at the wrist-pitch joint, z along the shaft away from the RCM.
+    pub world_from_shaft: Isometry3<f64>,
+    /// The wrist-yaw (jaw pivot) frame: the jaws turn about its z axis, close along its x axis
+    /// and point along its y axis.
+    pub world_from_jaw_pivot: Isometry3<f64>,
+    pub jaw_angle_rad: f64,
 }
 
 /// Everything a scene holds besides the instrument.
@@ -133,6 +205,7 @@ pub struct OrganSpec {
 pub struct SceneSpec {
     pub objects: Vec<ObjectSpec>,
     pub organs: Vec<OrganSpec>,
+    pub marks: Vec<MarkSpec>,
 }
 
 impl SceneSpec {
@@ -147,6 +220,7 @@ impl SceneSpec {
                 y,
                 TRAY_TOP_Z_M + kind.rest_height_m() + drop_m,
             ),
+            distractor: false,
         };
         SceneSpec {
             objects: vec![
@@ -155,6 +229,7 @@ impl SceneSpec {
                 place("block", ObjectKind::Block, 0.58, 0.03),
             ],
             organs: Vec::new(),
+            marks: Vec::new(),
         }
     }
 

@@ -1,0 +1,133 @@
+//! Procedural organ shapes, deterministic from a seed: a kidney (bean with a hilum), a spleen
+//! (flattened crescent with notched margins) and a vessel segment (a gently winding tube).
+//!
+//! Each solid organ is star-shaped about its centre: [`surface_point`] maps a direction to the
+//! surface point, so meshes, collision hulls and marks placed on the surface all agree. Every
+//! organ has a flattened base where it rests on the tray (at `-0.7` of its z semi-axis).
+
+use crate::render::material::value_noise3;
+use crate::render::mesh::Mesh;
+use crate::scene::{OrganKind, OrganSpec};
+use nalgebra::Vector3;
+
+/// Where the flattened base sits, as a fraction of the z semi-axis below the centre.
+pub const BASE_FRACTION: f64 = 0.7;
+
+fn seed32(seed: u64) -> u32 {
+    (seed ^ (seed >> 32)) as u32
+}
+
+/// Surface point (organ frame) in unit direction `d` for a kidney or spleen.
+pub fn surface_point(spec: &OrganSpec, d: Vector3<f64>) -> Vector3<f64> {
+    let d = d.try_normalize(1e-12).unwrap_or(Vector3::z());
+    let [a, b, c] = spec.semi_axes_m;
+    let ellipsoid = 1.0 / ((d.x / a).powi(2) + (d.y / b).powi(2) + (d.z / c).powi(2)).sqrt();
+    let seed = seed32(spec.shape_seed);
+    let noise = |scale: f64, s: u32| {
+        f64::from(value_noise3(
+            [
+                (d.x * scale) as f32,
+                (d.y * scale) as f32,
+                (d.z * scale) as f32,
+            ],
+            seed ^ s,
+        ))
+    };
+    let mut p = match spec.kind {
+        OrganKind::Kidney => {
+            // The hilum: an indentation on the medial (-x) side.
+            let hilum = Vector3::new(-1.0, 0.0, 0.15).normalize();
+            let angle = d.dot(&hilum).clamp(-1.0, 1.0).acos();
+            let dent = 0.32 * (-(angle / 0.55).powi(2)).exp();
+            d * ellipsoid * (1.0 - dent) * (1.0 + 0.05 * noise(2.2, 1) + 0.015 * noise(6.0, 2))
+        }
+        OrganKind::Spleen => {
+            let mut p = d * ellipsoid * (1.0 + 0.04 * noise(2.0, 3) + 0.02 * noise(7.0, 4));
+            // Crescent: the long (y) ends curl toward -x; notches along the margin.
+            p.x -= 0.45 * a * (p.y / b).powi(2);
+            let margin = (1.0 - (d.z * d.z)).max(0.0);
+            p *= 1.0
+                - 0.06 * margin * (0.5 + 0.5 * (d.y * 14.0 + noise(1.0, 5) * 2.0).sin()).powi(4);
+            p
+        }
+        OrganKind::Vessel => d * ellipsoid,
+    };
+    p.z = p.z.max(-BASE_FRACTION * c);
+    p
+}
+
+/// The vessel's centre line (organ frame) and tube radius: it runs along y, winding in x.
+pub fn vessel_path(spec: &OrganSpec, points: usize) -> (Vec<Vector3<f64>>, f64) {
+    let [wiggle, half_length, radius] = spec.semi_axes_m;
+    let seed = seed32(spec.shape_seed);
+    let phase = f64::from(value_noise3([0.5, 0.5, 0.5], seed)) * 3.0;
+    let n = points.max(2);
+    let path = (0..n)
+        .map(|i| {
+            let t = i as f64 / (n - 1) as f64;
+            let y = -half_length + 2.0 * half_length * t;
+            let x = wiggle * (std::f64::consts::PI * 1.3 * t + phase).sin();
+            Vector3::new(x, y, 0.0)
+        })
+        .collect();
+    (path, radius)
+}
+
+/// The organ's mesh in its frame.
+pub fn organ_mesh(spec: &OrganSpec) -> Mesh {
+    match spec.kind {
+        OrganKind::Vessel => {
+            let (path, radius) = vessel_path(spec, 48);
+            let points: Vec<[f32; 3]> = path.iter().map(|p| p.map(|v| v as f32).into()).collect();
+            Mesh::tube(&points, &[radius as f32], 14, true)
+        }
+        _ => Mesh::star(28, 56, |d| {
+            let p = surface_point(spec, d.map(f64::from));
+            p.map(|v| v as f32)
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Isometry3;
+
+    fn spec(kind: OrganKind, seed: u64) -> OrganSpec {
+        OrganSpec {
+            kind,
+            world_from_organ: Isometry3::identity(),
+            semi_axes_m: [0.027, 0.048, 0.018],
+            shape_seed: seed,
+        }
+    }
+
+    #[test]
+    fn shapes_vary_with_the_seed_and_repeat_with_it() {
+        let d = Vector3::new(0.3, 0.5, 0.8);
+        for kind in [OrganKind::Kidney, OrganKind::Spleen] {
+            assert_eq!(
+                surface_point(&spec(kind, 1), d),
+                surface_point(&spec(kind, 1), d)
+            );
+            assert_ne!(
+                surface_point(&spec(kind, 1), d),
+                surface_point(&spec(kind, 2), d)
+            );
+        }
+    }
+
+    #[test]
+    fn kidney_keeps_its_proportions_and_a_flat_base() {
+        let kidney = spec(OrganKind::Kidney, 3);
+        let length =
+            surface_point(&kidney, Vector3::y()).y - surface_point(&kidney, -Vector3::y()).y;
+        assert!((length - 0.096).abs() < 0.012, "length {length}");
+        let bottom = surface_point(&kidney, -Vector3::z()).z;
+        assert!((bottom + BASE_FRACTION * 0.018).abs() < 1e-12);
+        // The hilum side is indented relative to the convex side.
+        let medial = -surface_point(&kidney, -Vector3::x()).x;
+        let lateral = surface_point(&kidney, Vector3::x()).x;
+        assert!(medial < 0.8 * lateral, "medial {medial} lateral {lateral}");
+    }
+}

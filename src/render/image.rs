@@ -1,0 +1,163 @@
+//! PNG encoding of frames and their visualisations: the RGB image, depth colour-mapped (near
+//! bright yellow to far dark purple, background black) and the mask colour-coded by id.
+
+use crate::render::raster::Frame;
+use std::io::Write;
+
+/// Errors while encoding or writing an image.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    #[error("writing {path}: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+    #[error("encoding PNG: {0}")]
+    Png(#[from] png::EncodingError),
+    #[error("image is {width}x{height} but has {bytes} bytes for {channels} channels")]
+    Size {
+        width: u32,
+        height: u32,
+        channels: u32,
+        bytes: usize,
+    },
+}
+
+/// Encodes 8-bit RGB (3 channels) or grey (1 channel) pixels as PNG.
+pub fn encode_png(
+    width: u32,
+    height: u32,
+    channels: u32,
+    pixels: &[u8],
+    out: impl Write,
+) -> Result<(), ImageError> {
+    if pixels.len() != (width * height * channels) as usize || !matches!(channels, 1 | 3) {
+        return Err(ImageError::Size {
+            width,
+            height,
+            channels,
+            bytes: pixels.len(),
+        });
+    }
+    let mut encoder = png::Encoder::new(out, width, height);
+    encoder.set_color(if channels == 3 {
+        png::ColorType::Rgb
+    } else {
+        png::ColorType::Grayscale
+    });
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.set_compression(png::Compression::Fast);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(pixels)?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// Writes a PNG file atomically: to a temporary name beside it, renamed when complete, so a
+/// crash never leaves a truncated image under the final name.
+pub fn write_png_file(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    channels: u32,
+    pixels: &[u8],
+) -> Result<(), ImageError> {
+    let io = |source| ImageError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file_name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let temporary = path.with_file_name(format!(".{file_name}.partial"));
+    let mut bytes = Vec::new();
+    encode_png(width, height, channels, pixels, &mut bytes)?;
+    std::fs::write(&temporary, &bytes).map_err(io)?;
+    std::fs::rename(&temporary, path).map_err(|e| {
+        let _ = std::fs::remove_file(&temporary);
+        io(e)
+    })
+}
+
+/// A perceptual colour map (approximating "plasma") at t in [0, 1].
+fn plasma(t: f32) -> [u8; 3] {
+    const STOPS: [[f32; 3]; 5] = [
+        [13.0, 8.0, 135.0],
+        [126.0, 3.0, 168.0],
+        [204.0, 71.0, 120.0],
+        [248.0, 149.0, 64.0],
+        [240.0, 249.0, 33.0],
+    ];
+    let x = t.clamp(0.0, 1.0) * (STOPS.len() - 1) as f32;
+    let i = (x.floor() as usize).min(STOPS.len() - 2);
+    let f = x - i as f32;
+    [0, 1, 2].map(|c| (STOPS[i][c] + (STOPS[i + 1][c] - STOPS[i][c]) * f).round() as u8)
+}
+
+/// Depth as RGB: the nearest visible surface bright, the farthest dark, background black.
+pub fn depth_visualisation(frame: &Frame) -> Vec<u8> {
+    let valid = frame.depth_m.iter().copied().filter(|z| *z > 0.0);
+    let (near, far) = valid.fold((f32::INFINITY, 0f32), |(lo, hi), z| (lo.min(z), hi.max(z)));
+    let span = (far - near).max(1e-6);
+    frame
+        .depth_m
+        .iter()
+        .flat_map(|z| {
+            if *z > 0.0 {
+                plasma(1.0 - (z - near) / span)
+            } else {
+                [0, 0, 0]
+            }
+        })
+        .collect()
+}
+
+/// A distinct colour for a mask id (0 is black).
+pub fn mask_colour(id: u8) -> [u8; 3] {
+    if id == 0 {
+        return [0, 0, 0];
+    }
+    // Golden-angle hues at full saturation, two brightness levels.
+    let hue = (f32::from(id) * 137.508).rem_euclid(360.0) / 60.0;
+    let value = if id % 2 == 0 { 255.0 } else { 200.0 };
+    let c = value;
+    let x = c * (1.0 - (hue.rem_euclid(2.0) - 1.0).abs());
+    let (r, g, b) = match hue as u32 {
+        0 => (c, x, 0.0),
+        1 => (x, c, 0.0),
+        2 => (0.0, c, x),
+        3 => (0.0, x, c),
+        4 => (x, 0.0, c),
+        _ => (c, 0.0, x),
+    };
+    [r as u8, g as u8, b as u8]
+}
+
+/// The mask colour-coded as RGB.
+pub fn mask_visualisation(frame: &Frame) -> Vec<u8> {
+    frame.mask.iter().flat_map(|id| mask_colour(*id)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mask_colours_are_distinct_for_the_first_ids() {
+        let colours: Vec<[u8; 3]> = (0..32).map(mask_colour).collect();
+        for i in 0..colours.len() {
+            for j in 0..i {
+                assert_ne!(colours[i], colours[j], "ids {i} and {j}");
+            }
+        }
+    }
+
+    #[test]
+    fn png_rejects_a_wrong_size_and_encodes_a_right_one() {
+        let mut bytes = Vec::new();
+        assert!(encode_png(2, 2, 3, &[0; 11], &mut bytes).is_err());
+        encode_png(2, 2, 3, &[7; 12], &mut bytes).expect("encode");
+        assert_eq!(&bytes[1..4], b"PNG");
+    }
+}

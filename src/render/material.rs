@@ -1,0 +1,212 @@
+//! Surface appearance: albedo, specular highlight and a procedural pattern evaluated per pixel
+//! at the surface point in the mesh's own frame (so textures stick to moving objects), plus the
+//! smooth value noise the patterns and the procedural assets share.
+
+/// A procedural surface pattern. Lengths are metres in the mesh frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Pattern {
+    Solid,
+    /// Woven threads along x and y with the given period (gauze).
+    Weave {
+        period_m: f32,
+        contrast: f32,
+    },
+    /// Smooth mottling (tissue, pads) of the given feature size.
+    Mottled {
+        scale_m: f32,
+        contrast: f32,
+        seed: u32,
+    },
+    /// Fine lines along y (machined metal, plastic).
+    Brushed {
+        period_m: f32,
+        contrast: f32,
+    },
+}
+
+/// How a surface reflects the endoscope's light. Colours are linear RGB in [0, 1].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Material {
+    pub albedo: [f32; 3],
+    /// Strength of the specular highlight (0 = matte).
+    pub specular: f32,
+    /// The highlight's exponent is `2^shininess_log2` (computed by repeated squaring).
+    pub shininess_log2: u8,
+    pub pattern: Pattern,
+}
+
+impl Material {
+    /// A matte solid colour given in sRGB bytes.
+    pub fn matte(srgb: [u8; 3]) -> Self {
+        Material {
+            albedo: srgb.map(srgb_to_linear),
+            specular: 0.0,
+            shininess_log2: 0,
+            pattern: Pattern::Solid,
+        }
+    }
+
+    /// The same material with a highlight.
+    pub fn glossy(self, specular: f32, shininess_log2: u8) -> Self {
+        Material {
+            specular,
+            shininess_log2,
+            ..self
+        }
+    }
+
+    /// The same material with a pattern.
+    pub fn with_pattern(self, pattern: Pattern) -> Self {
+        Material { pattern, ..self }
+    }
+
+    /// Multiplies the albedo by a factor per channel.
+    pub fn tinted(self, tint: [f32; 3]) -> Self {
+        let mut albedo = self.albedo;
+        for (a, t) in albedo.iter_mut().zip(tint) {
+            *a = (*a * t).clamp(0.0, 1.0);
+        }
+        Material { albedo, ..self }
+    }
+
+    /// The pattern's brightness factor at a mesh-frame point (around 1).
+    #[inline]
+    pub fn pattern_factor(&self, p: [f32; 3]) -> f32 {
+        match self.pattern {
+            Pattern::Solid => 1.0,
+            Pattern::Weave { period_m, contrast } => {
+                let u = (p[0] / period_m).fract().abs();
+                let v = (p[1] / period_m).fract().abs();
+                // Distance to the nearest thread centre line in each direction.
+                let du = (u - 0.5).abs() * 2.0;
+                let dv = (v - 0.5).abs() * 2.0;
+                let thread = du.min(dv);
+                1.0 - contrast * thread * thread
+            }
+            Pattern::Mottled {
+                scale_m,
+                contrast,
+                seed,
+            } => {
+                let s = 1.0 / scale_m;
+                let n = value_noise3([p[0] * s, p[1] * s, p[2] * s], seed) * 0.65
+                    + value_noise3(
+                        [p[0] * s * 2.7, p[1] * s * 2.7, p[2] * s * 2.7],
+                        seed ^ 0x9e37,
+                    ) * 0.35;
+                1.0 + contrast * n
+            }
+            Pattern::Brushed { period_m, contrast } => {
+                let u = (p[0] / period_m).fract().abs();
+                1.0 - contrast * (u - 0.5).abs()
+            }
+        }
+    }
+}
+
+/// sRGB byte to linear.
+pub fn srgb_to_linear(value: u8) -> f32 {
+    let c = f32::from(value) / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear [0, 1] to an sRGB byte.
+pub fn linear_to_srgb(value: f32) -> u8 {
+    let c = value.clamp(0.0, 1.0);
+    let s = if c <= 0.003_130_8 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+const SRGB_LUT_SIZE: usize = 16384;
+
+fn srgb_lut() -> &'static [u8; SRGB_LUT_SIZE] {
+    static LUT: std::sync::OnceLock<Box<[u8; SRGB_LUT_SIZE]>> = std::sync::OnceLock::new();
+    LUT.get_or_init(|| {
+        let mut table = Box::new([0u8; SRGB_LUT_SIZE]);
+        for (i, entry) in table.iter_mut().enumerate() {
+            *entry = linear_to_srgb(i as f32 / (SRGB_LUT_SIZE - 1) as f32);
+        }
+        table
+    })
+}
+
+/// Linear [0, 1] to an sRGB byte through a table (the per-pixel path).
+#[inline]
+pub fn linear_to_srgb_fast(value: f32) -> u8 {
+    let index = (value.clamp(0.0, 1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5) as usize;
+    srgb_lut()[index.min(SRGB_LUT_SIZE - 1)]
+}
+
+#[inline]
+fn lattice_hash(x: i32, y: i32, z: i32, seed: u32) -> f32 {
+    let mut h = (x as u32).wrapping_mul(0x8da6_b343)
+        ^ (y as u32).wrapping_mul(0xd816_3841)
+        ^ (z as u32).wrapping_mul(0xcb1a_b31f)
+        ^ seed.wrapping_mul(0x2c1b_3c6d);
+    h ^= h >> 15;
+    h = h.wrapping_mul(0x2c1b_3c6d);
+    h ^= h >> 12;
+    h = h.wrapping_mul(0x297a_2d39);
+    h ^= h >> 15;
+    (h & 0x00ff_ffff) as f32 / 8_388_607.5 - 1.0
+}
+
+/// Smooth 3-D value noise in [-1, 1] with unit lattice spacing, deterministic in `seed`.
+pub fn value_noise3(p: [f32; 3], seed: u32) -> f32 {
+    let cell = p.map(|c| c.floor());
+    let [fx, fy, fz] = [p[0] - cell[0], p[1] - cell[1], p[2] - cell[2]];
+    let smooth = |t: f32| t * t * (3.0 - 2.0 * t);
+    let (sx, sy, sz) = (smooth(fx), smooth(fy), smooth(fz));
+    let [x, y, z] = cell.map(|c| c as i32);
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let h = |dx: i32, dy: i32, dz: i32| lattice_hash(x + dx, y + dy, z + dz, seed);
+    let x00 = lerp(h(0, 0, 0), h(1, 0, 0), sx);
+    let x10 = lerp(h(0, 1, 0), h(1, 1, 0), sx);
+    let x01 = lerp(h(0, 0, 1), h(1, 0, 1), sx);
+    let x11 = lerp(h(0, 1, 1), h(1, 1, 1), sx);
+    lerp(lerp(x00, x10, sy), lerp(x01, x11, sy), sz)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trips_every_byte() {
+        for b in 0..=255u8 {
+            assert_eq!(linear_to_srgb(srgb_to_linear(b)), b);
+        }
+    }
+
+    #[test]
+    fn noise_is_bounded_smooth_and_seeded() {
+        let mut previous = value_noise3([0.0, 0.3, 0.7], 1);
+        for i in 1..1000 {
+            let t = i as f32 * 0.01;
+            let n = value_noise3([t, 0.3, 0.7], 1);
+            assert!((-1.0..=1.0).contains(&n));
+            assert!((n - previous).abs() < 0.05, "jump at {t}");
+            previous = n;
+        }
+        assert_ne!(
+            value_noise3([0.5, 0.5, 0.5], 1),
+            value_noise3([0.5, 0.5, 0.5], 2)
+        );
+    }
+
+    #[test]
+    fn table_conversion_is_within_one_level() {
+        for i in 0..=1000 {
+            let v = i as f32 / 1000.0;
+            assert!(i16::from(linear_to_srgb_fast(v)).abs_diff(i16::from(linear_to_srgb(v))) <= 1);
+        }
+    }
+}

@@ -1,0 +1,62 @@
+//! The CPU renderer: pinhole cameras ([`camera`]), triangle meshes and primitive builders
+//! ([`mesh`]), materials and procedural patterns ([`material`]), the rasterizer ([`raster`]) and
+//! PNG output ([`image`]).
+//!
+//! It knows nothing of the simulator or of rapier: it takes meshes, poses, materials, mask ids
+//! and a camera, and returns RGB u8, depth f32 metres along the optical axis (0 = background)
+//! and a u8 mask, pixel-aligned.
+
+pub mod camera;
+pub mod image;
+pub mod material;
+pub mod mesh;
+pub mod raster;
+
+pub use camera::Camera;
+pub use material::{Material, Pattern};
+pub use mesh::Mesh;
+pub use raster::{Frame, Instance, Lighting, Rasterizer};
+
+/// Render settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderOptions {
+    pub lighting: Lighting,
+    /// RGB is rendered at this many samples per pixel edge and box-filtered (1 = off). Depth
+    /// and mask always sample pixel centres, so they stay aligned with RGB.
+    pub supersample: u32,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            lighting: Lighting::default(),
+            supersample: 1,
+        }
+    }
+}
+
+/// A renderer with reusable buffers.
+#[derive(Debug, Default)]
+pub struct Renderer {
+    pub options: RenderOptions,
+    rasterizer: Rasterizer,
+}
+
+impl Renderer {
+    pub fn new(options: RenderOptions) -> Self {
+        Renderer {
+            options,
+            rasterizer: Rasterizer::default(),
+        }
+    }
+
+    /// Renders the instances seen by `camera`.
+    pub fn render(&mut self, camera: &Camera, instances: &[Instance<'_>]) -> Frame {
+        self.rasterizer.render(
+            camera,
+            instances,
+            &self.options.lighting,
+            self.options.supersample,
+        )
+    }
+}

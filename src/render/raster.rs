@@ -1,0 +1,483 @@
+//! The CPU rasterizer: a visibility pass into a G-buffer, then one shading pass per pixel.
+//!
+//! Visibility: every triangle is moved to the camera's optical frame, optionally back-face
+//! culled, clipped against the near plane (Sutherland-Hodgman; crossing triangles are cut, not
+//! dropped), projected, snapped to 1/256 pixel and scanned with integer edge functions at pixel
+//! centres. The fill rule gives a shared edge to exactly one of its two triangles, so meshes
+//! are watertight (no cracks, no double hits). Depth is the distance along the optical axis,
+//! interpolated perspective-correctly (1/z is linear in screen space); the G-buffer keeps the
+//! nearest surface's instance, triangle and perspective-correct barycentrics.
+//!
+//! Shading: the light sits at the camera (an endoscope's light guide surrounds its lens) and falls
+//! off with the square of the distance; Lambert diffuse plus a Blinn-Phong highlight (with the
+//! light at the eye the half vector is the view vector), a procedural pattern, and a vignette.
+
+use crate::render::camera::Camera;
+use crate::render::material::{Material, linear_to_srgb_fast};
+use crate::render::mesh::Mesh;
+use nalgebra::{Isometry3, Point3, Vector3};
+
+/// Instance id of pixels that show no surface.
+const NO_INSTANCE: u16 = u16::MAX;
+/// Sub-pixel precision of the edge functions: 1/256 pixel.
+const SUBPIXEL: f64 = 256.0;
+/// Projected coordinates are kept within this many pixels so that products fit in i64.
+const GUARD_BAND_PX: f64 = 1.0e6;
+
+/// One mesh placed in the world with a material and a mask id.
+#[derive(Clone, Copy, Debug)]
+pub struct Instance<'a> {
+    pub mesh: &'a Mesh,
+    pub world_from_mesh: Isometry3<f64>,
+    pub material: Material,
+    /// The value written to the segmentation mask where this instance is visible.
+    pub mask_id: u8,
+    /// Skip triangles facing away from the camera (only safe for closed meshes).
+    pub cull_back_faces: bool,
+}
+
+/// The endoscope's light and lens.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lighting {
+    /// Irradiance gain at `reference_distance_m` (1 = albedo shows as is when facing the light).
+    pub light_gain: f32,
+    pub reference_distance_m: f32,
+    /// Largest irradiance factor very close to the lens (keeps near surfaces from blowing out).
+    pub max_irradiance: f32,
+    /// Light that reaches everything regardless of orientation (scatter in the cavity).
+    pub ambient: f32,
+    /// Darkening at the image corners: factor `1 - vignette * r^2`, r = 1 at a corner.
+    pub vignette: f32,
+    /// Colour where no surface is within the far plane, linear RGB.
+    pub background: [f32; 3],
+}
+
+impl Default for Lighting {
+    fn default() -> Self {
+        Lighting {
+            light_gain: 1.25,
+            reference_distance_m: 0.14,
+            max_irradiance: 3.0,
+            ambient: 0.06,
+            vignette: 0.35,
+            background: [0.012, 0.004, 0.004],
+        }
+    }
+}
+
+/// What a render produces, row-major from the top-left pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    pub width_px: u32,
+    pub height_px: u32,
+    /// RGB u8, 3 bytes a pixel, sRGB.
+    pub rgb: Vec<u8>,
+    /// Distance along the optical axis, metres; 0 where no surface lies within the far plane.
+    pub depth_m: Vec<f32>,
+    /// Mask ids; 0 where no surface is visible.
+    pub mask: Vec<u8>,
+}
+
+/// A reusable rasterizer: buffers are kept between frames.
+#[derive(Debug, Default)]
+pub struct Rasterizer {
+    depth: Vec<f32>,
+    instance: Vec<u16>,
+    triangle: Vec<u32>,
+    bary: Vec<[f32; 2]>,
+    camera_positions: Vec<[f32; 3]>,
+    camera_normals: Vec<[f32; 3]>,
+    vertex_offsets: Vec<usize>,
+}
+
+/// A clipped polygon vertex: camera-frame position and barycentrics in the original triangle.
+#[derive(Clone, Copy, Debug)]
+struct ClipVertex {
+    position: [f32; 3],
+    bary: [f32; 3],
+}
+
+fn lerp_clip(a: &ClipVertex, b: &ClipVertex, t: f32) -> ClipVertex {
+    let mut out = *a;
+    for k in 0..3 {
+        out.position[k] = a.position[k] + (b.position[k] - a.position[k]) * t;
+        out.bary[k] = a.bary[k] + (b.bary[k] - a.bary[k]) * t;
+    }
+    out
+}
+
+/// Clips a triangle to `z >= near`; returns the polygon (0, 3 or 4 vertices).
+fn clip_near(input: [ClipVertex; 3], near: f32, out: &mut Vec<ClipVertex>) {
+    out.clear();
+    for i in 0..3 {
+        let a = &input[i];
+        let b = &input[(i + 1) % 3];
+        let a_in = a.position[2] >= near;
+        let b_in = b.position[2] >= near;
+        if a_in {
+            out.push(*a);
+        }
+        if a_in != b_in {
+            // Interpolate from the inside vertex so both triangles sharing the edge agree.
+            let (from, to) = if a_in { (a, b) } else { (b, a) };
+            let t = (near - from.position[2]) / (to.position[2] - from.position[2]);
+            let mut v = lerp_clip(from, to, t);
+            v.position[2] = near;
+            out.push(v);
+        }
+    }
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+struct Target<'a> {
+    width: i64,
+    height: i64,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    near: f32,
+    far: f32,
+    depth: &'a mut [f32],
+    instance: &'a mut [u16],
+    triangle: &'a mut [u32],
+    bary: &'a mut [[f32; 2]],
+}
+
+impl Target<'_> {
+    /// Scans one (clipped) triangle into the G-buffer.
+    fn draw(&mut self, vertices: [ClipVertex; 3], instance: u16, triangle: u32) {
+        let mut fixed = [(0i64, 0i64); 3];
+        let mut inv_z = [0f32; 3];
+        for (k, v) in vertices.iter().enumerate() {
+            let z = f64::from(v.position[2]);
+            let sx = (self.fx * f64::from(v.position[0]) / z + self.cx)
+                .clamp(-GUARD_BAND_PX, GUARD_BAND_PX);
+            let sy = (self.fy * f64::from(v.position[1]) / z + self.cy)
+                .clamp(-GUARD_BAND_PX, GUARD_BAND_PX);
+            fixed[k] = (
+                (sx * SUBPIXEL).round() as i64,
+                (sy * SUBPIXEL).round() as i64,
+            );
+            inv_z[k] = 1.0 / v.position[2];
+        }
+        let mut order = [0usize, 1, 2];
+        let edge = |a: (i64, i64), b: (i64, i64), p: (i64, i64)| {
+            (b.0 - a.0) * (p.1 - a.1) - (b.1 - a.1) * (p.0 - a.0)
+        };
+        let mut area = edge(fixed[0], fixed[1], fixed[2]);
+        if area == 0 {
+            return;
+        }
+        if area < 0 {
+            order = [0, 2, 1];
+            area = -area;
+        }
+        let p = order.map(|k| fixed[k]);
+        let iz = order.map(|k| inv_z[k]);
+        let bary = order.map(|k| vertices[k].bary);
+
+        let min_x = p.iter().map(|v| v.0).min().unwrap_or(0);
+        let max_x = p.iter().map(|v| v.0).max().unwrap_or(0);
+        let min_y = p.iter().map(|v| v.1).min().unwrap_or(0);
+        let max_y = p.iter().map(|v| v.1).max().unwrap_or(0);
+        let half = (SUBPIXEL / 2.0) as i64;
+        let step = SUBPIXEL as i64;
+        let x0 = ((min_x - half + step - 1).div_euclid(step)).max(0);
+        let x1 = ((max_x - half).div_euclid(step)).min(self.width - 1);
+        let y0 = ((min_y - half + step - 1).div_euclid(step)).max(0);
+        let y1 = ((max_y - half).div_euclid(step)).min(self.height - 1);
+        if x0 > x1 || y0 > y1 {
+            return;
+        }
+        // Edge k is opposite vertex k: (1 -> 2), (2 -> 0), (0 -> 1).
+        let edges = [(p[1], p[2]), (p[2], p[0]), (p[0], p[1])];
+        let bias = edges.map(|(a, b)| {
+            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+            if dy > 0 || (dy == 0 && dx < 0) { 0 } else { -1 }
+        });
+        let step_x = edges.map(|(a, b)| -(b.1 - a.1) * step);
+        let step_y = edges.map(|(a, b)| (b.0 - a.0) * step);
+        let origin = (x0 * step + half, y0 * step + half);
+        let mut row = [0usize, 1, 2].map(|k| edge(edges[k].0, edges[k].1, origin) + bias[k]);
+        let inv_area = 1.0 / area as f32;
+        let width = self.width as usize;
+        for y in y0..=y1 {
+            let mut w = row;
+            let base = y as usize * width;
+            for x in x0..=x1 {
+                if (w[0] | w[1] | w[2]) >= 0 {
+                    let l = [
+                        (w[0] - bias[0]) as f32 * inv_area,
+                        (w[1] - bias[1]) as f32 * inv_area,
+                        (w[2] - bias[2]) as f32 * inv_area,
+                    ];
+                    let pz = [l[0] * iz[0], l[1] * iz[1], l[2] * iz[2]];
+                    let sum = pz[0] + pz[1] + pz[2];
+                    let z = 1.0 / sum;
+                    let index = base + x as usize;
+                    if z < self.depth[index] && z >= self.near && z <= self.far {
+                        self.depth[index] = z;
+                        self.instance[index] = instance;
+                        self.triangle[index] = triangle;
+                        let q = [pz[0] * z, pz[1] * z, pz[2] * z];
+                        let b1 = q[0] * bary[0][1] + q[1] * bary[1][1] + q[2] * bary[2][1];
+                        let b2 = q[0] * bary[0][2] + q[1] * bary[1][2] + q[2] * bary[2][2];
+                        self.bary[index] = [b1, b2];
+                    }
+                }
+                for k in 0..3 {
+                    w[k] += step_x[k];
+                }
+            }
+            for k in 0..3 {
+                row[k] += step_y[k];
+            }
+        }
+    }
+}
+
+impl Rasterizer {
+    /// Visibility pass: fills the G-buffer for `camera`.
+    fn visibility(&mut self, camera: &Camera, instances: &[Instance<'_>]) {
+        let pixels = (camera.width_px * camera.height_px) as usize;
+        self.depth.clear();
+        self.depth.resize(pixels, f32::INFINITY);
+        self.instance.clear();
+        self.instance.resize(pixels, NO_INSTANCE);
+        self.triangle.resize(pixels, 0);
+        self.bary.resize(pixels, [0.0; 2]);
+        self.camera_positions.clear();
+        self.camera_normals.clear();
+        self.vertex_offsets.clear();
+        let camera_from_world = camera.world_from_camera.inverse();
+        for instance in instances {
+            let pose = camera_from_world * instance.world_from_mesh;
+            let rotation = pose.rotation.to_rotation_matrix();
+            let r = rotation.matrix().map(|v| v as f32);
+            let t = pose.translation.vector.map(|v| v as f32);
+            self.vertex_offsets.push(self.camera_positions.len());
+            for (p, n) in instance
+                .mesh
+                .positions
+                .iter()
+                .zip(instance.mesh.normals.iter())
+            {
+                let pv = r * Vector3::new(p[0], p[1], p[2]) + t;
+                let nv = r * Vector3::new(n[0], n[1], n[2]);
+                self.camera_positions.push(pv.into());
+                self.camera_normals.push(nv.into());
+            }
+        }
+        let mut target = Target {
+            width: i64::from(camera.width_px),
+            height: i64::from(camera.height_px),
+            fx: camera.fx_px,
+            fy: camera.fy_px,
+            cx: camera.cx_px,
+            cy: camera.cy_px,
+            near: camera.near_m as f32,
+            far: camera.far_m as f32,
+            depth: &mut self.depth,
+            instance: &mut self.instance,
+            triangle: &mut self.triangle,
+            bary: &mut self.bary,
+        };
+        let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let mut polygon = Vec::with_capacity(4);
+        for (instance_index, instance) in
+            instances.iter().enumerate().take(usize::from(NO_INSTANCE))
+        {
+            let offset = self.vertex_offsets[instance_index];
+            for (triangle_index, tri) in instance.mesh.triangles.iter().enumerate() {
+                let v = tri.map(|i| self.camera_positions[offset + i as usize]);
+                let (near, far) = (target.near, target.far);
+                if v.iter().all(|p| p[2] < near) || v.iter().all(|p| p[2] > far) {
+                    continue;
+                }
+                if instance.cull_back_faces
+                    && dot(cross(sub(v[1], v[0]), sub(v[2], v[0])), v[0]) >= 0.0
+                {
+                    continue;
+                }
+                let corners = [0, 1, 2].map(|k| ClipVertex {
+                    position: v[k],
+                    bary: identity[k],
+                });
+                let id = instance_index as u16;
+                if v.iter().all(|p| p[2] >= near) {
+                    target.draw(corners, id, triangle_index as u32);
+                } else {
+                    clip_near(corners, near, &mut polygon);
+                    for k in 1..polygon.len().saturating_sub(1) {
+                        target.draw(
+                            [polygon[0], polygon[k], polygon[k + 1]],
+                            id,
+                            triangle_index as u32,
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Renders RGB, depth and mask; RGB optionally from a supersampled pass.
+    pub fn render(
+        &mut self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+        supersample: u32,
+    ) -> Frame {
+        let mut frame = Frame {
+            width_px: camera.width_px,
+            height_px: camera.height_px,
+            rgb: Vec::new(),
+            depth_m: Vec::new(),
+            mask: Vec::new(),
+        };
+        if supersample > 1 {
+            let big = camera.scaled(supersample);
+            self.visibility(&big, instances);
+            let linear = self.shade(&big, instances, lighting);
+            frame.rgb = downsample(&linear, big.width_px as usize, supersample as usize);
+        }
+        self.visibility(camera, instances);
+        if supersample <= 1 {
+            let linear = self.shade(camera, instances, lighting);
+            frame.rgb = linear
+                .iter()
+                .flat_map(|c| c.map(linear_to_srgb_fast))
+                .collect();
+        }
+        frame.depth_m = self
+            .depth
+            .iter()
+            .map(|z| if z.is_finite() { *z } else { 0.0 })
+            .collect();
+        frame.mask = self
+            .instance
+            .iter()
+            .map(|i| {
+                if *i == NO_INSTANCE {
+                    0
+                } else {
+                    instances[usize::from(*i)].mask_id
+                }
+            })
+            .collect();
+        frame
+    }
+
+    /// Shading pass over the G-buffer: linear RGB per pixel.
+    fn shade(
+        &self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+    ) -> Vec<[f32; 3]> {
+        let (w, h) = (camera.width_px as usize, camera.height_px as usize);
+        let (cx, cy) = (camera.cx_px as f32, camera.cy_px as f32);
+        let corner = cx * cx + cy * cy;
+        let reference = lighting.reference_distance_m * lighting.reference_distance_m;
+        let mut out = vec![lighting.background; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let index = y * w + x;
+                let instance_index = self.instance[index];
+                if instance_index == NO_INSTANCE {
+                    continue;
+                }
+                let instance = &instances[usize::from(instance_index)];
+                let offset = self.vertex_offsets[usize::from(instance_index)];
+                let tri = instance.mesh.triangles[self.triangle[index] as usize];
+                let [b1, b2] = self.bary[index];
+                let b = [1.0 - b1 - b2, b1, b2];
+                let mut position = [0f32; 3];
+                let mut normal = [0f32; 3];
+                let mut local = [0f32; 3];
+                for k in 0..3 {
+                    let vi = tri[k] as usize;
+                    let (p, n, l) = (
+                        self.camera_positions[offset + vi],
+                        self.camera_normals[offset + vi],
+                        instance.mesh.positions[vi],
+                    );
+                    for c in 0..3 {
+                        position[c] += b[k] * p[c];
+                        normal[c] += b[k] * n[c];
+                        local[c] += b[k] * l[c];
+                    }
+                }
+                let distance2 = dot(position, position).max(1e-12);
+                let inv_distance = distance2.sqrt().recip();
+                let to_light = position.map(|c| -c * inv_distance);
+                let inv_normal = dot(normal, normal).max(1e-20).sqrt().recip();
+                let mut cos = dot(normal, to_light) * inv_normal;
+                if cos < 0.0 {
+                    cos = -cos; // seen from behind: two-sided lighting
+                }
+                let irradiance =
+                    (lighting.light_gain * reference / distance2).min(lighting.max_irradiance);
+                let material = &instance.material;
+                let mut highlight = cos;
+                for _ in 0..material.shininess_log2 {
+                    highlight *= highlight;
+                }
+                let pattern = material.pattern_factor(local);
+                let dx = x as f32 + 0.5 - cx;
+                let dy = y as f32 + 0.5 - cy;
+                let vignette = 1.0 - lighting.vignette * (dx * dx + dy * dy) / corner;
+                let diffuse = lighting.ambient + irradiance * cos;
+                let specular = material.specular * irradiance * highlight;
+                out[index] = [0, 1, 2]
+                    .map(|c| (material.albedo[c] * pattern * diffuse + specular) * vignette);
+            }
+        }
+        out
+    }
+}
+
+/// Box-filters a linear image by `factor` and converts to sRGB bytes.
+fn downsample(linear: &[[f32; 3]], width: usize, factor: usize) -> Vec<u8> {
+    let small_w = width / factor;
+    let small_h = linear.len() / width / factor;
+    let norm = 1.0 / (factor * factor) as f32;
+    let mut out = Vec::with_capacity(small_w * small_h * 3);
+    for y in 0..small_h {
+        for x in 0..small_w {
+            let mut sum = [0f32; 3];
+            for sy in 0..factor {
+                for sx in 0..factor {
+                    let c = linear[(y * factor + sy) * width + x * factor + sx];
+                    for k in 0..3 {
+                        sum[k] += c[k].min(1.0);
+                    }
+                }
+            }
+            out.extend(sum.map(|s| linear_to_srgb_fast(s * norm)));
+        }
+    }
+    out
+}
+
+/// The camera-frame point of a pixel centre at its rendered depth (None for background).
+pub fn pixel_point(camera: &Camera, frame: &Frame, u: u32, v: u32) -> Option<Point3<f64>> {
+    let z = *frame.depth_m.get((v * frame.width_px + u) as usize)?;
+    (z > 0.0).then(|| camera.back_project(u, v, f64::from(z)))
+}

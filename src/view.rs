@@ -1,0 +1,77 @@
+//! Seeing the simulation: renders a [`Simulator`]'s current state through the procedural assets
+//! and the CPU renderer, and lays out contact sheets. This bridge knows the simulator's public
+//! state (object poses, instrument pose), never rapier; the renderer below it knows neither.
+
+use crate::assets::{Appearance, SceneAssets};
+use crate::render::image::{depth_visualisation, mask_visualisation};
+use crate::render::{Camera, Frame, RenderOptions, Renderer};
+use crate::sim::{SimConfig, Simulator};
+use crate::task::TaskId;
+
+/// Renders the current state of `sim` as seen by `camera`.
+pub fn render_simulator(
+    assets: &SceneAssets,
+    renderer: &mut Renderer,
+    camera: &Camera,
+    sim: &Simulator,
+) -> Frame {
+    let instances = assets.instances(&sim.object_poses(), &sim.instrument_pose());
+    renderer.render(camera, &instances)
+}
+
+/// An RGB image assembled from tiles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sheet {
+    pub width_px: u32,
+    pub height_px: u32,
+    pub rgb: Vec<u8>,
+}
+
+impl Sheet {
+    fn new(width_px: u32, height_px: u32) -> Self {
+        Sheet {
+            width_px,
+            height_px,
+            rgb: vec![255; (width_px * height_px * 3) as usize],
+        }
+    }
+
+    fn paste(&mut self, x0: u32, y0: u32, width: u32, rgb: &[u8]) {
+        let height = rgb.len() as u32 / 3 / width.max(1);
+        for y in 0..height.min(self.height_px.saturating_sub(y0)) {
+            let row = &rgb[(y * width * 3) as usize..((y + 1) * width * 3) as usize];
+            let start = (((y0 + y) * self.width_px + x0) * 3) as usize;
+            let end = (start + row.len()).min(self.rgb.len());
+            self.rgb[start..end].copy_from_slice(&row[..end - start]);
+        }
+    }
+}
+
+/// The start frame of every task in `tasks` (one column each): RGB, depth and mask rows.
+pub fn contact_sheet(
+    tasks: &[TaskId],
+    seed: u64,
+    options: RenderOptions,
+    appearance: Appearance,
+) -> Sheet {
+    let camera = Camera::endoscope();
+    let (w, h) = (camera.width_px, camera.height_px);
+    let gap = 4;
+    let columns = tasks.len() as u32;
+    let mut sheet = Sheet::new(columns * (w + gap) - gap, 3 * (h + gap) - gap);
+    let mut renderer = Renderer::new(RenderOptions {
+        lighting: appearance.lighting(options.lighting),
+        ..options
+    });
+    for (column, task) in tasks.iter().enumerate() {
+        let scene = task.scene(seed);
+        let sim = Simulator::new(SimConfig::default(), scene.clone());
+        let assets = SceneAssets::new(&scene, seed, appearance);
+        let frame = render_simulator(&assets, &mut renderer, &camera, &sim);
+        let x = column as u32 * (w + gap);
+        sheet.paste(x, 0, w, &frame.rgb);
+        sheet.paste(x, h + gap, w, &depth_visualisation(&frame));
+        sheet.paste(x, 2 * (h + gap), w, &mask_visualisation(&frame));
+    }
+    sheet
+}
