@@ -158,7 +158,7 @@ impl TaskId {
                 let kidney = solid_organ(
                     OrganKind::Kidney,
                     [0.022, 0.04, 0.016],
-                    [0.575 + dx, dy],
+                    [0.56 + dx * 0.5, dy],
                     yaw_deg,
                     shape,
                 );

@@ -13,7 +13,8 @@ use crate::render::raster::{Instance, Lighting};
 use crate::rng::SplitMix64;
 use crate::scene::{
     BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, InstrumentPose, MarkColour, NEEDLE_WIRE_RADIUS_M,
-    ObjectKind, OrganKind, SceneSpec, TABLE_TOP_Z_M, needle_arc_points, tray_boxes,
+    ObjectKind, OrganKind, SceneSpec, TABLE_TOP_Z_M, TRAY_CENTER_XY_M, TRAY_HALF_EXTENTS_XY_M,
+    TRAY_RIM_WIDTH_M, needle_arc_points, tray_boxes,
 };
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -156,11 +157,7 @@ pub mod palette {
     use super::{Material, Pattern};
 
     pub fn table() -> Material {
-        Material::matte([58, 110, 112]).with_pattern(Pattern::Mottled {
-            scale_m: 0.01,
-            contrast: 0.15,
-            seed: 11,
-        })
+        Material::matte([58, 110, 112])
     }
     pub fn tray_pad() -> Material {
         Material::matte([232, 196, 160])
@@ -362,24 +359,44 @@ impl SceneAssets {
     /// Builds the meshes of `scene`; `seed` varies the objects' surface detail.
     pub fn new(scene: &SceneSpec, seed: u64, appearance: Appearance) -> Self {
         let mut statics = Vec::new();
-        let drape = Mesh::cuboid([0.35, 0.35, 0.005]);
-        statics.push((
-            Part {
-                mesh: drape,
+        // The drape: a frame of four slabs around the tray (nothing is drawn under the tray).
+        let [tcx, tcy] = TRAY_CENTER_XY_M;
+        let [thx, thy] = TRAY_HALF_EXTENTS_XY_M;
+        let (inner_x, inner_y, outer) = (thx + TRAY_RIM_WIDTH_M, thy + TRAY_RIM_WIDTH_M, 0.35);
+        let drape_z = TABLE_TOP_Z_M - 0.005;
+        let side = (outer - inner_y) / 2.0;
+        let end = (outer - inner_x) / 2.0;
+        let drape_boxes = [
+            ([tcx, tcy - inner_y - side, drape_z], [outer, side, 0.005]),
+            ([tcx, tcy + inner_y + side, drape_z], [outer, side, 0.005]),
+            ([tcx - inner_x - end, tcy, drape_z], [end, inner_y, 0.005]),
+            ([tcx + inner_x + end, tcy, drape_z], [end, inner_y, 0.005]),
+        ];
+        for (centre, half) in drape_boxes {
+            let mesh = Mesh::cuboid(half.map(|v| v as f32));
+            let part = Part {
+                mesh,
                 material: palette::table(),
                 mask: MaskClass::Table,
                 closed: true,
-            },
-            Isometry3::translation(0.55, 0.0, TABLE_TOP_Z_M - 0.005),
-        ));
+            };
+            statics.push((
+                part,
+                Isometry3::translation(centre[0], centre[1], centre[2]),
+            ));
+        }
         for (i, (centre, half)) in tray_boxes().into_iter().enumerate() {
-            let material = if i == 0 {
-                appearance.tissue(palette::tray_pad())
+            let half32 = half.map(|v| v as f32);
+            let (mesh, material) = if i == 0 {
+                // The pad: a finely gridded top carrying its baked mottling.
+                let mut mesh = Mesh::slab(half32, 20, 22, |_, _| 0.0);
+                let material = mesh.bake(appearance.tissue(palette::tray_pad()));
+                (mesh, material)
             } else {
-                palette::tray_rim()
+                (Mesh::cuboid(half32), palette::tray_rim())
             };
             let part = Part {
-                mesh: Mesh::cuboid(half.map(|v| v as f32)),
+                mesh,
                 material,
                 mask: MaskClass::Tray,
                 closed: true,
@@ -395,9 +412,11 @@ impl SceneAssets {
                 OrganKind::Spleen => (palette::spleen(), MaskClass::Spleen),
                 OrganKind::Vessel => (palette::vessel(), MaskClass::Vessel),
             };
+            let mut mesh = organ::organ_mesh(organ);
+            let material = mesh.bake(appearance.tissue(material));
             let part = Part {
-                mesh: organ::organ_mesh(organ),
-                material: appearance.tissue(material),
+                mesh,
+                material,
                 mask,
                 closed: true,
             };

@@ -81,7 +81,7 @@ pub fn organ_mesh(spec: &OrganSpec) -> Mesh {
             let points: Vec<[f32; 3]> = path.iter().map(|p| p.map(|v| v as f32).into()).collect();
             Mesh::tube(&points, &[radius as f32], 14, true)
         }
-        _ => Mesh::star(28, 56, |d| {
+        _ => Mesh::star(22, 44, |d| {
             let p = surface_point(spec, d.map(f64::from));
             p.map(|v| v as f32)
         }),

@@ -75,8 +75,8 @@ impl Material {
         match self.pattern {
             Pattern::Solid => 1.0,
             Pattern::Weave { period_m, contrast } => {
-                let u = (p[0] / period_m).fract().abs();
-                let v = (p[1] / period_m).fract().abs();
+                let u = fract(p[0] / period_m);
+                let v = fract(p[1] / period_m);
                 // Distance to the nearest thread centre line in each direction.
                 let du = (u - 0.5).abs() * 2.0;
                 let dv = (v - 0.5).abs() * 2.0;
@@ -89,15 +89,10 @@ impl Material {
                 seed,
             } => {
                 let s = 1.0 / scale_m;
-                let n = value_noise3([p[0] * s, p[1] * s, p[2] * s], seed) * 0.65
-                    + value_noise3(
-                        [p[0] * s * 2.7, p[1] * s * 2.7, p[2] * s * 2.7],
-                        seed ^ 0x9e37,
-                    ) * 0.35;
-                1.0 + contrast * n
+                1.0 + contrast * value_noise2([p[0] * s, p[1] * s], seed)
             }
             Pattern::Brushed { period_m, contrast } => {
-                let u = (p[0] / period_m).fract().abs();
+                let u = fract(p[0] / period_m);
                 1.0 - contrast * (u - 0.5).abs()
             }
         }
@@ -127,22 +122,31 @@ pub fn linear_to_srgb(value: f32) -> u8 {
 
 const SRGB_LUT_SIZE: usize = 16384;
 
-fn srgb_lut() -> &'static [u8; SRGB_LUT_SIZE] {
-    static LUT: std::sync::OnceLock<Box<[u8; SRGB_LUT_SIZE]>> = std::sync::OnceLock::new();
+/// A table from linear [0, 1] to sRGB bytes (the per-pixel path).
+pub struct SrgbTable([u8; SRGB_LUT_SIZE]);
+
+impl SrgbTable {
+    /// The byte for a linear value (negative and NaN read as 0, above 1 as 1).
+    #[inline]
+    #[allow(clippy::manual_clamp)] // `max` then `min` maps NaN to 0; `clamp` would keep it NaN.
+    pub fn lookup(&self, value: f32) -> u8 {
+        // Adding 2^23 puts round(x) in the low mantissa bits for 0 <= x < 2^23: a conversion
+        // without the saturating float-to-integer cast.
+        let scaled = value.max(0.0).min(1.0) * (SRGB_LUT_SIZE - 1) as f32 + 8_388_608.0;
+        self.0[(scaled.to_bits() as usize) & (SRGB_LUT_SIZE - 1)]
+    }
+}
+
+/// The shared sRGB table, built on first use.
+pub fn srgb_table() -> &'static SrgbTable {
+    static LUT: std::sync::OnceLock<Box<SrgbTable>> = std::sync::OnceLock::new();
     LUT.get_or_init(|| {
-        let mut table = Box::new([0u8; SRGB_LUT_SIZE]);
-        for (i, entry) in table.iter_mut().enumerate() {
+        let mut table = Box::new(SrgbTable([0u8; SRGB_LUT_SIZE]));
+        for (i, entry) in table.0.iter_mut().enumerate() {
             *entry = linear_to_srgb(i as f32 / (SRGB_LUT_SIZE - 1) as f32);
         }
         table
     })
-}
-
-/// Linear [0, 1] to an sRGB byte through a table (the per-pixel path).
-#[inline]
-pub fn linear_to_srgb_fast(value: f32) -> u8 {
-    let index = (value.clamp(0.0, 1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5) as usize;
-    srgb_lut()[index.min(SRGB_LUT_SIZE - 1)]
 }
 
 #[inline]
@@ -159,13 +163,59 @@ fn lattice_hash(x: i32, y: i32, z: i32, seed: u32) -> f32 {
     (h & 0x00ff_ffff) as f32 / 8_388_607.5 - 1.0
 }
 
+/// The 3-D two-octave mottling factor of `pattern` at `p` (1 for other patterns): what
+/// [`crate::render::mesh::Mesh::bake`] stores per vertex.
+pub fn mottling3(pattern: &Pattern, p: [f32; 3]) -> f32 {
+    match *pattern {
+        Pattern::Mottled {
+            scale_m,
+            contrast,
+            seed,
+        } => {
+            let s = 1.0 / scale_m;
+            let n = value_noise3([p[0] * s, p[1] * s, p[2] * s], seed) * 0.65
+                + value_noise3(
+                    [p[0] * s * 2.7, p[1] * s * 2.7, p[2] * s * 2.7],
+                    seed ^ 0x9e37,
+                ) * 0.35;
+            1.0 + contrast * n
+        }
+        _ => 1.0,
+    }
+}
+
+/// `floor` without a libm call (the baseline x86-64 target has no rounding instruction).
+#[inline]
+fn floor_i32(x: f32) -> i32 {
+    let i = x as i32;
+    if (i as f32) > x { i - 1 } else { i }
+}
+
+/// The fractional part in [0, 1).
+#[inline]
+fn fract(x: f32) -> f32 {
+    x - floor_i32(x) as f32
+}
+
+/// Smooth 2-D value noise in [-1, 1] with unit lattice spacing.
+#[inline]
+pub fn value_noise2(p: [f32; 2], seed: u32) -> f32 {
+    let (x, y) = (floor_i32(p[0]), floor_i32(p[1]));
+    let (fx, fy) = (p[0] - x as f32, p[1] - y as f32);
+    let sx = fx * fx * (3.0 - 2.0 * fx);
+    let sy = fy * fy * (3.0 - 2.0 * fy);
+    let h = |dx: i32, dy: i32| lattice_hash(x + dx, y + dy, 0, seed);
+    let top = h(0, 0) + (h(1, 0) - h(0, 0)) * sx;
+    let bottom = h(0, 1) + (h(1, 1) - h(0, 1)) * sx;
+    top + (bottom - top) * sy
+}
+
 /// Smooth 3-D value noise in [-1, 1] with unit lattice spacing, deterministic in `seed`.
 pub fn value_noise3(p: [f32; 3], seed: u32) -> f32 {
-    let cell = p.map(|c| c.floor());
-    let [fx, fy, fz] = [p[0] - cell[0], p[1] - cell[1], p[2] - cell[2]];
+    let [x, y, z] = p.map(floor_i32);
+    let [fx, fy, fz] = [p[0] - x as f32, p[1] - y as f32, p[2] - z as f32];
     let smooth = |t: f32| t * t * (3.0 - 2.0 * t);
     let (sx, sy, sz) = (smooth(fx), smooth(fy), smooth(fz));
-    let [x, y, z] = cell.map(|c| c as i32);
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
     let h = |dx: i32, dy: i32, dz: i32| lattice_hash(x + dx, y + dy, z + dz, seed);
     let x00 = lerp(h(0, 0, 0), h(1, 0, 0), sx);
@@ -203,10 +253,19 @@ mod tests {
     }
 
     #[test]
+    fn table_maps_out_of_range_and_nan_to_the_ends() {
+        let table = srgb_table();
+        assert_eq!(table.lookup(f32::NAN), 0);
+        assert_eq!(table.lookup(-3.0), 0);
+        assert_eq!(table.lookup(7.0), 255);
+        assert_eq!(table.lookup(1.0), 255);
+    }
+
+    #[test]
     fn table_conversion_is_within_one_level() {
         for i in 0..=1000 {
             let v = i as f32 / 1000.0;
-            assert!(i16::from(linear_to_srgb_fast(v)).abs_diff(i16::from(linear_to_srgb(v))) <= 1);
+            assert!(i16::from(srgb_table().lookup(v)).abs_diff(i16::from(linear_to_srgb(v))) <= 1);
         }
     }
 }

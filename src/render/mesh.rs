@@ -11,6 +11,8 @@ pub struct Mesh {
     pub positions: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
     pub triangles: Vec<[u32; 3]>,
+    /// Per-vertex brightness factor baked from a pattern (empty = 1 everywhere).
+    pub shade: Vec<f32>,
 }
 
 fn v3(p: [f32; 3]) -> Vector3<f32> {
@@ -36,7 +38,27 @@ impl Mesh {
             positions,
             normals,
             triangles,
+            shade: Vec::new(),
         }
+    }
+
+    /// Bakes a material's 3-D mottling into per-vertex shade factors and returns the material
+    /// to draw with (its pattern then solid): dense curved meshes get texture detail at no cost
+    /// per pixel.
+    pub fn bake(
+        &mut self,
+        material: crate::render::material::Material,
+    ) -> crate::render::material::Material {
+        use crate::render::material::{Pattern, mottling3};
+        if !matches!(material.pattern, Pattern::Mottled { .. }) {
+            return material;
+        }
+        self.shade = self
+            .positions
+            .iter()
+            .map(|p| mottling3(&material.pattern, *p))
+            .collect();
+        material.with_pattern(Pattern::Solid)
     }
 
     pub fn triangle_count(&self) -> usize {

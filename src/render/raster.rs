@@ -13,7 +13,7 @@
 //! light at the eye the half vector is the view vector), a procedural pattern, and a vignette.
 
 use crate::render::camera::Camera;
-use crate::render::material::{Material, linear_to_srgb_fast};
+use crate::render::material::{Material, Pattern, srgb_table};
 use crate::render::mesh::Mesh;
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -81,7 +81,8 @@ pub struct Frame {
 /// A reusable rasterizer: buffers are kept between frames.
 #[derive(Debug, Default)]
 pub struct Rasterizer {
-    depth: Vec<f32>,
+    /// 1 / depth of the nearest surface so far (0 = nothing).
+    inv_depth: Vec<f32>,
     instance: Vec<u16>,
     triangle: Vec<u32>,
     bary: Vec<[f32; 2]>,
@@ -128,6 +129,18 @@ fn clip_near(input: [ClipVertex; 3], near: f32, out: &mut Vec<ClipVertex>) {
     }
 }
 
+/// Round half up without a libm call (the baseline x86-64 target has no rounding instruction).
+#[inline]
+fn round_i64(v: f64) -> i64 {
+    let shifted = v + 0.5;
+    let truncated = shifted as i64;
+    if (truncated as f64) > shifted {
+        truncated - 1
+    } else {
+        truncated
+    }
+}
+
 fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -153,7 +166,7 @@ struct Target<'a> {
     cy: f64,
     near: f32,
     far: f32,
-    depth: &'a mut [f32],
+    inv_depth: &'a mut [f32],
     instance: &'a mut [u16],
     triangle: &'a mut [u32],
     bary: &'a mut [[f32; 2]],
@@ -170,10 +183,7 @@ impl Target<'_> {
                 .clamp(-GUARD_BAND_PX, GUARD_BAND_PX);
             let sy = (self.fy * f64::from(v.position[1]) / z + self.cy)
                 .clamp(-GUARD_BAND_PX, GUARD_BAND_PX);
-            fixed[k] = (
-                (sx * SUBPIXEL).round() as i64,
-                (sy * SUBPIXEL).round() as i64,
-            );
+            fixed[k] = (round_i64(sx * SUBPIXEL), round_i64(sy * SUBPIXEL));
             inv_z[k] = 1.0 / v.position[2];
         }
         let mut order = [0usize, 1, 2];
@@ -216,33 +226,61 @@ impl Target<'_> {
         let origin = (x0 * step + half, y0 * step + half);
         let mut row = [0usize, 1, 2].map(|k| edge(edges[k].0, edges[k].1, origin) + bias[k]);
         let inv_area = 1.0 / area as f32;
+        let (min_inv_z, max_inv_z) = (1.0 / self.far, 1.0 / self.near);
         let width = self.width as usize;
         for y in y0..=y1 {
-            let mut w = row;
-            let base = y as usize * width;
-            for x in x0..=x1 {
-                if (w[0] | w[1] | w[2]) >= 0 {
-                    let l = [
-                        (w[0] - bias[0]) as f32 * inv_area,
-                        (w[1] - bias[1]) as f32 * inv_area,
-                        (w[2] - bias[2]) as f32 * inv_area,
-                    ];
-                    let pz = [l[0] * iz[0], l[1] * iz[1], l[2] * iz[2]];
-                    let sum = pz[0] + pz[1] + pz[2];
-                    let z = 1.0 / sum;
-                    let index = base + x as usize;
-                    if z < self.depth[index] && z >= self.near && z <= self.far {
-                        self.depth[index] = z;
-                        self.instance[index] = instance;
-                        self.triangle[index] = triangle;
-                        let q = [pz[0] * z, pz[1] * z, pz[2] * z];
+            // The span of this row where every (biased) edge function is >= 0.
+            let (mut start, mut end) = (x0, x1);
+            for k in 0..3 {
+                let (w, s) = (row[k], step_x[k]);
+                if s > 0 {
+                    if w < 0 {
+                        start = start.max(x0 + (-w + s - 1) / s);
+                    }
+                } else if s < 0 {
+                    if w < 0 {
+                        end = x0 - 1;
+                    } else {
+                        end = end.min(x0 + w / -s);
+                    }
+                } else if w < 0 {
+                    end = x0 - 1;
+                }
+            }
+            if start <= end {
+                let base = y as usize * width;
+                let offset = start - x0;
+                // Perspective weights w_k / (area z_k) are affine along the row: exact at the
+                // span start, then start + step * i (no accumulated error).
+                let w = [0, 1, 2].map(|k| (row[k] + step_x[k] * offset - bias[k]) as f32);
+                let scale = [0, 1, 2].map(|k| inv_area * iz[k]);
+                let pz0 = [0, 1, 2].map(|k| w[k] * scale[k]);
+                let dpz = [0, 1, 2].map(|k| step_x[k] as f32 * scale[k]);
+                let sum0 = pz0[0] + pz0[1] + pz0[2];
+                let dsum = dpz[0] + dpz[1] + dpz[2];
+                let range = base + start as usize..=base + end as usize;
+                let inv_depth = &mut self.inv_depth[range.clone()];
+                let instances = &mut self.instance[range.clone()];
+                let triangles = &mut self.triangle[range.clone()];
+                let barys = &mut self.bary[range];
+                let pixels = inv_depth
+                    .iter_mut()
+                    .zip(instances)
+                    .zip(triangles)
+                    .zip(barys);
+                for (i, (((d, inst), tri), out)) in pixels.enumerate() {
+                    let t = i as f32;
+                    let sum = sum0 + dsum * t;
+                    if sum > *d && (min_inv_z..=max_inv_z).contains(&sum) {
+                        *d = sum;
+                        *inst = instance;
+                        *tri = triangle;
+                        let z = 1.0 / sum;
+                        let q = [0, 1, 2].map(|k| (pz0[k] + dpz[k] * t) * z);
                         let b1 = q[0] * bary[0][1] + q[1] * bary[1][1] + q[2] * bary[2][1];
                         let b2 = q[0] * bary[0][2] + q[1] * bary[1][2] + q[2] * bary[2][2];
-                        self.bary[index] = [b1, b2];
+                        *out = [b1, b2];
                     }
-                }
-                for k in 0..3 {
-                    w[k] += step_x[k];
                 }
             }
             for k in 0..3 {
@@ -256,8 +294,8 @@ impl Rasterizer {
     /// Visibility pass: fills the G-buffer for `camera`.
     fn visibility(&mut self, camera: &Camera, instances: &[Instance<'_>]) {
         let pixels = (camera.width_px * camera.height_px) as usize;
-        self.depth.clear();
-        self.depth.resize(pixels, f32::INFINITY);
+        self.inv_depth.clear();
+        self.inv_depth.resize(pixels, 0.0);
         self.instance.clear();
         self.instance.resize(pixels, NO_INSTANCE);
         self.triangle.resize(pixels, 0);
@@ -293,7 +331,7 @@ impl Rasterizer {
             cy: camera.cy_px,
             near: camera.near_m as f32,
             far: camera.far_m as f32,
-            depth: &mut self.depth,
+            inv_depth: &mut self.inv_depth,
             instance: &mut self.instance,
             triangle: &mut self.triangle,
             bary: &mut self.bary,
@@ -359,16 +397,12 @@ impl Rasterizer {
         }
         self.visibility(camera, instances);
         if supersample <= 1 {
-            let linear = self.shade(camera, instances, lighting);
-            frame.rgb = linear
-                .iter()
-                .flat_map(|c| c.map(linear_to_srgb_fast))
-                .collect();
+            frame.rgb = self.shade_srgb(camera, instances, lighting);
         }
         frame.depth_m = self
-            .depth
+            .inv_depth
             .iter()
-            .map(|z| if z.is_finite() { *z } else { 0.0 })
+            .map(|d| if *d > 0.0 { 1.0 / d } else { 0.0 })
             .collect();
         frame.mask = self
             .instance
@@ -391,65 +425,122 @@ impl Rasterizer {
         instances: &[Instance<'_>],
         lighting: &Lighting,
     ) -> Vec<[f32; 3]> {
+        let mut out = vec![lighting.background; (camera.width_px * camera.height_px) as usize];
+        self.shade_each(camera, instances, lighting, |index, colour| {
+            out[index] = colour
+        });
+        out
+    }
+
+    /// Shading pass over the G-buffer straight to sRGB bytes.
+    fn shade_srgb(
+        &self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+    ) -> Vec<u8> {
+        let lut = srgb_table();
+        let background = lighting.background.map(|c| lut.lookup(c));
+        let mut out: Vec<u8> = background.repeat((camera.width_px * camera.height_px) as usize);
+        self.shade_each(camera, instances, lighting, |index, colour| {
+            out[index * 3..index * 3 + 3].copy_from_slice(&colour.map(|c| lut.lookup(c)));
+        });
+        out
+    }
+
+    /// Calls `emit(pixel index, linear RGB)` for every pixel that shows a surface.
+    fn shade_each(
+        &self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+        mut emit: impl FnMut(usize, [f32; 3]),
+    ) {
         let (w, h) = (camera.width_px as usize, camera.height_px as usize);
         let (cx, cy) = (camera.cx_px as f32, camera.cy_px as f32);
         let corner = cx * cx + cy * cy;
+        let vignette_x: Vec<f32> = (0..w)
+            .map(|x| (x as f32 + 0.5 - cx).powi(2) / corner)
+            .collect();
+        let ray_x: Vec<f32> = (0..w)
+            .map(|x| (x as f32 + 0.5 - cx) / camera.fx_px as f32)
+            .collect();
         let reference = lighting.reference_distance_m * lighting.reference_distance_m;
-        let mut out = vec![lighting.background; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let index = y * w + x;
-                let instance_index = self.instance[index];
+        let rows = self
+            .instance
+            .chunks_exact(w)
+            .zip(self.triangle.chunks_exact(w))
+            .take(h);
+        for (y, (instance_row, triangle_row)) in rows.enumerate() {
+            let vignette_y = (y as f32 + 0.5 - cy).powi(2) / corner;
+            let bary_row = &self.bary[y * w..(y + 1) * w];
+            let depth_row: Vec<f32> = self.inv_depth[y * w..(y + 1) * w]
+                .iter()
+                .map(|d| 1.0 / d)
+                .collect();
+            let ray_y = (y as f32 + 0.5 - cy) / camera.fy_px as f32;
+            let pixels = instance_row
+                .iter()
+                .zip(triangle_row)
+                .zip(bary_row)
+                .zip(&vignette_x);
+            for (x, (((&instance_index, &triangle), &[b1, b2]), &vx)) in pixels.enumerate() {
                 if instance_index == NO_INSTANCE {
                     continue;
                 }
                 let instance = &instances[usize::from(instance_index)];
                 let offset = self.vertex_offsets[usize::from(instance_index)];
-                let tri = instance.mesh.triangles[self.triangle[index] as usize];
-                let [b1, b2] = self.bary[index];
+                let mesh = instance.mesh;
+                let tri = mesh.triangles[triangle as usize].map(|v| v as usize);
                 let b = [1.0 - b1 - b2, b1, b2];
-                let mut position = [0f32; 3];
+                // The surface point from the pixel's ray and depth; the normal from the vertices.
+                let z = depth_row[x];
+                let position = [ray_x[x] * z, ray_y * z, z];
                 let mut normal = [0f32; 3];
-                let mut local = [0f32; 3];
                 for k in 0..3 {
-                    let vi = tri[k] as usize;
-                    let (p, n, l) = (
-                        self.camera_positions[offset + vi],
-                        self.camera_normals[offset + vi],
-                        instance.mesh.positions[vi],
-                    );
+                    let n = self.camera_normals[offset + tri[k]];
                     for c in 0..3 {
-                        position[c] += b[k] * p[c];
                         normal[c] += b[k] * n[c];
-                        local[c] += b[k] * l[c];
                     }
                 }
-                let distance2 = dot(position, position).max(1e-12);
-                let inv_distance = distance2.sqrt().recip();
-                let to_light = position.map(|c| -c * inv_distance);
-                let inv_normal = dot(normal, normal).max(1e-20).sqrt().recip();
-                let mut cos = dot(normal, to_light) * inv_normal;
-                if cos < 0.0 {
-                    cos = -cos; // seen from behind: two-sided lighting
+                let mut pattern = match mesh.shade.as_slice() {
+                    [] => 1.0,
+                    shade => b[0] * shade[tri[0]] + b[1] * shade[tri[1]] + b[2] * shade[tri[2]],
+                };
+                let material = &instance.material;
+                if material.pattern != Pattern::Solid {
+                    let mut local = [0f32; 3];
+                    for k in 0..3 {
+                        let l = mesh.positions[tri[k]];
+                        for c in 0..3 {
+                            local[c] += b[k] * l[c];
+                        }
+                    }
+                    pattern *= material.pattern_factor(local);
                 }
+                let distance2 = dot(position, position).max(1e-12);
+                let normal2 = dot(normal, normal).max(1e-20);
+                // cos = n . (-p) / (|n| |p|), two-sided (a surface seen from behind is lit too).
+                let cos = (dot(normal, position) / (distance2 * normal2).sqrt()).abs();
                 let irradiance =
                     (lighting.light_gain * reference / distance2).min(lighting.max_irradiance);
-                let material = &instance.material;
                 let mut highlight = cos;
                 for _ in 0..material.shininess_log2 {
                     highlight *= highlight;
                 }
-                let pattern = material.pattern_factor(local);
-                let dx = x as f32 + 0.5 - cx;
-                let dy = y as f32 + 0.5 - cy;
-                let vignette = 1.0 - lighting.vignette * (dx * dx + dy * dy) / corner;
-                let diffuse = lighting.ambient + irradiance * cos;
-                let specular = material.specular * irradiance * highlight;
-                out[index] = [0, 1, 2]
-                    .map(|c| (material.albedo[c] * pattern * diffuse + specular) * vignette);
+                let vignette = 1.0 - lighting.vignette * (vx + vignette_y);
+                let diffuse = (lighting.ambient + irradiance * cos) * pattern * vignette;
+                let specular = material.specular * irradiance * highlight * vignette;
+                emit(
+                    y * w + x,
+                    [
+                        material.albedo[0] * diffuse + specular,
+                        material.albedo[1] * diffuse + specular,
+                        material.albedo[2] * diffuse + specular,
+                    ],
+                );
             }
         }
-        out
     }
 }
 
@@ -458,6 +549,7 @@ fn downsample(linear: &[[f32; 3]], width: usize, factor: usize) -> Vec<u8> {
     let small_w = width / factor;
     let small_h = linear.len() / width / factor;
     let norm = 1.0 / (factor * factor) as f32;
+    let lut = srgb_table();
     let mut out = Vec::with_capacity(small_w * small_h * 3);
     for y in 0..small_h {
         for x in 0..small_w {
@@ -470,7 +562,7 @@ fn downsample(linear: &[[f32; 3]], width: usize, factor: usize) -> Vec<u8> {
                     }
                 }
             }
-            out.extend(sum.map(|s| linear_to_srgb_fast(s * norm)));
+            out.extend(sum.map(|s| lut.lookup(s * norm)));
         }
     }
     out

@@ -71,3 +71,72 @@ fn help_and_version_exit_0() {
     assert_eq!(surgvla(&["--version"]).0, 0);
     assert_eq!(surgvla(&["tasks"]).0, 0);
 }
+
+#[test]
+fn render_writes_rgb_depth_and_mask_pngs() {
+    let dir = std::env::temp_dir().join(format!("surgvla-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let (rgb, depth, mask) = (
+        dir.join("rgb.png"),
+        dir.join("depth.png"),
+        dir.join("mask.png"),
+    );
+    let (code, stdout, stderr) = surgvla(&[
+        "render",
+        "--task",
+        "T2-1",
+        "--seed",
+        "3",
+        "--steps",
+        "5",
+        "--out",
+        rgb.to_str().expect("utf-8"),
+        "--depth",
+        depth.to_str().expect("utf-8"),
+        "--mask",
+        mask.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("triangles"));
+    for path in [&rgb, &depth, &mask] {
+        let bytes = std::fs::read(path).expect("png written");
+        assert_eq!(&bytes[1..4], b"PNG");
+        // IHDR: 224 x 224.
+        assert_eq!(&bytes[16..24], &[0, 0, 0, 224, 0, 0, 0, 224]);
+    }
+    let leftovers: Vec<_> = std::fs::read_dir(&dir)
+        .expect("list")
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left behind");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn contact_sheet_writes_one_grid_of_eight_scenes() {
+    let path = std::env::temp_dir().join(format!("surgvla-sheet-{}.png", std::process::id()));
+    let (code, stdout, stderr) = surgvla(&[
+        "contact-sheet",
+        "--out",
+        path.to_str().expect("utf-8"),
+        "--supersample",
+        "1",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("T3-2"));
+    let bytes = std::fs::read(&path).expect("png written");
+    // 8 tiles of 224 with 4 px gaps by 3 rows.
+    let width = u32::from_be_bytes(bytes[16..20].try_into().expect("4 bytes"));
+    let height = u32::from_be_bytes(bytes[20..24].try_into().expect("4 bytes"));
+    assert_eq!((width, height), (8 * 228 - 4, 3 * 228 - 4));
+    std::fs::remove_file(&path).ok();
+}
+
+#[test]
+fn render_into_a_missing_directory_exits_2_naming_the_path() {
+    let (code, _, stderr) = surgvla(&["render", "--out", "/nonexistent-dir/frame.png"]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("/nonexistent-dir/frame.png"), "{stderr}");
+    assert!(!stderr.contains("panicked"));
+}

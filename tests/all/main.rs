@@ -5,4 +5,5 @@ mod determinism;
 mod grasping;
 mod kinematics;
 mod physics;
+mod render;
 mod util;

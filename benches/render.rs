@@ -1,0 +1,47 @@
+//! Criterion benches of the renderer.
+//!
+//! `render/endoscope_224`: one 224 x 224 endoscope frame (RGB + depth + mask) of a full scene:
+//! drape, tray, kidney with its bleeding spot, gauze, needle, block and the instrument.
+//! `render/endoscope_224_ss2`: the same with 2x2 supersampled RGB.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+use surgvla::assets::{Appearance, SceneAssets};
+use surgvla::render::{Camera, RenderOptions, Renderer};
+use surgvla::scene::SceneSpec;
+use surgvla::sim::{SimConfig, Simulator};
+use surgvla::task::TaskId;
+
+/// The benchmark scene: the kidney task with a gauze, a needle and a block added.
+pub fn full_scene() -> SceneSpec {
+    let mut scene = TaskId::Electrocoagulation.scene(0);
+    scene.objects = SceneSpec::one_of_each(0.0).objects;
+    scene
+}
+
+fn bench_render(c: &mut Criterion) {
+    let scene = full_scene();
+    let sim = Simulator::new(SimConfig::default(), scene.clone());
+    let assets = SceneAssets::new(&scene, 0, Appearance::default());
+    let camera = Camera::endoscope();
+    let poses = sim.object_poses();
+    let instrument = sim.instrument_pose();
+    let mut group = c.benchmark_group("render");
+    println!("full scene: {} triangles", assets.triangle_count());
+    for (name, supersample) in [("endoscope_224", 1), ("endoscope_224_ss2", 2)] {
+        let mut renderer = Renderer::new(RenderOptions {
+            supersample,
+            ..RenderOptions::default()
+        });
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let instances = assets.instances(&poses, &instrument);
+                black_box(renderer.render(&camera, &instances))
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_render);
+criterion_main!(benches);
