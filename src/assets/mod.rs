@@ -390,7 +390,9 @@ impl SceneAssets {
             let (mesh, material) = if i == 0 {
                 // The pad: a finely gridded top carrying its baked mottling.
                 let mut mesh = Mesh::slab(half32, 20, 22, |_, _| 0.0);
-                let material = mesh.bake(appearance.tissue(palette::tray_pad()));
+                let material = mesh
+                    .bake(appearance.tissue(palette::tray_pad()))
+                    .per_vertex();
                 (mesh, material)
             } else {
                 (Mesh::cuboid(half32), palette::tray_rim())
@@ -413,7 +415,7 @@ impl SceneAssets {
                 OrganKind::Vessel => (palette::vessel(), MaskClass::Vessel),
             };
             let mut mesh = organ::organ_mesh(organ);
-            let material = mesh.bake(appearance.tissue(material));
+            let material = mesh.bake(appearance.tissue(material)).per_vertex();
             let part = Part {
                 mesh,
                 material,

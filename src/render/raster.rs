@@ -88,6 +88,8 @@ pub struct Rasterizer {
     bary: Vec<[f32; 2]>,
     camera_positions: Vec<[f32; 3]>,
     camera_normals: Vec<[f32; 3]>,
+    /// Linear colour lit at each vertex (instances lit per vertex only).
+    vertex_colours: Vec<[f32; 3]>,
     vertex_offsets: Vec<usize>,
 }
 
@@ -268,15 +270,20 @@ impl Target<'_> {
                     .zip(instances)
                     .zip(triangles)
                     .zip(barys);
-                for (i, (((d, inst), tri), out)) in pixels.enumerate() {
-                    let t = i as f32;
+                let mut t = -1.0f32;
+                for (((d, inst), tri), out) in pixels {
+                    t += 1.0; // exact: spans are far shorter than 2^24 pixels
                     let sum = sum0 + dsum * t;
                     if sum > *d && (min_inv_z..=max_inv_z).contains(&sum) {
                         *d = sum;
                         *inst = instance;
                         *tri = triangle;
                         let z = 1.0 / sum;
-                        let q = [0, 1, 2].map(|k| (pz0[k] + dpz[k] * t) * z);
+                        let q = [
+                            (pz0[0] + dpz[0] * t) * z,
+                            (pz0[1] + dpz[1] * t) * z,
+                            (pz0[2] + dpz[2] * t) * z,
+                        ];
                         let b1 = q[0] * bary[0][1] + q[1] * bary[1][1] + q[2] * bary[2][1];
                         let b2 = q[0] * bary[0][2] + q[1] * bary[1][2] + q[2] * bary[2][2];
                         *out = [b1, b2];
@@ -292,7 +299,7 @@ impl Target<'_> {
 
 impl Rasterizer {
     /// Visibility pass: fills the G-buffer for `camera`.
-    fn visibility(&mut self, camera: &Camera, instances: &[Instance<'_>]) {
+    fn visibility(&mut self, camera: &Camera, instances: &[Instance<'_>], lighting: &Lighting) {
         let pixels = (camera.width_px * camera.height_px) as usize;
         self.inv_depth.clear();
         self.inv_depth.resize(pixels, 0.0);
@@ -302,6 +309,7 @@ impl Rasterizer {
         self.bary.resize(pixels, [0.0; 2]);
         self.camera_positions.clear();
         self.camera_normals.clear();
+        self.vertex_colours.clear();
         self.vertex_offsets.clear();
         let camera_from_world = camera.world_from_camera.inverse();
         for instance in instances {
@@ -320,6 +328,22 @@ impl Rasterizer {
                 let nv = r * Vector3::new(n[0], n[1], n[2]);
                 self.camera_positions.push(pv.into());
                 self.camera_normals.push(nv.into());
+            }
+            let material = &instance.material;
+            let first = self.vertex_offsets[self.vertex_offsets.len() - 1];
+            self.vertex_colours
+                .resize(self.camera_positions.len(), [0.0; 3]);
+            if material.per_vertex {
+                for (i, colour) in self.vertex_colours[first..].iter_mut().enumerate() {
+                    let shade = instance.mesh.shade.get(i).copied().unwrap_or(1.0);
+                    *colour = light(
+                        material,
+                        self.camera_positions[first + i],
+                        self.camera_normals[first + i],
+                        shade,
+                        lighting,
+                    );
+                }
             }
         }
         let mut target = Target {
@@ -391,11 +415,11 @@ impl Rasterizer {
         };
         if supersample > 1 {
             let big = camera.scaled(supersample);
-            self.visibility(&big, instances);
+            self.visibility(&big, instances, lighting);
             let linear = self.shade(&big, instances, lighting);
             frame.rgb = downsample(&linear, big.width_px as usize, supersample as usize);
         }
-        self.visibility(camera, instances);
+        self.visibility(camera, instances, lighting);
         if supersample <= 1 {
             frame.rgb = self.shade_srgb(camera, instances, lighting);
         }
@@ -465,7 +489,6 @@ impl Rasterizer {
         let ray_x: Vec<f32> = (0..w)
             .map(|x| (x as f32 + 0.5 - cx) / camera.fx_px as f32)
             .collect();
-        let reference = lighting.reference_distance_m * lighting.reference_distance_m;
         let rows = self
             .instance
             .chunks_exact(w)
@@ -484,62 +507,116 @@ impl Rasterizer {
                 .zip(triangle_row)
                 .zip(bary_row)
                 .zip(&vignette_x);
+            // Neighbouring pixels mostly show the same triangle: its vertex data is fetched once
+            // per run.
+            let mut run_key = (NO_INSTANCE, u32::MAX);
+            let mut run = TriangleData::default();
             for (x, (((&instance_index, &triangle), &[b1, b2]), &vx)) in pixels.enumerate() {
                 if instance_index == NO_INSTANCE {
                     continue;
                 }
                 let instance = &instances[usize::from(instance_index)];
-                let offset = self.vertex_offsets[usize::from(instance_index)];
-                let mesh = instance.mesh;
-                let tri = mesh.triangles[triangle as usize].map(|v| v as usize);
+                if run_key != (instance_index, triangle) {
+                    run_key = (instance_index, triangle);
+                    run = TriangleData::fetch(
+                        instance,
+                        triangle,
+                        self,
+                        self.vertex_offsets[usize::from(instance_index)],
+                    );
+                }
                 let b = [1.0 - b1 - b2, b1, b2];
+                let vignette = 1.0 - lighting.vignette * (vx + vignette_y);
+                let material = &instance.material;
+                if material.per_vertex {
+                    let c = &run.colours;
+                    let (w0, w1, w2) = (b[0] * vignette, b[1] * vignette, b[2] * vignette);
+                    emit(
+                        y * w + x,
+                        [
+                            w0 * c[0][0] + w1 * c[1][0] + w2 * c[2][0],
+                            w0 * c[0][1] + w1 * c[1][1] + w2 * c[2][1],
+                            w0 * c[0][2] + w1 * c[1][2] + w2 * c[2][2],
+                        ],
+                    );
+                    continue;
+                }
                 // The surface point from the pixel's ray and depth; the normal from the vertices.
                 let z = depth_row[x];
                 let position = [ray_x[x] * z, ray_y * z, z];
                 let mut normal = [0f32; 3];
-                for k in 0..3 {
-                    let n = self.camera_normals[offset + tri[k]];
-                    for c in 0..3 {
-                        normal[c] += b[k] * n[c];
-                    }
+                for c in 0..3 {
+                    normal[c] = b[0] * run.normals[0][c]
+                        + b[1] * run.normals[1][c]
+                        + b[2] * run.normals[2][c];
                 }
-                let mut pattern = match mesh.shade.as_slice() {
-                    [] => 1.0,
-                    shade => b[0] * shade[tri[0]] + b[1] * shade[tri[1]] + b[2] * shade[tri[2]],
-                };
-                let material = &instance.material;
-                if material.pattern != Pattern::Solid {
+                let mut pattern = b[0] * run.shade[0] + b[1] * run.shade[1] + b[2] * run.shade[2];
+                if run.patterned {
                     let mut local = [0f32; 3];
-                    for k in 0..3 {
-                        let l = mesh.positions[tri[k]];
-                        for c in 0..3 {
-                            local[c] += b[k] * l[c];
-                        }
+                    for c in 0..3 {
+                        local[c] = b[0] * run.local[0][c]
+                            + b[1] * run.local[1][c]
+                            + b[2] * run.local[2][c];
                     }
                     pattern *= material.pattern_factor(local);
                 }
-                let distance2 = dot(position, position).max(1e-12);
-                let normal2 = dot(normal, normal).max(1e-20);
-                // cos = n . (-p) / (|n| |p|), two-sided (a surface seen from behind is lit too).
-                let cos = (dot(normal, position) / (distance2 * normal2).sqrt()).abs();
-                let irradiance =
-                    (lighting.light_gain * reference / distance2).min(lighting.max_irradiance);
-                let mut highlight = cos;
-                for _ in 0..material.shininess_log2 {
-                    highlight *= highlight;
-                }
-                let vignette = 1.0 - lighting.vignette * (vx + vignette_y);
-                let diffuse = (lighting.ambient + irradiance * cos) * pattern * vignette;
-                let specular = material.specular * irradiance * highlight * vignette;
-                emit(
-                    y * w + x,
-                    [
-                        material.albedo[0] * diffuse + specular,
-                        material.albedo[1] * diffuse + specular,
-                        material.albedo[2] * diffuse + specular,
-                    ],
-                );
+                let colour = light(material, position, normal, pattern, lighting);
+                emit(y * w + x, colour.map(|c| c * vignette));
             }
+        }
+    }
+}
+
+/// The endoscope light reflected by a surface point (camera frame) with normal `normal`
+/// (any length) and pattern factor `pattern`: linear RGB before the vignette.
+#[inline]
+fn light(
+    material: &Material,
+    position: [f32; 3],
+    normal: [f32; 3],
+    pattern: f32,
+    lighting: &Lighting,
+) -> [f32; 3] {
+    let reference = lighting.reference_distance_m * lighting.reference_distance_m;
+    let distance2 = dot(position, position).max(1e-12);
+    let normal2 = dot(normal, normal).max(1e-20);
+    // cos = n . (-p) / (|n| |p|), two-sided (a surface seen from behind is lit too).
+    let cos = (dot(normal, position) / (distance2 * normal2).sqrt()).abs();
+    let irradiance = (lighting.light_gain * reference / distance2).min(lighting.max_irradiance);
+    let mut highlight = cos;
+    for _ in 0..material.shininess_log2 {
+        highlight *= highlight;
+    }
+    let diffuse = (lighting.ambient + irradiance * cos) * pattern;
+    let specular = material.specular * irradiance * highlight;
+    material.albedo.map(|a| a * diffuse + specular)
+}
+
+/// A triangle's vertex data as the shading pass needs it.
+#[derive(Clone, Copy, Debug, Default)]
+struct TriangleData {
+    normals: [[f32; 3]; 3],
+    shade: [f32; 3],
+    local: [[f32; 3]; 3],
+    colours: [[f32; 3]; 3],
+    patterned: bool,
+}
+
+impl TriangleData {
+    fn fetch(instance: &Instance<'_>, triangle: u32, vertices: &Rasterizer, offset: usize) -> Self {
+        let camera_normals = &vertices.camera_normals;
+        let mesh = instance.mesh;
+        let tri = mesh.triangles[triangle as usize].map(|v| v as usize);
+        TriangleData {
+            normals: tri.map(|v| camera_normals[offset + v]),
+            shade: if mesh.shade.is_empty() {
+                [1.0; 3]
+            } else {
+                tri.map(|v| mesh.shade[v])
+            },
+            local: tri.map(|v| mesh.positions[v]),
+            colours: tri.map(|v| vertices.vertex_colours[offset + v]),
+            patterned: instance.material.pattern != Pattern::Solid,
         }
     }
 }
