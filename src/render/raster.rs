@@ -529,42 +529,33 @@ impl Rasterizer {
                 let vignette = 1.0 - lighting.vignette * (vx + vignette_y);
                 let material = &instance.material;
                 if material.per_vertex {
-                    let c = &run.colours;
-                    let (w0, w1, w2) = (b[0] * vignette, b[1] * vignette, b[2] * vignette);
-                    emit(
-                        y * w + x,
-                        [
-                            w0 * c[0][0] + w1 * c[1][0] + w2 * c[2][0],
-                            w0 * c[0][1] + w1 * c[1][1] + w2 * c[2][1],
-                            w0 * c[0][2] + w1 * c[1][2] + w2 * c[2][2],
-                        ],
-                    );
+                    let weights = [b[0] * vignette, b[1] * vignette, b[2] * vignette];
+                    emit(y * w + x, interpolate(&run.colours, weights));
                     continue;
                 }
                 // The surface point from the pixel's ray and depth; the normal from the vertices.
                 let z = depth_row[x];
                 let position = [ray_x[x] * z, ray_y * z, z];
-                let mut normal = [0f32; 3];
-                for c in 0..3 {
-                    normal[c] = b[0] * run.normals[0][c]
-                        + b[1] * run.normals[1][c]
-                        + b[2] * run.normals[2][c];
-                }
+                let normal = interpolate(&run.normals, b);
                 let mut pattern = b[0] * run.shade[0] + b[1] * run.shade[1] + b[2] * run.shade[2];
                 if run.patterned {
-                    let mut local = [0f32; 3];
-                    for c in 0..3 {
-                        local[c] = b[0] * run.local[0][c]
-                            + b[1] * run.local[1][c]
-                            + b[2] * run.local[2][c];
-                    }
-                    pattern *= material.pattern_factor(local);
+                    pattern *= material.pattern_factor(interpolate(&run.local, b));
                 }
                 let colour = light(material, position, normal, pattern, lighting);
                 emit(y * w + x, colour.map(|c| c * vignette));
             }
         }
     }
+}
+
+/// Barycentric interpolation of three vectors.
+#[inline]
+fn interpolate(v: &[[f32; 3]; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        b[0] * v[0][0] + b[1] * v[1][0] + b[2] * v[2][0],
+        b[0] * v[0][1] + b[1] * v[1][1] + b[2] * v[2][1],
+        b[0] * v[0][2] + b[1] * v[1][2] + b[2] * v[2][2],
+    ]
 }
 
 /// The endoscope light reflected by a surface point (camera frame) with normal `normal`
