@@ -415,7 +415,7 @@ impl SceneAssets {
                 OrganKind::Vessel => (palette::vessel(), MaskClass::Vessel),
             };
             let mut mesh = organ::organ_mesh(organ);
-            let material = mesh.bake(appearance.tissue(material)).per_vertex();
+            let material = mesh.bake(appearance.tissue(material));
             let part = Part {
                 mesh,
                 material,

@@ -79,6 +79,9 @@ struct LookArgs {
     /// Randomise light, tissue colour and texture contrast from the seed.
     #[arg(long)]
     randomize_appearance: bool,
+    /// Light every surface per pixel (by default dense tissue is lit per vertex; slower).
+    #[arg(long)]
+    per_pixel_lighting: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -101,7 +104,10 @@ impl LookArgs {
             Appearance::default()
         };
         let options = RenderOptions {
-            lighting: appearance.lighting(Lighting::default()),
+            lighting: Lighting {
+                allow_per_vertex: !self.per_pixel_lighting,
+                ..appearance.lighting(Lighting::default())
+            },
             supersample: self.supersample,
         };
         (options, appearance)

@@ -50,6 +50,8 @@ pub struct Lighting {
     pub vignette: f32,
     /// Colour where no surface is within the far plane, linear RGB.
     pub background: [f32; 3],
+    /// Honour materials lit per vertex (false: every surface lit per pixel, slower).
+    pub allow_per_vertex: bool,
 }
 
 impl Default for Lighting {
@@ -61,6 +63,7 @@ impl Default for Lighting {
             ambient: 0.06,
             vignette: 0.35,
             background: [0.012, 0.004, 0.004],
+            allow_per_vertex: true,
         }
     }
 }
@@ -333,7 +336,7 @@ impl Rasterizer {
             let first = self.vertex_offsets[self.vertex_offsets.len() - 1];
             self.vertex_colours
                 .resize(self.camera_positions.len(), [0.0; 3]);
-            if material.per_vertex {
+            if material.per_vertex && lighting.allow_per_vertex {
                 for (i, colour) in self.vertex_colours[first..].iter_mut().enumerate() {
                     let shade = instance.mesh.shade.get(i).copied().unwrap_or(1.0);
                     *colour = light(
@@ -528,7 +531,7 @@ impl Rasterizer {
                 let b = [1.0 - b1 - b2, b1, b2];
                 let vignette = 1.0 - lighting.vignette * (vx + vignette_y);
                 let material = &instance.material;
-                if material.per_vertex {
+                if material.per_vertex && lighting.allow_per_vertex {
                     let weights = [b[0] * vignette, b[1] * vignette, b[2] * vignette];
                     emit(y * w + x, interpolate(&run.colours, weights));
                     continue;

@@ -322,3 +322,42 @@ fn randomized_appearance_changes_colours_not_geometry() {
     assert_ne!(plain.rgb, varied.rgb);
     assert_ne!(Appearance::randomized(5), Appearance::randomized(6));
 }
+
+#[test]
+fn per_pixel_lighting_changes_only_the_gouraud_surfaces() {
+    let scene = TaskId::Electrocoagulation.scene(1);
+    let sim = Simulator::new(SimConfig::default(), scene.clone());
+    let assets = SceneAssets::new(&scene, 1, Appearance::default());
+    let render_with = |allow_per_vertex: bool| {
+        let lighting = surgvla::render::Lighting {
+            allow_per_vertex,
+            ..Default::default()
+        };
+        let mut renderer = Renderer::new(RenderOptions {
+            lighting,
+            supersample: 1,
+        });
+        surgvla::view::render_simulator(&assets, &mut renderer, &Camera::endoscope(), &sim)
+    };
+    let (fast, exact) = (render_with(true), render_with(false));
+    assert_eq!(fast.mask, exact.mask);
+    let (mut differing, mut far_off) = (0, 0);
+    for i in 0..fast.mask.len() {
+        let (a, b) = (&fast.rgb[i * 3..i * 3 + 3], &exact.rgb[i * 3..i * 3 + 3]);
+        let gouraud = fast.mask[i] == MaskClass::Tray.id();
+        if !gouraud {
+            assert_eq!(a, b, "pixel {i} of class {} changed", fast.mask[i]);
+        }
+        far_off += usize::from(a.iter().zip(b).any(|(x, y)| x.abs_diff(*y) > 16));
+        differing += usize::from(a != b);
+    }
+    assert!(
+        differing > 1000,
+        "the option must change the Gouraud surfaces ({differing} pixels)"
+    );
+    // Gouraud only departs visibly at grazing silhouettes.
+    assert!(
+        far_off * 100 < differing,
+        "{far_off} of {differing} changed pixels differ by > 16 levels"
+    );
+}
