@@ -11,6 +11,7 @@
 
 pub mod assets;
 pub mod collect;
+pub mod episode;
 pub mod export;
 pub mod policy;
 pub mod render;

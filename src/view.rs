@@ -75,3 +75,35 @@ pub fn contact_sheet(
     }
     sheet
 }
+
+/// What a dataset records about how its images were made: the camera (intrinsics and
+/// `world_from_camera`, row-major 4x4), the mask id table, the depth convention and versions.
+pub fn dataset_metadata(camera: &Camera) -> serde_json::Value {
+    let m = camera.world_from_camera.to_homogeneous();
+    let pose: Vec<Vec<f64>> = (0..4)
+        .map(|r| (0..4).map(|c| m[(r, c)]).collect())
+        .collect();
+    let masks: serde_json::Map<String, serde_json::Value> = crate::assets::MaskClass::ALL
+        .iter()
+        .map(|(class, name)| (class.id().to_string(), serde_json::Value::from(*name)))
+        .collect();
+    serde_json::json!({
+        "generator": format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+        "camera": {
+            "key": "observation.images.endoscope",
+            "width": camera.width_px,
+            "height": camera.height_px,
+            "fx": camera.fx_px,
+            "fy": camera.fy_px,
+            "cx": camera.cx_px,
+            "cy": camera.cy_px,
+            "near_m": camera.near_m,
+            "far_m": camera.far_m,
+            "optical_frame": "x right, y down, z forward",
+            "world_from_camera": pose,
+        },
+        "depth": {"key": "observation.images.depth", "unit": "m", "along": "optical axis", "background": 0.0,
+                  "back_projection": "X = (u + 0.5 - cx) z / fx, Y = (v + 0.5 - cy) z / fy, Z = z"},
+        "mask_ids": masks,
+    })
+}

@@ -5,6 +5,8 @@
 //! can be checked across runs and thread counts. [`demo_plan`] is the pick, lift and release
 //! motion `surgvla sim` shows.
 
+pub mod record;
+
 use crate::policy::{Policy, Waypoint, WaypointPolicy};
 use crate::sim::{JawCommand, NativeCommand, Observation, Simulator, StepReport};
 use std::f64::consts::FRAC_PI_2;

@@ -1,6 +1,63 @@
-//! Dataset exporters (LeRobot, RLDS, point clouds, MCAP).
+//! Dataset exporters.
 //!
-//! Every exporter has one shape: options -> `Writer::create` -> per-episode writes ->
-//! `finish() -> Summary`, fed through the collection sink trait. Exporters never depend on the
-//! simulator: they see episodes (arrays, strings, metadata) only. The first exporter lands with
-//! the episode model (issue 4); this module is the place it goes.
+//! Every exporter has one shape: options -> `Writer::create` -> one [`EpisodeSink::write_episode`]
+//! per episode -> [`EpisodeSink::finish`] returning a [`Summary`]. Exporters never depend on the
+//! simulator: they see [`crate::episode::Episode`]s only. Memory stays bounded: nothing grows
+//! with the number of episodes except a small per-episode index.
+//!
+//! - [`lerobot`]: LeRobot v3.0 (parquet + metadata, images embedded as PNG/TIFF).
+
+pub mod lerobot;
+pub mod stats;
+pub mod tiff;
+
+use crate::episode::Episode;
+use std::path::PathBuf;
+
+/// What went wrong while exporting, naming the file where there is one.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Parquet {
+        path: PathBuf,
+        source: parquet::errors::ParquetError,
+    },
+    #[error("building arrow data: {0}")]
+    Arrow(#[from] arrow_schema::ArrowError),
+    #[error("{path} already holds a dataset or other files; choose an empty or new directory")]
+    NotEmpty { path: PathBuf },
+    #[error("invalid episode: {0}")]
+    InvalidEpisode(String),
+    #[error("encoding {what}: {message}")]
+    Encode { what: String, message: String },
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl ExportError {
+    pub(crate) fn io(path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> ExportError {
+        let path = path.into();
+        move |source| ExportError::Io { path, source }
+    }
+}
+
+/// What an exporter wrote.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Summary {
+    pub episodes: u64,
+    pub frames: u64,
+    pub files: u64,
+    pub bytes: u64,
+}
+
+/// Receives episodes one at a time, in episode-index order.
+pub trait EpisodeSink {
+    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError>;
+    /// Completes the dataset: after this returns Ok, it is consistent and loadable.
+    fn finish(self: Box<Self>) -> Result<Summary, ExportError>;
+}

@@ -1,0 +1,229 @@
+//! The episode model: the contract between collection and every exporter.
+//!
+//! An [`Episode`] is metadata plus [`Step`]s (images, state, action, object poses). What each
+//! feature is called, its dtype, shape and per-element names is declared once in
+//! [`FeatureSpec`]s ([`standard_features`]); exporters and `schemas/` derive from that list.
+//! Exporters see episodes only, never the simulator.
+
+use serde::Serialize;
+
+/// Largest number of movable objects whose poses `observation.environment_state` carries.
+pub const MAX_OBJECTS: usize = 3;
+/// Values per object pose: x, y, z (m), qx, qy, qz, qw.
+pub const POSE_VALUES: usize = 7;
+
+/// Element type of a feature.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dtype {
+    Float32,
+    Int64,
+    /// An RGB or grey image stored as encoded bytes (PNG, or TIFF for float depth).
+    Image,
+}
+
+/// What a feature holds and how it is stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FeatureKind {
+    /// The endoscope RGB image (u8, H x W x 3).
+    Rgb,
+    /// Depth, f32 metres along the optical axis (H x W x 1).
+    Depth,
+    /// Segmentation mask ids (u8, H x W x 1).
+    Mask,
+    /// The 7-D robot state.
+    State,
+    /// The 7-D action.
+    Action,
+    /// Object poses, [`MAX_OBJECTS`] x [`POSE_VALUES`], zero-padded.
+    EnvironmentState,
+}
+
+/// One feature of the dataset.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeatureSpec {
+    /// Key, e.g. "observation.state" (never contains '/').
+    pub name: String,
+    pub dtype: Dtype,
+    pub shape: Vec<usize>,
+    /// One name per element for vectors; the axis names for images.
+    pub names: Vec<String>,
+    pub kind: FeatureKind,
+}
+
+fn names(items: &[&str]) -> Vec<String> {
+    items.iter().map(|s| s.to_string()).collect()
+}
+
+/// The features surgvla writes, in column order.
+pub fn standard_features(height_px: usize, width_px: usize, with_mask: bool) -> Vec<FeatureSpec> {
+    let image_axes = names(&["height", "width", "channels"]);
+    let mut features = vec![
+        FeatureSpec {
+            name: "observation.images.endoscope".into(),
+            dtype: Dtype::Image,
+            shape: vec![height_px, width_px, 3],
+            names: image_axes.clone(),
+            kind: FeatureKind::Rgb,
+        },
+        FeatureSpec {
+            name: "observation.images.depth".into(),
+            dtype: Dtype::Image,
+            shape: vec![height_px, width_px, 1],
+            names: image_axes.clone(),
+            kind: FeatureKind::Depth,
+        },
+    ];
+    if with_mask {
+        features.push(FeatureSpec {
+            name: "observation.images.mask".into(),
+            dtype: Dtype::Image,
+            shape: vec![height_px, width_px, 1],
+            names: image_axes,
+            kind: FeatureKind::Mask,
+        });
+    }
+    let environment_names: Vec<String> = (0..MAX_OBJECTS)
+        .flat_map(|i| {
+            ["x", "y", "z", "qx", "qy", "qz", "qw"].map(move |c| format!("object_{i}.{c}"))
+        })
+        .collect();
+    features.extend([
+        FeatureSpec {
+            name: "observation.state".into(),
+            dtype: Dtype::Float32,
+            shape: vec![7],
+            names: names(&[
+                "tip_x_m",
+                "tip_y_m",
+                "tip_z_m",
+                "tip_roll_rad",
+                "tip_pitch_rad",
+                "tip_yaw_rad",
+                "jaw_angle_rad",
+            ]),
+            kind: FeatureKind::State,
+        },
+        FeatureSpec {
+            name: "observation.environment_state".into(),
+            dtype: Dtype::Float32,
+            shape: vec![MAX_OBJECTS * POSE_VALUES],
+            names: environment_names,
+            kind: FeatureKind::EnvironmentState,
+        },
+        FeatureSpec {
+            name: "action".into(),
+            dtype: Dtype::Float32,
+            shape: vec![7],
+            names: names(&[
+                "dx_m",
+                "dy_m",
+                "dz_m",
+                "droll_rad",
+                "dpitch_rad",
+                "dyaw_rad",
+                "gripper_open",
+            ]),
+            kind: FeatureKind::Action,
+        },
+    ]);
+    features
+}
+
+/// Pinhole intrinsics and pose of the camera that took the images.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct CameraInfo {
+    pub width_px: u32,
+    pub height_px: u32,
+    pub fx_px: f64,
+    pub fy_px: f64,
+    pub cx_px: f64,
+    pub cy_px: f64,
+    /// Row-major 4x4 pose of the optical frame (x right, y down, z forward) in the world.
+    pub world_from_camera: [[f64; 4]; 4],
+}
+
+/// What an episode is, besides its steps.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EpisodeMeta {
+    /// Position in the dataset, 0-based.
+    pub index: u64,
+    /// Task id, e.g. "T1-1".
+    pub task_code: String,
+    pub task_name: String,
+    pub level: u8,
+    /// The language instruction (the LeRobot "task" string).
+    pub instruction: String,
+    pub seed: u64,
+    pub success: bool,
+    pub camera: CameraInfo,
+    pub simulator_version: String,
+}
+
+/// One control step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Step {
+    /// RGB u8, row-major H x W x 3.
+    pub rgb: Vec<u8>,
+    /// Depth f32 metres, row-major H x W; 0 where nothing is in range.
+    pub depth_m: Vec<f32>,
+    /// Mask ids, row-major H x W.
+    pub mask: Vec<u8>,
+    pub state: [f32; 7],
+    pub action: [f32; 7],
+    /// [`MAX_OBJECTS`] x [`POSE_VALUES`], zero-padded.
+    pub environment_state: [f32; MAX_OBJECTS * POSE_VALUES],
+}
+
+/// A recorded episode.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Episode {
+    pub meta: EpisodeMeta,
+    pub steps: Vec<Step>,
+}
+
+impl Episode {
+    /// Checks that every step's arrays have the camera's size.
+    pub fn validate(&self) -> Result<(), String> {
+        let pixels = (self.meta.camera.width_px * self.meta.camera.height_px) as usize;
+        for (i, step) in self.steps.iter().enumerate() {
+            if step.rgb.len() != pixels * 3
+                || step.depth_m.len() != pixels
+                || step.mask.len() != pixels
+            {
+                return Err(format!(
+                    "episode {} step {i}: image sizes rgb {} depth {} mask {} do not match {}x{}",
+                    self.meta.index,
+                    step.rgb.len(),
+                    step.depth_m.len(),
+                    step.mask.len(),
+                    self.meta.camera.width_px,
+                    self.meta.camera.height_px
+                ));
+            }
+        }
+        if self.steps.is_empty() {
+            return Err(format!("episode {} has no steps", self.meta.index));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn features_have_unique_slash_free_names_and_one_name_per_element() {
+        let features = standard_features(224, 224, true);
+        let mut seen = std::collections::HashSet::new();
+        for feature in &features {
+            assert!(!feature.name.contains('/'));
+            assert!(seen.insert(feature.name.clone()));
+            if feature.dtype == Dtype::Float32 {
+                assert_eq!(feature.names.len(), feature.shape[0], "{}", feature.name);
+            }
+        }
+        assert_eq!(standard_features(224, 224, false).len(), features.len() - 1);
+    }
+}

@@ -1,0 +1,555 @@
+//! The LeRobot v3.0 writer.
+//!
+//! Layout (what `lerobot.datasets.LeRobotDataset` 0.6 reads):
+//! ```text
+//! meta/info.json                          written last: its presence marks a complete dataset
+//! meta/stats.json                         min, max, mean, std, count, q01..q99 per feature
+//! meta/tasks.parquet                      task_index, task (pandas-indexed by task)
+//! meta/episodes/chunk-000/file-000.parquet
+//! meta/surgvla.json                       camera intrinsics and pose, mask ids, versions
+//! data/chunk-CCC/file-FFF.parquet         frames; one row group per episode, rolled by size
+//! ```
+//! Images are embedded: RGB and mask as PNG, depth as float32 TIFF in metres
+//! (`is_depth_map`, `depth_unit: "m"`). Crash safety: files are written under temporary names
+//! and renamed when complete; `.surgvla-incomplete` exists until `finish` succeeds, and
+//! `meta/info.json` (without which LeRobot refuses the folder) is the last file written.
+
+mod table;
+
+pub use table::{DEFAULT_COLUMNS, frame_schema, image_fields};
+
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, standard_features};
+use crate::export::stats::{ImageStats, VectorStats};
+use crate::export::tiff::encode_f32_tiff;
+use crate::export::{EpisodeSink, ExportError, Summary};
+use parquet::arrow::ArrowWriter;
+use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::properties::WriterProperties;
+use parquet::schema::types::ColumnPath;
+use rayon::prelude::*;
+use serde_json::{Value, json};
+use std::collections::HashMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use table::{EncodedImages, EpisodeRow, episodes_batch, frame_batch, tasks_batch};
+
+/// Name of the marker that exists while a dataset is being written.
+pub const INCOMPLETE_MARKER: &str = ".surgvla-incomplete";
+/// The codebase version written to info.json.
+pub const CODEBASE_VERSION: &str = "v3.0";
+
+/// PNG compression for embedded images.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PngLevel {
+    Fast,
+    Default,
+    Best,
+}
+
+/// Options of the LeRobot writer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LeRobotOptions {
+    pub fps: u32,
+    pub robot_type: String,
+    pub height_px: usize,
+    pub width_px: usize,
+    /// Also store the segmentation mask as an image feature.
+    pub with_mask: bool,
+    /// A new data file starts once the current one reaches this size.
+    pub data_file_size_mb: u64,
+    /// Files per chunk folder.
+    pub chunks_size: u64,
+    pub png: PngLevel,
+    /// Written to meta/surgvla.json (camera, mask ids, versions).
+    pub extra_metadata: Value,
+}
+
+impl Default for LeRobotOptions {
+    fn default() -> Self {
+        LeRobotOptions {
+            fps: 5,
+            robot_type: "dvrk_psm".into(),
+            height_px: 224,
+            width_px: 224,
+            with_mask: false,
+            data_file_size_mb: 100,
+            chunks_size: 1000,
+            png: PngLevel::Fast,
+            extra_metadata: Value::Null,
+        }
+    }
+}
+
+/// Statistics of one feature (or default column).
+#[derive(Clone, Debug)]
+enum FeatureStats {
+    Vector(VectorStats),
+    Image(ImageStats),
+}
+
+impl FeatureStats {
+    fn for_feature(feature: &FeatureSpec) -> Self {
+        match feature.kind {
+            FeatureKind::Rgb => FeatureStats::Image(ImageStats::unit_scaled(3)),
+            FeatureKind::Mask => FeatureStats::Image(ImageStats::unit_scaled(1)),
+            FeatureKind::Depth => FeatureStats::Image(ImageStats::depth()),
+            _ => FeatureStats::Vector(VectorStats::new(feature.shape[0])),
+        }
+    }
+
+    fn to_json(&self) -> Value {
+        match self {
+            FeatureStats::Vector(s) => s.to_json(),
+            FeatureStats::Image(s) => s.to_json(),
+        }
+    }
+}
+
+/// The data file being written.
+struct OpenFile {
+    writer: ArrowWriter<File>,
+    chunk: u64,
+    file: u64,
+    temporary: PathBuf,
+    path: PathBuf,
+}
+
+/// Streams episodes into a LeRobot v3.0 dataset.
+pub struct LeRobotWriter {
+    root: PathBuf,
+    options: LeRobotOptions,
+    features: Vec<FeatureSpec>,
+    schema: std::sync::Arc<arrow_schema::Schema>,
+    open: Option<OpenFile>,
+    next_file: u64,
+    tasks: Vec<String>,
+    task_lookup: HashMap<String, u64>,
+    episodes: Vec<EpisodeRow>,
+    total_frames: u64,
+    stats: Vec<(String, FeatureStats)>,
+    summary: Summary,
+}
+
+fn png_bytes(
+    width: usize,
+    height: usize,
+    colour: png::ColorType,
+    pixels: &[u8],
+    level: PngLevel,
+) -> Result<Vec<u8>, ExportError> {
+    let mut out = Vec::with_capacity(pixels.len() / 2);
+    let mut encoder = png::Encoder::new(&mut out, width as u32, height as u32);
+    encoder.set_color(colour);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.set_compression(match level {
+        PngLevel::Fast => png::Compression::Fast,
+        PngLevel::Default => png::Compression::Balanced,
+        PngLevel::Best => png::Compression::High,
+    });
+    let encode_error = |e: png::EncodingError| ExportError::Encode {
+        what: "PNG".into(),
+        message: e.to_string(),
+    };
+    let mut writer = encoder.write_header().map_err(encode_error)?;
+    writer.write_image_data(pixels).map_err(encode_error)?;
+    writer.finish().map_err(encode_error)?;
+    Ok(out)
+}
+
+fn default_stats() -> Vec<(String, FeatureStats)> {
+    DEFAULT_COLUMNS
+        .iter()
+        .map(|name| (name.to_string(), FeatureStats::Vector(VectorStats::new(1))))
+        .collect()
+}
+
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
+    }
+    let temporary = temporary_name(path);
+    std::fs::write(&temporary, bytes).map_err(ExportError::io(&temporary))?;
+    std::fs::rename(&temporary, path).map_err(ExportError::io(path))
+}
+
+fn temporary_name(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.partial"))
+}
+
+fn write_parquet(path: &Path, batch: &arrow_array::RecordBatch) -> Result<u64, ExportError> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
+    }
+    let temporary = temporary_name(path);
+    let file = File::create(&temporary).map_err(ExportError::io(&temporary))?;
+    let parquet_error = |source| ExportError::Parquet {
+        path: path.to_path_buf(),
+        source,
+    };
+    let props = WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .build();
+    let mut writer =
+        ArrowWriter::try_new(file, batch.schema(), Some(props)).map_err(parquet_error)?;
+    writer.write(batch).map_err(parquet_error)?;
+    writer.close().map_err(parquet_error)?;
+    std::fs::rename(&temporary, path).map_err(ExportError::io(path))?;
+    Ok(std::fs::metadata(path).map(|m| m.len()).unwrap_or(0))
+}
+
+impl LeRobotWriter {
+    /// Starts a dataset in `root`, which must not exist or be empty.
+    pub fn create(root: &Path, options: LeRobotOptions) -> Result<Self, ExportError> {
+        if root.exists() {
+            let mut entries = std::fs::read_dir(root).map_err(ExportError::io(root))?;
+            if entries.next().is_some() {
+                return Err(ExportError::NotEmpty {
+                    path: root.to_path_buf(),
+                });
+            }
+        }
+        std::fs::create_dir_all(root).map_err(ExportError::io(root))?;
+        let marker = root.join(INCOMPLETE_MARKER);
+        std::fs::write(
+            &marker,
+            b"surgvla is writing this dataset; it is not complete\n",
+        )
+        .map_err(ExportError::io(&marker))?;
+        let features = standard_features(options.height_px, options.width_px, options.with_mask);
+        let mut stats: Vec<(String, FeatureStats)> = features
+            .iter()
+            .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
+            .collect();
+        stats.extend(default_stats());
+        Ok(LeRobotWriter {
+            root: root.to_path_buf(),
+            schema: frame_schema(&features),
+            features,
+            options,
+            open: None,
+            next_file: 0,
+            tasks: Vec::new(),
+            task_lookup: HashMap::new(),
+            episodes: Vec::new(),
+            total_frames: 0,
+            stats,
+            summary: Summary::default(),
+        })
+    }
+
+    fn writer_properties(&self) -> WriterProperties {
+        let mut builder = WriterProperties::builder()
+            .set_compression(Compression::ZSTD(ZstdLevel::try_new(1).unwrap_or_default()))
+            .set_created_by(format!("surgvla {}", env!("CARGO_PKG_VERSION")))
+            .set_max_row_group_row_count(None);
+        // PNG bytes are already deflated: store them as they are. Raw float TIFF depth keeps
+        // zstd. No dictionaries for image bytes.
+        for feature in self.features.iter().filter(|f| f.dtype == Dtype::Image) {
+            let column = ColumnPath::new(vec![feature.name.clone(), "bytes".into()]);
+            builder = builder.set_column_dictionary_enabled(column.clone(), false);
+            if feature.kind != FeatureKind::Depth {
+                builder = builder.set_column_compression(column, Compression::UNCOMPRESSED);
+            }
+        }
+        builder.build()
+    }
+
+    fn open_file(&mut self) -> Result<&mut OpenFile, ExportError> {
+        if self.open.is_none() {
+            let chunk = self.next_file / self.options.chunks_size.max(1);
+            let file = self.next_file % self.options.chunks_size.max(1);
+            self.next_file += 1;
+            let path = self
+                .root
+                .join(format!("data/chunk-{chunk:03}/file-{file:03}.parquet"));
+            let folder = path
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_else(|| self.root.clone());
+            std::fs::create_dir_all(&folder).map_err(ExportError::io(&folder))?;
+            let temporary = temporary_name(&path);
+            let handle = File::create(&temporary).map_err(ExportError::io(&temporary))?;
+            let writer =
+                ArrowWriter::try_new(handle, self.schema.clone(), Some(self.writer_properties()))
+                    .map_err(|source| ExportError::Parquet {
+                    path: path.clone(),
+                    source,
+                })?;
+            self.open = Some(OpenFile {
+                writer,
+                chunk,
+                file,
+                temporary,
+                path,
+            });
+        }
+        self.open
+            .as_mut()
+            .ok_or_else(|| ExportError::Internal("no open data file".into()))
+    }
+
+    fn close_file(&mut self) -> Result<(), ExportError> {
+        if let Some(open) = self.open.take() {
+            let path = open.path.clone();
+            open.writer.close().map_err(|source| ExportError::Parquet {
+                path: path.clone(),
+                source,
+            })?;
+            std::fs::rename(&open.temporary, &path).map_err(ExportError::io(&path))?;
+            self.summary.files += 1;
+            self.summary.bytes += std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+        }
+        Ok(())
+    }
+
+    /// Encodes every image of an episode (frames in parallel, order kept).
+    fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
+        let (w, h, level) = (
+            self.options.width_px,
+            self.options.height_px,
+            self.options.png,
+        );
+        let mut images = EncodedImages::new();
+        for feature in self.features.iter().filter(|f| f.dtype == Dtype::Image) {
+            let kind = feature.kind;
+            let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
+                .steps
+                .par_iter()
+                .map(|step| match kind {
+                    FeatureKind::Rgb => png_bytes(w, h, png::ColorType::Rgb, &step.rgb, level),
+                    FeatureKind::Mask => {
+                        png_bytes(w, h, png::ColorType::Grayscale, &step.mask, level)
+                    }
+                    _ => Ok(encode_f32_tiff(w as u32, h as u32, &step.depth_m)),
+                })
+                .collect();
+            images.insert(feature.name.clone(), encoded?);
+        }
+        Ok(images)
+    }
+
+    fn episode_stats(
+        &self,
+        episode: &Episode,
+        task_index: u64,
+        first_index: u64,
+    ) -> Vec<(String, FeatureStats)> {
+        let mut stats: Vec<(String, FeatureStats)> = self
+            .features
+            .iter()
+            .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
+            .collect();
+        stats.extend(default_stats());
+        for (i, step) in episode.steps.iter().enumerate() {
+            let defaults = [
+                i as f64 / f64::from(self.options.fps),
+                i as f64,
+                episode.meta.index as f64,
+                (first_index + i as u64) as f64,
+                task_index as f64,
+            ];
+            let mut default_values = defaults.iter();
+            for (feature, (_, s)) in self
+                .features
+                .iter()
+                .map(Some)
+                .chain(std::iter::repeat(None))
+                .zip(stats.iter_mut())
+            {
+                match (feature.map(|f| f.kind), s) {
+                    (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => s.push_u8(&step.rgb),
+                    (Some(FeatureKind::Mask), FeatureStats::Image(s)) => s.push_u8(&step.mask),
+                    (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
+                        s.push_depth(&step.depth_m)
+                    }
+                    (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
+                    (Some(FeatureKind::Action), FeatureStats::Vector(s)) => s.push(&step.action),
+                    (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
+                        s.push(&step.environment_state)
+                    }
+                    (None, FeatureStats::Vector(s)) => {
+                        s.push(&[default_values.next().copied().unwrap_or(0.0) as f32])
+                    }
+                    _ => {}
+                }
+            }
+        }
+        stats
+    }
+
+    fn info_json(&self) -> Value {
+        let mut features = serde_json::Map::new();
+        for f in &self.features {
+            let mut entry = json!({
+                "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64" },
+                "shape": f.shape,
+                "names": f.names,
+            });
+            if f.kind == FeatureKind::Depth {
+                entry["info"] = json!({"is_depth_map": true, "depth_unit": "m"});
+            }
+            features.insert(f.name.clone(), entry);
+        }
+        features.insert(
+            "timestamp".into(),
+            json!({"dtype": "float32", "shape": [1], "names": null}),
+        );
+        for name in &DEFAULT_COLUMNS[1..] {
+            features.insert(
+                name.to_string(),
+                json!({"dtype": "int64", "shape": [1], "names": null}),
+            );
+        }
+        json!({
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": self.options.robot_type,
+            "total_episodes": self.episodes.len(),
+            "total_frames": self.total_frames,
+            "total_tasks": self.tasks.len(),
+            "chunks_size": self.options.chunks_size,
+            "data_files_size_in_mb": self.options.data_file_size_mb,
+            "video_files_size_in_mb": 200,
+            "fps": self.options.fps,
+            "splits": {"train": format!("0:{}", self.episodes.len())},
+            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+            "video_path": null,
+            "features": Value::Object(features),
+        })
+    }
+}
+
+impl EpisodeSink for LeRobotWriter {
+    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
+        episode.validate().map_err(ExportError::InvalidEpisode)?;
+        if episode.meta.index != self.episodes.len() as u64 {
+            return Err(ExportError::InvalidEpisode(format!(
+                "episode index {} arrived where {} was expected (episodes must come in order)",
+                episode.meta.index,
+                self.episodes.len()
+            )));
+        }
+        let task_index = match self.task_lookup.get(&episode.meta.instruction) {
+            Some(i) => *i,
+            None => {
+                let i = self.tasks.len() as u64;
+                self.tasks.push(episode.meta.instruction.clone());
+                self.task_lookup.insert(episode.meta.instruction.clone(), i);
+                i
+            }
+        };
+        let images = self.encode_images(episode)?;
+        let first_index = self.total_frames;
+        let batch = frame_batch(
+            &self.schema,
+            &self.features,
+            episode,
+            &images,
+            first_index,
+            task_index,
+            self.options.fps,
+        )?;
+        let limit = self.options.data_file_size_mb * 1024 * 1024;
+        let open = self.open_file()?;
+        let (chunk, file, path) = (open.chunk, open.file, open.path.clone());
+        let parquet_error = |source| ExportError::Parquet {
+            path: path.clone(),
+            source,
+        };
+        open.writer.write(&batch).map_err(parquet_error)?;
+        open.writer.flush().map_err(parquet_error)?;
+        let full = open.writer.bytes_written() as u64 >= limit;
+
+        let episode_stats = self.episode_stats(episode, task_index, first_index);
+        let mut stats_columns = Vec::new();
+        for ((name, total), (_, this)) in self.stats.iter_mut().zip(episode_stats) {
+            let json = this.to_json();
+            for stat in [
+                "min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99",
+            ] {
+                stats_columns.push((format!("stats/{name}/{stat}"), json[stat].clone()));
+            }
+            merge(total, this);
+        }
+        let length = episode.steps.len() as u64;
+        self.episodes.push(EpisodeRow {
+            episode_index: episode.meta.index,
+            task: episode.meta.instruction.clone(),
+            length,
+            data_chunk: chunk,
+            data_file: file,
+            from_index: first_index,
+            to_index: first_index + length,
+            stats: stats_columns,
+        });
+        self.total_frames += length;
+        self.summary.episodes += 1;
+        self.summary.frames += length;
+        if full {
+            self.close_file()?;
+        }
+        Ok(())
+    }
+
+    fn finish(mut self: Box<Self>) -> Result<Summary, ExportError> {
+        self.close_file()?;
+        let meta = self.root.join("meta");
+        let mut files = 0;
+        let mut bytes = 0;
+        let mut count = |b: u64| {
+            files += 1;
+            bytes += b;
+        };
+        count(write_parquet(
+            &meta.join("tasks.parquet"),
+            &tasks_batch(&self.tasks)?,
+        )?);
+        count(write_parquet(
+            &meta.join("episodes/chunk-000/file-000.parquet"),
+            &episodes_batch(&self.episodes)?,
+        )?);
+        let stats: serde_json::Map<String, Value> = self
+            .stats
+            .iter()
+            .map(|(name, s)| (name.clone(), s.to_json()))
+            .collect();
+        let stats_text = serde_json::to_string_pretty(&Value::Object(stats))
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        write_atomically(&meta.join("stats.json"), stats_text.as_bytes())?;
+        count(stats_text.len() as u64);
+        let extra = serde_json::to_string_pretty(&self.options.extra_metadata)
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        write_atomically(&meta.join("surgvla.json"), extra.as_bytes())?;
+        count(extra.len() as u64);
+        let info = serde_json::to_string_pretty(&self.info_json())
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        write_atomically(&meta.join("info.json"), info.as_bytes())?;
+        count(info.len() as u64);
+        let marker = self.root.join(INCOMPLETE_MARKER);
+        std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
+        self.summary.files += files;
+        self.summary.bytes += bytes;
+        Ok(self.summary.clone())
+    }
+}
+
+/// Folds one episode's statistics into the dataset's.
+fn merge(total: &mut FeatureStats, episode: FeatureStats) {
+    *total = match (
+        std::mem::replace(total, FeatureStats::Vector(VectorStats::new(0))),
+        episode,
+    ) {
+        (FeatureStats::Vector(mut a), FeatureStats::Vector(b)) => {
+            a.merge(&b);
+            FeatureStats::Vector(a)
+        }
+        (FeatureStats::Image(mut a), FeatureStats::Image(b)) => {
+            a.merge(&b);
+            FeatureStats::Image(a)
+        }
+        (a, _) => a,
+    };
+}

@@ -1,0 +1,258 @@
+//! Arrow tables of a LeRobot dataset: the frame table (one row per step, one row group per
+//! episode), `tasks.parquet` with its pandas index metadata, and the episodes table.
+
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::export::ExportError;
+use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
+use arrow_array::{
+    ArrayRef, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch, StringArray,
+    StructArray,
+};
+use arrow_schema::{DataType, Field, Fields, Schema};
+use serde_json::Value;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// The struct LeRobot (Hugging Face `datasets.Image`) stores an image as.
+pub fn image_fields() -> Fields {
+    Fields::from(vec![
+        Field::new("bytes", DataType::Binary, true),
+        Field::new("path", DataType::Utf8, true),
+    ])
+}
+
+fn list_item(dtype: DataType) -> Arc<Field> {
+    Arc::new(Field::new("item", dtype, true))
+}
+
+/// The five columns LeRobot requires after the features.
+pub const DEFAULT_COLUMNS: [&str; 5] = [
+    "timestamp",
+    "frame_index",
+    "episode_index",
+    "index",
+    "task_index",
+];
+
+/// The frame table's schema: features in order, then the defaults.
+pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
+    let mut fields: Vec<Field> = features
+        .iter()
+        .map(|f| match f.dtype {
+            Dtype::Image => Field::new(&f.name, DataType::Struct(image_fields()), true),
+            Dtype::Float32 => Field::new(
+                &f.name,
+                DataType::FixedSizeList(list_item(DataType::Float32), f.shape[0] as i32),
+                true,
+            ),
+            Dtype::Int64 => Field::new(
+                &f.name,
+                DataType::FixedSizeList(list_item(DataType::Int64), f.shape[0] as i32),
+                true,
+            ),
+        })
+        .collect();
+    fields.push(Field::new("timestamp", DataType::Float32, true));
+    for name in &DEFAULT_COLUMNS[1..] {
+        fields.push(Field::new(*name, DataType::Int64, true));
+    }
+    Arc::new(Schema::new(fields))
+}
+
+/// Encoded image bytes of one episode, per image feature, frame by frame.
+pub type EncodedImages = HashMap<String, Vec<Vec<u8>>>;
+
+/// The rows of one episode.
+pub fn frame_batch(
+    schema: &Arc<Schema>,
+    features: &[FeatureSpec],
+    episode: &Episode,
+    images: &EncodedImages,
+    first_index: u64,
+    task_index: u64,
+    fps: u32,
+) -> Result<RecordBatch, ExportError> {
+    let n = episode.steps.len();
+    let mut columns: Vec<ArrayRef> = Vec::with_capacity(features.len() + 5);
+    for feature in features {
+        let column: ArrayRef = match feature.kind {
+            FeatureKind::Rgb | FeatureKind::Depth | FeatureKind::Mask => {
+                let encoded = images.get(&feature.name).ok_or_else(|| {
+                    ExportError::Internal(format!("no encoded images for {}", feature.name))
+                })?;
+                let bytes = BinaryArray::from_iter_values(encoded.iter());
+                let paths = StringArray::new_null(n);
+                Arc::new(StructArray::new(
+                    image_fields(),
+                    vec![Arc::new(bytes), Arc::new(paths)],
+                    None,
+                ))
+            }
+            FeatureKind::State | FeatureKind::Action | FeatureKind::EnvironmentState => {
+                let values: Vec<f32> = episode
+                    .steps
+                    .iter()
+                    .flat_map(|s| match feature.kind {
+                        FeatureKind::State => s.state.to_vec(),
+                        FeatureKind::Action => s.action.to_vec(),
+                        _ => s.environment_state.to_vec(),
+                    })
+                    .collect();
+                Arc::new(FixedSizeListArray::new(
+                    list_item(DataType::Float32),
+                    feature.shape[0] as i32,
+                    Arc::new(Float32Array::from(values)),
+                    None,
+                ))
+            }
+        };
+        columns.push(column);
+    }
+    let timestamps: Vec<f32> = (0..n).map(|i| (i as f64 / f64::from(fps)) as f32).collect();
+    columns.push(Arc::new(Float32Array::from(timestamps)));
+    columns.push(Arc::new(Int64Array::from_iter_values(
+        (0..n).map(|i| i as i64),
+    )));
+    columns.push(Arc::new(Int64Array::from_iter_values(std::iter::repeat_n(
+        episode.meta.index as i64,
+        n,
+    ))));
+    columns.push(Arc::new(Int64Array::from_iter_values(
+        (0..n).map(|i| (first_index + i as u64) as i64),
+    )));
+    columns.push(Arc::new(Int64Array::from_iter_values(std::iter::repeat_n(
+        task_index as i64,
+        n,
+    ))));
+    Ok(RecordBatch::try_new(schema.clone(), columns)?)
+}
+
+/// `tasks.parquet`: task_index and task, written as a pandas frame indexed by the task string.
+pub fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> {
+    let pandas = serde_json::json!({
+        "index_columns": ["task"],
+        "column_indexes": [{"name": null, "field_name": null, "pandas_type": "unicode", "numpy_type": "object", "metadata": {"encoding": "UTF-8"}}],
+        "columns": [
+            {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64", "metadata": null},
+            {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object", "metadata": null}
+        ],
+        "creator": {"library": "surgvla", "version": env!("CARGO_PKG_VERSION")},
+        "pandas_version": "2.2.3"
+    });
+    let metadata = HashMap::from([("pandas".to_string(), pandas.to_string())]);
+    let schema = Schema::new(vec![
+        Field::new("task_index", DataType::Int64, true),
+        Field::new("task", DataType::Utf8, true),
+    ])
+    .with_metadata(metadata);
+    let indices = Int64Array::from_iter_values((0..tasks.len()).map(|i| i as i64));
+    let names = StringArray::from_iter_values(tasks.iter());
+    Ok(RecordBatch::try_new(
+        Arc::new(schema),
+        vec![Arc::new(indices), Arc::new(names)],
+    )?)
+}
+
+/// One row of the episodes table.
+#[derive(Clone, Debug)]
+pub struct EpisodeRow {
+    pub episode_index: u64,
+    pub task: String,
+    pub length: u64,
+    pub data_chunk: u64,
+    pub data_file: u64,
+    pub from_index: u64,
+    pub to_index: u64,
+    /// `stats/<feature>/<stat>` -> JSON value (a list, nested for images).
+    pub stats: Vec<(String, Value)>,
+}
+
+fn json_depth(value: &Value) -> usize {
+    match value {
+        Value::Array(items) => 1 + items.first().map_or(0, json_depth),
+        _ => 0,
+    }
+}
+
+fn numbers(value: &Value) -> Vec<f64> {
+    match value {
+        Value::Array(items) => items.iter().flat_map(numbers).collect(),
+        other => other.as_f64().into_iter().collect(),
+    }
+}
+
+/// A column of nested lists of f64 (depth 1 or 3) or of i64 counts, one entry per episode.
+fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
+    if name.ends_with("/count") {
+        let mut builder = ListBuilder::new(Int64Builder::new());
+        for v in values {
+            for x in numbers(v) {
+                builder.values().append_value(x as i64);
+            }
+            builder.append(true);
+        }
+        return Arc::new(builder.finish());
+    }
+    if values.first().map_or(1, |v| json_depth(v)) == 3 {
+        let mut builder =
+            ListBuilder::new(ListBuilder::new(ListBuilder::new(Float64Builder::new())));
+        for v in values {
+            for channel in v.as_array().into_iter().flatten() {
+                for row in channel.as_array().into_iter().flatten() {
+                    for x in numbers(row) {
+                        builder.values().values().values().append_value(x);
+                    }
+                    builder.values().values().append(true);
+                }
+                builder.values().append(true);
+            }
+            builder.append(true);
+        }
+        return Arc::new(builder.finish());
+    }
+    let mut builder = ListBuilder::new(Float64Builder::new());
+    for v in values {
+        for x in numbers(v) {
+            builder.values().append_value(x);
+        }
+        builder.append(true);
+    }
+    Arc::new(builder.finish())
+}
+
+/// The episodes table (episode_index equals row order).
+pub fn episodes_batch(rows: &[EpisodeRow]) -> Result<RecordBatch, ExportError> {
+    let int = |f: &dyn Fn(&EpisodeRow) -> u64| -> ArrayRef {
+        Arc::new(Int64Array::from_iter_values(
+            rows.iter().map(|r| f(r) as i64),
+        ))
+    };
+    let mut tasks = ListBuilder::new(StringBuilder::new());
+    for row in rows {
+        tasks.values().append_value(&row.task);
+        tasks.append(true);
+    }
+    let mut columns: Vec<(String, ArrayRef)> = vec![
+        ("episode_index".into(), int(&|r| r.episode_index)),
+        ("tasks".into(), Arc::new(tasks.finish())),
+        ("length".into(), int(&|r| r.length)),
+        ("data/chunk_index".into(), int(&|r| r.data_chunk)),
+        ("data/file_index".into(), int(&|r| r.data_file)),
+        ("dataset_from_index".into(), int(&|r| r.from_index)),
+        ("dataset_to_index".into(), int(&|r| r.to_index)),
+        ("meta/episodes/chunk_index".into(), int(&|_| 0)),
+        ("meta/episodes/file_index".into(), int(&|_| 0)),
+    ];
+    if let Some(first) = rows.first() {
+        for (k, (name, _)) in first.stats.iter().enumerate() {
+            let values: Vec<&Value> = rows.iter().map(|r| &r.stats[k].1).collect();
+            columns.push((name.clone(), stats_column(&values, name)));
+        }
+    }
+    let fields: Vec<Field> = columns
+        .iter()
+        .map(|(name, array)| Field::new(name, array.data_type().clone(), true))
+        .collect();
+    let arrays = columns.into_iter().map(|(_, a)| a).collect();
+    Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), arrays)?)
+}

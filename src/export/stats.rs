@@ -1,0 +1,363 @@
+//! Feature statistics in LeRobot's shape: min, max, mean, std, count and the q01, q10, q50, q90,
+//! q99 quantiles, per vector element or per image channel.
+//!
+//! Memory stays bounded: sums are running, vector quantiles come from a deterministic reservoir
+//! of at most [`RESERVOIR`] values per element (exact below that), and image quantiles from
+//! per-channel histograms (256 bins for u8 channels, [`DEPTH_BINS`] over 0..`DEPTH_RANGE_M` for
+//! depth).
+
+use crate::rng::SplitMix64;
+use serde_json::{Value, json};
+
+/// Values kept per vector element for quantiles.
+pub const RESERVOIR: usize = 100_000;
+/// Histogram bins for depth quantiles and their range, metres.
+pub const DEPTH_BINS: usize = 8192;
+pub const DEPTH_RANGE_M: f64 = 0.5;
+/// The quantiles LeRobot (and pi0.5-style normalisation) reads.
+pub const QUANTILES: [(&str, f64); 5] = [
+    ("q01", 0.01),
+    ("q10", 0.10),
+    ("q50", 0.50),
+    ("q90", 0.90),
+    ("q99", 0.99),
+];
+
+/// Running statistics of one scalar series.
+#[derive(Clone, Debug)]
+struct Running {
+    count: u64,
+    sum: f64,
+    sum_sq: f64,
+    min: f64,
+    max: f64,
+}
+
+impl Default for Running {
+    fn default() -> Self {
+        Running {
+            count: 0,
+            sum: 0.0,
+            sum_sq: 0.0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+        }
+    }
+}
+
+impl Running {
+    fn push(&mut self, v: f64) {
+        self.count += 1;
+        self.sum += v;
+        self.sum_sq += v * v;
+        self.min = self.min.min(v);
+        self.max = self.max.max(v);
+    }
+
+    fn merge(&mut self, other: &Running) {
+        self.count += other.count;
+        self.sum += other.sum;
+        self.sum_sq += other.sum_sq;
+        self.min = self.min.min(other.min);
+        self.max = self.max.max(other.max);
+    }
+
+    fn mean(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.sum / self.count as f64
+        }
+    }
+
+    fn std(&self) -> f64 {
+        if self.count == 0 {
+            return 0.0;
+        }
+        let mean = self.mean();
+        (self.sum_sq / self.count as f64 - mean * mean)
+            .max(0.0)
+            .sqrt()
+    }
+
+    fn finite_min(&self) -> f64 {
+        if self.count == 0 { 0.0 } else { self.min }
+    }
+
+    fn finite_max(&self) -> f64 {
+        if self.count == 0 { 0.0 } else { self.max }
+    }
+}
+
+/// Statistics of a vector feature, per element.
+#[derive(Clone, Debug)]
+pub struct VectorStats {
+    running: Vec<Running>,
+    reservoirs: Vec<Vec<f32>>,
+    seen: u64,
+    rng: SplitMix64,
+}
+
+fn quantile_sorted(sorted: &[f32], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    // Linear interpolation between closest ranks (numpy's default).
+    let position = q * (sorted.len() - 1) as f64;
+    let low = position.floor() as usize;
+    let high = (low + 1).min(sorted.len() - 1);
+    let t = position - low as f64;
+    f64::from(sorted[low]) * (1.0 - t) + f64::from(sorted[high]) * t
+}
+
+impl VectorStats {
+    pub fn new(len: usize) -> Self {
+        VectorStats {
+            running: vec![Running::default(); len],
+            reservoirs: vec![Vec::new(); len],
+            seen: 0,
+            rng: SplitMix64::stream(0, "stats reservoir"),
+        }
+    }
+
+    /// Adds one frame's vector.
+    pub fn push(&mut self, values: &[f32]) {
+        for (running, v) in self.running.iter_mut().zip(values) {
+            running.push(f64::from(*v));
+        }
+        self.sample(values.iter().copied());
+    }
+
+    /// Folds in another series' statistics (its sampled values join the reservoir).
+    pub fn merge(&mut self, other: &VectorStats) {
+        for (a, b) in self.running.iter_mut().zip(&other.running) {
+            a.merge(b);
+        }
+        let rows = other.reservoirs.first().map_or(0, Vec::len);
+        for row in 0..rows {
+            self.sample(other.reservoirs.iter().map(|r| r[row]));
+        }
+    }
+
+    /// Reservoir sampling of one frame's values (algorithm R, seeded).
+    fn sample(&mut self, values: impl Iterator<Item = f32>) {
+        self.seen += 1;
+        let slot = if self.seen as usize <= RESERVOIR {
+            Some(self.seen as usize - 1)
+        } else {
+            let j = (self.rng.next_u64() % self.seen) as usize;
+            (j < RESERVOIR).then_some(j)
+        };
+        for (i, v) in values.enumerate().take(self.reservoirs.len()) {
+            match slot {
+                Some(s) if s == self.reservoirs[i].len() => self.reservoirs[i].push(v),
+                Some(s) => self.reservoirs[i][s] = v,
+                None => {}
+            }
+        }
+    }
+
+    /// The statistics as LeRobot's JSON: each stat a list of per-element values.
+    pub fn to_json(&self) -> Value {
+        let per =
+            |f: &dyn Fn(&Running) -> f64| -> Vec<f64> { self.running.iter().map(f).collect() };
+        let mut out = serde_json::Map::new();
+        out.insert("min".into(), json!(per(&|r| r.finite_min())));
+        out.insert("max".into(), json!(per(&|r| r.finite_max())));
+        out.insert("mean".into(), json!(per(&|r| r.mean())));
+        out.insert("std".into(), json!(per(&|r| r.std())));
+        out.insert("count".into(), json!([self.seen]));
+        let sorted: Vec<Vec<f32>> = self
+            .reservoirs
+            .iter()
+            .map(|r| {
+                let mut s = r.clone();
+                s.sort_by(f32::total_cmp);
+                s
+            })
+            .collect();
+        for (name, q) in QUANTILES {
+            out.insert(
+                name.into(),
+                json!(
+                    sorted
+                        .iter()
+                        .map(|s| quantile_sorted(s, q))
+                        .collect::<Vec<f64>>()
+                ),
+            );
+        }
+        Value::Object(out)
+    }
+}
+
+/// Statistics of an image feature, per channel, from histograms.
+#[derive(Clone, Debug)]
+pub struct ImageStats {
+    running: Vec<Running>,
+    histograms: Vec<Vec<u64>>,
+    /// Value of bin `b` is `b * bin_width + offset` (u8 channels: b / 255).
+    bin_width: f64,
+    frames: u64,
+}
+
+impl ImageStats {
+    /// For u8 channels, reported scaled to [0, 1].
+    pub fn unit_scaled(channels: usize) -> Self {
+        ImageStats {
+            running: vec![Running::default(); channels],
+            histograms: vec![vec![0; 256]; channels],
+            bin_width: 1.0 / 255.0,
+            frames: 0,
+        }
+    }
+
+    /// For depth in metres.
+    pub fn depth() -> Self {
+        ImageStats {
+            running: vec![Running::default()],
+            histograms: vec![vec![0; DEPTH_BINS]],
+            bin_width: DEPTH_RANGE_M / DEPTH_BINS as f64,
+            frames: 0,
+        }
+    }
+
+    /// Folds in another image series' statistics.
+    pub fn merge(&mut self, other: &ImageStats) {
+        self.frames += other.frames;
+        for (a, b) in self.running.iter_mut().zip(&other.running) {
+            a.merge(b);
+        }
+        for (a, b) in self.histograms.iter_mut().zip(&other.histograms) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+    }
+
+    /// Adds one interleaved u8 image.
+    pub fn push_u8(&mut self, pixels: &[u8]) {
+        self.frames += 1;
+        let channels = self.running.len();
+        let mut frame = vec![Running::default(); channels];
+        let mut counts = vec![[0u64; 256]; channels];
+        for chunk in pixels.chunks_exact(channels) {
+            for (c, v) in chunk.iter().enumerate() {
+                counts[c][*v as usize] += 1;
+            }
+        }
+        for c in 0..channels {
+            for (v, n) in counts[c].iter().enumerate() {
+                if *n > 0 {
+                    let x = v as f64 / 255.0;
+                    frame[c].count += n;
+                    frame[c].sum += x * *n as f64;
+                    frame[c].sum_sq += x * x * *n as f64;
+                    frame[c].min = frame[c].min.min(x);
+                    frame[c].max = frame[c].max.max(x);
+                    self.histograms[c][v] += n;
+                }
+            }
+            self.running[c].merge(&frame[c]);
+        }
+    }
+
+    /// Adds one depth image (metres).
+    pub fn push_depth(&mut self, depth_m: &[f32]) {
+        self.frames += 1;
+        let mut frame = Running::default();
+        let bins = self.histograms[0].len();
+        for v in depth_m {
+            let x = f64::from(*v);
+            frame.push(x);
+            let bin = ((x / self.bin_width).round().max(0.0) as usize).min(bins - 1);
+            self.histograms[0][bin] += 1;
+        }
+        self.running[0].merge(&frame);
+    }
+
+    fn quantile(&self, channel: usize, q: f64) -> f64 {
+        let histogram = &self.histograms[channel];
+        let total: u64 = histogram.iter().sum();
+        if total == 0 {
+            return 0.0;
+        }
+        let target = (q * (total - 1) as f64).round() as u64;
+        let mut cumulative = 0;
+        for (bin, n) in histogram.iter().enumerate() {
+            cumulative += n;
+            if cumulative > target {
+                return bin as f64 * self.bin_width;
+            }
+        }
+        (histogram.len() - 1) as f64 * self.bin_width
+    }
+
+    /// The statistics as LeRobot's JSON: each stat a (C, 1, 1) nested list; count = frames.
+    pub fn to_json(&self) -> Value {
+        let per = |f: &dyn Fn(usize, &Running) -> f64| -> Value {
+            json!(
+                self.running
+                    .iter()
+                    .enumerate()
+                    .map(|(c, r)| vec![vec![f(c, r)]])
+                    .collect::<Vec<_>>()
+            )
+        };
+        let mut out = serde_json::Map::new();
+        out.insert("min".into(), per(&|_, r| r.finite_min()));
+        out.insert("max".into(), per(&|_, r| r.finite_max()));
+        out.insert("mean".into(), per(&|_, r| r.mean()));
+        out.insert("std".into(), per(&|_, r| r.std()));
+        out.insert("count".into(), json!([self.frames]));
+        for (name, q) in QUANTILES {
+            out.insert(name.into(), per(&|c, _| self.quantile(c, q)));
+        }
+        Value::Object(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vector_stats_match_direct_computation() {
+        let mut stats = VectorStats::new(2);
+        for i in 0..101 {
+            stats.push(&[i as f32, -(i as f32) * 0.5]);
+        }
+        let json = stats.to_json();
+        assert_eq!(json["min"], json!([0.0, -50.0]));
+        assert_eq!(json["max"], json!([100.0, 0.0]));
+        assert_eq!(json["mean"], json!([50.0, -25.0]));
+        assert_eq!(json["q50"], json!([50.0, -25.0]));
+        assert_eq!(json["q10"], json!([10.0, -45.0]));
+        assert_eq!(json["count"], json!([101]));
+        let std = json["std"][0].as_f64().unwrap_or_default();
+        assert!((std - 29.154759).abs() < 1e-5, "{std}");
+    }
+
+    #[test]
+    fn image_stats_are_per_channel_and_unit_scaled() {
+        let mut stats = ImageStats::unit_scaled(3);
+        let pixels: Vec<u8> = (0..100).flat_map(|_| [0u8, 255, 51]).collect();
+        stats.push_u8(&pixels);
+        let json = stats.to_json();
+        assert_eq!(json["min"], json!([[[0.0]], [[1.0]], [[0.2]]]));
+        assert_eq!(json["q99"], json!([[[0.0]], [[1.0]], [[0.2]]]));
+        assert_eq!(json["count"], json!([1]));
+    }
+
+    #[test]
+    fn depth_quantiles_land_on_the_histogram_grid() {
+        let mut stats = ImageStats::depth();
+        let depth: Vec<f32> = (0..1000).map(|i| 0.1 + i as f32 * 1e-4).collect();
+        stats.push_depth(&depth);
+        let q50 = stats.to_json()["q50"][0][0][0].as_f64().unwrap_or_default();
+        assert!(
+            (q50 - 0.15).abs() < 2.0 * DEPTH_RANGE_M / DEPTH_BINS as f64,
+            "{q50}"
+        );
+    }
+}
