@@ -369,19 +369,28 @@ fn main() -> ExitCode {
 /// 2 when the user can fix it (an output path in a missing or forbidden place), 1 otherwise.
 fn exit_code(error: &anyhow::Error) -> u8 {
     use std::io::ErrorKind;
+    use surgvla::export::ExportError;
     let user_fixable = |kind: ErrorKind| {
         matches!(
             kind,
             ErrorKind::NotFound | ErrorKind::PermissionDenied | ErrorKind::IsADirectory
         )
     };
-    let fixable = error
-        .chain()
-        .any(|cause| match cause.downcast_ref::<ImageError>() {
-            Some(ImageError::Io { source, .. }) => user_fixable(source.kind()),
+    let fixable = error.chain().any(|cause| {
+        if cause.is::<UsageError>() {
+            return true;
+        }
+        match (
+            cause.downcast_ref::<ImageError>(),
+            cause.downcast_ref::<ExportError>(),
+        ) {
+            (Some(ImageError::Io { source, .. }), _) => user_fixable(source.kind()),
+            (_, Some(ExportError::NotEmpty { .. })) => true,
+            (_, Some(ExportError::Io { source, .. })) => user_fixable(source.kind()),
             _ => cause
                 .downcast_ref::<std::io::Error>()
                 .is_some_and(|io| user_fixable(io.kind())),
-        });
+        }
+    });
     if fixable { 2 } else { 1 }
 }

@@ -140,3 +140,44 @@ fn render_into_a_missing_directory_exits_2_naming_the_path() {
     assert!(stderr.contains("/nonexistent-dir/frame.png"), "{stderr}");
     assert!(!stderr.contains("panicked"));
 }
+
+#[test]
+fn collect_writes_a_lerobot_dataset_and_refuses_to_overwrite_it() {
+    let out = std::env::temp_dir().join(format!("surgvla-collect-{}", std::process::id()));
+    std::fs::remove_dir_all(&out).ok();
+    let path = out.to_str().expect("utf-8");
+    let args = [
+        "collect",
+        "--tasks",
+        "T1-1,needle_pick",
+        "--episodes-per-task",
+        "1",
+        "--out",
+        path,
+    ];
+    let (code, stdout, stderr) = surgvla(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("wrote 2 episodes"), "{stdout}");
+    assert!(out.join("meta/info.json").exists());
+    let (code, _, stderr) = surgvla(&args);
+    assert_eq!(
+        code, 2,
+        "writing into a complete dataset is a user mistake: {stderr}"
+    );
+    assert!(stderr.contains(path), "{stderr}");
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn collect_with_an_unknown_task_exits_2() {
+    let (code, _, stderr) = surgvla(&[
+        "collect",
+        "--tasks",
+        "T1-1,T9-9",
+        "--out",
+        "/tmp/never-written",
+    ]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("unknown task 'T9-9'"), "{stderr}");
+    assert!(!std::path::Path::new("/tmp/never-written").exists());
+}

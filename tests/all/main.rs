@@ -4,6 +4,7 @@ mod cli;
 mod determinism;
 mod grasping;
 mod kinematics;
+mod lerobot;
 mod physics;
 mod render;
 mod util;

@@ -14,6 +14,7 @@
 //! and renamed when complete; `.surgvla-incomplete` exists until `finish` succeeds, and
 //! `meta/info.json` (without which LeRobot refuses the folder) is the last file written.
 
+pub mod read;
 mod table;
 
 pub use table::{DEFAULT_COLUMNS, frame_schema, image_fields};

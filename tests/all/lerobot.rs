@@ -1,0 +1,286 @@
+//! The LeRobot v3.0 writer: round trip through our own reader, metadata, file roll-over, crash
+//! safety and bad input. (The real lerobot loader is exercised by `tests/interop/`.)
+
+use std::path::PathBuf;
+use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
+use surgvla::episode::Episode;
+use surgvla::export::lerobot::read::{data_files, read_frames, read_parquet, schema_metadata};
+use surgvla::export::lerobot::{INCOMPLETE_MARKER, LeRobotOptions, LeRobotWriter};
+use surgvla::export::tiff::decode_f32_tiff;
+use surgvla::export::{EpisodeSink, ExportError};
+use surgvla::task::TaskId;
+
+/// A fresh, unique temporary folder path (not created).
+fn temp_root(name: &str) -> PathBuf {
+    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id()))
+}
+
+fn episodes(count: u64, max_steps: u32) -> Vec<Episode> {
+    let options = RecordOptions {
+        max_steps: Some(max_steps),
+        ..RecordOptions::default()
+    };
+    let tasks = [
+        TaskId::GauzePick,
+        TaskId::NeedlePickDistractors,
+        TaskId::Hemostasis,
+    ];
+    (0..count)
+        .map(|i| {
+            let task = tasks[i as usize % tasks.len()];
+            record_episode(task, episode_seed(9, task, i), i, &options)
+        })
+        .collect()
+}
+
+fn write(
+    root: &std::path::Path,
+    episodes: &[Episode],
+    options: LeRobotOptions,
+) -> surgvla::export::Summary {
+    let mut writer: Box<dyn EpisodeSink> =
+        Box::new(LeRobotWriter::create(root, options).expect("create"));
+    for episode in episodes {
+        writer.write_episode(episode).expect("write episode");
+    }
+    writer.finish().expect("finish")
+}
+
+fn decode_png(bytes: &[u8]) -> Vec<u8> {
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    let mut reader = decoder.read_info().expect("png header");
+    let mut buffer = vec![0; reader.output_buffer_size().expect("size")];
+    let info = reader.next_frame(&mut buffer).expect("png frame");
+    buffer.truncate(info.buffer_size());
+    buffer
+}
+
+#[test]
+fn frames_round_trip_bit_exact() {
+    let root = temp_root("roundtrip");
+    let recorded = episodes(3, 7);
+    let options = LeRobotOptions {
+        with_mask: true,
+        ..LeRobotOptions::default()
+    };
+    let summary = write(&root, &recorded, options);
+    assert_eq!(summary.episodes, 3);
+    let keys = [
+        "observation.images.endoscope",
+        "observation.images.depth",
+        "observation.images.mask",
+    ];
+    let stored = read_frames(&root, &keys).expect("read back");
+    let steps: Vec<_> = recorded
+        .iter()
+        .flat_map(|e| {
+            e.steps
+                .iter()
+                .enumerate()
+                .map(move |(i, s)| (e.meta.index, i, s))
+        })
+        .collect();
+    assert_eq!(stored.len(), steps.len());
+    assert_eq!(summary.frames as usize, steps.len());
+    for (k, (frame, (episode, i, step))) in stored.iter().zip(&steps).enumerate() {
+        assert_eq!(frame.index, k as i64);
+        assert_eq!(
+            (frame.episode_index, frame.frame_index),
+            (*episode as i64, *i as i64)
+        );
+        assert_eq!(frame.timestamp, (*i as f64 / 5.0) as f32);
+        assert_eq!(frame.state, step.state.to_vec());
+        assert_eq!(frame.action, step.action.to_vec());
+        assert_eq!(frame.environment_state, step.environment_state.to_vec());
+        assert_eq!(decode_png(&frame.images[0].1), step.rgb);
+        let (w, h, depth) = decode_f32_tiff(&frame.images[1].1).expect("tiff");
+        assert_eq!((w, h), (224, 224));
+        assert_eq!(
+            depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+            step.depth_m.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
+        );
+        assert_eq!(decode_png(&frame.images[2].1), step.mask);
+    }
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn metadata_follows_the_lerobot_layout() {
+    let root = temp_root("meta");
+    let recorded = episodes(3, 5);
+    write(&root, &recorded, LeRobotOptions::default());
+    assert!(!root.join(INCOMPLETE_MARKER).exists());
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(root.join("meta/info.json")).expect("info"))
+            .expect("json");
+    assert_eq!(info["codebase_version"], "v3.0");
+    assert_eq!(info["total_episodes"], 3);
+    assert_eq!(info["total_frames"], 15);
+    assert_eq!(info["total_tasks"], 3);
+    assert_eq!(info["splits"]["train"], "0:3");
+    assert_eq!(info["robot_type"], "dvrk_psm");
+    let keys: Vec<&String> = info["features"]
+        .as_object()
+        .expect("features")
+        .keys()
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            "observation.images.endoscope",
+            "observation.images.depth",
+            "observation.state",
+            "observation.environment_state",
+            "action",
+            "timestamp",
+            "frame_index",
+            "episode_index",
+            "index",
+            "task_index"
+        ]
+    );
+    assert_eq!(
+        info["features"]["observation.images.depth"]["info"]["depth_unit"],
+        "m"
+    );
+    // The data columns follow the features' order.
+    let batch = &read_parquet(&data_files(&root).expect("files")[0]).expect("data")[0];
+    let columns: Vec<String> = batch
+        .schema()
+        .fields()
+        .iter()
+        .map(|f| f.name().clone())
+        .collect();
+    assert_eq!(columns.iter().collect::<Vec<_>>(), keys);
+    // tasks.parquet is a pandas frame indexed by the task string.
+    let pandas = schema_metadata(&root.join("meta/tasks.parquet"), "pandas")
+        .expect("read")
+        .expect("pandas metadata");
+    let pandas: serde_json::Value = serde_json::from_str(&pandas).expect("json");
+    assert_eq!(pandas["index_columns"], serde_json::json!(["task"]));
+    // Episodes: positional, contiguous from/to indices, stats with quantiles.
+    let episodes_table =
+        &read_parquet(&root.join("meta/episodes/chunk-000/file-000.parquet")).expect("episodes")[0];
+    let int = |name: &str| {
+        episodes_table
+            .column_by_name(name)
+            .and_then(|c| c.as_any().downcast_ref::<arrow_array::Int64Array>())
+            .expect(name)
+            .values()
+            .to_vec()
+    };
+    assert_eq!(int("episode_index"), [0, 1, 2]);
+    assert_eq!(int("dataset_from_index"), [0, 5, 10]);
+    assert_eq!(int("dataset_to_index"), [5, 10, 15]);
+    assert!(episodes_table.column_by_name("stats/action/q99").is_some());
+    assert!(
+        episodes_table
+            .column_by_name("stats/observation.images.endoscope/mean")
+            .is_some()
+    );
+    let stats: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(root.join("meta/stats.json")).expect("stats"))
+            .expect("json");
+    assert_eq!(stats["action"]["count"], serde_json::json!([15]));
+    assert_eq!(
+        stats["observation.images.endoscope"]["mean"]
+            .as_array()
+            .expect("3 channels")
+            .len(),
+        3
+    );
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn output_is_a_pure_function_of_the_episodes() {
+    let recorded = episodes(2, 4);
+    let (a, b) = (temp_root("pure-a"), temp_root("pure-b"));
+    write(&a, &recorded, LeRobotOptions::default());
+    write(&b, &recorded, LeRobotOptions::default());
+    for file in [
+        "data/chunk-000/file-000.parquet",
+        "meta/info.json",
+        "meta/stats.json",
+        "meta/tasks.parquet",
+        "meta/episodes/chunk-000/file-000.parquet",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(file)).expect("a"),
+            std::fs::read(b.join(file)).expect("b"),
+            "{file}"
+        );
+    }
+    std::fs::remove_dir_all(&a).ok();
+    std::fs::remove_dir_all(&b).ok();
+}
+
+#[test]
+fn data_files_roll_over_by_size() {
+    let root = temp_root("rollover");
+    // Each episode of 25 frames is over 1 MB, so every episode closes its file.
+    let recorded = episodes(3, 25);
+    let summary = write(
+        &root,
+        &recorded,
+        LeRobotOptions {
+            data_file_size_mb: 1,
+            ..LeRobotOptions::default()
+        },
+    );
+    let files = data_files(&root).expect("files");
+    assert_eq!(files.len(), 3, "{files:?}");
+    assert_eq!(summary.episodes, 3);
+    let table =
+        &read_parquet(&root.join("meta/episodes/chunk-000/file-000.parquet")).expect("episodes")[0];
+    let file_index = table
+        .column_by_name("data/file_index")
+        .and_then(|c| c.as_any().downcast_ref::<arrow_array::Int64Array>())
+        .expect("file index");
+    assert_eq!(file_index.values().to_vec(), [0, 1, 2]);
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn an_unfinished_dataset_is_obviously_incomplete() {
+    let root = temp_root("crash");
+    {
+        let mut writer = LeRobotWriter::create(&root, LeRobotOptions::default()).expect("create");
+        writer.write_episode(&episodes(1, 3)[0]).expect("write");
+        // Dropped without finish: the process "died" here.
+    }
+    assert!(root.join(INCOMPLETE_MARKER).exists());
+    assert!(
+        !root.join("meta/info.json").exists(),
+        "LeRobot must refuse it"
+    );
+    assert!(
+        data_files(&root).expect("list").is_empty(),
+        "no data file under its final name"
+    );
+    // And a new dataset will not be written over it.
+    match LeRobotWriter::create(&root, LeRobotOptions::default()) {
+        Err(ExportError::NotEmpty { path }) => assert_eq!(path, root),
+        other => panic!("expected NotEmpty, got {:?}", other.err()),
+    }
+    std::fs::remove_dir_all(&root).ok();
+}
+
+#[test]
+fn bad_episodes_are_rejected_with_a_reason() {
+    let root = temp_root("bad");
+    let mut writer = LeRobotWriter::create(&root, LeRobotOptions::default()).expect("create");
+    let mut episode = episodes(1, 3).remove(0);
+    episode.steps[1].rgb.truncate(100);
+    let error = writer
+        .write_episode(&episode)
+        .expect_err("wrong image size");
+    assert!(error.to_string().contains("episode 0 step 1"), "{error}");
+    let mut later = episodes(2, 2).remove(1);
+    later.meta.index = 5;
+    let error = writer.write_episode(&later).expect_err("out of order");
+    assert!(error.to_string().contains("episode index 5"), "{error}");
+    std::fs::remove_dir_all(&root).ok();
+}
