@@ -267,11 +267,14 @@ impl ImageStats {
         self.frames += 1;
         let mut frame = Running::default();
         let bins = self.histograms[0].len();
+        let per_bin = 1.0 / self.bin_width;
+        let histogram = &mut self.histograms[0];
         for v in depth_m {
             let x = f64::from(*v);
             frame.push(x);
-            let bin = ((x / self.bin_width).round().max(0.0) as usize).min(bins - 1);
-            self.histograms[0][bin] += 1;
+            // Casts saturate (negative and NaN read as bin 0): nearest bin without a libm call.
+            let bin = ((x * per_bin + 0.5) as usize).min(bins - 1);
+            histogram[bin] += 1;
         }
         self.running[0].merge(&frame);
     }

@@ -307,81 +307,6 @@ impl LeRobotWriter {
         Ok(())
     }
 
-    /// Encodes every image of an episode (frames in parallel, order kept).
-    fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
-        let (w, h, level) = (
-            self.options.width_px,
-            self.options.height_px,
-            self.options.png,
-        );
-        let mut images = EncodedImages::new();
-        for feature in self.features.iter().filter(|f| f.dtype == Dtype::Image) {
-            let kind = feature.kind;
-            let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
-                .steps
-                .par_iter()
-                .map(|step| match kind {
-                    FeatureKind::Rgb => png_bytes(w, h, png::ColorType::Rgb, &step.rgb, level),
-                    FeatureKind::Mask => {
-                        png_bytes(w, h, png::ColorType::Grayscale, &step.mask, level)
-                    }
-                    _ => Ok(encode_f32_tiff(w as u32, h as u32, &step.depth_m)),
-                })
-                .collect();
-            images.insert(feature.name.clone(), encoded?);
-        }
-        Ok(images)
-    }
-
-    fn episode_stats(
-        &self,
-        episode: &Episode,
-        task_index: u64,
-        first_index: u64,
-    ) -> Vec<(String, FeatureStats)> {
-        let mut stats: Vec<(String, FeatureStats)> = self
-            .features
-            .iter()
-            .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
-            .collect();
-        stats.extend(default_stats());
-        for (i, step) in episode.steps.iter().enumerate() {
-            let defaults = [
-                i as f64 / f64::from(self.options.fps),
-                i as f64,
-                episode.meta.index as f64,
-                (first_index + i as u64) as f64,
-                task_index as f64,
-            ];
-            let mut default_values = defaults.iter();
-            for (feature, (_, s)) in self
-                .features
-                .iter()
-                .map(Some)
-                .chain(std::iter::repeat(None))
-                .zip(stats.iter_mut())
-            {
-                match (feature.map(|f| f.kind), s) {
-                    (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => s.push_u8(&step.rgb),
-                    (Some(FeatureKind::Mask), FeatureStats::Image(s)) => s.push_u8(&step.mask),
-                    (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
-                        s.push_depth(&step.depth_m)
-                    }
-                    (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
-                    (Some(FeatureKind::Action), FeatureStats::Vector(s)) => s.push(&step.action),
-                    (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
-                        s.push(&step.environment_state)
-                    }
-                    (None, FeatureStats::Vector(s)) => {
-                        s.push(&[default_values.next().copied().unwrap_or(0.0) as f32])
-                    }
-                    _ => {}
-                }
-            }
-        }
-        stats
-    }
-
     fn info_json(&self) -> Value {
         let mut features = serde_json::Map::new();
         for f in &self.features {
@@ -423,6 +348,112 @@ impl LeRobotWriter {
     }
 }
 
+/// The per-episode work that needs only the features and options (so it can run on threads
+/// while the writer holds its non-shareable parquet state).
+struct EpisodeWork<'a> {
+    features: &'a [FeatureSpec],
+    options: &'a LeRobotOptions,
+}
+
+impl EpisodeWork<'_> {
+    /// Encodes every image of an episode (frames in parallel, order kept).
+    fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
+        let (w, h, level) = (
+            self.options.width_px,
+            self.options.height_px,
+            self.options.png,
+        );
+        let mut images = EncodedImages::new();
+        for feature in self.features.iter().filter(|f| f.dtype == Dtype::Image) {
+            let kind = feature.kind;
+            let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
+                .steps
+                .par_iter()
+                .map(|step| match kind {
+                    FeatureKind::Rgb => png_bytes(w, h, png::ColorType::Rgb, &step.rgb, level),
+                    FeatureKind::Mask => {
+                        png_bytes(w, h, png::ColorType::Grayscale, &step.mask, level)
+                    }
+                    _ => Ok(encode_f32_tiff(w as u32, h as u32, &step.depth_m)),
+                })
+                .collect();
+            images.insert(feature.name.clone(), encoded?);
+        }
+        Ok(images)
+    }
+
+    /// Statistics of one episode: frames in parallel, folded in frame order (so the result does
+    /// not depend on the thread count).
+    fn episode_stats(
+        &self,
+        episode: &Episode,
+        task_index: u64,
+        first_index: u64,
+    ) -> Vec<(String, FeatureStats)> {
+        let fresh = || -> Vec<(String, FeatureStats)> {
+            let mut stats: Vec<(String, FeatureStats)> = self
+                .features
+                .iter()
+                .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
+                .collect();
+            stats.extend(default_stats());
+            stats
+        };
+        let kinds: Vec<Option<FeatureKind>> = self.features.iter().map(|f| Some(f.kind)).collect();
+        let fps = f64::from(self.options.fps);
+        let episode_index = episode.meta.index as f64;
+        let per_frame: Vec<Vec<(String, FeatureStats)>> = episode
+            .steps
+            .par_iter()
+            .enumerate()
+            .map(|(i, step)| {
+                let mut stats = fresh();
+                let defaults = [
+                    i as f64 / fps,
+                    i as f64,
+                    episode_index,
+                    (first_index + i as u64) as f64,
+                    task_index as f64,
+                ];
+                let mut default_values = defaults.iter();
+                for (kind, (_, s)) in kinds
+                    .iter()
+                    .copied()
+                    .chain(std::iter::repeat(None))
+                    .zip(stats.iter_mut())
+                {
+                    match (kind, s) {
+                        (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => s.push_u8(&step.rgb),
+                        (Some(FeatureKind::Mask), FeatureStats::Image(s)) => s.push_u8(&step.mask),
+                        (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
+                            s.push_depth(&step.depth_m)
+                        }
+                        (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
+                        (Some(FeatureKind::Action), FeatureStats::Vector(s)) => {
+                            s.push(&step.action)
+                        }
+                        (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
+                            s.push(&step.environment_state)
+                        }
+                        (None, FeatureStats::Vector(s)) => {
+                            s.push(&[default_values.next().copied().unwrap_or(0.0) as f32])
+                        }
+                        _ => {}
+                    }
+                }
+                stats
+            })
+            .collect();
+        let mut total = fresh();
+        for frame in per_frame {
+            for ((_, t), (_, f)) in total.iter_mut().zip(frame) {
+                merge(t, f);
+            }
+        }
+        total
+    }
+}
+
 impl EpisodeSink for LeRobotWriter {
     fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
         episode.validate().map_err(ExportError::InvalidEpisode)?;
@@ -442,8 +473,16 @@ impl EpisodeSink for LeRobotWriter {
                 i
             }
         };
-        let images = self.encode_images(episode)?;
         let first_index = self.total_frames;
+        let work = EpisodeWork {
+            features: &self.features,
+            options: &self.options,
+        };
+        let (images, episode_stats) = rayon::join(
+            || work.encode_images(episode),
+            || work.episode_stats(episode, task_index, first_index),
+        );
+        let images = images?;
         let batch = frame_batch(
             &self.schema,
             &self.features,
@@ -464,7 +503,6 @@ impl EpisodeSink for LeRobotWriter {
         open.writer.flush().map_err(parquet_error)?;
         let full = open.writer.bytes_written() as u64 >= limit;
 
-        let episode_stats = self.episode_stats(episode, task_index, first_index);
         let mut stats_columns = Vec::new();
         for ((name, total), (_, this)) in self.stats.iter_mut().zip(episode_stats) {
             let json = this.to_json();

@@ -1,0 +1,58 @@
+//! Criterion benches of the exporters.
+//!
+//! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
+//! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
+//! and of two threads. Throughput is in frames. The episodes are recorded once beforehand, so
+//! simulation and rendering are not measured.
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
+use surgvla::export::EpisodeSink;
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
+use surgvla::task::TaskId;
+
+fn bench_lerobot(c: &mut Criterion) {
+    let options = RecordOptions {
+        max_steps: Some(25),
+        ..RecordOptions::default()
+    };
+    let episodes: Vec<_> = (0..8u64)
+        .map(|i| {
+            let task = TaskId::ALL[i as usize];
+            record_episode(task, episode_seed(1, task, i), i, &options)
+        })
+        .collect();
+    let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
+    let mut group = c.benchmark_group("export/lerobot/image");
+    group.throughput(Throughput::Elements(frames as u64));
+    group.sample_size(10);
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        let root = std::env::temp_dir().join(format!(
+            "surgvla-bench-export-{}-{threads}",
+            std::process::id()
+        ));
+        group.bench_function(format!("{threads}_threads"), |b| {
+            b.iter(|| {
+                std::fs::remove_dir_all(&root).ok();
+                pool.install(|| {
+                    let mut writer: Box<dyn EpisodeSink> = Box::new(
+                        LeRobotWriter::create(&root, LeRobotOptions::default()).expect("create"),
+                    );
+                    for episode in &episodes {
+                        writer.write_episode(episode).expect("write");
+                    }
+                    writer.finish().expect("finish")
+                })
+            })
+        });
+        std::fs::remove_dir_all(&root).ok();
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_lerobot);
+criterion_main!(benches);
