@@ -35,6 +35,12 @@ enum Command {
     ContactSheet(ContactSheetArgs),
     /// Record episodes of the tasks (demo policy for now) and write a LeRobot v3.0 dataset.
     Collect(CollectArgs),
+    /// Print the LeRobot features schema (what schemas/lerobot_features.json records).
+    Schema {
+        /// Include the segmentation mask feature.
+        #[arg(long)]
+        with_mask: bool,
+    },
     /// List the tasks.
     Tasks,
 }
@@ -343,6 +349,15 @@ fn main() -> ExitCode {
         Command::Render(args) => run_render(&args),
         Command::ContactSheet(args) => run_contact_sheet(&args),
         Command::Collect(args) => run_collect(&args),
+        Command::Schema { with_mask } => {
+            let features = surgvla::episode::standard_features(224, 224, with_mask);
+            let json = surgvla::export::lerobot::features_json(&features);
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&json).unwrap_or_default()
+            );
+            Ok(())
+        }
         Command::Tasks => {
             for task in TaskId::ALL {
                 println!(

@@ -284,3 +284,18 @@ fn bad_episodes_are_rejected_with_a_reason() {
     assert!(error.to_string().contains("episode index 5"), "{error}");
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// The committed schema is what the writer declares. After an intended change, regenerate with
+/// `cargo run --release -- schema --with-mask > schemas/lerobot_features.json`.
+#[test]
+fn schema_snapshot_matches_the_features() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas/lerobot_features.json");
+    let committed: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).expect("schema file")).expect("json");
+    let features = surgvla::episode::standard_features(224, 224, true);
+    assert_eq!(
+        committed,
+        surgvla::export::lerobot::features_json(&features)
+    );
+}

@@ -308,28 +308,7 @@ impl LeRobotWriter {
     }
 
     fn info_json(&self) -> Value {
-        let mut features = serde_json::Map::new();
-        for f in &self.features {
-            let mut entry = json!({
-                "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64" },
-                "shape": f.shape,
-                "names": f.names,
-            });
-            if f.kind == FeatureKind::Depth {
-                entry["info"] = json!({"is_depth_map": true, "depth_unit": "m"});
-            }
-            features.insert(f.name.clone(), entry);
-        }
-        features.insert(
-            "timestamp".into(),
-            json!({"dtype": "float32", "shape": [1], "names": null}),
-        );
-        for name in &DEFAULT_COLUMNS[1..] {
-            features.insert(
-                name.to_string(),
-                json!({"dtype": "int64", "shape": [1], "names": null}),
-            );
-        }
+        let features = features_json(&self.features);
         json!({
             "codebase_version": CODEBASE_VERSION,
             "robot_type": self.options.robot_type,
@@ -343,9 +322,37 @@ impl LeRobotWriter {
             "splits": {"train": format!("0:{}", self.episodes.len())},
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
             "video_path": null,
-            "features": Value::Object(features),
+            "features": features,
         })
     }
+}
+
+/// The `features` object of info.json for these features (defaults appended): what
+/// `schemas/lerobot_features.json` records.
+pub fn features_json(feature_specs: &[FeatureSpec]) -> Value {
+    let mut features = serde_json::Map::new();
+    for f in feature_specs {
+        let mut entry = json!({
+            "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64" },
+            "shape": f.shape,
+            "names": f.names,
+        });
+        if f.kind == FeatureKind::Depth {
+            entry["info"] = json!({"is_depth_map": true, "depth_unit": "m"});
+        }
+        features.insert(f.name.clone(), entry);
+    }
+    features.insert(
+        "timestamp".into(),
+        json!({"dtype": "float32", "shape": [1], "names": null}),
+    );
+    for name in &DEFAULT_COLUMNS[1..] {
+        features.insert(
+            name.to_string(),
+            json!({"dtype": "int64", "shape": [1], "names": null}),
+        );
+    }
+    Value::Object(features)
 }
 
 /// The per-episode work that needs only the features and options (so it can run on threads
