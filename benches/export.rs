@@ -1,5 +1,6 @@
 //! Criterion benches of the exporters.
 //!
+//! `export/lerobot/video_h264/{1,2}_threads`: the same with the RGB camera as H.264 MP4.
 //! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
 //! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
 //! and of two threads. Throughput is in frames. The episodes are recorded once beforehand, so
@@ -8,7 +9,7 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::export::EpisodeSink;
-use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter, VideoOptions};
 use surgvla::task::TaskId;
 
 fn bench_lerobot(c: &mut Criterion) {
@@ -23,35 +24,47 @@ fn bench_lerobot(c: &mut Criterion) {
         })
         .collect();
     let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
-    let mut group = c.benchmark_group("export/lerobot/image");
-    group.throughput(Throughput::Elements(frames as u64));
-    group.sample_size(10);
-    for threads in [1, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
-        let root = std::env::temp_dir().join(format!(
-            "surgvla-bench-export-{}-{threads}",
-            std::process::id()
-        ));
-        group.bench_function(format!("{threads}_threads"), |b| {
-            b.iter(|| {
-                std::fs::remove_dir_all(&root).ok();
-                pool.install(|| {
-                    let mut writer: Box<dyn EpisodeSink> = Box::new(
-                        LeRobotWriter::create(&root, LeRobotOptions::default()).expect("create"),
-                    );
-                    for episode in &episodes {
-                        writer.write_episode(episode).expect("write");
-                    }
-                    writer.finish().expect("finish")
+    for (mode, video) in [
+        ("image", None),
+        ("video_h264", Some(VideoOptions::default())),
+    ] {
+        let mut group = c.benchmark_group(format!("export/lerobot/{mode}"));
+        group.throughput(Throughput::Elements(frames as u64));
+        group.sample_size(10);
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            let root = std::env::temp_dir().join(format!(
+                "surgvla-bench-export-{}-{threads}",
+                std::process::id()
+            ));
+            group.bench_function(format!("{threads}_threads"), |b| {
+                b.iter(|| {
+                    std::fs::remove_dir_all(&root).ok();
+                    pool.install(|| {
+                        let mut writer: Box<dyn EpisodeSink> = Box::new(
+                            LeRobotWriter::create(
+                                &root,
+                                LeRobotOptions {
+                                    video,
+                                    ..LeRobotOptions::default()
+                                },
+                            )
+                            .expect("create"),
+                        );
+                        for episode in &episodes {
+                            writer.write_episode(episode).expect("write");
+                        }
+                        writer.finish().expect("finish")
+                    })
                 })
-            })
-        });
-        std::fs::remove_dir_all(&root).ok();
+            });
+            std::fs::remove_dir_all(&root).ok();
+        }
+        group.finish();
     }
-    group.finish();
 }
 
 criterion_group!(benches, bench_lerobot);

@@ -65,6 +65,9 @@ struct CollectArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Store the endoscope RGB as H.264 MP4 video (LeRobot video mode) instead of PNG.
+    #[arg(long)]
+    video: bool,
 }
 
 fn parse_tasks(text: &str) -> anyhow::Result<Vec<TaskId>> {
@@ -92,6 +95,9 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
     let options = LeRobotOptions {
         with_mask: args.with_mask,
         extra_metadata: surgvla::view::dataset_metadata(&Camera::endoscope()),
+        video: args
+            .video
+            .then(surgvla::export::lerobot::VideoOptions::default),
         ..LeRobotOptions::default()
     };
     let mut writer: Box<dyn EpisodeSink> = Box::new(LeRobotWriter::create(&args.out, options)?);

@@ -10,6 +10,7 @@
 pub mod lerobot;
 pub mod stats;
 pub mod tiff;
+pub mod video;
 
 use crate::episode::Episode;
 use std::path::PathBuf;

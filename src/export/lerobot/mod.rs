@@ -22,6 +22,7 @@ pub use table::{DEFAULT_COLUMNS, frame_schema, image_fields};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, standard_features};
 use crate::export::stats::{ImageStats, VectorStats};
 use crate::export::tiff::encode_f32_tiff;
+use crate::export::video::{EncodedFrame, VideoFile, encode_h264, video_path};
 use crate::export::{EpisodeSink, ExportError, Summary};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
@@ -32,7 +33,7 @@ use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use table::{EncodedImages, EpisodeRow, episodes_batch, frame_batch, tasks_batch};
+use table::{EncodedImages, EpisodeRow, VideoSpan, episodes_batch, frame_batch, tasks_batch};
 
 /// Name of the marker that exists while a dataset is being written.
 pub const INCOMPLETE_MARKER: &str = ".surgvla-incomplete";
@@ -63,6 +64,26 @@ pub struct LeRobotOptions {
     pub png: PngLevel,
     /// Written to meta/surgvla.json (camera, mask ids, versions).
     pub extra_metadata: Value,
+    /// Store the RGB camera as H.264 MP4 (video mode) instead of PNG in the parquet.
+    pub video: Option<VideoOptions>,
+}
+
+/// Video mode settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VideoOptions {
+    /// Largest H.264 quantiser (0 best .. 51 worst).
+    pub max_qp: u8,
+    /// A new video file starts once the current one reaches this size.
+    pub file_size_mb: u64,
+}
+
+impl Default for VideoOptions {
+    fn default() -> Self {
+        VideoOptions {
+            max_qp: 22,
+            file_size_mb: 200,
+        }
+    }
 }
 
 impl Default for LeRobotOptions {
@@ -77,6 +98,7 @@ impl Default for LeRobotOptions {
             chunks_size: 1000,
             png: PngLevel::Fast,
             extra_metadata: Value::Null,
+            video: None,
         }
     }
 }
@@ -120,7 +142,11 @@ pub struct LeRobotWriter {
     root: PathBuf,
     options: LeRobotOptions,
     features: Vec<FeatureSpec>,
+    /// The features stored in the parquet (all but video ones).
+    parquet_features: Vec<FeatureSpec>,
     schema: std::sync::Arc<arrow_schema::Schema>,
+    video: Option<VideoFile>,
+    next_video_file: u64,
     open: Option<OpenFile>,
     next_file: u64,
     tasks: Vec<String>,
@@ -221,6 +247,11 @@ impl LeRobotWriter {
         )
         .map_err(ExportError::io(&marker))?;
         let features = standard_features(options.height_px, options.width_px, options.with_mask);
+        let parquet_features: Vec<FeatureSpec> = features
+            .iter()
+            .filter(|f| !(options.video.is_some() && f.kind == FeatureKind::Rgb))
+            .cloned()
+            .collect();
         let mut stats: Vec<(String, FeatureStats)> = features
             .iter()
             .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
@@ -228,7 +259,10 @@ impl LeRobotWriter {
         stats.extend(default_stats());
         Ok(LeRobotWriter {
             root: root.to_path_buf(),
-            schema: frame_schema(&features),
+            schema: frame_schema(&parquet_features),
+            parquet_features,
+            video: None,
+            next_video_file: 0,
             features,
             options,
             open: None,
@@ -249,7 +283,11 @@ impl LeRobotWriter {
             .set_max_row_group_row_count(None);
         // PNG bytes are already deflated: store them as they are. Raw float TIFF depth keeps
         // zstd. No dictionaries for image bytes.
-        for feature in self.features.iter().filter(|f| f.dtype == Dtype::Image) {
+        for feature in self
+            .parquet_features
+            .iter()
+            .filter(|f| f.dtype == Dtype::Image)
+        {
             let column = ColumnPath::new(vec![feature.name.clone(), "bytes".into()]);
             builder = builder.set_column_dictionary_enabled(column.clone(), false);
             if feature.kind != FeatureKind::Depth {
@@ -308,7 +346,20 @@ impl LeRobotWriter {
     }
 
     fn info_json(&self) -> Value {
-        let features = features_json(&self.features);
+        let mut features = features_json(&self.features);
+        if self.options.video.is_some() {
+            features[RGB_KEY]["dtype"] = json!("video");
+            features[RGB_KEY]["info"] = json!({
+                "video.height": self.options.height_px,
+                "video.width": self.options.width_px,
+                "video.codec": "h264",
+                "video.pix_fmt": "yuv420p",
+                "video.is_depth_map": false,
+                "video.fps": self.options.fps,
+                "video.channels": 3,
+                "has_audio": false,
+            });
+        }
         json!({
             "codebase_version": CODEBASE_VERSION,
             "robot_type": self.options.robot_type,
@@ -321,11 +372,60 @@ impl LeRobotWriter {
             "fps": self.options.fps,
             "splits": {"train": format!("0:{}", self.episodes.len())},
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-            "video_path": null,
+            "video_path": if self.options.video.is_some() {
+                json!("videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4")
+            } else {
+                Value::Null
+            },
             "features": features,
         })
     }
+
+    /// Appends an episode's encoded frames to the open video file (opening or rolling files);
+    /// returns (chunk, file, from_timestamp, to_timestamp).
+    fn append_video(&mut self, frames: &[EncodedFrame]) -> Result<VideoSpan, ExportError> {
+        let limit = self.options.video.map_or(200, |v| v.file_size_mb) * 1024 * 1024;
+        if self.video.as_ref().is_some_and(|v| v.bytes() >= limit) {
+            self.close_video()?;
+        }
+        if self.video.is_none() {
+            let chunks = self.options.chunks_size.max(1);
+            let (chunk, file) = (self.next_video_file / chunks, self.next_video_file % chunks);
+            self.next_video_file += 1;
+            let path = video_path(&self.root, RGB_KEY, chunk, file);
+            self.video = Some(VideoFile::create(
+                path,
+                chunk,
+                file,
+                self.options.width_px,
+                self.options.height_px,
+                self.options.fps,
+            )?);
+        }
+        let video = self
+            .video
+            .as_mut()
+            .ok_or_else(|| ExportError::Internal("no open video file".into()))?;
+        let (from, to) = video.append(frames)?;
+        Ok(VideoSpan {
+            chunk: video.chunk,
+            file: video.file,
+            from_secs: from,
+            to_secs: to,
+        })
+    }
+
+    fn close_video(&mut self) -> Result<(), ExportError> {
+        if let Some(video) = self.video.take() {
+            self.summary.bytes += video.finish()?;
+            self.summary.files += 1;
+        }
+        Ok(())
+    }
 }
+
+/// The key of the RGB camera.
+pub const RGB_KEY: &str = "observation.images.endoscope";
 
 /// The `features` object of info.json for these features (defaults appended): what
 /// `schemas/lerobot_features.json` records.
@@ -363,6 +463,22 @@ struct EpisodeWork<'a> {
 }
 
 impl EpisodeWork<'_> {
+    /// The RGB frames as H.264 (video mode only).
+    fn encode_video(&self, episode: &Episode) -> Result<Option<Vec<EncodedFrame>>, ExportError> {
+        let Some(video) = self.options.video else {
+            return Ok(None);
+        };
+        let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
+        encode_h264(
+            &frames,
+            self.options.width_px,
+            self.options.height_px,
+            self.options.fps,
+            video.max_qp,
+        )
+        .map(Some)
+    }
+
     /// Encodes every image of an episode (frames in parallel, order kept).
     fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
         let (w, h, level) = (
@@ -485,14 +601,27 @@ impl EpisodeSink for LeRobotWriter {
             features: &self.features,
             options: &self.options,
         };
-        let (images, episode_stats) = rayon::join(
-            || work.encode_images(episode),
+        let image_work = EpisodeWork {
+            features: &self.parquet_features,
+            options: &self.options,
+        };
+        let ((images, video_frames), episode_stats) = rayon::join(
+            || {
+                rayon::join(
+                    || image_work.encode_images(episode),
+                    || work.encode_video(episode),
+                )
+            },
             || work.episode_stats(episode, task_index, first_index),
         );
         let images = images?;
+        let video_span = match video_frames? {
+            Some(frames) => Some(self.append_video(&frames)?),
+            None => None,
+        };
         let batch = frame_batch(
             &self.schema,
-            &self.features,
+            &self.parquet_features,
             episode,
             &images,
             first_index,
@@ -530,6 +659,7 @@ impl EpisodeSink for LeRobotWriter {
             from_index: first_index,
             to_index: first_index + length,
             stats: stats_columns,
+            video: video_span,
         });
         self.total_frames += length;
         self.summary.episodes += 1;
@@ -542,6 +672,7 @@ impl EpisodeSink for LeRobotWriter {
 
     fn finish(mut self: Box<Self>) -> Result<Summary, ExportError> {
         self.close_file()?;
+        self.close_video()?;
         let meta = self.root.join("meta");
         let mut files = 0;
         let mut bytes = 0;

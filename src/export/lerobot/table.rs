@@ -165,6 +165,17 @@ pub struct EpisodeRow {
     pub to_index: u64,
     /// `stats/<feature>/<stat>` -> JSON value (a list, nested for images).
     pub stats: Vec<(String, Value)>,
+    /// Where the RGB camera's frames are, in video mode.
+    pub video: Option<VideoSpan>,
+}
+
+/// An episode's place in a video file.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VideoSpan {
+    pub chunk: u64,
+    pub file: u64,
+    pub from_secs: f64,
+    pub to_secs: f64,
 }
 
 fn json_depth(value: &Value) -> usize {
@@ -243,6 +254,31 @@ pub fn episodes_batch(rows: &[EpisodeRow]) -> Result<RecordBatch, ExportError> {
         ("meta/episodes/chunk_index".into(), int(&|_| 0)),
         ("meta/episodes/file_index".into(), int(&|_| 0)),
     ];
+    if rows.first().is_some_and(|r| r.video.is_some()) {
+        let key = super::RGB_KEY;
+        let span = |r: &EpisodeRow| {
+            r.video.unwrap_or(VideoSpan {
+                chunk: 0,
+                file: 0,
+                from_secs: 0.0,
+                to_secs: 0.0,
+            })
+        };
+        columns.push((format!("videos/{key}/chunk_index"), int(&|r| span(r).chunk)));
+        columns.push((format!("videos/{key}/file_index"), int(&|r| span(r).file)));
+        columns.push((
+            format!("videos/{key}/from_timestamp"),
+            Arc::new(arrow_array::Float64Array::from_iter_values(
+                rows.iter().map(|r| span(r).from_secs),
+            )),
+        ));
+        columns.push((
+            format!("videos/{key}/to_timestamp"),
+            Arc::new(arrow_array::Float64Array::from_iter_values(
+                rows.iter().map(|r| span(r).to_secs),
+            )),
+        ));
+    }
     if let Some(first) = rows.first() {
         for (k, (name, _)) in first.stats.iter().enumerate() {
             let values: Vec<&Value> = rows.iter().map(|r| &r.stats[k].1).collect();
