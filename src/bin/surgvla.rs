@@ -68,6 +68,9 @@ struct CollectArgs {
     /// Store the endoscope RGB as H.264 MP4 video (LeRobot video mode) instead of PNG.
     #[arg(long)]
     video: bool,
+    /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
+    #[arg(long, default_value = "3.0", value_parser = ["3.0", "2.1"])]
+    lerobot_version: String,
 }
 
 fn parse_tasks(text: &str) -> anyhow::Result<Vec<TaskId>> {
@@ -98,6 +101,11 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
         video: args
             .video
             .then(surgvla::export::lerobot::VideoOptions::default),
+        version: if args.lerobot_version == "2.1" {
+            surgvla::export::lerobot::LeRobotVersion::V21
+        } else {
+            surgvla::export::lerobot::LeRobotVersion::V30
+        },
         ..LeRobotOptions::default()
     };
     let mut writer: Box<dyn EpisodeSink> = Box::new(LeRobotWriter::create(&args.out, options)?);

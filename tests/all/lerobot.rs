@@ -356,3 +356,53 @@ fn video_mode_writes_one_growing_mp4_and_its_spans() {
     );
     std::fs::remove_dir_all(&root).ok();
 }
+
+#[test]
+fn version_2_1_writes_one_file_per_episode_and_jsonl_metadata() {
+    use surgvla::export::lerobot::{LeRobotVersion, VideoOptions};
+    let root = temp_root("v21");
+    let recorded = episodes(2, 4);
+    let options = LeRobotOptions {
+        version: LeRobotVersion::V21,
+        video: Some(VideoOptions::default()),
+        ..LeRobotOptions::default()
+    };
+    write(&root, &recorded, options);
+    for e in 0..2 {
+        assert!(
+            root.join(format!("data/chunk-000/episode_{e:06}.parquet"))
+                .exists()
+        );
+        assert!(
+            root.join(format!(
+                "videos/chunk-000/observation.images.endoscope/episode_{e:06}.mp4"
+            ))
+            .exists()
+        );
+    }
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(root.join("meta/info.json")).expect("info"))
+            .expect("json");
+    assert_eq!(info["codebase_version"], "v2.1");
+    assert_eq!(info["total_chunks"], 1);
+    assert_eq!(info["total_videos"], 2);
+    let episodes_jsonl =
+        std::fs::read_to_string(root.join("meta/episodes.jsonl")).expect("episodes.jsonl");
+    let first: serde_json::Value =
+        serde_json::from_str(episodes_jsonl.lines().next().expect("a line")).expect("json");
+    assert_eq!(first["episode_index"], 0);
+    assert_eq!(first["length"], 4);
+    let stats_line = std::fs::read_to_string(root.join("meta/episodes_stats.jsonl"))
+        .expect("episodes_stats.jsonl");
+    let stats: serde_json::Value =
+        serde_json::from_str(stats_line.lines().next().expect("a line")).expect("json");
+    assert_eq!(stats["stats"]["action"]["count"], serde_json::json!([4]));
+    assert_eq!(
+        std::fs::read_to_string(root.join("meta/tasks.jsonl"))
+            .expect("tasks")
+            .lines()
+            .count(),
+        2
+    );
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -66,6 +66,18 @@ pub struct LeRobotOptions {
     pub extra_metadata: Value,
     /// Store the RGB camera as H.264 MP4 (video mode) instead of PNG in the parquet.
     pub video: Option<VideoOptions>,
+    /// The on-disk layout.
+    pub version: LeRobotVersion,
+}
+
+/// The LeRobot layout to write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LeRobotVersion {
+    /// v3.0: many episodes per data and video file, parquet metadata (lerobot >= 0.4).
+    #[default]
+    V30,
+    /// v2.1: one parquet (and MP4) per episode, JSON-lines metadata (older consumers).
+    V21,
 }
 
 /// Video mode settings.
@@ -99,6 +111,7 @@ impl Default for LeRobotOptions {
             png: PngLevel::Fast,
             extra_metadata: Value::Null,
             video: None,
+            version: LeRobotVersion::V30,
         }
     }
 }
@@ -299,12 +312,31 @@ impl LeRobotWriter {
 
     fn open_file(&mut self) -> Result<&mut OpenFile, ExportError> {
         if self.open.is_none() {
-            let chunk = self.next_file / self.options.chunks_size.max(1);
-            let file = self.next_file % self.options.chunks_size.max(1);
+            let chunks = self.options.chunks_size.max(1);
+            let (chunk, file, path) = match self.options.version {
+                LeRobotVersion::V30 => {
+                    let (chunk, file) = (self.next_file / chunks, self.next_file % chunks);
+                    (
+                        chunk,
+                        file,
+                        self.root
+                            .join(format!("data/chunk-{chunk:03}/file-{file:03}.parquet")),
+                    )
+                }
+                LeRobotVersion::V21 => {
+                    // One file per episode, named by the episode index.
+                    let episode = self.episodes.len() as u64;
+                    let chunk = episode / chunks;
+                    (
+                        chunk,
+                        episode,
+                        self.root.join(format!(
+                            "data/chunk-{chunk:03}/episode_{episode:06}.parquet"
+                        )),
+                    )
+                }
+            };
             self.next_file += 1;
-            let path = self
-                .root
-                .join(format!("data/chunk-{chunk:03}/file-{file:03}.parquet"));
             let folder = path
                 .parent()
                 .map(Path::to_path_buf)
@@ -385,14 +417,31 @@ impl LeRobotWriter {
     /// returns (chunk, file, from_timestamp, to_timestamp).
     fn append_video(&mut self, frames: &[EncodedFrame]) -> Result<VideoSpan, ExportError> {
         let limit = self.options.video.map_or(200, |v| v.file_size_mb) * 1024 * 1024;
-        if self.video.as_ref().is_some_and(|v| v.bytes() >= limit) {
+        let v21 = self.options.version == LeRobotVersion::V21;
+        if self
+            .video
+            .as_ref()
+            .is_some_and(|v| v21 || v.bytes() >= limit)
+        {
             self.close_video()?;
         }
         if self.video.is_none() {
             let chunks = self.options.chunks_size.max(1);
-            let (chunk, file) = (self.next_video_file / chunks, self.next_video_file % chunks);
+            let (chunk, file, path) = if v21 {
+                let episode = self.episodes.len() as u64;
+                let chunk = episode / chunks;
+                (
+                    chunk,
+                    episode,
+                    self.root.join(format!(
+                        "videos/chunk-{chunk:03}/{RGB_KEY}/episode_{episode:06}.mp4"
+                    )),
+                )
+            } else {
+                let (chunk, file) = (self.next_video_file / chunks, self.next_video_file % chunks);
+                (chunk, file, video_path(&self.root, RGB_KEY, chunk, file))
+            };
             self.next_video_file += 1;
-            let path = video_path(&self.root, RGB_KEY, chunk, file);
             self.video = Some(VideoFile::create(
                 path,
                 chunk,
@@ -421,6 +470,76 @@ impl LeRobotWriter {
             self.summary.files += 1;
         }
         Ok(())
+    }
+}
+
+impl LeRobotWriter {
+    /// The v2.1 metadata: info.json, episodes.jsonl, tasks.jsonl, episodes_stats.jsonl and
+    /// stats.json; info.json last.
+    fn finish_v21(mut self: Box<Self>) -> Result<Summary, ExportError> {
+        let meta = self.root.join("meta");
+        let lines =
+            |values: Vec<Value>| -> String { values.iter().map(|v| format!("{v}\n")).collect() };
+        let episodes = lines(self.episodes.iter().map(|e| json!({"episode_index": e.episode_index, "tasks": [e.task], "length": e.length})).collect());
+        let tasks = lines(
+            self.tasks
+                .iter()
+                .enumerate()
+                .map(|(i, t)| json!({"task_index": i, "task": t}))
+                .collect(),
+        );
+        let episode_stats = lines(
+            self.episodes
+                .iter()
+                .map(|e| json!({"episode_index": e.episode_index, "stats": e.stats_json}))
+                .collect(),
+        );
+        let stats: serde_json::Map<String, Value> = self
+            .stats
+            .iter()
+            .map(|(name, s)| (name.clone(), s.to_json()))
+            .collect();
+        let stats = serde_json::to_string_pretty(&Value::Object(stats))
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        let extra = serde_json::to_string_pretty(&self.options.extra_metadata)
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        let mut info = self.info_json();
+        let chunks = (self.episodes.len() as u64).div_ceil(self.options.chunks_size.max(1));
+        info["codebase_version"] = json!("v2.1");
+        info["total_chunks"] = json!(chunks);
+        info["total_videos"] = json!(if self.options.video.is_some() {
+            self.episodes.len()
+        } else {
+            0
+        });
+        info["data_path"] =
+            json!("data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet");
+        if self.options.video.is_some() {
+            info["video_path"] = json!(
+                "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
+            );
+        }
+        if let Some(object) = info.as_object_mut() {
+            object.remove("data_files_size_in_mb");
+            object.remove("video_files_size_in_mb");
+        }
+        let info = serde_json::to_string_pretty(&info)
+            .map_err(|e| ExportError::Internal(e.to_string()))?;
+        for (name, text) in [
+            ("episodes.jsonl", &episodes),
+            ("tasks.jsonl", &tasks),
+            ("episodes_stats.jsonl", &episode_stats),
+            ("stats.json", &stats),
+            ("surgvla.json", &extra),
+            ("info.json", &info),
+        ] {
+            write_atomically(&meta.join(name), text.as_bytes())?;
+            self.summary.files += 1;
+            self.summary.bytes += text.len() as u64;
+        }
+        let marker = self.root.join(INCOMPLETE_MARKER);
+        std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
+        Ok(self.summary.clone())
     }
 }
 
@@ -637,11 +756,14 @@ impl EpisodeSink for LeRobotWriter {
         };
         open.writer.write(&batch).map_err(parquet_error)?;
         open.writer.flush().map_err(parquet_error)?;
-        let full = open.writer.bytes_written() as u64 >= limit;
+        let full = open.writer.bytes_written() as u64 >= limit
+            || self.options.version == LeRobotVersion::V21;
 
         let mut stats_columns = Vec::new();
+        let mut stats_json = serde_json::Map::new();
         for ((name, total), (_, this)) in self.stats.iter_mut().zip(episode_stats) {
             let json = this.to_json();
+            stats_json.insert(name.clone(), json.clone());
             for stat in [
                 "min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99",
             ] {
@@ -659,6 +781,7 @@ impl EpisodeSink for LeRobotWriter {
             from_index: first_index,
             to_index: first_index + length,
             stats: stats_columns,
+            stats_json: Value::Object(stats_json),
             video: video_span,
         });
         self.total_frames += length;
@@ -673,6 +796,9 @@ impl EpisodeSink for LeRobotWriter {
     fn finish(mut self: Box<Self>) -> Result<Summary, ExportError> {
         self.close_file()?;
         self.close_video()?;
+        if self.options.version == LeRobotVersion::V21 {
+            return self.finish_v21();
+        }
         let meta = self.root.join("meta");
         let mut files = 0;
         let mut bytes = 0;

@@ -165,6 +165,8 @@ pub struct EpisodeRow {
     pub to_index: u64,
     /// `stats/<feature>/<stat>` -> JSON value (a list, nested for images).
     pub stats: Vec<(String, Value)>,
+    /// The same statistics as one JSON object per feature (v2.1's episodes_stats.jsonl).
+    pub stats_json: Value,
     /// Where the RGB camera's frames are, in video mode.
     pub video: Option<VideoSpan>,
 }
