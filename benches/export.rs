@@ -1,6 +1,7 @@
 //! Criterion benches of the exporters.
 //!
-//! `export/lerobot/video_h264/{1,2}_threads`: the same with the RGB camera as H.264 MP4.
+//! `export/lerobot/video_{av1,h264}/{1,2}_threads`: the same with the RGB camera as AV1 or H.264
+//! MP4.
 //! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
 //! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
 //! and of two threads. Throughput is in frames. The episodes are recorded once beforehand, so

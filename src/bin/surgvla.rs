@@ -65,9 +65,10 @@ struct CollectArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
-    /// Store the endoscope RGB as H.264 MP4 video (LeRobot video mode) instead of PNG.
-    #[arg(long)]
-    video: bool,
+    /// Store the endoscope RGB as MP4 video (LeRobot video mode) instead of PNG: av1 (rav1e,
+    /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
+    #[arg(long, num_args = 0..=1, default_missing_value = "av1", value_parser = ["av1", "h264"])]
+    video: Option<String>,
     /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
     #[arg(long, default_value = "3.0", value_parser = ["3.0", "2.1"])]
     lerobot_version: String,
@@ -98,9 +99,10 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
     let options = LeRobotOptions {
         with_mask: args.with_mask,
         extra_metadata: surgvla::view::dataset_metadata(&Camera::endoscope()),
-        video: args
-            .video
-            .then(surgvla::export::lerobot::VideoOptions::default),
+        video: args.video.as_deref().map(|codec| match codec {
+            "h264" => surgvla::export::lerobot::VideoOptions::h264(),
+            _ => surgvla::export::lerobot::VideoOptions::default(),
+        }),
         version: if args.lerobot_version == "2.1" {
             surgvla::export::lerobot::LeRobotVersion::V21
         } else {

@@ -1,5 +1,5 @@
-//! Video for image features: H.264 (openh264, yuv420p) in MP4 (muxide), in pure Rust without
-//! system libraries. One encoder per episode (episodes encode in parallel; every episode starts
+//! Video for image features: AV1 (rav1e, LeRobot's own codec family) or H.264 (openh264), both
+//! yuv420p, in MP4 (muxide), without system libraries. One encoder per episode (episodes encode in parallel; every episode starts
 //! with an IDR frame), appended to a shared MP4 whose presentation times run on across episodes,
 //! so an episode is the span `[from_timestamp, to_timestamp)` of its file.
 
@@ -13,7 +13,190 @@ use openh264::formats::{RgbSliceU8, YUVBuffer};
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
-/// One encoded frame (Annex B bytes).
+/// The video codec of a dataset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Codec {
+    /// AV1 with rav1e (speed preset 10, low latency, keyframe every 2 s).
+    Av1,
+    /// H.264 with openh264 (the fast mode).
+    H264,
+}
+
+impl Codec {
+    /// The name LeRobot records in `video.codec`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Codec::Av1 => "av1",
+            Codec::H264 => "h264",
+        }
+    }
+}
+
+/// BT.601 limited-range RGB to planar YUV 4:2:0 (chroma averaged over 2 x 2 blocks).
+pub fn rgb_to_yuv420(rgb: &[u8], width: usize, height: usize) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
+    let (cw, ch) = (width.div_ceil(2), height.div_ceil(2));
+    let mut y = vec![0u8; width * height];
+    let mut u = vec![0u8; cw * ch];
+    let mut v = vec![0u8; cw * ch];
+    let luma = |r: i32, g: i32, b: i32| ((66 * r + 129 * g + 25 * b + 128) >> 8) + 16;
+    for row in 0..height {
+        for col in 0..width {
+            let i = (row * width + col) * 3;
+            let (r, g, b) = (
+                i32::from(rgb[i]),
+                i32::from(rgb[i + 1]),
+                i32::from(rgb[i + 2]),
+            );
+            y[row * width + col] = luma(r, g, b).clamp(0, 255) as u8;
+        }
+    }
+    for crow in 0..ch {
+        for ccol in 0..cw {
+            let (mut r, mut g, mut b, mut n) = (0i32, 0i32, 0i32, 0i32);
+            for (dy, dx) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                let (row, col) = (crow * 2 + dy, ccol * 2 + dx);
+                if row < height && col < width {
+                    let i = (row * width + col) * 3;
+                    r += i32::from(rgb[i]);
+                    g += i32::from(rgb[i + 1]);
+                    b += i32::from(rgb[i + 2]);
+                    n += 1;
+                }
+            }
+            let (r, g, b) = (r / n.max(1), g / n.max(1), b / n.max(1));
+            u[crow * cw + ccol] =
+                (((-38 * r - 74 * g + 112 * b + 128) >> 8) + 128).clamp(0, 255) as u8;
+            v[crow * cw + ccol] =
+                (((112 * r - 94 * g - 18 * b + 128) >> 8) + 128).clamp(0, 255) as u8;
+        }
+    }
+    (y, u, v)
+}
+
+/// Removes temporal-delimiter OBUs (type 2) from an AV1 packet: MP4 samples must not carry them.
+pub fn strip_temporal_delimiters(data: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(data.len());
+    let mut i = 0;
+    while i < data.len() {
+        let header = data[i];
+        let obu_type = (header >> 3) & 0x0f;
+        let has_extension = header & 0x04 != 0;
+        let has_size = header & 0x02 != 0;
+        let mut j = i + 1 + usize::from(has_extension);
+        let payload = if has_size {
+            let (mut value, mut shift) = (0usize, 0);
+            loop {
+                let Some(byte) = data.get(j) else {
+                    return data.to_vec();
+                };
+                value |= usize::from(byte & 0x7f) << shift;
+                j += 1;
+                shift += 7;
+                if byte & 0x80 == 0 || shift > 56 {
+                    break;
+                }
+            }
+            value
+        } else {
+            data.len().saturating_sub(j)
+        };
+        let end = (j + payload).min(data.len());
+        if obu_type != 2 {
+            out.extend_from_slice(&data[i..end]);
+        }
+        i = end;
+    }
+    out
+}
+
+/// Encodes an episode's RGB frames as AV1 (8-bit 4:2:0) with one encoder thread.
+pub fn encode_av1(
+    frames: &[&[u8]],
+    width: usize,
+    height: usize,
+    fps: u32,
+    quantizer: usize,
+) -> Result<Vec<EncodedFrame>, ExportError> {
+    use rav1e::prelude::*;
+    let encode_error = |message: String| ExportError::Encode {
+        what: "AV1".into(),
+        message,
+    };
+    let config = EncoderConfig {
+        width,
+        height,
+        time_base: Rational::new(1, u64::from(fps.max(1))),
+        bit_depth: 8,
+        chroma_sampling: ChromaSampling::Cs420,
+        low_latency: true,
+        min_key_frame_interval: 0,
+        max_key_frame_interval: u64::from(fps.max(1)) * 2,
+        quantizer,
+        speed_settings: SpeedSettings::from_preset(10),
+        ..Default::default()
+    };
+    let mut context: Context<u8> = Config::new()
+        .with_encoder_config(config)
+        .with_threads(1)
+        .new_context()
+        .map_err(|e| encode_error(e.to_string()))?;
+    let mut out = Vec::with_capacity(frames.len());
+    let drain =
+        |context: &mut Context<u8>, out: &mut Vec<EncodedFrame>| -> Result<bool, ExportError> {
+            loop {
+                match context.receive_packet() {
+                    Ok(packet) => out.push(EncodedFrame {
+                        data: strip_temporal_delimiters(&packet.data),
+                        keyframe: packet.frame_type == FrameType::KEY,
+                    }),
+                    Err(EncoderStatus::Encoded) => continue,
+                    Err(EncoderStatus::NeedMoreData) => return Ok(false),
+                    Err(EncoderStatus::LimitReached) => return Ok(true),
+                    Err(e) => return Err(encode_error(format!("{e:?}"))),
+                }
+            }
+        };
+    for rgb in frames {
+        let (y, u, v) = rgb_to_yuv420(rgb, width, height);
+        let mut frame = context.new_frame();
+        let cw = width.div_ceil(2);
+        frame.planes[0].copy_from_raw_u8(&y, width, 1);
+        frame.planes[1].copy_from_raw_u8(&u, cw, 1);
+        frame.planes[2].copy_from_raw_u8(&v, cw, 1);
+        context
+            .send_frame(frame)
+            .map_err(|e| encode_error(format!("{e:?}")))?;
+        drain(&mut context, &mut out)?;
+    }
+    context.flush();
+    while !drain(&mut context, &mut out)? {}
+    if out.len() != frames.len() {
+        return Err(encode_error(format!(
+            "{} frames in, {} packets out",
+            frames.len(),
+            out.len()
+        )));
+    }
+    Ok(out)
+}
+
+/// Encodes an episode's RGB frames with `codec` at the quality setting `quality` (H.264: largest
+/// quantiser 0..51; AV1: quantizer 0..255).
+pub fn encode(
+    codec: Codec,
+    frames: &[&[u8]],
+    width: usize,
+    height: usize,
+    fps: u32,
+    quality: u32,
+) -> Result<Vec<EncodedFrame>, ExportError> {
+    match codec {
+        Codec::H264 => encode_h264(frames, width, height, fps, quality.min(51) as u8),
+        Codec::Av1 => encode_av1(frames, width, height, fps, quality.min(255) as usize),
+    }
+}
+
+/// One encoded frame (Annex B bytes for H.264, OBUs for AV1).
 #[derive(Clone, Debug)]
 pub struct EncodedFrame {
     pub data: Vec<u8>,
@@ -78,6 +261,7 @@ pub struct VideoFile {
 impl VideoFile {
     pub fn create(
         path: PathBuf,
+        codec: Codec,
         chunk: u64,
         file: u64,
         width: usize,
@@ -95,7 +279,10 @@ impl VideoFile {
         let handle = File::create(&temporary).map_err(ExportError::io(&temporary))?;
         let muxer = MuxerBuilder::new(handle)
             .video(
-                VideoCodec::H264,
+                match codec {
+                    Codec::H264 => VideoCodec::H264,
+                    Codec::Av1 => VideoCodec::Av1,
+                },
                 width as u32,
                 height as u32,
                 f64::from(fps),
@@ -160,6 +347,31 @@ pub fn video_path(root: &Path, key: &str, chunk: u64, file: u64) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn av1_encodes_every_frame_without_temporal_delimiters() {
+        let frames: Vec<Vec<u8>> = (0..6u8)
+            .map(|i| {
+                (0..64 * 48 * 3)
+                    .map(|k| (k as u8).wrapping_add(i * 9))
+                    .collect()
+            })
+            .collect();
+        let refs: Vec<&[u8]> = frames.iter().map(|f| f.as_slice()).collect();
+        let encoded = encode_av1(&refs, 64, 48, 5, 80).expect("encode");
+        assert_eq!(encoded.len(), 6);
+        assert!(encoded[0].keyframe);
+        // The first OBU of the keyframe is the sequence header (type 1), not a delimiter.
+        assert_eq!((encoded[0].data[0] >> 3) & 0x0f, 1);
+        assert!(encoded.iter().all(|f| (f.data[0] >> 3) & 0x0f != 2));
+    }
+
+    #[test]
+    fn yuv_of_grey_is_neutral() {
+        let (y, u, v) = rgb_to_yuv420(&[128u8; 4 * 4 * 3], 4, 4);
+        assert!(y.iter().all(|p| *p == 126));
+        assert!(u.iter().chain(&v).all(|p| *p == 128));
+    }
 
     #[test]
     fn every_frame_is_encoded_and_the_first_is_a_keyframe() {

@@ -303,58 +303,55 @@ fn schema_snapshot_matches_the_features() {
 #[test]
 fn video_mode_writes_one_growing_mp4_and_its_spans() {
     use surgvla::export::lerobot::VideoOptions;
-    let root = temp_root("video");
-    let recorded = episodes(3, 6);
-    let summary = write(
-        &root,
-        &recorded,
-        LeRobotOptions {
-            video: Some(VideoOptions::default()),
+    for (video, codec) in [
+        (VideoOptions::default(), "av1"),
+        (VideoOptions::h264(), "h264"),
+    ] {
+        let root = temp_root("video");
+        let recorded = episodes(3, 6);
+        let options = LeRobotOptions {
+            video: Some(video),
             ..LeRobotOptions::default()
-        },
-    );
-    assert_eq!(summary.frames, 18);
-    let mp4 = root.join("videos/observation.images.endoscope/chunk-000/file-000.mp4");
-    let bytes = std::fs::read(&mp4).expect("mp4 written");
-    assert_eq!(&bytes[4..8], b"ftyp");
-    let info: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(root.join("meta/info.json")).expect("info"))
-            .expect("json");
-    assert_eq!(
-        info["features"]["observation.images.endoscope"]["dtype"],
-        "video"
-    );
-    assert_eq!(
-        info["features"]["observation.images.endoscope"]["info"]["video.codec"],
-        "h264"
-    );
-    // The RGB column is not in the parquet; depth still is.
-    let batch = &read_parquet(&data_files(&root).expect("files")[0]).expect("data")[0];
-    assert!(
-        batch
-            .column_by_name("observation.images.endoscope")
-            .is_none()
-    );
-    assert!(batch.column_by_name("observation.images.depth").is_some());
-    let table =
-        &read_parquet(&root.join("meta/episodes/chunk-000/file-000.parquet")).expect("episodes")[0];
-    let floats = |name: &str| {
-        table
-            .column_by_name(name)
-            .and_then(|c| c.as_any().downcast_ref::<arrow_array::Float64Array>())
-            .expect(name)
-            .values()
-            .to_vec()
-    };
-    assert_eq!(
-        floats("videos/observation.images.endoscope/from_timestamp"),
-        [0.0, 1.2, 2.4]
-    );
-    assert_eq!(
-        floats("videos/observation.images.endoscope/to_timestamp"),
-        [1.2, 2.4, 3.6]
-    );
-    std::fs::remove_dir_all(&root).ok();
+        };
+        let summary = write(&root, &recorded, options);
+        assert_eq!(summary.frames, 18);
+        let mp4 = root.join("videos/observation.images.endoscope/chunk-000/file-000.mp4");
+        let bytes = std::fs::read(&mp4).expect("mp4 written");
+        assert_eq!(&bytes[4..8], b"ftyp");
+        let info: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(root.join("meta/info.json")).expect("info"))
+                .expect("json");
+        let rgb = &info["features"]["observation.images.endoscope"];
+        assert_eq!(rgb["dtype"], "video");
+        assert_eq!(rgb["info"]["video.codec"], codec);
+        // The RGB column is not in the parquet; depth still is.
+        let batch = &read_parquet(&data_files(&root).expect("files")[0]).expect("data")[0];
+        assert!(
+            batch
+                .column_by_name("observation.images.endoscope")
+                .is_none()
+        );
+        assert!(batch.column_by_name("observation.images.depth").is_some());
+        let table = &read_parquet(&root.join("meta/episodes/chunk-000/file-000.parquet"))
+            .expect("episodes")[0];
+        let floats = |name: &str| {
+            table
+                .column_by_name(name)
+                .and_then(|c| c.as_any().downcast_ref::<arrow_array::Float64Array>())
+                .expect(name)
+                .values()
+                .to_vec()
+        };
+        assert_eq!(
+            floats("videos/observation.images.endoscope/from_timestamp"),
+            [0.0, 1.2, 2.4]
+        );
+        assert_eq!(
+            floats("videos/observation.images.endoscope/to_timestamp"),
+            [1.2, 2.4, 3.6]
+        );
+        std::fs::remove_dir_all(&root).ok();
+    }
 }
 
 #[test]

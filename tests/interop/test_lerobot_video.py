@@ -1,6 +1,6 @@
-"""surgvla's LeRobot video mode (H.264 MP4), loaded by the real lerobot 0.6.1 loader (PyAV).
+"""surgvla's LeRobot video mode (AV1 or H.264 MP4), loaded by the real lerobot 0.6.1 loader (PyAV).
 
-SURGVLA_LEROBOT_VIDEO_DATASET holds a dataset written with `surgvla collect --video`;
+SURGVLA_LEROBOT_VIDEO_DATASET holds a dataset written with `surgvla collect --video av1|h264`;
 SURGVLA_LEROBOT_DATASET holds the same episodes in image mode (PNG), the lossless reference.
 """
 
@@ -32,6 +32,8 @@ def images():
 
 def test_video_metadata(video):
     assert video.meta.info.codebase_version == "v3.0"
+    assert video.features[RGB]["info"]["video.codec"] in ("av1", "h264")
+    assert video.features[RGB]["info"]["video.pix_fmt"] == "yuv420p"
     assert RGB in video.meta.video_keys
     assert video.features[RGB]["dtype"] == "video"
     assert video.meta.info.video_path is not None

@@ -22,7 +22,8 @@ pub use table::{DEFAULT_COLUMNS, frame_schema, image_fields};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, standard_features};
 use crate::export::stats::{ImageStats, VectorStats};
 use crate::export::tiff::encode_f32_tiff;
-use crate::export::video::{EncodedFrame, VideoFile, encode_h264, video_path};
+pub use crate::export::video::Codec;
+use crate::export::video::{EncodedFrame, VideoFile, encode, video_path};
 use crate::export::{EpisodeSink, ExportError, Summary};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
@@ -83,16 +84,29 @@ pub enum LeRobotVersion {
 /// Video mode settings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct VideoOptions {
-    /// Largest H.264 quantiser (0 best .. 51 worst).
-    pub max_qp: u8,
+    pub codec: Codec,
+    /// Quality: H.264's largest quantiser (0 best .. 51), AV1's quantizer (0 best .. 255).
+    pub quality: u32,
     /// A new video file starts once the current one reaches this size.
     pub file_size_mb: u64,
+}
+
+impl VideoOptions {
+    /// H.264 at a high-quality quantiser range (the fast mode).
+    pub fn h264() -> Self {
+        VideoOptions {
+            codec: Codec::H264,
+            quality: 22,
+            file_size_mb: 200,
+        }
+    }
 }
 
 impl Default for VideoOptions {
     fn default() -> Self {
         VideoOptions {
-            max_qp: 22,
+            codec: Codec::Av1,
+            quality: 80,
             file_size_mb: 200,
         }
     }
@@ -384,7 +398,7 @@ impl LeRobotWriter {
             features[RGB_KEY]["info"] = json!({
                 "video.height": self.options.height_px,
                 "video.width": self.options.width_px,
-                "video.codec": "h264",
+                "video.codec": self.options.video.map_or("h264", |v| v.codec.name()),
                 "video.pix_fmt": "yuv420p",
                 "video.is_depth_map": false,
                 "video.fps": self.options.fps,
@@ -442,8 +456,10 @@ impl LeRobotWriter {
                 (chunk, file, video_path(&self.root, RGB_KEY, chunk, file))
             };
             self.next_video_file += 1;
+            let codec = self.options.video.map_or(Codec::Av1, |v| v.codec);
             self.video = Some(VideoFile::create(
                 path,
+                codec,
                 chunk,
                 file,
                 self.options.width_px,
@@ -588,12 +604,13 @@ impl EpisodeWork<'_> {
             return Ok(None);
         };
         let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
-        encode_h264(
+        encode(
+            video.codec,
             &frames,
             self.options.width_px,
             self.options.height_px,
             self.options.fps,
-            video.max_qp,
+            video.quality,
         )
         .map(Some)
     }
