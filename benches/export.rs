@@ -27,7 +27,8 @@ fn bench_lerobot(c: &mut Criterion) {
     let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
     for (mode, video) in [
         ("image", None),
-        ("video_h264", Some(VideoOptions::default())),
+        ("video_av1", Some(VideoOptions::default())),
+        ("video_h264", Some(VideoOptions::h264())),
     ] {
         let mut group = c.benchmark_group(format!("export/lerobot/{mode}"));
         group.throughput(Throughput::Elements(frames as u64));
@@ -55,9 +56,7 @@ fn bench_lerobot(c: &mut Criterion) {
                             )
                             .expect("create"),
                         );
-                        for episode in &episodes {
-                            writer.write_episode(episode).expect("write");
-                        }
+                        writer.write_batch(&episodes).expect("write");
                         writer.finish().expect("finish")
                     })
                 })

@@ -129,9 +129,7 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
                 .map(|(i, (task, seed))| record_episode(*task, *seed, first + i as u64, &record))
                 .collect()
         });
-        for episode in &episodes {
-            writer.write_episode(episode)?;
-        }
+        writer.write_batch(&episodes)?;
     }
     let summary = writer.finish()?;
     let seconds = started.elapsed().as_secs_f64();

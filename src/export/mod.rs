@@ -59,6 +59,11 @@ pub struct Summary {
 /// Receives episodes one at a time, in episode-index order.
 pub trait EpisodeSink {
     fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError>;
+    /// Writes consecutive episodes (a sink may work on them in parallel; output is as if they
+    /// were written one by one).
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        episodes.iter().try_for_each(|e| self.write_episode(e))
+    }
     /// Completes the dataset: after this returns Ok, it is consistent and loadable.
     fn finish(self: Box<Self>) -> Result<Summary, ExportError>;
 }

@@ -403,3 +403,39 @@ fn version_2_1_writes_one_file_per_episode_and_jsonl_metadata() {
     );
     std::fs::remove_dir_all(&root).ok();
 }
+
+#[test]
+fn batched_video_encoding_writes_the_same_bytes_as_one_by_one() {
+    use surgvla::export::lerobot::VideoOptions;
+    let recorded = episodes(3, 5);
+    let options = LeRobotOptions {
+        video: Some(VideoOptions::default()),
+        ..LeRobotOptions::default()
+    };
+    let (one, batch) = (temp_root("one-by-one"), temp_root("batched"));
+    write(&one, &recorded, options.clone());
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("pool");
+    pool.install(|| {
+        let mut writer: Box<dyn EpisodeSink> =
+            Box::new(LeRobotWriter::create(&batch, options).expect("create"));
+        writer.write_batch(&recorded).expect("batch");
+        writer.finish().expect("finish");
+    });
+    for file in [
+        "videos/observation.images.endoscope/chunk-000/file-000.mp4",
+        "data/chunk-000/file-000.parquet",
+        "meta/episodes/chunk-000/file-000.parquet",
+        "meta/stats.json",
+    ] {
+        assert_eq!(
+            std::fs::read(one.join(file)).expect("one"),
+            std::fs::read(batch.join(file)).expect("batch"),
+            "{file}"
+        );
+    }
+    std::fs::remove_dir_all(&one).ok();
+    std::fs::remove_dir_all(&batch).ok();
+}

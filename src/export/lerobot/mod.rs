@@ -715,6 +715,39 @@ impl EpisodeWork<'_> {
 
 impl EpisodeSink for LeRobotWriter {
     fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
+        self.write_with_video(episode, None)
+    }
+
+    /// Video encoders run one per episode: a batch encodes its episodes' videos in parallel
+    /// first, then writes the episodes in order.
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        if self.options.video.is_none() || episodes.len() < 2 {
+            return episodes.iter().try_for_each(|e| self.write_episode(e));
+        }
+        let work = EpisodeWork {
+            features: &self.features,
+            options: &self.options,
+        };
+        let videos: Vec<Result<Option<Vec<EncodedFrame>>, ExportError>> =
+            episodes.par_iter().map(|e| work.encode_video(e)).collect();
+        for (episode, video) in episodes.iter().zip(videos) {
+            self.write_with_video(episode, Some(video?))?;
+        }
+        Ok(())
+    }
+
+    fn finish(self: Box<Self>) -> Result<Summary, ExportError> {
+        self.finish_dataset()
+    }
+}
+
+impl LeRobotWriter {
+    /// Writes one episode; `video` holds its already encoded frames when the caller encoded them.
+    fn write_with_video(
+        &mut self,
+        episode: &Episode,
+        video: Option<Option<Vec<EncodedFrame>>>,
+    ) -> Result<(), ExportError> {
         episode.validate().map_err(ExportError::InvalidEpisode)?;
         if episode.meta.index != self.episodes.len() as u64 {
             return Err(ExportError::InvalidEpisode(format!(
@@ -745,7 +778,10 @@ impl EpisodeSink for LeRobotWriter {
             || {
                 rayon::join(
                     || image_work.encode_images(episode),
-                    || work.encode_video(episode),
+                    || match video {
+                        Some(encoded) => Ok(encoded),
+                        None => work.encode_video(episode),
+                    },
                 )
             },
             || work.episode_stats(episode, task_index, first_index),
@@ -810,7 +846,7 @@ impl EpisodeSink for LeRobotWriter {
         Ok(())
     }
 
-    fn finish(mut self: Box<Self>) -> Result<Summary, ExportError> {
+    fn finish_dataset(mut self: Box<Self>) -> Result<Summary, ExportError> {
         self.close_file()?;
         self.close_video()?;
         if self.options.version == LeRobotVersion::V21 {
