@@ -4,7 +4,7 @@
 //! the generator is ours rather than a dependency whose stream may change between versions.
 
 /// SplitMix64: fast, statistically sound for simulation spawns, and splittable by seed mixing.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct SplitMix64 {
     state: u64,
 }

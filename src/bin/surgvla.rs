@@ -69,6 +69,10 @@ struct CollectArgs {
     /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
     #[arg(long, num_args = 0..=1, default_missing_value = "av1", value_parser = ["av1", "h264"])]
     video: Option<String>,
+    /// Continue an interrupted run in --out (same options and seed): episodes up to its last
+    /// checkpoint are kept, the rest are recorded again.
+    #[arg(long)]
+    resume: bool,
     /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
     #[arg(long, default_value = "3.0", value_parser = ["3.0", "2.1"])]
     lerobot_version: String,
@@ -110,7 +114,20 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
         },
         ..LeRobotOptions::default()
     };
-    let mut writer: Box<dyn EpisodeSink> = Box::new(LeRobotWriter::create(&args.out, options)?);
+    let interrupted = args
+        .out
+        .join(surgvla::export::lerobot::INCOMPLETE_MARKER)
+        .exists();
+    let (writer, skip) = if args.resume && interrupted {
+        let writer = LeRobotWriter::resume(&args.out, options)?;
+        let next = writer.next_episode_index();
+        println!("resuming {} at episode {next}", args.out.display());
+        (writer, next as usize)
+    } else {
+        (LeRobotWriter::create(&args.out, options)?, 0)
+    };
+    let jobs: Vec<(TaskId, u64)> = jobs.into_iter().skip(skip).collect();
+    let mut writer: Box<dyn EpisodeSink> = Box::new(writer);
     let threads = args
         .threads
         .unwrap_or_else(rayon::current_num_threads)
@@ -121,7 +138,7 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
     let record = RecordOptions::default();
     let started = std::time::Instant::now();
     for (batch_index, batch) in jobs.chunks(threads * 2).enumerate() {
-        let first = (batch_index * threads * 2) as u64;
+        let first = (skip + batch_index * threads * 2) as u64;
         let episodes: Vec<_> = pool.install(|| {
             batch
                 .par_iter()
@@ -414,7 +431,7 @@ fn exit_code(error: &anyhow::Error) -> u8 {
             cause.downcast_ref::<ExportError>(),
         ) {
             (Some(ImageError::Io { source, .. }), _) => user_fixable(source.kind()),
-            (_, Some(ExportError::NotEmpty { .. })) => true,
+            (_, Some(ExportError::NotEmpty { .. } | ExportError::NotResumable { .. })) => true,
             (_, Some(ExportError::Io { source, .. })) => user_fixable(source.kind()),
             _ => cause
                 .downcast_ref::<std::io::Error>()

@@ -32,6 +32,8 @@ pub enum ExportError {
     Arrow(#[from] arrow_schema::ArrowError),
     #[error("{path} already holds a dataset or other files; choose an empty or new directory")]
     NotEmpty { path: PathBuf },
+    #[error("cannot resume {path}: {reason}")]
+    NotResumable { path: PathBuf, reason: String },
     #[error("invalid episode: {0}")]
     InvalidEpisode(String),
     #[error("encoding {what}: {message}")]
@@ -48,7 +50,7 @@ impl ExportError {
 }
 
 /// What an exporter wrote.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Summary {
     pub episodes: u64,
     pub frames: u64,

@@ -24,7 +24,7 @@ pub const QUANTILES: [(&str, f64); 5] = [
 ];
 
 /// Running statistics of one scalar series.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 struct Running {
     count: u64,
     sum: f64,
@@ -90,7 +90,7 @@ impl Running {
 }
 
 /// Statistics of a vector feature, per element.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct VectorStats {
     running: Vec<Running>,
     reservoirs: Vec<Vec<f32>>,
@@ -192,7 +192,7 @@ impl VectorStats {
 }
 
 /// Statistics of an image feature, per channel, from histograms.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct ImageStats {
     running: Vec<Running>,
     histograms: Vec<Vec<u64>>,

@@ -181,3 +181,26 @@ fn collect_with_an_unknown_task_exits_2() {
     assert!(stderr.contains("unknown task 'T9-9'"), "{stderr}");
     assert!(!std::path::Path::new("/tmp/never-written").exists());
 }
+
+#[test]
+fn collect_resume_starts_fresh_or_refuses_a_complete_dataset() {
+    let out = std::env::temp_dir().join(format!("surgvla-resume-{}", std::process::id()));
+    std::fs::remove_dir_all(&out).ok();
+    let path = out.to_str().expect("utf-8");
+    let args = [
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "2",
+        "--resume",
+        "--out",
+        path,
+    ];
+    let (code, stdout, stderr) = surgvla(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("wrote 2 episodes"), "{stdout}");
+    let (code, _, stderr) = surgvla(&args);
+    assert_eq!(code, 2, "a complete dataset is not resumed: {stderr}");
+    std::fs::remove_dir_all(&out).ok();
+}

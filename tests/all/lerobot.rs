@@ -439,3 +439,75 @@ fn batched_video_encoding_writes_the_same_bytes_as_one_by_one() {
     std::fs::remove_dir_all(&one).ok();
     std::fs::remove_dir_all(&batch).ok();
 }
+
+#[test]
+fn an_interrupted_dataset_resumes_to_the_same_bytes() {
+    use surgvla::export::lerobot::VideoOptions;
+    for video in [None, Some(VideoOptions::h264())] {
+        // 25-frame episodes are over 1 MB: every episode completes a data file and a checkpoint.
+        let recorded = episodes(4, 25);
+        let options = LeRobotOptions {
+            data_file_size_mb: 1,
+            video,
+            ..LeRobotOptions::default()
+        };
+        let (whole, interrupted) = (temp_root("whole"), temp_root("interrupted"));
+        write(&whole, &recorded, options.clone());
+        {
+            let mut writer = LeRobotWriter::create(&interrupted, options.clone()).expect("create");
+            for episode in &recorded[..2] {
+                writer.write_episode(episode).expect("write");
+            }
+            // Killed here, plus a stray partial file from the episode in flight.
+            std::fs::write(
+                interrupted.join("data/chunk-000/.file-002.parquet.partial"),
+                b"half",
+            )
+            .expect("stray");
+        }
+        assert!(
+            LeRobotWriter::create(&interrupted, options.clone()).is_err(),
+            "not silently overwritten"
+        );
+        let mut writer = LeRobotWriter::resume(&interrupted, options.clone()).expect("resume");
+        // Image mode completes a 1 MB data file (and a checkpoint) per episode; in video mode the
+        // parquet holds no RGB, so fewer checkpoints: resume from wherever the last one was.
+        let next = writer.next_episode_index() as usize;
+        if video.is_none() {
+            assert_eq!(next, 2);
+        }
+        assert!(next <= 2);
+        for episode in &recorded[next..] {
+            writer.write_episode(episode).expect("write");
+        }
+        Box::new(writer).finish().expect("finish");
+        let listing = |root: &std::path::Path| {
+            let mut files = Vec::new();
+            let mut pending = vec![root.to_path_buf()];
+            while let Some(dir) = pending.pop() {
+                for entry in std::fs::read_dir(&dir).expect("dir") {
+                    let path = entry.expect("entry").path();
+                    if path.is_dir() {
+                        pending.push(path);
+                    } else {
+                        files.push(path.strip_prefix(root).expect("prefix").to_path_buf());
+                    }
+                }
+            }
+            files.sort();
+            files
+        };
+        assert_eq!(listing(&whole), listing(&interrupted));
+        for file in listing(&whole) {
+            assert_eq!(
+                std::fs::read(whole.join(&file)).expect("a"),
+                std::fs::read(interrupted.join(&file)).expect("b"),
+                "{file:?}"
+            );
+        }
+        // A complete dataset cannot be resumed.
+        assert!(LeRobotWriter::resume(&whole, options).is_err());
+        std::fs::remove_dir_all(&whole).ok();
+        std::fs::remove_dir_all(&interrupted).ok();
+    }
+}

@@ -131,7 +131,7 @@ impl Default for LeRobotOptions {
 }
 
 /// Statistics of one feature (or default column).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 enum FeatureStats {
     Vector(VectorStats),
     Image(ImageStats),
@@ -182,6 +182,8 @@ pub struct LeRobotWriter {
     total_frames: u64,
     stats: Vec<(String, FeatureStats)>,
     summary: Summary,
+    /// Completed data and video files, relative to the root.
+    finalized: Vec<String>,
 }
 
 fn png_bytes(
@@ -273,6 +275,11 @@ impl LeRobotWriter {
             b"surgvla is writing this dataset; it is not complete\n",
         )
         .map_err(ExportError::io(&marker))?;
+        Ok(LeRobotWriter::fresh(root, options))
+    }
+
+    /// A writer with empty state (no file-system checks).
+    fn fresh(root: &Path, options: LeRobotOptions) -> Self {
         let features = standard_features(options.height_px, options.width_px, options.with_mask);
         let parquet_features: Vec<FeatureSpec> = features
             .iter()
@@ -284,8 +291,9 @@ impl LeRobotWriter {
             .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
             .collect();
         stats.extend(default_stats());
-        Ok(LeRobotWriter {
+        LeRobotWriter {
             root: root.to_path_buf(),
+            finalized: Vec::new(),
             schema: frame_schema(&parquet_features),
             parquet_features,
             video: None,
@@ -300,7 +308,7 @@ impl LeRobotWriter {
             total_frames: 0,
             stats,
             summary: Summary::default(),
-        })
+        }
     }
 
     fn writer_properties(&self) -> WriterProperties {
@@ -385,6 +393,7 @@ impl LeRobotWriter {
                 source,
             })?;
             std::fs::rename(&open.temporary, &path).map_err(ExportError::io(&path))?;
+            self.finalized.push(self.relative(&path));
             self.summary.files += 1;
             self.summary.bytes += std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
         }
@@ -482,7 +491,9 @@ impl LeRobotWriter {
 
     fn close_video(&mut self) -> Result<(), ExportError> {
         if let Some(video) = self.video.take() {
+            let relative = self.relative(&video.path);
             self.summary.bytes += video.finish()?;
+            self.finalized.push(relative);
             self.summary.files += 1;
         }
         Ok(())
@@ -553,9 +564,133 @@ impl LeRobotWriter {
             self.summary.files += 1;
             self.summary.bytes += text.len() as u64;
         }
+        let checkpoint = self.root.join(CHECKPOINT);
+        if checkpoint.exists() {
+            std::fs::remove_file(&checkpoint).map_err(ExportError::io(&checkpoint))?;
+        }
         let marker = self.root.join(INCOMPLETE_MARKER);
         std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
         Ok(self.summary.clone())
+    }
+}
+
+/// Name of the checkpoint written whenever every file so far is complete.
+pub const CHECKPOINT: &str = "meta/.surgvla-checkpoint.json";
+
+/// The writer's state at a moment when every data and video file it wrote is complete.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Checkpoint {
+    finalized: Vec<String>,
+    next_file: u64,
+    next_video_file: u64,
+    tasks: Vec<String>,
+    episodes: Vec<EpisodeRow>,
+    total_frames: u64,
+    stats: Vec<(String, FeatureStats)>,
+    summary: Summary,
+}
+
+impl LeRobotWriter {
+    /// Records the state after all open files were closed (see [`LeRobotWriter::resume`]).
+    fn checkpoint(&self) -> Result<(), ExportError> {
+        let checkpoint = Checkpoint {
+            finalized: self.finalized.clone(),
+            next_file: self.next_file,
+            next_video_file: self.next_video_file,
+            tasks: self.tasks.clone(),
+            episodes: self.episodes.clone(),
+            total_frames: self.total_frames,
+            stats: self.stats.clone(),
+            summary: self.summary.clone(),
+        };
+        let text =
+            serde_json::to_vec(&checkpoint).map_err(|e| ExportError::Internal(e.to_string()))?;
+        write_atomically(&self.root.join(CHECKPOINT), &text)
+    }
+
+    /// Continues an interrupted dataset in `root` (one with the incomplete marker): restores the
+    /// state of the last checkpoint, deletes whatever was written after it, and returns the
+    /// writer; the next episode to write is [`LeRobotWriter::next_episode_index`]. With the same
+    /// options and episodes, the finished dataset is byte-identical to an uninterrupted run.
+    pub fn resume(root: &Path, options: LeRobotOptions) -> Result<Self, ExportError> {
+        if !root.join(INCOMPLETE_MARKER).exists() {
+            return Err(ExportError::NotResumable {
+                path: root.to_path_buf(),
+                reason: "it is not an interrupted surgvla dataset (no .surgvla-incomplete marker)"
+                    .into(),
+            });
+        }
+        let checkpoint_path = root.join(CHECKPOINT);
+        let checkpoint: Option<Checkpoint> = match std::fs::read(&checkpoint_path) {
+            Ok(bytes) => {
+                Some(
+                    serde_json::from_slice(&bytes).map_err(|e| ExportError::NotResumable {
+                        path: checkpoint_path.clone(),
+                        reason: format!("unreadable checkpoint: {e}"),
+                    })?,
+                )
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => {
+                return Err(ExportError::Io {
+                    path: checkpoint_path,
+                    source: e,
+                });
+            }
+        };
+        // Every data or video file the checkpoint does not list was written after it: it goes.
+        let keep: std::collections::HashSet<String> = checkpoint
+            .as_ref()
+            .map(|c| c.finalized.iter().cloned().collect())
+            .unwrap_or_default();
+        let mut writer = LeRobotWriter::fresh(root, options);
+        for folder in ["data", "videos"] {
+            let mut pending = vec![root.join(folder)];
+            while let Some(dir) = pending.pop() {
+                let Ok(entries) = std::fs::read_dir(&dir) else {
+                    continue;
+                };
+                for entry in entries {
+                    let path = entry.map_err(ExportError::io(&dir))?.path();
+                    if path.is_dir() {
+                        pending.push(path);
+                    } else if !keep.contains(&writer.relative(&path)) {
+                        std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
+                    }
+                }
+            }
+        }
+        if let Some(checkpoint) = checkpoint {
+            writer.finalized = checkpoint.finalized;
+            writer.next_file = checkpoint.next_file;
+            writer.next_video_file = checkpoint.next_video_file;
+            writer.task_lookup = checkpoint
+                .tasks
+                .iter()
+                .enumerate()
+                .map(|(i, t)| (t.clone(), i as u64))
+                .collect();
+            writer.tasks = checkpoint.tasks;
+            writer.episodes = checkpoint.episodes;
+            writer.total_frames = checkpoint.total_frames;
+            writer.stats = checkpoint.stats;
+            writer.summary = checkpoint.summary;
+        } else {
+            writer.next_file = 0;
+        }
+        Ok(writer)
+    }
+
+    fn relative(&self, path: &Path) -> String {
+        path.strip_prefix(&self.root)
+            .unwrap_or(path)
+            .to_string_lossy()
+            .into_owned()
+    }
+
+    /// Index of the next episode this writer expects.
+    pub fn next_episode_index(&self) -> u64 {
+        self.episodes.len() as u64
     }
 }
 
@@ -841,7 +976,16 @@ impl LeRobotWriter {
         self.summary.episodes += 1;
         self.summary.frames += length;
         if full {
+            // Close the video file at the same moment, so that everything written so far is
+            // complete, and record the state.
             self.close_file()?;
+            self.close_video()?;
+            // v3.0 closes a file every ~100 MB; v2.1 closes one per episode, so it records the
+            // state every 64 episodes (the checkpoint holds every episode's row).
+            let due = self.options.version == LeRobotVersion::V30 || self.episodes.len() % 64 == 0;
+            if due {
+                self.checkpoint()?;
+            }
         }
         Ok(())
     }
@@ -884,6 +1028,10 @@ impl LeRobotWriter {
             .map_err(|e| ExportError::Internal(e.to_string()))?;
         write_atomically(&meta.join("info.json"), info.as_bytes())?;
         count(info.len() as u64);
+        let checkpoint = self.root.join(CHECKPOINT);
+        if checkpoint.exists() {
+            std::fs::remove_file(&checkpoint).map_err(ExportError::io(&checkpoint))?;
+        }
         let marker = self.root.join(INCOMPLETE_MARKER);
         std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
         self.summary.files += files;

@@ -154,7 +154,7 @@ pub fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> {
 }
 
 /// One row of the episodes table.
-#[derive(Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct EpisodeRow {
     pub episode_index: u64,
     pub task: String,
@@ -172,7 +172,7 @@ pub struct EpisodeRow {
 }
 
 /// An episode's place in a video file.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq)]
 pub struct VideoSpan {
     pub chunk: u64,
     pub file: u64,
