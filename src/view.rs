@@ -79,10 +79,7 @@ pub fn contact_sheet(
 /// What a dataset records about how its images were made: the camera (intrinsics and
 /// `world_from_camera`, row-major 4x4), the mask id table, the depth convention and versions.
 pub fn dataset_metadata(camera: &Camera) -> serde_json::Value {
-    let m = camera.world_from_camera.to_homogeneous();
-    let pose: Vec<Vec<f64>> = (0..4)
-        .map(|r| (0..4).map(|c| m[(r, c)]).collect())
-        .collect();
+    let pose = crate::collect::record::camera_info(camera).world_from_camera;
     let masks: serde_json::Map<String, serde_json::Value> = crate::assets::MaskClass::ALL
         .iter()
         .map(|(class, name)| (class.id().to_string(), serde_json::Value::from(*name)))

@@ -41,7 +41,8 @@ pub fn episode_seed(seed: u64, task: TaskId, k: u64) -> u64 {
     rng.next_u64()
 }
 
-fn camera_info(camera: &Camera) -> CameraInfo {
+/// The camera as the episode model records it (row-major 4 x 4 `world_from_camera`).
+pub fn camera_info(camera: &Camera) -> CameraInfo {
     let m = camera.world_from_camera.to_homogeneous();
     let mut world_from_camera = [[0.0; 4]; 4];
     for (r, row) in world_from_camera.iter_mut().enumerate() {

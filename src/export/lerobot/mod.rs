@@ -423,7 +423,7 @@ impl LeRobotWriter {
             "total_tasks": self.tasks.len(),
             "chunks_size": self.options.chunks_size,
             "data_files_size_in_mb": self.options.data_file_size_mb,
-            "video_files_size_in_mb": 200,
+            "video_files_size_in_mb": self.options.video.map_or(VideoOptions::default().file_size_mb, |v| v.file_size_mb),
             "fps": self.options.fps,
             "splits": {"train": format!("0:{}", self.episodes.len())},
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
@@ -518,7 +518,7 @@ impl LeRobotWriter {
         let episode_stats = lines(
             self.episodes
                 .iter()
-                .map(|e| json!({"episode_index": e.episode_index, "stats": e.stats_json}))
+                .map(|e| json!({"episode_index": e.episode_index, "stats": e.stats}))
                 .collect(),
         );
         let stats: serde_json::Map<String, Value> = self
@@ -947,16 +947,9 @@ impl LeRobotWriter {
         let full = open.writer.bytes_written() as u64 >= limit
             || self.options.version == LeRobotVersion::V21;
 
-        let mut stats_columns = Vec::new();
         let mut stats_json = serde_json::Map::new();
         for ((name, total), (_, this)) in self.stats.iter_mut().zip(episode_stats) {
-            let json = this.to_json();
-            stats_json.insert(name.clone(), json.clone());
-            for stat in [
-                "min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99",
-            ] {
-                stats_columns.push((format!("stats/{name}/{stat}"), json[stat].clone()));
-            }
+            stats_json.insert(name.clone(), this.to_json());
             merge(total, this);
         }
         let length = episode.steps.len() as u64;
@@ -968,8 +961,7 @@ impl LeRobotWriter {
             data_file: file,
             from_index: first_index,
             to_index: first_index + length,
-            stats: stats_columns,
-            stats_json: Value::Object(stats_json),
+            stats: Value::Object(stats_json),
             video: video_span,
         });
         self.total_frames += length;
@@ -1041,19 +1033,10 @@ impl LeRobotWriter {
 }
 
 /// Folds one episode's statistics into the dataset's.
-fn merge(total: &mut FeatureStats, episode: FeatureStats) {
-    *total = match (
-        std::mem::replace(total, FeatureStats::Vector(VectorStats::new(0))),
-        episode,
-    ) {
-        (FeatureStats::Vector(mut a), FeatureStats::Vector(b)) => {
-            a.merge(&b);
-            FeatureStats::Vector(a)
-        }
-        (FeatureStats::Image(mut a), FeatureStats::Image(b)) => {
-            a.merge(&b);
-            FeatureStats::Image(a)
-        }
-        (a, _) => a,
-    };
+fn merge(total: &mut FeatureStats, part: FeatureStats) {
+    match (total, part) {
+        (FeatureStats::Vector(a), FeatureStats::Vector(b)) => a.merge(&b),
+        (FeatureStats::Image(a), FeatureStats::Image(b)) => a.merge(&b),
+        _ => {}
+    }
 }

@@ -163,10 +163,9 @@ pub struct EpisodeRow {
     pub data_file: u64,
     pub from_index: u64,
     pub to_index: u64,
-    /// `stats/<feature>/<stat>` -> JSON value (a list, nested for images).
-    pub stats: Vec<(String, Value)>,
-    /// The same statistics as one JSON object per feature (v2.1's episodes_stats.jsonl).
-    pub stats_json: Value,
+    /// Per feature, its statistics object (min, max, ... q99), as in stats.json and v2.1's
+    /// episodes_stats.jsonl; the episodes table flattens it to `stats/<feature>/<stat>` columns.
+    pub stats: Value,
     /// Where the RGB camera's frames are, in video mode.
     pub video: Option<VideoSpan>,
 }
@@ -281,10 +280,13 @@ pub fn episodes_batch(rows: &[EpisodeRow]) -> Result<RecordBatch, ExportError> {
             )),
         ));
     }
-    if let Some(first) = rows.first() {
-        for (k, (name, _)) in first.stats.iter().enumerate() {
-            let values: Vec<&Value> = rows.iter().map(|r| &r.stats[k].1).collect();
-            columns.push((name.clone(), stats_column(&values, name)));
+    if let Some(features) = rows.first().and_then(|r| r.stats.as_object()) {
+        for (feature, stats) in features {
+            for stat in stats.as_object().map(|o| o.keys()).into_iter().flatten() {
+                let name = format!("stats/{feature}/{stat}");
+                let values: Vec<&Value> = rows.iter().map(|r| &r.stats[feature][stat]).collect();
+                columns.push((name.clone(), stats_column(&values, &name)));
+            }
         }
     }
     let fields: Vec<Field> = columns
