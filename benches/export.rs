@@ -11,6 +11,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::export::EpisodeSink;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter, VideoOptions};
+use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 
 fn bench_lerobot(c: &mut Criterion) {
@@ -18,10 +19,11 @@ fn bench_lerobot(c: &mut Criterion) {
         max_steps: Some(25),
         ..RecordOptions::default()
     };
+    let library = ExpertLibrary::builtin().expect("built-in plans");
     let episodes: Vec<_> = (0..8u64)
         .map(|i| {
             let task = TaskId::ALL[i as usize];
-            record_episode(task, episode_seed(1, task, i), i, &options)
+            record_episode(&library, task, episode_seed(1, task, i), i, &options).expect("record")
         })
         .collect();
     let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();

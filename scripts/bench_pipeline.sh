@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Whole-pipeline benchmark: simulate, render, record and write a LeRobot dataset with
-# `surgvla collect`, reporting wall time, frames per second and peak resident memory.
+# Whole-pipeline benchmark: the default `surgvla collect` (experts, verification by replay,
+# rendering, LeRobot image mode), reporting its summary table (frames per second, time in
+# physics, rendering, encoding and writing), wall time and peak resident memory.
 #
 #   scripts/bench_pipeline.sh [episodes-per-task] [threads]
 #
@@ -12,7 +13,7 @@ threads="${2:-$(nproc)}"
 cargo build --release --locked --quiet
 out="$(mktemp -d)/dataset"
 log="$(mktemp)"
-/usr/bin/time -v ./target/release/surgvla collect --episodes-per-task "${episodes}" --threads "${threads}" --out "${out}" 2>"${log}" | tail -n 1
+/usr/bin/time -v ./target/release/surgvla collect --episodes-per-task "${episodes}" --threads "${threads}" --out "${out}" 2>"${log}"
 grep -E "Elapsed \(wall clock\)|Maximum resident set size" "${log}"
 du -sh "${out}"
 rm -rf "$(dirname "${out}")" "${log}"

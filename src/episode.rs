@@ -7,8 +7,9 @@
 
 use serde::Serialize;
 
-/// Largest number of movable objects whose poses `observation.environment_state` carries.
-pub const MAX_OBJECTS: usize = 3;
+/// Largest number of movable objects whose poses `observation.environment_state` carries (a
+/// target and up to three distractors).
+pub const MAX_OBJECTS: usize = 4;
 /// Values per object pose: x, y, z (m), qx, qy, qz, qw.
 pub const POSE_VALUES: usize = 7;
 
@@ -130,6 +131,60 @@ pub fn standard_features(height_px: usize, width_px: usize, with_mask: bool) -> 
     features
 }
 
+/// How `action[6]` (the gripper) is written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GripperEncoding {
+    /// The commanded state on every step: 1.0 while open, 0.0 while closed (Open
+    /// X-Embodiment's convention; the default).
+    #[default]
+    Continuous,
+    /// Opt-in for ablations: 1.0 on the step the jaws are commanded open after being closed,
+    /// -1.0 on the step they are commanded closed, 0.0 otherwise (the jaws start open).
+    Pulse,
+}
+
+impl GripperEncoding {
+    /// The gripper values of a sequence of jaw commands (`true` = open).
+    pub fn encode(self, open: &[bool]) -> Vec<f32> {
+        let mut previous = true;
+        open.iter()
+            .map(|&now| {
+                let value = match self {
+                    GripperEncoding::Continuous => f32::from(u8::from(now)),
+                    GripperEncoding::Pulse if now != previous => {
+                        if now {
+                            1.0
+                        } else {
+                            -1.0
+                        }
+                    }
+                    GripperEncoding::Pulse => 0.0,
+                };
+                previous = now;
+                value
+            })
+            .collect()
+    }
+
+    /// The jaw commands (`true` = open) that gripper values encode.
+    pub fn decode(self, values: &[f32]) -> Vec<bool> {
+        let mut state = true;
+        values
+            .iter()
+            .map(|&v| {
+                state = match self {
+                    GripperEncoding::Continuous => v >= 0.5,
+                    GripperEncoding::Pulse if v > 0.5 => true,
+                    GripperEncoding::Pulse if v < -0.5 => false,
+                    GripperEncoding::Pulse => state,
+                };
+                state
+            })
+            .collect()
+    }
+}
+
 /// Pinhole intrinsics and pose of the camera that took the images.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct CameraInfo {
@@ -225,5 +280,21 @@ mod tests {
             }
         }
         assert_eq!(standard_features(224, 224, false).len(), features.len() - 1);
+    }
+
+    #[test]
+    fn gripper_encodings_round_trip_and_differ() {
+        let open = [true, true, false, false, false, true, true, false];
+        for encoding in [GripperEncoding::Continuous, GripperEncoding::Pulse] {
+            assert_eq!(encoding.decode(&encoding.encode(&open)), open);
+        }
+        assert_eq!(
+            GripperEncoding::Continuous.encode(&open),
+            [1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0]
+        );
+        assert_eq!(
+            GripperEncoding::Pulse.encode(&open),
+            [0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0, -1.0]
+        );
     }
 }

@@ -187,6 +187,9 @@ pub struct MarkSpec {
     pub colour: MarkColour,
     /// The mark the instruction refers to.
     pub target: bool,
+    /// Direction of the tissue line the mark sits on (the vessel's axis at a clip site), unit,
+    /// world frame; `None` on solid organs.
+    pub line_direction: Option<Vector3<f64>>,
 }
 
 /// Pose of the instrument's visible parts, from the robot's kinematics.

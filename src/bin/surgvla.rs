@@ -1,11 +1,15 @@
 //! The `surgvla` command line: parses arguments, calls the library, prints, and maps errors to
 //! exit codes (2 for user mistakes, 1 for internal failures).
 
+mod progress;
+
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use surgvla::assets::{Appearance, SceneAssets};
-use surgvla::collect::{demo_plan, rollout};
+use surgvla::collect::rollout;
+use surgvla::collect::run::Shard;
+use surgvla::policy::ExpertLibrary;
 use surgvla::render::image::{ImageError, depth_visualisation, mask_visualisation, write_png_file};
 use surgvla::render::{Camera, Lighting, RenderOptions, Renderer};
 use surgvla::sim::{SimConfig, Simulator};
@@ -25,15 +29,15 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Run the demo motion (grasp the first object, lift, release) in a task scene and print
-    /// the trajectory.
+    /// Run the task's scripted expert in a scene and print the trajectory and the verdict.
     Sim(SimArgs),
     /// Render a task scene from the endoscope: RGB, and optionally depth and mask
     /// visualisations, as PNG.
     Render(RenderArgs),
     /// Render the start frame of all eight tasks into one PNG grid (RGB, depth and mask rows).
     ContactSheet(ContactSheetArgs),
-    /// Record episodes of the tasks (demo policy for now) and write a LeRobot v3.0 dataset.
+    /// Record verified expert episodes of the tasks and write a LeRobot dataset (defaults: all
+    /// eight tasks, 100 episodes each, into ./data).
     Collect(CollectArgs),
     /// Print the LeRobot features schema (what schemas/lerobot_features.json records).
     Schema {
@@ -50,7 +54,7 @@ struct CollectArgs {
     /// Tasks: "all" or a comma-separated list of names or ids.
     #[arg(long, default_value = "all")]
     tasks: String,
-    /// Episodes per task.
+    /// Verified episodes per task.
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
     episodes_per_task: u64,
     /// Collection seed: every episode's seed derives from it.
@@ -59,6 +63,9 @@ struct CollectArgs {
     /// Output folder (must not exist or be empty).
     #[arg(long, default_value = "data")]
     out: PathBuf,
+    /// Output format (RLDS and point clouds are separate exporters, still to come).
+    #[arg(long, default_value = "lerobot", value_parser = ["lerobot"])]
+    format: String,
     /// Also store the segmentation mask as an image feature.
     #[arg(long)]
     with_mask: bool,
@@ -69,6 +76,10 @@ struct CollectArgs {
     /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
     #[arg(long, num_args = 0..=1, default_missing_value = "av1", value_parser = ["av1", "h264"])]
     video: Option<String>,
+    /// This machine's part of the episode list, I/N (0-based): N machines with I = 0..N-1 each
+    /// write the I-th contiguous range of episodes as their own dataset.
+    #[arg(long, default_value = "0/1")]
+    shard: Shard,
     /// Continue an interrupted run in --out (same options and seed): episodes up to its last
     /// checkpoint are kept, the rest are recorded again.
     #[arg(long)]
@@ -76,6 +87,32 @@ struct CollectArgs {
     /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
     #[arg(long, default_value = "3.0", value_parser = ["3.0", "2.1"])]
     lerobot_version: String,
+    /// action[6]: "continuous" (1 while commanded open, 0 while closed) or "pulse" (+1/-1 on
+    /// the step the command changes, 0 otherwise; for ablations).
+    #[arg(long, default_value = "continuous", value_parser = ["continuous", "pulse"])]
+    gripper_encoding: String,
+    /// Distractors in the level-2 pick tasks (T2-1, T2-2).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]
+    distractors: u64,
+    /// Instruction per episode: the canonical one, a seeded paraphrase, or a seeded mix.
+    #[arg(long, default_value = "canonical", value_parser = ["canonical", "paraphrase", "mixed"])]
+    instructions: String,
+    /// Multiplies every spawn range's half width (3 gives the needle's evaluation range).
+    #[arg(long, default_value_t = 1.0)]
+    spawn_scale: f64,
+    /// A folder of expert plans (*.toml) replacing the built-in scripted_policies/ per task.
+    #[arg(long)]
+    policies: Option<PathBuf>,
+    /// Randomise light, tissue colour and texture contrast per episode.
+    #[arg(long)]
+    randomize_appearance: bool,
+    /// Size at which a data file is closed and a new one begun, MB (LeRobot's
+    /// data_files_size_in_mb); each closed file is also a resume checkpoint.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    data_file_mb: u64,
+    /// Attempts per episode before the collection gives up.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    max_attempts: u32,
 }
 
 fn parse_tasks(text: &str) -> anyhow::Result<Vec<TaskId>> {
@@ -88,77 +125,109 @@ fn parse_tasks(text: &str) -> anyhow::Result<Vec<TaskId>> {
 }
 
 fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
-    use rayon::prelude::*;
-    use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
-    use surgvla::export::EpisodeSink;
-    use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
-    let tasks =
-        parse_tasks(&args.tasks).map_err(|e| anyhow::Error::new(UsageError(e.to_string())))?;
-    let jobs: Vec<(TaskId, u64)> = tasks
-        .iter()
-        .flat_map(|task| {
-            (0..args.episodes_per_task).map(move |k| (*task, episode_seed(args.seed, *task, k)))
-        })
-        .collect();
-    let options = LeRobotOptions {
+    use anyhow::Context;
+    use surgvla::collect::run::{CollectOptions, collect};
+    use surgvla::episode::GripperEncoding;
+    use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
+    use surgvla::task::{InstructionChoice, TaskConfig};
+    let usage = |message: String| anyhow::Error::new(UsageError(message));
+    let tasks = parse_tasks(&args.tasks).map_err(|e| usage(e.to_string()))?;
+    if !(args.spawn_scale.is_finite() && (0.0..=5.0).contains(&args.spawn_scale)) {
+        return Err(usage(format!(
+            "--spawn-scale {} must be between 0 and 5",
+            args.spawn_scale
+        )));
+    }
+    let library = match &args.policies {
+        Some(folder) => ExpertLibrary::with_folder(folder),
+        None => ExpertLibrary::builtin(),
+    }
+    .map_err(|e| usage(e.to_string()))?;
+    let gripper = if args.gripper_encoding == "pulse" {
+        GripperEncoding::Pulse
+    } else {
+        GripperEncoding::Continuous
+    };
+    let task_config = TaskConfig {
+        distractors: args.distractors as usize,
+        instruction: match args.instructions.as_str() {
+            "paraphrase" => InstructionChoice::Paraphrase,
+            "mixed" => InstructionChoice::Mixed,
+            _ => InstructionChoice::Canonical,
+        },
+        spawn_scale: args.spawn_scale,
+        ..TaskConfig::default()
+    };
+    let options = CollectOptions {
+        tasks,
+        episodes_per_task: args.episodes_per_task,
+        seed: args.seed,
+        shard: args.shard,
+        threads: args.threads.unwrap_or(0),
+        max_attempts: args.max_attempts,
+        record: surgvla::collect::record::RecordOptions {
+            randomize_appearance: args.randomize_appearance,
+            gripper,
+            task: task_config,
+            ..Default::default()
+        },
+    };
+    let mut metadata = surgvla::view::dataset_metadata(&Camera::endoscope());
+    metadata["collection"] = serde_json::json!({
+        "seed": args.seed,
+        "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
+        "episodes_per_task": args.episodes_per_task,
+        "shard": args.shard.to_string(),
+        "gripper_encoding": gripper,
+        "distractors": args.distractors,
+        "instructions": args.instructions,
+        "spawn_scale": args.spawn_scale,
+        "randomize_appearance": args.randomize_appearance,
+        "policies": if args.policies.is_some() { "custom" } else { "builtin" },
+    });
+    let writer_options = LeRobotOptions {
         with_mask: args.with_mask,
-        extra_metadata: surgvla::view::dataset_metadata(&Camera::endoscope()),
+        extra_metadata: metadata,
         video: args.video.as_deref().map(|codec| match codec {
-            "h264" => surgvla::export::lerobot::VideoOptions::h264(),
-            _ => surgvla::export::lerobot::VideoOptions::default(),
+            "h264" => VideoOptions::h264(),
+            _ => VideoOptions::default(),
         }),
         version: if args.lerobot_version == "2.1" {
-            surgvla::export::lerobot::LeRobotVersion::V21
+            LeRobotVersion::V21
         } else {
-            surgvla::export::lerobot::LeRobotVersion::V30
+            LeRobotVersion::V30
         },
+        data_file_size_mb: args.data_file_mb,
         ..LeRobotOptions::default()
     };
     let interrupted = args
         .out
         .join(surgvla::export::lerobot::INCOMPLETE_MARKER)
         .exists();
-    let (writer, skip) = if args.resume && interrupted {
-        let writer = LeRobotWriter::resume(&args.out, options)?;
+    let (writer, resume_at) = if args.resume && interrupted {
+        let writer = LeRobotWriter::resume(&args.out, writer_options)?;
         let next = writer.next_episode_index();
-        println!("resuming {} at episode {next}", args.out.display());
+        eprintln!("resuming {} at episode {next}", args.out.display());
         (writer, next as usize)
     } else {
-        (LeRobotWriter::create(&args.out, options)?, 0)
+        (LeRobotWriter::create(&args.out, writer_options)?, 0)
     };
-    let jobs: Vec<(TaskId, u64)> = jobs.into_iter().skip(skip).collect();
-    let mut writer: Box<dyn EpisodeSink> = Box::new(writer);
-    let threads = args
-        .threads
-        .unwrap_or_else(rayon::current_num_threads)
-        .max(1);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()?;
-    let record = RecordOptions::default();
-    let started = std::time::Instant::now();
-    for (batch_index, batch) in jobs.chunks(threads * 2).enumerate() {
-        let first = (skip + batch_index * threads * 2) as u64;
-        let episodes: Vec<_> = pool.install(|| {
-            batch
-                .par_iter()
-                .enumerate()
-                .map(|(i, (task, seed))| record_episode(*task, *seed, first + i as u64, &record))
-                .collect()
-        });
-        writer.write_batch(&episodes)?;
-    }
-    let summary = writer.finish()?;
-    let seconds = started.elapsed().as_secs_f64();
+    let mut bars = progress::Bars::new(&options.tasks);
+    let report = collect(&options, &library, Box::new(writer), resume_at, &mut bars)?;
+    bars.clear();
+    let path = args.out.join("collect_report.json");
+    let json = serde_json::to_string_pretty(&report)?;
+    surgvla::export::write_atomically(&path, json.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
+    progress::print_summary(&report);
     println!(
-        "wrote {} episodes, {} frames to {} ({} files, {:.1} MB) in {:.1} s ({:.0} frames/s)",
-        summary.episodes,
-        summary.frames,
+        "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
+        report.dataset.episodes,
+        report.dataset.frames,
         args.out.display(),
-        summary.files,
-        summary.bytes as f64 / 1e6,
-        seconds,
-        summary.frames as f64 / seconds.max(1e-9)
+        report.dataset.files,
+        report.dataset.bytes as f64 / 1e6,
+        path.display()
     );
     Ok(())
 }
@@ -184,7 +253,7 @@ struct RenderArgs {
     /// Episode seed: decides the spawn positions and shapes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Run this many steps of the demo motion before rendering.
+    /// Run this many steps of the task's expert before rendering.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=100_000))]
     steps: u32,
     /// Output PNG for the RGB image.
@@ -246,10 +315,15 @@ impl LookArgs {
 }
 
 fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
-    let scene = args.task.scene(args.seed);
+    let instance = args.task.instance(args.seed, &surgvla::task::TaskConfig::default());
+    let scene = instance.scene.clone();
     let mut sim = Simulator::new(SimConfig::default(), scene.clone());
     if args.steps > 0 {
-        let mut policy = demo_plan(&sim);
+        let library = ExpertLibrary::builtin()?;
+        let mut policy =
+            library
+                .plan(args.task)?
+                .expert(&instance, &sim.observation(), args.seed)?;
         rollout(&mut sim, &mut policy, args.steps);
     }
     let camera = match args.camera {
@@ -303,21 +377,24 @@ struct SimArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Most control steps to run (5 per simulated second).
-    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    #[arg(long, default_value_t = 150, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     steps: u32,
 }
 
-fn run_sim(args: &SimArgs) {
-    let scene = args.task.scene(args.seed);
-    let mut sim = Simulator::new(SimConfig::default(), scene);
-    let mut policy = demo_plan(&sim);
+fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
+    let instance = args.task.instance(args.seed, &surgvla::task::TaskConfig::default());
+    let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+    let library = ExpertLibrary::builtin()?;
+    let mut policy = library
+        .plan(args.task)?
+        .expert(&instance, &sim.observation(), args.seed)?;
     let trajectory = rollout(&mut sim, &mut policy, args.steps);
     println!(
         "task {} ({}), seed {}, instruction \"{}\"",
         args.task.code(),
         args.task.name(),
         args.seed,
-        args.task.instruction()
+        instance.instruction
     );
     let object_name = sim.scene().objects.first().map(|o| o.name.clone());
     println!(
@@ -361,6 +438,13 @@ fn run_sim(args: &SimArgs) {
         previous_report = report;
     }
     println!("trajectory digest {:016x}", trajectory.digest());
+    let verdict = instance.success(&trajectory.final_observation);
+    println!(
+        "{}: {}",
+        if verdict.success { "success" } else { "failure" },
+        verdict.reason
+    );
+    Ok(())
 }
 
 fn main() -> ExitCode {
@@ -373,10 +457,7 @@ fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
-        Command::Sim(args) => {
-            run_sim(&args);
-            Ok(())
-        }
+        Command::Sim(args) => run_sim(&args),
         Command::Render(args) => run_render(&args),
         Command::ContactSheet(args) => run_contact_sheet(&args),
         Command::Collect(args) => run_collect(&args),

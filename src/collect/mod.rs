@@ -2,10 +2,14 @@
 //!
 //! [`rollout`] steps a [`Simulator`] with a [`Policy`] and records one [`TrajectoryStep`] per
 //! control step; [`Trajectory::digest`] hashes every recorded number bit for bit, so determinism
-//! can be checked across runs and thread counts. [`demo_plan`] is the pick, lift and release
-//! motion `surgvla sim` shows.
+//! can be checked across runs and thread counts. [`demo_plan`] is a generic pick, lift and
+//! release motion for tests and benchmarks (the task experts live in `scripted_policies/`).
+//!
+//! [`record`] turns an expert run into a verified, rendered episode; [`run`] is a whole
+//! collection (slots, shards, threads, report).
 
 pub mod record;
+pub mod run;
 
 use crate::policy::{Policy, Waypoint, WaypointPolicy};
 use crate::sim::{JawCommand, NativeCommand, Observation, Simulator, StepReport};
@@ -129,6 +133,7 @@ pub fn demo_plan(sim: &Simulator) -> WaypointPolicy {
             yaw_rad: FRAC_PI_2,
             jaw,
             hold_steps: 0,
+            speed_scale: 1.0,
         };
         return WaypointPolicy::new(
             vec![
@@ -159,6 +164,7 @@ pub fn demo_plan(sim: &Simulator) -> WaypointPolicy {
         yaw_rad: yaw,
         jaw,
         hold_steps,
+        speed_scale: 1.0,
     };
     WaypointPolicy::new(
         vec![

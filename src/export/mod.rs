@@ -13,7 +13,7 @@ pub mod tiff;
 pub mod video;
 
 use crate::episode::Episode;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// What went wrong while exporting, naming the file where there is one.
 #[derive(Debug, thiserror::Error)]
@@ -58,6 +58,15 @@ pub struct Summary {
     pub bytes: u64,
 }
 
+/// Seconds an exporter spent, for reports (never written into a dataset).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SinkTiming {
+    /// Encoding images, video and statistics (wall seconds, parallel inside).
+    pub encode_secs: f64,
+    /// Building tables and writing files.
+    pub write_secs: f64,
+}
+
 /// Receives episodes one at a time, in episode-index order.
 pub trait EpisodeSink {
     fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError>;
@@ -66,6 +75,30 @@ pub trait EpisodeSink {
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
         episodes.iter().try_for_each(|e| self.write_episode(e))
     }
+    /// Time spent so far.
+    fn timing(&self) -> SinkTiming {
+        SinkTiming::default()
+    }
     /// Completes the dataset: after this returns Ok, it is consistent and loadable.
     fn finish(self: Box<Self>) -> Result<Summary, ExportError>;
+}
+
+/// Writes `bytes` to `path` through a temporary name and a rename, so a crash never leaves a
+/// half-written file under the final name.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
+    }
+    let temporary = temporary_name(path);
+    std::fs::write(&temporary, bytes).map_err(ExportError::io(&temporary))?;
+    std::fs::rename(&temporary, path).map_err(ExportError::io(path))
+}
+
+/// The temporary name of `path` while it is being written (`.name.partial`).
+pub fn temporary_name(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.partial"))
 }

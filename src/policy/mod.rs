@@ -5,7 +5,14 @@
 //! times a speed factor; the yaw command is the yaw error in units of 30 deg, clipped to +-0.4.
 //! A waypoint is cleared when the tip is within `position_tolerance_m` of it, the yaw error is
 //! under `yaw_tolerance_rad`, the jaws have reached their command, and it has been held for
-//! `hold_steps` steps. The task experts of `scripted_policies/` compile to waypoint lists.
+//! `hold_steps` steps. The task experts of `scripted_policies/` ([`plan`], [`library`]) compile
+//! to waypoint lists.
+
+pub mod library;
+pub mod plan;
+
+pub use library::ExpertLibrary;
+pub use plan::{ExpertPlan, ExpertPolicy, PlanError};
 
 use crate::sim::control::{
     JawCommand, NATIVE_POSITION_SCALE_M, NATIVE_YAW_SCALE_RAD, NativeCommand,
@@ -30,6 +37,9 @@ pub struct Waypoint {
     pub jaw: JawCommand,
     /// Extra steps to stay once reached (e.g. to let a released object settle).
     pub hold_steps: u32,
+    /// Multiplies the policy's speed factor toward this waypoint (1 = unchanged; below 1 for
+    /// fine motions).
+    pub speed_scale: f64,
 }
 
 /// Follows a list of waypoints with the reference expert's proportional controller.
@@ -112,10 +122,11 @@ impl Policy for WaypointPolicy {
             delta = delta.map(|d| d / largest);
         }
         let yaw_error = wrap_angle(waypoint.yaw_rad - observation.tip_euler_xyz_rad[2]);
+        let speed = self.speed_factor * waypoint.speed_scale;
         NativeCommand {
-            dx: delta[0] * self.speed_factor,
-            dy: delta[1] * self.speed_factor,
-            dz: delta[2] * self.speed_factor,
+            dx: delta[0] * speed,
+            dy: delta[1] * speed,
+            dz: delta[2] * speed,
             dyaw: (yaw_error / NATIVE_YAW_SCALE_RAD).clamp(-0.4, 0.4),
             jaw: match waypoint.jaw {
                 JawCommand::Open => 1.0,

@@ -15,21 +15,17 @@ fn surgvla(args: &[&str]) -> (i32, String, String) {
 }
 
 #[test]
-fn sim_shows_a_grasp_lift_and_release() {
-    let (code, stdout, stderr) = surgvla(&[
-        "sim",
-        "--task",
-        "gauze_pick",
-        "--seed",
-        "1",
-        "--steps",
-        "40",
-    ]);
+fn sim_runs_the_expert_through_grasp_release_and_a_verdict() {
+    let (code, stdout, stderr) = surgvla(&["sim", "--task", "pick_and_place", "--seed", "1"]);
     assert_eq!(code, 0, "{stderr}");
     let grasp = stdout.find("grasp").expect("a grasp event");
     let release = stdout.find("release").expect("a release event");
     assert!(grasp < release, "{stdout}");
     assert!(stdout.contains("trajectory digest"));
+    assert!(stdout.contains("success: gauze on the block"), "{stdout}");
+    // Cut short, the same expert has not finished the task.
+    let (_, stdout, _) = surgvla(&["sim", "--task", "T3-1", "--seed", "1", "--steps", "20"]);
+    assert!(stdout.contains("failure: gauze centre not over the block"), "{stdout}");
 }
 
 #[test]

@@ -233,6 +233,7 @@ fn gauze_released_over_the_block_rests_on_it() {
         yaw_rad: std::f64::consts::FRAC_PI_2,
         jaw,
         hold_steps,
+        speed_scale: 1.0,
     };
     let mut policy = WaypointPolicy::new(
         vec![

@@ -8,6 +8,7 @@ use surgvla::export::lerobot::read::{data_files, read_frames, read_parquet, sche
 use surgvla::export::lerobot::{INCOMPLETE_MARKER, LeRobotOptions, LeRobotWriter};
 use surgvla::export::tiff::decode_f32_tiff;
 use surgvla::export::{EpisodeSink, ExportError};
+use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 
 /// A fresh, unique temporary folder path (not created).
@@ -27,10 +28,12 @@ fn episodes(count: u64, max_steps: u32) -> Vec<Episode> {
         TaskId::NeedlePickDistractors,
         TaskId::Hemostasis,
     ];
+    let library = ExpertLibrary::builtin().expect("built-in plans");
     (0..count)
         .map(|i| {
             let task = tasks[i as usize % tasks.len()];
-            record_episode(task, episode_seed(9, task, i), i, &options)
+            record_episode(&library, task, episode_seed(9, task, i), i, &options)
+                .expect("record")
         })
         .collect()
 }

@@ -1,10 +1,13 @@
-//! The one integration test binary: kinematics, physics, grasping, determinism and the CLI.
+//! The one integration test binary: kinematics, physics, grasping, determinism, tasks and
+//! experts, collection, the LeRobot exporter, rendering and the CLI.
 
 mod cli;
+mod collect;
 mod determinism;
 mod grasping;
 mod kinematics;
 mod lerobot;
 mod physics;
 mod render;
+mod tasks;
 mod util;

@@ -24,7 +24,9 @@ use crate::export::stats::{ImageStats, VectorStats};
 use crate::export::tiff::encode_f32_tiff;
 pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile, encode, video_path};
-use crate::export::{EpisodeSink, ExportError, Summary};
+use crate::export::{
+    EpisodeSink, ExportError, SinkTiming, Summary, temporary_name, write_atomically,
+};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
@@ -184,6 +186,7 @@ pub struct LeRobotWriter {
     summary: Summary,
     /// Completed data and video files, relative to the root.
     finalized: Vec<String>,
+    timing: SinkTiming,
 }
 
 fn png_bytes(
@@ -217,23 +220,6 @@ fn default_stats() -> Vec<(String, FeatureStats)> {
         .iter()
         .map(|name| (name.to_string(), FeatureStats::Vector(VectorStats::new(1))))
         .collect()
-}
-
-fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
-    }
-    let temporary = temporary_name(path);
-    std::fs::write(&temporary, bytes).map_err(ExportError::io(&temporary))?;
-    std::fs::rename(&temporary, path).map_err(ExportError::io(path))
-}
-
-fn temporary_name(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.partial"))
 }
 
 fn write_parquet(path: &Path, batch: &arrow_array::RecordBatch) -> Result<u64, ExportError> {
@@ -308,6 +294,7 @@ impl LeRobotWriter {
             total_frames: 0,
             stats,
             summary: Summary::default(),
+            timing: SinkTiming::default(),
         }
     }
 
@@ -871,6 +858,10 @@ impl EpisodeSink for LeRobotWriter {
         Ok(())
     }
 
+    fn timing(&self) -> SinkTiming {
+        self.timing
+    }
+
     fn finish(self: Box<Self>) -> Result<Summary, ExportError> {
         self.finish_dataset()
     }
@@ -901,6 +892,7 @@ impl LeRobotWriter {
             }
         };
         let first_index = self.total_frames;
+        let encode_started = std::time::Instant::now();
         let work = EpisodeWork {
             features: &self.features,
             options: &self.options,
@@ -922,6 +914,8 @@ impl LeRobotWriter {
             || work.episode_stats(episode, task_index, first_index),
         );
         let images = images?;
+        let write_started = std::time::Instant::now();
+        self.timing.encode_secs += (write_started - encode_started).as_secs_f64();
         let video_span = match video_frames? {
             Some(frames) => Some(self.append_video(&frames)?),
             None => None,
@@ -979,6 +973,7 @@ impl LeRobotWriter {
                 self.checkpoint()?;
             }
         }
+        self.timing.write_secs += write_started.elapsed().as_secs_f64();
         Ok(())
     }
 

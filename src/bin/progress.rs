@@ -1,0 +1,119 @@
+//! Progress bars (one per task and one overall) and the final summary table of `collect`.
+//! Bars draw on stderr and hide themselves when stderr is not a terminal.
+
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use surgvla::collect::run::{CollectProgress, CollectReport, Slot, SlotOutcome};
+use surgvla::task::TaskId;
+
+pub struct Bars {
+    multi: MultiProgress,
+    overall: ProgressBar,
+    tasks: Vec<(TaskId, ProgressBar)>,
+}
+
+impl Bars {
+    pub fn new(tasks: &[TaskId]) -> Self {
+        let multi = MultiProgress::new();
+        let style = |template: &str| {
+            ProgressStyle::with_template(template)
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> ")
+        };
+        let overall = multi.add(ProgressBar::new(0));
+        overall.set_style(style(
+            "{prefix:>24} [{bar:30}] {pos}/{len} episodes  {msg}  {elapsed_precise} eta {eta}",
+        ));
+        overall.set_prefix("all tasks");
+        let tasks = tasks
+            .iter()
+            .map(|&task| {
+                let bar = multi.add(ProgressBar::new(0));
+                bar.set_style(style("{prefix:>24} [{bar:30}] {pos}/{len}  {msg}"));
+                bar.set_prefix(format!("{} {}", task.code(), task.name()));
+                (task, bar)
+            })
+            .collect();
+        Bars {
+            multi,
+            overall,
+            tasks,
+        }
+    }
+
+    pub fn clear(&self) {
+        let _ = self.multi.clear();
+    }
+}
+
+impl CollectProgress for Bars {
+    fn start(&mut self, slots: &[Slot], already_written: usize) {
+        self.overall.set_length(slots.len() as u64);
+        for (task, bar) in &self.tasks {
+            bar.set_length(slots.iter().filter(|s| s.task == *task).count() as u64);
+        }
+        if already_written > 0 {
+            self.overall
+                .set_message(format!("recounting {already_written} written episodes"));
+        }
+    }
+
+    fn slot_done(&mut self, outcome: &SlotOutcome) {
+        self.overall.inc(1);
+        let elapsed = self.overall.elapsed().as_secs_f64().max(1e-9);
+        self.overall.set_message(format!(
+            "{:.0} episodes/s",
+            self.overall.position() as f64 / elapsed
+        ));
+        if let Some((_, bar)) = self.tasks.iter().find(|(t, _)| *t == outcome.slot.task) {
+            bar.inc(1);
+            if !outcome.failures.is_empty() {
+                bar.set_message(format!("last retry: {}", outcome.failures[0].reason));
+            }
+        }
+    }
+}
+
+/// Prints the per-task table and the time shares.
+pub fn print_summary(report: &CollectReport) {
+    println!(
+        "{:<5} {:<24} {:>8} {:>7} {:>8} {:>7} {:>7} {:>8}",
+        "task", "name", "episodes", "frames", "attempts", "expert", "seconds", "frames/s"
+    );
+    for task in &report.tasks {
+        let (secs, fps) = report
+            .timing
+            .tasks
+            .get(&task.code)
+            .copied()
+            .unwrap_or_default();
+        println!(
+            "{:<5} {:<24} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
+            task.code,
+            task.name,
+            task.episodes,
+            task.frames,
+            task.attempts,
+            task.expert_success_rate * 100.0,
+            secs,
+            fps
+        );
+    }
+    let t = &report.timing;
+    let attempts: u64 = report.tasks.iter().map(|t| t.attempts).sum();
+    let successes: u64 = report.tasks.iter().map(|t| t.expert_successes).sum();
+    println!(
+        "{:<5} {:<24} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
+        "all",
+        "",
+        report.episodes,
+        report.frames,
+        attempts,
+        successes as f64 * 100.0 / attempts.max(1) as f64,
+        t.wall_secs,
+        t.frames_per_sec
+    );
+    println!(
+        "time: physics {:.1} s and rendering {:.1} s (CPU, summed over {} threads); encoding {:.1} s, writing {:.1} s",
+        t.physics_cpu_secs, t.render_cpu_secs, report.threads, t.encode_secs, t.write_secs
+    );
+}

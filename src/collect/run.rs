@@ -1,0 +1,521 @@
+//! A whole collection: the list of episode slots, sharding, parallel verified recording, and
+//! streaming to an exporter in episode order.
+//!
+//! The job list is `episodes_per_task` *slots* per task, in task order. Slot `k` of a task tries
+//! attempt seeds ([`attempt_seed`]) in order until one passes both the expert's success check
+//! and the replay of its dataset actions; failed attempts are counted, not saved. What a slot
+//! holds is a function of (seed, task, k) alone, so:
+//! - output is identical for any thread count (slots are recorded in parallel, written in
+//!   order);
+//! - `--shard I/N` takes the I-th of N contiguous ranges of slots, and the shards in order hold
+//!   exactly the episodes of the unsharded run;
+//! - a resumed run skips the slots already written and recounts their attempts without
+//!   rendering, so its report matches an uninterrupted run's.
+
+use crate::collect::record::{
+    RecordOptions, attempt_seed, render_replay, run_expert, verify_replay,
+};
+use crate::episode::Episode;
+use crate::export::{EpisodeSink, ExportError, Summary};
+use crate::policy::{ExpertLibrary, PlanError};
+use crate::task::TaskId;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::fmt;
+use std::str::FromStr;
+use std::time::Instant;
+
+/// One part of a collection split across machines: `index` of `count` (0-based).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Default for Shard {
+    fn default() -> Self {
+        Shard { index: 0, count: 1 }
+    }
+}
+
+/// A shard written other than "I/N" with I < N.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)")]
+pub struct BadShard(pub String);
+
+impl FromStr for Shard {
+    type Err = BadShard;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let bad = || BadShard(text.to_string());
+        let (i, n) = text.split_once('/').ok_or_else(bad)?;
+        let index: u32 = i.trim().parse().map_err(|_| bad())?;
+        let count: u32 = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl Shard {
+    /// This shard's contiguous part of `0..total`.
+    pub fn range(&self, total: usize) -> std::ops::Range<usize> {
+        let part = |i: u32| (total as u128 * u128::from(i) / u128::from(self.count)) as usize;
+        part(self.index)..part(self.index + 1)
+    }
+}
+
+/// One episode slot: the `k`-th episode of `task`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct Slot {
+    #[serde(serialize_with = "task_code")]
+    pub task: TaskId,
+    pub k: u64,
+}
+
+fn task_code<S: serde::Serializer>(task: &TaskId, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(task.code())
+}
+
+/// Everything a collection depends on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CollectOptions {
+    pub tasks: Vec<TaskId>,
+    pub episodes_per_task: u64,
+    pub seed: u64,
+    pub shard: Shard,
+    /// Worker threads (0 = all cores).
+    pub threads: usize,
+    /// Most attempts per slot before the collection fails.
+    pub max_attempts: u32,
+    pub record: RecordOptions,
+}
+
+impl Default for CollectOptions {
+    fn default() -> Self {
+        CollectOptions {
+            tasks: TaskId::ALL.to_vec(),
+            episodes_per_task: 100,
+            seed: 0,
+            shard: Shard::default(),
+            threads: 0,
+            max_attempts: 20,
+            record: RecordOptions::default(),
+        }
+    }
+}
+
+impl CollectOptions {
+    /// Every slot of the collection, in order (all shards).
+    pub fn all_slots(&self) -> Vec<Slot> {
+        self.tasks
+            .iter()
+            .flat_map(|&task| (0..self.episodes_per_task).map(move |k| Slot { task, k }))
+            .collect()
+    }
+
+    /// This shard's slots, in order; the dataset's episode `i` is the `i`-th of them.
+    pub fn slots(&self) -> Vec<Slot> {
+        let all = self.all_slots();
+        let range = self.shard.range(all.len());
+        all[range].to_vec()
+    }
+}
+
+/// One failed attempt, with what it takes to reproduce it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Failure {
+    #[serde(flatten)]
+    pub slot: Slot,
+    pub attempt: u32,
+    pub seed: u64,
+    /// "expert" (the predicate failed after the expert's run) or "replay" (the expert
+    /// succeeded but replaying its dataset actions did not).
+    pub stage: &'static str,
+    pub reason: String,
+}
+
+/// What happened at one slot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlotOutcome {
+    pub slot: Slot,
+    /// The verified episode (None when only counting).
+    pub episode: Option<Episode>,
+    pub frames: u64,
+    pub attempts: u32,
+    pub failures: Vec<Failure>,
+    pub physics_secs: f64,
+    pub render_secs: f64,
+}
+
+/// What stops a collection.
+#[derive(Debug, thiserror::Error)]
+pub enum CollectError {
+    #[error(transparent)]
+    Plan(#[from] PlanError),
+    #[error(transparent)]
+    Export(#[from] ExportError),
+    #[error("{task} episode {k}: no verified episode in {attempts} attempts; last failure: {reason}")]
+    Exhausted {
+        task: TaskId,
+        k: u64,
+        attempts: u32,
+        reason: String,
+    },
+    #[error("starting {threads} worker threads: {message}")]
+    Threads { threads: usize, message: String },
+}
+
+/// Fills a slot: attempts in order until one verifies. With `render` false the episode is not
+/// rendered (counting only; the verdicts are the same).
+pub fn collect_slot(
+    slot: Slot,
+    index: u64,
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    render: bool,
+) -> Result<SlotOutcome, CollectError> {
+    let plan = library.plan(slot.task)?;
+    let record = &options.record;
+    let max_steps = record.max_steps.unwrap_or_else(|| slot.task.step_limit());
+    let mut outcome = SlotOutcome {
+        slot,
+        episode: None,
+        frames: 0,
+        attempts: 0,
+        failures: Vec::new(),
+        physics_secs: 0.0,
+        render_secs: 0.0,
+    };
+    for attempt in 0..options.max_attempts.max(1) {
+        let seed = attempt_seed(options.seed, slot.task, slot.k, attempt);
+        let instance = slot.task.instance(seed, &record.task);
+        outcome.attempts += 1;
+        let expert = run_expert(&instance, plan, max_steps, record.gripper)?;
+        outcome.physics_secs += expert.physics_secs;
+        let fail = |stage, reason: String| Failure {
+            slot,
+            attempt,
+            seed,
+            stage,
+            reason,
+        };
+        if !expert.verdict.success {
+            outcome
+                .failures
+                .push(fail("expert", expert.verdict.reason.clone()));
+            continue;
+        }
+        let verdict = if render {
+            let recorded = render_replay(&instance, &expert.actions, index, record);
+            outcome.physics_secs += recorded.physics_secs;
+            outcome.render_secs += recorded.render_secs;
+            outcome.episode = Some(recorded.episode);
+            recorded.verdict
+        } else {
+            verify_replay(&instance, &expert.actions, record.gripper)
+        };
+        if verdict.success {
+            outcome.frames = expert.actions.len() as u64;
+            return Ok(outcome);
+        }
+        outcome.episode = None;
+        outcome.failures.push(fail("replay", verdict.reason));
+    }
+    Err(CollectError::Exhausted {
+        task: slot.task,
+        k: slot.k,
+        attempts: outcome.attempts,
+        reason: outcome
+            .failures
+            .last()
+            .map_or_else(String::new, |f| f.reason.clone()),
+    })
+}
+
+/// Receives progress (the command line draws bars from it).
+pub trait CollectProgress {
+    /// Before any work: this shard's slots, and how many of them are already written.
+    fn start(&mut self, _slots: &[Slot], _already_written: usize) {}
+    /// After a slot's episode is written (or recounted, for already written slots).
+    fn slot_done(&mut self, _outcome: &SlotOutcome) {}
+}
+
+/// No progress output.
+pub struct Silent;
+
+impl CollectProgress for Silent {}
+
+/// Per-task figures of a collection.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct TaskReport {
+    pub code: String,
+    pub name: String,
+    pub level: u8,
+    pub episodes: u64,
+    pub frames: u64,
+    /// Attempts the expert made (saved episodes plus failures).
+    pub attempts: u64,
+    /// Attempts whose expert run satisfied the predicate, before replay filtering.
+    pub expert_successes: u64,
+    /// `expert_successes / attempts`.
+    pub expert_success_rate: f64,
+    /// Expert successes whose replay failed.
+    pub replay_failures: u64,
+}
+
+/// Where the time went, seconds. Physics and rendering are summed over worker threads; the
+/// export figures come from the writer.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Timing {
+    pub wall_secs: f64,
+    pub frames_per_sec: f64,
+    pub physics_cpu_secs: f64,
+    pub render_cpu_secs: f64,
+    pub encode_secs: f64,
+    pub write_secs: f64,
+    /// Per task: wall seconds attributed by frames, and frames per second.
+    pub tasks: BTreeMap<String, (f64, f64)>,
+}
+
+/// The machine-readable result of a collection (`collect_report.json`). Everything except
+/// `timing` and `threads` is a pure function of the options.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CollectReport {
+    pub generator: String,
+    pub seed: u64,
+    pub shard: String,
+    /// This shard's slots within the whole collection, `[first, end)`.
+    pub slot_range: [usize; 2],
+    pub episodes_per_task: u64,
+    pub episodes: u64,
+    pub frames: u64,
+    pub tasks: Vec<TaskReport>,
+    /// Every failed attempt (slot, attempt, seed, stage, reason).
+    pub failures: Vec<Failure>,
+    /// The episode the run resumed at, if it continued an interrupted one.
+    pub resumed_at_episode: Option<u64>,
+    pub dataset: Summary,
+    pub threads: usize,
+    pub timing: Timing,
+}
+
+/// Runs the collection into `sink`, starting at episode `resume_at` (the episodes before it
+/// are already in the sink; they are recounted for the report, not rendered or written).
+pub fn collect(
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    mut sink: Box<dyn EpisodeSink>,
+    resume_at: usize,
+    progress: &mut dyn CollectProgress,
+) -> Result<CollectReport, CollectError> {
+    let started = Instant::now();
+    let slots = options.slots();
+    let threads = if options.threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        options.threads
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| CollectError::Threads {
+            threads,
+            message: e.to_string(),
+        })?;
+    let resume_at = resume_at.min(slots.len());
+    progress.start(&slots, resume_at);
+    let mut report = Tally::new(options);
+    // Recount what an interrupted run already wrote (physics only).
+    let recounted: Vec<Result<SlotOutcome, CollectError>> = pool.install(|| {
+        slots[..resume_at]
+            .par_iter()
+            .enumerate()
+            .map(|(i, slot)| collect_slot(*slot, i as u64, options, library, false))
+            .collect()
+    });
+    for outcome in recounted {
+        let outcome = outcome?;
+        report.add(&outcome, 0.0);
+        progress.slot_done(&outcome);
+    }
+    let batch_size = threads * 2;
+    let mut next_index = resume_at;
+    for batch in slots[resume_at..].chunks(batch_size) {
+        let batch_started = Instant::now();
+        let first = next_index;
+        let outcomes: Vec<Result<SlotOutcome, CollectError>> = pool.install(|| {
+            batch
+                .par_iter()
+                .enumerate()
+                .map(|(i, slot)| collect_slot(*slot, (first + i) as u64, options, library, true))
+                .collect()
+        });
+        let mut outcomes = outcomes.into_iter().collect::<Result<Vec<_>, _>>()?;
+        let episodes: Vec<Episode> = outcomes
+            .iter_mut()
+            .filter_map(|o| o.episode.take())
+            .collect();
+        sink.write_batch(&episodes)?;
+        next_index += episodes.len();
+        let frames: u64 = outcomes.iter().map(|o| o.frames).sum();
+        let secs = batch_started.elapsed().as_secs_f64();
+        for outcome in &outcomes {
+            report.add(outcome, secs * outcome.frames as f64 / frames.max(1) as f64);
+            progress.slot_done(outcome);
+        }
+    }
+    let sink_timing = sink.timing();
+    let finish_started = Instant::now();
+    let summary = sink.finish()?;
+    let finish_secs = finish_started.elapsed().as_secs_f64();
+    let wall_secs = started.elapsed().as_secs_f64();
+    let all = options.all_slots().len();
+    let range = options.shard.range(all);
+    Ok(report.finish(
+        options,
+        summary,
+        threads,
+        resume_at,
+        [range.start, range.end],
+        Timing {
+            wall_secs,
+            encode_secs: sink_timing.encode_secs,
+            write_secs: sink_timing.write_secs + finish_secs,
+            ..Timing::default()
+        },
+    ))
+}
+
+/// Accumulates the report.
+struct Tally {
+    tasks: Vec<TaskReport>,
+    /// Wall seconds attributed to each task (a batch's time shared by frames).
+    wall_secs: Vec<f64>,
+    failures: Vec<Failure>,
+    physics_secs: f64,
+    render_secs: f64,
+}
+
+impl Tally {
+    fn new(options: &CollectOptions) -> Self {
+        let tasks: Vec<TaskReport> = options
+            .tasks
+            .iter()
+            .map(|t| TaskReport {
+                code: t.code().into(),
+                name: t.name().into(),
+                level: t.level(),
+                ..TaskReport::default()
+            })
+            .collect();
+        Tally {
+            wall_secs: vec![0.0; tasks.len()],
+            tasks,
+            failures: Vec::new(),
+            physics_secs: 0.0,
+            render_secs: 0.0,
+        }
+    }
+
+    fn add(&mut self, outcome: &SlotOutcome, wall_secs: f64) {
+        self.physics_secs += outcome.physics_secs;
+        self.render_secs += outcome.render_secs;
+        self.failures.extend(outcome.failures.iter().cloned());
+        if let Some((task, wall)) = self
+            .tasks
+            .iter_mut()
+            .zip(&mut self.wall_secs)
+            .find(|(t, _)| t.code == outcome.slot.task.code())
+        {
+            let replay_failures = outcome
+                .failures
+                .iter()
+                .filter(|f| f.stage == "replay")
+                .count() as u64;
+            let expert_failures = outcome.failures.len() as u64 - replay_failures;
+            task.episodes += 1;
+            task.frames += outcome.frames;
+            task.attempts += u64::from(outcome.attempts);
+            task.expert_successes += u64::from(outcome.attempts) - expert_failures;
+            task.replay_failures += replay_failures;
+            *wall += wall_secs;
+        }
+    }
+
+    fn finish(
+        mut self,
+        options: &CollectOptions,
+        dataset: Summary,
+        threads: usize,
+        resume_at: usize,
+        slot_range: [usize; 2],
+        mut timing: Timing,
+    ) -> CollectReport {
+        for (task, wall) in self.tasks.iter_mut().zip(&self.wall_secs) {
+            task.expert_success_rate = task.expert_successes as f64 / task.attempts.max(1) as f64;
+            timing.tasks.insert(
+                task.code.clone(),
+                (*wall, task.frames as f64 / wall.max(1e-9)),
+            );
+        }
+        let frames = self.tasks.iter().map(|t| t.frames).sum();
+        timing.physics_cpu_secs = self.physics_secs;
+        timing.render_cpu_secs = self.render_secs;
+        timing.frames_per_sec = dataset.frames as f64 / timing.wall_secs.max(1e-9);
+        CollectReport {
+            generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+            seed: options.seed,
+            shard: options.shard.to_string(),
+            slot_range,
+            episodes_per_task: options.episodes_per_task,
+            episodes: self.tasks.iter().map(|t| t.episodes).sum(),
+            frames,
+            tasks: self.tasks,
+            failures: self.failures,
+            resumed_at_episode: (resume_at > 0).then_some(resume_at as u64),
+            dataset,
+            threads,
+            timing,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_partition_the_slots_in_order() {
+        for total in [0usize, 1, 7, 800] {
+            for count in 1..6u32 {
+                let mut covered = Vec::new();
+                for index in 0..count {
+                    covered.extend(Shard { index, count }.range(total));
+                }
+                assert_eq!(covered, (0..total).collect::<Vec<_>>());
+            }
+        }
+        assert_eq!("2/4".parse::<Shard>(), Ok(Shard { index: 2, count: 4 }));
+        for bad in ["4/4", "1", "a/2", "0/0", "-1/3"] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn attempt_seeds_depend_only_on_the_slot() {
+        let a = attempt_seed(5, TaskId::GauzePick, 3, 0);
+        assert_eq!(a, crate::collect::record::episode_seed(5, TaskId::GauzePick, 3));
+        assert_ne!(a, attempt_seed(5, TaskId::GauzePick, 3, 1));
+        assert_ne!(a, attempt_seed(5, TaskId::GauzePick, 4, 0));
+        assert_ne!(a, attempt_seed(5, TaskId::NeedlePick, 3, 0));
+    }
+}

@@ -1,0 +1,650 @@
+//! Seeded scene construction: spawn ranges, distractors, instruction choice.
+//!
+//! Every random draw comes from a per-task stream of the episode seed, in a fixed order, so a
+//! [`TaskInstance`] is a pure function of (task, seed, config). Objects are placed by rejection
+//! sampling so that no two footprints come within [`CLEARANCE_M`] of each other and every
+//! footprint stays on the tray pad: a scene never starts with objects touching, so "the
+//! distractor did not move" means the instrument left it alone.
+
+use crate::assets::organ;
+use crate::rng::SplitMix64;
+use crate::scene::{
+    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, MarkColour, MarkSpec, ObjectKind, ObjectSpec,
+    OrganKind, OrganSpec, SceneSpec, TRAY_CENTER_XY_M, TRAY_HALF_EXTENTS_XY_M, TRAY_TOP_Z_M,
+    needle_arc_points,
+};
+use crate::task::TaskId;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
+
+/// Smallest gap between two objects' footprints at spawn, metres.
+pub const CLEARANCE_M: f64 = 0.004;
+/// Smallest gap between a footprint and the tray's rim, metres.
+const RIM_MARGIN_M: f64 = 0.003;
+/// Most rejection-sampling draws per object before the spawn is declared impossible.
+const MAX_DRAWS: usize = 200;
+/// Most distractors at level 2.
+pub const MAX_DISTRACTORS: usize = 3;
+
+/// Which instruction an episode gets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum InstructionChoice {
+    /// Always the canonical instruction.
+    #[default]
+    Canonical,
+    /// A seeded choice among the paraphrases.
+    Paraphrase,
+    /// A seeded choice among the canonical instruction and the paraphrases.
+    Mixed,
+}
+
+/// A closed interval `(low, high)`.
+pub type Range = (f64, f64);
+
+/// Where a task's things spawn, world frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SpawnRanges {
+    /// The primary thing: the object to pick, or the organ's centre (T1-3, T2-3, T3-2), metres.
+    pub primary_x_m: Range,
+    pub primary_y_m: Range,
+    /// The second thing: the first distractor (T2-1, T2-2), the block (T3-1), the gauze (T3-2).
+    pub secondary_x_m: Range,
+    pub secondary_y_m: Range,
+    /// Yaw of the primary object or organ, degrees.
+    pub yaw_deg: Range,
+}
+
+impl SpawnRanges {
+    /// Every range's half width multiplied by `scale` about its centre (1 = unchanged).
+    pub fn scaled(&self, scale: f64) -> SpawnRanges {
+        let s = |(low, high): Range| {
+            let (mid, half) = ((low + high) / 2.0, (high - low) / 2.0 * scale);
+            (mid - half, mid + half)
+        };
+        SpawnRanges {
+            primary_x_m: s(self.primary_x_m),
+            primary_y_m: s(self.primary_y_m),
+            secondary_x_m: s(self.secondary_x_m),
+            secondary_y_m: s(self.secondary_y_m),
+            yaw_deg: s(self.yaw_deg),
+        }
+    }
+}
+
+/// Options of scene construction shared by all tasks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TaskConfig {
+    /// Distractors in T2-1 and T2-2 (1 to [`MAX_DISTRACTORS`]).
+    pub distractors: usize,
+    pub instruction: InstructionChoice,
+    /// Multiplies the half width of every spawn range (1 = the reference ranges; 3 gives the
+    /// needle's evaluation range of +-0.03 m).
+    pub spawn_scale: f64,
+    /// T2-3: the target site's colour varies per episode and the instruction names it; when
+    /// false the red site is always the target (the reference's single instruction).
+    pub vary_clip_target: bool,
+}
+
+impl Default for TaskConfig {
+    fn default() -> Self {
+        TaskConfig {
+            distractors: 1,
+            instruction: InstructionChoice::Canonical,
+            spawn_scale: 1.0,
+            vary_clip_target: true,
+        }
+    }
+}
+
+/// One episode's setup.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaskInstance {
+    pub task: TaskId,
+    pub seed: u64,
+    pub scene: SceneSpec,
+    pub instruction: String,
+    /// The object the instruction names (pick and place tasks), index into `scene.objects`.
+    pub target_object: Option<usize>,
+    /// The object to place it on (T3-1's block).
+    pub support_object: Option<usize>,
+    /// The mark the instruction names (T1-3, T2-3, T3-2), index into `scene.marks`.
+    pub target_mark: Option<usize>,
+}
+
+/// The spawn is impossible: the ranges leave no room for the objects.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{task}: no collision-free spawn for '{object}' within {MAX_DRAWS} draws (seed {seed}); widen the spawn ranges or use fewer distractors")]
+pub struct SpawnError {
+    pub task: TaskId,
+    pub seed: u64,
+    pub object: String,
+}
+
+impl TaskId {
+    /// The reference spawn ranges (`tasks.md`), with our choices where the reference cannot be
+    /// reached (the spleen sits 25 mm further +x so its target lies inside the workspace).
+    pub fn default_spawn(self) -> SpawnRanges {
+        let ranges = |px: Range, py: Range, sx: Range, sy: Range, yaw: Range| SpawnRanges {
+            primary_x_m: px,
+            primary_y_m: py,
+            secondary_x_m: sx,
+            secondary_y_m: sy,
+            yaw_deg: yaw,
+        };
+        let none = (0.0, 0.0);
+        match self {
+            TaskId::GauzePick => ranges((0.54, 0.56), (-0.01, 0.01), none, none, none),
+            TaskId::NeedlePick => ranges((0.54, 0.56), (-0.01, 0.01), none, none, (-90.0, 90.0)),
+            TaskId::Electrocoagulation => {
+                ranges((0.545, 0.575), (-0.02, 0.02), none, none, (-15.0, 15.0))
+            }
+            TaskId::GauzePickDistractors
+            | TaskId::NeedlePickDistractors
+            | TaskId::PickAndPlace => ranges(
+                (0.52, 0.54),
+                (-0.02, 0.0),
+                (0.56, 0.58),
+                (0.0, 0.02),
+                (-90.0, 90.0),
+            ),
+            TaskId::VesselClipping => ranges((0.535, 0.565), (-0.01, 0.01), none, none, none),
+            TaskId::Hemostasis => ranges(
+                (0.49, 0.51),
+                (-0.015, 0.015),
+                (0.57, 0.59),
+                (0.0, 0.02),
+                (-10.0, 10.0),
+            ),
+        }
+    }
+
+    /// The episode's setup with the default spawn ranges scaled by `config.spawn_scale`.
+    ///
+    /// # Panics
+    /// Never with the default ranges; see [`TaskId::try_instance`] for custom ones.
+    pub fn instance(self, seed: u64, config: &TaskConfig) -> TaskInstance {
+        self.try_instance(seed, config, &self.default_spawn().scaled(config.spawn_scale))
+            .unwrap_or_else(|e| panic!("default spawn ranges must always fit: {e}"))
+    }
+
+    /// The episode's setup with explicit spawn ranges.
+    pub fn try_instance(
+        self,
+        seed: u64,
+        config: &TaskConfig,
+        spawn: &SpawnRanges,
+    ) -> Result<TaskInstance, SpawnError> {
+        let mut rng = SplitMix64::stream(seed, self.code());
+        let mut instance = TaskInstance {
+            task: self,
+            seed,
+            scene: SceneSpec::default(),
+            instruction: String::new(),
+            target_object: None,
+            support_object: None,
+            target_mark: None,
+        };
+        let yaw_rad = rng.uniform(spawn.yaw_deg.0, spawn.yaw_deg.1).to_radians();
+        let mut placer = Placer {
+            rng: &mut rng,
+            task: self,
+            seed,
+            placed: Vec::new(),
+        };
+        let scene = &mut instance.scene;
+        match self {
+            TaskId::GauzePick | TaskId::NeedlePick => {
+                let kind = if self == TaskId::GauzePick {
+                    ObjectKind::Gauze
+                } else {
+                    ObjectKind::Needle
+                };
+                let yaw = if kind == ObjectKind::Needle {
+                    yaw_rad
+                } else {
+                    0.0
+                };
+                let range = (spawn.primary_x_m, spawn.primary_y_m);
+                scene
+                    .objects
+                    .push(placer.place(kind.name(), kind, range, Some(yaw))?);
+                instance.target_object = Some(0);
+            }
+            TaskId::GauzePickDistractors | TaskId::NeedlePickDistractors => {
+                let (target, others) = if self == TaskId::GauzePickDistractors {
+                    (ObjectKind::Gauze, [ObjectKind::Needle, ObjectKind::Block])
+                } else {
+                    (ObjectKind::Needle, [ObjectKind::Gauze, ObjectKind::Block])
+                };
+                let range = (spawn.primary_x_m, spawn.primary_y_m);
+                scene
+                    .objects
+                    .push(placer.place(target.name(), target, range, Some(yaw_rad))?);
+                instance.target_object = Some(0);
+                let slots = [
+                    (spawn.secondary_x_m, spawn.secondary_y_m),
+                    ((0.56, 0.58), (-0.045, -0.025)),
+                    ((0.505, 0.525), (0.02, 0.04)),
+                ];
+                let count = config.distractors.clamp(1, MAX_DISTRACTORS);
+                for (i, slot) in slots.into_iter().take(count).enumerate() {
+                    let kind = others[i % 2];
+                    let name = format!("{}_distractor_{}", kind.name(), i + 1);
+                    let mut object = placer.place(&name, kind, slot, None)?;
+                    object.distractor = true;
+                    scene.objects.push(object);
+                }
+            }
+            TaskId::PickAndPlace => {
+                let range = (spawn.primary_x_m, spawn.primary_y_m);
+                scene.objects.push(placer.place(
+                    "gauze",
+                    ObjectKind::Gauze,
+                    range,
+                    Some(yaw_rad),
+                )?);
+                let range = (spawn.secondary_x_m, spawn.secondary_y_m);
+                scene.objects.push(placer.place(
+                    "block",
+                    ObjectKind::Block,
+                    range,
+                    Some(0.0),
+                )?);
+                instance.target_object = Some(0);
+                instance.support_object = Some(1);
+            }
+            TaskId::Electrocoagulation => {
+                let xy = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
+                let shape = placer.rng.next_f64();
+                let kidney = solid_organ(
+                    OrganKind::Kidney,
+                    [0.022, 0.04, 0.016],
+                    xy,
+                    yaw_rad,
+                    shape,
+                );
+                scene.marks.push(mark_on(
+                    &kidney,
+                    Vector3::new(-0.1, 0.55, 0.83),
+                    "bleeding_spot",
+                    MarkColour::Red,
+                    0.0024,
+                ));
+                scene.organs.push(kidney);
+                instance.target_mark = Some(0);
+            }
+            TaskId::VesselClipping => {
+                let [x, y] = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
+                let shape = placer.rng.next_f64();
+                let order = placer.rng.next_f64();
+                let target_draw = placer.rng.next_f64();
+                let (vessel, marks) = vessel_with_sites(x, y, shape, order);
+                let target = if config.vary_clip_target {
+                    ((target_draw * 3.0) as usize).min(2)
+                } else {
+                    marks
+                        .iter()
+                        .position(|m| m.colour == MarkColour::Red)
+                        .unwrap_or(0)
+                };
+                scene.marks = marks;
+                scene.marks[target].target = true;
+                scene.organs.push(vessel);
+                instance.target_mark = Some(target);
+            }
+            TaskId::Hemostasis => {
+                let xy = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
+                let shape = placer.rng.next_f64();
+                let spleen = solid_organ(
+                    OrganKind::Spleen,
+                    [0.032, 0.06, 0.02],
+                    xy,
+                    yaw_rad,
+                    shape,
+                );
+                scene.marks.push(mark_on(
+                    &spleen,
+                    Vector3::new(0.55, 0.0, 0.83),
+                    "bleeding_target",
+                    MarkColour::Red,
+                    0.0024,
+                ));
+                scene.organs.push(spleen);
+                let range = (spawn.secondary_x_m, spawn.secondary_y_m);
+                scene.objects.push(placer.place(
+                    "gauze",
+                    ObjectKind::Gauze,
+                    range,
+                    Some(0.0),
+                )?);
+                instance.target_object = Some(0);
+                instance.target_mark = Some(0);
+            }
+        }
+        instance.instruction = instruction(self, &instance, config.instruction);
+        Ok(instance)
+    }
+}
+
+/// The instruction of an instance, drawn from its own stream so the scene does not depend on
+/// the instruction choice.
+fn instruction(task: TaskId, instance: &TaskInstance, choice: InstructionChoice) -> String {
+    let mut rng = SplitMix64::stream(instance.seed, "instruction");
+    let colour = instance
+        .target_mark
+        .and_then(|i| instance.scene.marks.get(i))
+        .map_or(MarkColour::Red, |m| m.colour);
+    let (canonical, paraphrases): (String, Vec<String>) =
+        if task == TaskId::VesselClipping && colour != MarkColour::Red {
+            let c = colour.name();
+            (
+                format!("clip the {c} point on the vein"),
+                vec![
+                    format!("clamp the {c} point on the vessel"),
+                    format!("close the jaws across the vein at the {c} mark"),
+                ],
+            )
+        } else {
+            (
+                task.instruction().to_string(),
+                task.paraphrases().iter().map(|p| p.to_string()).collect(),
+            )
+        };
+    let pick = |options: &[String], draw: f64| {
+        let i = ((draw * options.len() as f64) as usize).min(options.len() - 1);
+        options[i].clone()
+    };
+    match choice {
+        InstructionChoice::Canonical => canonical,
+        InstructionChoice::Paraphrase => pick(&paraphrases, rng.next_f64()),
+        InstructionChoice::Mixed => {
+            let mut all = vec![canonical];
+            all.extend(paraphrases);
+            pick(&all, rng.next_f64())
+        }
+    }
+}
+
+/// Places objects by rejection sampling against the ones already placed.
+struct Placer<'a> {
+    rng: &'a mut SplitMix64,
+    task: TaskId,
+    seed: u64,
+    placed: Vec<Vec<Vector2<f64>>>,
+}
+
+impl Placer<'_> {
+    fn xy(&mut self, x: Range, y: Range) -> [f64; 2] {
+        [self.rng.uniform(x.0, x.1), self.rng.uniform(y.0, y.1)]
+    }
+
+    /// An object in `range` with `yaw` (or a drawn yaw in +-90 deg when `None`).
+    fn place(
+        &mut self,
+        name: &str,
+        kind: ObjectKind,
+        range: (Range, Range),
+        yaw: Option<f64>,
+    ) -> Result<ObjectSpec, SpawnError> {
+        for _ in 0..MAX_DRAWS {
+            let [x, y] = self.xy(range.0, range.1);
+            let drawn_yaw = self.rng.uniform(-90.0, 90.0).to_radians();
+            let object = object(name, kind, x, y, yaw.unwrap_or(drawn_yaw));
+            let points = footprint(&object);
+            let clear = self.placed.iter().all(|other| {
+                points.iter().all(|p| {
+                    other
+                        .iter()
+                        .all(|q| (p - q).norm() >= CLEARANCE_M + FOOTPRINT_SPACING_M)
+                })
+            });
+            if clear && points.iter().all(on_pad) {
+                self.placed.push(points);
+                return Ok(object);
+            }
+        }
+        Err(SpawnError {
+            task: self.task,
+            seed: self.seed,
+            object: name.to_string(),
+        })
+    }
+}
+
+/// Spacing of footprint sample points, metres (the clearance test adds it as slack).
+const FOOTPRINT_SPACING_M: f64 = 0.0025;
+
+/// Points covering an object's outline seen from above, world xy.
+fn footprint(object: &ObjectSpec) -> Vec<Vector2<f64>> {
+    let local: Vec<Vector3<f64>> = match object.kind {
+        ObjectKind::Needle => needle_arc_points(16),
+        ObjectKind::Gauze | ObjectKind::Block => {
+            let half = if object.kind == ObjectKind::Gauze {
+                GAUZE_HALF_EXTENTS_M
+            } else {
+                BLOCK_HALF_EXTENTS_M
+            };
+            let steps = |h: f64| (2.0 * h / FOOTPRINT_SPACING_M).ceil() as usize;
+            let (nx, ny) = (steps(half[0]), steps(half[1]));
+            (0..=nx)
+                .flat_map(|i| {
+                    (0..=ny).map(move |j| {
+                        Vector3::new(
+                            -half[0] + 2.0 * half[0] * i as f64 / nx as f64,
+                            -half[1] + 2.0 * half[1] * j as f64 / ny as f64,
+                            0.0,
+                        )
+                    })
+                })
+                .collect()
+        }
+    };
+    local
+        .iter()
+        .map(|p| {
+            let w = object.world_from_object * Point3::from(*p);
+            Vector2::new(w.x, w.y)
+        })
+        .collect()
+}
+
+fn on_pad(p: &Vector2<f64>) -> bool {
+    let [cx, cy] = TRAY_CENTER_XY_M;
+    let [hx, hy] = TRAY_HALF_EXTENTS_XY_M;
+    (p.x - cx).abs() <= hx - RIM_MARGIN_M && (p.y - cy).abs() <= hy - RIM_MARGIN_M
+}
+
+/// The vessel and its three candidate clip sites (colours in a seeded order).
+fn vessel_with_sites(x: f64, y: f64, shape: f64, order: f64) -> (OrganSpec, Vec<MarkSpec>) {
+    let radius = 0.0025;
+    let vessel = OrganSpec {
+        kind: OrganKind::Vessel,
+        world_from_organ: Isometry3::translation(x, y, TRAY_TOP_Z_M + radius),
+        semi_axes_m: [0.006, 0.07, radius],
+        shape_seed: (shape * u64::MAX as f64) as u64,
+    };
+    const ORDERS: [[MarkColour; 3]; 6] = [
+        [MarkColour::Red, MarkColour::Yellow, MarkColour::Green],
+        [MarkColour::Yellow, MarkColour::Red, MarkColour::Green],
+        [MarkColour::Yellow, MarkColour::Green, MarkColour::Red],
+        [MarkColour::Red, MarkColour::Blue, MarkColour::Yellow],
+        [MarkColour::Blue, MarkColour::Red, MarkColour::Yellow],
+        [MarkColour::Green, MarkColour::Blue, MarkColour::Red],
+    ];
+    let colours = ORDERS[((order * 6.0) as usize).min(5)];
+    let (path, _) = organ::vessel_path(&vessel, 11);
+    let marks = [3usize, 5, 7]
+        .into_iter()
+        .zip(colours)
+        .map(|(site, colour)| {
+            let local = path[site] + Vector3::new(0.0, 0.0, radius);
+            let tangent = (path[site + 1] - path[site - 1]).normalize();
+            MarkSpec {
+                name: format!("{}_clip_site", colour.name()),
+                position_m: (vessel.world_from_organ * Point3::from(local)).coords,
+                radius_m: 0.0012,
+                colour,
+                target: false,
+                line_direction: Some(vessel.world_from_organ.rotation * tangent),
+            }
+        })
+        .collect();
+    (vessel, marks)
+}
+
+/// A kidney or spleen resting on the tray (its flattened base on the pad) at `xy`.
+fn solid_organ(
+    kind: OrganKind,
+    semi_axes_m: [f64; 3],
+    xy: [f64; 2],
+    yaw_rad: f64,
+    shape: f64,
+) -> OrganSpec {
+    let z = TRAY_TOP_Z_M + organ::BASE_FRACTION * semi_axes_m[2];
+    OrganSpec {
+        kind,
+        world_from_organ: Isometry3::from_parts(
+            Translation3::new(xy[0], xy[1], z),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_rad),
+        ),
+        semi_axes_m,
+        shape_seed: (shape * u64::MAX as f64) as u64,
+    }
+}
+
+/// A target mark on an organ's surface in the organ-frame direction `direction`.
+fn mark_on(
+    organ_spec: &OrganSpec,
+    direction: Vector3<f64>,
+    name: &str,
+    colour: MarkColour,
+    radius_m: f64,
+) -> MarkSpec {
+    let local = organ::surface_point(organ_spec, direction);
+    MarkSpec {
+        name: name.to_string(),
+        position_m: (organ_spec.world_from_organ * Point3::from(local)).coords,
+        radius_m,
+        colour,
+        target: true,
+        line_direction: None,
+    }
+}
+
+fn object(name: &str, kind: ObjectKind, x: f64, y: f64, yaw_rad: f64) -> ObjectSpec {
+    ObjectSpec {
+        name: name.to_string(),
+        kind,
+        distractor: false,
+        world_from_object: Isometry3::from_parts(
+            Translation3::new(x, y, TRAY_TOP_Z_M + kind.rest_height_m()),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_rad),
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spawns_are_seeded_within_ranges_and_clear_of_each_other() {
+        for task in TaskId::ALL {
+            let spawn = task.default_spawn();
+            for seed in 0..40 {
+                let instance = task.instance(seed, &TaskConfig::default());
+                assert_eq!(instance, task.instance(seed, &TaskConfig::default()));
+                if let Some(target) = instance.target_object {
+                    let p = instance.scene.objects[target].world_from_object.translation;
+                    let (x, y) = (spawn.primary_x_m, spawn.primary_y_m);
+                    let (x, y) = if task == TaskId::Hemostasis {
+                        (spawn.secondary_x_m, spawn.secondary_y_m)
+                    } else {
+                        (x, y)
+                    };
+                    assert!((x.0..=x.1).contains(&p.x) && (y.0..=y.1).contains(&p.y));
+                }
+                let prints: Vec<_> = instance.scene.objects.iter().map(footprint).collect();
+                for (i, a) in prints.iter().enumerate() {
+                    for b in &prints[i + 1..] {
+                        let gap = a
+                            .iter()
+                            .flat_map(|p| b.iter().map(move |q| (p - q).norm()))
+                            .fold(f64::INFINITY, f64::min);
+                        assert!(gap >= CLEARANCE_M, "{task} seed {seed}: gap {gap}");
+                    }
+                }
+            }
+        }
+        assert_ne!(TaskId::GauzePick.scene(1), TaskId::GauzePick.scene(2));
+    }
+
+    #[test]
+    fn distractor_count_is_configurable_and_names_are_unique() {
+        for distractors in 1..=MAX_DISTRACTORS {
+            let config = TaskConfig {
+                distractors,
+                ..TaskConfig::default()
+            };
+            for seed in 0..20 {
+                let instance = TaskId::NeedlePickDistractors.instance(seed, &config);
+                let objects = &instance.scene.objects;
+                assert_eq!(objects.len(), distractors + 1);
+                assert_eq!(objects.iter().filter(|o| o.distractor).count(), distractors);
+                assert!(objects.iter().filter(|o| o.distractor).all(|o| o.kind != ObjectKind::Needle));
+                let mut names: Vec<_> = objects.iter().map(|o| o.name.clone()).collect();
+                names.dedup();
+                assert_eq!(names.len(), objects.len());
+            }
+        }
+    }
+
+    #[test]
+    fn clip_target_varies_and_the_instruction_names_its_colour() {
+        let mut colours = std::collections::BTreeSet::new();
+        for seed in 0..30 {
+            let instance = TaskId::VesselClipping.instance(seed, &TaskConfig::default());
+            let mark = &instance.scene.marks[instance.target_mark.unwrap()];
+            assert!(mark.target);
+            assert_eq!(instance.scene.marks.iter().filter(|m| m.target).count(), 1);
+            assert!(instance.instruction.contains(mark.colour.name()), "{}", instance.instruction);
+            colours.insert(mark.colour.name());
+        }
+        assert!(colours.len() >= 3, "{colours:?}");
+        let fixed = TaskConfig {
+            vary_clip_target: false,
+            ..TaskConfig::default()
+        };
+        let instance = TaskId::VesselClipping.instance(3, &fixed);
+        assert_eq!(instance.instruction, "clip the red blood point on the vein");
+    }
+
+    #[test]
+    fn instruction_choice_is_seeded_and_leaves_the_scene_alone() {
+        let canonical = TaskId::GauzePick.instance(4, &TaskConfig::default());
+        assert_eq!(canonical.instruction, "pick up the gauze");
+        let paraphrase = TaskConfig {
+            instruction: InstructionChoice::Paraphrase,
+            ..TaskConfig::default()
+        };
+        let mut seen = std::collections::BTreeSet::new();
+        for seed in 0..30 {
+            let instance = TaskId::GauzePick.instance(seed, &paraphrase);
+            assert!(TaskId::GauzePick.paraphrases().contains(&instance.instruction.as_str()));
+            assert_eq!(instance.scene, TaskId::GauzePick.scene(seed));
+            seen.insert(instance.instruction);
+        }
+        assert!(seen.len() > 1);
+    }
+
+    #[test]
+    fn impossible_ranges_are_an_error_not_a_hang() {
+        let mut spawn = TaskId::GauzePickDistractors.default_spawn();
+        spawn.secondary_x_m = spawn.primary_x_m;
+        spawn.secondary_y_m = spawn.primary_y_m;
+        let spawn = spawn.scaled(0.0);
+        let error = TaskId::GauzePickDistractors
+            .try_instance(1, &TaskConfig::default(), &spawn)
+            .unwrap_err();
+        assert!(error.to_string().contains("needle_distractor_1"), "{error}");
+    }
+}

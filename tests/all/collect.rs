@@ -1,0 +1,228 @@
+//! Whole collections: thread-count independence, shards, the report, and resuming a killed run.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use surgvla::collect::run::{CollectOptions, Shard, Silent, collect};
+use surgvla::episode::Episode;
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
+use surgvla::export::{EpisodeSink, ExportError, Summary};
+use surgvla::policy::ExpertLibrary;
+use surgvla::task::TaskId;
+
+fn temp_root(name: &str) -> PathBuf {
+    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    std::env::temp_dir().join(format!("surgvla-collect-{name}-{}-{n}", std::process::id()))
+}
+
+/// Every file under `root` (relative path -> bytes).
+fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).expect("read dir") {
+            let path = entry.expect("entry").path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let relative = path.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+                files.insert(relative, std::fs::read(&path).expect("read"));
+            }
+        }
+    }
+    files
+}
+
+fn small(tasks: &[TaskId], episodes_per_task: u64, threads: usize) -> CollectOptions {
+    CollectOptions {
+        tasks: tasks.to_vec(),
+        episodes_per_task,
+        seed: 3,
+        threads,
+        ..CollectOptions::default()
+    }
+}
+
+#[test]
+fn one_and_two_threads_write_identical_datasets() {
+    let library = ExpertLibrary::builtin().unwrap();
+    let tasks = [TaskId::NeedlePick, TaskId::Hemostasis];
+    let mut trees = Vec::new();
+    let mut reports = Vec::new();
+    for threads in [1, 2] {
+        let root = temp_root("threads");
+        let writer = LeRobotWriter::create(&root, LeRobotOptions::default()).unwrap();
+        let report = collect(
+            &small(&tasks, 2, threads),
+            &library,
+            Box::new(writer),
+            0,
+            &mut Silent,
+        )
+        .unwrap();
+        trees.push(tree(&root));
+        reports.push(report);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+    assert_eq!(trees[0].keys().collect::<Vec<_>>(), trees[1].keys().collect::<Vec<_>>());
+    for (name, bytes) in &trees[0] {
+        assert!(trees[1][name] == *bytes, "{name} differs between 1 and 2 threads");
+    }
+    let (a, b) = (&reports[0], &reports[1]);
+    assert_eq!((a.episodes, a.frames, &a.tasks, &a.failures), (b.episodes, b.frames, &b.tasks, &b.failures));
+    assert_eq!(a.episodes, 4);
+    assert_eq!(a.dataset.episodes, 4);
+    assert!(a.tasks.iter().all(|t| t.episodes == 2 && t.attempts >= 2));
+}
+
+/// Records what reaches it.
+#[derive(Clone, Default)]
+struct Memory(Arc<Mutex<Vec<(u64, u64, String, usize, Vec<[f32; 7]>)>>>);
+
+impl EpisodeSink for Memory {
+    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
+        let actions = episode.steps.iter().map(|s| s.action).collect();
+        self.0.lock().unwrap().push((
+            episode.meta.index,
+            episode.meta.seed,
+            episode.meta.instruction.clone(),
+            episode.steps.len(),
+            actions,
+        ));
+        Ok(())
+    }
+
+    fn finish(self: Box<Self>) -> Result<Summary, ExportError> {
+        Ok(Summary::default())
+    }
+}
+
+#[test]
+fn shards_in_order_hold_exactly_the_unsharded_episodes() {
+    let library = ExpertLibrary::builtin().unwrap();
+    let tasks = [TaskId::GauzePick, TaskId::Electrocoagulation, TaskId::VesselClipping];
+    let run = |shard: Shard| {
+        let memory = Memory::default();
+        let options = CollectOptions {
+            shard,
+            ..small(&tasks, 2, 2)
+        };
+        let report = collect(&options, &library, Box::new(memory.clone()), 0, &mut Silent).unwrap();
+        let episodes = memory.0.lock().unwrap().clone();
+        (episodes, report)
+    };
+    let (full, _) = run(Shard::default());
+    assert_eq!(full.len(), 6);
+    let mut joined = Vec::new();
+    let mut ranges = Vec::new();
+    for index in 0..3 {
+        let (part, report) = run(Shard { index, count: 3 });
+        // Each shard numbers its own episodes from 0.
+        assert!(part.iter().enumerate().all(|(i, e)| e.0 == i as u64));
+        ranges.push(report.slot_range);
+        joined.extend(part.into_iter().map(|e| (e.1, e.2, e.3, e.4)));
+    }
+    assert_eq!(ranges, [[0, 2], [2, 4], [4, 6]]);
+    let full: Vec<_> = full.into_iter().map(|e| (e.1, e.2, e.3, e.4)).collect();
+    assert_eq!(joined, full);
+}
+
+fn surgvla(args: &[&str]) -> (i32, String, String) {
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(args)
+        .output()
+        .expect("run surgvla");
+    (
+        output.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "collect",
+            "--tasks",
+            "T1-1,T3-1",
+            "--episodes-per-task",
+            "4",
+            "--seed",
+            "8",
+            "--threads",
+            "1",
+            "--data-file-mb",
+            "1",
+            "--out",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .chain([out.display().to_string()])
+        .collect()
+    };
+    let reference = temp_root("uninterrupted");
+    let (code, stdout, stderr) = surgvla(&args(&reference).iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("T3-1") && stdout.contains("frames/s"), "{stdout}");
+
+    // Kill a second run once it has checkpointed at least one data file.
+    let killed = temp_root("killed");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(args(&killed))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn");
+    let checkpoint = killed.join("meta/.surgvla-checkpoint.json");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !checkpoint.exists() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().expect("kill");
+    child.wait().expect("wait");
+    assert!(checkpoint.exists(), "no checkpoint within the deadline");
+    assert!(!killed.join("meta/info.json").exists(), "a killed run must not look complete");
+
+    let mut resume = args(&killed);
+    resume.push("--resume".into());
+    let (code, _, stderr) = surgvla(&resume.iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stderr.contains("resuming"), "{stderr}");
+
+    let (mut a, mut b) = (tree(&reference), tree(&killed));
+    let report_a: serde_json::Value = serde_json::from_slice(&a.remove("collect_report.json").unwrap()).unwrap();
+    let report_b: serde_json::Value = serde_json::from_slice(&b.remove("collect_report.json").unwrap()).unwrap();
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (name, bytes) in &a {
+        assert!(b[name] == *bytes, "{name} differs after resume");
+    }
+    for key in ["episodes", "frames", "tasks", "failures", "dataset"] {
+        assert_eq!(report_a[key], report_b[key], "report {key}");
+    }
+    assert!(report_b["resumed_at_episode"].as_u64().unwrap() > 0);
+    assert_eq!(report_a["episodes"], 8);
+    assert!(report_a["tasks"][1]["expert_success_rate"].as_f64().unwrap() > 0.0);
+    for root in [reference, killed] {
+        std::fs::remove_dir_all(root).unwrap();
+    }
+}
+
+#[test]
+fn collect_mistakes_exit_2_with_the_reason() {
+    let out = temp_root("mistakes");
+    let out = out.display().to_string();
+    for (args, needle) in [
+        (vec!["collect", "--shard", "3/3", "--out", &out], "shard '3/3'"),
+        (vec!["collect", "--tasks", "T9-9", "--out", &out], "unknown task 'T9-9'"),
+        (vec!["collect", "--policies", "/nonexistent/plans", "--out", &out], "/nonexistent/plans"),
+        (vec!["collect", "--spawn-scale", "9", "--out", &out], "--spawn-scale"),
+        (vec!["collect", "--format", "zarr", "--out", &out], "zarr"),
+    ] {
+        let (code, _, stderr) = surgvla(&args);
+        assert_eq!(code, 2, "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+        assert!(!Path::new(&out).exists(), "{args:?} created the output");
+    }
+}
