@@ -14,7 +14,7 @@ use surgvla::task::TaskId;
 
 /// The benchmark scene: the kidney task with a gauze, a needle and a block added.
 pub fn full_scene() -> SceneSpec {
-    let mut scene = TaskId::Electrocoagulation.scene(0);
+    let mut scene = TaskId::Electrocoagulation.scene(0).unwrap();
     scene.objects = SceneSpec::one_of_each(0.0).objects;
     scene
 }

@@ -53,7 +53,7 @@ pub fn contact_sheet(
     seed: u64,
     options: RenderOptions,
     appearance: Appearance,
-) -> Sheet {
+) -> Result<Sheet, crate::task::SpawnError> {
     let camera = Camera::endoscope();
     let (w, h) = (camera.width_px, camera.height_px);
     let gap = 4;
@@ -64,7 +64,7 @@ pub fn contact_sheet(
         ..options
     });
     for (column, task) in tasks.iter().enumerate() {
-        let scene = task.scene(seed);
+        let scene = task.scene(seed)?;
         let sim = Simulator::new(SimConfig::default(), scene.clone());
         let assets = SceneAssets::new(&scene, seed, appearance);
         let frame = render_simulator(&assets, &mut renderer, &camera, &sim);
@@ -73,7 +73,7 @@ pub fn contact_sheet(
         sheet.paste(x, h + gap, w, &depth_visualisation(&frame));
         sheet.paste(x, 2 * (h + gap), w, &mask_visualisation(&frame));
     }
-    sheet
+    Ok(sheet)
 }
 
 /// What a dataset records about how its images were made: the camera (intrinsics and

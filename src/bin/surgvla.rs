@@ -315,7 +315,9 @@ impl LookArgs {
 }
 
 fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
-    let instance = args.task.instance(args.seed, &surgvla::task::TaskConfig::default());
+    let instance = args
+        .task
+        .instance(args.seed, &surgvla::task::TaskConfig::default())?;
     let scene = instance.scene.clone();
     let mut sim = Simulator::new(SimConfig::default(), scene.clone());
     if args.steps > 0 {
@@ -356,7 +358,7 @@ fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
 
 fn run_contact_sheet(args: &ContactSheetArgs) -> anyhow::Result<()> {
     let (options, appearance) = args.look.options(args.seed);
-    let sheet = contact_sheet(&TaskId::ALL, args.seed, options, appearance);
+    let sheet = contact_sheet(&TaskId::ALL, args.seed, options, appearance)?;
     write_png_file(&args.out, sheet.width_px, sheet.height_px, 3, &sheet.rgb)?;
     println!(
         "wrote {} ({}x{}): columns {}; rows RGB, depth, mask",
@@ -382,7 +384,9 @@ struct SimArgs {
 }
 
 fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
-    let instance = args.task.instance(args.seed, &surgvla::task::TaskConfig::default());
+    let instance = args
+        .task
+        .instance(args.seed, &surgvla::task::TaskConfig::default())?;
     let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
     let library = ExpertLibrary::builtin()?;
     let mut policy = library
@@ -441,7 +445,11 @@ fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
     let verdict = instance.success(&trajectory.final_observation);
     println!(
         "{}: {}",
-        if verdict.success { "success" } else { "failure" },
+        if verdict.success {
+            "success"
+        } else {
+            "failure"
+        },
         verdict.reason
     );
     Ok(())

@@ -18,7 +18,7 @@ use crate::policy::{ExpertLibrary, ExpertPlan, PlanError, Policy};
 use crate::render::{Camera, RenderOptions, Renderer};
 use crate::sim::psm::wrap_angle;
 use crate::sim::{JawCommand, Observation, PhysicalAction, SimConfig, Simulator};
-use crate::task::{TaskConfig, TaskId, TaskInstance, Verdict};
+use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
 use crate::view::render_simulator;
 use std::time::Instant;
 
@@ -266,6 +266,15 @@ fn environment_state(observation: &Observation) -> [f32; MAX_OBJECTS * POSE_VALU
     state
 }
 
+/// Why an episode could not be recorded.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error(transparent)]
+    Plan(#[from] PlanError),
+    #[error(transparent)]
+    Spawn(#[from] SpawnError),
+}
+
 /// Records one episode of `task` with its expert (unverified; `meta.success` says whether the
 /// replay succeeded): the building block of tests and benchmarks.
 pub fn record_episode(
@@ -274,8 +283,8 @@ pub fn record_episode(
     seed: u64,
     index: u64,
     options: &RecordOptions,
-) -> Result<Episode, PlanError> {
-    let instance = task.instance(seed, &options.task);
+) -> Result<Episode, RecordError> {
+    let instance = task.instance(seed, &options.task)?;
     let max_steps = options.max_steps.unwrap_or_else(|| task.step_limit());
     let expert = run_expert(&instance, library.plan(task)?, max_steps, options.gripper)?;
     Ok(render_replay(&instance, &expert.actions, index, options).episode)

@@ -41,7 +41,9 @@ impl Default for Shard {
 
 /// A shard written other than "I/N" with I < N.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)")]
+#[error(
+    "shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
+)]
 pub struct BadShard(pub String);
 
 impl FromStr for Shard {
@@ -137,8 +139,9 @@ pub struct Failure {
     pub slot: Slot,
     pub attempt: u32,
     pub seed: u64,
-    /// "expert" (the predicate failed after the expert's run) or "replay" (the expert
-    /// succeeded but replaying its dataset actions did not).
+    /// "spawn" (no valid scene for this seed; not counted as an attempt), "expert" (the
+    /// predicate failed after the expert's run) or "replay" (the expert succeeded but
+    /// replaying its dataset actions did not).
     pub stage: &'static str,
     pub reason: String,
 }
@@ -163,7 +166,9 @@ pub enum CollectError {
     Plan(#[from] PlanError),
     #[error(transparent)]
     Export(#[from] ExportError),
-    #[error("{task} episode {k}: no verified episode in {attempts} attempts; last failure: {reason}")]
+    #[error(
+        "{task} episode {k}: no verified episode in {attempts} attempts; last failure: {reason}"
+    )]
     Exhausted {
         task: TaskId,
         k: u64,
@@ -197,7 +202,20 @@ pub fn collect_slot(
     };
     for attempt in 0..options.max_attempts.max(1) {
         let seed = attempt_seed(options.seed, slot.task, slot.k, attempt);
-        let instance = slot.task.instance(seed, &record.task);
+        let instance = match slot.task.instance(seed, &record.task) {
+            Ok(instance) => instance,
+            Err(error) => {
+                // Not the expert's failure: the scene could not be drawn; try the next seed.
+                outcome.failures.push(Failure {
+                    slot,
+                    attempt,
+                    seed,
+                    stage: "spawn",
+                    reason: error.problem,
+                });
+                continue;
+            }
+        };
         outcome.attempts += 1;
         let expert = run_expert(&instance, plan, max_steps, record.gripper)?;
         outcome.physics_secs += expert.physics_secs;
@@ -262,7 +280,7 @@ pub struct TaskReport {
     pub level: u8,
     pub episodes: u64,
     pub frames: u64,
-    /// Attempts the expert made (saved episodes plus failures).
+    /// Attempts the expert made (saved episodes plus expert and replay failures).
     pub attempts: u64,
     /// Attempts whose expert run satisfied the predicate, before replay filtering.
     pub expert_successes: u64,
@@ -436,12 +454,8 @@ impl Tally {
             .zip(&mut self.wall_secs)
             .find(|(t, _)| t.code == outcome.slot.task.code())
         {
-            let replay_failures = outcome
-                .failures
-                .iter()
-                .filter(|f| f.stage == "replay")
-                .count() as u64;
-            let expert_failures = outcome.failures.len() as u64 - replay_failures;
+            let count = |stage| outcome.failures.iter().filter(|f| f.stage == stage).count() as u64;
+            let (replay_failures, expert_failures) = (count("replay"), count("expert"));
             task.episodes += 1;
             task.frames += outcome.frames;
             task.attempts += u64::from(outcome.attempts);
@@ -513,7 +527,10 @@ mod tests {
     #[test]
     fn attempt_seeds_depend_only_on_the_slot() {
         let a = attempt_seed(5, TaskId::GauzePick, 3, 0);
-        assert_eq!(a, crate::collect::record::episode_seed(5, TaskId::GauzePick, 3));
+        assert_eq!(
+            a,
+            crate::collect::record::episode_seed(5, TaskId::GauzePick, 3)
+        );
         assert_ne!(a, attempt_seed(5, TaskId::GauzePick, 3, 1));
         assert_ne!(a, attempt_seed(5, TaskId::GauzePick, 4, 0));
         assert_ne!(a, attempt_seed(5, TaskId::NeedlePick, 3, 0));

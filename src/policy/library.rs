@@ -123,10 +123,15 @@ mod tests {
     fn a_folder_replaces_plans_and_bad_files_are_named() {
         let folder = std::env::temp_dir().join(format!("surgvla-plans-{}", std::process::id()));
         std::fs::create_dir_all(&folder).unwrap();
-        let text = BUILTIN[0].1.replace("speed_factor = [", "speed_factor = [0.3, 0.3] # [");
+        let text = BUILTIN[0]
+            .1
+            .replace("speed_factor = [", "speed_factor = [0.3, 0.3] # [");
         std::fs::write(folder.join("mine.toml"), &text).unwrap();
         let library = ExpertLibrary::with_folder(&folder).unwrap();
-        assert_eq!(library.plan(TaskId::GauzePick).unwrap().speed_factor, [0.3, 0.3]);
+        assert_eq!(
+            library.plan(TaskId::GauzePick).unwrap().speed_factor,
+            [0.3, 0.3]
+        );
         std::fs::write(folder.join("zz_bad.toml"), "task = 'gauze_pick'\nspeed = 1").unwrap();
         let error = ExpertLibrary::with_folder(&folder).unwrap_err().to_string();
         assert!(error.contains("zz_bad.toml"), "{error}");

@@ -160,7 +160,9 @@ pub enum PlanError {
     Invalid { path: PathBuf, message: String },
     #[error("no expert plan for task {0}")]
     Missing(TaskId),
-    #[error("plan for {task}: waypoint {index} uses frame '{frame:?}', which this task does not have")]
+    #[error(
+        "plan for {task}: waypoint {index} uses frame '{frame:?}', which this task does not have"
+    )]
     NoFrame {
         task: TaskId,
         index: usize,
@@ -264,7 +266,9 @@ impl ExpertPlan {
         }
         let p = plan.action_noise.probability;
         if !(0.0..=1.0).contains(&p) || plan.action_noise.amplitude < 0.0 {
-            return Err(invalid("action_noise: probability in [0, 1], amplitude >= 0".into()));
+            return Err(invalid(
+                "action_noise: probability in [0, 1], amplitude >= 0".into(),
+            ));
         }
         Ok(plan)
     }
@@ -411,7 +415,10 @@ mod tests {
         let error = ExpertPlan::parse("task = 'gauze_pik'\nspeed_factor = [0.5, 0.6]", path)
             .unwrap_err()
             .to_string();
-        assert!(error.contains("plans/x.toml") && error.contains("gauze_pik"), "{error}");
+        assert!(
+            error.contains("plans/x.toml") && error.contains("gauze_pik"),
+            "{error}"
+        );
         let error = ExpertPlan::parse(
             "task = 'gauze_pick'\nspeed_factor = [0.9, 0.6]\n[[waypoint]]\nframe = 'pick'\njaw = 'open'",
             path,

@@ -8,7 +8,7 @@
 pub mod spawn;
 pub mod success;
 
-pub use spawn::{InstructionChoice, SpawnRanges, TaskConfig, TaskInstance};
+pub use spawn::{InstructionChoice, SpawnError, SpawnRanges, TaskConfig, TaskInstance};
 pub use success::Verdict;
 
 use std::fmt;
@@ -142,8 +142,8 @@ impl TaskId {
     }
 
     /// The scene of episode `seed` with the default configuration.
-    pub fn scene(self, seed: u64) -> crate::scene::SceneSpec {
-        self.instance(seed, &TaskConfig::default()).scene
+    pub fn scene(self, seed: u64) -> Result<crate::scene::SceneSpec, spawn::SpawnError> {
+        Ok(self.instance(seed, &TaskConfig::default())?.scene)
     }
 }
 

@@ -13,6 +13,7 @@ use crate::scene::{
     OrganKind, OrganSpec, SceneSpec, TRAY_CENTER_XY_M, TRAY_HALF_EXTENTS_XY_M, TRAY_TOP_Z_M,
     needle_arc_points,
 };
+use crate::sim::control::Workspace;
 use crate::task::TaskId;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
 
@@ -110,14 +111,20 @@ pub struct TaskInstance {
     pub target_mark: Option<usize>,
 }
 
-/// The spawn is impossible: the ranges leave no room for the objects.
+/// The spawn is impossible: the ranges leave no room for the objects, or put the target out of
+/// the instrument's reach.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{task}: no collision-free spawn for '{object}' within {MAX_DRAWS} draws (seed {seed}); widen the spawn ranges or use fewer distractors")]
+#[error(
+    "{task}: no valid scene in {MAX_LAYOUTS} layouts (seed {seed}); last problem: {problem}. Narrow or move the spawn ranges, or use fewer distractors"
+)]
 pub struct SpawnError {
     pub task: TaskId,
     pub seed: u64,
-    pub object: String,
+    pub problem: String,
 }
+
+/// Most whole-scene redraws before the spawn is declared impossible.
+pub const MAX_LAYOUTS: usize = 50;
 
 impl TaskId {
     /// The reference spawn ranges (`tasks.md`), with our choices where the reference cannot be
@@ -137,15 +144,15 @@ impl TaskId {
             TaskId::Electrocoagulation => {
                 ranges((0.545, 0.575), (-0.02, 0.02), none, none, (-15.0, 15.0))
             }
-            TaskId::GauzePickDistractors
-            | TaskId::NeedlePickDistractors
-            | TaskId::PickAndPlace => ranges(
-                (0.52, 0.54),
-                (-0.02, 0.0),
-                (0.56, 0.58),
-                (0.0, 0.02),
-                (-90.0, 90.0),
-            ),
+            TaskId::GauzePickDistractors | TaskId::NeedlePickDistractors | TaskId::PickAndPlace => {
+                ranges(
+                    (0.52, 0.54),
+                    (-0.02, 0.0),
+                    (0.56, 0.58),
+                    (0.0, 0.02),
+                    (-90.0, 90.0),
+                )
+            }
             TaskId::VesselClipping => ranges((0.535, 0.565), (-0.01, 0.01), none, none, none),
             TaskId::Hemostasis => ranges(
                 (0.49, 0.51),
@@ -158,15 +165,17 @@ impl TaskId {
     }
 
     /// The episode's setup with the default spawn ranges scaled by `config.spawn_scale`.
-    ///
-    /// # Panics
-    /// Never with the default ranges; see [`TaskId::try_instance`] for custom ones.
-    pub fn instance(self, seed: u64, config: &TaskConfig) -> TaskInstance {
-        self.try_instance(seed, config, &self.default_spawn().scaled(config.spawn_scale))
-            .unwrap_or_else(|e| panic!("default spawn ranges must always fit: {e}"))
+    pub fn instance(self, seed: u64, config: &TaskConfig) -> Result<TaskInstance, SpawnError> {
+        self.try_instance(
+            seed,
+            config,
+            &self.default_spawn().scaled(config.spawn_scale),
+        )
     }
 
-    /// The episode's setup with explicit spawn ranges.
+    /// The episode's setup with explicit spawn ranges. A layout whose objects cannot be placed
+    /// clear of each other, or whose target lies outside the workspace, is redrawn whole (the
+    /// first layout is kept whenever it is valid).
     pub fn try_instance(
         self,
         seed: u64,
@@ -174,6 +183,34 @@ impl TaskId {
         spawn: &SpawnRanges,
     ) -> Result<TaskInstance, SpawnError> {
         let mut rng = SplitMix64::stream(seed, self.code());
+        let mut problem = String::new();
+        for _ in 0..MAX_LAYOUTS {
+            match self.layout(&mut rng, seed, config, spawn) {
+                Ok(mut instance) => match unreachable_target(&instance) {
+                    None => {
+                        instance.instruction = instruction(self, &instance, config.instruction);
+                        return Ok(instance);
+                    }
+                    Some(why) => problem = why,
+                },
+                Err(why) => problem = why,
+            }
+        }
+        Err(SpawnError {
+            task: self,
+            seed,
+            problem,
+        })
+    }
+
+    /// One drawn layout (without the instruction).
+    fn layout(
+        self,
+        rng: &mut SplitMix64,
+        seed: u64,
+        config: &TaskConfig,
+        spawn: &SpawnRanges,
+    ) -> Result<TaskInstance, String> {
         let mut instance = TaskInstance {
             task: self,
             seed,
@@ -185,9 +222,7 @@ impl TaskId {
         };
         let yaw_rad = rng.uniform(spawn.yaw_deg.0, spawn.yaw_deg.1).to_radians();
         let mut placer = Placer {
-            rng: &mut rng,
-            task: self,
-            seed,
+            rng,
             placed: Vec::new(),
         };
         let scene = &mut instance.scene;
@@ -243,25 +278,17 @@ impl TaskId {
                     Some(yaw_rad),
                 )?);
                 let range = (spawn.secondary_x_m, spawn.secondary_y_m);
-                scene.objects.push(placer.place(
-                    "block",
-                    ObjectKind::Block,
-                    range,
-                    Some(0.0),
-                )?);
+                scene
+                    .objects
+                    .push(placer.place("block", ObjectKind::Block, range, Some(0.0))?);
                 instance.target_object = Some(0);
                 instance.support_object = Some(1);
             }
             TaskId::Electrocoagulation => {
                 let xy = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
                 let shape = placer.rng.next_f64();
-                let kidney = solid_organ(
-                    OrganKind::Kidney,
-                    [0.022, 0.04, 0.016],
-                    xy,
-                    yaw_rad,
-                    shape,
-                );
+                let kidney =
+                    solid_organ(OrganKind::Kidney, [0.022, 0.04, 0.016], xy, yaw_rad, shape);
                 scene.marks.push(mark_on(
                     &kidney,
                     Vector3::new(-0.1, 0.55, 0.83),
@@ -294,13 +321,8 @@ impl TaskId {
             TaskId::Hemostasis => {
                 let xy = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
                 let shape = placer.rng.next_f64();
-                let spleen = solid_organ(
-                    OrganKind::Spleen,
-                    [0.032, 0.06, 0.02],
-                    xy,
-                    yaw_rad,
-                    shape,
-                );
+                let spleen =
+                    solid_organ(OrganKind::Spleen, [0.032, 0.06, 0.02], xy, yaw_rad, shape);
                 scene.marks.push(mark_on(
                     &spleen,
                     Vector3::new(0.55, 0.0, 0.83),
@@ -310,20 +332,42 @@ impl TaskId {
                 ));
                 scene.organs.push(spleen);
                 let range = (spawn.secondary_x_m, spawn.secondary_y_m);
-                scene.objects.push(placer.place(
-                    "gauze",
-                    ObjectKind::Gauze,
-                    range,
-                    Some(0.0),
-                )?);
+                scene
+                    .objects
+                    .push(placer.place("gauze", ObjectKind::Gauze, range, Some(0.0))?);
                 instance.target_object = Some(0);
                 instance.target_mark = Some(0);
             }
         }
-        instance.instruction = instruction(self, &instance, config.instruction);
         Ok(instance)
     }
 }
+
+/// Why the instance's target is out of the instrument's reach, if it is: the named object's
+/// grasp point and the target mark must lie within the reference workspace's x-y box.
+fn unreachable_target(instance: &TaskInstance) -> Option<String> {
+    let workspace = Workspace::reference();
+    let inside = |p: &Vector3<f64>| {
+        (0..2).all(|axis| {
+            p[axis] >= workspace.min_m[axis] + REACH_MARGIN_M
+                && p[axis] <= workspace.max_m[axis] - REACH_MARGIN_M
+        })
+    };
+    let object = instance
+        .target_object
+        .and_then(|i| instance.scene.objects.get(i))
+        .filter(|o| !inside(&o.world_from_object.translation.vector))
+        .map(|o| format!("'{}' out of reach", o.name));
+    let mark = instance
+        .target_mark
+        .and_then(|i| instance.scene.marks.get(i))
+        .filter(|m| !inside(&m.position_m))
+        .map(|m| format!("'{}' out of reach", m.name));
+    object.or(mark)
+}
+
+/// How far inside the workspace's x-y box a target must be, metres.
+const REACH_MARGIN_M: f64 = 0.002;
 
 /// The instruction of an instance, drawn from its own stream so the scene does not depend on
 /// the instruction choice.
@@ -367,8 +411,6 @@ fn instruction(task: TaskId, instance: &TaskInstance, choice: InstructionChoice)
 /// Places objects by rejection sampling against the ones already placed.
 struct Placer<'a> {
     rng: &'a mut SplitMix64,
-    task: TaskId,
-    seed: u64,
     placed: Vec<Vec<Vector2<f64>>>,
 }
 
@@ -384,7 +426,7 @@ impl Placer<'_> {
         kind: ObjectKind,
         range: (Range, Range),
         yaw: Option<f64>,
-    ) -> Result<ObjectSpec, SpawnError> {
+    ) -> Result<ObjectSpec, String> {
         for _ in 0..MAX_DRAWS {
             let [x, y] = self.xy(range.0, range.1);
             let drawn_yaw = self.rng.uniform(-90.0, 90.0).to_radians();
@@ -402,11 +444,9 @@ impl Placer<'_> {
                 return Ok(object);
             }
         }
-        Err(SpawnError {
-            task: self.task,
-            seed: self.seed,
-            object: name.to_string(),
-        })
+        Err(format!(
+            "no room for '{name}' clear of the others within {MAX_DRAWS} draws"
+        ))
     }
 }
 
@@ -551,8 +591,11 @@ mod tests {
         for task in TaskId::ALL {
             let spawn = task.default_spawn();
             for seed in 0..40 {
-                let instance = task.instance(seed, &TaskConfig::default());
-                assert_eq!(instance, task.instance(seed, &TaskConfig::default()));
+                let instance = task.instance(seed, &TaskConfig::default()).unwrap();
+                assert_eq!(
+                    instance,
+                    task.instance(seed, &TaskConfig::default()).unwrap()
+                );
                 if let Some(target) = instance.target_object {
                     let p = instance.scene.objects[target].world_from_object.translation;
                     let (x, y) = (spawn.primary_x_m, spawn.primary_y_m);
@@ -586,11 +629,18 @@ mod tests {
                 ..TaskConfig::default()
             };
             for seed in 0..20 {
-                let instance = TaskId::NeedlePickDistractors.instance(seed, &config);
+                let instance = TaskId::NeedlePickDistractors
+                    .instance(seed, &config)
+                    .unwrap();
                 let objects = &instance.scene.objects;
                 assert_eq!(objects.len(), distractors + 1);
                 assert_eq!(objects.iter().filter(|o| o.distractor).count(), distractors);
-                assert!(objects.iter().filter(|o| o.distractor).all(|o| o.kind != ObjectKind::Needle));
+                assert!(
+                    objects
+                        .iter()
+                        .filter(|o| o.distractor)
+                        .all(|o| o.kind != ObjectKind::Needle)
+                );
                 let mut names: Vec<_> = objects.iter().map(|o| o.name.clone()).collect();
                 names.dedup();
                 assert_eq!(names.len(), objects.len());
@@ -602,11 +652,17 @@ mod tests {
     fn clip_target_varies_and_the_instruction_names_its_colour() {
         let mut colours = std::collections::BTreeSet::new();
         for seed in 0..30 {
-            let instance = TaskId::VesselClipping.instance(seed, &TaskConfig::default());
+            let instance = TaskId::VesselClipping
+                .instance(seed, &TaskConfig::default())
+                .unwrap();
             let mark = &instance.scene.marks[instance.target_mark.unwrap()];
             assert!(mark.target);
             assert_eq!(instance.scene.marks.iter().filter(|m| m.target).count(), 1);
-            assert!(instance.instruction.contains(mark.colour.name()), "{}", instance.instruction);
+            assert!(
+                instance.instruction.contains(mark.colour.name()),
+                "{}",
+                instance.instruction
+            );
             colours.insert(mark.colour.name());
         }
         assert!(colours.len() >= 3, "{colours:?}");
@@ -614,13 +670,15 @@ mod tests {
             vary_clip_target: false,
             ..TaskConfig::default()
         };
-        let instance = TaskId::VesselClipping.instance(3, &fixed);
+        let instance = TaskId::VesselClipping.instance(3, &fixed).unwrap();
         assert_eq!(instance.instruction, "clip the red blood point on the vein");
     }
 
     #[test]
     fn instruction_choice_is_seeded_and_leaves_the_scene_alone() {
-        let canonical = TaskId::GauzePick.instance(4, &TaskConfig::default());
+        let canonical = TaskId::GauzePick
+            .instance(4, &TaskConfig::default())
+            .unwrap();
         assert_eq!(canonical.instruction, "pick up the gauze");
         let paraphrase = TaskConfig {
             instruction: InstructionChoice::Paraphrase,
@@ -628,9 +686,13 @@ mod tests {
         };
         let mut seen = std::collections::BTreeSet::new();
         for seed in 0..30 {
-            let instance = TaskId::GauzePick.instance(seed, &paraphrase);
-            assert!(TaskId::GauzePick.paraphrases().contains(&instance.instruction.as_str()));
-            assert_eq!(instance.scene, TaskId::GauzePick.scene(seed));
+            let instance = TaskId::GauzePick.instance(seed, &paraphrase).unwrap();
+            assert!(
+                TaskId::GauzePick
+                    .paraphrases()
+                    .contains(&instance.instruction.as_str())
+            );
+            assert_eq!(instance.scene, TaskId::GauzePick.scene(seed).unwrap());
             seen.insert(instance.instruction);
         }
         assert!(seen.len() > 1);
@@ -646,5 +708,22 @@ mod tests {
             .try_instance(1, &TaskConfig::default(), &spawn)
             .unwrap_err();
         assert!(error.to_string().contains("needle_distractor_1"), "{error}");
+        // Targets beyond the instrument's reach are redrawn; wide ranges still spawn in reach.
+        let wide = TaskConfig {
+            spawn_scale: 3.0,
+            ..TaskConfig::default()
+        };
+        for task in [TaskId::Electrocoagulation, TaskId::Hemostasis] {
+            for seed in 0..30 {
+                let instance = task.instance(seed, &wide).unwrap();
+                assert_eq!(unreachable_target(&instance), None);
+            }
+        }
+        let mut far = TaskId::Hemostasis.default_spawn();
+        far.primary_x_m = (0.40, 0.41);
+        let error = TaskId::Hemostasis
+            .try_instance(1, &TaskConfig::default(), &far)
+            .unwrap_err();
+        assert!(error.to_string().contains("out of reach"), "{error}");
     }
 }

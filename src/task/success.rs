@@ -227,7 +227,7 @@ mod tests {
     fn no_task_is_done_at_the_start() {
         for task in TaskId::ALL {
             for seed in 0..5 {
-                let instance = task.instance(seed, &TaskConfig::default());
+                let instance = task.instance(seed, &TaskConfig::default()).unwrap();
                 let sim = Simulator::new(SimConfig::default(), instance.scene.clone());
                 let verdict = instance.success(&sim.observation());
                 assert!(!verdict.success, "{task} seed {seed}: {}", verdict.reason);

@@ -26,7 +26,11 @@ fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
             if path.is_dir() {
                 stack.push(path);
             } else {
-                let relative = path.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+                let relative = path
+                    .strip_prefix(root)
+                    .unwrap()
+                    .to_string_lossy()
+                    .into_owned();
                 files.insert(relative, std::fs::read(&path).expect("read"));
             }
         }
@@ -65,20 +69,32 @@ fn one_and_two_threads_write_identical_datasets() {
         reports.push(report);
         std::fs::remove_dir_all(&root).unwrap();
     }
-    assert_eq!(trees[0].keys().collect::<Vec<_>>(), trees[1].keys().collect::<Vec<_>>());
+    assert_eq!(
+        trees[0].keys().collect::<Vec<_>>(),
+        trees[1].keys().collect::<Vec<_>>()
+    );
     for (name, bytes) in &trees[0] {
-        assert!(trees[1][name] == *bytes, "{name} differs between 1 and 2 threads");
+        assert!(
+            trees[1][name] == *bytes,
+            "{name} differs between 1 and 2 threads"
+        );
     }
     let (a, b) = (&reports[0], &reports[1]);
-    assert_eq!((a.episodes, a.frames, &a.tasks, &a.failures), (b.episodes, b.frames, &b.tasks, &b.failures));
+    assert_eq!(
+        (a.episodes, a.frames, &a.tasks, &a.failures),
+        (b.episodes, b.frames, &b.tasks, &b.failures)
+    );
     assert_eq!(a.episodes, 4);
     assert_eq!(a.dataset.episodes, 4);
     assert!(a.tasks.iter().all(|t| t.episodes == 2 && t.attempts >= 2));
 }
 
+/// What the memory sink keeps of an episode: index, seed, instruction, length, actions.
+type Kept = (u64, u64, String, usize, Vec<[f32; 7]>);
+
 /// Records what reaches it.
 #[derive(Clone, Default)]
-struct Memory(Arc<Mutex<Vec<(u64, u64, String, usize, Vec<[f32; 7]>)>>>);
+struct Memory(Arc<Mutex<Vec<Kept>>>);
 
 impl EpisodeSink for Memory {
     fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
@@ -101,7 +117,11 @@ impl EpisodeSink for Memory {
 #[test]
 fn shards_in_order_hold_exactly_the_unsharded_episodes() {
     let library = ExpertLibrary::builtin().unwrap();
-    let tasks = [TaskId::GauzePick, TaskId::Electrocoagulation, TaskId::VesselClipping];
+    let tasks = [
+        TaskId::GauzePick,
+        TaskId::Electrocoagulation,
+        TaskId::VesselClipping,
+    ];
     let run = |shard: Shard| {
         let memory = Memory::default();
         let options = CollectOptions {
@@ -163,9 +183,17 @@ fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
         .collect()
     };
     let reference = temp_root("uninterrupted");
-    let (code, stdout, stderr) = surgvla(&args(&reference).iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    let (code, stdout, stderr) = surgvla(
+        &args(&reference)
+            .iter()
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>(),
+    );
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("T3-1") && stdout.contains("frames/s"), "{stdout}");
+    assert!(
+        stdout.contains("T3-1") && stdout.contains("frames/s"),
+        "{stdout}"
+    );
 
     // Kill a second run once it has checkpointed at least one data file.
     let killed = temp_root("killed");
@@ -183,7 +211,10 @@ fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
     child.kill().expect("kill");
     child.wait().expect("wait");
     assert!(checkpoint.exists(), "no checkpoint within the deadline");
-    assert!(!killed.join("meta/info.json").exists(), "a killed run must not look complete");
+    assert!(
+        !killed.join("meta/info.json").exists(),
+        "a killed run must not look complete"
+    );
 
     let mut resume = args(&killed);
     resume.push("--resume".into());
@@ -192,8 +223,10 @@ fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
     assert!(stderr.contains("resuming"), "{stderr}");
 
     let (mut a, mut b) = (tree(&reference), tree(&killed));
-    let report_a: serde_json::Value = serde_json::from_slice(&a.remove("collect_report.json").unwrap()).unwrap();
-    let report_b: serde_json::Value = serde_json::from_slice(&b.remove("collect_report.json").unwrap()).unwrap();
+    let report_a: serde_json::Value =
+        serde_json::from_slice(&a.remove("collect_report.json").unwrap()).unwrap();
+    let report_b: serde_json::Value =
+        serde_json::from_slice(&b.remove("collect_report.json").unwrap()).unwrap();
     assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
     for (name, bytes) in &a {
         assert!(b[name] == *bytes, "{name} differs after resume");
@@ -203,7 +236,12 @@ fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
     }
     assert!(report_b["resumed_at_episode"].as_u64().unwrap() > 0);
     assert_eq!(report_a["episodes"], 8);
-    assert!(report_a["tasks"][1]["expert_success_rate"].as_f64().unwrap() > 0.0);
+    assert!(
+        report_a["tasks"][1]["expert_success_rate"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
     for root in [reference, killed] {
         std::fs::remove_dir_all(root).unwrap();
     }
@@ -214,10 +252,22 @@ fn collect_mistakes_exit_2_with_the_reason() {
     let out = temp_root("mistakes");
     let out = out.display().to_string();
     for (args, needle) in [
-        (vec!["collect", "--shard", "3/3", "--out", &out], "shard '3/3'"),
-        (vec!["collect", "--tasks", "T9-9", "--out", &out], "unknown task 'T9-9'"),
-        (vec!["collect", "--policies", "/nonexistent/plans", "--out", &out], "/nonexistent/plans"),
-        (vec!["collect", "--spawn-scale", "9", "--out", &out], "--spawn-scale"),
+        (
+            vec!["collect", "--shard", "3/3", "--out", &out],
+            "shard '3/3'",
+        ),
+        (
+            vec!["collect", "--tasks", "T9-9", "--out", &out],
+            "unknown task 'T9-9'",
+        ),
+        (
+            vec!["collect", "--policies", "/nonexistent/plans", "--out", &out],
+            "/nonexistent/plans",
+        ),
+        (
+            vec!["collect", "--spawn-scale", "9", "--out", &out],
+            "--spawn-scale",
+        ),
         (vec!["collect", "--format", "zarr", "--out", &out], "zarr"),
     ] {
         let (code, _, stderr) = surgvla(&args);

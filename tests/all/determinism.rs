@@ -8,7 +8,7 @@ use surgvla::task::TaskId;
 
 /// Digest of a 200-step trajectory: the demo pick, then random commands.
 fn digest(task: TaskId, seed: u64) -> u64 {
-    let mut sim = Simulator::new(SimConfig::default(), task.scene(seed));
+    let mut sim = Simulator::new(SimConfig::default(), task.scene(seed).unwrap());
     let mut policy = Sequence {
         first: demo_plan(&sim),
         then: RandomPolicy::new(seed * 16 + task as u64),

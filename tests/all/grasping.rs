@@ -157,7 +157,7 @@ fn demo_grasps_lifts_and_releases_in_every_object_task() {
     use surgvla::task::TaskId;
     for task in TaskId::ALL {
         for seed in 0..3 {
-            let scene = task.scene(seed);
+            let scene = task.scene(seed).unwrap();
             if scene.objects.is_empty() {
                 continue;
             }
@@ -268,7 +268,7 @@ fn recorded_physical_actions_replay_to_the_same_trajectory() {
     use surgvla::sim::psm::wrap_angle;
     use surgvla::sim::{JawCommand, PhysicalAction, SimConfig};
     use surgvla::task::TaskId;
-    let scene = TaskId::NeedlePick.scene(7);
+    let scene = TaskId::NeedlePick.scene(7).unwrap();
     let mut sim = Simulator::new(SimConfig::default(), scene.clone());
     let mut policy = demo_plan(&sim);
     let trajectory = rollout(&mut sim, &mut policy, 80);

@@ -32,8 +32,7 @@ fn episodes(count: u64, max_steps: u32) -> Vec<Episode> {
     (0..count)
         .map(|i| {
             let task = tasks[i as usize % tasks.len()];
-            record_episode(&library, task, episode_seed(9, task, i), i, &options)
-                .expect("record")
+            record_episode(&library, task, episode_seed(9, task, i), i, &options).expect("record")
         })
         .collect()
 }

@@ -180,7 +180,7 @@ fn subdivided_meshes_are_watertight() {
 }
 
 fn task_frame(task: TaskId, seed: u64, steps: u32, supersample: u32) -> Frame {
-    let scene = task.scene(seed);
+    let scene = task.scene(seed).unwrap();
     let mut sim = Simulator::new(SimConfig::default(), scene.clone());
     let mut policy = surgvla::collect::demo_plan(&sim);
     surgvla::collect::rollout(&mut sim, &mut policy, steps);
@@ -300,7 +300,7 @@ fn organ_shapes_follow_the_seed() {
 
 #[test]
 fn randomized_appearance_changes_colours_not_geometry() {
-    let scene = TaskId::Hemostasis.scene(5);
+    let scene = TaskId::Hemostasis.scene(5).unwrap();
     let sim = Simulator::new(SimConfig::default(), scene.clone());
     let render_with = |appearance: Appearance| {
         let assets = SceneAssets::new(&scene, 5, appearance);
@@ -325,7 +325,7 @@ fn randomized_appearance_changes_colours_not_geometry() {
 
 #[test]
 fn per_pixel_lighting_changes_only_the_gouraud_surfaces() {
-    let scene = TaskId::Electrocoagulation.scene(1);
+    let scene = TaskId::Electrocoagulation.scene(1).unwrap();
     let sim = Simulator::new(SimConfig::default(), scene.clone());
     let assets = SceneAssets::new(&scene, 1, Appearance::default());
     let render_with = |allow_per_vertex: bool| {

@@ -14,6 +14,7 @@ fn library() -> ExpertLibrary {
 
 fn instance(task: TaskId, k: u64, config: &TaskConfig) -> TaskInstance {
     task.instance(attempt_seed(77, task, k, 0), config)
+        .expect("a valid scene")
 }
 
 #[test]
@@ -114,12 +115,25 @@ fn distractor_tasks_pick_the_named_object_and_a_distractor_is_no_success() {
                 let instance = instance(task, k, &config);
                 let plan = library.plan(task).unwrap();
                 let run = run_expert(&instance, plan, 100, GripperEncoding::Continuous).unwrap();
-                assert!(run.verdict.success, "{task} {distractors} k {k}: {}", run.verdict.reason);
+                assert!(
+                    run.verdict.success,
+                    "{task} {distractors} k {k}: {}",
+                    run.verdict.reason
+                );
                 let name = &instance.scene.objects[instance.target_object.unwrap()].name;
-                assert!(run.verdict.reason.contains(name.as_str()), "{}", run.verdict.reason);
+                assert!(
+                    run.verdict.reason.contains(name.as_str()),
+                    "{}",
+                    run.verdict.reason
+                );
 
                 // The same expert aimed at a distractor grasps it, which must not count.
-                let distractor = instance.scene.objects.iter().position(|o| o.distractor).unwrap();
+                let distractor = instance
+                    .scene
+                    .objects
+                    .iter()
+                    .position(|o| o.distractor)
+                    .unwrap();
                 let decoy = TaskInstance {
                     target_object: Some(distractor),
                     ..instance.clone()
@@ -150,7 +164,11 @@ fn the_vessel_expert_clips_the_site_the_instruction_names() {
         assert!(instance.instruction.contains(target.colour.name()));
         let plan = library.plan(TaskId::VesselClipping).unwrap();
         let run = run_expert(&instance, plan, 100, GripperEncoding::Continuous).unwrap();
-        assert!(run.verdict.reason.contains(&target.name), "{}", run.verdict.reason);
+        assert!(
+            run.verdict.reason.contains(&target.name),
+            "{}",
+            run.verdict.reason
+        );
         // Clipping another site fails the predicate.
         let other = (instance.target_mark.unwrap() + 1) % instance.scene.marks.len();
         let decoy = TaskInstance {
@@ -160,7 +178,11 @@ fn the_vessel_expert_clips_the_site_the_instruction_names() {
         let wrong = run_expert(&decoy, plan, 100, GripperEncoding::Continuous).unwrap();
         assert!(wrong.verdict.success, "the decoy run clips its own site");
         let verdict = verify_replay(&instance, &wrong.actions, GripperEncoding::Continuous);
-        assert!(!verdict.success && verdict.reason.contains("mm from"), "{}", verdict.reason);
+        assert!(
+            !verdict.success && verdict.reason.contains("mm from"),
+            "{}",
+            verdict.reason
+        );
     }
 }
 
