@@ -285,18 +285,15 @@ impl TaskId {
                 instance.support_object = Some(1);
             }
             TaskId::Electrocoagulation => {
-                let xy = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
-                let shape = placer.rng.next_f64();
-                let kidney =
-                    solid_organ(OrganKind::Kidney, [0.022, 0.04, 0.016], xy, yaw_rad, shape);
-                scene.marks.push(mark_on(
-                    &kidney,
-                    Vector3::new(-0.1, 0.55, 0.83),
-                    "bleeding_spot",
-                    MarkColour::Red,
-                    0.0024,
-                ));
+                let (kidney, spot) = placer.organ_with_mark(
+                    OrganKind::Kidney,
+                    [0.022, 0.04, 0.016],
+                    spawn,
+                    yaw_rad,
+                    (Vector3::new(-0.1, 0.55, 0.83), "bleeding_spot"),
+                );
                 scene.organs.push(kidney);
+                scene.marks.push(spot);
                 instance.target_mark = Some(0);
             }
             TaskId::VesselClipping => {
@@ -319,17 +316,14 @@ impl TaskId {
                 instance.target_mark = Some(target);
             }
             TaskId::Hemostasis => {
-                let xy = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
-                let shape = placer.rng.next_f64();
-                let spleen =
-                    solid_organ(OrganKind::Spleen, [0.032, 0.06, 0.02], xy, yaw_rad, shape);
-                scene.marks.push(mark_on(
-                    &spleen,
-                    Vector3::new(0.55, 0.0, 0.83),
-                    "bleeding_target",
-                    MarkColour::Red,
-                    0.0024,
-                ));
+                let (spleen, target) = placer.organ_with_mark(
+                    OrganKind::Spleen,
+                    [0.032, 0.06, 0.02],
+                    spawn,
+                    yaw_rad,
+                    (Vector3::new(0.55, 0.0, 0.83), "bleeding_target"),
+                );
+                scene.marks.push(target);
                 scene.organs.push(spleen);
                 let range = (spawn.secondary_x_m, spawn.secondary_y_m);
                 scene
@@ -417,6 +411,23 @@ struct Placer<'a> {
 impl Placer<'_> {
     fn xy(&mut self, x: Range, y: Range) -> [f64; 2] {
         [self.rng.uniform(x.0, x.1), self.rng.uniform(y.0, y.1)]
+    }
+
+    /// A kidney or spleen in the primary range with a red target mark on its surface in the
+    /// organ-frame direction `mark.0`.
+    fn organ_with_mark(
+        &mut self,
+        kind: OrganKind,
+        semi_axes_m: [f64; 3],
+        spawn: &SpawnRanges,
+        yaw_rad: f64,
+        mark: (Vector3<f64>, &str),
+    ) -> (OrganSpec, MarkSpec) {
+        let xy = self.xy(spawn.primary_x_m, spawn.primary_y_m);
+        let shape = self.rng.next_f64();
+        let organ = solid_organ(kind, semi_axes_m, xy, yaw_rad, shape);
+        let mark = mark_on(&organ, mark.0, mark.1, MarkColour::Red, 0.0024);
+        (organ, mark)
     }
 
     /// An object in `range` with `yaw` (or a drawn yaw in +-90 deg when `None`).

@@ -1,18 +1,6 @@
 //! The `surgvla` binary: user mistakes exit 2 with a clear message, runs print the trajectory.
 
-use std::process::Command;
-
-fn surgvla(args: &[&str]) -> (i32, String, String) {
-    let output = Command::new(env!("CARGO_BIN_EXE_surgvla"))
-        .args(args)
-        .output()
-        .expect("run surgvla");
-    (
-        output.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
-}
+use crate::util::surgvla;
 
 #[test]
 fn sim_runs_the_expert_through_grasp_release_and_a_verdict() {

@@ -1,7 +1,7 @@
 //! Whole collections: thread-count independence, shards, the report, and resuming a killed run.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use crate::util::{surgvla, temp_root, tree};
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 use surgvla::collect::run::{CollectOptions, Shard, Silent, collect};
 use surgvla::episode::Episode;
@@ -9,34 +9,6 @@ use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
 use surgvla::export::{EpisodeSink, ExportError, Summary};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
-
-fn temp_root(name: &str) -> PathBuf {
-    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-    std::env::temp_dir().join(format!("surgvla-collect-{name}-{}-{n}", std::process::id()))
-}
-
-/// Every file under `root` (relative path -> bytes).
-fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut files = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).expect("read dir") {
-            let path = entry.expect("entry").path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                let relative = path
-                    .strip_prefix(root)
-                    .unwrap()
-                    .to_string_lossy()
-                    .into_owned();
-                files.insert(relative, std::fs::read(&path).expect("read"));
-            }
-        }
-    }
-    files
-}
 
 fn small(tasks: &[TaskId], episodes_per_task: u64, threads: usize) -> CollectOptions {
     CollectOptions {
@@ -146,18 +118,6 @@ fn shards_in_order_hold_exactly_the_unsharded_episodes() {
     assert_eq!(ranges, [[0, 2], [2, 4], [4, 6]]);
     let full: Vec<_> = full.into_iter().map(|e| (e.1, e.2, e.3, e.4)).collect();
     assert_eq!(joined, full);
-}
-
-fn surgvla(args: &[&str]) -> (i32, String, String) {
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
-        .args(args)
-        .output()
-        .expect("run surgvla");
-    (
-        output.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
 }
 
 #[test]

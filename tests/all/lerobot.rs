@@ -1,7 +1,7 @@
 //! The LeRobot v3.0 writer: round trip through our own reader, metadata, file roll-over, crash
 //! safety and bad input. (The real lerobot loader is exercised by `tests/interop/`.)
 
-use std::path::PathBuf;
+use crate::util::temp_root;
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::episode::Episode;
 use surgvla::export::lerobot::read::{data_files, read_frames, read_parquet, schema_metadata};
@@ -10,13 +10,6 @@ use surgvla::export::tiff::decode_f32_tiff;
 use surgvla::export::{EpisodeSink, ExportError};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
-
-/// A fresh, unique temporary folder path (not created).
-fn temp_root(name: &str) -> PathBuf {
-    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-    std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id()))
-}
 
 fn episodes(count: u64, max_steps: u32) -> Vec<Episode> {
     let options = RecordOptions {
@@ -483,29 +476,10 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
             writer.write_episode(episode).expect("write");
         }
         Box::new(writer).finish().expect("finish");
-        let listing = |root: &std::path::Path| {
-            let mut files = Vec::new();
-            let mut pending = vec![root.to_path_buf()];
-            while let Some(dir) = pending.pop() {
-                for entry in std::fs::read_dir(&dir).expect("dir") {
-                    let path = entry.expect("entry").path();
-                    if path.is_dir() {
-                        pending.push(path);
-                    } else {
-                        files.push(path.strip_prefix(root).expect("prefix").to_path_buf());
-                    }
-                }
-            }
-            files.sort();
-            files
-        };
-        assert_eq!(listing(&whole), listing(&interrupted));
-        for file in listing(&whole) {
-            assert_eq!(
-                std::fs::read(whole.join(&file)).expect("a"),
-                std::fs::read(interrupted.join(&file)).expect("b"),
-                "{file:?}"
-            );
+        let (a, b) = (crate::util::tree(&whole), crate::util::tree(&interrupted));
+        assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+        for (file, bytes) in &a {
+            assert!(b[file] == *bytes, "{file}");
         }
         // A complete dataset cannot be resumed.
         assert!(LeRobotWriter::resume(&whole, options).is_err());

@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 
 use nalgebra::{Isometry3, Translation3};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 use surgvla::sim::psm::pointing_down;
 use surgvla::sim::{SceneSpec, SimConfig, Simulator};
 
@@ -16,4 +18,43 @@ pub fn simulator(scene: SceneSpec) -> Simulator {
 /// A pointing-down tip pose.
 pub fn tip_at(x: f64, y: f64, z: f64, yaw_rad: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::new(x, y, z), pointing_down(yaw_rad))
+}
+
+/// A fresh, unique temporary folder path (not created).
+pub fn temp_root(name: &str) -> PathBuf {
+    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id()))
+}
+
+/// Every file under `root`: relative path -> bytes.
+pub fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    let mut pending = vec![root.to_path_buf()];
+    while let Some(dir) = pending.pop() {
+        for entry in std::fs::read_dir(&dir).expect("read dir") {
+            let path = entry.expect("entry").path();
+            if path.is_dir() {
+                pending.push(path);
+            } else {
+                let relative = path.strip_prefix(root).expect("prefix");
+                let bytes = std::fs::read(&path).expect("read");
+                files.insert(relative.to_string_lossy().into_owned(), bytes);
+            }
+        }
+    }
+    files
+}
+
+/// Runs the `surgvla` binary: (exit code, stdout, stderr).
+pub fn surgvla(args: &[&str]) -> (i32, String, String) {
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(args)
+        .output()
+        .expect("run surgvla");
+    (
+        output.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
 }
