@@ -45,7 +45,7 @@ enum Command {
         #[arg(long)]
         with_mask: bool,
     },
-    /// List the tasks.
+    /// List the tasks: id, level, name, step limit, canonical instruction and paraphrases.
     Tasks,
 }
 
@@ -488,6 +488,9 @@ fn main() -> ExitCode {
                     task.step_limit(),
                     task.instruction()
                 );
+                for paraphrase in task.paraphrases() {
+                    println!("{:>41}  or \"{paraphrase}\"", "");
+                }
             }
             Ok(())
         }
