@@ -74,10 +74,17 @@ impl CollectProgress for Bars {
 }
 
 /// Prints the per-task table and the time shares.
-pub fn print_summary(report: &CollectReport) {
-    println!(
+pub fn print_summary(report: &CollectReport) -> std::io::Result<()> {
+    say!(
         "{:<5} {:<24} {:>8} {:>7} {:>8} {:>7} {:>7} {:>8}",
-        "task", "name", "episodes", "frames", "attempts", "expert", "seconds", "frames/s"
+        "task",
+        "name",
+        "episodes",
+        "frames",
+        "attempts",
+        "expert",
+        "seconds",
+        "frames/s"
     );
     for task in &report.tasks {
         let (secs, fps) = report
@@ -86,7 +93,7 @@ pub fn print_summary(report: &CollectReport) {
             .get(&task.code)
             .copied()
             .unwrap_or_default();
-        println!(
+        say!(
             "{:<5} {:<24} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
             task.code,
             task.name,
@@ -101,7 +108,7 @@ pub fn print_summary(report: &CollectReport) {
     let t = &report.timing;
     let attempts: u64 = report.tasks.iter().map(|t| t.attempts).sum();
     let successes: u64 = report.tasks.iter().map(|t| t.expert_successes).sum();
-    println!(
+    say!(
         "{:<5} {:<24} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
         "all",
         "",
@@ -112,8 +119,13 @@ pub fn print_summary(report: &CollectReport) {
         t.wall_secs,
         t.frames_per_sec
     );
-    println!(
+    say!(
         "time: physics {:.1} s and rendering {:.1} s (CPU, summed over {} threads); encoding {:.1} s, writing {:.1} s",
-        t.physics_cpu_secs, t.render_cpu_secs, report.threads, t.encode_secs, t.write_secs
+        t.physics_cpu_secs,
+        t.render_cpu_secs,
+        report.threads,
+        t.encode_secs,
+        t.write_secs
     );
+    Ok(())
 }

@@ -1,6 +1,15 @@
 //! The `surgvla` command line: parses arguments, calls the library, prints, and maps errors to
 //! exit codes (2 for user mistakes, 1 for internal failures).
 
+/// Writes a line to stdout; a failed write (a closed pipe) returns an error with `?`, which
+/// `main` treats as a quiet exit when the pipe was closed.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout(), $($arg)*)?
+    }};
+}
+
 mod progress;
 
 use clap::{Parser, Subcommand};
@@ -219,8 +228,8 @@ fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(&report)?;
     surgvla::export::write_atomically(&path, json.as_bytes())
         .with_context(|| format!("writing {}", path.display()))?;
-    progress::print_summary(&report);
-    println!(
+    progress::print_summary(&report)?;
+    say!(
         "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
         report.dataset.episodes,
         report.dataset.frames,
@@ -344,7 +353,7 @@ fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.mask {
         write_png_file(path, w, h, 3, &mask_visualisation(&frame))?;
     }
-    println!(
+    say!(
         "{} ({}), seed {}, step {}: {} triangles, wrote {}",
         args.task.code(),
         args.task.name(),
@@ -360,7 +369,7 @@ fn run_contact_sheet(args: &ContactSheetArgs) -> anyhow::Result<()> {
     let (options, appearance) = args.look.options(args.seed);
     let sheet = contact_sheet(&TaskId::ALL, args.seed, options, appearance)?;
     write_png_file(&args.out, sheet.width_px, sheet.height_px, 3, &sheet.rgb)?;
-    println!(
+    say!(
         "wrote {} ({}x{}): columns {}; rows RGB, depth, mask",
         args.out.display(),
         sheet.width_px,
@@ -393,7 +402,7 @@ fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
         .plan(args.task)?
         .expert(&instance, &sim.observation(), args.seed)?;
     let trajectory = rollout(&mut sim, &mut policy, args.steps);
-    println!(
+    say!(
         "task {} ({}), seed {}, instruction \"{}\"",
         args.task.code(),
         args.task.name(),
@@ -401,9 +410,18 @@ fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
         instance.instruction
     );
     let object_name = sim.scene().objects.first().map(|o| o.name.clone());
-    println!(
+    say!(
         "{:>4} {:>7} {:>7} {:>7} {:>7} {:>6}  {:>6} {:<7} {:>8} {:>8}",
-        "step", "t_s", "x_mm", "y_mm", "z_mm", "yaw_d", "jaw_d", "bound", "obj_z_mm", "event"
+        "step",
+        "t_s",
+        "x_mm",
+        "y_mm",
+        "z_mm",
+        "yaw_d",
+        "jaw_d",
+        "bound",
+        "obj_z_mm",
+        "event"
     );
     let all = trajectory
         .steps
@@ -423,7 +441,7 @@ fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
             }) => "release",
             _ => "",
         };
-        println!(
+        say!(
             "{:>4} {:>7.1} {:>7.2} {:>7.2} {:>7.2} {:>6.1}  {:>6.1} {:<7} {:>8} {:>8}",
             observation.step_index,
             observation.time_secs,
@@ -441,9 +459,9 @@ fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
         );
         previous_report = report;
     }
-    println!("trajectory digest {:016x}", trajectory.digest());
+    say!("trajectory digest {:016x}", trajectory.digest());
     let verdict = instance.success(&trajectory.final_observation);
-    println!(
+    say!(
         "{}: {}",
         if verdict.success {
             "success"
@@ -469,39 +487,50 @@ fn main() -> ExitCode {
         Command::Render(args) => run_render(&args),
         Command::ContactSheet(args) => run_contact_sheet(&args),
         Command::Collect(args) => run_collect(&args),
-        Command::Schema { with_mask } => {
-            let features = surgvla::episode::standard_features(224, 224, with_mask);
-            let json = surgvla::export::lerobot::features_json(&features);
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&json).unwrap_or_default()
-            );
-            Ok(())
-        }
-        Command::Tasks => {
-            for task in TaskId::ALL {
-                println!(
-                    "{}  L{}  {:<24} {:>3} steps  \"{}\"",
-                    task.code(),
-                    task.level(),
-                    task.name(),
-                    task.step_limit(),
-                    task.instruction()
-                );
-                for paraphrase in task.paraphrases() {
-                    println!("{:>41}  or \"{paraphrase}\"", "");
-                }
-            }
-            Ok(())
-        }
+        Command::Schema { with_mask } => run_schema(with_mask),
+        Command::Tasks => run_tasks(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // Output piped into a reader that stopped (`surgvla tasks | head`): not an error.
+        Err(error)
+            if error.chain().any(|cause| {
+                cause
+                    .downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            ExitCode::SUCCESS
+        }
         Err(error) => {
             eprintln!("error: {error:#}");
             ExitCode::from(exit_code(&error))
         }
     }
+}
+
+fn run_schema(with_mask: bool) -> anyhow::Result<()> {
+    let features = surgvla::episode::standard_features(224, 224, with_mask);
+    let json = surgvla::export::lerobot::features_json(&features);
+    say!("{}", serde_json::to_string_pretty(&json)?);
+    Ok(())
+}
+
+fn run_tasks() -> anyhow::Result<()> {
+    for task in TaskId::ALL {
+        say!(
+            "{}  L{}  {:<24} {:>3} steps  \"{}\"",
+            task.code(),
+            task.level(),
+            task.name(),
+            task.step_limit(),
+            task.instruction()
+        );
+        for paraphrase in task.paraphrases() {
+            say!("{:>41}  or \"{paraphrase}\"", "");
+        }
+    }
+    Ok(())
 }
 
 /// 2 when the user can fix it (an output path in a missing or forbidden place), 1 otherwise.

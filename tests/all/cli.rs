@@ -191,3 +191,21 @@ fn collect_resume_starts_fresh_or_refuses_a_complete_dataset() {
     assert_eq!(code, 2, "a complete dataset is not resumed: {stderr}");
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn a_closed_output_pipe_is_a_quiet_exit() {
+    for args in [vec!["tasks"], vec!["sim", "--task", "T1-3"]] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+            .args(&args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("spawn");
+        // Close the reading end before the first line is written.
+        drop(child.stdout.take());
+        let output = child.wait_with_output().expect("wait");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(0), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
+}
