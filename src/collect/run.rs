@@ -331,7 +331,7 @@ pub struct CollectReport {
 pub fn collect(
     options: &CollectOptions,
     library: &ExpertLibrary,
-    mut sink: Box<dyn EpisodeSink>,
+    mut sink: Box<dyn EpisodeSink + Send>,
     resume_at: usize,
     progress: &mut dyn CollectProgress,
 ) -> Result<CollectReport, CollectError> {
@@ -366,29 +366,51 @@ pub fn collect(
         progress.slot_done(&outcome);
     }
     let batch_size = threads * 2;
-    let mut next_index = resume_at;
-    for batch in slots[resume_at..].chunks(batch_size) {
-        let batch_started = Instant::now();
-        let first = next_index;
-        let outcomes: Vec<Result<SlotOutcome, CollectError>> = pool.install(|| {
-            batch
-                .par_iter()
-                .enumerate()
-                .map(|(i, slot)| collect_slot(*slot, (first + i) as u64, options, library, true))
-                .collect()
+    // Batch i + 1 is recorded while batch i is written, so the writer's serial part does not
+    // leave cores idle; episodes still reach the sink in index order.
+    let batches: Vec<&[Slot]> = slots[resume_at..].chunks(batch_size).collect();
+    let mut pending: Option<(Vec<SlotOutcome>, f64)> = None;
+    let mut episodes: Vec<Episode> = Vec::new();
+    for (j, batch) in batches.iter().map(Some).chain([None]).enumerate() {
+        let iteration_started = Instant::now();
+        let first = resume_at + j * batch_size;
+        let writing = pending.take();
+        let to_write = std::mem::take(&mut episodes);
+        let (recorded, written) = pool.install(|| {
+            rayon::join(
+                || {
+                    batch.map(|batch| {
+                        batch
+                            .par_iter()
+                            .enumerate()
+                            .map(|(i, slot)| {
+                                collect_slot(*slot, (first + i) as u64, options, library, true)
+                            })
+                            .collect::<Result<Vec<_>, _>>()
+                    })
+                },
+                || sink.write_batch(&to_write),
+            )
         });
-        let mut outcomes = outcomes.into_iter().collect::<Result<Vec<_>, _>>()?;
-        let episodes: Vec<Episode> = outcomes
-            .iter_mut()
-            .filter_map(|o| o.episode.take())
-            .collect();
-        sink.write_batch(&episodes)?;
-        next_index += episodes.len();
-        let frames: u64 = outcomes.iter().map(|o| o.frames).sum();
-        let secs = batch_started.elapsed().as_secs_f64();
-        for outcome in &outcomes {
-            report.add(outcome, secs * outcome.frames as f64 / frames.max(1) as f64);
-            progress.slot_done(outcome);
+        written?;
+        let recorded = recorded.transpose()?;
+        // An iteration's time goes to the batch it recorded (the last one's to what it wrote),
+        // shared among the batch's tasks by frames.
+        let secs = iteration_started.elapsed().as_secs_f64();
+        if let Some((outcomes, recording_secs)) = writing {
+            let secs = recording_secs + if recorded.is_none() { secs } else { 0.0 };
+            let frames: u64 = outcomes.iter().map(|o| o.frames).sum();
+            for outcome in &outcomes {
+                report.add(outcome, secs * outcome.frames as f64 / frames.max(1) as f64);
+                progress.slot_done(outcome);
+            }
+        }
+        if let Some(mut outcomes) = recorded {
+            episodes = outcomes
+                .iter_mut()
+                .filter_map(|o| o.episode.take())
+                .collect();
+            pending = Some((outcomes, secs));
         }
     }
     let sink_timing = sink.timing();
