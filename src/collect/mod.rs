@@ -6,9 +6,10 @@
 //! release motion for tests and benchmarks (the task experts live in `scripted_policies/`).
 //!
 //! [`record`] turns an expert run into a verified, rendered episode; [`run`] is a whole
-//! collection (slots, shards, threads, report).
+//! collection (slots, shards, threads); [`report`] its `collect_report.json`.
 
 pub mod record;
+pub mod report;
 pub mod run;
 
 use crate::policy::{Policy, Waypoint, WaypointPolicy};
