@@ -40,7 +40,12 @@ impl Bars {
         }
     }
 
+    /// Removes the bars (before the summary is printed).
     pub fn clear(&self) {
+        for (_, bar) in &self.tasks {
+            bar.finish_and_clear();
+        }
+        self.overall.finish_and_clear();
         let _ = self.multi.clear();
     }
 }
