@@ -134,3 +134,37 @@ pub fn print_summary(report: &CollectReport) -> std::io::Result<()> {
     );
     Ok(())
 }
+
+/// Prints the experts' figures per task (for `surgvla experts`).
+pub fn print_expert_table(report: &CollectReport) -> std::io::Result<()> {
+    say!(
+        "{:<5} {:<24} {:>8} {:>8} {:>8} {:>7} {:>7}",
+        "task",
+        "name",
+        "episodes",
+        "attempts",
+        "expert",
+        "replay",
+        "steps"
+    );
+    for task in &report.tasks {
+        say!(
+            "{:<5} {:<24} {:>8} {:>8} {:>7.1}% {:>7} {:>7.1}",
+            task.code,
+            task.name,
+            task.episodes,
+            task.attempts,
+            task.expert_success_rate * 100.0,
+            task.replay_failures,
+            task.frames as f64 / task.episodes.max(1) as f64
+        );
+    }
+    say!(
+        "expert = attempts whose expert run succeeded; replay = of those, replays that failed; \
+         steps = mean episode length. {:.1} s wall, physics {:.1} CPU-s on {} threads",
+        report.timing.wall_secs,
+        report.timing.physics_cpu_secs,
+        report.threads
+    );
+    Ok(())
+}

@@ -10,6 +10,7 @@ macro_rules! say {
     }};
 }
 
+mod episodes;
 mod progress;
 
 use clap::{Parser, Subcommand};
@@ -17,7 +18,6 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use surgvla::assets::{Appearance, SceneAssets};
 use surgvla::collect::rollout;
-use surgvla::collect::run::Shard;
 use surgvla::policy::ExpertLibrary;
 use surgvla::render::image::{ImageError, depth_visualisation, mask_visualisation, write_png_file};
 use surgvla::render::{Camera, Lighting, RenderOptions, Renderer};
@@ -47,7 +47,10 @@ enum Command {
     ContactSheet(ContactSheetArgs),
     /// Record verified expert episodes of the tasks and write a LeRobot dataset (defaults: all
     /// eight tasks, 100 episodes each, into ./data).
-    Collect(CollectArgs),
+    Collect(episodes::CollectArgs),
+    /// Measure the experts' success rates as `collect` would run them (same attempts and replay
+    /// check) without rendering or writing: the quick check of a new or edited plan.
+    Experts(episodes::ExpertsArgs),
     /// Print the LeRobot features schema (what schemas/lerobot_features.json records).
     Schema {
         /// Include the segmentation mask feature.
@@ -56,189 +59,6 @@ enum Command {
     },
     /// List the tasks: id, level, name, step limit, canonical instruction and paraphrases.
     Tasks,
-}
-
-#[derive(clap::Args, Debug)]
-struct CollectArgs {
-    /// Tasks: "all" or a comma-separated list of names or ids.
-    #[arg(long, default_value = "all")]
-    tasks: String,
-    /// Verified episodes per task.
-    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
-    episodes_per_task: u64,
-    /// Collection seed: every episode's seed derives from it.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Output folder (must not exist or be empty).
-    #[arg(long, default_value = "data")]
-    out: PathBuf,
-    /// Output format (RLDS and point clouds are separate exporters, still to come).
-    #[arg(long, default_value = "lerobot", value_parser = ["lerobot"])]
-    format: String,
-    /// Also store the segmentation mask as an image feature.
-    #[arg(long)]
-    with_mask: bool,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
-    /// Store the endoscope RGB as MP4 video (LeRobot video mode) instead of PNG: av1 (rav1e,
-    /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
-    #[arg(long, num_args = 0..=1, default_missing_value = "av1", value_parser = ["av1", "h264"])]
-    video: Option<String>,
-    /// This machine's part of the episode list, I/N (0-based): N machines with I = 0..N-1 each
-    /// write the I-th contiguous range of episodes as their own dataset.
-    #[arg(long, default_value = "0/1")]
-    shard: Shard,
-    /// Continue an interrupted run in --out (same options and seed): episodes up to its last
-    /// checkpoint are kept, the rest are recorded again.
-    #[arg(long)]
-    resume: bool,
-    /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
-    #[arg(long, default_value = "3.0", value_parser = ["3.0", "2.1"])]
-    lerobot_version: String,
-    /// action[6]: "continuous" (1 while commanded open, 0 while closed) or "pulse" (+1/-1 on
-    /// the step the command changes, 0 otherwise; for ablations).
-    #[arg(long, default_value = "continuous", value_parser = ["continuous", "pulse"])]
-    gripper_encoding: String,
-    /// Distractors in the level-2 pick tasks (T2-1, T2-2).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]
-    distractors: u64,
-    /// Instruction per episode: the canonical one, a seeded paraphrase, or a seeded mix.
-    #[arg(long, default_value = "canonical", value_parser = ["canonical", "paraphrase", "mixed"])]
-    instructions: String,
-    /// Multiplies every spawn range's half width (3 gives the needle's evaluation range).
-    #[arg(long, default_value_t = 1.0)]
-    spawn_scale: f64,
-    /// A folder of expert plans (*.toml) replacing the built-in scripted_policies/ per task.
-    #[arg(long)]
-    policies: Option<PathBuf>,
-    /// Randomise light, tissue colour and texture contrast per episode.
-    #[arg(long)]
-    randomize_appearance: bool,
-    /// Size at which a data file is closed and a new one begun, MB (LeRobot's
-    /// data_files_size_in_mb); each closed file is also a resume checkpoint.
-    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=100_000))]
-    data_file_mb: u64,
-    /// Attempts per episode before the collection gives up.
-    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=1000))]
-    max_attempts: u32,
-}
-
-fn parse_tasks(text: &str) -> anyhow::Result<Vec<TaskId>> {
-    if text.trim() == "all" {
-        return Ok(TaskId::ALL.to_vec());
-    }
-    text.split(',')
-        .map(|t| t.parse::<TaskId>().map_err(anyhow::Error::from))
-        .collect()
-}
-
-fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
-    use anyhow::Context;
-    use surgvla::collect::run::{CollectOptions, collect};
-    use surgvla::episode::GripperEncoding;
-    use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
-    use surgvla::task::{InstructionChoice, TaskConfig};
-    let usage = |message: String| anyhow::Error::new(UsageError(message));
-    let tasks = parse_tasks(&args.tasks).map_err(|e| usage(e.to_string()))?;
-    if !(args.spawn_scale.is_finite() && (0.0..=5.0).contains(&args.spawn_scale)) {
-        return Err(usage(format!(
-            "--spawn-scale {} must be between 0 and 5",
-            args.spawn_scale
-        )));
-    }
-    let library = match &args.policies {
-        Some(folder) => ExpertLibrary::with_folder(folder),
-        None => ExpertLibrary::builtin(),
-    }
-    .map_err(|e| usage(e.to_string()))?;
-    let gripper = if args.gripper_encoding == "pulse" {
-        GripperEncoding::Pulse
-    } else {
-        GripperEncoding::Continuous
-    };
-    let task_config = TaskConfig {
-        distractors: args.distractors as usize,
-        instruction: match args.instructions.as_str() {
-            "paraphrase" => InstructionChoice::Paraphrase,
-            "mixed" => InstructionChoice::Mixed,
-            _ => InstructionChoice::Canonical,
-        },
-        spawn_scale: args.spawn_scale,
-        ..TaskConfig::default()
-    };
-    let options = CollectOptions {
-        tasks,
-        episodes_per_task: args.episodes_per_task,
-        seed: args.seed,
-        shard: args.shard,
-        threads: args.threads.unwrap_or(0),
-        max_attempts: args.max_attempts,
-        record: surgvla::collect::record::RecordOptions {
-            randomize_appearance: args.randomize_appearance,
-            gripper,
-            task: task_config,
-            ..Default::default()
-        },
-    };
-    let mut metadata = surgvla::view::dataset_metadata(&Camera::endoscope());
-    metadata["collection"] = serde_json::json!({
-        "seed": args.seed,
-        "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
-        "episodes_per_task": args.episodes_per_task,
-        "shard": args.shard.to_string(),
-        "gripper_encoding": gripper,
-        "distractors": args.distractors,
-        "instructions": args.instructions,
-        "spawn_scale": args.spawn_scale,
-        "randomize_appearance": args.randomize_appearance,
-        "policies": if args.policies.is_some() { "custom" } else { "builtin" },
-    });
-    let writer_options = LeRobotOptions {
-        with_mask: args.with_mask,
-        extra_metadata: metadata,
-        video: args.video.as_deref().map(|codec| match codec {
-            "h264" => VideoOptions::h264(),
-            _ => VideoOptions::default(),
-        }),
-        version: if args.lerobot_version == "2.1" {
-            LeRobotVersion::V21
-        } else {
-            LeRobotVersion::V30
-        },
-        data_file_size_mb: args.data_file_mb,
-        ..LeRobotOptions::default()
-    };
-    let interrupted = args
-        .out
-        .join(surgvla::export::lerobot::INCOMPLETE_MARKER)
-        .exists();
-    let (writer, resume_at) = if args.resume && interrupted {
-        let writer = LeRobotWriter::resume(&args.out, writer_options)?;
-        let next = writer.next_episode_index();
-        eprintln!("resuming {} at episode {next}", args.out.display());
-        (writer, next as usize)
-    } else {
-        (LeRobotWriter::create(&args.out, writer_options)?, 0)
-    };
-    let mut bars = progress::Bars::new(&options.tasks);
-    let report = collect(&options, &library, Box::new(writer), resume_at, &mut bars)?;
-    bars.clear();
-    let path = args.out.join("collect_report.json");
-    let json = serde_json::to_string_pretty(&report)?;
-    surgvla::export::write_atomically(&path, json.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
-    progress::print_summary(&report)?;
-    say!(
-        "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
-        report.dataset.episodes,
-        report.dataset.frames,
-        args.out.display(),
-        report.dataset.files,
-        report.dataset.bytes as f64 / 1e6,
-        path.display()
-    );
-    Ok(())
 }
 
 /// A mistake in the command line found after parsing (exit code 2).
@@ -486,7 +306,8 @@ fn main() -> ExitCode {
         Command::Sim(args) => run_sim(&args),
         Command::Render(args) => run_render(&args),
         Command::ContactSheet(args) => run_contact_sheet(&args),
-        Command::Collect(args) => run_collect(&args),
+        Command::Collect(args) => episodes::run_collect(&args),
+        Command::Experts(args) => episodes::run_experts(&args),
         Command::Schema { with_mask } => run_schema(with_mask),
         Command::Tasks => run_tasks(),
     };

@@ -104,7 +104,7 @@ impl Tally {
         {
             let count = |stage| outcome.failures.iter().filter(|f| f.stage == stage).count() as u64;
             let (replay_failures, expert_failures) = (count("replay"), count("expert"));
-            task.episodes += 1;
+            task.episodes += u64::from(outcome.verified);
             task.frames += outcome.frames;
             task.attempts += u64::from(outcome.attempts);
             task.expert_successes += u64::from(outcome.attempts) - expert_failures;

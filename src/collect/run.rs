@@ -18,7 +18,7 @@ use crate::collect::record::{
 use crate::collect::report::Tally;
 pub use crate::collect::report::{CollectReport, TaskReport, Timing};
 use crate::episode::Episode;
-use crate::export::{EpisodeSink, ExportError};
+use crate::export::{EpisodeSink, ExportError, Summary};
 use crate::policy::{ExpertLibrary, PlanError};
 use crate::task::TaskId;
 use rayon::prelude::*;
@@ -151,6 +151,8 @@ pub struct Failure {
 #[derive(Clone, Debug, PartialEq)]
 pub struct SlotOutcome {
     pub slot: Slot,
+    /// An attempt passed both checks (false when all `max_attempts` failed).
+    pub verified: bool,
     /// The verified episode (None when only counting).
     pub episode: Option<Episode>,
     pub frames: u64,
@@ -180,8 +182,9 @@ pub enum CollectError {
     Threads { threads: usize, message: String },
 }
 
-/// Fills a slot: attempts in order until one verifies. With `render` false the episode is not
-/// rendered (counting only; the verdicts are the same).
+/// Fills a slot: attempts in order until one verifies or `max_attempts` have failed
+/// (`verified` says which). With `render` false the episode is not rendered (counting only; the
+/// verdicts are the same).
 pub fn collect_slot(
     slot: Slot,
     index: u64,
@@ -194,6 +197,7 @@ pub fn collect_slot(
     let max_steps = record.max_steps.unwrap_or_else(|| slot.task.step_limit());
     let mut outcome = SlotOutcome {
         slot,
+        verified: false,
         episode: None,
         frames: 0,
         attempts: 0,
@@ -244,20 +248,28 @@ pub fn collect_slot(
         };
         if verdict.success {
             outcome.frames = expert.actions.len() as u64;
+            outcome.verified = true;
             return Ok(outcome);
         }
         outcome.episode = None;
         outcome.failures.push(fail("replay", verdict.reason));
     }
-    Err(CollectError::Exhausted {
-        task: slot.task,
-        k: slot.k,
-        attempts: outcome.attempts,
-        reason: outcome
-            .failures
-            .last()
-            .map_or_else(String::new, |f| f.reason.clone()),
-    })
+    Ok(outcome)
+}
+
+impl SlotOutcome {
+    /// The error of a slot whose every attempt failed, if this one did.
+    pub fn exhausted(&self) -> Option<CollectError> {
+        (!self.verified).then(|| CollectError::Exhausted {
+            task: self.slot.task,
+            k: self.slot.k,
+            attempts: self.attempts,
+            reason: self
+                .failures
+                .last()
+                .map_or_else(String::new, |f| f.reason.clone()),
+        })
+    }
 }
 
 /// Receives progress (the command line draws bars from it).
@@ -273,17 +285,8 @@ pub struct Silent;
 
 impl CollectProgress for Silent {}
 
-/// Runs the collection into `sink`, starting at episode `resume_at` (the episodes before it
-/// are already in the sink; they are recounted for the report, not rendered or written).
-pub fn collect(
-    options: &CollectOptions,
-    library: &ExpertLibrary,
-    mut sink: Box<dyn EpisodeSink + Send>,
-    resume_at: usize,
-    progress: &mut dyn CollectProgress,
-) -> Result<CollectReport, CollectError> {
-    let started = Instant::now();
-    let slots = options.slots();
+/// The worker pool of a run and its size.
+fn worker_pool(options: &CollectOptions) -> Result<(rayon::ThreadPool, usize), CollectError> {
     let threads = if options.threads == 0 {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
@@ -296,22 +299,100 @@ pub fn collect(
             threads,
             message: e.to_string(),
         })?;
+    Ok((pool, threads))
+}
+
+/// Fills `slots` (the `first`-th onward) without rendering, reporting each to `tally` and
+/// `progress` in order; with `strict`, a slot whose every attempt failed is an error.
+#[allow(clippy::too_many_arguments)]
+fn count_slots(
+    strict: bool,
+    slots: &[Slot],
+    first: usize,
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    pool: &rayon::ThreadPool,
+    tally: &mut Tally,
+    progress: &mut dyn CollectProgress,
+) -> Result<(), CollectError> {
+    for (c, chunk) in slots.chunks(64).enumerate() {
+        let start = first + c * 64;
+        let outcomes: Vec<Result<SlotOutcome, CollectError>> = pool.install(|| {
+            chunk
+                .par_iter()
+                .enumerate()
+                .map(|(i, slot)| collect_slot(*slot, (start + i) as u64, options, library, false))
+                .collect()
+        });
+        for outcome in outcomes {
+            let outcome = outcome?;
+            if let (true, Some(error)) = (strict, outcome.exhausted()) {
+                return Err(error);
+            }
+            tally.add(&outcome, 0.0);
+            progress.slot_done(&outcome);
+        }
+    }
+    Ok(())
+}
+
+/// Runs every slot's attempts as [`collect`] would (expert, replay check) without rendering or
+/// writing: the experts' success rates for a set of options. The report's dataset is empty.
+pub fn measure_experts(
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    progress: &mut dyn CollectProgress,
+) -> Result<CollectReport, CollectError> {
+    let started = Instant::now();
+    let slots = options.slots();
+    let (pool, threads) = worker_pool(options)?;
+    progress.start(&slots, 0);
+    let mut tally = Tally::new(options);
+    count_slots(
+        false, &slots, 0, options, library, &pool, &mut tally, progress,
+    )?;
+    let range = options.shard.range(options.all_slots().len());
+    let wall_secs = started.elapsed().as_secs_f64();
+    Ok(tally.finish(
+        options,
+        Summary::default(),
+        threads,
+        0,
+        [range.start, range.end],
+        Timing {
+            wall_secs,
+            ..Timing::default()
+        },
+    ))
+}
+
+/// Runs the collection into `sink`, starting at episode `resume_at` (the episodes before it
+/// are already in the sink; they are recounted for the report, not rendered or written).
+pub fn collect(
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    mut sink: Box<dyn EpisodeSink + Send>,
+    resume_at: usize,
+    progress: &mut dyn CollectProgress,
+) -> Result<CollectReport, CollectError> {
+    let started = Instant::now();
+    let slots = options.slots();
+    let (pool, threads) = worker_pool(options)?;
     let resume_at = resume_at.min(slots.len());
     progress.start(&slots, resume_at);
     let mut report = Tally::new(options);
     // Recount what an interrupted run already wrote (physics only).
-    let recounted: Vec<Result<SlotOutcome, CollectError>> = pool.install(|| {
-        slots[..resume_at]
-            .par_iter()
-            .enumerate()
-            .map(|(i, slot)| collect_slot(*slot, i as u64, options, library, false))
-            .collect()
-    });
-    for outcome in recounted {
-        let outcome = outcome?;
-        report.add(&outcome, 0.0);
-        progress.slot_done(&outcome);
-    }
+    let written = &slots[..resume_at];
+    count_slots(
+        true,
+        written,
+        0,
+        options,
+        library,
+        &pool,
+        &mut report,
+        progress,
+    )?;
     let batch_size = threads * 2;
     // Batch i + 1 is recorded while batch i is written, so the writer's serial part does not
     // leave cores idle; episodes still reach the sink in index order.
@@ -341,6 +422,9 @@ pub fn collect(
         });
         written?;
         let recorded = recorded.transpose()?;
+        if let Some(error) = recorded.iter().flatten().find_map(SlotOutcome::exhausted) {
+            return Err(error);
+        }
         // An iteration's time goes to the batch it recorded (the last one's to what it wrote),
         // shared among the batch's tasks by frames.
         let secs = iteration_started.elapsed().as_secs_f64();

@@ -2,6 +2,7 @@
 
 use crate::util::{surgvla, temp_root, tree};
 use std::path::Path;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use surgvla::collect::run::{CollectOptions, Shard, Silent, collect};
 use surgvla::episode::Episode;
@@ -235,4 +236,86 @@ fn collect_mistakes_exit_2_with_the_reason() {
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
         assert!(!Path::new(&out).exists(), "{args:?} created the output");
     }
+}
+
+/// The built-in plans with T3-2's release 25 mm beside the target: the gauze lands off target.
+fn broken_hemostasis_plans() -> (PathBuf, ExpertLibrary) {
+    let folder = temp_root("plans");
+    std::fs::create_dir_all(&folder).unwrap();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scripted_policies/hemostasis.toml"),
+    )
+    .unwrap()
+    .replace(
+        "frame = \"place\"\noffset_m = [0.0, 0.0, 0.005]",
+        "frame = \"place\"\noffset_m = [0.025, 0.0, 0.005]",
+    );
+    std::fs::write(folder.join("hemostasis.toml"), text).unwrap();
+    let library = ExpertLibrary::with_folder(&folder).unwrap();
+    (folder, library)
+}
+
+#[test]
+fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
+    let (folder, library) = broken_hemostasis_plans();
+    let options = CollectOptions {
+        max_attempts: 2,
+        ..small(&[TaskId::GauzePick, TaskId::Hemostasis], 4, 2)
+    };
+    let report = surgvla::collect::run::measure_experts(&options, &library, &mut Silent).unwrap();
+    assert_eq!(report.tasks[0].expert_success_rate, 1.0);
+    let hemostasis = &report.tasks[1];
+    assert_eq!(hemostasis.expert_success_rate, 0.0, "{hemostasis:?}");
+    assert_eq!((hemostasis.episodes, hemostasis.attempts), (0, 8));
+    assert!(
+        report
+            .failures
+            .iter()
+            .all(|f| f.stage == "expert" && f.slot.task == TaskId::Hemostasis)
+    );
+    assert!(report.failures[0].reason.contains("from the target"));
+
+    let root = temp_root("exhausted");
+    let writer = LeRobotWriter::create(&root, LeRobotOptions::default()).unwrap();
+    let error = collect(&options, &library, Box::new(writer), 0, &mut Silent)
+        .expect_err("a slot with no verified episode stops the collection");
+    assert!(error.to_string().contains("hemostasis episode"), "{error}");
+    assert!(!root.join("meta/info.json").exists());
+    std::fs::remove_dir_all(&root).ok();
+    std::fs::remove_dir_all(&folder).ok();
+}
+
+#[test]
+fn the_experts_command_prints_rates_and_reproducible_failures() {
+    let (code, stdout, stderr) = surgvla(&[
+        "experts",
+        "--tasks",
+        "T1-1,T2-3",
+        "--episodes-per-task",
+        "3",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("T2-3") && stdout.contains("100.0%"),
+        "{stdout}"
+    );
+    let (folder, _) = broken_hemostasis_plans();
+    let folder_arg = folder.display().to_string();
+    let (code, stdout, stderr) = surgvla(&[
+        "experts",
+        "--tasks",
+        "T3-2",
+        "--episodes-per-task",
+        "4",
+        "--max-attempts",
+        "2",
+        "--policies",
+        &folder_arg,
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("(expert): gauze") && stdout.contains("[seed "),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&folder).ok();
 }
