@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Whole-pipeline benchmark: the default `surgvla collect` (experts, verification by replay,
 # rendering, LeRobot image mode), reporting its summary table (frames per second, time in
-# physics, rendering, encoding and writing), wall time and peak resident memory.
+# physics, rendering, encoding and writing), wall time, CPU time and peak resident memory.
 #
 #   scripts/bench_pipeline.sh [episodes-per-task] [threads]
 #
@@ -14,6 +14,6 @@ cargo build --release --locked --quiet
 out="$(mktemp -d)/dataset"
 log="$(mktemp)"
 /usr/bin/time -v ./target/release/surgvla collect --episodes-per-task "${episodes}" --threads "${threads}" --out "${out}" 2>"${log}"
-grep -E "Elapsed \(wall clock\)|Maximum resident set size" "${log}"
+grep -E "Elapsed \(wall clock\)|User time|System time|Maximum resident set size" "${log}"
 du -sh "${out}"
 rm -rf "$(dirname "${out}")" "${log}"

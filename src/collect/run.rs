@@ -397,13 +397,12 @@ pub fn collect(
     // Batch i + 1 is recorded while batch i is written, so the writer's serial part does not
     // leave cores idle; episodes still reach the sink in index order.
     let batches: Vec<&[Slot]> = slots[resume_at..].chunks(batch_size).collect();
-    let mut pending: Option<(Vec<SlotOutcome>, f64)> = None;
-    let mut episodes: Vec<Episode> = Vec::new();
+    // The batch recorded in the previous iteration: its outcomes, episodes and recording time.
+    let mut pending: Option<(Vec<SlotOutcome>, Vec<Episode>, f64)> = None;
     for (j, batch) in batches.iter().map(Some).chain([None]).enumerate() {
         let iteration_started = Instant::now();
         let first = resume_at + j * batch_size;
-        let writing = pending.take();
-        let to_write = std::mem::take(&mut episodes);
+        let (outcomes, to_write, recording_secs) = pending.take().unwrap_or_default();
         let (recorded, written) = pool.install(|| {
             rayon::join(
                 || {
@@ -428,20 +427,21 @@ pub fn collect(
         // An iteration's time goes to the batch it recorded (the last one's to what it wrote),
         // shared among the batch's tasks by frames.
         let secs = iteration_started.elapsed().as_secs_f64();
-        if let Some((outcomes, recording_secs)) = writing {
-            let secs = recording_secs + if recorded.is_none() { secs } else { 0.0 };
-            let frames: u64 = outcomes.iter().map(|o| o.frames).sum();
-            for outcome in &outcomes {
-                report.add(outcome, secs * outcome.frames as f64 / frames.max(1) as f64);
-                progress.slot_done(outcome);
-            }
+        let written_secs = recording_secs + if recorded.is_none() { secs } else { 0.0 };
+        let frames: u64 = outcomes.iter().map(|o| o.frames).sum();
+        for outcome in &outcomes {
+            report.add(
+                outcome,
+                written_secs * outcome.frames as f64 / frames.max(1) as f64,
+            );
+            progress.slot_done(outcome);
         }
         if let Some(mut outcomes) = recorded {
-            episodes = outcomes
+            let episodes = outcomes
                 .iter_mut()
                 .filter_map(|o| o.episode.take())
                 .collect();
-            pending = Some((outcomes, secs));
+            pending = Some((outcomes, episodes, secs));
         }
     }
     let sink_timing = sink.timing();

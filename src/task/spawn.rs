@@ -427,8 +427,8 @@ mod tests {
                         .filter(|o| o.distractor)
                         .all(|o| o.kind != ObjectKind::Needle)
                 );
-                let mut names: Vec<_> = objects.iter().map(|o| o.name.clone()).collect();
-                names.dedup();
+                let names: std::collections::BTreeSet<_> =
+                    objects.iter().map(|o| &o.name).collect();
                 assert_eq!(names.len(), objects.len());
             }
         }

@@ -319,32 +319,26 @@ impl LeRobotWriter {
         builder.build()
     }
 
+    /// (chunk, file) of the next data or video file: v3.0 numbers files by `counter`, `chunks_size`
+    /// to a chunk; v2.1 has one file per episode, numbered by the episode index.
+    fn next_location(&self, counter: u64) -> (u64, u64) {
+        let chunks = self.options.chunks_size.max(1);
+        match self.options.version {
+            LeRobotVersion::V30 => (counter / chunks, counter % chunks),
+            LeRobotVersion::V21 => {
+                let episode = self.episodes.len() as u64;
+                (episode / chunks, episode)
+            }
+        }
+    }
+
     fn open_file(&mut self) -> Result<&mut OpenFile, ExportError> {
         if self.open.is_none() {
-            let chunks = self.options.chunks_size.max(1);
-            let (chunk, file, path) = match self.options.version {
-                LeRobotVersion::V30 => {
-                    let (chunk, file) = (self.next_file / chunks, self.next_file % chunks);
-                    (
-                        chunk,
-                        file,
-                        self.root
-                            .join(format!("data/chunk-{chunk:03}/file-{file:03}.parquet")),
-                    )
-                }
-                LeRobotVersion::V21 => {
-                    // One file per episode, named by the episode index.
-                    let episode = self.episodes.len() as u64;
-                    let chunk = episode / chunks;
-                    (
-                        chunk,
-                        episode,
-                        self.root.join(format!(
-                            "data/chunk-{chunk:03}/episode_{episode:06}.parquet"
-                        )),
-                    )
-                }
-            };
+            let (chunk, file) = self.next_location(self.next_file);
+            let path = self.root.join(match self.options.version {
+                LeRobotVersion::V30 => format!("data/chunk-{chunk:03}/file-{file:03}.parquet"),
+                LeRobotVersion::V21 => format!("data/chunk-{chunk:03}/episode_{file:06}.parquet"),
+            });
             self.next_file += 1;
             let folder = path
                 .parent()
@@ -436,20 +430,13 @@ impl LeRobotWriter {
             self.close_video()?;
         }
         if self.video.is_none() {
-            let chunks = self.options.chunks_size.max(1);
-            let (chunk, file, path) = if v21 {
-                let episode = self.episodes.len() as u64;
-                let chunk = episode / chunks;
-                (
-                    chunk,
-                    episode,
-                    self.root.join(format!(
-                        "videos/chunk-{chunk:03}/{RGB_KEY}/episode_{episode:06}.mp4"
-                    )),
-                )
+            let (chunk, file) = self.next_location(self.next_video_file);
+            let path = if v21 {
+                self.root.join(format!(
+                    "videos/chunk-{chunk:03}/{RGB_KEY}/episode_{file:06}.mp4"
+                ))
             } else {
-                let (chunk, file) = (self.next_video_file / chunks, self.next_video_file % chunks);
-                (chunk, file, video_path(&self.root, RGB_KEY, chunk, file))
+                video_path(&self.root, RGB_KEY, chunk, file)
             };
             self.next_video_file += 1;
             let codec = self.options.video.map_or(Codec::Av1, |v| v.codec);
