@@ -22,7 +22,7 @@ pub const CLEARANCE_M: f64 = 0.004;
 /// Smallest gap between a footprint and the tray's rim, metres.
 const RIM_MARGIN_M: f64 = 0.003;
 /// Most rejection-sampling draws per object before the spawn is declared impossible.
-pub const MAX_DRAWS: usize = 200;
+const MAX_DRAWS: usize = 200;
 
 /// Why the instance's target is out of the instrument's reach, if it is: the named object's
 /// grasp point and the target mark must lie within the reference workspace's x-y box.

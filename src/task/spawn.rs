@@ -10,7 +10,7 @@
 use crate::rng::SplitMix64;
 use crate::scene::{MarkColour, ObjectKind, OrganKind, SceneSpec};
 use crate::task::TaskId;
-pub use crate::task::placement::{CLEARANCE_M, MAX_DRAWS};
+pub use crate::task::placement::CLEARANCE_M;
 use crate::task::placement::{Placer, unreachable_target, vessel_with_sites};
 use nalgebra::Vector3;
 
