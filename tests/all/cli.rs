@@ -1,6 +1,6 @@
 //! The `surgvla` binary: user mistakes exit 2 with a clear message, runs print the trajectory.
 
-use crate::util::surgvla;
+use crate::util::{surgvla, temp_root};
 
 #[test]
 fn sim_runs_the_expert_through_grasp_release_and_a_verdict() {
@@ -61,7 +61,7 @@ fn help_and_version_exit_0() {
 
 #[test]
 fn render_writes_rgb_depth_and_mask_pngs() {
-    let dir = std::env::temp_dir().join(format!("surgvla-render-{}", std::process::id()));
+    let dir = temp_root("render");
     std::fs::create_dir_all(&dir).expect("temp dir");
     let (rgb, depth, mask) = (
         dir.join("rgb.png"),
@@ -97,12 +97,13 @@ fn render_writes_rgb_depth_and_mask_pngs() {
         .filter(|e| e.file_name().to_string_lossy().ends_with(".partial"))
         .collect();
     assert!(leftovers.is_empty(), "temporary files left behind");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn contact_sheet_writes_one_grid_of_eight_scenes() {
-    let path = std::env::temp_dir().join(format!("surgvla-sheet-{}.png", std::process::id()));
+    let sheet_dir = temp_root("sheet");
+    std::fs::create_dir_all(&sheet_dir).expect("temp dir");
+    let path = sheet_dir.join("sheet.png");
     let (code, stdout, stderr) = surgvla(&[
         "contact-sheet",
         "--out",
@@ -117,7 +118,6 @@ fn contact_sheet_writes_one_grid_of_eight_scenes() {
     let width = u32::from_be_bytes(bytes[16..20].try_into().expect("4 bytes"));
     let height = u32::from_be_bytes(bytes[20..24].try_into().expect("4 bytes"));
     assert_eq!((width, height), (8 * 228 - 4, 3 * 228 - 4));
-    std::fs::remove_file(&path).ok();
 }
 
 #[test]
@@ -130,8 +130,7 @@ fn render_into_a_missing_directory_exits_2_naming_the_path() {
 
 #[test]
 fn collect_writes_a_lerobot_dataset_and_refuses_to_overwrite_it() {
-    let out = std::env::temp_dir().join(format!("surgvla-collect-{}", std::process::id()));
-    std::fs::remove_dir_all(&out).ok();
+    let out = temp_root("collect");
     let path = out.to_str().expect("utf-8");
     let args = [
         "collect",
@@ -152,7 +151,6 @@ fn collect_writes_a_lerobot_dataset_and_refuses_to_overwrite_it() {
         "writing into a complete dataset is a user mistake: {stderr}"
     );
     assert!(stderr.contains(path), "{stderr}");
-    std::fs::remove_dir_all(&out).ok();
 }
 
 #[test]
@@ -171,8 +169,7 @@ fn collect_with_an_unknown_task_exits_2() {
 
 #[test]
 fn collect_resume_starts_fresh_or_refuses_a_complete_dataset() {
-    let out = std::env::temp_dir().join(format!("surgvla-resume-{}", std::process::id()));
-    std::fs::remove_dir_all(&out).ok();
+    let out = temp_root("resume");
     let path = out.to_str().expect("utf-8");
     let args = [
         "collect",
@@ -189,7 +186,6 @@ fn collect_resume_starts_fresh_or_refuses_a_complete_dataset() {
     assert!(stdout.contains("wrote 2 episodes"), "{stdout}");
     let (code, _, stderr) = surgvla(&args);
     assert_eq!(code, 2, "a complete dataset is not resumed: {stderr}");
-    std::fs::remove_dir_all(&out).ok();
 }
 
 #[test]

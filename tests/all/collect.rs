@@ -1,8 +1,7 @@
 //! Whole collections: thread-count independence, shards, the report, and resuming a killed run.
 
-use crate::util::{surgvla, temp_root, tree};
+use crate::util::{TempRoot, surgvla, temp_root, tree};
 use std::path::Path;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use surgvla::collect::run::{CollectOptions, Shard, Silent, collect};
 use surgvla::episode::Episode;
@@ -40,7 +39,6 @@ fn one_and_two_threads_write_identical_datasets() {
         .unwrap();
         trees.push(tree(&root));
         reports.push(report);
-        std::fs::remove_dir_all(&root).unwrap();
     }
     assert_eq!(
         trees[0].keys().collect::<Vec<_>>(),
@@ -203,9 +201,6 @@ fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
             .unwrap()
             > 0.0
     );
-    for root in [reference, killed] {
-        std::fs::remove_dir_all(root).unwrap();
-    }
 }
 
 #[test]
@@ -239,7 +234,7 @@ fn collect_mistakes_exit_2_with_the_reason() {
 }
 
 /// The built-in plans with T3-2's release 25 mm beside the target: the gauze lands off target.
-fn broken_hemostasis_plans() -> (PathBuf, ExpertLibrary) {
+fn broken_hemostasis_plans() -> (TempRoot, ExpertLibrary) {
     let folder = temp_root("plans");
     std::fs::create_dir_all(&folder).unwrap();
     let text = std::fs::read_to_string(
@@ -257,7 +252,7 @@ fn broken_hemostasis_plans() -> (PathBuf, ExpertLibrary) {
 
 #[test]
 fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
-    let (folder, library) = broken_hemostasis_plans();
+    let (_plans_folder, library) = broken_hemostasis_plans();
     let options = CollectOptions {
         max_attempts: 2,
         ..small(&[TaskId::GauzePick, TaskId::Hemostasis], 4, 2)
@@ -281,8 +276,6 @@ fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
         .expect_err("a slot with no verified episode stops the collection");
     assert!(error.to_string().contains("hemostasis episode"), "{error}");
     assert!(!root.join("meta/info.json").exists());
-    std::fs::remove_dir_all(&root).ok();
-    std::fs::remove_dir_all(&folder).ok();
 }
 
 #[test]
@@ -317,5 +310,4 @@ fn the_experts_command_prints_rates_and_reproducible_failures() {
         stdout.contains("(expert): gauze") && stdout.contains("[seed "),
         "{stdout}"
     );
-    std::fs::remove_dir_all(&folder).ok();
 }

@@ -20,11 +20,35 @@ pub fn tip_at(x: f64, y: f64, z: f64, yaw_rad: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::new(x, y, z), pointing_down(yaw_rad))
 }
 
-/// A fresh, unique temporary folder path (not created).
-pub fn temp_root(name: &str) -> PathBuf {
+/// A fresh, unique temporary folder path (not created), removed with everything under it when
+/// the guard drops, also when the test fails: a failing test must not leave datasets behind.
+pub fn temp_root(name: &str) -> TempRoot {
     static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
     let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-    std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id()))
+    TempRoot(std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id())))
+}
+
+/// See [`temp_root`].
+#[derive(Debug)]
+pub struct TempRoot(PathBuf);
+
+impl std::ops::Deref for TempRoot {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempRoot {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempRoot {
+    fn drop(&mut self) {
+        std::fs::remove_dir_all(&self.0).ok();
+    }
 }
 
 /// Every file under `root`: relative path -> bytes.
