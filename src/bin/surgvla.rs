@@ -324,10 +324,37 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(error) => {
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", error_message(&error));
             ExitCode::from(exit_code(&error))
         }
     }
+}
+
+/// The error and its causes on one line. Library errors already quote their source after the
+/// file they name, so a cause whose text is already said is not repeated. A full disk gets a hint.
+fn error_message(error: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if !message.contains(&text) {
+            if !message.is_empty() {
+                message.push_str(": ");
+            }
+            message.push_str(&text);
+        }
+    }
+    let disk_full = error.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::StorageFull)
+    });
+    if disk_full {
+        message.push_str(
+            "\nthe disk is full: free space and run the command again \
+             (`collect --resume` continues an interrupted dataset from its last checkpoint)",
+        );
+    }
+    message
 }
 
 fn run_schema(with_mask: bool) -> anyhow::Result<()> {
@@ -381,4 +408,39 @@ fn exit_code(error: &anyhow::Error) -> u8 {
         }
     });
     if fixable { 2 } else { 1 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Error, ErrorKind};
+    use surgvla::export::ExportError;
+
+    #[test]
+    fn a_full_disk_names_the_file_once_and_says_what_to_do() {
+        let source = parquet::errors::ParquetError::from(Error::from(ErrorKind::StorageFull));
+        let error = anyhow::Error::new(ExportError::Parquet {
+            path: "out/data/chunk-000/file-000.parquet".into(),
+            source,
+        });
+        let message = error_message(&error);
+        let first_line = message.lines().next().unwrap();
+        assert!(
+            first_line.starts_with("out/data/chunk-000/file-000.parquet: "),
+            "{message}"
+        );
+        let said = Error::from(ErrorKind::StorageFull).to_string();
+        assert_eq!(first_line.matches(&said).count(), 1, "{message}");
+        assert!(message.contains("the disk is full"), "{message}");
+        assert_eq!(exit_code(&error), 1);
+    }
+
+    #[test]
+    fn context_and_causes_are_all_said() {
+        let error = anyhow::Error::new(Error::new(ErrorKind::NotFound, "no such file"))
+            .context("reading plans/gauze_pick.toml");
+        let message = error_message(&error);
+        assert_eq!(message, "reading plans/gauze_pick.toml: no such file");
+        assert_eq!(exit_code(&error), 2);
+    }
 }
