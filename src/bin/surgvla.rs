@@ -314,20 +314,21 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         // Output piped into a reader that stopped (`surgvla tasks | head`): not an error.
-        Err(error)
-            if error.chain().any(|cause| {
-                cause
-                    .downcast_ref::<std::io::Error>()
-                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
-            }) =>
-        {
-            ExitCode::SUCCESS
-        }
+        Err(error) if caused_by(&error, std::io::ErrorKind::BrokenPipe) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("error: {}", error_message(&error));
             ExitCode::from(exit_code(&error))
         }
     }
+}
+
+/// Whether an I/O error of `kind` is among the error's causes.
+fn caused_by(error: &anyhow::Error, kind: std::io::ErrorKind) -> bool {
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == kind)
+    })
 }
 
 /// The error and its causes on one line. Library errors already quote their source after the
@@ -343,12 +344,7 @@ fn error_message(error: &anyhow::Error) -> String {
             message.push_str(&text);
         }
     }
-    let disk_full = error.chain().any(|cause| {
-        cause
-            .downcast_ref::<std::io::Error>()
-            .is_some_and(|io| io.kind() == std::io::ErrorKind::StorageFull)
-    });
-    if disk_full {
+    if caused_by(error, std::io::ErrorKind::StorageFull) {
         message.push_str(
             "\nthe disk is full: free space and run the command again \
              (`collect --resume` continues an interrupted dataset from its last checkpoint)",

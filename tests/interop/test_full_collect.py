@@ -49,6 +49,11 @@ def meta():
 
 
 @pytest.fixture(scope="module")
+def lengths(meta):
+    return [meta.episodes[e]["length"] for e in range(meta.total_episodes)]
+
+
+@pytest.fixture(scope="module")
 def report():
     return json.loads((ROOT / "collect_report.json").read_text())
 
@@ -58,8 +63,10 @@ def load_task(task_number):
     deletes the Arrow cache the loader wrote."""
     first = task_number * EPISODES_PER_TASK
     episodes = list(range(first, first + EPISODES_PER_TASK))
+    # `Dataset.from_parquet` reads the cache root from `datasets.config` when it is called.
     default_cache = datasets.config.HF_DATASETS_CACHE
-    cache = tempfile.mkdtemp(prefix="surgvla-arrow-", dir=os.environ.get("HF_DATASETS_CACHE"))
+    Path(default_cache).mkdir(parents=True, exist_ok=True)
+    cache = tempfile.mkdtemp(prefix="surgvla-arrow-", dir=default_cache)
     datasets.config.HF_DATASETS_CACHE = cache
     try:
         dataset = LeRobotDataset("surgvla/full", root=ROOT, episodes=episodes, depth_output_unit="m")
@@ -95,8 +102,7 @@ def test_the_default_collection_is_the_benchmark(meta, report):
     assert any(i.startswith("clip the") for i in instructions)
 
 
-def test_every_episode_loads_task_by_task(meta, tasks):
-    lengths = [meta.episodes[e]["length"] for e in range(meta.total_episodes)]
+def test_every_episode_loads_task_by_task(meta, lengths, tasks):
     instruction_of = {index: text for text, index in meta.tasks["task_index"].items()}
     for number, seen in enumerate(tasks):
         first = number * EPISODES_PER_TASK
@@ -120,8 +126,7 @@ def test_random_frames_load_with_sane_values(tasks):
             assert action[6] in (0.0, 1.0)
 
 
-def test_episode_lengths_respect_the_step_limits(meta):
-    lengths = [meta.episodes[e]["length"] for e in range(meta.total_episodes)]
+def test_episode_lengths_respect_the_step_limits(lengths):
     for number, code in enumerate(CODES):
         block = lengths[number * EPISODES_PER_TASK:(number + 1) * EPISODES_PER_TASK]
         limit = 150 if code.startswith("T3") else 100
