@@ -9,6 +9,8 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
+use surgvla::collect::run::{CollectOptions, dataset_info};
+use surgvla::episode::FeatureSet;
 use surgvla::export::EpisodeSink;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter, VideoOptions};
 use surgvla::policy::ExpertLibrary;
@@ -27,6 +29,7 @@ fn bench_lerobot(c: &mut Criterion) {
         })
         .collect();
     let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
+    let info = dataset_info(&CollectOptions::default(), FeatureSet::default(), false);
     for (mode, video) in [
         ("image", None),
         ("video_av1", Some(VideoOptions::default())),
@@ -48,16 +51,15 @@ fn bench_lerobot(c: &mut Criterion) {
                 b.iter(|| {
                     std::fs::remove_dir_all(&root).ok();
                     pool.install(|| {
-                        let mut writer: Box<dyn EpisodeSink> = Box::new(
-                            LeRobotWriter::create(
-                                &root,
-                                LeRobotOptions {
-                                    video,
-                                    ..LeRobotOptions::default()
-                                },
-                            )
-                            .expect("create"),
-                        );
+                        let mut writer = LeRobotWriter::create(
+                            &root,
+                            &info,
+                            LeRobotOptions {
+                                video,
+                                ..LeRobotOptions::default()
+                            },
+                        )
+                        .expect("create");
                         writer.write_batch(&episodes).expect("write");
                         writer.finish().expect("finish")
                     })

@@ -1,9 +1,12 @@
-//! The episode model: the contract between collection and every exporter.
+//! The episode model: the contract between collection and every format.
 //!
-//! An [`Episode`] is metadata plus [`Step`]s (images, state, action, object poses). What each
-//! feature is called, its dtype, shape and per-element names is declared once in
-//! [`FeatureSpec`]s ([`standard_features`]); exporters and `schemas/` derive from that list.
-//! Exporters see episodes only, never the simulator.
+//! An [`Episode`] is metadata (with its provenance: seed, task, level, attempts, verdict) plus
+//! [`Step`]s (images, state, action, object poses, and [`StepExtras`] the simulator knows).
+//! What each feature is called, its dtype, shape and per-element names is declared once in
+//! [`FeatureSpec`]s ([`standard_features`], chosen by a [`FeatureSet`]); a dataset's features
+//! are part of its `DatasetInfo`, and formats and `schemas/` derive from that list. A feature a
+//! dataset does not have is an empty array in its steps. Formats see episodes only, never the
+//! simulator.
 
 use serde::Serialize;
 
@@ -56,26 +59,48 @@ fn names(items: &[&str]) -> Vec<String> {
     items.iter().map(|s| s.to_string()).collect()
 }
 
+/// Which of the optional features a dataset has (RGB, state and action always).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FeatureSet {
+    /// `observation.images.depth` (float metres).
+    pub depth: bool,
+    /// `observation.images.mask` (segmentation ids).
+    pub mask: bool,
+    /// `observation.environment_state` (ground-truth object poses).
+    pub environment_state: bool,
+}
+
+impl Default for FeatureSet {
+    /// The default dataset: depth and object poses, no mask.
+    fn default() -> Self {
+        FeatureSet {
+            depth: true,
+            mask: false,
+            environment_state: true,
+        }
+    }
+}
+
 /// The features surgvla writes, in column order.
-pub fn standard_features(height_px: usize, width_px: usize, with_mask: bool) -> Vec<FeatureSpec> {
+pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> Vec<FeatureSpec> {
     let image_axes = names(&["height", "width", "channels"]);
-    let mut features = vec![
-        FeatureSpec {
-            name: "observation.images.endoscope".into(),
-            dtype: Dtype::Image,
-            shape: vec![height_px, width_px, 3],
-            names: image_axes.clone(),
-            kind: FeatureKind::Rgb,
-        },
-        FeatureSpec {
+    let mut features = vec![FeatureSpec {
+        name: "observation.images.endoscope".into(),
+        dtype: Dtype::Image,
+        shape: vec![height_px, width_px, 3],
+        names: image_axes.clone(),
+        kind: FeatureKind::Rgb,
+    }];
+    if set.depth {
+        features.push(FeatureSpec {
             name: "observation.images.depth".into(),
             dtype: Dtype::Image,
             shape: vec![height_px, width_px, 1],
             names: image_axes.clone(),
             kind: FeatureKind::Depth,
-        },
-    ];
-    if with_mask {
+        });
+    }
+    if set.mask {
         features.push(FeatureSpec {
             name: "observation.images.mask".into(),
             dtype: Dtype::Image,
@@ -89,45 +114,45 @@ pub fn standard_features(height_px: usize, width_px: usize, with_mask: bool) -> 
             ["x", "y", "z", "qx", "qy", "qz", "qw"].map(move |c| format!("object_{i}.{c}"))
         })
         .collect();
-    features.extend([
-        FeatureSpec {
-            name: "observation.state".into(),
-            dtype: Dtype::Float32,
-            shape: vec![7],
-            names: names(&[
-                "tip_x_m",
-                "tip_y_m",
-                "tip_z_m",
-                "tip_roll_rad",
-                "tip_pitch_rad",
-                "tip_yaw_rad",
-                "jaw_angle_rad",
-            ]),
-            kind: FeatureKind::State,
-        },
-        FeatureSpec {
+    features.push(FeatureSpec {
+        name: "observation.state".into(),
+        dtype: Dtype::Float32,
+        shape: vec![7],
+        names: names(&[
+            "tip_x_m",
+            "tip_y_m",
+            "tip_z_m",
+            "tip_roll_rad",
+            "tip_pitch_rad",
+            "tip_yaw_rad",
+            "jaw_angle_rad",
+        ]),
+        kind: FeatureKind::State,
+    });
+    if set.environment_state {
+        features.push(FeatureSpec {
             name: "observation.environment_state".into(),
             dtype: Dtype::Float32,
             shape: vec![MAX_OBJECTS * POSE_VALUES],
             names: environment_names,
             kind: FeatureKind::EnvironmentState,
-        },
-        FeatureSpec {
-            name: "action".into(),
-            dtype: Dtype::Float32,
-            shape: vec![7],
-            names: names(&[
-                "dx_m",
-                "dy_m",
-                "dz_m",
-                "droll_rad",
-                "dpitch_rad",
-                "dyaw_rad",
-                "gripper_open",
-            ]),
-            kind: FeatureKind::Action,
-        },
-    ]);
+        });
+    }
+    features.push(FeatureSpec {
+        name: "action".into(),
+        dtype: Dtype::Float32,
+        shape: vec![7],
+        names: names(&[
+            "dx_m",
+            "dy_m",
+            "dz_m",
+            "droll_rad",
+            "dpitch_rad",
+            "dyaw_rad",
+            "gripper_open",
+        ]),
+        kind: FeatureKind::Action,
+    });
     features
 }
 
@@ -194,11 +219,15 @@ pub struct CameraInfo {
     pub fy_px: f64,
     pub cx_px: f64,
     pub cy_px: f64,
+    /// Clipping planes of the depth range, metres.
+    pub near_m: f64,
+    pub far_m: f64,
     /// Row-major 4x4 pose of the optical frame (x right, y down, z forward) in the world.
     pub world_from_camera: [[f64; 4]; 4],
 }
 
-/// What an episode is, besides its steps.
+/// What an episode is, besides its steps: its place, its instruction and its provenance (what
+/// it takes to re-run or audit it).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EpisodeMeta {
     /// Position in the dataset, 0-based.
@@ -209,10 +238,13 @@ pub struct EpisodeMeta {
     pub level: u8,
     /// The language instruction (the LeRobot "task" string).
     pub instruction: String,
+    /// The seed of the attempt that was saved.
     pub seed: u64,
+    /// Expert attempts for this slot including the saved one (1 = first try; spawn redraws
+    /// not counted).
+    pub attempts: u32,
+    /// The task's success predicate held at the end of the episode.
     pub success: bool,
-    pub camera: CameraInfo,
-    pub simulator_version: String,
 }
 
 /// One control step.
@@ -228,6 +260,22 @@ pub struct Step {
     pub action: [f32; 7],
     /// [`MAX_OBJECTS`] x [`POSE_VALUES`], zero-padded.
     pub environment_state: [f32; MAX_OBJECTS * POSE_VALUES],
+    /// What the simulator knew besides the features (empty when read from a dataset).
+    pub extras: StepExtras,
+}
+
+/// Per-step facts the simulator knows beyond the dataset features, for formats that have room
+/// for them.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepExtras {
+    /// PSM joint positions before the step (rad; the insertion joint in m).
+    pub joint_positions: Vec<f64>,
+    /// The object held by the jaws before the step.
+    pub held_object: Option<String>,
+    /// The object the jaws grasped during the step.
+    pub grasped: Option<String>,
+    /// The object the jaws released during the step.
+    pub released: Option<String>,
 }
 
 /// A recorded episode.
@@ -238,27 +286,33 @@ pub struct Episode {
 }
 
 impl Episode {
-    /// Checks that every step's arrays have the camera's size.
-    pub fn validate(&self) -> Result<(), String> {
-        let pixels = (self.meta.camera.width_px * self.meta.camera.height_px) as usize;
-        for (i, step) in self.steps.iter().enumerate() {
-            if step.rgb.len() != pixels * 3
-                || step.depth_m.len() != pixels
-                || step.mask.len() != pixels
-            {
-                return Err(format!(
-                    "episode {} step {i}: image sizes rgb {} depth {} mask {} do not match {}x{}",
-                    self.meta.index,
-                    step.rgb.len(),
-                    step.depth_m.len(),
-                    step.mask.len(),
-                    self.meta.camera.width_px,
-                    self.meta.camera.height_px
-                ));
-            }
-        }
+    /// Checks that the episode has steps and that every step holds each of `features` with
+    /// the size of a `width_px` x `height_px` image.
+    pub fn validate(
+        &self,
+        width_px: usize,
+        height_px: usize,
+        features: &[FeatureSpec],
+    ) -> Result<(), String> {
         if self.steps.is_empty() {
             return Err(format!("episode {} has no steps", self.meta.index));
+        }
+        let pixels = width_px * height_px;
+        for (i, step) in self.steps.iter().enumerate() {
+            for feature in features {
+                let (what, len, expected) = match feature.kind {
+                    FeatureKind::Rgb => ("rgb", step.rgb.len(), pixels * 3),
+                    FeatureKind::Depth => ("depth", step.depth_m.len(), pixels),
+                    FeatureKind::Mask => ("mask", step.mask.len(), pixels),
+                    _ => continue,
+                };
+                if len != expected {
+                    return Err(format!(
+                        "episode {} step {i}: {what} has {len} values where a {width_px}x{height_px} image has {expected}",
+                        self.meta.index
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -270,7 +324,11 @@ mod tests {
 
     #[test]
     fn features_have_unique_slash_free_names_and_one_name_per_element() {
-        let features = standard_features(224, 224, true);
+        let all = FeatureSet {
+            mask: true,
+            ..FeatureSet::default()
+        };
+        let features = standard_features(224, 224, all);
         let mut seen = std::collections::HashSet::new();
         for feature in &features {
             assert!(!feature.name.contains('/'));
@@ -279,7 +337,23 @@ mod tests {
                 assert_eq!(feature.names.len(), feature.shape[0], "{}", feature.name);
             }
         }
-        assert_eq!(standard_features(224, 224, false).len(), features.len() - 1);
+        assert_eq!(
+            standard_features(224, 224, FeatureSet::default()).len(),
+            features.len() - 1
+        );
+        let lean = FeatureSet {
+            depth: false,
+            mask: false,
+            environment_state: false,
+        };
+        let kinds: Vec<FeatureKind> = standard_features(224, 224, lean)
+            .iter()
+            .map(|f| f.kind)
+            .collect();
+        assert_eq!(
+            kinds,
+            [FeatureKind::Rgb, FeatureKind::State, FeatureKind::Action]
+        );
     }
 
     #[test]

@@ -3,15 +3,19 @@
 //! - [`sim`]: the headless simulator (dVRK PSM, rapier scene, grasp binding).
 //! - [`task`]: the eight benchmark tasks and their seeded scenes.
 //! - [`policy`]: policies, including the waypoint expert controller.
-//! - [`collect`]: rollouts and trajectory recording.
-//! - [`export`]: dataset writers.
+//! - [`env`]: the environment API (reset, step, observe) that collection and evaluation share.
+//! - [`collect`]: verified expert collection into any dataset sink.
+//! - [`export`]: the dataset layer: `DatasetInfo`, every format's sink and source.
+//! - [`error`]: the kinds of failure (user's input or the work), for exit codes.
 //!
 //! The library never sees command-line types, progress bars or exit codes; `src/bin/surgvla.rs`
 //! owns those. Every output is a pure function of (config, seed).
 
 pub mod assets;
 pub mod collect;
+pub mod env;
 pub mod episode;
+pub mod error;
 pub mod export;
 pub mod policy;
 pub mod render;

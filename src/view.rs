@@ -3,6 +3,7 @@
 //! state (object poses, instrument pose), never rapier; the renderer below it knows neither.
 
 use crate::assets::{Appearance, SceneAssets};
+use crate::episode::CameraInfo;
 use crate::render::image::{depth_visualisation, mask_visualisation};
 use crate::render::{Camera, Frame, RenderOptions, Renderer};
 use crate::sim::{SimConfig, Simulator};
@@ -76,31 +77,32 @@ pub fn contact_sheet(
     Ok(sheet)
 }
 
-/// What a dataset records about how its images were made: the camera (intrinsics and
-/// `world_from_camera`, row-major 4x4), the mask id table, the depth convention and versions.
-pub fn dataset_metadata(camera: &Camera) -> serde_json::Value {
-    let pose = crate::collect::record::camera_info(camera).world_from_camera;
-    let masks: serde_json::Map<String, serde_json::Value> = crate::assets::MaskClass::ALL
+/// The camera as datasets record it (row-major 4 x 4 `world_from_camera`).
+pub fn camera_info(camera: &Camera) -> CameraInfo {
+    let m = camera.world_from_camera.to_homogeneous();
+    let mut world_from_camera = [[0.0; 4]; 4];
+    for (r, row) in world_from_camera.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = m[(r, c)];
+        }
+    }
+    CameraInfo {
+        width_px: camera.width_px,
+        height_px: camera.height_px,
+        fx_px: camera.fx_px,
+        fy_px: camera.fy_px,
+        cx_px: camera.cx_px,
+        cy_px: camera.cy_px,
+        near_m: camera.near_m,
+        far_m: camera.far_m,
+        world_from_camera,
+    }
+}
+
+/// The mask id table of rendered masks: (id, class name) in id order.
+pub fn mask_ids() -> Vec<(u8, String)> {
+    crate::assets::MaskClass::ALL
         .iter()
-        .map(|(class, name)| (class.id().to_string(), serde_json::Value::from(*name)))
-        .collect();
-    serde_json::json!({
-        "generator": format!("surgvla {}", env!("CARGO_PKG_VERSION")),
-        "camera": {
-            "key": "observation.images.endoscope",
-            "width": camera.width_px,
-            "height": camera.height_px,
-            "fx": camera.fx_px,
-            "fy": camera.fy_px,
-            "cx": camera.cx_px,
-            "cy": camera.cy_px,
-            "near_m": camera.near_m,
-            "far_m": camera.far_m,
-            "optical_frame": "x right, y down, z forward",
-            "world_from_camera": pose,
-        },
-        "depth": {"key": "observation.images.depth", "unit": "m", "along": "optical axis", "background": 0.0,
-                  "back_projection": "X = (u + 0.5 - cx) z / fx, Y = (v + 0.5 - cy) z / fy, Z = z"},
-        "mask_ids": masks,
-    })
+        .map(|(class, name)| (class.id(), name.to_string()))
+        .collect()
 }

@@ -1,24 +1,84 @@
 //! The episode-producing commands: `collect` (verified episodes into a dataset) and `experts`
 //! (the experts' success rates, without rendering or writing). Both share [`JobArgs`].
 
-use crate::UsageError;
+use crate::error::CliError;
 use crate::progress;
-use anyhow::Context;
-use clap::Args;
+use clap::{Args, ValueEnum};
 use std::path::PathBuf;
-use surgvla::collect::run::{CollectOptions, Shard, collect, measure_experts};
-use surgvla::episode::GripperEncoding;
-use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
+use surgvla::collect::run::{CollectOptions, Shard, collect, dataset_info, measure_experts};
+use surgvla::episode::{FeatureSet, GripperEncoding};
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
+use surgvla::export::{DatasetDir, SinkOptions, open_sink};
 use surgvla::policy::ExpertLibrary;
-use surgvla::render::Camera;
-use surgvla::task::{InstructionChoice, TaskConfig, TaskId};
+use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
+
+/// `--tasks`: "all" or a comma-separated list of names or ids.
+#[derive(Clone, Debug)]
+pub struct TaskList(Vec<TaskId>);
+
+fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
+    if text.trim() == "all" {
+        return Ok(TaskList(TaskId::ALL.to_vec()));
+    }
+    text.split(',')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map(TaskList)
+}
+
+/// Which instruction each episode gets.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum Instructions {
+    /// The task's canonical instruction.
+    Canonical,
+    /// A seeded paraphrase.
+    Paraphrase,
+    /// A seeded mix of the canonical instruction and the paraphrases.
+    Mixed,
+}
+
+/// The dataset format.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum Format {
+    /// LeRobot (v3.0 by default; see --lerobot-version).
+    Lerobot,
+}
+
+/// The codec of video mode.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum VideoCodec {
+    /// AV1 (rav1e), LeRobot's codec family.
+    Av1,
+    /// H.264 (openh264), faster.
+    H264,
+}
+
+/// The LeRobot layout.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum LayoutVersion {
+    /// v3.0 (current): many episodes per file, parquet metadata.
+    #[value(name = "3.0")]
+    V30,
+    /// v2.1: one file per episode, JSON-lines metadata.
+    #[value(name = "2.1")]
+    V21,
+}
+
+/// How action[6] (the gripper) is written.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum Gripper {
+    /// 1 while commanded open, 0 while closed.
+    Continuous,
+    /// +1/-1 on the step the command changes, 0 otherwise (for ablations).
+    Pulse,
+}
 
 /// What episodes to make: tasks, counts, seed, scene options, experts.
 #[derive(Args, Debug)]
 pub struct JobArgs {
     /// Tasks: "all" or a comma-separated list of names or ids.
-    #[arg(long, default_value = "all")]
-    tasks: String,
+    #[arg(long, default_value = "all", value_parser = parse_tasks)]
+    tasks: TaskList,
     /// Verified episodes per task.
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
     episodes_per_task: u64,
@@ -32,8 +92,8 @@ pub struct JobArgs {
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]
     distractors: u64,
     /// Instruction per episode: the canonical one, a seeded paraphrase, or a seeded mix.
-    #[arg(long, default_value = "canonical", value_parser = ["canonical", "paraphrase", "mixed"])]
-    instructions: String,
+    #[arg(long, value_enum, default_value = "canonical")]
+    instructions: Instructions,
     /// Multiplies every spawn range's half width (3 gives the needle's evaluation range).
     #[arg(long, default_value_t = 1.0)]
     spawn_scale: f64,
@@ -45,46 +105,36 @@ pub struct JobArgs {
     max_attempts: u32,
 }
 
-fn usage(message: String) -> anyhow::Error {
-    anyhow::Error::new(UsageError(message))
-}
-
-fn parse_tasks(text: &str) -> anyhow::Result<Vec<TaskId>> {
-    if text.trim() == "all" {
-        return Ok(TaskId::ALL.to_vec());
-    }
-    text.split(',')
-        .map(|t| t.parse::<TaskId>().map_err(anyhow::Error::from))
-        .collect()
-}
-
 impl JobArgs {
     /// The library's options (one shard, continuous gripper) and the experts.
-    fn options(&self) -> anyhow::Result<(CollectOptions, ExpertLibrary)> {
-        let tasks = parse_tasks(&self.tasks).map_err(|e| usage(e.to_string()))?;
+    fn options(&self) -> Result<(CollectOptions, ExpertLibrary), CliError> {
         if !(self.spawn_scale.is_finite() && (0.0..=5.0).contains(&self.spawn_scale)) {
-            return Err(usage(format!(
+            return Err(CliError::usage(format!(
                 "--spawn-scale {} must be between 0 and 5",
                 self.spawn_scale
             )));
         }
         let library = match &self.policies {
-            Some(folder) => ExpertLibrary::with_folder(folder),
-            None => ExpertLibrary::builtin(),
-        }
-        .map_err(|e| usage(e.to_string()))?;
+            Some(folder) => ExpertLibrary::with_folder(folder).map_err(|e| {
+                CliError::from(e).context(format!(
+                    "loading the plans of --policies {}",
+                    folder.display()
+                ))
+            })?,
+            None => ExpertLibrary::builtin()?,
+        };
         let task = TaskConfig {
             distractors: self.distractors as usize,
-            instruction: match self.instructions.as_str() {
-                "paraphrase" => InstructionChoice::Paraphrase,
-                "mixed" => InstructionChoice::Mixed,
-                _ => InstructionChoice::Canonical,
+            instruction: match self.instructions {
+                Instructions::Canonical => InstructionChoice::Canonical,
+                Instructions::Paraphrase => InstructionChoice::Paraphrase,
+                Instructions::Mixed => InstructionChoice::Mixed,
             },
             spawn_scale: self.spawn_scale,
             ..TaskConfig::default()
         };
         let options = CollectOptions {
-            tasks,
+            tasks: self.tasks.0.clone(),
             episodes_per_task: self.episodes_per_task,
             seed: self.seed,
             threads: self.threads.unwrap_or(0),
@@ -106,16 +156,16 @@ pub struct CollectArgs {
     /// Output folder (must not exist or be empty).
     #[arg(long, default_value = "data")]
     out: PathBuf,
-    /// Output format (RLDS and point clouds are separate exporters, still to come).
-    #[arg(long, default_value = "lerobot", value_parser = ["lerobot"])]
-    format: String,
+    /// Output format.
+    #[arg(long, value_enum, default_value = "lerobot")]
+    format: Format,
     /// Also store the segmentation mask as an image feature.
     #[arg(long)]
     with_mask: bool,
     /// Store the endoscope RGB as MP4 video (LeRobot video mode) instead of PNG: av1 (rav1e,
     /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
-    #[arg(long, num_args = 0..=1, default_missing_value = "av1", value_parser = ["av1", "h264"])]
-    video: Option<String>,
+    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "av1")]
+    video: Option<VideoCodec>,
     /// This machine's part of the episode list, I/N (0-based): N machines with I = 0..N-1 each
     /// write the I-th contiguous range of episodes as their own dataset.
     #[arg(long, default_value = "0/1")]
@@ -125,12 +175,12 @@ pub struct CollectArgs {
     #[arg(long)]
     resume: bool,
     /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
-    #[arg(long, default_value = "3.0", value_parser = ["3.0", "2.1"])]
-    lerobot_version: String,
+    #[arg(long, value_enum, default_value = "3.0")]
+    lerobot_version: LayoutVersion,
     /// action[6]: "continuous" (1 while commanded open, 0 while closed) or "pulse" (+1/-1 on
     /// the step the command changes, 0 otherwise; for ablations).
-    #[arg(long, default_value = "continuous", value_parser = ["continuous", "pulse"])]
-    gripper_encoding: String,
+    #[arg(long, value_enum, default_value = "continuous")]
+    gripper_encoding: Gripper,
     /// Randomise light, tissue colour and texture contrast per episode.
     #[arg(long)]
     randomize_appearance: bool,
@@ -140,64 +190,51 @@ pub struct CollectArgs {
     data_file_mb: u64,
 }
 
-pub fn run_collect(args: &CollectArgs) -> anyhow::Result<()> {
+impl CollectArgs {
+    /// The format's options.
+    fn sink_options(&self) -> SinkOptions {
+        match self.format {
+            Format::Lerobot => SinkOptions::LeRobot(LeRobotOptions {
+                video: self.video.map(|codec| match codec {
+                    VideoCodec::H264 => VideoOptions::h264(),
+                    VideoCodec::Av1 => VideoOptions::default(),
+                }),
+                version: match self.lerobot_version {
+                    LayoutVersion::V30 => LeRobotVersion::V30,
+                    LayoutVersion::V21 => LeRobotVersion::V21,
+                },
+                data_file_size_mb: self.data_file_mb,
+                ..LeRobotOptions::default()
+            }),
+        }
+    }
+}
+
+pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
     let (mut options, library) = args.job.options()?;
-    let gripper = if args.gripper_encoding == "pulse" {
-        GripperEncoding::Pulse
-    } else {
-        GripperEncoding::Continuous
-    };
     options.shard = args.shard;
-    options.record.gripper = gripper;
+    options.record.gripper = match args.gripper_encoding {
+        Gripper::Continuous => GripperEncoding::Continuous,
+        Gripper::Pulse => GripperEncoding::Pulse,
+    };
     options.record.randomize_appearance = args.randomize_appearance;
-    let job = &args.job;
-    let mut metadata = surgvla::view::dataset_metadata(&Camera::endoscope());
-    metadata["collection"] = serde_json::json!({
-        "seed": job.seed,
-        "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
-        "episodes_per_task": job.episodes_per_task,
-        "shard": args.shard.to_string(),
-        "gripper_encoding": gripper,
-        "distractors": job.distractors,
-        "instructions": job.instructions,
-        "spawn_scale": job.spawn_scale,
-        "randomize_appearance": args.randomize_appearance,
-        "policies": if job.policies.is_some() { "custom" } else { "builtin" },
-    });
-    let writer_options = LeRobotOptions {
-        with_mask: args.with_mask,
-        extra_metadata: metadata,
-        video: args.video.as_deref().map(|codec| match codec {
-            "h264" => VideoOptions::h264(),
-            _ => VideoOptions::default(),
-        }),
-        version: if args.lerobot_version == "2.1" {
-            LeRobotVersion::V21
-        } else {
-            LeRobotVersion::V30
-        },
-        data_file_size_mb: args.data_file_mb,
-        ..LeRobotOptions::default()
+    let features = FeatureSet {
+        mask: args.with_mask,
+        ..FeatureSet::default()
     };
-    let interrupted = args
-        .out
-        .join(surgvla::export::lerobot::INCOMPLETE_MARKER)
-        .exists();
-    let (writer, resume_at) = if args.resume && interrupted {
-        let writer = LeRobotWriter::resume(&args.out, writer_options)?;
-        let next = writer.next_episode_index();
+    let info = dataset_info(&options, features, args.job.policies.is_some());
+    let resuming = args.resume && DatasetDir::is_interrupted(&args.out);
+    let mut sink = open_sink(&args.out, &info, &args.sink_options(), args.resume)?;
+    if resuming {
+        let next = sink.next_episode_index();
         eprintln!("resuming {} at episode {next}", args.out.display());
-        (writer, next as usize)
-    } else {
-        (LeRobotWriter::create(&args.out, writer_options)?, 0)
-    };
+    }
     let mut bars = progress::Bars::new(&options.tasks);
-    let report = collect(&options, &library, Box::new(writer), resume_at, &mut bars)?;
+    let report = collect(&options, &library, sink.as_mut(), &mut bars)?;
     bars.clear();
     let path = args.out.join("collect_report.json");
     let json = serde_json::to_string_pretty(&report)?;
-    surgvla::export::write_atomically(&path, json.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
+    surgvla::export::write_atomically(&path, json.as_bytes())?;
     progress::print_summary(&report)?;
     say!(
         "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
@@ -222,7 +259,7 @@ pub struct ExpertsArgs {
 
 /// Runs the experts as `collect` would (same attempts, replay check) without rendering or
 /// writing, and prints their success rates: the quick check of a new or edited plan.
-pub fn run_experts(args: &ExpertsArgs) -> anyhow::Result<()> {
+pub fn run_experts(args: &ExpertsArgs) -> Result<(), CliError> {
     let (options, library) = args.job.options()?;
     let mut bars = progress::Bars::new(&options.tasks);
     let report = measure_experts(&options, &library, &mut bars)?;

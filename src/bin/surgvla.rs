@@ -1,5 +1,6 @@
-//! The `surgvla` command line: parses arguments, calls the library, prints, and maps errors to
-//! exit codes (2 for user mistakes, 1 for internal failures).
+//! The `surgvla` command line: parses arguments, dispatches to the library, prints the error
+//! chain once and maps its kind to the exit code (0 done; 1 the work failed or the data is
+//! invalid; 2 the command could not start because of what the user gave).
 
 /// Writes a line to stdout; a failed write (a closed pipe) returns an error with `?`, which
 /// `main` treats as a quiet exit when the pipe was closed.
@@ -11,7 +12,10 @@ macro_rules! say {
 }
 
 mod episodes;
+mod error;
 mod progress;
+
+use error::CliError;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -19,7 +23,7 @@ use std::process::ExitCode;
 use surgvla::assets::{Appearance, SceneAssets};
 use surgvla::collect::rollout;
 use surgvla::policy::ExpertLibrary;
-use surgvla::render::image::{ImageError, depth_visualisation, mask_visualisation, write_png_file};
+use surgvla::render::image::{depth_visualisation, mask_visualisation, write_png_file};
 use surgvla::render::{Camera, Lighting, RenderOptions, Renderer};
 use surgvla::sim::{SimConfig, Simulator};
 use surgvla::task::TaskId;
@@ -60,11 +64,6 @@ enum Command {
     /// List the tasks: id, level, name, step limit, canonical instruction and paraphrases.
     Tasks,
 }
-
-/// A mistake in the command line found after parsing (exit code 2).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-struct UsageError(String);
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
 enum CameraChoice {
@@ -143,7 +142,7 @@ impl LookArgs {
     }
 }
 
-fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
+fn run_render(args: &RenderArgs) -> Result<(), CliError> {
     let instance = args
         .task
         .instance(args.seed, &surgvla::task::TaskConfig::default())?;
@@ -185,7 +184,7 @@ fn run_render(args: &RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn run_contact_sheet(args: &ContactSheetArgs) -> anyhow::Result<()> {
+fn run_contact_sheet(args: &ContactSheetArgs) -> Result<(), CliError> {
     let (options, appearance) = args.look.options(args.seed);
     let sheet = contact_sheet(&TaskId::ALL, args.seed, options, appearance)?;
     write_png_file(&args.out, sheet.width_px, sheet.height_px, 3, &sheet.rgb)?;
@@ -212,7 +211,7 @@ struct SimArgs {
     steps: u32,
 }
 
-fn run_sim(args: &SimArgs) -> anyhow::Result<()> {
+fn run_sim(args: &SimArgs) -> Result<(), CliError> {
     let instance = args
         .task
         .instance(args.seed, &surgvla::task::TaskConfig::default())?;
@@ -313,54 +312,26 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
-        // Output piped into a reader that stopped (`surgvla tasks | head`): not an error.
-        Err(error) if caused_by(&error, std::io::ErrorKind::BrokenPipe) => ExitCode::SUCCESS,
+        Err(error) if error.quiet => ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("error: {}", error_message(&error));
-            ExitCode::from(exit_code(&error))
+            eprintln!("error: {}", error.message());
+            ExitCode::from(error.kind.exit_code())
         }
     }
 }
 
-/// Whether an I/O error of `kind` is among the error's causes.
-fn caused_by(error: &anyhow::Error, kind: std::io::ErrorKind) -> bool {
-    error.chain().any(|cause| {
-        cause
-            .downcast_ref::<std::io::Error>()
-            .is_some_and(|io| io.kind() == kind)
-    })
-}
-
-/// The error and its causes on one line. Library errors already quote their source after the
-/// file they name, so a cause whose text is already said is not repeated. A full disk gets a hint.
-fn error_message(error: &anyhow::Error) -> String {
-    let mut message = String::new();
-    for cause in error.chain() {
-        let text = cause.to_string();
-        if !message.contains(&text) {
-            if !message.is_empty() {
-                message.push_str(": ");
-            }
-            message.push_str(&text);
-        }
-    }
-    if caused_by(error, std::io::ErrorKind::StorageFull) {
-        message.push_str(
-            "\nthe disk is full: free space and run the command again \
-             (`collect --resume` continues an interrupted dataset from its last checkpoint)",
-        );
-    }
-    message
-}
-
-fn run_schema(with_mask: bool) -> anyhow::Result<()> {
-    let features = surgvla::episode::standard_features(224, 224, with_mask);
+fn run_schema(with_mask: bool) -> Result<(), CliError> {
+    let set = surgvla::episode::FeatureSet {
+        mask: with_mask,
+        ..Default::default()
+    };
+    let features = surgvla::episode::standard_features(224, 224, set);
     let json = surgvla::export::lerobot::features_json(&features);
     say!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())
 }
 
-fn run_tasks() -> anyhow::Result<()> {
+fn run_tasks() -> Result<(), CliError> {
     for task in TaskId::ALL {
         say!(
             "{}  L{}  {:<24} {:>3} steps  \"{}\"",
@@ -375,68 +346,4 @@ fn run_tasks() -> anyhow::Result<()> {
         }
     }
     Ok(())
-}
-
-/// 2 when the user can fix it (an output path in a missing or forbidden place), 1 otherwise.
-fn exit_code(error: &anyhow::Error) -> u8 {
-    use std::io::ErrorKind;
-    use surgvla::export::ExportError;
-    let user_fixable = |kind: ErrorKind| {
-        matches!(
-            kind,
-            ErrorKind::NotFound | ErrorKind::PermissionDenied | ErrorKind::IsADirectory
-        )
-    };
-    let fixable = error.chain().any(|cause| {
-        if cause.is::<UsageError>() {
-            return true;
-        }
-        match (
-            cause.downcast_ref::<ImageError>(),
-            cause.downcast_ref::<ExportError>(),
-        ) {
-            (Some(ImageError::Io { source, .. }), _) => user_fixable(source.kind()),
-            (_, Some(ExportError::NotEmpty { .. } | ExportError::NotResumable { .. })) => true,
-            (_, Some(ExportError::Io { source, .. })) => user_fixable(source.kind()),
-            _ => cause
-                .downcast_ref::<std::io::Error>()
-                .is_some_and(|io| user_fixable(io.kind())),
-        }
-    });
-    if fixable { 2 } else { 1 }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use std::io::{Error, ErrorKind};
-    use surgvla::export::ExportError;
-
-    #[test]
-    fn a_full_disk_names_the_file_once_and_says_what_to_do() {
-        let source = parquet::errors::ParquetError::from(Error::from(ErrorKind::StorageFull));
-        let error = anyhow::Error::new(ExportError::Parquet {
-            path: "out/data/chunk-000/file-000.parquet".into(),
-            source,
-        });
-        let message = error_message(&error);
-        let first_line = message.lines().next().unwrap();
-        assert!(
-            first_line.starts_with("out/data/chunk-000/file-000.parquet: "),
-            "{message}"
-        );
-        let said = Error::from(ErrorKind::StorageFull).to_string();
-        assert_eq!(first_line.matches(&said).count(), 1, "{message}");
-        assert!(message.contains("the disk is full"), "{message}");
-        assert_eq!(exit_code(&error), 1);
-    }
-
-    #[test]
-    fn context_and_causes_are_all_said() {
-        let error = anyhow::Error::new(Error::new(ErrorKind::NotFound, "no such file"))
-            .context("reading plans/gauze_pick.toml");
-        let message = error_message(&error);
-        assert_eq!(message, "reading plans/gauze_pick.toml: no such file");
-        assert_eq!(exit_code(&error), 2);
-    }
 }

@@ -5,22 +5,18 @@
 //!    `droll, dpitch, dyaw` rad, as f32) plus the gripper (1 while commanded open, 0 while
 //!    closed, or the opt-in pulse encoding). The expert succeeds when its plan completes within
 //!    the step limit and the task's success predicate holds.
-//! 2. [`render_replay`]: a fresh simulator of the same instance replays the recorded *dataset
+//! 2. [`render_replay`]: a fresh [`Env`] of the same instance replays the recorded *dataset
 //!    actions* as physical actions and renders every step; the saved frames and states are this
 //!    replay's, and the episode counts only if the predicate holds at its end too. So every
 //!    saved episode is, by construction, what its own actions reproduce.
 
-use crate::assets::{Appearance, SceneAssets};
-use crate::episode::{
-    CameraInfo, Episode, EpisodeMeta, GripperEncoding, MAX_OBJECTS, POSE_VALUES, Step,
-};
+use crate::env::{Env, EnvOptions, Images};
+use crate::episode::{Episode, EpisodeMeta, GripperEncoding, Step};
 use crate::policy::{ExpertLibrary, ExpertPlan, PlanError, Policy};
-use crate::render::{Camera, RenderOptions, Renderer};
+use crate::render::{Camera, RenderOptions};
 use crate::sim::psm::wrap_angle;
-use crate::sim::{JawCommand, Observation, PhysicalAction, SimConfig, Simulator};
+use crate::sim::{JawCommand, PhysicalAction};
 use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
-use crate::view::render_simulator;
-use std::time::Instant;
 
 /// How episodes are recorded.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -48,6 +44,19 @@ impl Default for RecordOptions {
     }
 }
 
+impl RecordOptions {
+    /// The environment of the rendered pass (`render`) or of the expert pass.
+    pub fn env(&self, render: bool) -> EnvOptions {
+        EnvOptions {
+            task: self.task,
+            camera: self.camera,
+            render: render.then_some(self.render),
+            randomize_appearance: self.randomize_appearance,
+            max_steps: self.max_steps,
+        }
+    }
+}
+
 /// The seed of episode slot `k` of `task` in a collection seeded with `seed`.
 pub fn episode_seed(seed: u64, task: TaskId, k: u64) -> u64 {
     attempt_seed(seed, task, k, 0)
@@ -61,26 +70,6 @@ pub fn attempt_seed(seed: u64, task: TaskId, k: u64, attempt: u32) -> u64 {
         ^ k.wrapping_mul(0x9e37_79b9_7f4a_7c15)
         ^ u64::from(attempt).wrapping_mul(0xd1b5_4a32_d192_ed03);
     crate::rng::SplitMix64::stream(mixed, task.code()).next_u64()
-}
-
-/// The camera as the episode model records it (row-major 4 x 4 `world_from_camera`).
-pub fn camera_info(camera: &Camera) -> CameraInfo {
-    let m = camera.world_from_camera.to_homogeneous();
-    let mut world_from_camera = [[0.0; 4]; 4];
-    for (r, row) in world_from_camera.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
-            *v = m[(r, c)];
-        }
-    }
-    CameraInfo {
-        width_px: camera.width_px,
-        height_px: camera.height_px,
-        fx_px: camera.fx_px,
-        fy_px: camera.fy_px,
-        cx_px: camera.cx_px,
-        cy_px: camera.cy_px,
-        world_from_camera,
-    }
 }
 
 /// What the expert pass produced.
@@ -101,16 +90,19 @@ pub fn run_expert(
     max_steps: u32,
     gripper: GripperEncoding,
 ) -> Result<ExpertRun, PlanError> {
-    let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
-    let mut observation = sim.observation();
+    let options = EnvOptions {
+        render: None,
+        ..EnvOptions::default()
+    };
+    let (mut env, first) = Env::from_instance(instance.clone(), &options);
+    let mut observation = first.sim;
     let mut policy = plan.expert(instance, &observation, instance.seed)?;
     let mut physical = Vec::with_capacity(max_steps as usize);
     let mut open = Vec::with_capacity(max_steps as usize);
-    let started = Instant::now();
     while !policy.is_done() && physical.len() < max_steps as usize {
         let command = policy.act(&observation);
-        sim.step_native(&command);
-        let next = sim.observation();
+        env.apply_native(&command);
+        let next = env.observe().sim;
         let (before, after) = (observation.state7(), next.state7());
         let mut action = [0f32; 6];
         for axis in 0..3 {
@@ -121,7 +113,6 @@ pub fn run_expert(
         open.push(command.jaw_command() == JawCommand::Open);
         observation = next;
     }
-    let physics_secs = started.elapsed().as_secs_f64();
     let verdict = if policy.is_done() {
         instance.success(&observation)
     } else {
@@ -141,30 +132,22 @@ pub fn run_expert(
     Ok(ExpertRun {
         actions,
         verdict,
-        physics_secs,
+        physics_secs: env.timing.physics_secs,
     })
 }
 
-/// Replays dataset actions from the instance's start, calling `before_step(sim, observation)`
-/// before each step, and returns the predicate at the end with the seconds spent stepping.
-pub fn replay_actions(
-    instance: &TaskInstance,
-    actions: &[[f32; 7]],
-    gripper: GripperEncoding,
-    mut before_step: impl FnMut(&Simulator, &Observation),
-) -> (Verdict, f64) {
-    let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+/// The physical actions that dataset actions encode (the gripper decoded over the sequence).
+fn physical_actions(actions: &[[f32; 7]], gripper: GripperEncoding) -> Vec<PhysicalAction> {
     let values: Vec<f32> = actions.iter().map(|a| a[6]).collect();
-    let mut physics_secs = 0.0;
-    for (action, open) in actions.iter().zip(gripper.decode(&values)) {
-        before_step(&sim, &sim.observation());
-        let mut values = action.map(f64::from);
-        values[6] = if open { 1.0 } else { 0.0 };
-        let started = Instant::now();
-        sim.step_physical(&PhysicalAction::from_array(values));
-        physics_secs += started.elapsed().as_secs_f64();
-    }
-    (instance.success(&sim.observation()), physics_secs)
+    actions
+        .iter()
+        .zip(gripper.decode(&values))
+        .map(|(action, open)| {
+            let mut values = action.map(f64::from);
+            values[6] = if open { 1.0 } else { 0.0 };
+            PhysicalAction::from_array(values)
+        })
+        .collect()
 }
 
 /// Replays dataset actions without rendering: does the recorded episode reproduce success?
@@ -173,7 +156,15 @@ pub fn verify_replay(
     actions: &[[f32; 7]],
     gripper: GripperEncoding,
 ) -> Verdict {
-    replay_actions(instance, actions, gripper, |_, _| {}).0
+    let options = EnvOptions {
+        render: None,
+        ..EnvOptions::default()
+    };
+    let (mut env, _) = Env::from_instance(instance.clone(), &options);
+    for action in physical_actions(actions, gripper) {
+        env.apply(&action);
+    }
+    env.verdict()
 }
 
 /// A rendered replay.
@@ -186,42 +177,39 @@ pub struct Recorded {
     pub render_secs: f64,
 }
 
-/// Replays `actions` on `instance`, rendering every step, into episode `index`.
+/// Replays `actions` on `instance`, rendering every step, into episode `index` (its meta says
+/// `attempts` expert attempts were made for it).
 pub fn render_replay(
     instance: &TaskInstance,
     actions: &[[f32; 7]],
     index: u64,
+    attempts: u32,
     options: &RecordOptions,
 ) -> Recorded {
-    let appearance = if options.randomize_appearance {
-        Appearance::randomized(instance.seed)
-    } else {
-        Appearance::default()
-    };
-    let assets = SceneAssets::new(&instance.scene, instance.seed, appearance);
-    let mut renderer = Renderer::new(RenderOptions {
-        lighting: appearance.lighting(options.render.lighting),
-        ..options.render
-    });
+    let (mut env, mut observation) = Env::from_instance(instance.clone(), &options.env(true));
+    let physical = physical_actions(actions, options.gripper);
     let mut steps = Vec::with_capacity(actions.len());
-    let mut render_secs = 0.0;
-    let (verdict, physics_secs) =
-        replay_actions(instance, actions, options.gripper, |sim, observation| {
-            let started = Instant::now();
-            let frame = render_simulator(&assets, &mut renderer, &options.camera, sim);
-            render_secs += started.elapsed().as_secs_f64();
-            steps.push(Step {
-                rgb: frame.rgb,
-                depth_m: frame.depth_m,
-                mask: frame.mask,
-                state: observation.state7().map(|v| v as f32),
-                action: [0.0; 7],
-                environment_state: environment_state(observation),
-            });
+    for (i, (action, dataset_action)) in physical.iter().zip(actions).enumerate() {
+        // The observation before the step, the action and what the step did make one dataset
+        // step. The observation after the last step is not needed (and not rendered).
+        let report = env.apply(action);
+        let Images { rgb, depth_m, mask } = observation.images.take().unwrap_or_default();
+        let mut extras = std::mem::take(&mut observation.extras);
+        (extras.grasped, extras.released) = env.events(&report);
+        steps.push(Step {
+            rgb,
+            depth_m,
+            mask,
+            state: observation.state,
+            action: *dataset_action,
+            environment_state: observation.environment_state,
+            extras,
         });
-    for (step, action) in steps.iter_mut().zip(actions) {
-        step.action = *action;
+        if i + 1 < physical.len() {
+            observation = env.observe();
+        }
     }
+    let verdict = env.verdict();
     let task = instance.task;
     Recorded {
         episode: Episode {
@@ -232,38 +220,15 @@ pub fn render_replay(
                 level: task.level(),
                 instruction: instance.instruction.clone(),
                 seed: instance.seed,
+                attempts,
                 success: verdict.success,
-                camera: camera_info(&options.camera),
-                simulator_version: env!("CARGO_PKG_VERSION").into(),
             },
             steps,
         },
         verdict,
-        physics_secs,
-        render_secs,
+        physics_secs: env.timing.physics_secs,
+        render_secs: env.timing.render_secs,
     }
-}
-
-/// Object poses, [`MAX_OBJECTS`] x (x, y, z, qx, qy, qz, qw), zero-padded.
-fn environment_state(observation: &Observation) -> [f32; MAX_OBJECTS * POSE_VALUES] {
-    let mut state = [0f32; MAX_OBJECTS * POSE_VALUES];
-    for (i, object) in observation.objects.iter().take(MAX_OBJECTS).enumerate() {
-        let pose = object.world_from_object;
-        let q = pose.rotation.coords; // (x, y, z, w)
-        let values = [
-            pose.translation.x,
-            pose.translation.y,
-            pose.translation.z,
-            q[0],
-            q[1],
-            q[2],
-            q[3],
-        ];
-        for (k, v) in values.iter().enumerate() {
-            state[i * POSE_VALUES + k] = *v as f32;
-        }
-    }
-    state
 }
 
 /// Why an episode could not be recorded.
@@ -287,5 +252,5 @@ pub fn record_episode(
     let instance = task.instance(seed, &options.task)?;
     let max_steps = options.max_steps.unwrap_or_else(|| task.step_limit());
     let expert = run_expert(&instance, library.plan(task)?, max_steps, options.gripper)?;
-    Ok(render_replay(&instance, &expert.actions, index, options).episode)
+    Ok(render_replay(&instance, &expert.actions, index, 1, options).episode)
 }

@@ -18,6 +18,8 @@ use crate::collect::record::{
 use crate::collect::report::Tally;
 pub use crate::collect::report::{CollectReport, TaskReport, Timing};
 use crate::episode::Episode;
+use crate::episode::FeatureSet;
+use crate::export::DatasetInfo;
 use crate::export::{EpisodeSink, ExportError, Summary};
 use crate::policy::{ExpertLibrary, PlanError};
 use crate::task::TaskId;
@@ -178,8 +180,28 @@ pub enum CollectError {
         attempts: u32,
         reason: String,
     },
-    #[error("starting {threads} worker threads: {message}")]
-    Threads { threads: usize, message: String },
+    #[error("starting {threads} worker threads")]
+    Threads {
+        threads: usize,
+        #[source]
+        source: rayon::ThreadPoolBuildError,
+    },
+}
+
+impl CollectError {
+    /// Whose mistake it is (see [`crate::error::ErrorKind`]).
+    pub fn kind(&self) -> crate::error::ErrorKind {
+        match self {
+            CollectError::Plan(e) => e.kind(),
+            CollectError::Export(e) => e.kind(),
+            _ => crate::error::ErrorKind::Failed,
+        }
+    }
+
+    /// Whether the disk filled up while writing.
+    pub fn is_disk_full(&self) -> bool {
+        matches!(self, CollectError::Export(e) if e.is_disk_full())
+    }
 }
 
 /// Fills a slot: attempts in order until one verifies or `max_attempts` have failed
@@ -238,7 +260,8 @@ pub fn collect_slot(
             continue;
         }
         let verdict = if render {
-            let recorded = render_replay(&instance, &expert.actions, index, record);
+            let recorded =
+                render_replay(&instance, &expert.actions, index, outcome.attempts, record);
             outcome.physics_secs += recorded.physics_secs;
             outcome.render_secs += recorded.render_secs;
             outcome.episode = Some(recorded.episode);
@@ -295,10 +318,7 @@ fn worker_pool(options: &CollectOptions) -> Result<(rayon::ThreadPool, usize), C
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
-        .map_err(|e| CollectError::Threads {
-            threads,
-            message: e.to_string(),
-        })?;
+        .map_err(|source| CollectError::Threads { threads, source })?;
     Ok((pool, threads))
 }
 
@@ -366,19 +386,55 @@ pub fn measure_experts(
     ))
 }
 
-/// Runs the collection into `sink`, starting at episode `resume_at` (the episodes before it
-/// are already in the sink; they are recounted for the report, not rendered or written).
+/// What a collection's dataset is: its features, the camera, the robot and the collection
+/// options (`custom_policies`: plans from a folder rather than the built-in ones).
+pub fn dataset_info(
+    options: &CollectOptions,
+    features: FeatureSet,
+    custom_policies: bool,
+) -> DatasetInfo {
+    let record = &options.record;
+    let camera = crate::view::camera_info(&record.camera);
+    let collection = serde_json::json!({
+        "seed": options.seed,
+        "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
+        "episodes_per_task": options.episodes_per_task,
+        "shard": options.shard.to_string(),
+        "gripper_encoding": record.gripper,
+        "distractors": record.task.distractors,
+        "instructions": record.task.instruction.name(),
+        "spawn_scale": record.task.spawn_scale,
+        "randomize_appearance": record.randomize_appearance,
+        "policies": if custom_policies { "custom" } else { "builtin" },
+    });
+    DatasetInfo {
+        fps: crate::sim::Timing::default().control_hz,
+        robot_type: "dvrk_psm".into(),
+        features: crate::episode::standard_features(
+            camera.height_px as usize,
+            camera.width_px as usize,
+            features,
+        ),
+        camera,
+        mask_ids: crate::view::mask_ids(),
+        collection,
+        generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+    }
+}
+
+/// Runs the collection into `sink`, starting at the sink's next episode (after a resume, the
+/// episodes before it are already in the sink; they are recounted for the report, not rendered
+/// or written). Finishes the sink.
 pub fn collect(
     options: &CollectOptions,
     library: &ExpertLibrary,
-    mut sink: Box<dyn EpisodeSink + Send>,
-    resume_at: usize,
+    sink: &mut (dyn EpisodeSink + Send),
     progress: &mut dyn CollectProgress,
 ) -> Result<CollectReport, CollectError> {
     let started = Instant::now();
     let slots = options.slots();
     let (pool, threads) = worker_pool(options)?;
-    let resume_at = resume_at.min(slots.len());
+    let resume_at = (sink.next_episode_index() as usize).min(slots.len());
     progress.start(&slots, resume_at);
     let mut report = Tally::new(options);
     // Recount what an interrupted run already wrote (physics only).

@@ -1,34 +1,63 @@
-//! Dataset exporters.
+//! The dataset layer: every format's sink and source.
 //!
-//! Every exporter has one shape: options -> `Writer::create` -> one [`EpisodeSink::write_episode`]
-//! per episode -> [`EpisodeSink::finish`] returning a [`Summary`]. Exporters never depend on the
-//! simulator: they see [`crate::episode::Episode`]s only. Memory stays bounded: nothing grows
-//! with the number of episodes except a small per-episode index.
+//! Every format has one shape. A [`DatasetInfo`] states the dataset once (features, fps,
+//! camera, robot, collection); [`open_sink`] creates (or resumes) a format's [`EpisodeSink`] on
+//! it in a folder owned by [`DatasetDir`] (marker, temporary names, checkpoints); the sink takes
+//! consecutive [`Episode`]s in batches ([`EpisodeSink::write_batch`]) and
+//! [`EpisodeSink::finish`] completes the dataset and returns a [`Summary`] (calling it again
+//! returns the same summary). Readers are [`EpisodeSource`]s of the same [`Episode`] type.
+//! Formats share image encoding ([`image`], [`tiff`]), video ([`video`]) and statistics
+//! ([`stats`]). Formats never depend on the simulator: they see episodes only.
 //!
-//! - [`lerobot`]: LeRobot v3.0 (parquet + metadata, images embedded as PNG/TIFF).
+//! Adding a format means one folder implementing [`EpisodeSink`] (and [`EpisodeSource`] where it
+//! reads) plus its variant of [`SinkOptions`].
+//!
+//! - [`lerobot`]: LeRobot v3.0 and v2.1 (parquet + metadata, images embedded or MP4 video).
 
+pub mod dir;
+pub mod image;
+pub mod info;
 pub mod lerobot;
 pub mod stats;
 pub mod tiff;
 pub mod video;
 
+pub use dir::{DatasetDir, INCOMPLETE_MARKER, temporary_name, write_atomically};
+pub use info::DatasetInfo;
+
 use crate::episode::Episode;
+use crate::error::ErrorKind;
 use std::path::{Path, PathBuf};
 
-/// What went wrong while exporting, naming the file where there is one.
+/// What went wrong while writing or reading a dataset, naming the file where there is one.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
-    #[error("{path}: {source}")]
-    Io {
+    /// The output folder could not be made or used (a file in the way, no permission).
+    #[error("cannot write the dataset to {path}")]
+    Output {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
-    #[error("{path}: {source}")]
+    #[error("{path}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}")]
     Parquet {
         path: PathBuf,
+        #[source]
         source: parquet::errors::ParquetError,
     },
-    #[error("building arrow data: {0}")]
+    #[error("{path}")]
+    Json {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("building arrow data")]
     Arrow(#[from] arrow_schema::ArrowError),
     #[error("{path} already holds a dataset or other files; choose an empty or new directory")]
     NotEmpty { path: PathBuf },
@@ -36,8 +65,15 @@ pub enum ExportError {
     NotResumable { path: PathBuf, reason: String },
     #[error("invalid episode: {0}")]
     InvalidEpisode(String),
-    #[error("encoding {what}: {message}")]
-    Encode { what: String, message: String },
+    /// A dataset being read is not what its format requires.
+    #[error("{path}: {problem}")]
+    InvalidDataset { path: PathBuf, problem: String },
+    #[error("encoding {what}")]
+    Encode {
+        what: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -47,9 +83,55 @@ impl ExportError {
         let path = path.into();
         move |source| ExportError::Io { path, source }
     }
+
+    /// A parquet error naming `path`; an I/O failure inside it (a full disk) stays an I/O error.
+    pub(crate) fn parquet(
+        path: &Path,
+    ) -> impl Fn(parquet::errors::ParquetError) -> ExportError + use<> {
+        let path = path.to_path_buf();
+        move |source| match source {
+            parquet::errors::ParquetError::External(inner) => {
+                match inner.downcast::<std::io::Error>() {
+                    Ok(io) => ExportError::Io {
+                        path: path.clone(),
+                        source: *io,
+                    },
+                    Err(other) => ExportError::Parquet {
+                        path: path.clone(),
+                        source: parquet::errors::ParquetError::External(other),
+                    },
+                }
+            }
+            source => ExportError::Parquet {
+                path: path.clone(),
+                source,
+            },
+        }
+    }
+
+    /// Whether the disk (or quota) is full.
+    pub fn is_disk_full(&self) -> bool {
+        match self {
+            ExportError::Io { source, .. } | ExportError::Output { source, .. } => {
+                source.kind() == std::io::ErrorKind::StorageFull
+            }
+            _ => false,
+        }
+    }
+
+    /// Whose mistake it is: the user's (a folder that cannot be used, a dataset that cannot be
+    /// resumed) or the work's (I/O during writing, a full disk, invalid data).
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            ExportError::Output { .. }
+            | ExportError::NotEmpty { .. }
+            | ExportError::NotResumable { .. } => ErrorKind::Usage,
+            _ => ErrorKind::Failed,
+        }
+    }
 }
 
-/// What an exporter wrote.
+/// What a sink wrote.
 #[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Summary {
     pub episodes: u64,
@@ -58,7 +140,7 @@ pub struct Summary {
     pub bytes: u64,
 }
 
-/// Seconds an exporter spent, for reports (never written into a dataset).
+/// Seconds a sink spent, for reports (never written into a dataset).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SinkTiming {
     /// Encoding images, video and statistics (wall seconds, parallel inside).
@@ -67,38 +149,66 @@ pub struct SinkTiming {
     pub write_secs: f64,
 }
 
-/// Receives episodes one at a time, in episode-index order.
+/// Receives consecutive episodes, in episode-index order, and writes one dataset.
 pub trait EpisodeSink {
-    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError>;
-    /// Writes consecutive episodes (a sink may work on them in parallel; output is as if they
-    /// were written one by one).
-    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        episodes.iter().try_for_each(|e| self.write_episode(e))
+    /// Writes consecutive episodes (a sink may work on them in parallel; the output is as if
+    /// they were written one by one). An episode out of order or not matching the dataset's
+    /// features is rejected.
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError>;
+    /// Writes one episode.
+    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
+        self.write_batch(std::slice::from_ref(episode))
     }
+    /// Index of the next episode the sink expects (after a resume: the first one to rewrite).
+    fn next_episode_index(&self) -> u64;
     /// Time spent so far.
     fn timing(&self) -> SinkTiming {
         SinkTiming::default()
     }
-    /// Completes the dataset: after this returns Ok, it is consistent and loadable.
-    fn finish(self: Box<Self>) -> Result<Summary, ExportError>;
+    /// Completes the dataset: after this returns Ok, it is consistent and loadable. Calling it
+    /// again returns the same summary and writes nothing.
+    fn finish(&mut self) -> Result<Summary, ExportError>;
 }
 
-/// Writes `bytes` to `path` through a temporary name and a rename, so a crash never leaves a
-/// half-written file under the final name.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
+/// Reads a dataset back: its [`DatasetInfo`] and its episodes in order, one at a time (memory
+/// bounded by one episode).
+pub trait EpisodeSource {
+    fn info(&self) -> &DatasetInfo;
+    /// Episodes in the dataset.
+    fn len(&self) -> u64;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
     }
-    let temporary = temporary_name(path);
-    std::fs::write(&temporary, bytes).map_err(ExportError::io(&temporary))?;
-    std::fs::rename(&temporary, path).map_err(ExportError::io(path))
+    /// The next episode, or None after the last.
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>>;
 }
 
-/// The temporary name of `path` while it is being written (`.name.partial`).
-pub fn temporary_name(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.partial"))
+/// A format and its own options.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SinkOptions {
+    LeRobot(lerobot::LeRobotOptions),
+}
+
+/// Starts a dataset of `info` in `root` (which must not exist or be empty), or, with `resume`
+/// and an interrupted dataset in `root`, continues it from its last checkpoint
+/// ([`EpisodeSink::next_episode_index`] says where).
+pub fn open_sink(
+    root: &Path,
+    info: &DatasetInfo,
+    options: &SinkOptions,
+    resume: bool,
+) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
+    let resuming = resume && DatasetDir::is_interrupted(root);
+    Ok(match options {
+        SinkOptions::LeRobot(options) => Box::new(if resuming {
+            lerobot::LeRobotWriter::resume(root, info, options.clone())?
+        } else {
+            lerobot::LeRobotWriter::create(root, info, options.clone())?
+        }),
+    })
+}
+
+/// Opens a dataset for reading, detecting its format.
+pub fn open_source(root: &Path) -> Result<Box<dyn EpisodeSource>, ExportError> {
+    Ok(Box::new(lerobot::read::LeRobotSource::open(root)?))
 }

@@ -364,3 +364,46 @@ mod tests {
         );
     }
 }
+
+/// Statistics of one feature (or one of LeRobot's default columns): per element for vectors,
+/// per channel for images.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub enum FeatureStats {
+    Vector(VectorStats),
+    Image(ImageStats),
+}
+
+impl FeatureStats {
+    /// Empty statistics of the right shape for `feature`.
+    pub fn for_feature(feature: &crate::episode::FeatureSpec) -> Self {
+        use crate::episode::FeatureKind;
+        match feature.kind {
+            FeatureKind::Rgb => FeatureStats::Image(ImageStats::unit_scaled(3)),
+            FeatureKind::Mask => FeatureStats::Image(ImageStats::unit_scaled(1)),
+            FeatureKind::Depth => FeatureStats::Image(ImageStats::depth()),
+            _ => FeatureStats::Vector(VectorStats::new(feature.shape[0])),
+        }
+    }
+
+    /// Statistics of a scalar column.
+    pub fn scalar() -> Self {
+        FeatureStats::Vector(VectorStats::new(1))
+    }
+
+    /// Folds `part` (statistics of later values) into these.
+    pub fn merge(&mut self, part: &FeatureStats) {
+        match (self, part) {
+            (FeatureStats::Vector(a), FeatureStats::Vector(b)) => a.merge(b),
+            (FeatureStats::Image(a), FeatureStats::Image(b)) => a.merge(b),
+            _ => {}
+        }
+    }
+
+    /// The statistics as LeRobot's JSON.
+    pub fn to_json(&self) -> Value {
+        match self {
+            FeatureStats::Vector(s) => s.to_json(),
+            FeatureStats::Image(s) => s.to_json(),
+        }
+    }
+}

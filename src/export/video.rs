@@ -4,6 +4,7 @@
 //! so an episode is the span `[from_timestamp, to_timestamp)` of its file.
 
 use crate::export::ExportError;
+use crate::export::dir::PendingFile;
 use muxide::api::{Muxer, MuxerBuilder, VideoCodec};
 use openh264::OpenH264API;
 use openh264::encoder::{
@@ -11,7 +12,7 @@ use openh264::encoder::{
 };
 use openh264::formats::{RgbSliceU8, YUVBuffer};
 use std::fs::File;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The video codec of a dataset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -118,9 +119,9 @@ pub fn encode_av1(
     quantizer: usize,
 ) -> Result<Vec<EncodedFrame>, ExportError> {
     use rav1e::prelude::*;
-    let encode_error = |message: String| ExportError::Encode {
+    let encode_error = |source: Box<dyn std::error::Error + Send + Sync>| ExportError::Encode {
         what: "AV1".into(),
-        message,
+        source,
     };
     let config = EncoderConfig {
         width,
@@ -139,7 +140,7 @@ pub fn encode_av1(
         .with_encoder_config(config)
         .with_threads(1)
         .new_context()
-        .map_err(|e| encode_error(e.to_string()))?;
+        .map_err(|e| encode_error(Box::new(e)))?;
     let mut out = Vec::with_capacity(frames.len());
     let drain =
         |context: &mut Context<u8>, out: &mut Vec<EncodedFrame>| -> Result<bool, ExportError> {
@@ -152,7 +153,7 @@ pub fn encode_av1(
                     Err(EncoderStatus::Encoded) => continue,
                     Err(EncoderStatus::NeedMoreData) => return Ok(false),
                     Err(EncoderStatus::LimitReached) => return Ok(true),
-                    Err(e) => return Err(encode_error(format!("{e:?}"))),
+                    Err(e) => return Err(encode_error(Box::new(e))),
                 }
             }
         };
@@ -165,17 +166,15 @@ pub fn encode_av1(
         frame.planes[2].copy_from_raw_u8(&v, cw, 1);
         context
             .send_frame(frame)
-            .map_err(|e| encode_error(format!("{e:?}")))?;
+            .map_err(|e| encode_error(Box::new(e)))?;
         drain(&mut context, &mut out)?;
     }
     context.flush();
     while !drain(&mut context, &mut out)? {}
     if out.len() != frames.len() {
-        return Err(encode_error(format!(
-            "{} frames in, {} packets out",
-            frames.len(),
-            out.len()
-        )));
+        return Err(encode_error(
+            format!("{} frames in, {} packets out", frames.len(), out.len()).into(),
+        ));
     }
     Ok(out)
 }
@@ -214,7 +213,7 @@ pub fn encode_h264(
 ) -> Result<Vec<EncodedFrame>, ExportError> {
     let encode_error = |e: openh264::Error| ExportError::Encode {
         what: "H.264".into(),
-        message: e.to_string(),
+        source: Box::new(e),
     };
     let max_qp = max_qp.min(51);
     let config = EncoderConfig::new()
@@ -238,7 +237,7 @@ pub fn encode_h264(
         if data.is_empty() {
             return Err(ExportError::Encode {
                 what: "H.264".into(),
-                message: "the encoder skipped a frame".into(),
+                source: "the encoder skipped a frame".into(),
             });
         }
         out.push(EncodedFrame { data, keyframe });
@@ -249,8 +248,7 @@ pub fn encode_h264(
 /// An MP4 file being appended to.
 pub struct VideoFile {
     muxer: Muxer<File>,
-    temporary: PathBuf,
-    pub path: PathBuf,
+    pending: PendingFile,
     pub chunk: u64,
     pub file: u64,
     /// Frames written so far (the next frame's presentation time is `frames / fps`).
@@ -258,25 +256,29 @@ pub struct VideoFile {
     fps: u32,
 }
 
+/// An MP4 error naming the file; an I/O failure (a full disk) stays an I/O error.
+fn mp4_error(path: &Path) -> impl Fn(muxide::api::MuxerError) -> ExportError + '_ {
+    move |e| match e {
+        muxide::api::MuxerError::Io(source) => ExportError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+        other => ExportError::Encode {
+            what: format!("MP4 {}", path.display()),
+            source: Box::new(other),
+        },
+    }
+}
+
 impl VideoFile {
+    /// Starts an MP4 in `handle`, the open temporary file of `pending`.
     pub fn create(
-        path: PathBuf,
+        (handle, pending): (File, PendingFile),
         codec: Codec,
-        chunk: u64,
-        file: u64,
-        width: usize,
-        height: usize,
+        (chunk, file): (u64, u64),
+        (width, height): (usize, usize),
         fps: u32,
     ) -> Result<Self, ExportError> {
-        if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
-        }
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let temporary = path.with_file_name(format!(".{name}.partial"));
-        let handle = File::create(&temporary).map_err(ExportError::io(&temporary))?;
         let muxer = MuxerBuilder::new(handle)
             .video(
                 match codec {
@@ -289,19 +291,20 @@ impl VideoFile {
             )
             .with_fast_start(false)
             .build()
-            .map_err(|e| ExportError::Encode {
-                what: format!("MP4 {}", path.display()),
-                message: e.to_string(),
-            })?;
+            .map_err(mp4_error(&pending.path))?;
         Ok(VideoFile {
             muxer,
-            temporary,
-            path,
+            pending,
             chunk,
             file,
             frames: 0,
             fps,
         })
+    }
+
+    /// The file's final name.
+    pub fn path(&self) -> &Path {
+        &self.pending.path
     }
 
     /// Appends an episode's frames; returns its (from, to) timestamps in this file.
@@ -311,10 +314,7 @@ impl VideoFile {
             let pts = self.frames as f64 / f64::from(self.fps);
             self.muxer
                 .write_video(pts, &frame.data, frame.keyframe)
-                .map_err(|e| ExportError::Encode {
-                    what: format!("MP4 {}", self.path.display()),
-                    message: e.to_string(),
-                })?;
+                .map_err(mp4_error(&self.pending.path))?;
             self.frames += 1;
         }
         Ok((from, self.frames as f64 / f64::from(self.fps)))
@@ -322,26 +322,19 @@ impl VideoFile {
 
     /// Bytes written so far.
     pub fn bytes(&self) -> u64 {
-        std::fs::metadata(&self.temporary)
-            .map(|m| m.len())
-            .unwrap_or(0)
+        self.pending.bytes_so_far()
     }
 
-    /// Completes the file and gives it its final name.
+    /// Completes the file and gives it its final name; returns its size.
     pub fn finish(self) -> Result<u64, ExportError> {
-        let path = self.path.clone();
-        self.muxer.finish().map_err(|e| ExportError::Encode {
-            what: format!("MP4 {}", path.display()),
-            message: e.to_string(),
-        })?;
-        std::fs::rename(&self.temporary, &path).map_err(ExportError::io(&path))?;
-        Ok(std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0))
+        self.muxer.finish().map_err(mp4_error(&self.pending.path))?;
+        self.pending.commit()
     }
 }
 
-/// The video path of a feature's file.
-pub fn video_path(root: &Path, key: &str, chunk: u64, file: u64) -> PathBuf {
-    root.join(format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4"))
+/// The path of a v3.0 video file relative to the dataset root.
+pub fn video_path(key: &str, chunk: u64, file: u64) -> String {
+    format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4")
 }
 
 #[cfg(test)]

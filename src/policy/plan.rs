@@ -151,9 +151,10 @@ fn default_yaw_tolerance() -> f64 {
 /// A plan that cannot be read or used.
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
-    #[error("{path}: {source}")]
+    #[error("reading {path}")]
     Io {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error("{path}: {message}")]
@@ -168,6 +169,17 @@ pub enum PlanError {
         index: usize,
         frame: FrameName,
     },
+}
+
+impl PlanError {
+    /// A plan that cannot be read or used is the user's to fix (a custom plan folder), except a
+    /// built-in plan the program lacks.
+    pub fn kind(&self) -> crate::error::ErrorKind {
+        match self {
+            PlanError::Missing(_) => crate::error::ErrorKind::Failed,
+            _ => crate::error::ErrorKind::Usage,
+        }
+    }
 }
 
 /// A frame resolved for one instance: origin and, if it has one, the yaw that crosses it.

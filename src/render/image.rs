@@ -7,12 +7,13 @@ use std::io::Write;
 /// Errors while encoding or writing an image.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
-    #[error("writing {path}: {source}")]
+    #[error("writing {path}")]
     Io {
         path: std::path::PathBuf,
+        #[source]
         source: std::io::Error,
     },
-    #[error("encoding PNG: {0}")]
+    #[error("encoding PNG")]
     Png(#[from] png::EncodingError),
     #[error("image is {width}x{height} but has {bytes} bytes for {channels} channels")]
     Size {
@@ -21,6 +22,24 @@ pub enum ImageError {
         channels: u32,
         bytes: usize,
     },
+}
+
+impl ImageError {
+    /// An output path in a missing or forbidden place is the user's to fix.
+    pub fn kind(&self) -> crate::error::ErrorKind {
+        use std::io::ErrorKind as Io;
+        match self {
+            ImageError::Io { source, .. }
+                if matches!(
+                    source.kind(),
+                    Io::NotFound | Io::PermissionDenied | Io::IsADirectory | Io::NotADirectory
+                ) =>
+            {
+                crate::error::ErrorKind::Usage
+            }
+            _ => crate::error::ErrorKind::Failed,
+        }
+    }
 }
 
 /// Encodes 8-bit RGB (3 channels) or grey (1 channel) pixels as PNG.

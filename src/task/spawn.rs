@@ -29,6 +29,17 @@ pub enum InstructionChoice {
     Mixed,
 }
 
+impl InstructionChoice {
+    /// The option's name ("canonical", "paraphrase", "mixed").
+    pub fn name(self) -> &'static str {
+        match self {
+            InstructionChoice::Canonical => "canonical",
+            InstructionChoice::Paraphrase => "paraphrase",
+            InstructionChoice::Mixed => "mixed",
+        }
+    }
+}
+
 /// A closed interval `(low, high)`.
 pub type Range = (f64, f64);
 

@@ -1,6 +1,6 @@
 //! Whole collections: thread-count independence, shards, the report, and resuming a killed run.
 
-use crate::util::{TempRoot, surgvla, temp_root, tree};
+use crate::util::{TempRoot, info, surgvla, temp_root, tree};
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use surgvla::collect::run::{CollectOptions, Shard, Silent, collect};
@@ -28,12 +28,12 @@ fn one_and_two_threads_write_identical_datasets() {
     let mut reports = Vec::new();
     for threads in [1, 2] {
         let root = temp_root("threads");
-        let writer = LeRobotWriter::create(&root, LeRobotOptions::default()).unwrap();
+        let mut writer =
+            LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).unwrap();
         let report = collect(
             &small(&tasks, 2, threads),
             &library,
-            Box::new(writer),
-            0,
+            &mut writer,
             &mut Silent,
         )
         .unwrap();
@@ -68,19 +68,25 @@ type Kept = (u64, u64, String, usize, Vec<[f32; 7]>);
 struct Memory(Arc<Mutex<Vec<Kept>>>);
 
 impl EpisodeSink for Memory {
-    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        let actions = episode.steps.iter().map(|s| s.action).collect();
-        self.0.lock().unwrap().push((
-            episode.meta.index,
-            episode.meta.seed,
-            episode.meta.instruction.clone(),
-            episode.steps.len(),
-            actions,
-        ));
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        for episode in episodes {
+            let actions = episode.steps.iter().map(|s| s.action).collect();
+            self.0.lock().unwrap().push((
+                episode.meta.index,
+                episode.meta.seed,
+                episode.meta.instruction.clone(),
+                episode.steps.len(),
+                actions,
+            ));
+        }
         Ok(())
     }
 
-    fn finish(self: Box<Self>) -> Result<Summary, ExportError> {
+    fn next_episode_index(&self) -> u64 {
+        0
+    }
+
+    fn finish(&mut self) -> Result<Summary, ExportError> {
         Ok(Summary::default())
     }
 }
@@ -94,12 +100,12 @@ fn shards_in_order_hold_exactly_the_unsharded_episodes() {
         TaskId::VesselClipping,
     ];
     let run = |shard: Shard| {
-        let memory = Memory::default();
+        let mut memory = Memory::default();
         let options = CollectOptions {
             shard,
             ..small(&tasks, 2, 2)
         };
-        let report = collect(&options, &library, Box::new(memory.clone()), 0, &mut Silent).unwrap();
+        let report = collect(&options, &library, &mut memory, &mut Silent).unwrap();
         let episodes = memory.0.lock().unwrap().clone();
         (episodes, report)
     };
@@ -271,8 +277,8 @@ fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
     assert!(report.failures[0].reason.contains("from the target"));
 
     let root = temp_root("exhausted");
-    let writer = LeRobotWriter::create(&root, LeRobotOptions::default()).unwrap();
-    let error = collect(&options, &library, Box::new(writer), 0, &mut Silent)
+    let mut writer = LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).unwrap();
+    let error = collect(&options, &library, &mut writer, &mut Silent)
         .expect_err("a slot with no verified episode stops the collection");
     assert!(error.to_string().contains("hemostasis episode"), "{error}");
     assert!(!root.join("meta/info.json").exists());

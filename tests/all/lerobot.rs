@@ -1,11 +1,12 @@
 //! The LeRobot v3.0 writer: round trip through our own reader, metadata, file roll-over, crash
 //! safety and bad input. (The real lerobot loader is exercised by `tests/interop/`.)
 
-use crate::util::temp_root;
+use crate::util::{info, temp_root};
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::episode::Episode;
+use surgvla::export::INCOMPLETE_MARKER;
 use surgvla::export::lerobot::read::{data_files, read_frames, read_parquet, schema_metadata};
-use surgvla::export::lerobot::{INCOMPLETE_MARKER, LeRobotOptions, LeRobotWriter};
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
 use surgvla::export::tiff::decode_f32_tiff;
 use surgvla::export::{EpisodeSink, ExportError};
 use surgvla::policy::ExpertLibrary;
@@ -35,12 +36,23 @@ fn write(
     episodes: &[Episode],
     options: LeRobotOptions,
 ) -> surgvla::export::Summary {
+    write_with(root, &info(false), episodes, options)
+}
+
+fn write_with(
+    root: &std::path::Path,
+    info: &surgvla::export::DatasetInfo,
+    episodes: &[Episode],
+    options: LeRobotOptions,
+) -> surgvla::export::Summary {
     let mut writer: Box<dyn EpisodeSink> =
-        Box::new(LeRobotWriter::create(root, options).expect("create"));
+        Box::new(LeRobotWriter::create(root, info, options).expect("create"));
     for episode in episodes {
         writer.write_episode(episode).expect("write episode");
     }
-    writer.finish().expect("finish")
+    let summary = writer.finish().expect("finish");
+    assert_eq!(writer.finish().expect("finish twice"), summary);
+    summary
 }
 
 fn decode_png(bytes: &[u8]) -> Vec<u8> {
@@ -56,11 +68,7 @@ fn decode_png(bytes: &[u8]) -> Vec<u8> {
 fn frames_round_trip_bit_exact() {
     let root = temp_root("roundtrip");
     let recorded = episodes(3, 7);
-    let options = LeRobotOptions {
-        with_mask: true,
-        ..LeRobotOptions::default()
-    };
-    let summary = write(&root, &recorded, options);
+    let summary = write_with(&root, &info(true), &recorded, LeRobotOptions::default());
     assert_eq!(summary.episodes, 3);
     let keys = [
         "observation.images.endoscope",
@@ -237,7 +245,8 @@ fn data_files_roll_over_by_size() {
 fn an_unfinished_dataset_is_obviously_incomplete() {
     let root = temp_root("crash");
     {
-        let mut writer = LeRobotWriter::create(&root, LeRobotOptions::default()).expect("create");
+        let mut writer =
+            LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).expect("create");
         writer.write_episode(&episodes(1, 3)[0]).expect("write");
         // Dropped without finish: the process "died" here.
     }
@@ -251,7 +260,7 @@ fn an_unfinished_dataset_is_obviously_incomplete() {
         "no data file under its final name"
     );
     // And a new dataset will not be written over it.
-    match LeRobotWriter::create(&root, LeRobotOptions::default()) {
+    match LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()) {
         Err(ExportError::NotEmpty { path }) => assert_eq!(path, *root),
         other => panic!("expected NotEmpty, got {:?}", other.err()),
     }
@@ -260,7 +269,8 @@ fn an_unfinished_dataset_is_obviously_incomplete() {
 #[test]
 fn bad_episodes_are_rejected_with_a_reason() {
     let root = temp_root("bad");
-    let mut writer = LeRobotWriter::create(&root, LeRobotOptions::default()).expect("create");
+    let mut writer =
+        LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).expect("create");
     let mut episode = episodes(1, 3).remove(0);
     episode.steps[1].rgb.truncate(100);
     let error = writer
@@ -281,7 +291,7 @@ fn schema_snapshot_matches_the_features() {
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas/lerobot_features.json");
     let committed: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&path).expect("schema file")).expect("json");
-    let features = surgvla::episode::standard_features(224, 224, true);
+    let features = info(true).features;
     assert_eq!(
         committed,
         surgvla::export::lerobot::features_json(&features)
@@ -406,7 +416,7 @@ fn batched_video_encoding_writes_the_same_bytes_as_one_by_one() {
         .expect("pool");
     pool.install(|| {
         let mut writer: Box<dyn EpisodeSink> =
-            Box::new(LeRobotWriter::create(&batch, options).expect("create"));
+            Box::new(LeRobotWriter::create(&batch, &info(false), options).expect("create"));
         writer.write_batch(&recorded).expect("batch");
         writer.finish().expect("finish");
     });
@@ -438,7 +448,8 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
         let (whole, interrupted) = (temp_root("whole"), temp_root("interrupted"));
         write(&whole, &recorded, options.clone());
         {
-            let mut writer = LeRobotWriter::create(&interrupted, options.clone()).expect("create");
+            let mut writer =
+                LeRobotWriter::create(&interrupted, &info(false), options.clone()).expect("create");
             for episode in &recorded[..2] {
                 writer.write_episode(episode).expect("write");
             }
@@ -450,10 +461,11 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
             .expect("stray");
         }
         assert!(
-            LeRobotWriter::create(&interrupted, options.clone()).is_err(),
+            LeRobotWriter::create(&interrupted, &info(false), options.clone()).is_err(),
             "not silently overwritten"
         );
-        let mut writer = LeRobotWriter::resume(&interrupted, options.clone()).expect("resume");
+        let mut writer =
+            LeRobotWriter::resume(&interrupted, &info(false), options.clone()).expect("resume");
         // Image mode completes a 1 MB data file (and a checkpoint) per episode; in video mode the
         // parquet holds no RGB, so fewer checkpoints: resume from wherever the last one was.
         let next = writer.next_episode_index() as usize;
@@ -464,13 +476,13 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
         for episode in &recorded[next..] {
             writer.write_episode(episode).expect("write");
         }
-        Box::new(writer).finish().expect("finish");
+        writer.finish().expect("finish");
         let (a, b) = (crate::util::tree(&whole), crate::util::tree(&interrupted));
         assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
         for (file, bytes) in &a {
             assert!(b[file] == *bytes, "{file}");
         }
         // A complete dataset cannot be resumed.
-        assert!(LeRobotWriter::resume(&whole, options).is_err());
+        assert!(LeRobotWriter::resume(&whole, &info(false), options).is_err());
     }
 }

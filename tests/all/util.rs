@@ -82,3 +82,16 @@ pub fn surgvla(args: &[&str]) -> (i32, String, String) {
         String::from_utf8_lossy(&output.stderr).into_owned(),
     )
 }
+
+/// The dataset info of a default collection (`with_mask`: plus the mask feature).
+pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
+    let features = surgvla::episode::FeatureSet {
+        mask: with_mask,
+        ..Default::default()
+    };
+    surgvla::collect::run::dataset_info(
+        &surgvla::collect::run::CollectOptions::default(),
+        features,
+        false,
+    )
+}

@@ -1,76 +1,74 @@
-//! The LeRobot v3.0 writer.
+//! The LeRobot format: v3.0 (default) and v2.1, written by [`LeRobotWriter`], read by
+//! [`read::LeRobotSource`].
 //!
-//! Layout (what `lerobot.datasets.LeRobotDataset` 0.6 reads):
+//! Layout (what `lerobot.datasets.LeRobotDataset` 0.6 reads; v2.1 differences in [`layout`]):
 //! ```text
 //! meta/info.json                          written last: its presence marks a complete dataset
 //! meta/stats.json                         min, max, mean, std, count, q01..q99 per feature
 //! meta/tasks.parquet                      task_index, task (pandas-indexed by task)
-//! meta/episodes/chunk-000/file-000.parquet
-//! meta/surgvla.json                       camera intrinsics and pose, mask ids, versions
+//! meta/episodes/chunk-000/file-000.parquet  rows, per-episode stats, surgvla/ provenance
+//! meta/surgvla.json                       camera intrinsics and pose, mask ids, collection
 //! data/chunk-CCC/file-FFF.parquet         frames; one row group per episode, rolled by size
+//! videos/KEY/chunk-CCC/file-FFF.mp4       video mode: the RGB camera, episodes concatenated
 //! ```
 //! Images are embedded: RGB and mask as PNG, depth as float32 TIFF in metres
-//! (`is_depth_map`, `depth_unit: "m"`). Crash safety: files are written under temporary names
-//! and renamed when complete; `.surgvla-incomplete` exists until `finish` succeeds, and
-//! `meta/info.json` (without which LeRobot refuses the folder) is the last file written.
+//! (`is_depth_map`, `depth_unit: "m"`). The folder, its marker, temporary names and checkpoints
+//! belong to [`DatasetDir`]; whenever a data file closes (and the open MP4 with it) the writer's
+//! whole state is checkpointed, and [`LeRobotWriter::resume`] continues from there.
 
+mod layout;
 pub mod read;
 mod table;
+mod work;
 
-pub use table::{DEFAULT_COLUMNS, frame_schema, image_fields};
+pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
 
-use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, standard_features};
-use crate::export::stats::{ImageStats, VectorStats};
-use crate::export::tiff::encode_f32_tiff;
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
+use crate::export::image::PngLevel;
+use crate::export::info::DatasetInfo;
 pub use crate::export::video::Codec;
-use crate::export::video::{EncodedFrame, VideoFile, encode, video_path};
-use crate::export::{
-    EpisodeSink, ExportError, SinkTiming, Summary, temporary_name, write_atomically,
-};
+use crate::export::video::{EncodedFrame, VideoFile};
+use crate::export::{EpisodeSink, ExportError, SinkTiming, Summary};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
 use serde_json::{Value, json};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::fs::File;
-use std::path::{Path, PathBuf};
-use table::{EncodedImages, EpisodeRow, VideoSpan, episodes_batch, frame_batch, tasks_batch};
+use std::path::Path;
+use table::{EpisodeRow, VideoSpan, frame_batch};
+use work::{EpisodeStats, EpisodeWork, fresh_stats};
 
-/// Name of the marker that exists while a dataset is being written.
-pub const INCOMPLETE_MARKER: &str = ".surgvla-incomplete";
 /// The codebase version written to info.json.
 pub const CODEBASE_VERSION: &str = "v3.0";
 
-/// PNG compression for embedded images.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PngLevel {
-    Fast,
-    Default,
-    Best,
-}
-
-/// Options of the LeRobot writer.
+/// Options of the LeRobot format (what the dataset holds is its [`DatasetInfo`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LeRobotOptions {
-    pub fps: u32,
-    pub robot_type: String,
-    pub height_px: usize,
-    pub width_px: usize,
-    /// Also store the segmentation mask as an image feature.
-    pub with_mask: bool,
     /// A new data file starts once the current one reaches this size.
     pub data_file_size_mb: u64,
     /// Files per chunk folder.
     pub chunks_size: u64,
     pub png: PngLevel,
-    /// Written to meta/surgvla.json (camera, mask ids, versions).
-    pub extra_metadata: Value,
-    /// Store the RGB camera as H.264 MP4 (video mode) instead of PNG in the parquet.
+    /// Store the RGB camera as MP4 (video mode) instead of PNG in the parquet.
     pub video: Option<VideoOptions>,
     /// The on-disk layout.
     pub version: LeRobotVersion,
+}
+
+impl Default for LeRobotOptions {
+    fn default() -> Self {
+        LeRobotOptions {
+            data_file_size_mb: 100,
+            chunks_size: 1000,
+            png: PngLevel::Fast,
+            video: None,
+            version: LeRobotVersion::V30,
+        }
+    }
 }
 
 /// The LeRobot layout to write.
@@ -114,187 +112,130 @@ impl Default for VideoOptions {
     }
 }
 
-impl Default for LeRobotOptions {
-    fn default() -> Self {
-        LeRobotOptions {
-            fps: 5,
-            robot_type: "dvrk_psm".into(),
-            height_px: 224,
-            width_px: 224,
-            with_mask: false,
-            data_file_size_mb: 100,
-            chunks_size: 1000,
-            png: PngLevel::Fast,
-            extra_metadata: Value::Null,
-            video: None,
-            version: LeRobotVersion::V30,
-        }
-    }
-}
-
-/// Statistics of one feature (or default column).
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-enum FeatureStats {
-    Vector(VectorStats),
-    Image(ImageStats),
-}
-
-impl FeatureStats {
-    fn for_feature(feature: &FeatureSpec) -> Self {
-        match feature.kind {
-            FeatureKind::Rgb => FeatureStats::Image(ImageStats::unit_scaled(3)),
-            FeatureKind::Mask => FeatureStats::Image(ImageStats::unit_scaled(1)),
-            FeatureKind::Depth => FeatureStats::Image(ImageStats::depth()),
-            _ => FeatureStats::Vector(VectorStats::new(feature.shape[0])),
-        }
-    }
-
-    fn to_json(&self) -> Value {
-        match self {
-            FeatureStats::Vector(s) => s.to_json(),
-            FeatureStats::Image(s) => s.to_json(),
-        }
-    }
-}
-
 /// The data file being written.
 struct OpenFile {
     writer: ArrowWriter<File>,
     chunk: u64,
     file: u64,
-    temporary: PathBuf,
-    path: PathBuf,
+    pending: PendingFile,
 }
 
-/// Streams episodes into a LeRobot v3.0 dataset.
-pub struct LeRobotWriter {
-    root: PathBuf,
-    options: LeRobotOptions,
-    features: Vec<FeatureSpec>,
-    /// The features stored in the parquet (all but video ones).
-    parquet_features: Vec<FeatureSpec>,
-    schema: std::sync::Arc<arrow_schema::Schema>,
-    video: Option<VideoFile>,
-    next_video_file: u64,
-    open: Option<OpenFile>,
-    next_file: u64,
-    tasks: Vec<String>,
-    task_lookup: HashMap<String, u64>,
-    episodes: Vec<EpisodeRow>,
-    total_frames: u64,
-    stats: Vec<(String, FeatureStats)>,
-    summary: Summary,
+/// The writer's state: everything a checkpoint records. It is saved at moments when every data
+/// and video file written so far is complete.
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
+struct State {
     /// Completed data and video files, relative to the root.
     finalized: Vec<String>,
+    data_files: FileCounter,
+    video_files: FileCounter,
+    tasks: Vec<String>,
+    episodes: Vec<EpisodeRow>,
+    total_frames: u64,
+    stats: EpisodeStats,
+    summary: Summary,
+}
+
+/// Streams episodes into a LeRobot dataset.
+pub struct LeRobotWriter {
+    dir: DatasetDir,
+    info: DatasetInfo,
+    options: LeRobotOptions,
+    /// The features stored in the parquet (all but the video one).
+    parquet_features: Vec<FeatureSpec>,
+    schema: std::sync::Arc<arrow_schema::Schema>,
+    open: Option<OpenFile>,
+    video: Option<VideoFile>,
+    state: State,
+    task_lookup: HashMap<String, u64>,
     timing: SinkTiming,
-}
-
-fn png_bytes(
-    width: usize,
-    height: usize,
-    colour: png::ColorType,
-    pixels: &[u8],
-    level: PngLevel,
-) -> Result<Vec<u8>, ExportError> {
-    let mut out = Vec::with_capacity(pixels.len() / 2);
-    let mut encoder = png::Encoder::new(&mut out, width as u32, height as u32);
-    encoder.set_color(colour);
-    encoder.set_depth(png::BitDepth::Eight);
-    encoder.set_compression(match level {
-        PngLevel::Fast => png::Compression::Fast,
-        PngLevel::Default => png::Compression::Balanced,
-        PngLevel::Best => png::Compression::High,
-    });
-    let encode_error = |e: png::EncodingError| ExportError::Encode {
-        what: "PNG".into(),
-        message: e.to_string(),
-    };
-    let mut writer = encoder.write_header().map_err(encode_error)?;
-    writer.write_image_data(pixels).map_err(encode_error)?;
-    writer.finish().map_err(encode_error)?;
-    Ok(out)
-}
-
-fn default_stats() -> Vec<(String, FeatureStats)> {
-    DEFAULT_COLUMNS
-        .iter()
-        .map(|name| (name.to_string(), FeatureStats::Vector(VectorStats::new(1))))
-        .collect()
-}
-
-fn write_parquet(path: &Path, batch: &arrow_array::RecordBatch) -> Result<u64, ExportError> {
-    if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
-    }
-    let temporary = temporary_name(path);
-    let file = File::create(&temporary).map_err(ExportError::io(&temporary))?;
-    let parquet_error = |source| ExportError::Parquet {
-        path: path.to_path_buf(),
-        source,
-    };
-    let props = WriterProperties::builder()
-        .set_compression(Compression::SNAPPY)
-        .build();
-    let mut writer =
-        ArrowWriter::try_new(file, batch.schema(), Some(props)).map_err(parquet_error)?;
-    writer.write(batch).map_err(parquet_error)?;
-    writer.close().map_err(parquet_error)?;
-    std::fs::rename(&temporary, path).map_err(ExportError::io(path))?;
-    Ok(std::fs::metadata(path).map(|m| m.len()).unwrap_or(0))
+    /// Set by the first successful `finish`.
+    finished: Option<Summary>,
 }
 
 impl LeRobotWriter {
-    /// Starts a dataset in `root`, which must not exist or be empty.
-    pub fn create(root: &Path, options: LeRobotOptions) -> Result<Self, ExportError> {
-        if root.exists() {
-            let mut entries = std::fs::read_dir(root).map_err(ExportError::io(root))?;
-            if entries.next().is_some() {
-                return Err(ExportError::NotEmpty {
-                    path: root.to_path_buf(),
-                });
-            }
-        }
-        std::fs::create_dir_all(root).map_err(ExportError::io(root))?;
-        let marker = root.join(INCOMPLETE_MARKER);
-        std::fs::write(
-            &marker,
-            b"surgvla is writing this dataset; it is not complete\n",
-        )
-        .map_err(ExportError::io(&marker))?;
-        Ok(LeRobotWriter::fresh(root, options))
+    /// Starts a dataset of `info` in `root`, which must not exist or be empty.
+    pub fn create(
+        root: &Path,
+        info: &DatasetInfo,
+        options: LeRobotOptions,
+    ) -> Result<Self, ExportError> {
+        LeRobotWriter::check(info, &options)?;
+        Ok(LeRobotWriter::fresh(
+            DatasetDir::create(root)?,
+            info,
+            options,
+        ))
     }
 
-    /// A writer with empty state (no file-system checks).
-    fn fresh(root: &Path, options: LeRobotOptions) -> Self {
-        let features = standard_features(options.height_px, options.width_px, options.with_mask);
-        let parquet_features: Vec<FeatureSpec> = features
+    /// Continues an interrupted dataset in `root` (one with the incomplete marker): restores
+    /// the state of the last checkpoint and deletes whatever was written after it; the next
+    /// episode to write is [`EpisodeSink::next_episode_index`]. With the same info, options and
+    /// episodes, the finished dataset is byte-identical to an uninterrupted run.
+    pub fn resume(
+        root: &Path,
+        info: &DatasetInfo,
+        options: LeRobotOptions,
+    ) -> Result<Self, ExportError> {
+        LeRobotWriter::check(info, &options)?;
+        let dir = DatasetDir::resume(root)?;
+        let checkpoint: Option<State> = dir.load_checkpoint()?;
+        let keep: HashSet<String> = checkpoint
+            .as_ref()
+            .map(|c| c.finalized.iter().cloned().collect())
+            .unwrap_or_default();
+        dir.remove_files_except(&["data", "videos"], &keep)?;
+        let mut writer = LeRobotWriter::fresh(dir, info, options);
+        if let Some(state) = checkpoint {
+            writer.task_lookup = state
+                .tasks
+                .iter()
+                .enumerate()
+                .map(|(i, t)| (t.clone(), i as u64))
+                .collect();
+            writer.state = state;
+        }
+        Ok(writer)
+    }
+
+    fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<(), ExportError> {
+        if options.video.is_some() && !info.has(FeatureKind::Rgb) {
+            return Err(ExportError::InvalidEpisode(
+                "video mode needs an RGB camera feature".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// A writer with empty state.
+    fn fresh(dir: DatasetDir, info: &DatasetInfo, options: LeRobotOptions) -> Self {
+        let parquet_features: Vec<FeatureSpec> = info
+            .features
             .iter()
             .filter(|f| !(options.video.is_some() && f.kind == FeatureKind::Rgb))
             .cloned()
             .collect();
-        let mut stats: Vec<(String, FeatureStats)> = features
-            .iter()
-            .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
-            .collect();
-        stats.extend(default_stats());
+        let counter = FileCounter::new(options.chunks_size);
         LeRobotWriter {
-            root: root.to_path_buf(),
-            finalized: Vec::new(),
+            dir,
             schema: frame_schema(&parquet_features),
             parquet_features,
-            video: None,
-            next_video_file: 0,
-            features,
-            options,
             open: None,
-            next_file: 0,
-            tasks: Vec::new(),
+            video: None,
+            state: State {
+                finalized: Vec::new(),
+                data_files: counter,
+                video_files: counter,
+                tasks: Vec::new(),
+                episodes: Vec::new(),
+                total_frames: 0,
+                stats: fresh_stats(&info.features),
+                summary: Summary::default(),
+            },
+            info: info.clone(),
+            options,
             task_lookup: HashMap::new(),
-            episodes: Vec::new(),
-            total_frames: 0,
-            stats,
-            summary: Summary::default(),
             timing: SinkTiming::default(),
+            finished: None,
         }
     }
 
@@ -319,46 +260,20 @@ impl LeRobotWriter {
         builder.build()
     }
 
-    /// (chunk, file) of the next data or video file: v3.0 numbers files by `counter`, `chunks_size`
-    /// to a chunk; v2.1 has one file per episode, numbered by the episode index.
-    fn next_location(&self, counter: u64) -> (u64, u64) {
-        let chunks = self.options.chunks_size.max(1);
-        match self.options.version {
-            LeRobotVersion::V30 => (counter / chunks, counter % chunks),
-            LeRobotVersion::V21 => {
-                let episode = self.episodes.len() as u64;
-                (episode / chunks, episode)
-            }
-        }
-    }
-
     fn open_file(&mut self) -> Result<&mut OpenFile, ExportError> {
         if self.open.is_none() {
-            let (chunk, file) = self.next_location(self.next_file);
-            let path = self.root.join(match self.options.version {
-                LeRobotVersion::V30 => format!("data/chunk-{chunk:03}/file-{file:03}.parquet"),
-                LeRobotVersion::V21 => format!("data/chunk-{chunk:03}/episode_{file:06}.parquet"),
-            });
-            self.next_file += 1;
-            let folder = path
-                .parent()
-                .map(Path::to_path_buf)
-                .unwrap_or_else(|| self.root.clone());
-            std::fs::create_dir_all(&folder).map_err(ExportError::io(&folder))?;
-            let temporary = temporary_name(&path);
-            let handle = File::create(&temporary).map_err(ExportError::io(&temporary))?;
+            let episode = self.state.episodes.len() as u64;
+            let version = self.options.version;
+            let (chunk, file) = version.next_location(&mut self.state.data_files, episode);
+            let (handle, pending) = self.dir.create_file(&version.data_path(chunk, file))?;
             let writer =
                 ArrowWriter::try_new(handle, self.schema.clone(), Some(self.writer_properties()))
-                    .map_err(|source| ExportError::Parquet {
-                    path: path.clone(),
-                    source,
-                })?;
+                    .map_err(ExportError::parquet(&pending.path))?;
             self.open = Some(OpenFile {
                 writer,
                 chunk,
                 file,
-                temporary,
-                path,
+                pending,
             });
         }
         self.open
@@ -368,45 +283,50 @@ impl LeRobotWriter {
 
     fn close_file(&mut self) -> Result<(), ExportError> {
         if let Some(open) = self.open.take() {
-            let path = open.path.clone();
-            open.writer.close().map_err(|source| ExportError::Parquet {
-                path: path.clone(),
-                source,
-            })?;
-            std::fs::rename(&open.temporary, &path).map_err(ExportError::io(&path))?;
-            self.finalized.push(self.relative(&path));
-            self.summary.files += 1;
-            self.summary.bytes += std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+            let path = open.pending.path.clone();
+            open.writer.close().map_err(ExportError::parquet(&path))?;
+            let bytes = open.pending.commit()?;
+            self.state.finalized.push(self.dir.relative(&path));
+            self.state.summary.files += 1;
+            self.state.summary.bytes += bytes;
         }
         Ok(())
     }
 
+    /// The video feature's key, in video mode.
+    fn video_key(&self) -> Option<&str> {
+        self.options.video.and(self.info.rgb_key())
+    }
+
+    /// info.json as v3.0 has it.
     fn info_json(&self) -> Value {
-        let mut features = features_json(&self.features);
-        if self.options.video.is_some() {
-            features[RGB_KEY]["dtype"] = json!("video");
-            features[RGB_KEY]["info"] = json!({
-                "video.height": self.options.height_px,
-                "video.width": self.options.width_px,
-                "video.codec": self.options.video.map_or("h264", |v| v.codec.name()),
+        let mut features = features_json(&self.info.features);
+        let (width, height) = self.info.image_size();
+        if let (Some(video), Some(key)) = (self.options.video, self.video_key()) {
+            features[key]["dtype"] = json!("video");
+            features[key]["info"] = json!({
+                "video.height": height,
+                "video.width": width,
+                "video.codec": video.codec.name(),
                 "video.pix_fmt": "yuv420p",
                 "video.is_depth_map": false,
-                "video.fps": self.options.fps,
+                "video.fps": self.info.fps,
                 "video.channels": 3,
                 "has_audio": false,
             });
         }
+        let episodes = self.state.episodes.len();
         json!({
             "codebase_version": CODEBASE_VERSION,
-            "robot_type": self.options.robot_type,
-            "total_episodes": self.episodes.len(),
-            "total_frames": self.total_frames,
-            "total_tasks": self.tasks.len(),
+            "robot_type": self.info.robot_type,
+            "total_episodes": episodes,
+            "total_frames": self.state.total_frames,
+            "total_tasks": self.state.tasks.len(),
             "chunks_size": self.options.chunks_size,
             "data_files_size_in_mb": self.options.data_file_size_mb,
             "video_files_size_in_mb": self.options.video.map_or(VideoOptions::default().file_size_mb, |v| v.file_size_mb),
-            "fps": self.options.fps,
-            "splits": {"train": format!("0:{}", self.episodes.len())},
+            "fps": self.info.fps,
+            "splits": {"train": format!("0:{episodes}")},
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
             "video_path": if self.options.video.is_some() {
                 json!("videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4")
@@ -417,37 +337,29 @@ impl LeRobotWriter {
         })
     }
 
-    /// Appends an episode's encoded frames to the open video file (opening or rolling files);
-    /// returns (chunk, file, from_timestamp, to_timestamp).
+    /// Appends an episode's encoded frames to the open video file (opening or rolling files).
     fn append_video(&mut self, frames: &[EncodedFrame]) -> Result<VideoSpan, ExportError> {
+        let version = self.options.version;
         let limit = self.options.video.map_or(200, |v| v.file_size_mb) * 1024 * 1024;
-        let v21 = self.options.version == LeRobotVersion::V21;
         if self
             .video
             .as_ref()
-            .is_some_and(|v| v21 || v.bytes() >= limit)
+            .is_some_and(|v| version.file_is_full(v.bytes(), limit))
         {
             self.close_video()?;
         }
         if self.video.is_none() {
-            let (chunk, file) = self.next_location(self.next_video_file);
-            let path = if v21 {
-                self.root.join(format!(
-                    "videos/chunk-{chunk:03}/{RGB_KEY}/episode_{file:06}.mp4"
-                ))
-            } else {
-                video_path(&self.root, RGB_KEY, chunk, file)
-            };
-            self.next_video_file += 1;
+            let key = self.video_key().unwrap_or_default().to_string();
+            let episode = self.state.episodes.len() as u64;
+            let location = version.next_location(&mut self.state.video_files, episode);
+            let relative = version.video_path(&key, location.0, location.1);
             let codec = self.options.video.map_or(Codec::Av1, |v| v.codec);
             self.video = Some(VideoFile::create(
-                path,
+                self.dir.create_file(&relative)?,
                 codec,
-                chunk,
-                file,
-                self.options.width_px,
-                self.options.height_px,
-                self.options.fps,
+                location,
+                self.info.image_size(),
+                self.info.fps,
             )?);
         }
         let video = self
@@ -465,211 +377,159 @@ impl LeRobotWriter {
 
     fn close_video(&mut self) -> Result<(), ExportError> {
         if let Some(video) = self.video.take() {
-            let relative = self.relative(&video.path);
-            self.summary.bytes += video.finish()?;
-            self.finalized.push(relative);
-            self.summary.files += 1;
+            let relative = self.dir.relative(video.path());
+            self.state.summary.bytes += video.finish()?;
+            self.state.finalized.push(relative);
+            self.state.summary.files += 1;
         }
         Ok(())
     }
-}
 
-impl LeRobotWriter {
-    /// The v2.1 metadata: info.json, episodes.jsonl, tasks.jsonl, episodes_stats.jsonl and
-    /// stats.json; info.json last.
-    fn finish_v21(mut self: Box<Self>) -> Result<Summary, ExportError> {
-        let meta = self.root.join("meta");
-        let lines =
-            |values: Vec<Value>| -> String { values.iter().map(|v| format!("{v}\n")).collect() };
-        let episodes = lines(self.episodes.iter().map(|e| json!({"episode_index": e.episode_index, "tasks": [e.task], "length": e.length})).collect());
-        let tasks = lines(
-            self.tasks
-                .iter()
-                .enumerate()
-                .map(|(i, t)| json!({"task_index": i, "task": t}))
-                .collect(),
+    fn task_index(&mut self, instruction: &str) -> u64 {
+        if let Some(i) = self.task_lookup.get(instruction) {
+            return *i;
+        }
+        let i = self.state.tasks.len() as u64;
+        self.state.tasks.push(instruction.to_string());
+        self.task_lookup.insert(instruction.to_string(), i);
+        i
+    }
+
+    /// Writes one episode; `video` holds its already encoded frames when the caller encoded them.
+    fn write_with_video(
+        &mut self,
+        episode: &Episode,
+        video: Option<Option<Vec<EncodedFrame>>>,
+    ) -> Result<(), ExportError> {
+        if self.finished.is_some() {
+            return Err(ExportError::Internal(
+                "an episode arrived after the dataset was finished".into(),
+            ));
+        }
+        let (width, height) = self.info.image_size();
+        episode
+            .validate(width, height, &self.info.features)
+            .map_err(ExportError::InvalidEpisode)?;
+        let expected = self.state.episodes.len() as u64;
+        if episode.meta.index != expected {
+            return Err(ExportError::InvalidEpisode(format!(
+                "episode index {} arrived where {expected} was expected (episodes must come in order)",
+                episode.meta.index
+            )));
+        }
+        let task_index = self.task_index(&episode.meta.instruction);
+        let first_index = self.state.total_frames;
+        let encode_started = std::time::Instant::now();
+        let work = EpisodeWork {
+            info: &self.info,
+            parquet_features: &self.parquet_features,
+            options: &self.options,
+        };
+        let ((images, video_frames), episode_stats) = rayon::join(
+            || {
+                rayon::join(
+                    || work.encode_images(episode),
+                    || match video {
+                        Some(encoded) => Ok(encoded),
+                        None => work.encode_video(episode),
+                    },
+                )
+            },
+            || work.episode_stats(episode, task_index, first_index),
         );
-        let episode_stats = lines(
-            self.episodes
-                .iter()
-                .map(|e| json!({"episode_index": e.episode_index, "stats": e.stats}))
-                .collect(),
-        );
+        let images = images?;
+        let write_started = std::time::Instant::now();
+        self.timing.encode_secs += (write_started - encode_started).as_secs_f64();
+        let video_span = match video_frames? {
+            Some(frames) => Some(self.append_video(&frames)?),
+            None => None,
+        };
+        let batch = frame_batch(
+            &self.schema,
+            &self.parquet_features,
+            episode,
+            &images,
+            first_index,
+            task_index,
+            self.info.fps,
+        )?;
+        let limit = self.options.data_file_size_mb * 1024 * 1024;
+        let version = self.options.version;
+        let open = self.open_file()?;
+        let (chunk, file, path) = (open.chunk, open.file, open.pending.path.clone());
+        let parquet_error = ExportError::parquet(&path);
+        open.writer.write(&batch).map_err(&parquet_error)?;
+        open.writer.flush().map_err(&parquet_error)?;
+        let full = version.file_is_full(open.writer.bytes_written() as u64, limit);
+
+        let mut stats_json = serde_json::Map::new();
+        for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
+            stats_json.insert(name.clone(), this.to_json());
+            total.merge(&this);
+        }
+        let length = episode.steps.len() as u64;
+        let meta = &episode.meta;
+        self.state.episodes.push(EpisodeRow {
+            episode_index: meta.index,
+            task: meta.instruction.clone(),
+            length,
+            data_chunk: chunk,
+            data_file: file,
+            from_index: first_index,
+            to_index: first_index + length,
+            stats: Value::Object(stats_json),
+            video: video_span,
+            provenance: Provenance {
+                seed: meta.seed,
+                task_id: meta.task_code.clone(),
+                level: meta.level,
+                attempts: meta.attempts,
+                success: meta.success,
+            },
+        });
+        self.state.total_frames += length;
+        self.state.summary.episodes += 1;
+        self.state.summary.frames += length;
+        if full {
+            // Close the video file at the same moment, so that everything written so far is
+            // complete, and record the state.
+            self.close_file()?;
+            self.close_video()?;
+            if version.checkpoint_due(self.state.episodes.len()) {
+                self.dir.save_checkpoint(&self.state)?;
+            }
+        }
+        self.timing.write_secs += write_started.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn finish_dataset(&mut self) -> Result<Summary, ExportError> {
+        self.close_file()?;
+        self.close_video()?;
         let stats: serde_json::Map<String, Value> = self
+            .state
             .stats
             .iter()
             .map(|(name, s)| (name.clone(), s.to_json()))
             .collect();
-        let stats = serde_json::to_string_pretty(&Value::Object(stats))
-            .map_err(|e| ExportError::Internal(e.to_string()))?;
-        let extra = serde_json::to_string_pretty(&self.options.extra_metadata)
-            .map_err(|e| ExportError::Internal(e.to_string()))?;
-        let mut info = self.info_json();
-        let chunks = (self.episodes.len() as u64).div_ceil(self.options.chunks_size.max(1));
-        info["codebase_version"] = json!("v2.1");
-        info["total_chunks"] = json!(chunks);
-        info["total_videos"] = json!(if self.options.video.is_some() {
-            self.episodes.len()
-        } else {
-            0
-        });
-        info["data_path"] =
-            json!("data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet");
-        if self.options.video.is_some() {
-            info["video_path"] = json!(
-                "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
-            );
-        }
-        if let Some(object) = info.as_object_mut() {
-            object.remove("data_files_size_in_mb");
-            object.remove("video_files_size_in_mb");
-        }
-        let info = serde_json::to_string_pretty(&info)
-            .map_err(|e| ExportError::Internal(e.to_string()))?;
-        for (name, text) in [
-            ("episodes.jsonl", &episodes),
-            ("tasks.jsonl", &tasks),
-            ("episodes_stats.jsonl", &episode_stats),
-            ("stats.json", &stats),
-            ("surgvla.json", &extra),
-            ("info.json", &info),
-        ] {
-            write_atomically(&meta.join(name), text.as_bytes())?;
-            self.summary.files += 1;
-            self.summary.bytes += text.len() as u64;
-        }
-        let checkpoint = self.root.join(CHECKPOINT);
-        if checkpoint.exists() {
-            std::fs::remove_file(&checkpoint).map_err(ExportError::io(&checkpoint))?;
-        }
-        let marker = self.root.join(INCOMPLETE_MARKER);
-        std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
-        Ok(self.summary.clone())
-    }
-}
-
-/// Name of the checkpoint written whenever every file so far is complete.
-pub const CHECKPOINT: &str = "meta/.surgvla-checkpoint.json";
-
-/// The writer's state at a moment when every data and video file it wrote is complete.
-#[derive(serde::Serialize, serde::Deserialize)]
-struct Checkpoint {
-    finalized: Vec<String>,
-    next_file: u64,
-    next_video_file: u64,
-    tasks: Vec<String>,
-    episodes: Vec<EpisodeRow>,
-    total_frames: u64,
-    stats: Vec<(String, FeatureStats)>,
-    summary: Summary,
-}
-
-impl LeRobotWriter {
-    /// Records the state after all open files were closed (see [`LeRobotWriter::resume`]).
-    fn checkpoint(&self) -> Result<(), ExportError> {
-        let checkpoint = Checkpoint {
-            finalized: self.finalized.clone(),
-            next_file: self.next_file,
-            next_video_file: self.next_video_file,
-            tasks: self.tasks.clone(),
-            episodes: self.episodes.clone(),
-            total_frames: self.total_frames,
-            stats: self.stats.clone(),
-            summary: self.summary.clone(),
+        let metadata = layout::Metadata {
+            tasks: &self.state.tasks,
+            episodes: &self.state.episodes,
+            stats: Value::Object(stats),
+            surgvla: self.info.surgvla_json(),
+            info: self.info_json(),
+            chunks_size: self.options.chunks_size,
+            video_key: self.video_key(),
         };
-        let text =
-            serde_json::to_vec(&checkpoint).map_err(|e| ExportError::Internal(e.to_string()))?;
-        write_atomically(&self.root.join(CHECKPOINT), &text)
-    }
-
-    /// Continues an interrupted dataset in `root` (one with the incomplete marker): restores the
-    /// state of the last checkpoint, deletes whatever was written after it, and returns the
-    /// writer; the next episode to write is [`LeRobotWriter::next_episode_index`]. With the same
-    /// options and episodes, the finished dataset is byte-identical to an uninterrupted run.
-    pub fn resume(root: &Path, options: LeRobotOptions) -> Result<Self, ExportError> {
-        if !root.join(INCOMPLETE_MARKER).exists() {
-            return Err(ExportError::NotResumable {
-                path: root.to_path_buf(),
-                reason: "it is not an interrupted surgvla dataset (no .surgvla-incomplete marker)"
-                    .into(),
-            });
+        let mut summary = self.state.summary.clone();
+        for (relative, bytes) in self.options.version.metadata_files(&metadata)? {
+            summary.bytes += self.dir.write_atomically(&relative, &bytes)?;
+            summary.files += 1;
         }
-        let checkpoint_path = root.join(CHECKPOINT);
-        let checkpoint: Option<Checkpoint> = match std::fs::read(&checkpoint_path) {
-            Ok(bytes) => {
-                Some(
-                    serde_json::from_slice(&bytes).map_err(|e| ExportError::NotResumable {
-                        path: checkpoint_path.clone(),
-                        reason: format!("unreadable checkpoint: {e}"),
-                    })?,
-                )
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-            Err(e) => {
-                return Err(ExportError::Io {
-                    path: checkpoint_path,
-                    source: e,
-                });
-            }
-        };
-        // Every data or video file the checkpoint does not list was written after it: it goes.
-        let keep: std::collections::HashSet<String> = checkpoint
-            .as_ref()
-            .map(|c| c.finalized.iter().cloned().collect())
-            .unwrap_or_default();
-        let mut writer = LeRobotWriter::fresh(root, options);
-        for folder in ["data", "videos"] {
-            let mut pending = vec![root.join(folder)];
-            while let Some(dir) = pending.pop() {
-                let Ok(entries) = std::fs::read_dir(&dir) else {
-                    continue;
-                };
-                for entry in entries {
-                    let path = entry.map_err(ExportError::io(&dir))?.path();
-                    if path.is_dir() {
-                        pending.push(path);
-                    } else if !keep.contains(&writer.relative(&path)) {
-                        std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
-                    }
-                }
-            }
-        }
-        if let Some(checkpoint) = checkpoint {
-            writer.finalized = checkpoint.finalized;
-            writer.next_file = checkpoint.next_file;
-            writer.next_video_file = checkpoint.next_video_file;
-            writer.task_lookup = checkpoint
-                .tasks
-                .iter()
-                .enumerate()
-                .map(|(i, t)| (t.clone(), i as u64))
-                .collect();
-            writer.tasks = checkpoint.tasks;
-            writer.episodes = checkpoint.episodes;
-            writer.total_frames = checkpoint.total_frames;
-            writer.stats = checkpoint.stats;
-            writer.summary = checkpoint.summary;
-        } else {
-            writer.next_file = 0;
-        }
-        Ok(writer)
-    }
-
-    fn relative(&self, path: &Path) -> String {
-        path.strip_prefix(&self.root)
-            .unwrap_or(path)
-            .to_string_lossy()
-            .into_owned()
-    }
-
-    /// Index of the next episode this writer expects.
-    pub fn next_episode_index(&self) -> u64 {
-        self.episodes.len() as u64
+        self.dir.complete()?;
+        Ok(summary)
     }
 }
-
-/// The key of the RGB camera.
-pub const RGB_KEY: &str = "observation.images.endoscope";
 
 /// The `features` object of info.json for these features (defaults appended): what
 /// `schemas/lerobot_features.json` records.
@@ -699,142 +559,18 @@ pub fn features_json(feature_specs: &[FeatureSpec]) -> Value {
     Value::Object(features)
 }
 
-/// The per-episode work that needs only the features and options (so it can run on threads
-/// while the writer holds its non-shareable parquet state).
-struct EpisodeWork<'a> {
-    features: &'a [FeatureSpec],
-    options: &'a LeRobotOptions,
-}
-
-impl EpisodeWork<'_> {
-    /// The RGB frames as H.264 (video mode only).
-    fn encode_video(&self, episode: &Episode) -> Result<Option<Vec<EncodedFrame>>, ExportError> {
-        let Some(video) = self.options.video else {
-            return Ok(None);
-        };
-        let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
-        encode(
-            video.codec,
-            &frames,
-            self.options.width_px,
-            self.options.height_px,
-            self.options.fps,
-            video.quality,
-        )
-        .map(Some)
-    }
-
-    /// Encodes every image of an episode (frames in parallel, order kept).
-    fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
-        let (w, h, level) = (
-            self.options.width_px,
-            self.options.height_px,
-            self.options.png,
-        );
-        let mut images = EncodedImages::new();
-        for feature in self.features.iter().filter(|f| f.dtype == Dtype::Image) {
-            let kind = feature.kind;
-            let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
-                .steps
-                .par_iter()
-                .map(|step| match kind {
-                    FeatureKind::Rgb => png_bytes(w, h, png::ColorType::Rgb, &step.rgb, level),
-                    FeatureKind::Mask => {
-                        png_bytes(w, h, png::ColorType::Grayscale, &step.mask, level)
-                    }
-                    _ => Ok(encode_f32_tiff(w as u32, h as u32, &step.depth_m)),
-                })
-                .collect();
-            images.insert(feature.name.clone(), encoded?);
-        }
-        Ok(images)
-    }
-
-    /// Statistics of one episode: frames in parallel, folded in frame order (so the result does
-    /// not depend on the thread count).
-    fn episode_stats(
-        &self,
-        episode: &Episode,
-        task_index: u64,
-        first_index: u64,
-    ) -> Vec<(String, FeatureStats)> {
-        let fresh = || -> Vec<(String, FeatureStats)> {
-            let mut stats: Vec<(String, FeatureStats)> = self
-                .features
-                .iter()
-                .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
-                .collect();
-            stats.extend(default_stats());
-            stats
-        };
-        let kinds: Vec<Option<FeatureKind>> = self.features.iter().map(|f| Some(f.kind)).collect();
-        let fps = f64::from(self.options.fps);
-        let episode_index = episode.meta.index as f64;
-        let per_frame: Vec<Vec<(String, FeatureStats)>> = episode
-            .steps
-            .par_iter()
-            .enumerate()
-            .map(|(i, step)| {
-                let mut stats = fresh();
-                let defaults = [
-                    i as f64 / fps,
-                    i as f64,
-                    episode_index,
-                    (first_index + i as u64) as f64,
-                    task_index as f64,
-                ];
-                let mut default_values = defaults.iter();
-                for (kind, (_, s)) in kinds
-                    .iter()
-                    .copied()
-                    .chain(std::iter::repeat(None))
-                    .zip(stats.iter_mut())
-                {
-                    match (kind, s) {
-                        (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => s.push_u8(&step.rgb),
-                        (Some(FeatureKind::Mask), FeatureStats::Image(s)) => s.push_u8(&step.mask),
-                        (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
-                            s.push_depth(&step.depth_m)
-                        }
-                        (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
-                        (Some(FeatureKind::Action), FeatureStats::Vector(s)) => {
-                            s.push(&step.action)
-                        }
-                        (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
-                            s.push(&step.environment_state)
-                        }
-                        (None, FeatureStats::Vector(s)) => {
-                            s.push(&[default_values.next().copied().unwrap_or(0.0) as f32])
-                        }
-                        _ => {}
-                    }
-                }
-                stats
-            })
-            .collect();
-        let mut total = fresh();
-        for frame in per_frame {
-            for ((_, t), (_, f)) in total.iter_mut().zip(frame) {
-                merge(t, f);
-            }
-        }
-        total
-    }
-}
-
 impl EpisodeSink for LeRobotWriter {
-    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        self.write_with_video(episode, None)
-    }
-
     /// Video encoders run one per episode: a batch encodes its episodes' videos in parallel
     /// first, then writes the episodes in order.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
         if self.options.video.is_none() || episodes.len() < 2 {
-            return episodes.iter().try_for_each(|e| self.write_episode(e));
+            return episodes
+                .iter()
+                .try_for_each(|e| self.write_with_video(e, None));
         }
         let work = EpisodeWork {
-            features: &self.features,
+            info: &self.info,
+            parquet_features: &self.parquet_features,
             options: &self.options,
         };
         let videos: Vec<Result<Option<Vec<EncodedFrame>>, ExportError>> =
@@ -845,180 +581,20 @@ impl EpisodeSink for LeRobotWriter {
         Ok(())
     }
 
+    fn next_episode_index(&self) -> u64 {
+        self.state.episodes.len() as u64
+    }
+
     fn timing(&self) -> SinkTiming {
         self.timing
     }
 
-    fn finish(self: Box<Self>) -> Result<Summary, ExportError> {
-        self.finish_dataset()
-    }
-}
-
-impl LeRobotWriter {
-    /// Writes one episode; `video` holds its already encoded frames when the caller encoded them.
-    fn write_with_video(
-        &mut self,
-        episode: &Episode,
-        video: Option<Option<Vec<EncodedFrame>>>,
-    ) -> Result<(), ExportError> {
-        episode.validate().map_err(ExportError::InvalidEpisode)?;
-        if episode.meta.index != self.episodes.len() as u64 {
-            return Err(ExportError::InvalidEpisode(format!(
-                "episode index {} arrived where {} was expected (episodes must come in order)",
-                episode.meta.index,
-                self.episodes.len()
-            )));
+    fn finish(&mut self) -> Result<Summary, ExportError> {
+        if let Some(summary) = &self.finished {
+            return Ok(summary.clone());
         }
-        let task_index = match self.task_lookup.get(&episode.meta.instruction) {
-            Some(i) => *i,
-            None => {
-                let i = self.tasks.len() as u64;
-                self.tasks.push(episode.meta.instruction.clone());
-                self.task_lookup.insert(episode.meta.instruction.clone(), i);
-                i
-            }
-        };
-        let first_index = self.total_frames;
-        let encode_started = std::time::Instant::now();
-        let work = EpisodeWork {
-            features: &self.features,
-            options: &self.options,
-        };
-        let image_work = EpisodeWork {
-            features: &self.parquet_features,
-            options: &self.options,
-        };
-        let ((images, video_frames), episode_stats) = rayon::join(
-            || {
-                rayon::join(
-                    || image_work.encode_images(episode),
-                    || match video {
-                        Some(encoded) => Ok(encoded),
-                        None => work.encode_video(episode),
-                    },
-                )
-            },
-            || work.episode_stats(episode, task_index, first_index),
-        );
-        let images = images?;
-        let write_started = std::time::Instant::now();
-        self.timing.encode_secs += (write_started - encode_started).as_secs_f64();
-        let video_span = match video_frames? {
-            Some(frames) => Some(self.append_video(&frames)?),
-            None => None,
-        };
-        let batch = frame_batch(
-            &self.schema,
-            &self.parquet_features,
-            episode,
-            &images,
-            first_index,
-            task_index,
-            self.options.fps,
-        )?;
-        let limit = self.options.data_file_size_mb * 1024 * 1024;
-        let open = self.open_file()?;
-        let (chunk, file, path) = (open.chunk, open.file, open.path.clone());
-        let parquet_error = |source| ExportError::Parquet {
-            path: path.clone(),
-            source,
-        };
-        open.writer.write(&batch).map_err(parquet_error)?;
-        open.writer.flush().map_err(parquet_error)?;
-        let full = open.writer.bytes_written() as u64 >= limit
-            || self.options.version == LeRobotVersion::V21;
-
-        let mut stats_json = serde_json::Map::new();
-        for ((name, total), (_, this)) in self.stats.iter_mut().zip(episode_stats) {
-            stats_json.insert(name.clone(), this.to_json());
-            merge(total, this);
-        }
-        let length = episode.steps.len() as u64;
-        self.episodes.push(EpisodeRow {
-            episode_index: episode.meta.index,
-            task: episode.meta.instruction.clone(),
-            length,
-            data_chunk: chunk,
-            data_file: file,
-            from_index: first_index,
-            to_index: first_index + length,
-            stats: Value::Object(stats_json),
-            video: video_span,
-        });
-        self.total_frames += length;
-        self.summary.episodes += 1;
-        self.summary.frames += length;
-        if full {
-            // Close the video file at the same moment, so that everything written so far is
-            // complete, and record the state.
-            self.close_file()?;
-            self.close_video()?;
-            // v3.0 closes a file every ~100 MB; v2.1 closes one per episode, so it records the
-            // state every 64 episodes (the checkpoint holds every episode's row).
-            let due = self.options.version == LeRobotVersion::V30 || self.episodes.len() % 64 == 0;
-            if due {
-                self.checkpoint()?;
-            }
-        }
-        self.timing.write_secs += write_started.elapsed().as_secs_f64();
-        Ok(())
-    }
-
-    fn finish_dataset(mut self: Box<Self>) -> Result<Summary, ExportError> {
-        self.close_file()?;
-        self.close_video()?;
-        if self.options.version == LeRobotVersion::V21 {
-            return self.finish_v21();
-        }
-        let meta = self.root.join("meta");
-        let mut files = 0;
-        let mut bytes = 0;
-        let mut count = |b: u64| {
-            files += 1;
-            bytes += b;
-        };
-        count(write_parquet(
-            &meta.join("tasks.parquet"),
-            &tasks_batch(&self.tasks)?,
-        )?);
-        count(write_parquet(
-            &meta.join("episodes/chunk-000/file-000.parquet"),
-            &episodes_batch(&self.episodes)?,
-        )?);
-        let stats: serde_json::Map<String, Value> = self
-            .stats
-            .iter()
-            .map(|(name, s)| (name.clone(), s.to_json()))
-            .collect();
-        let stats_text = serde_json::to_string_pretty(&Value::Object(stats))
-            .map_err(|e| ExportError::Internal(e.to_string()))?;
-        write_atomically(&meta.join("stats.json"), stats_text.as_bytes())?;
-        count(stats_text.len() as u64);
-        let extra = serde_json::to_string_pretty(&self.options.extra_metadata)
-            .map_err(|e| ExportError::Internal(e.to_string()))?;
-        write_atomically(&meta.join("surgvla.json"), extra.as_bytes())?;
-        count(extra.len() as u64);
-        let info = serde_json::to_string_pretty(&self.info_json())
-            .map_err(|e| ExportError::Internal(e.to_string()))?;
-        write_atomically(&meta.join("info.json"), info.as_bytes())?;
-        count(info.len() as u64);
-        let checkpoint = self.root.join(CHECKPOINT);
-        if checkpoint.exists() {
-            std::fs::remove_file(&checkpoint).map_err(ExportError::io(&checkpoint))?;
-        }
-        let marker = self.root.join(INCOMPLETE_MARKER);
-        std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
-        self.summary.files += files;
-        self.summary.bytes += bytes;
-        Ok(self.summary.clone())
-    }
-}
-
-/// Folds one episode's statistics into the dataset's.
-fn merge(total: &mut FeatureStats, part: FeatureStats) {
-    match (total, part) {
-        (FeatureStats::Vector(a), FeatureStats::Vector(b)) => a.merge(&b),
-        (FeatureStats::Image(a), FeatureStats::Image(b)) => a.merge(&b),
-        _ => {}
+        let summary = self.finish_dataset()?;
+        self.finished = Some(summary.clone());
+        Ok(summary)
     }
 }

@@ -1,11 +1,20 @@
-//! Reading a LeRobot v3.0 dataset back (surgvla's own round trips and validation; interop is
-//! proven with the real lerobot loader in `tests/interop/`).
+//! Reading a LeRobot dataset back: [`LeRobotSource`] (an [`EpisodeSource`] of v3.0 and v2.1
+//! datasets in image mode) and the low-level helpers the round-trip tests use. Interop is proven
+//! with the real lerobot loader in `tests/interop/`.
 
-use crate::export::ExportError;
+use crate::episode::{
+    CameraInfo, Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, MAX_OBJECTS, POSE_VALUES,
+    Step, StepExtras,
+};
+use crate::export::image::decode_png;
+use crate::export::info::DatasetInfo;
+use crate::export::tiff::decode_f32_tiff;
+use crate::export::{EpisodeSource, ExportError};
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch, StructArray,
 };
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use serde_json::Value;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
@@ -27,14 +36,11 @@ pub struct StoredFrame {
 /// Reads every record batch of a parquet file.
 pub fn read_parquet(path: &Path) -> Result<Vec<RecordBatch>, ExportError> {
     let file = File::open(path).map_err(ExportError::io(path))?;
-    let parquet_error = |source| ExportError::Parquet {
-        path: path.to_path_buf(),
-        source,
-    };
+    let parquet_error = ExportError::parquet(path);
     let reader = ParquetRecordBatchReaderBuilder::try_new(file)
-        .map_err(parquet_error)?
+        .map_err(&parquet_error)?
         .build()
-        .map_err(parquet_error)?;
+        .map_err(&parquet_error)?;
     reader
         .map(|batch| batch.map_err(ExportError::Arrow))
         .collect()
@@ -44,10 +50,7 @@ pub fn read_parquet(path: &Path) -> Result<Vec<RecordBatch>, ExportError> {
 pub fn schema_metadata(path: &Path, key: &str) -> Result<Option<String>, ExportError> {
     let file = File::open(path).map_err(ExportError::io(path))?;
     let builder =
-        ParquetRecordBatchReaderBuilder::try_new(file).map_err(|source| ExportError::Parquet {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        ParquetRecordBatchReaderBuilder::try_new(file).map_err(ExportError::parquet(path))?;
     if let Some(value) = builder.schema().metadata().get(key) {
         return Ok(Some(value.clone()));
     }
@@ -156,4 +159,419 @@ pub fn read_frames(root: &Path, image_keys: &[&str]) -> Result<Vec<StoredFrame>,
         }
     }
     Ok(frames)
+}
+
+fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
+    ExportError::InvalidDataset {
+        path: path.to_path_buf(),
+        problem: problem.into(),
+    }
+}
+
+fn read_json(path: &Path) -> Result<Value, ExportError> {
+    let bytes = std::fs::read(path).map_err(ExportError::io(path))?;
+    serde_json::from_slice(&bytes).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// The features of info.json as surgvla's model knows them (defaults left out).
+fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportError> {
+    let features = info["features"]
+        .as_object()
+        .ok_or_else(|| invalid(path, "no features object"))?;
+    let mut specs = Vec::new();
+    for (name, f) in features {
+        if super::DEFAULT_COLUMNS.contains(&name.as_str()) {
+            continue;
+        }
+        let shape: Vec<usize> = f["shape"]
+            .as_array()
+            .map(|s| {
+                s.iter()
+                    .filter_map(|v| v.as_u64())
+                    .map(|v| v as usize)
+                    .collect()
+            })
+            .unwrap_or_default();
+        let names: Vec<String> = f["names"]
+            .as_array()
+            .map(|n| {
+                n.iter()
+                    .filter_map(|v| v.as_str().map(String::from))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let (dtype, kind) = match (f["dtype"].as_str(), name.as_str()) {
+            (Some("video"), _) => {
+                return Err(invalid(
+                    path,
+                    format!(
+                        "{name} is stored as video; reading video-mode datasets is not supported yet"
+                    ),
+                ));
+            }
+            (Some("image"), _) if shape.last() == Some(&3) => (Dtype::Image, FeatureKind::Rgb),
+            (Some("image"), _) if f["info"]["is_depth_map"] == true => {
+                (Dtype::Image, FeatureKind::Depth)
+            }
+            (Some("image"), _) => (Dtype::Image, FeatureKind::Mask),
+            (Some("float32"), "observation.state") => (Dtype::Float32, FeatureKind::State),
+            (Some("float32"), "action") => (Dtype::Float32, FeatureKind::Action),
+            (Some("float32"), "observation.environment_state")
+                if shape == [MAX_OBJECTS * POSE_VALUES] =>
+            {
+                (Dtype::Float32, FeatureKind::EnvironmentState)
+            }
+            (dtype, _) => {
+                return Err(invalid(
+                    path,
+                    format!(
+                        "feature {name} ({dtype:?}, shape {shape:?}) is not one surgvla reads yet"
+                    ),
+                ));
+            }
+        };
+        specs.push(FeatureSpec {
+            name: name.clone(),
+            dtype,
+            shape,
+            names,
+            kind,
+        });
+    }
+    Ok(specs)
+}
+
+/// The camera of `meta/surgvla.json`, or one with the images' size and unknown intrinsics.
+fn camera_of(surgvla: &Value, features: &[FeatureSpec]) -> CameraInfo {
+    let c = &surgvla["camera"];
+    let image = features.iter().find(|f| f.dtype == Dtype::Image);
+    let size = |i: usize| image.and_then(|f| f.shape.get(i)).copied().unwrap_or(0) as u32;
+    let mut world_from_camera = [[0.0; 4]; 4];
+    for (r, row) in world_from_camera.iter_mut().enumerate() {
+        for (k, v) in row.iter_mut().enumerate() {
+            *v = c["world_from_camera"][r][k]
+                .as_f64()
+                .unwrap_or(if r == k { 1.0 } else { 0.0 });
+        }
+    }
+    let number = |key: &str| c[key].as_f64().unwrap_or(0.0);
+    CameraInfo {
+        width_px: size(1),
+        height_px: size(0),
+        fx_px: number("fx"),
+        fy_px: number("fy"),
+        cx_px: number("cx"),
+        cy_px: number("cy"),
+        near_m: number("near_m"),
+        far_m: number("far_m"),
+        world_from_camera,
+    }
+}
+
+/// Per episode: instruction-independent provenance from the episodes metadata.
+fn provenance_of(root: &Path, v21: bool) -> Result<Vec<Value>, ExportError> {
+    if v21 {
+        let path = root.join("meta/episodes.jsonl");
+        let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
+        return text
+            .lines()
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| {
+                serde_json::from_str(l).map_err(|source| ExportError::Json {
+                    path: path.clone(),
+                    source,
+                })
+            })
+            .collect();
+    }
+    let path = root.join("meta/episodes/chunk-000/file-000.parquet");
+    let mut rows = Vec::new();
+    for batch in read_parquet(&path)? {
+        for row in 0..batch.num_rows() {
+            let mut values = serde_json::Map::new();
+            for (key, _) in super::Provenance::default_columns() {
+                let Some(column) = batch.column_by_name(key) else {
+                    continue;
+                };
+                let any = column.as_any();
+                let value = if let Some(a) = any.downcast_ref::<Int64Array>() {
+                    Value::from(a.value(row))
+                } else if let Some(a) = any.downcast_ref::<arrow_array::StringArray>() {
+                    Value::from(a.value(row))
+                } else if let Some(a) = any.downcast_ref::<arrow_array::BooleanArray>() {
+                    Value::from(a.value(row))
+                } else {
+                    continue;
+                };
+                values.insert(key.to_string(), value);
+            }
+            rows.push(Value::Object(values));
+        }
+    }
+    Ok(rows)
+}
+
+/// A decoded frame row: (episode_index, task_index, step).
+type Row = (i64, i64, Step);
+
+/// Reads a LeRobot dataset (v3.0 or v2.1, image mode) episode by episode.
+pub struct LeRobotSource {
+    root: PathBuf,
+    info: DatasetInfo,
+    total_episodes: u64,
+    tasks: Vec<String>,
+    provenance: Vec<Value>,
+    files: std::vec::IntoIter<PathBuf>,
+    /// The open data file and its batches.
+    batches: Option<(
+        PathBuf,
+        parquet::arrow::arrow_reader::ParquetRecordBatchReader,
+    )>,
+    /// Steps read past the end of the episode being assembled.
+    pending: std::collections::VecDeque<Row>,
+}
+
+impl LeRobotSource {
+    pub fn open(root: &Path) -> Result<Self, ExportError> {
+        let info_path = root.join("meta/info.json");
+        if !info_path.exists() {
+            return Err(invalid(
+                root,
+                "no meta/info.json: not a LeRobot dataset, or an incomplete one",
+            ));
+        }
+        let info_json = read_json(&info_path)?;
+        let v21 = info_json["codebase_version"] == "v2.1";
+        let features = features_of(&info_json, &info_path)?;
+        let surgvla_path = root.join("meta/surgvla.json");
+        let surgvla = if surgvla_path.exists() {
+            read_json(&surgvla_path)?
+        } else {
+            Value::Null
+        };
+        let tasks = if v21 {
+            let path = root.join("meta/tasks.jsonl");
+            let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
+            text.lines()
+                .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+                .filter_map(|v| v["task"].as_str().map(String::from))
+                .collect()
+        } else {
+            let path = root.join("meta/tasks.parquet");
+            let mut tasks = Vec::new();
+            for batch in read_parquet(&path)? {
+                let column = column::<arrow_array::StringArray>(&batch, "task", &path)?;
+                tasks.extend(column.iter().map(|t| t.unwrap_or_default().to_string()));
+            }
+            tasks
+        };
+        let mask_ids = surgvla["mask_ids"]
+            .as_object()
+            .map(|m| {
+                m.iter()
+                    .filter_map(|(id, name)| Some((id.parse().ok()?, name.as_str()?.to_string())))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let info = DatasetInfo {
+            fps: info_json["fps"].as_u64().unwrap_or(0) as u32,
+            robot_type: info_json["robot_type"].as_str().unwrap_or_default().into(),
+            camera: camera_of(&surgvla, &features),
+            features,
+            mask_ids,
+            collection: surgvla["collection"].clone(),
+            generator: surgvla["generator"].as_str().unwrap_or_default().into(),
+        };
+        Ok(LeRobotSource {
+            root: root.to_path_buf(),
+            total_episodes: info_json["total_episodes"].as_u64().unwrap_or(0),
+            provenance: provenance_of(root, v21)?,
+            tasks,
+            files: data_files(root)?.into_iter(),
+            batches: None,
+            pending: Default::default(),
+            info,
+        })
+    }
+
+    /// The next batch of rows as (episode_index, task_index, step), or None at the end.
+    fn next_rows(&mut self) -> Result<Option<Vec<Row>>, ExportError> {
+        loop {
+            if self.batches.is_none() {
+                let Some(path) = self.files.next() else {
+                    return Ok(None);
+                };
+                let file = File::open(&path).map_err(ExportError::io(&path))?;
+                let parquet_error = ExportError::parquet(&path);
+                let reader = ParquetRecordBatchReaderBuilder::try_new(file)
+                    .map_err(&parquet_error)?
+                    .with_batch_size(64)
+                    .build()
+                    .map_err(&parquet_error)?;
+                self.batches = Some((path, reader));
+            }
+            let Some((path, reader)) = self.batches.as_mut() else {
+                continue;
+            };
+            match reader.next() {
+                Some(batch) => {
+                    let batch = batch.map_err(ExportError::Arrow)?;
+                    return rows_of(&batch, path, &self.info).map(Some);
+                }
+                None => self.batches = None,
+            }
+        }
+    }
+}
+
+/// Decodes a batch of frame rows into steps.
+fn rows_of(
+    batch: &RecordBatch,
+    path: &Path,
+    info: &DatasetInfo,
+) -> Result<Vec<Row>, ExportError> {
+    let episode = column::<Int64Array>(batch, "episode_index", path)?;
+    let task = column::<Int64Array>(batch, "task_index", path)?;
+    let mut steps: Vec<Row> = (0..batch.num_rows())
+        .map(|row| {
+            let step = Step {
+                rgb: Vec::new(),
+                depth_m: Vec::new(),
+                mask: Vec::new(),
+                state: [0.0; 7],
+                action: [0.0; 7],
+                environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
+                extras: StepExtras::default(),
+            };
+            (episode.value(row), task.value(row), step)
+        })
+        .collect();
+    let (width, height) = info.image_size();
+    for feature in &info.features {
+        let name = feature.name.as_str();
+        match feature.dtype {
+            Dtype::Image => {
+                let images = column::<StructArray>(batch, name, path)?;
+                let bytes = images
+                    .column_by_name("bytes")
+                    .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
+                    .ok_or_else(|| invalid(path, format!("{name} has no image bytes")))?;
+                for (row, (_, _, step)) in steps.iter_mut().enumerate() {
+                    let encoded = bytes.value(row);
+                    let bad = |e: String| invalid(path, format!("{name} row {row}: {e}"));
+                    match feature.kind {
+                        FeatureKind::Depth => {
+                            let (w, h, depth) = decode_f32_tiff(encoded)
+                                .ok_or_else(|| bad("not a float32 TIFF".into()))?;
+                            if (w as usize, h as usize) != (width, height) {
+                                return Err(bad(format!("a {w}x{h} depth image")));
+                            }
+                            step.depth_m = depth;
+                        }
+                        kind => {
+                            let (w, h, channels, pixels) = decode_png(encoded).map_err(bad)?;
+                            let wanted = if kind == FeatureKind::Rgb { 3 } else { 1 };
+                            if (w as usize, h as usize, channels) != (width, height, wanted) {
+                                return Err(bad(format!(
+                                    "a {w}x{h} image with {channels} channels"
+                                )));
+                            }
+                            if kind == FeatureKind::Rgb {
+                                step.rgb = pixels;
+                            } else {
+                                step.mask = pixels;
+                            }
+                        }
+                    }
+                }
+            }
+            _ => {
+                let list = column::<FixedSizeListArray>(batch, name, path)?;
+                for (row, (_, _, step)) in steps.iter_mut().enumerate() {
+                    let values = vector(list, row);
+                    let target: &mut [f32] = match feature.kind {
+                        FeatureKind::State => &mut step.state,
+                        FeatureKind::Action => &mut step.action,
+                        _ => &mut step.environment_state,
+                    };
+                    if values.len() != target.len() {
+                        return Err(invalid(
+                            path,
+                            format!(
+                                "{name} row {row} has {} values, not {}",
+                                values.len(),
+                                target.len()
+                            ),
+                        ));
+                    }
+                    target.copy_from_slice(&values);
+                }
+            }
+        }
+    }
+    Ok(steps)
+}
+
+impl EpisodeSource for LeRobotSource {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn len(&self) -> u64 {
+        self.total_episodes
+    }
+
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        let mut steps = Vec::new();
+        let mut current: Option<(i64, i64)> = None;
+        loop {
+            if let Some((episode, task, _)) = self.pending.front() {
+                if current.is_some_and(|(e, _)| e != *episode) {
+                    break;
+                }
+                current = Some((*episode, *task));
+                if let Some((_, _, step)) = self.pending.pop_front() {
+                    steps.push(step);
+                }
+                continue;
+            }
+            match self.next_rows() {
+                Ok(Some(rows)) => self.pending.extend(rows),
+                Ok(None) => break,
+                Err(error) => return Some(Err(error)),
+            }
+        }
+        let (index, task) = current?;
+        let provenance = self
+            .provenance
+            .get(index as usize)
+            .cloned()
+            .unwrap_or_default();
+        let instruction = self.tasks.get(task as usize).cloned();
+        let Some(instruction) = instruction else {
+            return Some(Err(invalid(
+                &self.root,
+                format!("episode {index} names task_index {task}, which the tasks table lacks"),
+            )));
+        };
+        Some(Ok(Episode {
+            meta: EpisodeMeta {
+                index: index as u64,
+                task_code: provenance["surgvla/task_id"]
+                    .as_str()
+                    .unwrap_or_default()
+                    .into(),
+                task_name: String::new(),
+                level: provenance["surgvla/level"].as_u64().unwrap_or(0) as u8,
+                instruction,
+                seed: provenance["surgvla/seed"].as_i64().unwrap_or(0) as u64,
+                attempts: provenance["surgvla/attempts"].as_u64().unwrap_or(0) as u32,
+                success: provenance["surgvla/success"].as_bool().unwrap_or(false),
+            },
+            steps,
+        }))
+    }
 }

@@ -5,8 +5,8 @@ use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
 use crate::export::ExportError;
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{
-    ArrayRef, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch, StringArray,
-    StructArray,
+    ArrayRef, BinaryArray, BooleanArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch,
+    StringArray, StructArray,
 };
 use arrow_schema::{DataType, Field, Fields, Schema};
 use serde_json::Value;
@@ -168,6 +168,43 @@ pub struct EpisodeRow {
     pub stats: Value,
     /// Where the RGB camera's frames are, in video mode.
     pub video: Option<VideoSpan>,
+    pub provenance: Provenance,
+}
+
+/// Where an episode came from: what it takes to re-run or audit it. Stored as the `surgvla/...`
+/// columns of the episodes table (v3.0) or keys of `episodes.jsonl` (v2.1).
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
+pub struct Provenance {
+    pub seed: u64,
+    pub task_id: String,
+    pub level: u8,
+    pub attempts: u32,
+    pub success: bool,
+}
+
+impl Provenance {
+    /// The columns' keys and an example value each, in column order.
+    pub fn default_columns() -> [(&'static str, Value); 5] {
+        Provenance {
+            seed: 0,
+            task_id: String::new(),
+            level: 0,
+            attempts: 0,
+            success: false,
+        }
+        .columns()
+    }
+
+    /// (key, value) of each field, in column order.
+    pub fn columns(&self) -> [(&'static str, Value); 5] {
+        [
+            ("surgvla/seed", Value::from(self.seed as i64)),
+            ("surgvla/task_id", Value::from(self.task_id.as_str())),
+            ("surgvla/level", Value::from(self.level)),
+            ("surgvla/attempts", Value::from(self.attempts)),
+            ("surgvla/success", Value::from(self.success)),
+        ]
+    }
 }
 
 /// An episode's place in a video file.
@@ -232,8 +269,12 @@ fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
     Arc::new(builder.finish())
 }
 
-/// The episodes table (episode_index equals row order).
-pub fn episodes_batch(rows: &[EpisodeRow]) -> Result<RecordBatch, ExportError> {
+/// The episodes table (episode_index equals row order); `video_key` is the video feature's key
+/// in video mode.
+pub fn episodes_batch(
+    rows: &[EpisodeRow],
+    video_key: Option<&str>,
+) -> Result<RecordBatch, ExportError> {
     let int = |f: &dyn Fn(&EpisodeRow) -> u64| -> ArrayRef {
         Arc::new(Int64Array::from_iter_values(
             rows.iter().map(|r| f(r) as i64),
@@ -255,8 +296,7 @@ pub fn episodes_batch(rows: &[EpisodeRow]) -> Result<RecordBatch, ExportError> {
         ("meta/episodes/chunk_index".into(), int(&|_| 0)),
         ("meta/episodes/file_index".into(), int(&|_| 0)),
     ];
-    if rows.first().is_some_and(|r| r.video.is_some()) {
-        let key = super::RGB_KEY;
+    if let Some(key) = video_key.filter(|_| rows.first().is_some_and(|r| r.video.is_some())) {
         let span = |r: &EpisodeRow| {
             r.video.unwrap_or(VideoSpan {
                 chunk: 0,
@@ -289,6 +329,30 @@ pub fn episodes_batch(rows: &[EpisodeRow]) -> Result<RecordBatch, ExportError> {
             }
         }
     }
+    // Provenance; the seed as int64 (two's complement: seeds above 2^63 read negative).
+    columns.push(("surgvla/seed".into(), int(&|r| r.provenance.seed)));
+    columns.push((
+        "surgvla/task_id".into(),
+        Arc::new(StringArray::from_iter_values(
+            rows.iter().map(|r| r.provenance.task_id.as_str()),
+        )),
+    ));
+    columns.push((
+        "surgvla/level".into(),
+        int(&|r| u64::from(r.provenance.level)),
+    ));
+    columns.push((
+        "surgvla/attempts".into(),
+        int(&|r| u64::from(r.provenance.attempts)),
+    ));
+    columns.push((
+        "surgvla/success".into(),
+        Arc::new(BooleanArray::from(
+            rows.iter()
+                .map(|r| r.provenance.success)
+                .collect::<Vec<_>>(),
+        )),
+    ));
     let fields: Vec<Field> = columns
         .iter()
         .map(|(name, array)| Field::new(name, array.data_type().clone(), true))

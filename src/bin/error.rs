@@ -1,0 +1,145 @@
+//! The command line's error: a library error (or a usage mistake found after parsing) with its
+//! [`ErrorKind`], which decides the exit code, and the chain printed once.
+
+use surgvla::error::ErrorKind;
+
+/// An error on its way to `main`: what happened, whose mistake it is, and a hint for the user.
+#[derive(Debug)]
+pub struct CliError {
+    pub kind: ErrorKind,
+    pub error: anyhow::Error,
+    /// Said after the error (e.g. how to continue after a full disk).
+    pub hint: Option<&'static str>,
+    /// Output piped into a reader that stopped (`surgvla tasks | head`): not an error.
+    pub quiet: bool,
+}
+
+/// The hint after a full disk.
+const DISK_FULL: &str = "the disk is full: free space and run the command again \
+     (`collect --resume` continues an interrupted dataset from its last checkpoint)";
+
+impl CliError {
+    fn new(kind: ErrorKind, error: impl Into<anyhow::Error>) -> Self {
+        CliError {
+            kind,
+            error: error.into(),
+            hint: None,
+            quiet: false,
+        }
+    }
+
+    /// A mistake in what the user gave, found after parsing (exit 2).
+    pub fn usage(message: impl std::fmt::Display) -> Self {
+        CliError::new(ErrorKind::Usage, anyhow::anyhow!("{message}"))
+    }
+
+    /// Adds what the command was doing, keeping the kind.
+    pub fn context(mut self, what: impl std::fmt::Display + Send + Sync + 'static) -> Self {
+        self.error = self.error.context(what);
+        self
+    }
+
+    /// The error and its causes on one line, each said once, then the hint.
+    pub fn message(&self) -> String {
+        let causes: Vec<String> = self.error.chain().map(|c| c.to_string()).collect();
+        let mut message = causes.join(": ");
+        if let Some(hint) = self.hint {
+            message.push('\n');
+            message.push_str(hint);
+        }
+        message
+    }
+}
+
+impl From<surgvla::export::ExportError> for CliError {
+    fn from(error: surgvla::export::ExportError) -> Self {
+        let full = error.is_disk_full();
+        let mut cli = CliError::new(error.kind(), error);
+        cli.hint = full.then_some(DISK_FULL);
+        cli
+    }
+}
+
+impl From<surgvla::collect::run::CollectError> for CliError {
+    fn from(error: surgvla::collect::run::CollectError) -> Self {
+        let full = error.is_disk_full();
+        let mut cli = CliError::new(error.kind(), error);
+        cli.hint = full.then_some(DISK_FULL);
+        cli
+    }
+}
+
+impl From<surgvla::policy::PlanError> for CliError {
+    fn from(error: surgvla::policy::PlanError) -> Self {
+        CliError::new(error.kind(), error)
+    }
+}
+
+impl From<surgvla::render::image::ImageError> for CliError {
+    fn from(error: surgvla::render::image::ImageError) -> Self {
+        CliError::new(error.kind(), error)
+    }
+}
+
+impl From<surgvla::task::SpawnError> for CliError {
+    fn from(error: surgvla::task::SpawnError) -> Self {
+        CliError::new(ErrorKind::Failed, error)
+    }
+}
+
+impl From<serde_json::Error> for CliError {
+    fn from(error: serde_json::Error) -> Self {
+        CliError::new(ErrorKind::Failed, error)
+    }
+}
+
+impl From<std::io::Error> for CliError {
+    fn from(error: std::io::Error) -> Self {
+        let quiet = error.kind() == std::io::ErrorKind::BrokenPipe;
+        let mut cli = CliError::new(ErrorKind::Failed, error);
+        cli.quiet = quiet;
+        cli
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Error, ErrorKind as Io};
+    use surgvla::export::ExportError;
+
+    #[test]
+    fn a_full_disk_names_the_file_once_and_says_what_to_do() {
+        let error = CliError::from(ExportError::Io {
+            path: "out/data/chunk-000/file-000.parquet".into(),
+            source: Error::from(Io::StorageFull),
+        });
+        let message = error.message();
+        let first_line = message.lines().next().unwrap();
+        assert!(
+            first_line.starts_with("out/data/chunk-000/file-000.parquet: "),
+            "{message}"
+        );
+        let said = Error::from(Io::StorageFull).to_string();
+        assert_eq!(first_line.matches(&said).count(), 1, "{message}");
+        assert!(message.contains("the disk is full"), "{message}");
+        assert_eq!(error.kind.exit_code(), 1);
+    }
+
+    #[test]
+    fn context_and_causes_are_all_said_and_kinds_decide_exit_codes() {
+        let error = CliError::from(surgvla::policy::PlanError::Io {
+            path: "plans/gauze_pick.toml".into(),
+            source: Error::new(Io::NotFound, "no such file"),
+        })
+        .context("loading the expert plans");
+        assert_eq!(
+            error.message(),
+            "loading the expert plans: reading plans/gauze_pick.toml: no such file"
+        );
+        assert_eq!(error.kind.exit_code(), 2);
+        let not_empty = CliError::from(ExportError::NotEmpty { path: "out".into() });
+        assert_eq!(not_empty.kind.exit_code(), 2);
+        assert!(CliError::from(Error::from(Io::BrokenPipe)).quiet);
+    }
+}

@@ -1,0 +1,262 @@
+//! The environment: one task instance in the simulator, observed the way a dataset step holds
+//! it. Collection and closed-loop evaluation both drive an [`Env`], so an evaluated policy sees
+//! exactly the observations it was trained on.
+//!
+//! [`Env::reset`] draws the task's scene for a seed and returns the first [`EnvObservation`];
+//! [`Env::step`] applies a physical 7-D action and returns the next observation, whether the
+//! episode is done (success, or the step limit) and the success verdict. Rendering is optional
+//! ([`EnvOptions::render`]): the expert pass runs without images. This is the one place where
+//! simulator state becomes the observation half of a dataset step (state, object poses, images,
+//! extras); the action half, the achieved change, is known only after stepping, so `collect`
+//! assembles the [`crate::episode::Step`].
+
+use crate::assets::{Appearance, SceneAssets};
+use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, StepExtras};
+use crate::render::{Camera, RenderOptions, Renderer};
+use crate::sim::{NativeCommand, Observation, PhysicalAction, SimConfig, Simulator, StepReport};
+use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
+use crate::view::render_simulator;
+use std::time::Instant;
+
+/// How an environment is set up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EnvOptions {
+    pub task: TaskConfig,
+    pub camera: Camera,
+    /// Render images into every observation (None: no images, e.g. the expert pass).
+    pub render: Option<RenderOptions>,
+    /// Draw a seeded appearance variation per episode.
+    pub randomize_appearance: bool,
+    /// Most control steps before an episode is done (None: the task's step limit).
+    pub max_steps: Option<u32>,
+}
+
+impl Default for EnvOptions {
+    fn default() -> Self {
+        EnvOptions {
+            task: TaskConfig::default(),
+            camera: Camera::endoscope(),
+            render: Some(RenderOptions::default()),
+            randomize_appearance: false,
+            max_steps: None,
+        }
+    }
+}
+
+/// The endoscope's images of one step.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Images {
+    /// RGB u8, row-major H x W x 3.
+    pub rgb: Vec<u8>,
+    /// Depth f32 metres along the optical axis, row-major H x W; 0 where nothing is in range.
+    pub depth_m: Vec<f32>,
+    /// Mask ids, row-major H x W.
+    pub mask: Vec<u8>,
+}
+
+/// What a policy (and a dataset step) observes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvObservation {
+    /// The 7-D robot state (`observation.state`).
+    pub state: [f32; 7],
+    /// Object poses (`observation.environment_state`), zero-padded.
+    pub environment_state: [f32; MAX_OBJECTS * POSE_VALUES],
+    /// Present when the environment renders.
+    pub images: Option<Images>,
+    /// Joint positions and the held object (the grasp and release events come with a step).
+    pub extras: StepExtras,
+    /// The simulator's whole observation (what scripted experts read).
+    pub sim: Observation,
+}
+
+/// What one step did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvStep {
+    pub observation: EnvObservation,
+    /// The task succeeded or the step limit was reached.
+    pub done: bool,
+    /// The success predicate after the step.
+    pub verdict: Verdict,
+    pub report: StepReport,
+}
+
+/// Seconds an environment spent, summed over its episodes.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnvTiming {
+    pub physics_secs: f64,
+    pub render_secs: f64,
+}
+
+/// One task instance being simulated.
+pub struct Env {
+    instance: TaskInstance,
+    sim: Simulator,
+    options: EnvOptions,
+    view: Option<(SceneAssets, Renderer)>,
+    steps: u32,
+    pub timing: EnvTiming,
+}
+
+impl Env {
+    /// Draws `task`'s scene for `seed` and returns the environment and its first observation.
+    pub fn reset(
+        task: TaskId,
+        seed: u64,
+        options: &EnvOptions,
+    ) -> Result<(Env, EnvObservation), SpawnError> {
+        let instance = task.instance(seed, &options.task)?;
+        Ok(Env::from_instance(instance, options))
+    }
+
+    /// Starts an already drawn instance.
+    pub fn from_instance(instance: TaskInstance, options: &EnvOptions) -> (Env, EnvObservation) {
+        let view = options.render.map(|render| {
+            let appearance = if options.randomize_appearance {
+                Appearance::randomized(instance.seed)
+            } else {
+                Appearance::default()
+            };
+            let assets = SceneAssets::new(&instance.scene, instance.seed, appearance);
+            let renderer = Renderer::new(RenderOptions {
+                lighting: appearance.lighting(render.lighting),
+                ..render
+            });
+            (assets, renderer)
+        });
+        let sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        let mut env = Env {
+            instance,
+            sim,
+            options: *options,
+            view,
+            steps: 0,
+            timing: EnvTiming::default(),
+        };
+        let observation = env.observe();
+        (env, observation)
+    }
+
+    pub fn instance(&self) -> &TaskInstance {
+        &self.instance
+    }
+
+    /// The step limit of an episode.
+    pub fn max_steps(&self) -> u32 {
+        self.options
+            .max_steps
+            .unwrap_or_else(|| self.instance.task.step_limit())
+    }
+
+    /// The camera as datasets record it.
+    pub fn camera_info(&self) -> CameraInfo {
+        crate::view::camera_info(&self.options.camera)
+    }
+
+    /// The current observation (rendered when the environment renders).
+    pub fn observe(&mut self) -> EnvObservation {
+        let sim = self.sim.observation();
+        let images = self.view.as_mut().map(|(assets, renderer)| {
+            let started = Instant::now();
+            let frame = render_simulator(assets, renderer, &self.options.camera, &self.sim);
+            self.timing.render_secs += started.elapsed().as_secs_f64();
+            Images {
+                rgb: frame.rgb,
+                depth_m: frame.depth_m,
+                mask: frame.mask,
+            }
+        });
+        EnvObservation {
+            state: sim.state7().map(|v| v as f32),
+            environment_state: environment_state(&sim),
+            images,
+            extras: StepExtras {
+                joint_positions: sim.joint_positions.to_vec(),
+                held_object: sim.bound_object.map(|i| self.object_name(i)),
+                grasped: None,
+                released: None,
+            },
+            sim,
+        }
+    }
+
+    fn object_name(&self, index: usize) -> String {
+        self.sim
+            .scene()
+            .objects
+            .get(index)
+            .map_or_else(|| format!("object {index}"), |o| o.name.clone())
+    }
+
+    /// The objects a step grasped and released, by name.
+    pub fn events(&self, report: &StepReport) -> (Option<String>, Option<String>) {
+        (
+            report.bound.map(|i| self.object_name(i)),
+            report.released.map(|i| self.object_name(i)),
+        )
+    }
+
+    /// Applies a physical action (deltas + gripper 1 open / 0 closed) without observing: the
+    /// step report only.
+    pub fn apply(&mut self, action: &PhysicalAction) -> StepReport {
+        let started = Instant::now();
+        let report = self.sim.step_physical(action);
+        self.timing.physics_secs += started.elapsed().as_secs_f64();
+        self.steps += 1;
+        report
+    }
+
+    /// Applies a native command (what scripted experts emit) without observing.
+    pub fn apply_native(&mut self, command: &NativeCommand) -> StepReport {
+        let started = Instant::now();
+        let report = self.sim.step_native(command);
+        self.timing.physics_secs += started.elapsed().as_secs_f64();
+        self.steps += 1;
+        report
+    }
+
+    /// Applies a physical action and observes the result.
+    pub fn step(&mut self, action: &PhysicalAction) -> EnvStep {
+        let report = self.apply(action);
+        let mut observation = self.observe();
+        (observation.extras.grasped, observation.extras.released) = self.events(&report);
+        let verdict = self.verdict();
+        EnvStep {
+            done: verdict.success || self.steps >= self.max_steps(),
+            observation,
+            verdict,
+            report,
+        }
+    }
+
+    /// The success predicate now.
+    pub fn verdict(&self) -> Verdict {
+        self.instance.success(&self.sim.observation())
+    }
+
+    /// Control steps taken since the reset.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+}
+
+/// Object poses, [`MAX_OBJECTS`] x (x, y, z, qx, qy, qz, qw), zero-padded.
+fn environment_state(observation: &Observation) -> [f32; MAX_OBJECTS * POSE_VALUES] {
+    let mut state = [0f32; MAX_OBJECTS * POSE_VALUES];
+    for (i, object) in observation.objects.iter().take(MAX_OBJECTS).enumerate() {
+        let pose = object.world_from_object;
+        let q = pose.rotation.coords; // (x, y, z, w)
+        let values = [
+            pose.translation.x,
+            pose.translation.y,
+            pose.translation.z,
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+        ];
+        for (k, v) in values.iter().enumerate() {
+            state[i * POSE_VALUES + k] = *v as f32;
+        }
+    }
+    state
+}

@@ -1,0 +1,104 @@
+//! Image encoding and decoding shared by every format: 8-bit PNG (RGB, grey masks) here, float32
+//! TIFF (depth in metres, LeRobot) in [`crate::export::tiff`].
+
+use crate::export::ExportError;
+
+/// PNG compression for encoded images.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum PngLevel {
+    #[default]
+    Fast,
+    Default,
+    Best,
+}
+
+fn png_error(source: png::EncodingError) -> ExportError {
+    ExportError::Encode {
+        what: "PNG".into(),
+        source: Box::new(source),
+    }
+}
+
+/// Encodes row-major 8-bit pixels with `channels` (1 = grey, 3 = RGB) as PNG.
+pub fn encode_png(
+    width: usize,
+    height: usize,
+    channels: usize,
+    pixels: &[u8],
+    level: PngLevel,
+) -> Result<Vec<u8>, ExportError> {
+    let colour = match channels {
+        1 => png::ColorType::Grayscale,
+        3 => png::ColorType::Rgb,
+        4 => png::ColorType::Rgba,
+        other => {
+            return Err(ExportError::InvalidEpisode(format!(
+                "an image with {other} channels cannot be stored as PNG"
+            )));
+        }
+    };
+    encode_png_raw(width, height, colour, png::BitDepth::Eight, pixels, level)
+}
+
+fn encode_png_raw(
+    width: usize,
+    height: usize,
+    colour: png::ColorType,
+    depth: png::BitDepth,
+    bytes: &[u8],
+    level: PngLevel,
+) -> Result<Vec<u8>, ExportError> {
+    let mut out = Vec::with_capacity(bytes.len() / 2);
+    let mut encoder = png::Encoder::new(&mut out, width as u32, height as u32);
+    encoder.set_color(colour);
+    encoder.set_depth(depth);
+    encoder.set_compression(match level {
+        PngLevel::Fast => png::Compression::Fast,
+        PngLevel::Default => png::Compression::Balanced,
+        PngLevel::Best => png::Compression::High,
+    });
+    let mut writer = encoder.write_header().map_err(png_error)?;
+    writer.write_image_data(bytes).map_err(png_error)?;
+    writer.finish().map_err(png_error)?;
+    Ok(out)
+}
+
+/// A decoded 8-bit PNG: (width, height, channels, row-major pixels).
+pub type DecodedPng = (u32, u32, usize, Vec<u8>);
+
+/// Decodes an 8-bit grey, RGB or RGBA PNG.
+pub fn decode_png(bytes: &[u8]) -> Result<DecodedPng, String> {
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| "the PNG is too large".to_string())?;
+    let mut buffer = vec![0; size];
+    let info = reader.next_frame(&mut buffer).map_err(|e| e.to_string())?;
+    if info.bit_depth != png::BitDepth::Eight {
+        return Err(format!(
+            "a {:?}-bit PNG where 8 bits were expected",
+            info.bit_depth
+        ));
+    }
+    buffer.truncate(info.buffer_size());
+    let channels = info.color_type.samples();
+    Ok((info.width, info.height, channels, buffer))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_round_trips_grey_and_rgb() {
+        let rgb: Vec<u8> = (0..4 * 3 * 3).map(|i| (i * 7) as u8).collect();
+        let encoded = encode_png(4, 3, 3, &rgb, PngLevel::Fast).expect("encode");
+        assert_eq!(decode_png(&encoded).expect("decode"), (4, 3, 3, rgb));
+        let grey = vec![1, 2, 3, 4];
+        let encoded = encode_png(2, 2, 1, &grey, PngLevel::Best).expect("encode");
+        assert_eq!(decode_png(&encoded).expect("decode"), (2, 2, 1, grey));
+        assert!(encode_png(2, 2, 2, &[0; 8], PngLevel::Fast).is_err());
+        assert!(decode_png(b"not a png").is_err());
+    }
+}

@@ -1,0 +1,88 @@
+//! [`DatasetInfo`]: what a dataset is, stated once and handed to every sink: its features, frame
+//! rate, camera (intrinsics and `world_from_camera`), robot, mask ids and how its episodes were
+//! made. A format derives its metadata files from it; a source returns one for what it read.
+
+use crate::episode::{CameraInfo, FeatureKind, FeatureSpec};
+use serde_json::{Value, json};
+
+/// What a dataset is, besides its episodes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetInfo {
+    /// Control steps per second.
+    pub fps: u32,
+    /// LeRobot's `robot_type`.
+    pub robot_type: String,
+    /// The camera of every image feature.
+    pub camera: CameraInfo,
+    /// The features every step holds, in column order.
+    pub features: Vec<FeatureSpec>,
+    /// Segmentation mask id -> class name, in id order.
+    pub mask_ids: Vec<(u8, String)>,
+    /// How the episodes were made (seed, tasks, options), as written to `meta/surgvla.json`;
+    /// `Value::Null` when unknown (e.g. a dataset surgvla did not write).
+    pub collection: Value,
+    /// The program and version that made the episodes, e.g. "surgvla 0.1.0".
+    pub generator: String,
+}
+
+impl DatasetInfo {
+    /// The first feature of `kind`, if the dataset has one.
+    pub fn feature(&self, kind: FeatureKind) -> Option<&FeatureSpec> {
+        self.features.iter().find(|f| f.kind == kind)
+    }
+
+    /// Whether the dataset has a feature of `kind`.
+    pub fn has(&self, kind: FeatureKind) -> bool {
+        self.feature(kind).is_some()
+    }
+
+    /// Image (width, height) in pixels.
+    pub fn image_size(&self) -> (usize, usize) {
+        (
+            self.camera.width_px as usize,
+            self.camera.height_px as usize,
+        )
+    }
+
+    /// The key of the RGB camera's feature.
+    pub fn rgb_key(&self) -> Option<&str> {
+        self.feature(FeatureKind::Rgb).map(|f| f.name.as_str())
+    }
+
+    /// The surgvla metadata of a dataset (`meta/surgvla.json` in LeRobot): the camera with its
+    /// intrinsics and `world_from_camera` (row-major 4x4), the depth convention, the mask id
+    /// table and the collection.
+    pub fn surgvla_json(&self) -> Value {
+        let camera = &self.camera;
+        let masks: serde_json::Map<String, Value> = self
+            .mask_ids
+            .iter()
+            .map(|(id, name)| (id.to_string(), Value::from(name.as_str())))
+            .collect();
+        let mut metadata = json!({
+            "generator": self.generator,
+            "camera": {
+                "key": self.rgb_key().unwrap_or("observation.images.endoscope"),
+                "width": camera.width_px,
+                "height": camera.height_px,
+                "fx": camera.fx_px,
+                "fy": camera.fy_px,
+                "cx": camera.cx_px,
+                "cy": camera.cy_px,
+                "near_m": camera.near_m,
+                "far_m": camera.far_m,
+                "optical_frame": "x right, y down, z forward",
+                "world_from_camera": camera.world_from_camera,
+            },
+        });
+        if let Some(depth) = self.feature(FeatureKind::Depth) {
+            metadata["depth"] = json!({"key": depth.name, "unit": "m", "along": "optical axis", "background": 0.0,
+                  "back_projection": "X = (u + 0.5 - cx) z / fx, Y = (v + 0.5 - cy) z / fy, Z = z"});
+        }
+        metadata["mask_ids"] = Value::Object(masks);
+        if !self.collection.is_null() {
+            metadata["collection"] = self.collection.clone();
+        }
+        metadata
+    }
+}

@@ -1,0 +1,149 @@
+//! The per-episode work that needs only the dataset's features and options, so it runs on rayon
+//! threads while the writer holds its non-shareable parquet state: image encoding (PNG, TIFF),
+//! video encoding, and the episode's statistics.
+
+use super::LeRobotOptions;
+use super::table::{DEFAULT_COLUMNS, EncodedImages};
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::export::ExportError;
+use crate::export::image::encode_png;
+use crate::export::info::DatasetInfo;
+use crate::export::stats::FeatureStats;
+use crate::export::tiff::encode_f32_tiff;
+use crate::export::video::{EncodedFrame, encode};
+use rayon::prelude::*;
+
+/// Statistics per feature, then per default column, in column order.
+pub(super) type EpisodeStats = Vec<(String, FeatureStats)>;
+
+/// Empty statistics for `features` and the default columns.
+pub(super) fn fresh_stats(features: &[FeatureSpec]) -> EpisodeStats {
+    let mut stats: EpisodeStats = features
+        .iter()
+        .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
+        .collect();
+    stats.extend(
+        DEFAULT_COLUMNS
+            .iter()
+            .map(|name| (name.to_string(), FeatureStats::scalar())),
+    );
+    stats
+}
+
+pub(super) struct EpisodeWork<'a> {
+    pub info: &'a DatasetInfo,
+    /// The features stored in the parquet (all but the video one in video mode).
+    pub parquet_features: &'a [FeatureSpec],
+    pub options: &'a LeRobotOptions,
+}
+
+impl EpisodeWork<'_> {
+    /// The RGB frames as video (video mode only).
+    pub fn encode_video(
+        &self,
+        episode: &Episode,
+    ) -> Result<Option<Vec<EncodedFrame>>, ExportError> {
+        let Some(video) = self.options.video else {
+            return Ok(None);
+        };
+        let (width, height) = self.info.image_size();
+        let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
+        encode(
+            video.codec,
+            &frames,
+            width,
+            height,
+            self.info.fps,
+            video.quality,
+        )
+        .map(Some)
+    }
+
+    /// Encodes every image stored in the parquet (frames in parallel, order kept).
+    pub fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
+        let (w, h) = self.info.image_size();
+        let level = self.options.png;
+        let mut images = EncodedImages::new();
+        for feature in self
+            .parquet_features
+            .iter()
+            .filter(|f| f.dtype == Dtype::Image)
+        {
+            let kind = feature.kind;
+            let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
+                .steps
+                .par_iter()
+                .map(|step| match kind {
+                    FeatureKind::Rgb => encode_png(w, h, 3, &step.rgb, level),
+                    FeatureKind::Mask => encode_png(w, h, 1, &step.mask, level),
+                    _ => Ok(encode_f32_tiff(w as u32, h as u32, &step.depth_m)),
+                })
+                .collect();
+            images.insert(feature.name.clone(), encoded?);
+        }
+        Ok(images)
+    }
+
+    /// Statistics of one episode: frames in parallel, folded in frame order (so the result does
+    /// not depend on the thread count).
+    pub fn episode_stats(
+        &self,
+        episode: &Episode,
+        task_index: u64,
+        first_index: u64,
+    ) -> EpisodeStats {
+        let features = &self.info.features;
+        let kinds: Vec<Option<FeatureKind>> = features.iter().map(|f| Some(f.kind)).collect();
+        let fps = f64::from(self.info.fps);
+        let episode_index = episode.meta.index as f64;
+        let per_frame: Vec<EpisodeStats> = episode
+            .steps
+            .par_iter()
+            .enumerate()
+            .map(|(i, step)| {
+                let mut stats = fresh_stats(features);
+                let defaults = [
+                    i as f64 / fps,
+                    i as f64,
+                    episode_index,
+                    (first_index + i as u64) as f64,
+                    task_index as f64,
+                ];
+                let mut default_values = defaults.iter();
+                for (kind, (_, s)) in kinds
+                    .iter()
+                    .copied()
+                    .chain(std::iter::repeat(None))
+                    .zip(stats.iter_mut())
+                {
+                    match (kind, s) {
+                        (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => s.push_u8(&step.rgb),
+                        (Some(FeatureKind::Mask), FeatureStats::Image(s)) => s.push_u8(&step.mask),
+                        (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
+                            s.push_depth(&step.depth_m)
+                        }
+                        (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
+                        (Some(FeatureKind::Action), FeatureStats::Vector(s)) => {
+                            s.push(&step.action)
+                        }
+                        (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
+                            s.push(&step.environment_state)
+                        }
+                        (None, FeatureStats::Vector(s)) => {
+                            s.push(&[default_values.next().copied().unwrap_or(0.0) as f32])
+                        }
+                        _ => {}
+                    }
+                }
+                stats
+            })
+            .collect();
+        let mut total = fresh_stats(features);
+        for frame in per_frame {
+            for ((_, t), (_, f)) in total.iter_mut().zip(frame) {
+                t.merge(&f);
+            }
+        }
+        total
+    }
+}
