@@ -3,6 +3,7 @@
 
 mod cli;
 mod collect;
+mod contract;
 mod determinism;
 mod grasping;
 mod kinematics;

@@ -428,11 +428,7 @@ impl LeRobotSource {
 }
 
 /// Decodes a batch of frame rows into steps.
-fn rows_of(
-    batch: &RecordBatch,
-    path: &Path,
-    info: &DatasetInfo,
-) -> Result<Vec<Row>, ExportError> {
+fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<Row>, ExportError> {
     let episode = column::<Int64Array>(batch, "episode_index", path)?;
     let task = column::<Int64Array>(batch, "task_index", path)?;
     let mut steps: Vec<Row> = (0..batch.num_rows())

@@ -1,0 +1,175 @@
+//! The sink contract: what every format's `EpisodeSink` (and `EpisodeSource`) must do, run for
+//! each format through `open_sink` / `open_source`. A new format adds its options to `formats()`.
+
+use crate::util::{info, temp_root, tree};
+use std::path::Path;
+use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
+use surgvla::episode::Episode;
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion};
+use surgvla::export::{DatasetInfo, EpisodeSink, SinkOptions, open_sink, open_source};
+use surgvla::policy::ExpertLibrary;
+use surgvla::task::TaskId;
+
+/// Every format, with options that make files roll and checkpoint often.
+fn formats() -> Vec<(&'static str, SinkOptions)> {
+    vec![
+        (
+            "lerobot-3.0",
+            SinkOptions::LeRobot(LeRobotOptions {
+                data_file_size_mb: 1,
+                ..LeRobotOptions::default()
+            }),
+        ),
+        (
+            "lerobot-2.1",
+            SinkOptions::LeRobot(LeRobotOptions {
+                version: LeRobotVersion::V21,
+                ..LeRobotOptions::default()
+            }),
+        ),
+    ]
+}
+
+fn episodes(count: u64) -> Vec<Episode> {
+    let options = RecordOptions {
+        max_steps: Some(25),
+        ..RecordOptions::default()
+    };
+    let library = ExpertLibrary::builtin().expect("plans");
+    let tasks = [TaskId::NeedlePick, TaskId::VesselClipping];
+    (0..count)
+        .map(|i| {
+            let task = tasks[i as usize % 2];
+            let mut episode = record_episode(&library, task, episode_seed(4, task, i), i, &options)
+                .expect("record");
+            episode.meta.attempts = 1 + i as u32;
+            episode
+        })
+        .collect()
+}
+
+fn write_all(root: &Path, info: &DatasetInfo, options: &SinkOptions, episodes: &[Episode]) {
+    let mut sink = open_sink(root, info, options, false).expect("open");
+    sink.write_batch(episodes).expect("write");
+    let summary = sink.finish().expect("finish");
+    assert_eq!(summary.episodes, episodes.len() as u64);
+    assert_eq!(
+        sink.finish().expect("finish twice"),
+        summary,
+        "finish is safe twice"
+    );
+}
+
+#[test]
+fn every_sink_keeps_the_contract() {
+    let recorded = episodes(4);
+    let info = info(true);
+    for (name, options) in formats() {
+        // Episodes out of order and episodes that do not match the features are rejected.
+        let bad = temp_root("contract-bad");
+        let mut sink = open_sink(&bad, &info, &options, false).expect("open");
+        let error = sink.write_episode(&recorded[1]).expect_err("out of order");
+        assert!(
+            error.to_string().contains("episode index 1"),
+            "{name}: {error}"
+        );
+        let mut broken = recorded[0].clone();
+        broken.steps[2].mask.clear();
+        assert!(
+            sink.write_episode(&broken).is_err(),
+            "{name}: a step without its mask"
+        );
+
+        // One thread and two threads write the same bytes.
+        let mut trees = Vec::new();
+        for threads in [1, 2] {
+            let root = temp_root("contract-threads");
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            pool.install(|| write_all(&root, &info, &options, &recorded));
+            trees.push(tree(&root));
+        }
+        assert!(trees[0] == trees[1], "{name}: 1 and 2 threads differ");
+
+        // Interrupted after two episodes (a stray partial file in flight), resumed: the same bytes.
+        let interrupted = temp_root("contract-resume");
+        {
+            let mut sink = open_sink(&interrupted, &info, &options, false).expect("open");
+            sink.write_batch(&recorded[..2]).expect("write");
+            std::fs::create_dir_all(interrupted.join("data")).expect("data");
+            std::fs::write(interrupted.join("data/.stray.partial"), b"half").expect("stray");
+        }
+        assert!(
+            open_sink(&interrupted, &info, &options, false).is_err(),
+            "{name}: not overwritten"
+        );
+        let mut sink = open_sink(&interrupted, &info, &options, true).expect("resume");
+        let next = sink.next_episode_index() as usize;
+        assert!(next <= 2, "{name}");
+        sink.write_batch(&recorded[next..]).expect("write rest");
+        sink.finish().expect("finish");
+        assert!(
+            tree(&interrupted) == trees[0],
+            "{name}: resumed differs from uninterrupted"
+        );
+
+        // The source reads back the same episodes, provenance included.
+        let mut source = open_source(&interrupted).expect("source");
+        assert_eq!(source.len(), 4, "{name}");
+        assert_eq!(source.info().features, info.features, "{name}");
+        assert_eq!(source.info().camera, info.camera, "{name}");
+        assert_eq!(source.info().collection, info.collection, "{name}");
+        for expected in &recorded {
+            let read = source
+                .next_episode()
+                .expect("an episode")
+                .expect("readable");
+            assert_eq!(read.meta.index, expected.meta.index, "{name}");
+            assert_eq!(read.meta.instruction, expected.meta.instruction, "{name}");
+            assert_eq!(
+                (
+                    read.meta.seed,
+                    &read.meta.task_code,
+                    read.meta.level,
+                    read.meta.attempts,
+                    read.meta.success
+                ),
+                (
+                    expected.meta.seed,
+                    &expected.meta.task_code,
+                    expected.meta.level,
+                    expected.meta.attempts,
+                    expected.meta.success
+                ),
+                "{name}"
+            );
+            assert_eq!(read.steps.len(), expected.steps.len(), "{name}");
+            for (a, b) in read.steps.iter().zip(&expected.steps) {
+                assert!(a.rgb == b.rgb && a.mask == b.mask, "{name}: images");
+                assert_eq!(a.depth_m, b.depth_m, "{name}: depth");
+                assert_eq!((a.state, a.action), (b.state, b.action), "{name}");
+                assert_eq!(a.environment_state, b.environment_state, "{name}");
+            }
+        }
+        assert!(
+            source.next_episode().is_none(),
+            "{name}: nothing after the last episode"
+        );
+    }
+}
+
+#[test]
+fn a_source_refuses_an_incomplete_dataset_by_name() {
+    let root = temp_root("contract-incomplete");
+    let (_, options) = formats().remove(0);
+    let mut sink = open_sink(&root, &info(false), &options, false).expect("open");
+    sink.write_batch(&episodes(1)).expect("write");
+    let error = open_source(&root).err().expect("no info.json yet");
+    let message = error.to_string();
+    assert!(
+        message.contains(&root.display().to_string()) && message.contains("info.json"),
+        "{message}"
+    );
+}
