@@ -17,6 +17,7 @@ pub mod env;
 pub mod episode;
 pub mod error;
 pub mod export;
+pub mod noise;
 pub mod policy;
 pub mod render;
 pub mod rng;

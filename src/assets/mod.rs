@@ -5,8 +5,6 @@
 //! [`SceneAssets`] builds every mesh of a [`SceneSpec`] once; [`SceneAssets::instances`] poses
 //! them for one frame (objects and instrument from the simulation state) for the renderer.
 
-pub mod organ;
-
 use crate::render::material::{Material, Pattern};
 use crate::render::mesh::Mesh;
 use crate::render::raster::{Instance, Lighting};
@@ -414,7 +412,7 @@ impl SceneAssets {
                 OrganKind::Spleen => (palette::spleen(), MaskClass::Spleen),
                 OrganKind::Vessel => (palette::vessel(), MaskClass::Vessel),
             };
-            let mut mesh = organ::organ_mesh(organ);
+            let mut mesh = organ_mesh(organ);
             let material = mesh.bake(appearance.tissue(material));
             let part = Part {
                 mesh,
@@ -543,5 +541,22 @@ impl SceneAssets {
             out.push(tool(mesh, palette::jaws(), MaskClass::InstrumentJaws, pose));
         }
         out
+    }
+}
+
+/// The organ's mesh in its frame: the surface samples that also make its collision hull, or
+/// the vessel's tube.
+fn organ_mesh(spec: &crate::scene::OrganSpec) -> Mesh {
+    use crate::scene::organ;
+    match spec.kind {
+        crate::scene::OrganKind::Vessel => {
+            let (path, radius) = organ::vessel_path(spec, 48);
+            let points: Vec<[f32; 3]> = path.iter().map(|p| p.map(|v| v as f32).into()).collect();
+            Mesh::tube(&points, &[radius as f32], 14, true)
+        }
+        _ => {
+            let (rings, segments) = organ::SURFACE_GRID;
+            Mesh::star(rings, segments, |d| organ::surface_point_f32(spec, d))
+        }
     }
 }

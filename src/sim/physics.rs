@@ -12,7 +12,7 @@
 //! the jaws carry no collider: grasping is the binding rule, and a jaw collider pressing a 2.6 mm
 //! gauze into the tray would only inject energy.
 
-use crate::assets::organ;
+use crate::scene::organ;
 use crate::scene::{
     NEEDLE_SEGMENTS, NEEDLE_WIRE_RADIUS_M, ObjectKind, OrganKind, OrganSpec, SceneSpec,
     TABLE_TOP_Z_M, needle_arc_points, tray_boxes,
@@ -109,10 +109,9 @@ fn organ_collider(organ: &OrganSpec) -> ColliderBuilder {
             .collect();
         return ColliderBuilder::compound(shapes);
     }
-    let points: Vec<Vector> = organ::organ_mesh(organ)
-        .positions
+    let points: Vec<Vector> = organ::surface_samples(organ)
         .iter()
-        .map(|p| Vector::new(p[0], p[1], p[2]))
+        .map(|p| Vector::new(p.x, p.y, p.z))
         .collect();
     ColliderBuilder::convex_hull(&points).unwrap_or_else(|| {
         let [a, b, c] = organ.semi_axes_m.map(|v| v as f32);

@@ -6,8 +6,8 @@
 //! sampling spacing as slack), and an object is on the pad when all its points are at least
 //! 3 mm inside the rim.
 
-use crate::assets::organ;
 use crate::rng::SplitMix64;
+use crate::scene::organ;
 use crate::scene::{
     BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, MarkColour, MarkSpec, ObjectKind, ObjectSpec,
     OrganKind, OrganSpec, TRAY_CENTER_XY_M, TRAY_HALF_EXTENTS_XY_M, TRAY_TOP_Z_M,

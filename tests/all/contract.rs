@@ -6,7 +6,7 @@ use std::path::Path;
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::episode::Episode;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion};
-use surgvla::export::{DatasetInfo, EpisodeSink, SinkOptions, open_sink, open_source};
+use surgvla::export::{DatasetInfo, SinkOptions, open_sink, open_source};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 

@@ -7,6 +7,7 @@ mod contract;
 mod determinism;
 mod grasping;
 mod kinematics;
+mod layers;
 mod lerobot;
 mod physics;
 mod render;

@@ -7,6 +7,8 @@
 //! and block centre, the needle's arc midpoint) and, for the needle, the local x axis is the
 //! wire's tangent there. Sizes are metres, masses kilograms.
 
+pub mod organ;
+
 use nalgebra::{Isometry3, Vector3};
 
 /// Table top height, metres.

@@ -5,8 +5,7 @@
 //! surface point, so meshes, collision hulls and marks placed on the surface all agree. Every
 //! organ has a flattened base where it rests on the tray (at `-0.7` of its z semi-axis).
 
-use crate::render::material::value_noise3;
-use crate::render::mesh::Mesh;
+use crate::noise::value_noise3;
 use crate::scene::{OrganKind, OrganSpec};
 use nalgebra::Vector3;
 
@@ -73,19 +72,43 @@ pub fn vessel_path(spec: &OrganSpec, points: usize) -> (Vec<Vector3<f64>>, f64) 
     (path, radius)
 }
 
-/// The organ's mesh in its frame.
-pub fn organ_mesh(spec: &OrganSpec) -> Mesh {
-    match spec.kind {
-        OrganKind::Vessel => {
-            let (path, radius) = vessel_path(spec, 48);
-            let points: Vec<[f32; 3]> = path.iter().map(|p| p.map(|v| v as f32).into()).collect();
-            Mesh::tube(&points, &[radius as f32], 14, true)
+/// Rings and segments of the sampling grid of a solid organ's surface (drawn and collided).
+pub const SURFACE_GRID: (usize, usize) = (22, 44);
+
+/// The unit directions of a `rings` x `segments` sphere grid: north pole, rings from north to
+/// south, south pole (the vertex order of the renderer's star-shaped meshes).
+pub fn grid_directions(rings: usize, segments: usize) -> Vec<Vector3<f32>> {
+    use std::f32::consts::{PI, TAU};
+    let (rings, segments) = (rings.max(2), segments.max(3));
+    let mut directions = vec![Vector3::z()];
+    for r in 1..rings {
+        let polar = PI * r as f32 / rings as f32;
+        for s in 0..segments {
+            let azimuth = TAU * s as f32 / segments as f32;
+            directions.push(Vector3::new(
+                polar.sin() * azimuth.cos(),
+                polar.sin() * azimuth.sin(),
+                polar.cos(),
+            ));
         }
-        _ => Mesh::star(22, 44, |d| {
-            let p = surface_point(spec, d.map(f64::from));
-            p.map(|v| v as f32)
-        }),
     }
+    directions.push(-Vector3::z());
+    directions
+}
+
+/// A solid organ's surface point (organ frame, f32) in grid direction `d`.
+pub fn surface_point_f32(spec: &OrganSpec, d: Vector3<f32>) -> Vector3<f32> {
+    surface_point(spec, d.map(f64::from)).map(|v| v as f32)
+}
+
+/// The surface points of a solid organ on [`SURFACE_GRID`]: the drawn mesh's vertices, whose
+/// convex hull is its collision shape.
+pub fn surface_samples(spec: &OrganSpec) -> Vec<Vector3<f32>> {
+    let (rings, segments) = SURFACE_GRID;
+    grid_directions(rings, segments)
+        .into_iter()
+        .map(|d| surface_point_f32(spec, d))
+        .collect()
 }
 
 #[cfg(test)]
