@@ -31,6 +31,16 @@ pub struct EnvOptions {
     pub max_steps: Option<u32>,
 }
 
+impl EnvOptions {
+    /// The defaults without rendering (expert passes, replay checks).
+    pub fn headless() -> Self {
+        EnvOptions {
+            render: None,
+            ..EnvOptions::default()
+        }
+    }
+}
+
 impl Default for EnvOptions {
     fn default() -> Self {
         EnvOptions {
@@ -198,20 +208,27 @@ impl Env {
     /// Applies a physical action (deltas + gripper 1 open / 0 closed) without observing: the
     /// step report only.
     pub fn apply(&mut self, action: &PhysicalAction) -> StepReport {
+        self.timed_step(|sim| sim.step_physical(action))
+    }
+
+    /// Applies a native command (what scripted experts emit) without observing.
+    pub fn apply_native(&mut self, command: &NativeCommand) -> StepReport {
+        self.timed_step(|sim| sim.step_native(command))
+    }
+
+    /// One control step, counted and timed.
+    fn timed_step(&mut self, step: impl FnOnce(&mut Simulator) -> StepReport) -> StepReport {
         let started = Instant::now();
-        let report = self.sim.step_physical(action);
+        let report = step(&mut self.sim);
         self.timing.physics_secs += started.elapsed().as_secs_f64();
         self.steps += 1;
         report
     }
 
-    /// Applies a native command (what scripted experts emit) without observing.
-    pub fn apply_native(&mut self, command: &NativeCommand) -> StepReport {
-        let started = Instant::now();
-        let report = self.sim.step_native(command);
-        self.timing.physics_secs += started.elapsed().as_secs_f64();
-        self.steps += 1;
-        report
+    /// The simulator's observation alone (no images, no dataset arrays): what a scripted
+    /// expert reads each step.
+    pub fn sim_observation(&self) -> Observation {
+        self.sim.observation()
     }
 
     /// Applies a physical action and observes the result.
@@ -259,4 +276,71 @@ fn environment_state(observation: &Observation) -> [f32; MAX_OBJECTS * POSE_VALU
         }
     }
     state
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn drift(step: usize) -> PhysicalAction {
+        // A slow wander with the jaws open: moves the tip, never grasps.
+        let dx = if step % 2 == 0 { 0.002 } else { -0.001 };
+        PhysicalAction::from_array([dx, 0.001, 0.0, 0.0, 0.0, 0.0, 1.0])
+    }
+
+    #[test]
+    fn rendering_changes_nothing_but_the_images() {
+        let options = EnvOptions {
+            max_steps: Some(4),
+            ..EnvOptions::default()
+        };
+        let (mut seen, first) = Env::reset(TaskId::GauzePick, 7, &options).expect("spawn");
+        let (mut blind, blind_first) =
+            Env::reset(TaskId::GauzePick, 7, &EnvOptions::headless()).expect("spawn");
+        let images = first.images.as_ref().expect("a rendering env has images");
+        let (w, h) = (
+            options.camera.width_px as usize,
+            options.camera.height_px as usize,
+        );
+        assert_eq!(
+            (images.rgb.len(), images.depth_m.len(), images.mask.len()),
+            (w * h * 3, w * h, w * h)
+        );
+        assert!(blind_first.images.is_none());
+        assert_eq!(first.state, blind_first.state);
+        for i in 0..4 {
+            let (a, b) = (seen.step(&drift(i)), blind.step(&drift(i)));
+            assert_eq!(a.observation.state, b.observation.state);
+            assert_eq!(
+                a.observation.environment_state,
+                b.observation.environment_state
+            );
+            assert_eq!(a.observation.extras, b.observation.extras);
+            assert_eq!(a.observation.extras.joint_positions.len(), 6);
+            assert!(a.observation.images.is_some() && b.observation.images.is_none());
+        }
+        assert!(seen.timing.render_secs > 0.0 && blind.timing.render_secs == 0.0);
+    }
+
+    #[test]
+    fn an_aimless_policy_is_done_at_the_step_limit_and_fails() {
+        let options = EnvOptions {
+            max_steps: Some(6),
+            ..EnvOptions::headless()
+        };
+        let (mut env, _) = Env::reset(TaskId::NeedlePick, 3, &options).expect("spawn");
+        assert_eq!(env.max_steps(), 6);
+        let mut last = None;
+        for i in 0..6 {
+            let step = env.step(&drift(i));
+            assert_eq!(step.done, i == 5, "step {i}");
+            last = Some(step);
+        }
+        let last = last.expect("six steps");
+        assert!(!last.verdict.success, "{}", last.verdict.reason);
+        assert_eq!(env.steps(), 6);
+        let (default_env, _) =
+            Env::reset(TaskId::NeedlePick, 3, &EnvOptions::headless()).expect("spawn");
+        assert_eq!(default_env.max_steps(), TaskId::NeedlePick.step_limit());
+    }
 }

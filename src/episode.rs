@@ -83,31 +83,19 @@ impl Default for FeatureSet {
 
 /// The features surgvla writes, in column order.
 pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> Vec<FeatureSpec> {
-    let image_axes = names(&["height", "width", "channels"]);
-    let mut features = vec![FeatureSpec {
-        name: "observation.images.endoscope".into(),
+    let image = |name: &str, channels: usize, kind: FeatureKind| FeatureSpec {
+        name: name.into(),
         dtype: Dtype::Image,
-        shape: vec![height_px, width_px, 3],
-        names: image_axes.clone(),
-        kind: FeatureKind::Rgb,
-    }];
+        shape: vec![height_px, width_px, channels],
+        names: names(&["height", "width", "channels"]),
+        kind,
+    };
+    let mut features = vec![image("observation.images.endoscope", 3, FeatureKind::Rgb)];
     if set.depth {
-        features.push(FeatureSpec {
-            name: "observation.images.depth".into(),
-            dtype: Dtype::Image,
-            shape: vec![height_px, width_px, 1],
-            names: image_axes.clone(),
-            kind: FeatureKind::Depth,
-        });
+        features.push(image("observation.images.depth", 1, FeatureKind::Depth));
     }
     if set.mask {
-        features.push(FeatureSpec {
-            name: "observation.images.mask".into(),
-            dtype: Dtype::Image,
-            shape: vec![height_px, width_px, 1],
-            names: image_axes,
-            kind: FeatureKind::Mask,
-        });
+        features.push(image("observation.images.mask", 1, FeatureKind::Mask));
     }
     let environment_names: Vec<String> = (0..MAX_OBJECTS)
         .flat_map(|i| {

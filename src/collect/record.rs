@@ -90,11 +90,7 @@ pub fn run_expert(
     max_steps: u32,
     gripper: GripperEncoding,
 ) -> Result<ExpertRun, PlanError> {
-    let options = EnvOptions {
-        render: None,
-        ..EnvOptions::default()
-    };
-    let (mut env, first) = Env::from_instance(instance.clone(), &options);
+    let (mut env, first) = Env::from_instance(instance.clone(), &EnvOptions::headless());
     let mut observation = first.sim;
     let mut policy = plan.expert(instance, &observation, instance.seed)?;
     let mut physical = Vec::with_capacity(max_steps as usize);
@@ -102,7 +98,7 @@ pub fn run_expert(
     while !policy.is_done() && physical.len() < max_steps as usize {
         let command = policy.act(&observation);
         env.apply_native(&command);
-        let next = env.observe().sim;
+        let next = env.sim_observation();
         let (before, after) = (observation.state7(), next.state7());
         let mut action = [0f32; 6];
         for axis in 0..3 {
@@ -156,11 +152,7 @@ pub fn verify_replay(
     actions: &[[f32; 7]],
     gripper: GripperEncoding,
 ) -> Verdict {
-    let options = EnvOptions {
-        render: None,
-        ..EnvOptions::default()
-    };
-    let (mut env, _) = Env::from_instance(instance.clone(), &options);
+    let (mut env, _) = Env::from_instance(instance.clone(), &EnvOptions::headless());
     for action in physical_actions(actions, gripper) {
         env.apply(&action);
     }

@@ -292,7 +292,7 @@ fn provenance_of(root: &Path, v21: bool) -> Result<Vec<Value>, ExportError> {
     for batch in read_parquet(&path)? {
         for row in 0..batch.num_rows() {
             let mut values = serde_json::Map::new();
-            for (key, _) in super::Provenance::default_columns() {
+            for key in super::Provenance::KEYS {
                 let Some(column) = batch.column_by_name(key) else {
                     continue;
                 };

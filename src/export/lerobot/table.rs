@@ -183,26 +183,24 @@ pub struct Provenance {
 }
 
 impl Provenance {
-    /// The columns' keys and an example value each, in column order.
-    pub fn default_columns() -> [(&'static str, Value); 5] {
-        Provenance {
-            seed: 0,
-            task_id: String::new(),
-            level: 0,
-            attempts: 0,
-            success: false,
-        }
-        .columns()
-    }
+    /// The columns' keys, in column order.
+    pub const KEYS: [&'static str; 5] = [
+        "surgvla/seed",
+        "surgvla/task_id",
+        "surgvla/level",
+        "surgvla/attempts",
+        "surgvla/success",
+    ];
 
     /// (key, value) of each field, in column order.
     pub fn columns(&self) -> [(&'static str, Value); 5] {
+        let [seed, task_id, level, attempts, success] = Self::KEYS;
         [
-            ("surgvla/seed", Value::from(self.seed as i64)),
-            ("surgvla/task_id", Value::from(self.task_id.as_str())),
-            ("surgvla/level", Value::from(self.level)),
-            ("surgvla/attempts", Value::from(self.attempts)),
-            ("surgvla/success", Value::from(self.success)),
+            (seed, Value::from(self.seed as i64)),
+            (task_id, Value::from(self.task_id.as_str())),
+            (level, Value::from(self.level)),
+            (attempts, Value::from(self.attempts)),
+            (success, Value::from(self.success)),
         ]
     }
 }
@@ -330,29 +328,25 @@ pub fn episodes_batch(
         }
     }
     // Provenance; the seed as int64 (two's complement: seeds above 2^63 read negative).
-    columns.push(("surgvla/seed".into(), int(&|r| r.provenance.seed)));
-    columns.push((
-        "surgvla/task_id".into(),
+    let provenance: [ArrayRef; 5] = [
+        int(&|r| r.provenance.seed),
         Arc::new(StringArray::from_iter_values(
             rows.iter().map(|r| r.provenance.task_id.as_str()),
         )),
-    ));
-    columns.push((
-        "surgvla/level".into(),
         int(&|r| u64::from(r.provenance.level)),
-    ));
-    columns.push((
-        "surgvla/attempts".into(),
         int(&|r| u64::from(r.provenance.attempts)),
-    ));
-    columns.push((
-        "surgvla/success".into(),
         Arc::new(BooleanArray::from(
             rows.iter()
                 .map(|r| r.provenance.success)
                 .collect::<Vec<_>>(),
         )),
-    ));
+    ];
+    columns.extend(
+        Provenance::KEYS
+            .iter()
+            .map(|k| k.to_string())
+            .zip(provenance),
+    );
     let fields: Vec<Field> = columns
         .iter()
         .map(|(name, array)| Field::new(name, array.data_type().clone(), true))
