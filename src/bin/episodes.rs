@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use surgvla::collect::run::{CollectOptions, Shard, collect, dataset_info, measure_experts};
 use surgvla::episode::{FeatureSet, GripperEncoding};
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
-use surgvla::export::{DatasetDir, SinkOptions, open_sink};
+use surgvla::export::{SinkOptions, open_sink, resumes};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
 
@@ -223,7 +223,7 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         ..FeatureSet::default()
     };
     let info = dataset_info(&options, features, args.job.policies.is_some());
-    let resuming = args.resume && DatasetDir::is_interrupted(&args.out);
+    let resuming = resumes(&args.out, args.resume);
     let mut sink = open_sink(&args.out, &info, &args.sink_options(), args.resume)?;
     if resuming {
         let next = sink.next_episode_index();

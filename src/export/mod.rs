@@ -189,16 +189,22 @@ pub enum SinkOptions {
     LeRobot(lerobot::LeRobotOptions),
 }
 
-/// Starts a dataset of `info` in `root` (which must not exist or be empty), or, with `resume`
-/// and an interrupted dataset in `root`, continues it from its last checkpoint
-/// ([`EpisodeSink::next_episode_index`] says where).
+/// Whether [`open_sink`] with `resume` continues the dataset in `root` (it holds an interrupted
+/// one) rather than starting a new one.
+pub fn resumes(root: &Path, resume: bool) -> bool {
+    resume && DatasetDir::is_interrupted(root)
+}
+
+/// Starts a dataset of `info` in `root` (which must not exist or be empty), or, when
+/// [`resumes`], continues it from its last checkpoint ([`EpisodeSink::next_episode_index`] says
+/// where).
 pub fn open_sink(
     root: &Path,
     info: &DatasetInfo,
     options: &SinkOptions,
     resume: bool,
 ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-    let resuming = resume && DatasetDir::is_interrupted(root);
+    let resuming = resumes(root, resume);
     Ok(match options {
         SinkOptions::LeRobot(options) => Box::new(if resuming {
             lerobot::LeRobotWriter::resume(root, info, options.clone())?

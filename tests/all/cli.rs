@@ -189,6 +189,26 @@ fn collect_resume_starts_fresh_or_refuses_a_complete_dataset() {
 }
 
 #[test]
+fn collect_into_a_file_or_under_one_exits_2_naming_the_path() {
+    let folder = temp_root("out-is-a-file");
+    std::fs::create_dir_all(&*folder).expect("folder");
+    let file = folder.join("notes.txt");
+    std::fs::write(&file, b"not a folder").expect("file");
+    for out in [file.clone(), file.join("dataset")] {
+        let path = out.to_str().expect("utf-8");
+        let (code, _, stderr) = surgvla(&["collect", "--tasks", "T1-1", "--out", path]);
+        assert_eq!(code, 2, "{path}: {stderr}");
+        assert!(stderr.contains(path), "{stderr}");
+        assert_eq!(
+            stderr.lines().count(),
+            1,
+            "one line, each cause once: {stderr}"
+        );
+    }
+    assert_eq!(std::fs::read(&file).expect("file"), b"not a folder");
+}
+
+#[test]
 fn a_closed_output_pipe_is_a_quiet_exit() {
     for args in [vec!["tasks"], vec!["sim", "--task", "T1-3"]] {
         let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
