@@ -6,11 +6,13 @@
 //! release motion for tests and benchmarks (the task experts live in `scripted_policies/`).
 //!
 //! [`record`] turns an expert run into a verified, rendered episode; [`run`] is a whole
-//! collection (slots, shards, threads); [`report`] its `collect_report.json`.
+//! collection (slots, shards, threads) of the options and slots in [`slot`]; [`report`] its
+//! `collect_report.json`.
 
 pub mod record;
 pub mod report;
 pub mod run;
+pub mod slot;
 
 use crate::policy::{Policy, Waypoint, WaypointPolicy};
 use crate::sim::{JawCommand, NativeCommand, Observation, Simulator, StepReport};

@@ -2,7 +2,7 @@
 //! rates, every failed attempt, the dataset summary and where the time went. [`Tally`]
 //! accumulates it slot by slot.
 
-use crate::collect::run::{CollectOptions, Failure, SlotOutcome};
+use crate::collect::slot::{CollectOptions, Failure, SlotOutcome};
 use crate::export::Summary;
 use serde::Serialize;
 use std::collections::BTreeMap;

@@ -5,6 +5,7 @@
 //! A [`TaskInstance`] is one episode's setup: the scene, the instruction, and which object or
 //! mark the instruction names. It is a pure function of (task, seed, [`TaskConfig`]).
 
+pub mod instance;
 mod placement;
 pub mod spawn;
 pub mod success;

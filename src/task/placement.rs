@@ -14,7 +14,7 @@ use crate::scene::{
     needle_arc_points,
 };
 use crate::sim::control::Workspace;
-use crate::task::spawn::{Range, SpawnRanges, TaskInstance};
+use crate::task::instance::{Range, SpawnRanges, TaskInstance};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
 
 /// Smallest gap between two objects' footprints at spawn, metres.

@@ -1,6 +1,6 @@
 //! ARCHITECTURE.md's layer table, kept: every `crate::` path in a library module names only the
 //! modules its row allows; the library never names clap or indicatif; only `src/sim/physics.rs`
-//! names rapier.
+//! names rapier; no two files of one folder import each other (directly or round a loop).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -104,6 +104,127 @@ fn violations(src: &Path, table: &BTreeMap<String, BTreeSet<String>>) -> Vec<Str
         }
     }
     found
+}
+
+/// The module path of a file under `src` ("collect::run"; a folder's mod.rs is the folder).
+fn module_of(relative: &Path) -> Vec<String> {
+    let mut parts: Vec<String> = relative
+        .with_extension("")
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect();
+    if parts.last().is_some_and(|p| p == "mod") {
+        parts.pop();
+    }
+    parts
+}
+
+/// Cycles among sibling modules (files of one folder importing each other, directly or round a
+/// loop), as "a -> b -> a" lines. A folder's mod.rs and its children are parent and child, not
+/// siblings.
+fn sibling_cycles(src: &Path) -> Vec<String> {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let modules: BTreeMap<Vec<String>, String> = files
+        .iter()
+        .map(|f| {
+            let relative = f.strip_prefix(src).expect("under src");
+            (module_of(relative), code(f))
+        })
+        .filter(|(m, _)| m.first().is_some_and(|c| c != "bin" && c != "lib"))
+        .collect();
+    let mut edges: BTreeMap<Vec<String>, BTreeSet<Vec<String>>> = BTreeMap::new();
+    for (module, text) in &modules {
+        let parent = &module[..module.len() - 1];
+        let mut targets: Vec<Vec<String>> = Vec::new();
+        for (prefix, base) in [("crate::", Vec::new()), ("super::", parent.to_vec())] {
+            for (i, _) in text.match_indices(prefix) {
+                if text[..i].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == ':') {
+                    continue;
+                }
+                let path: String = text[i + prefix.len()..]
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_' || *c == ':')
+                    .collect();
+                let mut full = base.clone();
+                full.extend(path.split("::").filter(|p| !p.is_empty()).map(String::from));
+                targets.push(full);
+            }
+        }
+        for target in targets {
+            // The longest prefix that is a module of the library.
+            let Some(found) = (1..=target.len())
+                .rev()
+                .map(|n| target[..n].to_vec())
+                .find(|m| modules.contains_key(m))
+            else {
+                continue;
+            };
+            if found != *module
+                && found.len() == module.len()
+                && found[..found.len() - 1] == *parent
+            {
+                edges.entry(module.clone()).or_default().insert(found);
+            }
+        }
+    }
+    let mut cycles = Vec::new();
+    for start in edges.keys() {
+        // Depth-first search for a path back to `start`.
+        let mut stack = vec![(start.clone(), vec![start.clone()])];
+        let mut seen = BTreeSet::new();
+        while let Some((at, path)) = stack.pop() {
+            for next in edges.get(&at).into_iter().flatten() {
+                if next == start {
+                    let names: Vec<String> =
+                        path.iter().chain([start]).map(|m| m.join("::")).collect();
+                    cycles.push(names.join(" -> "));
+                } else if seen.insert(next.clone()) {
+                    let mut longer = path.clone();
+                    longer.push(next.clone());
+                    stack.push((next.clone(), longer));
+                }
+            }
+        }
+    }
+    cycles
+}
+
+#[test]
+fn no_sibling_modules_import_each_other() {
+    let cycles = sibling_cycles(&root().join("src"));
+    assert!(cycles.is_empty(), "{}", cycles.join("\n"));
+}
+
+#[test]
+fn a_sibling_cycle_is_found() {
+    let src = std::env::temp_dir().join(format!("surgvla-cycles-{}", std::process::id()));
+    std::fs::create_dir_all(src.join("collect")).expect("dir");
+    std::fs::write(
+        src.join("collect/mod.rs"),
+        "pub mod run;\npub mod report;\n",
+    )
+    .expect("mod");
+    std::fs::write(
+        src.join("collect/run.rs"),
+        "use crate::collect::report::Tally;\n",
+    )
+    .expect("run");
+    std::fs::write(
+        src.join("collect/report.rs"),
+        "use super::run::SlotOutcome;\n",
+    )
+    .expect("report");
+    std::fs::write(src.join("collect/slot.rs"), "use crate::collect::Thing;\n").expect("slot");
+    let cycles = sibling_cycles(&src);
+    std::fs::remove_dir_all(&src).ok();
+    assert!(
+        cycles
+            .iter()
+            .any(|c| c == "collect::report -> collect::run -> collect::report"),
+        "{cycles:?}"
+    );
+    assert!(cycles.iter().all(|c| !c.contains("slot")), "{cycles:?}");
 }
 
 #[test]

@@ -1,0 +1,145 @@
+//! What a collection is made of: its options, the slots (the `k`-th episode of a task), how a
+//! collection is split into shards, and what happened at a slot. Both the run ([`super::run`])
+//! and its report ([`super::report`]) speak these types.
+
+use crate::collect::record::RecordOptions;
+use crate::episode::Episode;
+use crate::task::TaskId;
+use serde::Serialize;
+use std::fmt;
+use std::str::FromStr;
+
+/// One part of a collection split across machines: `index` of `count` (0-based).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Default for Shard {
+    fn default() -> Self {
+        Shard { index: 0, count: 1 }
+    }
+}
+
+/// A shard written other than "I/N" with I < N.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
+)]
+pub struct BadShard(pub String);
+
+impl FromStr for Shard {
+    type Err = BadShard;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let bad = || BadShard(text.to_string());
+        let (i, n) = text.split_once('/').ok_or_else(bad)?;
+        let index: u32 = i.trim().parse().map_err(|_| bad())?;
+        let count: u32 = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl Shard {
+    /// This shard's contiguous part of `0..total`.
+    pub fn range(&self, total: usize) -> std::ops::Range<usize> {
+        let part = |i: u32| (total as u128 * u128::from(i) / u128::from(self.count)) as usize;
+        part(self.index)..part(self.index + 1)
+    }
+}
+
+/// One episode slot: the `k`-th episode of `task`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct Slot {
+    #[serde(serialize_with = "task_code")]
+    pub task: TaskId,
+    pub k: u64,
+}
+
+fn task_code<S: serde::Serializer>(task: &TaskId, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(task.code())
+}
+
+/// Everything a collection depends on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CollectOptions {
+    pub tasks: Vec<TaskId>,
+    pub episodes_per_task: u64,
+    pub seed: u64,
+    pub shard: Shard,
+    /// Worker threads (0 = all cores).
+    pub threads: usize,
+    /// Most attempts per slot before the collection fails.
+    pub max_attempts: u32,
+    pub record: RecordOptions,
+}
+
+impl Default for CollectOptions {
+    fn default() -> Self {
+        CollectOptions {
+            tasks: TaskId::ALL.to_vec(),
+            episodes_per_task: 100,
+            seed: 0,
+            shard: Shard::default(),
+            threads: 0,
+            max_attempts: 20,
+            record: RecordOptions::default(),
+        }
+    }
+}
+
+impl CollectOptions {
+    /// Every slot of the collection, in order (all shards).
+    pub fn all_slots(&self) -> Vec<Slot> {
+        self.tasks
+            .iter()
+            .flat_map(|&task| (0..self.episodes_per_task).map(move |k| Slot { task, k }))
+            .collect()
+    }
+
+    /// This shard's slots, in order; the dataset's episode `i` is the `i`-th of them.
+    pub fn slots(&self) -> Vec<Slot> {
+        let all = self.all_slots();
+        let range = self.shard.range(all.len());
+        all[range].to_vec()
+    }
+}
+
+/// One failed attempt, with what it takes to reproduce it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Failure {
+    #[serde(flatten)]
+    pub slot: Slot,
+    pub attempt: u32,
+    pub seed: u64,
+    /// "spawn" (no valid scene for this seed; not counted as an attempt), "expert" (the
+    /// predicate failed after the expert's run) or "replay" (the expert succeeded but
+    /// replaying its dataset actions did not).
+    pub stage: &'static str,
+    pub reason: String,
+}
+
+/// What happened at one slot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlotOutcome {
+    pub slot: Slot,
+    /// An attempt passed both checks (false when all `max_attempts` failed).
+    pub verified: bool,
+    /// The verified episode (None when only counting).
+    pub episode: Option<Episode>,
+    pub frames: u64,
+    pub attempts: u32,
+    pub failures: Vec<Failure>,
+    pub physics_secs: f64,
+    pub render_secs: f64,
+}
