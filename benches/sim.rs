@@ -22,8 +22,8 @@ fn bench_step(c: &mut Criterion) {
         let mut i = 0u32;
         b.iter(|| {
             i = i.wrapping_add(1);
-            let sign = if (i / 4) % 2 == 0 { 1.0 } else { -1.0 };
-            let jaw = if (i / 3) % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
+            let jaw = if (i / 3).is_multiple_of(2) { 1.0 } else { -1.0 };
             let command = NativeCommand {
                 dx: 0.5 * sign,
                 dy: 0.3 * sign,
@@ -48,7 +48,7 @@ fn bench_step(c: &mut Criterion) {
         let mut i = 0u32;
         b.iter(|| {
             i = i.wrapping_add(1);
-            let sign = if (i / 4) % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
             black_box(sim.step_native(&NativeCommand {
                 dx: 0.3 * sign,
                 dz: 0.5 * sign,

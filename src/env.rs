@@ -284,7 +284,11 @@ mod tests {
 
     fn drift(step: usize) -> PhysicalAction {
         // A slow wander with the jaws open: moves the tip, never grasps.
-        let dx = if step % 2 == 0 { 0.002 } else { -0.001 };
+        let dx = if step.is_multiple_of(2) {
+            0.002
+        } else {
+            -0.001
+        };
         PhysicalAction::from_array([dx, 0.001, 0.0, 0.0, 0.0, 0.0, 1.0])
     }
 

@@ -222,6 +222,7 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         mask: args.with_mask,
         ..FeatureSet::default()
     };
+    options.check().map_err(CliError::usage)?;
     let info = dataset_info(&options, features, args.job.policies.is_some());
     let resuming = resumes(&args.out, args.resume);
     let mut sink = open_sink(&args.out, &info, &args.sink_options(), args.resume)?;
@@ -230,11 +231,12 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         eprintln!("resuming {} at episode {next}", args.out.display());
     }
     let mut bars = progress::Bars::new(&options.tasks);
-    let report = collect(&options, &library, sink.as_mut(), &mut bars)?;
+    let report = collect(&options, &library, sink.as_mut(), &mut bars).map_err(|e| {
+        let resumable = surgvla::export::DatasetDir::is_interrupted(&args.out);
+        CliError::from(e).resumable(resumable)
+    })?;
     bars.clear();
-    let path = args.out.join("collect_report.json");
-    let json = serde_json::to_string_pretty(&report)?;
-    surgvla::export::write_atomically(&path, json.as_bytes())?;
+    let path = args.out.join(surgvla::collect::run::REPORT);
     progress::print_summary(&report)?;
     say!(
         "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
@@ -261,6 +263,7 @@ pub struct ExpertsArgs {
 /// writing, and prints their success rates: the quick check of a new or edited plan.
 pub fn run_experts(args: &ExpertsArgs) -> Result<(), CliError> {
     let (options, library) = args.job.options()?;
+    options.check().map_err(CliError::usage)?;
     let mut bars = progress::Bars::new(&options.tasks);
     let report = measure_experts(&options, &library, &mut bars)?;
     bars.clear();

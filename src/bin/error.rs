@@ -15,8 +15,13 @@ pub struct CliError {
 }
 
 /// The hint after a full disk.
-const DISK_FULL: &str = "the disk is full: free space and run the command again \
-     (`collect --resume` continues an interrupted dataset from its last checkpoint)";
+const DISK_FULL: &str = "the disk is full: free space and run the command again";
+/// The hint after a failure that left a resumable dataset.
+const RESUME: &str = "the dataset is incomplete: run the same command with --resume to \
+     continue it from its last checkpoint";
+/// The same after a full disk.
+const DISK_FULL_RESUME: &str = "the disk is full: free space, then run the same command with \
+     --resume to continue the dataset from its last checkpoint";
 
 impl CliError {
     fn new(kind: ErrorKind, error: impl Into<anyhow::Error>) -> Self {
@@ -31,6 +36,19 @@ impl CliError {
     /// A mistake in what the user gave, found after parsing (exit 2).
     pub fn usage(message: impl std::fmt::Display) -> Self {
         CliError::new(ErrorKind::Usage, anyhow::anyhow!("{message}"))
+    }
+
+    /// Says how to continue when the failure left a dataset that `--resume` continues (and
+    /// only then).
+    pub fn resumable(mut self, resumable: bool) -> Self {
+        if resumable && self.kind == ErrorKind::Failed {
+            self.hint = Some(if self.hint == Some(DISK_FULL) {
+                DISK_FULL_RESUME
+            } else {
+                RESUME
+            });
+        }
+        self
     }
 
     /// Adds what the command was doing, keeping the kind.
@@ -93,10 +111,12 @@ impl From<serde_json::Error> for CliError {
     }
 }
 
+/// A bare I/O error reaching the CLI is a failed write of its output (`say!`, the tables): the
+/// library's file errors carry their path in their own types.
 impl From<std::io::Error> for CliError {
     fn from(error: std::io::Error) -> Self {
         let quiet = error.kind() == std::io::ErrorKind::BrokenPipe;
-        let mut cli = CliError::new(ErrorKind::Failed, error);
+        let mut cli = CliError::new(ErrorKind::Failed, error).context("writing to standard output");
         cli.quiet = quiet;
         cli
     }
@@ -138,7 +158,10 @@ mod tests {
             "loading the expert plans: reading plans/gauze_pick.toml: no such file"
         );
         assert_eq!(error.kind.exit_code(), 2);
-        let not_empty = CliError::from(ExportError::NotEmpty { path: "out".into() });
+        let not_empty = CliError::from(ExportError::NotEmpty {
+            path: "out".into(),
+            interrupted: true,
+        });
         assert_eq!(not_empty.kind.exit_code(), 2);
         assert!(CliError::from(Error::from(Io::BrokenPipe)).quiet);
     }

@@ -15,7 +15,10 @@
 use crate::collect::record::{attempt_seed, render_replay, run_expert, verify_replay};
 use crate::collect::report::Tally;
 pub use crate::collect::report::{CollectReport, TaskReport, Timing};
-pub use crate::collect::slot::{BadShard, CollectOptions, Failure, Shard, Slot, SlotOutcome};
+pub use crate::collect::slot::{
+    BadOptions, BadShard, CollectOptions, Failure, MAX_THREADS_PER_CORE, Shard, Slot, SlotOutcome,
+    cores,
+};
 use crate::episode::Episode;
 use crate::episode::FeatureSet;
 use crate::export::DatasetInfo;
@@ -32,6 +35,8 @@ pub enum CollectError {
     Plan(#[from] PlanError),
     #[error(transparent)]
     Export(#[from] ExportError),
+    #[error(transparent)]
+    Options(#[from] BadOptions),
     #[error(
         "{task} episode {k}: no verified episode in {attempts} attempts; last failure: {reason}"
     )]
@@ -55,6 +60,7 @@ impl CollectError {
         match self {
             CollectError::Plan(e) => e.kind(),
             CollectError::Export(e) => e.kind(),
+            CollectError::Options(_) => crate::error::ErrorKind::Usage,
             _ => crate::error::ErrorKind::Failed,
         }
     }
@@ -171,8 +177,9 @@ impl CollectProgress for Silent {}
 
 /// The worker pool of a run and its size.
 fn worker_pool(options: &CollectOptions) -> Result<(rayon::ThreadPool, usize), CollectError> {
+    options.check()?;
     let threads = if options.threads == 0 {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
+        cores()
     } else {
         options.threads
     };
@@ -283,9 +290,12 @@ pub fn dataset_info(
     }
 }
 
+/// The collection's report inside the dataset folder.
+pub const REPORT: &str = "collect_report.json";
+
 /// Runs the collection into `sink`, starting at the sink's next episode (after a resume, the
 /// episodes before it are already in the sink; they are recounted for the report, not rendered
-/// or written). Finishes the sink.
+/// or written). Finishes the sink, with the report ([`REPORT`]) as its last file.
 pub fn collect(
     options: &CollectOptions,
     library: &ExpertLibrary,
@@ -363,24 +373,39 @@ pub fn collect(
     }
     let sink_timing = sink.timing();
     let finish_started = Instant::now();
-    let summary = sink.finish()?;
-    let finish_secs = finish_started.elapsed().as_secs_f64();
-    let wall_secs = started.elapsed().as_secs_f64();
     let all = options.all_slots().len();
     let range = options.shard.range(all);
-    Ok(report.finish(
-        options,
-        summary,
-        threads,
-        resume_at,
-        [range.start, range.end],
-        Timing {
-            wall_secs,
-            encode_secs: sink_timing.encode_secs,
-            write_secs: sink_timing.write_secs + finish_secs,
-            ..Timing::default()
-        },
-    ))
+    // The report is written into the dataset folder as the sink's last file, before the
+    // dataset is marked complete: an interrupted finish resumes, and never loses the report.
+    let mut tally = Some(report);
+    let mut made = None;
+    let mut sidecar = |summary: &Summary| -> Result<(String, Vec<u8>), ExportError> {
+        let tally = tally
+            .take()
+            .ok_or_else(|| ExportError::Internal("the report was made twice".into()))?;
+        let finish_secs = finish_started.elapsed().as_secs_f64();
+        let report = tally.finish(
+            options,
+            summary.clone(),
+            threads,
+            resume_at,
+            [range.start, range.end],
+            Timing {
+                wall_secs: started.elapsed().as_secs_f64(),
+                encode_secs: sink_timing.encode_secs,
+                write_secs: sink_timing.write_secs + finish_secs,
+                ..Timing::default()
+            },
+        );
+        let bytes = serde_json::to_vec_pretty(&report).map_err(|source| ExportError::Json {
+            path: REPORT.into(),
+            source,
+        })?;
+        made = Some(report);
+        Ok((REPORT.to_string(), bytes))
+    };
+    sink.finish_with(Some(&mut sidecar))?;
+    made.ok_or_else(|| CollectError::Export(ExportError::Internal("no report was made".into())))
 }
 
 #[cfg(test)]

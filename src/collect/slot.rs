@@ -98,7 +98,53 @@ impl Default for CollectOptions {
     }
 }
 
+/// Collection options that cannot make a run (the user's to fix).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct BadOptions(pub String);
+
+/// Worker threads allowed per core: more only add memory (each worker holds a simulator and a
+/// renderer, about 45 MB) and no speed.
+pub const MAX_THREADS_PER_CORE: usize = 8;
+
+/// The cores this process may use.
+pub fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 impl CollectOptions {
+    /// Refuses options that cannot make a sensible run, before anything is written: a task
+    /// listed twice (its episodes would be written twice), more than [`MAX_THREADS_PER_CORE`]
+    /// threads per core, a shard that would hold no episode.
+    pub fn check(&self) -> Result<(), BadOptions> {
+        for (i, task) in self.tasks.iter().enumerate() {
+            if self.tasks[..i].contains(task) {
+                return Err(BadOptions(format!(
+                    "task {} ({}) is listed twice; list each task once",
+                    task.code(),
+                    task.name()
+                )));
+            }
+        }
+        let max = MAX_THREADS_PER_CORE * cores();
+        if self.threads > max {
+            return Err(BadOptions(format!(
+                "{} threads: at most {max} on this machine ({MAX_THREADS_PER_CORE} per core; each \
+                 worker holds a simulator and a renderer)",
+                self.threads
+            )));
+        }
+        let total = self.tasks.len() as u64 * self.episodes_per_task;
+        let range = self.shard.range(total as usize);
+        if range.is_empty() {
+            return Err(BadOptions(format!(
+                "shard {} would hold no episode: the run has {total} in all; use at most {total} shards",
+                self.shard
+            )));
+        }
+        Ok(())
+    }
+
     /// Every slot of the collection, in order (all shards).
     pub fn all_slots(&self) -> Vec<Slot> {
         self.tasks

@@ -1,28 +1,42 @@
 //! The one owner of a dataset folder, for every format.
 //!
+//! - **Lock.** A run holds an advisory lock (`flock`) on the folder for its whole life; the kernel
+//!   releases it when the process exits or dies. A second run into the same folder is refused
+//!   ([`ExportError::Locked`]) and changes nothing.
 //! - **Marker.** [`DatasetDir::create`] refuses a folder that holds anything and writes
-//!   [`INCOMPLETE_MARKER`] first; [`DatasetDir::complete`] removes it last, after the format wrote
-//!   the file that makes its dataset loadable. A dataset with the marker is never complete.
+//!   [`INCOMPLETE_MARKER`] first; [`DatasetDir::complete`] removes it last, after the format
+//!   wrote its last file and the manifest. A dataset with the marker is never complete. The
+//!   marker records the run's byte-changing [`RunOptions`] and, once one was saved, the last
+//!   checkpoint, so removing it is one atomic step that also discards the checkpoint.
 //! - **Temporary names.** Every file is written under `.name.partial` ([`temporary_name`]) and
-//!   renamed when complete ([`DatasetDir::write_atomically`], [`PendingFile::commit`]), so a
+//!   renamed when complete ([`DatasetDir::write_atomically`], [`DatasetDir::commit`]), so a
 //!   crash never leaves a half-written file under its final name.
-//! - **Checkpoints and resume.** At a moment when every file written so far is complete, a
-//!   format saves its state ([`DatasetDir::save_checkpoint`]); [`DatasetDir::resume`] reopens an
-//!   interrupted folder, and [`DatasetDir::remove_files_except`] deletes whatever was written
-//!   after the checkpoint.
+//! - **Checksums and durability.** Every finished file is recorded with its size and CRC-32C
+//!   ([`FileRecord`]). [`DatasetDir::save_checkpoint`] first makes the files finished since the
+//!   last checkpoint durable (fsync of the files, their folders and the marker), then records
+//!   them with the format's state. At the end, `meta/surgvla_manifest.json` ([`MANIFEST`]) lists
+//!   every file of the dataset with its size and checksum.
+//! - **Resume.** [`DatasetDir::resume`] refuses changed options before touching the folder,
+//!   takes the lock, verifies every file the checkpoint lists (refusing, with the file named, if
+//!   one is missing, truncated or changed) and deletes whatever was written after it.
+//! - **Journals.** Append-only files of per-episode records ([`DatasetDir::append`]) that a
+//!   format reads back when it finishes, so what it keeps in memory does not grow with the
+//!   number of episodes; a checkpoint records their length and checksum, resume cuts them back.
 //! - **Rolling.** [`FileCounter`] numbers rolled files `chunk/file` the LeRobot way.
 
 use crate::export::ExportError;
-use serde::Serialize;
 use serde::de::DeserializeOwned;
-use std::collections::HashSet;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::fs::File;
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Name of the marker that exists while a dataset is being written.
 pub const INCOMPLETE_MARKER: &str = ".surgvla-incomplete";
-/// The checkpoint a format saves whenever every file it wrote so far is complete.
-pub const CHECKPOINT: &str = "meta/.surgvla-checkpoint.json";
+/// Every file of a finished dataset with its size and CRC-32C.
+pub const MANIFEST: &str = "meta/surgvla_manifest.json";
 
 /// The temporary name of `path` while it is being written (`.name.partial`).
 pub fn temporary_name(path: &Path) -> PathBuf {
@@ -44,40 +58,271 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<u64, ExportError> {
     Ok(bytes.len() as u64)
 }
 
+/// A finished file: its path relative to the root, size and CRC-32C (8 hex digits).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FileRecord {
+    pub path: String,
+    pub bytes: u64,
+    pub crc32c: String,
+}
+
+impl FileRecord {
+    fn new(path: String, bytes: u64, crc: u32) -> Self {
+        FileRecord {
+            path,
+            bytes,
+            crc32c: format!("{crc:08x}"),
+        }
+    }
+
+    /// What is wrong with the file at `path` compared with this record, if anything.
+    pub fn problem(&self, path: &Path) -> Result<Option<String>, ExportError> {
+        let file = match File::open(path) {
+            Ok(file) => file,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Ok(Some("is missing".into()));
+            }
+            Err(source) => {
+                return Err(ExportError::Io {
+                    path: path.into(),
+                    source,
+                });
+            }
+        };
+        let (bytes, crc) = checksum(file, path)?;
+        Ok(if bytes != self.bytes {
+            Some(format!("is {bytes} bytes, {} were recorded", self.bytes))
+        } else if format!("{crc:08x}") != self.crc32c {
+            Some(format!(
+                "has CRC-32C {crc:08x}, {} was recorded (its content changed)",
+                self.crc32c
+            ))
+        } else {
+            None
+        })
+    }
+}
+
+/// The size and CRC-32C of a whole file.
+fn checksum(mut file: File, path: &Path) -> Result<(u64, u32), ExportError> {
+    let mut buffer = vec![0u8; 1 << 20];
+    let (mut bytes, mut crc) = (0u64, 0u32);
+    loop {
+        let n = file.read(&mut buffer).map_err(ExportError::io(path))?;
+        if n == 0 {
+            return Ok((bytes, crc));
+        }
+        crc = crc32c::crc32c_append(crc, &buffer[..n]);
+        bytes += n as u64;
+    }
+}
+
+/// Everything a run's bytes depend on, by option name (e.g. `seed`, `video`, `features`): a
+/// dataset records it when it starts, and a resume must give the same.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunOptions(BTreeMap<String, Value>);
+
+/// One option whose value differs between the recorded run and a resume.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OptionChange {
+    pub option: String,
+    /// `None`: the option was not recorded (or is not given now).
+    pub recorded: Option<Value>,
+    pub given: Option<Value>,
+}
+
+impl std::fmt::Display for OptionChange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let show = |v: &Option<Value>| v.as_ref().map_or("(none)".into(), Value::to_string);
+        if let (Some(Value::Array(was)), Some(Value::Array(now))) = (&self.recorded, &self.given) {
+            let list = |items: Vec<&Value>| {
+                items
+                    .iter()
+                    .map(|v| v.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let added: Vec<&Value> = now.iter().filter(|v| !was.contains(v)).collect();
+            let removed: Vec<&Value> = was.iter().filter(|v| !now.contains(v)).collect();
+            if !added.is_empty() || !removed.is_empty() {
+                let mut parts = Vec::new();
+                if !added.is_empty() {
+                    parts.push(format!("now also {}", list(added)));
+                }
+                if !removed.is_empty() {
+                    parts.push(format!("no longer {}", list(removed)));
+                }
+                return write!(f, "{}: {}", self.option, parts.join(", "));
+            }
+        }
+        write!(
+            f,
+            "{} was {}, now {}",
+            self.option,
+            show(&self.recorded),
+            show(&self.given)
+        )
+    }
+}
+
+impl RunOptions {
+    /// Records `option` (a later value replaces an earlier one).
+    pub fn set(&mut self, option: impl Into<String>, value: Value) {
+        self.0.insert(option.into(), value);
+    }
+
+    /// Every key of a JSON object, as options.
+    pub fn extend_from(&mut self, object: &Value) {
+        for (key, value) in object.as_object().into_iter().flatten() {
+            self.set(key.clone(), value.clone());
+        }
+    }
+
+    /// Adds (or replaces) every option of `other`.
+    pub fn merge(&mut self, other: RunOptions) {
+        self.0.extend(other.0);
+    }
+
+    /// The value recorded for `option`.
+    pub fn get(&self, option: &str) -> Option<&Value> {
+        self.0.get(option)
+    }
+
+    /// CRC-32C of the options' canonical JSON (keys sorted), 8 hex digits.
+    pub fn digest(&self) -> String {
+        let text = serde_json::to_string(&self.0).unwrap_or_default();
+        format!("{:08x}", crc32c::crc32c(text.as_bytes()))
+    }
+
+    /// The options whose values differ from `given`'s, in name order.
+    pub fn changes(&self, given: &RunOptions) -> Vec<OptionChange> {
+        let names: BTreeSet<&String> = self.0.keys().chain(given.0.keys()).collect();
+        names
+            .into_iter()
+            .filter(|name| self.0.get(*name) != given.0.get(*name))
+            .map(|name| OptionChange {
+                option: name.clone(),
+                recorded: self.0.get(name).cloned(),
+                given: given.0.get(name).cloned(),
+            })
+            .collect()
+    }
+}
+
+/// Which process holds a dataset folder.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Holder {
+    pid: u32,
+    host: String,
+}
+
+impl Holder {
+    fn this_process() -> Self {
+        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .map(|h| h.trim().to_string())
+            .unwrap_or_else(|_| "this machine".into());
+        Holder {
+            pid: std::process::id(),
+            host,
+        }
+    }
+}
+
+impl std::fmt::Display for Holder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "surgvla process {} on {}", self.pid, self.host)
+    }
+}
+
+/// The marker's content.
+#[derive(Serialize, Deserialize)]
+struct Marker<T> {
+    note: String,
+    holder: Holder,
+    options_digest: String,
+    options: RunOptions,
+    checkpoint: Option<Checkpoint<T>>,
+}
+
+/// What a checkpoint records: the finished files, the journals' lengths, the format's state.
+#[derive(Serialize, Deserialize)]
+struct Checkpoint<T> {
+    files: Vec<FileRecord>,
+    journals: BTreeMap<String, JournalMark>,
+    state: T,
+}
+
+/// A journal's length and the CRC-32C of its bytes up to there.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+struct JournalMark {
+    bytes: u64,
+    crc32c: u32,
+}
+
+/// An append-only file of records, one per line.
+#[derive(Debug)]
+struct Journal {
+    writer: BufWriter<File>,
+    mark: JournalMark,
+}
+
 /// A dataset folder being written.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct DatasetDir {
     root: PathBuf,
+    /// The folder's lock, held while this value lives.
+    _lock: File,
+    holder: Holder,
+    options: RunOptions,
+    /// Finished files, in the order they finished.
+    files: Vec<FileRecord>,
+    /// How many of `files` a checkpoint made durable.
+    synced: usize,
+    journals: BTreeMap<String, Journal>,
+}
+
+fn sync_dir(path: &Path) -> Result<(), ExportError> {
+    File::open(path)
+        .and_then(|dir| dir.sync_all())
+        .map_err(ExportError::io(path))
 }
 
 impl DatasetDir {
-    /// Starts a dataset in `root`, which must not exist or be empty; writes the marker.
-    pub fn create(root: &Path) -> Result<Self, ExportError> {
+    /// Starts a dataset in `root`, which must not exist or be empty: takes the lock, then writes
+    /// the marker with `options`.
+    pub fn create(root: &Path, options: &RunOptions) -> Result<Self, ExportError> {
         let output = |source| ExportError::Output {
             path: root.to_path_buf(),
             source,
         };
-        if root.exists() {
-            let mut entries = std::fs::read_dir(root).map_err(output)?;
-            if entries.next().is_some() {
-                return Err(ExportError::NotEmpty {
-                    path: root.to_path_buf(),
-                });
-            }
+        if root.exists() && !root.is_dir() {
+            return Err(output(std::io::Error::from(
+                std::io::ErrorKind::NotADirectory,
+            )));
         }
         std::fs::create_dir_all(root).map_err(output)?;
-        let marker = root.join(INCOMPLETE_MARKER);
-        std::fs::write(
-            &marker,
-            b"surgvla is writing this dataset; it is not complete\n",
-        )
-        .map_err(|source| ExportError::Output {
-            path: marker.clone(),
-            source,
-        })?;
-        Ok(DatasetDir {
+        let lock = lock(root)?;
+        let mut entries = std::fs::read_dir(root).map_err(output)?;
+        if entries.next().is_some() {
+            return Err(ExportError::NotEmpty {
+                path: root.to_path_buf(),
+                interrupted: Self::is_interrupted(root),
+            });
+        }
+        let dir = DatasetDir {
             root: root.to_path_buf(),
-        })
+            _lock: lock,
+            holder: Holder::this_process(),
+            options: options.clone(),
+            files: Vec::new(),
+            synced: 0,
+            journals: BTreeMap::new(),
+        };
+        dir.write_marker::<()>(None).map_err(|e| match e {
+            ExportError::Io { path, source } => ExportError::Output { path, source },
+            other => other,
+        })?;
+        Ok(dir)
     }
 
     /// Whether `root` holds an interrupted dataset (one with the marker).
@@ -85,18 +330,61 @@ impl DatasetDir {
         root.join(INCOMPLETE_MARKER).exists()
     }
 
-    /// Reopens an interrupted dataset (one with the marker).
-    pub fn resume(root: &Path) -> Result<Self, ExportError> {
-        if !Self::is_interrupted(root) {
-            return Err(ExportError::NotResumable {
+    /// Reopens the interrupted dataset in `root`. Refuses, before changing anything, when it
+    /// has no marker or was started with other `options`; then takes the lock, verifies every
+    /// file of the last checkpoint, deletes every other file under `folders` (what was written
+    /// after the checkpoint) and cuts the journals back. Returns the format's saved state.
+    pub fn resume<T: DeserializeOwned>(
+        root: &Path,
+        options: &RunOptions,
+        folders: &[&str],
+    ) -> Result<(Self, Option<T>), ExportError> {
+        let recorded: Marker<serde::de::IgnoredAny> = read_marker(root)?;
+        let changes = recorded.options.changes(options);
+        if !changes.is_empty() {
+            return Err(ExportError::OptionsChanged {
                 path: root.to_path_buf(),
-                reason: "it is not an interrupted surgvla dataset (no .surgvla-incomplete marker)"
-                    .into(),
+                changes,
             });
         }
-        Ok(DatasetDir {
+        let lock = lock(root)?;
+        let marker: Marker<Value> = read_marker(root)?;
+        let mut dir = DatasetDir {
             root: root.to_path_buf(),
-        })
+            _lock: lock,
+            holder: Holder::this_process(),
+            options: options.clone(),
+            files: Vec::new(),
+            synced: 0,
+            journals: BTreeMap::new(),
+        };
+        let Some(checkpoint) = marker.checkpoint else {
+            dir.remove_files_except(folders, &HashSet::new())?;
+            dir.write_marker::<()>(None)?;
+            return Ok((dir, None));
+        };
+        let state = T::deserialize(&checkpoint.state).map_err(|e| ExportError::NotResumable {
+            path: root.to_path_buf(),
+            reason: format!("its checkpoint is unreadable ({e})"),
+        })?;
+        for record in &checkpoint.files {
+            let path = dir.path(&record.path);
+            if let Some(problem) = record.problem(&path)? {
+                return Err(ExportError::Damaged { path, problem });
+            }
+        }
+        let mut keep: HashSet<String> = checkpoint.files.iter().map(|f| f.path.clone()).collect();
+        keep.extend(checkpoint.journals.keys().cloned());
+        dir.remove_files_except(folders, &keep)?;
+        for (name, mark) in checkpoint.journals {
+            let journal = dir.reopen_journal(&name, mark)?;
+            dir.journals.insert(name, journal);
+        }
+        dir.synced = checkpoint.files.len();
+        dir.files = checkpoint.files;
+        // The same checkpoint, now naming this process as the holder.
+        dir.write_marker(Some(&checkpoint.state))?;
+        Ok((dir, Some(state)))
     }
 
     pub fn root(&self) -> &Path {
@@ -116,8 +404,35 @@ impl DatasetDir {
             .into_owned()
     }
 
-    /// Writes a whole file under a temporary name and renames it; returns its size.
-    pub fn write_atomically(&self, relative: &str, bytes: &[u8]) -> Result<u64, ExportError> {
+    /// The files finished so far.
+    pub fn files(&self) -> &[FileRecord] {
+        &self.files
+    }
+
+    fn record(&mut self, record: FileRecord) {
+        if let Some(i) = self.files.iter().position(|f| f.path == record.path) {
+            // Rewritten (a metadata file after a resume): it is not durable any more.
+            self.files.remove(i);
+            self.synced = self.synced.min(i);
+        }
+        self.files.push(record);
+    }
+
+    /// Writes a whole file of the dataset under a temporary name, renames it and records it;
+    /// returns its size.
+    pub fn write_atomically(&mut self, relative: &str, bytes: &[u8]) -> Result<u64, ExportError> {
+        let size = write_atomically(&self.path(relative), bytes)?;
+        self.record(FileRecord::new(
+            relative.to_string(),
+            size,
+            crc32c::crc32c(bytes),
+        ));
+        Ok(size)
+    }
+
+    /// Writes a file that rides along with the dataset but is not part of it (a run report
+    /// whose timings differ between runs): not in the manifest.
+    pub fn write_unlisted(&self, relative: &str, bytes: &[u8]) -> Result<u64, ExportError> {
         write_atomically(&self.path(relative), bytes)
     }
 
@@ -132,33 +447,172 @@ impl DatasetDir {
         Ok((file, PendingFile { path, temporary }))
     }
 
-    /// Records a format's state at a moment when every file it wrote is complete.
-    pub fn save_checkpoint<T: Serialize>(&self, state: &T) -> Result<(), ExportError> {
-        let text = serde_json::to_vec(state).map_err(|source| ExportError::Json {
-            path: self.path(CHECKPOINT),
-            source,
-        })?;
-        self.write_atomically(CHECKPOINT, &text).map(|_| ())
+    /// Gives a closed file its final name and records it; returns its size.
+    pub fn commit(&mut self, pending: PendingFile) -> Result<u64, ExportError> {
+        std::fs::rename(&pending.temporary, &pending.path)
+            .map_err(ExportError::io(&pending.path))?;
+        let file = File::open(&pending.path).map_err(ExportError::io(&pending.path))?;
+        let (bytes, crc) = checksum(file, &pending.path)?;
+        self.record(FileRecord::new(self.relative(&pending.path), bytes, crc));
+        Ok(bytes)
     }
 
-    /// The last checkpoint, if one was saved.
-    pub fn load_checkpoint<T: DeserializeOwned>(&self) -> Result<Option<T>, ExportError> {
-        let path = self.path(CHECKPOINT);
-        match std::fs::read(&path) {
-            Ok(bytes) => serde_json::from_slice(&bytes).map(Some).map_err(|source| {
-                ExportError::NotResumable {
-                    path: path.clone(),
-                    reason: format!("unreadable checkpoint ({source})"),
-                }
-            }),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(source) => Err(ExportError::Io { path, source }),
+    /// Appends one record (a line) to the journal `relative` (created on first use).
+    pub fn append(&mut self, relative: &str, line: &[u8]) -> Result<(), ExportError> {
+        if !self.journals.contains_key(relative) {
+            let path = self.path(relative);
+            if let Some(parent) = path.parent() {
+                std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
+            }
+            let file = File::create(&path).map_err(ExportError::io(&path))?;
+            self.journals.insert(
+                relative.to_string(),
+                Journal {
+                    writer: BufWriter::new(file),
+                    mark: JournalMark::default(),
+                },
+            );
         }
+        let path = self.path(relative);
+        let journal = self
+            .journals
+            .get_mut(relative)
+            .ok_or_else(|| ExportError::Internal(format!("no journal {relative}")))?;
+        for part in [line, b"\n"] {
+            journal
+                .writer
+                .write_all(part)
+                .map_err(ExportError::io(&path))?;
+            journal.mark.crc32c = crc32c::crc32c_append(journal.mark.crc32c, part);
+            journal.mark.bytes += part.len() as u64;
+        }
+        Ok(())
+    }
+
+    /// The records of journal `relative`, in order (none if it was never written).
+    pub fn journal_lines(
+        &mut self,
+        relative: &str,
+    ) -> Result<impl Iterator<Item = Result<String, ExportError>> + use<>, ExportError> {
+        let path = self.path(relative);
+        let lines = match self.journals.get_mut(relative) {
+            Some(journal) => {
+                journal.writer.flush().map_err(ExportError::io(&path))?;
+                let file = File::open(&path).map_err(ExportError::io(&path))?;
+                Some(BufReader::new(file).lines())
+            }
+            None => None,
+        };
+        Ok(lines
+            .into_iter()
+            .flatten()
+            .map(move |line| line.map_err(ExportError::io(&path))))
+    }
+
+    fn reopen_journal(&self, relative: &str, mark: JournalMark) -> Result<Journal, ExportError> {
+        let path = self.path(relative);
+        let damaged = |problem: String| ExportError::Damaged {
+            path: path.clone(),
+            problem,
+        };
+        let file = File::open(&path).map_err(|_| damaged("is missing".into()))?;
+        let mut prefix = Vec::new();
+        file.take(mark.bytes)
+            .read_to_end(&mut prefix)
+            .map_err(ExportError::io(&path))?;
+        if prefix.len() as u64 != mark.bytes {
+            return Err(damaged(format!(
+                "is {} bytes, {} were recorded",
+                prefix.len(),
+                mark.bytes
+            )));
+        }
+        if crc32c::crc32c(&prefix) != mark.crc32c {
+            return Err(damaged("its recorded part changed".into()));
+        }
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&path)
+            .map_err(ExportError::io(&path))?;
+        file.set_len(mark.bytes).map_err(ExportError::io(&path))?;
+        let mut writer = BufWriter::new(file);
+        std::io::Seek::seek(&mut writer, std::io::SeekFrom::End(0))
+            .map_err(ExportError::io(&path))?;
+        Ok(Journal { writer, mark })
+    }
+
+    /// Makes every file finished since the last call durable: the files, the journals and
+    /// their folders.
+    fn sync(&mut self) -> Result<(), ExportError> {
+        let mut folders = BTreeSet::new();
+        for record in &self.files[self.synced..] {
+            let path = self.path(&record.path);
+            File::open(&path)
+                .and_then(|f| f.sync_all())
+                .map_err(ExportError::io(&path))?;
+            if let Some(parent) = path.parent() {
+                folders.insert(parent.to_path_buf());
+            }
+        }
+        for (relative, journal) in &mut self.journals {
+            let path = self.root.join(relative);
+            journal.writer.flush().map_err(ExportError::io(&path))?;
+            journal
+                .writer
+                .get_ref()
+                .sync_data()
+                .map_err(ExportError::io(&path))?;
+            if let Some(parent) = path.parent() {
+                folders.insert(parent.to_path_buf());
+            }
+        }
+        for folder in folders {
+            sync_dir(&folder)?;
+        }
+        self.synced = self.files.len();
+        Ok(())
+    }
+
+    fn write_marker<T: Serialize>(&self, state: Option<&T>) -> Result<(), ExportError> {
+        let marker = Marker {
+            note: "surgvla is writing this dataset; it is not complete".into(),
+            holder: self.holder.clone(),
+            options_digest: self.options.digest(),
+            options: self.options.clone(),
+            checkpoint: state.map(|state| Checkpoint {
+                files: self.files.clone(),
+                journals: self
+                    .journals
+                    .iter()
+                    .map(|(name, j)| (name.clone(), j.mark))
+                    .collect(),
+                state,
+            }),
+        };
+        let path = self.path(INCOMPLETE_MARKER);
+        let text = serde_json::to_vec(&marker).map_err(|source| ExportError::Json {
+            path: path.clone(),
+            source,
+        })?;
+        let temporary = temporary_name(&path);
+        let mut file = File::create(&temporary).map_err(ExportError::io(&temporary))?;
+        file.write_all(&text)
+            .and_then(|()| file.sync_all())
+            .map_err(ExportError::io(&temporary))?;
+        std::fs::rename(&temporary, &path).map_err(ExportError::io(&path))?;
+        sync_dir(&self.root)
+    }
+
+    /// Records a format's state at a moment when every file it wrote is complete: makes those
+    /// files durable, then writes the checkpoint (into the marker).
+    pub fn save_checkpoint<T: Serialize>(&mut self, state: &T) -> Result<(), ExportError> {
+        self.sync()?;
+        self.write_marker(Some(state))
     }
 
     /// Deletes every file under `folders` whose relative path is not in `keep` (what was written
     /// after the last checkpoint, including temporary files).
-    pub fn remove_files_except(
+    fn remove_files_except(
         &self,
         folders: &[&str],
         keep: &HashSet<String>,
@@ -182,19 +636,89 @@ impl DatasetDir {
         Ok(())
     }
 
-    /// Marks the dataset complete: removes the checkpoint, then the marker. Call it after the
-    /// format's last file is in place; calling it again does nothing.
-    pub fn complete(&self) -> Result<(), ExportError> {
-        for relative in [CHECKPOINT, INCOMPLETE_MARKER] {
-            let path = self.path(relative);
-            match std::fs::remove_file(&path) {
-                Ok(()) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                Err(source) => return Err(ExportError::Io { path, source }),
-            }
+    /// Writes the manifest (every recorded file, by path); returns its size. The dataset is
+    /// complete once [`DatasetDir::complete`] follows.
+    pub fn write_manifest(&mut self) -> Result<u64, ExportError> {
+        let mut files = self.files.clone();
+        files.retain(|f| f.path != MANIFEST);
+        files.sort_by(|a, b| a.path.cmp(&b.path));
+        let manifest = serde_json::json!({
+            "checksum": "crc32c",
+            "options_digest": self.options.digest(),
+            "files": files,
+        });
+        let text = serde_json::to_vec_pretty(&manifest).map_err(|source| ExportError::Json {
+            path: self.path(MANIFEST),
+            source,
+        })?;
+        self.write_atomically(MANIFEST, &text)
+    }
+
+    /// Marks the dataset complete: makes everything durable, removes the marker (with the
+    /// checkpoint in it) in one step, then the journals (the checkpoint needs them until the
+    /// marker is gone). Calling it again does nothing.
+    pub fn complete(&mut self) -> Result<(), ExportError> {
+        let marker = self.path(INCOMPLETE_MARKER);
+        if marker.exists() {
+            self.sync()?;
+            sync_dir(&self.root)?;
+            std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
+            sync_dir(&self.root)?;
+        }
+        for relative in std::mem::take(&mut self.journals).into_keys() {
+            let path = self.path(&relative);
+            std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
         }
         Ok(())
     }
+}
+
+/// Locks `root` (an advisory `flock` on the folder itself, so no lock file is left behind).
+fn lock(root: &Path) -> Result<File, ExportError> {
+    let file = File::open(root).map_err(|source| ExportError::Output {
+        path: root.to_path_buf(),
+        source,
+    })?;
+    match file.try_lock() {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => Err(ExportError::Locked {
+            path: root.to_path_buf(),
+            holder: read_marker::<serde::de::IgnoredAny>(root)
+                .map(|m| m.holder.to_string())
+                .unwrap_or_else(|_| "another surgvla process".into()),
+        }),
+        // A file system without locks: go on unlocked.
+        Err(std::fs::TryLockError::Error(e)) if e.kind() == std::io::ErrorKind::Unsupported => {
+            Ok(file)
+        }
+        Err(std::fs::TryLockError::Error(source)) => Err(ExportError::Output {
+            path: root.to_path_buf(),
+            source,
+        }),
+    }
+}
+
+fn read_marker<T: DeserializeOwned>(root: &Path) -> Result<Marker<T>, ExportError> {
+    let path = root.join(INCOMPLETE_MARKER);
+    let not_resumable = |reason: String| ExportError::NotResumable {
+        path: root.to_path_buf(),
+        reason,
+    };
+    let bytes = match std::fs::read(&path) {
+        Ok(bytes) => bytes,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(not_resumable(format!(
+                "it is not an interrupted surgvla dataset (no {INCOMPLETE_MARKER} marker)"
+            )));
+        }
+        Err(source) => return Err(ExportError::Io { path, source }),
+    };
+    serde_json::from_slice(&bytes).map_err(|e| {
+        not_resumable(format!(
+            "its marker {} is unreadable ({e}); it was started by another surgvla version or damaged",
+            path.display()
+        ))
+    })
 }
 
 /// A file being written under its temporary name.
@@ -210,16 +734,10 @@ impl PendingFile {
     pub fn bytes_so_far(&self) -> u64 {
         std::fs::metadata(&self.temporary).map_or(0, |m| m.len())
     }
-
-    /// Gives the (closed) file its final name; returns its size.
-    pub fn commit(self) -> Result<u64, ExportError> {
-        std::fs::rename(&self.temporary, &self.path).map_err(ExportError::io(&self.path))?;
-        Ok(std::fs::metadata(&self.path).map_or(0, |m| m.len()))
-    }
 }
 
 /// Numbers rolled files: `chunks_size` files to a chunk folder.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FileCounter {
     pub chunks_size: u64,
     /// How many files were started.
@@ -257,50 +775,121 @@ mod tests {
         root
     }
 
+    fn options(seed: u64) -> RunOptions {
+        let mut options = RunOptions::default();
+        options.set("seed", seed.into());
+        options.set("format", "lerobot".into());
+        options
+    }
+
     #[test]
     fn a_folder_is_incomplete_until_completed_and_refused_when_not_empty() {
         let root = scratch("marker");
-        let dir = DatasetDir::create(&root).expect("create");
+        let mut dir = DatasetDir::create(&root, &options(1)).expect("create");
         assert!(DatasetDir::is_interrupted(&root));
+        drop(dir);
         assert!(matches!(
-            DatasetDir::create(&root),
-            Err(ExportError::NotEmpty { .. })
+            DatasetDir::create(&root, &options(1)),
+            Err(ExportError::NotEmpty {
+                interrupted: true,
+                ..
+            })
         ));
+        let (resumed, state) =
+            DatasetDir::resume::<Vec<u32>>(&root, &options(1), &["meta"]).expect("resume");
+        assert_eq!(state, None);
+        dir = resumed;
         dir.write_atomically("meta/a.json", b"{}").expect("write");
         assert!(!temporary_name(&root.join("meta/a.json")).exists());
         dir.save_checkpoint(&vec![1u32, 2]).expect("checkpoint");
-        let resumed = DatasetDir::resume(&root).expect("resume");
-        assert_eq!(
-            resumed.load_checkpoint::<Vec<u32>>().expect("load"),
-            Some(vec![1, 2])
-        );
-        resumed.complete().expect("complete");
-        resumed.complete().expect("complete twice");
+        drop(dir);
+        let (mut dir, state) =
+            DatasetDir::resume::<Vec<u32>>(&root, &options(1), &["meta"]).expect("resume");
+        assert_eq!(state, Some(vec![1, 2]));
+        assert_eq!(dir.files().len(), 1);
+        dir.write_manifest().expect("manifest");
+        dir.complete().expect("complete");
+        dir.complete().expect("complete twice");
         assert!(!DatasetDir::is_interrupted(&root));
-        assert!(!root.join(CHECKPOINT).exists());
-        assert!(DatasetDir::resume(&root).is_err());
+        assert!(DatasetDir::resume::<Vec<u32>>(&root, &options(1), &[]).is_err());
+        let manifest = std::fs::read_to_string(root.join(MANIFEST)).expect("manifest");
+        let crc = format!("{:08x}", crc32c::crc32c(b"{}"));
+        assert!(
+            manifest.contains("meta/a.json") && manifest.contains(&crc),
+            "{manifest}"
+        );
         std::fs::remove_dir_all(&root).ok();
     }
 
     #[test]
-    fn files_not_kept_are_removed_and_pending_files_commit() {
-        let root = scratch("prune");
-        let dir = DatasetDir::create(&root).expect("create");
-        let (mut file, pending) = dir
-            .create_file("data/chunk-000/file-000.bin")
-            .expect("open");
+    fn a_resume_with_other_options_names_them_and_touches_nothing() {
+        let root = scratch("options");
+        drop(DatasetDir::create(&root, &options(1)).expect("create"));
+        let marker = std::fs::read(root.join(INCOMPLETE_MARKER)).expect("marker");
+        let mut other = options(2);
+        other.set("video", "h264".into());
+        match DatasetDir::resume::<()>(&root, &other, &["meta"]) {
+            Err(ExportError::OptionsChanged { changes, .. }) => {
+                let said: Vec<String> = changes.iter().map(ToString::to_string).collect();
+                assert_eq!(
+                    said,
+                    ["seed was 1, now 2", "video was (none), now \"h264\""]
+                );
+            }
+            other => panic!("expected OptionsChanged, got {other:?}"),
+        }
+        assert_eq!(
+            std::fs::read(root.join(INCOMPLETE_MARKER)).expect("marker"),
+            marker
+        );
+        assert_ne!(options(1).digest(), options(2).digest());
+        assert_eq!(options(1).digest(), options(1).digest());
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn the_folder_is_locked_while_a_run_holds_it() {
+        let root = scratch("lock");
+        let dir = DatasetDir::create(&root, &options(1)).expect("create");
+        match DatasetDir::resume::<()>(&root, &options(1), &[]) {
+            Err(ExportError::Locked { holder, .. }) => {
+                assert!(holder.contains(&std::process::id().to_string()), "{holder}");
+            }
+            other => panic!("expected Locked, got {other:?}"),
+        }
+        drop(dir);
+        assert!(DatasetDir::resume::<()>(&root, &options(1), &[]).is_ok());
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn journals_and_files_go_back_to_the_checkpoint_on_resume() {
+        let root = scratch("journal");
+        let mut dir = DatasetDir::create(&root, &options(1)).expect("create");
+        dir.append("meta/.rows", b"one").expect("append");
+        let (mut file, pending) = dir.create_file("data/a.bin").expect("open");
         std::io::Write::write_all(&mut file, b"abc").expect("write");
         drop(file);
         assert_eq!(pending.bytes_so_far(), 3);
-        assert!(!root.join("data/chunk-000/file-000.bin").exists());
-        assert_eq!(pending.commit().expect("commit"), 3);
-        dir.write_atomically("data/chunk-000/file-001.bin", b"x")
-            .expect("write");
-        let keep = HashSet::from(["data/chunk-000/file-000.bin".to_string()]);
-        dir.remove_files_except(&["data", "videos"], &keep)
-            .expect("prune");
-        assert!(root.join("data/chunk-000/file-000.bin").exists());
-        assert!(!root.join("data/chunk-000/file-001.bin").exists());
+        assert_eq!(dir.commit(pending).expect("commit"), 3);
+        dir.save_checkpoint(&7u32).expect("checkpoint");
+        // After the checkpoint: a row and a file that a resume must drop.
+        dir.append("meta/.rows", b"two").expect("append");
+        dir.write_atomically("data/b.bin", b"x").expect("write");
+        drop(dir);
+        let (mut dir, state) =
+            DatasetDir::resume::<u32>(&root, &options(1), &["data", "meta"]).expect("resume");
+        assert_eq!(state, Some(7));
+        assert!(root.join("data/a.bin").exists());
+        assert!(!root.join("data/b.bin").exists());
+        let rows: Vec<String> = dir
+            .journal_lines("meta/.rows")
+            .expect("lines")
+            .collect::<Result<_, _>>()
+            .expect("read");
+        assert_eq!(rows, ["one"]);
+        dir.complete().expect("complete");
+        assert!(!root.join("meta/.rows").exists());
         std::fs::remove_dir_all(&root).ok();
     }
 

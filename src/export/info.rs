@@ -3,6 +3,7 @@
 //! made. A format derives its metadata files from it; a source returns one for what it read.
 
 use crate::episode::{CameraInfo, FeatureKind, FeatureSpec};
+use crate::export::dir::RunOptions;
 use serde_json::{Value, json};
 
 /// What a dataset is, besides its episodes.
@@ -47,6 +48,29 @@ impl DatasetInfo {
     /// The key of the RGB camera's feature.
     pub fn rgb_key(&self) -> Option<&str> {
         self.feature(FeatureKind::Rgb).map(|f| f.name.as_str())
+    }
+
+    /// What this dataset's bytes depend on, by option name (what a resume must give again):
+    /// each key of the collection (seed, tasks, ...), the features, fps, camera, robot, mask ids
+    /// and generator.
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = RunOptions::default();
+        let features: Vec<String> = self
+            .features
+            .iter()
+            .map(|f| format!("{} {:?}", f.name, f.shape))
+            .collect();
+        options.set("features", json!(features));
+        options.set("fps", json!(self.fps));
+        options.set("robot_type", json!(self.robot_type));
+        options.set(
+            "camera",
+            serde_json::to_value(self.camera).unwrap_or(Value::Null),
+        );
+        options.set("mask_ids", json!(self.mask_ids));
+        options.set("generator", json!(self.generator));
+        options.extend_from(&self.collection);
+        options
     }
 
     /// The surgvla metadata of a dataset (`meta/surgvla.json` in LeRobot): the camera with its

@@ -22,7 +22,10 @@ pub mod stats;
 pub mod tiff;
 pub mod video;
 
-pub use dir::{DatasetDir, INCOMPLETE_MARKER, temporary_name, write_atomically};
+pub use dir::{
+    DatasetDir, FileRecord, INCOMPLETE_MARKER, MANIFEST, OptionChange, RunOptions, temporary_name,
+    write_atomically,
+};
 pub use info::DatasetInfo;
 
 use crate::episode::Episode;
@@ -59,8 +62,27 @@ pub enum ExportError {
     },
     #[error("building arrow data")]
     Arrow(#[from] arrow_schema::ArrowError),
-    #[error("{path} already holds a dataset or other files; choose an empty or new directory")]
-    NotEmpty { path: PathBuf },
+    #[error("{}", not_empty(path, *interrupted))]
+    NotEmpty { path: PathBuf, interrupted: bool },
+    /// Another run holds the folder's lock.
+    #[error(
+        "{path} is being written by another run ({holder}); wait for it to end or choose another directory"
+    )]
+    Locked { path: PathBuf, holder: String },
+    /// A resume with options that change the dataset's bytes.
+    #[error(
+        "cannot resume {path} with other options than the run that started it ({}); give the same options, or start a new dataset in another directory",
+        changes.iter().map(ToString::to_string).collect::<Vec<_>>().join("; ")
+    )]
+    OptionsChanged {
+        path: PathBuf,
+        changes: Vec<dir::OptionChange>,
+    },
+    /// A file an interrupted dataset's checkpoint lists is missing or changed.
+    #[error(
+        "{path} {problem}: the interrupted dataset cannot be resumed safely; delete its folder and run again"
+    )]
+    Damaged { path: PathBuf, problem: String },
     #[error("cannot resume {path}: {reason}")]
     NotResumable { path: PathBuf, reason: String },
     #[error("invalid episode: {0}")]
@@ -125,9 +147,25 @@ impl ExportError {
         match self {
             ExportError::Output { .. }
             | ExportError::NotEmpty { .. }
+            | ExportError::Locked { .. }
+            | ExportError::OptionsChanged { .. }
             | ExportError::NotResumable { .. } => ErrorKind::Usage,
             _ => ErrorKind::Failed,
         }
+    }
+}
+
+fn not_empty(path: &Path, interrupted: bool) -> String {
+    if interrupted {
+        format!(
+            "{} holds an interrupted surgvla dataset: add --resume (with the options it was started with) to continue it, or choose an empty or new directory",
+            path.display()
+        )
+    } else {
+        format!(
+            "{} already holds a dataset or other files; choose an empty or new directory",
+            path.display()
+        )
     }
 }
 
@@ -167,8 +205,18 @@ pub trait EpisodeSink {
     }
     /// Completes the dataset: after this returns Ok, it is consistent and loadable. Calling it
     /// again returns the same summary and writes nothing.
-    fn finish(&mut self) -> Result<Summary, ExportError>;
+    fn finish(&mut self) -> Result<Summary, ExportError> {
+        self.finish_with(None)
+    }
+    /// [`EpisodeSink::finish`], writing `sidecar`'s file (made from the summary; e.g. a run's
+    /// report) into the folder after the dataset's own files and before the dataset is marked
+    /// complete, so an interrupted finish leaves a resumable dataset, never one without it.
+    /// Sidecar files are not in the manifest.
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError>;
 }
+
+/// Makes a file to write beside a finished dataset from its summary: (relative path, bytes).
+pub type Sidecar<'a> = &'a mut dyn FnMut(&Summary) -> Result<(String, Vec<u8>), ExportError>;
 
 /// Reads a dataset back: its [`DatasetInfo`] and its episodes in order, one at a time (memory
 /// bounded by one episode).
@@ -187,6 +235,43 @@ pub trait EpisodeSource {
 #[derive(Clone, Debug, PartialEq)]
 pub enum SinkOptions {
     LeRobot(lerobot::LeRobotOptions),
+}
+
+impl SinkOptions {
+    /// What the format's options change in the bytes, by option name (for resume).
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = RunOptions::default();
+        match self {
+            SinkOptions::LeRobot(o) => {
+                options.set("format", "lerobot".into());
+                options.set(
+                    "lerobot_version",
+                    match o.version {
+                        lerobot::LeRobotVersion::V30 => "3.0",
+                        lerobot::LeRobotVersion::V21 => "2.1",
+                    }
+                    .into(),
+                );
+                options.set(
+                    "video",
+                    o.video.map_or(serde_json::Value::Null, |v| {
+                        serde_json::json!({"codec": v.codec.name(), "quality": v.quality, "file_mb": v.file_size_mb})
+                    }),
+                );
+                options.set("data_file_mb", o.data_file_size_mb.into());
+                options.set("chunks_size", o.chunks_size.into());
+                options.set("png", format!("{:?}", o.png).into());
+            }
+        }
+        options
+    }
+}
+
+/// Everything the bytes of a dataset of `info` in format `options` depend on.
+pub fn run_options(info: &DatasetInfo, options: &SinkOptions) -> RunOptions {
+    let mut run = info.run_options();
+    run.merge(options.run_options());
+    run
 }
 
 /// Whether [`open_sink`] with `resume` continues the dataset in `root` (it holds an interrupted

@@ -325,10 +325,10 @@ impl VideoFile {
         self.pending.bytes_so_far()
     }
 
-    /// Completes the file and gives it its final name; returns its size.
-    pub fn finish(self) -> Result<u64, ExportError> {
+    /// Completes the file; the caller gives it its final name ([`crate::export::DatasetDir::commit`]).
+    pub fn finish(self) -> Result<PendingFile, ExportError> {
         self.muxer.finish().map_err(mp4_error(&self.pending.path))?;
-        self.pending.commit()
+        Ok(self.pending)
     }
 }
 

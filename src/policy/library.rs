@@ -5,7 +5,7 @@
 use crate::policy::plan::{ExpertPlan, PlanError};
 use crate::task::TaskId;
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The built-in plans: (file name, text).
 const BUILTIN: [(&str, &str); 8] = [
@@ -85,6 +85,7 @@ impl ExpertLibrary {
                 message: "no *.toml plan in this folder".into(),
             });
         }
+        let mut sources: BTreeMap<TaskId, PathBuf> = BTreeMap::new();
         for path in paths {
             let text = std::fs::read_to_string(&path).map_err(|source| PlanError::Io {
                 path: path.clone(),
@@ -95,6 +96,29 @@ impl ExpertLibrary {
                 path: path.clone(),
                 message: e.to_string(),
             })?;
+            if let Some(first) = sources.get(&task) {
+                return Err(PlanError::Invalid {
+                    path: path.clone(),
+                    message: format!(
+                        "a second plan for {} ({}); {} has one too: keep one plan per task",
+                        task.name(),
+                        task.code(),
+                        first.display()
+                    ),
+                });
+            }
+            let instance = task
+                .instance(0, &crate::task::TaskConfig::default())
+                .map_err(|e| PlanError::Invalid {
+                    path: path.clone(),
+                    message: format!("its task cannot be set up: {}", e.problem),
+                })?;
+            plan.check_frames(&instance)
+                .map_err(|e| PlanError::Invalid {
+                    path: path.clone(),
+                    message: e.to_string(),
+                })?;
+            sources.insert(task, path);
             library.plans.insert(task, plan);
         }
         Ok(library)

@@ -39,6 +39,19 @@ pub enum FrameName {
     World,
 }
 
+impl FrameName {
+    /// The name as plan files write it.
+    pub fn key(self) -> &'static str {
+        match self {
+            FrameName::Pick => "pick",
+            FrameName::Place => "place",
+            FrameName::Mark => "mark",
+            FrameName::Start => "start",
+            FrameName::World => "world",
+        }
+    }
+}
+
 /// How a waypoint's yaw is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(untagged)]
@@ -162,7 +175,7 @@ pub enum PlanError {
     #[error("no expert plan for task {0}")]
     Missing(TaskId),
     #[error(
-        "plan for {task}: waypoint {index} uses frame '{frame:?}', which this task does not have"
+        "plan for {task}: waypoint {index} uses frame '{}', which this task does not have", frame.key()
     )]
     NoFrame {
         task: TaskId,
@@ -282,7 +295,103 @@ impl ExpertPlan {
                 "action_noise: probability in [0, 1], amplitude >= 0".into(),
             ));
         }
+        plan.check_numbers().map_err(invalid)?;
         Ok(plan)
+    }
+
+    /// Every number finite and in a range a plan can mean (NaN, inf or 1e300 would parse and
+    /// then fail every attempt): the key, its value and the range.
+    fn check_numbers(&self) -> Result<(), String> {
+        let check = |key: String, value: f64, (low, high): (f64, f64), unit: &str| {
+            if value.is_finite() && (low..=high).contains(&value) {
+                Ok(())
+            } else {
+                let shown = if value.is_finite() && (value.abs() >= 1e6 || value.abs() < 1e-4) {
+                    format!("{value:e}")
+                } else {
+                    value.to_string()
+                };
+                Err(format!(
+                    "{key} = {shown} must be a finite number in [{low}, {high}]{unit}"
+                ))
+            }
+        };
+        const OFFSET: (f64, f64) = (-0.5, 0.5);
+        const JITTER: (f64, f64) = (0.0, 0.1);
+        check(
+            "position_tolerance_m".into(),
+            self.position_tolerance_m,
+            (1e-5, 0.05),
+            " m",
+        )?;
+        check(
+            "yaw_tolerance_rad".into(),
+            self.yaw_tolerance_rad,
+            (1e-4, PI),
+            " rad",
+        )?;
+        check(
+            "yaw_jitter_deg".into(),
+            self.yaw_jitter_deg,
+            (0.0, 180.0),
+            " deg",
+        )?;
+        check(
+            "action_noise.amplitude".into(),
+            self.action_noise.amplitude,
+            (0.0, 10.0),
+            " (1 = 1 cm)",
+        )?;
+        for (frame, range) in &self.frame_jitter_m {
+            for (axis, value) in range.iter().enumerate() {
+                let key = format!("frame_jitter_m.{}[{axis}]", frame.key());
+                check(key, *value, JITTER, " m")?;
+            }
+        }
+        for (index, w) in self.waypoints.iter().enumerate() {
+            let at = format!("waypoint {index} ('{}')", w.name);
+            for axis in 0..3 {
+                check(
+                    format!("{at} offset_m[{axis}]"),
+                    w.offset_m[axis],
+                    OFFSET,
+                    " m",
+                )?;
+                check(
+                    format!("{at} jitter_m[{axis}]"),
+                    w.jitter_m[axis],
+                    JITTER,
+                    " m",
+                )?;
+            }
+            if let YawSpec::Degrees(yaw) = w.yaw {
+                check(format!("{at} yaw"), yaw, (-360.0, 360.0), " deg")?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether every waypoint's frame exists in `instance`'s task (checked when a plan is
+    /// loaded, so a wrong frame is the plan's error, not a failed episode).
+    pub fn check_frames(&self, instance: &TaskInstance) -> Result<(), PlanError> {
+        for (index, spec) in self.waypoints.iter().enumerate() {
+            let exists = match spec.frame {
+                FrameName::Pick => instance.target_object.is_some(),
+                FrameName::Place => {
+                    instance.support_object.is_some() || instance.target_mark.is_some()
+                }
+                FrameName::Mark => instance.target_mark.is_some(),
+                FrameName::Start | FrameName::World => true,
+            };
+            if !exists {
+                return Err(PlanError::NoFrame {
+                    task: instance.task,
+                    index,
+                    frame: spec.frame,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The task the plan is for.

@@ -139,7 +139,7 @@ pub fn mask_colour(id: u8) -> [u8; 3] {
     }
     // Golden-angle hues at full saturation, two brightness levels.
     let hue = (f32::from(id) * 137.508).rem_euclid(360.0) / 60.0;
-    let value = if id % 2 == 0 { 255.0 } else { 200.0 };
+    let value = if id.is_multiple_of(2) { 255.0 } else { 200.0 };
     let c = value;
     let x = c * (1.0 - (hue.rem_euclid(2.0) - 1.0).abs());
     let (r, g, b) = match hue as u32 {

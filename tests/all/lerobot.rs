@@ -261,7 +261,10 @@ fn an_unfinished_dataset_is_obviously_incomplete() {
     );
     // And a new dataset will not be written over it.
     match LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()) {
-        Err(ExportError::NotEmpty { path }) => assert_eq!(path, *root),
+        Err(ExportError::NotEmpty { path, interrupted }) => {
+            assert_eq!(path, *root);
+            assert!(interrupted, "the error must say it can be resumed");
+        }
         other => panic!("expected NotEmpty, got {:?}", other.err()),
     }
 }

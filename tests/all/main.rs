@@ -6,6 +6,7 @@ mod collect;
 mod contract;
 mod determinism;
 mod grasping;
+mod hardening;
 mod kinematics;
 mod layers;
 mod lerobot;

@@ -13,18 +13,21 @@
 use super::LeRobotVersion;
 use super::table::{EpisodeRow, episodes_batch, tasks_batch};
 use crate::export::ExportError;
-use crate::export::dir::FileCounter;
+use crate::export::dir::{DatasetDir, FileCounter};
 use crate::export::video::video_path;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::Compression;
 use parquet::file::properties::WriterProperties;
 use serde_json::{Value, json};
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// Everything the metadata files are made of.
 pub(super) struct Metadata<'a> {
     pub tasks: &'a [String],
-    pub episodes: &'a [EpisodeRow],
+    /// How many episodes the dataset holds.
+    pub episodes: u64,
     /// stats.json's object.
     pub stats: Value,
     /// surgvla.json's object.
@@ -96,17 +99,22 @@ impl LeRobotVersion {
 
     /// Whether the writer records a checkpoint after closing its files with `episodes` written:
     /// v3.0 closes a file every ~100 MB and checkpoints each time; v2.1 closes one per episode,
-    /// so it checkpoints every 64 episodes (the checkpoint holds every episode's row).
-    pub(super) fn checkpoint_due(self, episodes: usize) -> bool {
-        self == LeRobotVersion::V30 || episodes % 64 == 0
+    /// so it checkpoints every 64 episodes (each checkpoint syncs files and rewrites the
+    /// statistics' state, a few MB).
+    pub(super) fn checkpoint_due(self, episodes: u64) -> bool {
+        self == LeRobotVersion::V30 || episodes.is_multiple_of(64)
     }
 
-    /// The metadata files (relative path, bytes), `meta/info.json` last.
-    pub(super) fn metadata_files(
+    /// Writes the metadata files, `meta/info.json` last, from `m` and the episode rows in
+    /// order (streamed: at most [`ROWS_PER_GROUP`] rows are in memory); returns (files, bytes).
+    pub(super) fn write_metadata(
         self,
+        dir: &mut DatasetDir,
         m: &Metadata<'_>,
-    ) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+        rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
+    ) -> Result<(u64, u64), ExportError> {
         let mut files = Vec::new();
+        let mut written = (0u64, 0u64);
         let mut info = m.info.clone();
         match self {
             LeRobotVersion::V30 => {
@@ -114,24 +122,12 @@ impl LeRobotVersion {
                     "meta/tasks.parquet".to_string(),
                     parquet_bytes("meta/tasks.parquet", &tasks_batch(m.tasks)?)?,
                 ));
-                let episodes = "meta/episodes/chunk-000/file-000.parquet";
-                files.push((
-                    episodes.to_string(),
-                    parquet_bytes(episodes, &episodes_batch(m.episodes, m.video_key)?)?,
-                ));
+                let bytes = write_episodes_parquet(dir, EPISODES_V30, rows, m.video_key)?;
+                written = (written.0 + 1, written.1 + bytes);
             }
             LeRobotVersion::V21 => {
-                let rows = m.episodes.iter();
-                files.push((
-                    "meta/episodes.jsonl".into(),
-                    json_lines(rows.clone().map(|e| {
-                        let mut line = json!({"episode_index": e.episode_index, "tasks": [e.task], "length": e.length});
-                        for (key, value) in e.provenance.columns() {
-                            line[key] = value;
-                        }
-                        line
-                    })),
-                ));
+                let bytes = write_episodes_jsonl(dir, rows)?;
+                written = (written.0 + 2, written.1 + bytes);
                 files.push((
                     "meta/tasks.jsonl".into(),
                     json_lines(
@@ -141,20 +137,10 @@ impl LeRobotVersion {
                             .map(|(i, t)| json!({"task_index": i, "task": t})),
                     ),
                 ));
-                files.push((
-                    "meta/episodes_stats.jsonl".into(),
-                    json_lines(
-                        rows.map(|e| json!({"episode_index": e.episode_index, "stats": e.stats})),
-                    ),
-                ));
-                let chunks = (m.episodes.len() as u64).div_ceil(m.chunks_size.max(1));
+                let chunks = m.episodes.div_ceil(m.chunks_size.max(1));
                 info["codebase_version"] = json!("v2.1");
                 info["total_chunks"] = json!(chunks);
-                info["total_videos"] = json!(if m.video_key.is_some() {
-                    m.episodes.len()
-                } else {
-                    0
-                });
+                info["total_videos"] = json!(if m.video_key.is_some() { m.episodes } else { 0 });
                 info["data_path"] =
                     json!("data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet");
                 if m.video_key.is_some() {
@@ -174,6 +160,93 @@ impl LeRobotVersion {
             pretty("surgvla.json", &m.surgvla)?,
         ));
         files.push(("meta/info.json".into(), pretty("info.json", &info)?));
-        Ok(files)
+        for (relative, bytes) in files {
+            written = (
+                written.0 + 1,
+                written.1 + dir.write_atomically(&relative, &bytes)?,
+            );
+        }
+        Ok(written)
     }
+}
+
+/// The v3.0 episodes table (one file: LeRobot rolls it at its data file size, which ~100
+/// bytes a row reach only past a million episodes).
+const EPISODES_V30: &str = "meta/episodes/chunk-000/file-000.parquet";
+
+/// Rows of the episodes table held in memory at once: one row group each.
+pub(super) const ROWS_PER_GROUP: usize = 256;
+
+fn write_episodes_parquet(
+    dir: &mut DatasetDir,
+    relative: &str,
+    rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
+    video_key: Option<&str>,
+) -> Result<u64, ExportError> {
+    let (file, pending) = dir.create_file(relative)?;
+    let parquet_error = ExportError::parquet(&pending.path);
+    let props = WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .build();
+    let mut writer: Option<ArrowWriter<File>> = None;
+    let mut group = Vec::with_capacity(ROWS_PER_GROUP);
+    let mut rows = rows.peekable();
+    let mut file = Some(file);
+    while rows.peek().is_some() || !group.is_empty() || writer.is_none() {
+        while group.len() < ROWS_PER_GROUP {
+            match rows.next() {
+                Some(row) => group.push(row?),
+                None => break,
+            }
+        }
+        let batch = episodes_batch(&group, video_key)?;
+        group.clear();
+        if writer.is_none() {
+            let handle = file
+                .take()
+                .ok_or_else(|| ExportError::Internal("episodes file reopened".into()))?;
+            writer = Some(
+                ArrowWriter::try_new(handle, batch.schema(), Some(props.clone()))
+                    .map_err(&parquet_error)?,
+            );
+        }
+        if let Some(writer) = writer.as_mut() {
+            writer.write(&batch).map_err(&parquet_error)?;
+            writer.flush().map_err(&parquet_error)?;
+        }
+    }
+    if let Some(writer) = writer {
+        writer.close().map_err(&parquet_error)?;
+    }
+    dir.commit(pending)
+}
+
+/// v2.1's `episodes.jsonl` and `episodes_stats.jsonl`, one line per episode, in one pass.
+fn write_episodes_jsonl(
+    dir: &mut DatasetDir,
+    rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
+) -> Result<u64, ExportError> {
+    let (episodes, episodes_pending) = dir.create_file("meta/episodes.jsonl")?;
+    let (stats, stats_pending) = dir.create_file("meta/episodes_stats.jsonl")?;
+    let (mut episodes, mut stats) = (BufWriter::new(episodes), BufWriter::new(stats));
+    for row in rows {
+        let e = row?;
+        let mut line =
+            json!({"episode_index": e.episode_index, "tasks": [e.task], "length": e.length});
+        for (key, value) in e.provenance.columns() {
+            line[key] = value;
+        }
+        writeln!(episodes, "{line}").map_err(ExportError::io(&episodes_pending.path))?;
+        let line = json!({"episode_index": e.episode_index, "stats": e.stats});
+        writeln!(stats, "{line}").map_err(ExportError::io(&stats_pending.path))?;
+    }
+    episodes.into_inner().map_err(|e| ExportError::Io {
+        path: episodes_pending.path.clone(),
+        source: e.into_error(),
+    })?;
+    stats.into_inner().map_err(|e| ExportError::Io {
+        path: stats_pending.path.clone(),
+        source: e.into_error(),
+    })?;
+    Ok(dir.commit(episodes_pending)? + dir.commit(stats_pending)?)
 }

@@ -29,14 +29,16 @@ use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
 pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile};
-use crate::export::{EpisodeSink, ExportError, SinkTiming, Summary};
+use crate::export::{
+    EpisodeSink, ExportError, Sidecar, SinkOptions, SinkTiming, Summary, run_options,
+};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
 use serde_json::{Value, json};
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::fs::File;
 use std::path::Path;
 use table::{EpisodeRow, VideoSpan, frame_batch};
@@ -120,16 +122,21 @@ struct OpenFile {
     pending: PendingFile,
 }
 
-/// The writer's state: everything a checkpoint records. It is saved at moments when every data
-/// and video file written so far is complete.
+/// The journal of episode rows (one JSON line per episode), read back when the dataset
+/// finishes: the writer keeps no per-episode state in memory.
+const EPISODES_JOURNAL: &str = "meta/.surgvla-episodes.jsonl";
+
+/// The writer's state: everything a checkpoint records besides the files (which the
+/// [`DatasetDir`] records). It is saved at moments when every data and video file written so
+/// far is complete. Its size does not grow with the number of episodes (only with distinct
+/// instructions).
 #[derive(Clone, serde::Serialize, serde::Deserialize)]
 struct State {
-    /// Completed data and video files, relative to the root.
-    finalized: Vec<String>,
     data_files: FileCounter,
     video_files: FileCounter,
     tasks: Vec<String>,
-    episodes: Vec<EpisodeRow>,
+    /// Episodes written; their rows are in [`EPISODES_JOURNAL`].
+    episodes: u64,
     total_frames: u64,
     stats: EpisodeStats,
     summary: Summary,
@@ -160,30 +167,29 @@ impl LeRobotWriter {
         options: LeRobotOptions,
     ) -> Result<Self, ExportError> {
         LeRobotWriter::check(info, &options)?;
+        let run = run_options(info, &SinkOptions::LeRobot(options.clone()));
         Ok(LeRobotWriter::fresh(
-            DatasetDir::create(root)?,
+            DatasetDir::create(root, &run)?,
             info,
             options,
         ))
     }
 
-    /// Continues an interrupted dataset in `root` (one with the incomplete marker): restores
-    /// the state of the last checkpoint and deletes whatever was written after it; the next
-    /// episode to write is [`EpisodeSink::next_episode_index`]. With the same info, options and
-    /// episodes, the finished dataset is byte-identical to an uninterrupted run.
+    /// Continues an interrupted dataset in `root` (one with the incomplete marker): refuses
+    /// other info or options than it was started with, and files its checkpoint lists that are
+    /// missing or changed; restores the state of the last checkpoint and deletes whatever was
+    /// written after it; the next episode to write is [`EpisodeSink::next_episode_index`]. With
+    /// the same info, options and episodes, the finished dataset is byte-identical to an
+    /// uninterrupted run.
     pub fn resume(
         root: &Path,
         info: &DatasetInfo,
         options: LeRobotOptions,
     ) -> Result<Self, ExportError> {
         LeRobotWriter::check(info, &options)?;
-        let dir = DatasetDir::resume(root)?;
-        let checkpoint: Option<State> = dir.load_checkpoint()?;
-        let keep: HashSet<String> = checkpoint
-            .as_ref()
-            .map(|c| c.finalized.iter().cloned().collect())
-            .unwrap_or_default();
-        dir.remove_files_except(&["data", "videos"], &keep)?;
+        let run = run_options(info, &SinkOptions::LeRobot(options.clone()));
+        let (dir, checkpoint) =
+            DatasetDir::resume::<State>(root, &run, &["data", "videos", "meta"])?;
         let mut writer = LeRobotWriter::fresh(dir, info, options);
         if let Some(state) = checkpoint {
             writer.task_lookup = state
@@ -222,11 +228,10 @@ impl LeRobotWriter {
             open: None,
             video: None,
             state: State {
-                finalized: Vec::new(),
                 data_files: counter,
                 video_files: counter,
                 tasks: Vec::new(),
-                episodes: Vec::new(),
+                episodes: 0,
                 total_frames: 0,
                 stats: fresh_stats(&info.features),
                 summary: Summary::default(),
@@ -262,7 +267,7 @@ impl LeRobotWriter {
 
     fn open_file(&mut self) -> Result<&mut OpenFile, ExportError> {
         if self.open.is_none() {
-            let episode = self.state.episodes.len() as u64;
+            let episode = self.state.episodes;
             let version = self.options.version;
             let (chunk, file) = version.next_location(&mut self.state.data_files, episode);
             let (handle, pending) = self.dir.create_file(&version.data_path(chunk, file))?;
@@ -285,8 +290,7 @@ impl LeRobotWriter {
         if let Some(open) = self.open.take() {
             let path = open.pending.path.clone();
             open.writer.close().map_err(ExportError::parquet(&path))?;
-            let bytes = open.pending.commit()?;
-            self.state.finalized.push(self.dir.relative(&path));
+            let bytes = self.dir.commit(open.pending)?;
             self.state.summary.files += 1;
             self.state.summary.bytes += bytes;
         }
@@ -315,7 +319,7 @@ impl LeRobotWriter {
                 "has_audio": false,
             });
         }
-        let episodes = self.state.episodes.len();
+        let episodes = self.state.episodes;
         json!({
             "codebase_version": CODEBASE_VERSION,
             "robot_type": self.info.robot_type,
@@ -350,7 +354,7 @@ impl LeRobotWriter {
         }
         if self.video.is_none() {
             let key = self.video_key().unwrap_or_default().to_string();
-            let episode = self.state.episodes.len() as u64;
+            let episode = self.state.episodes;
             let location = version.next_location(&mut self.state.video_files, episode);
             let relative = version.video_path(&key, location.0, location.1);
             let codec = self.options.video.map_or(Codec::Av1, |v| v.codec);
@@ -377,9 +381,7 @@ impl LeRobotWriter {
 
     fn close_video(&mut self) -> Result<(), ExportError> {
         if let Some(video) = self.video.take() {
-            let relative = self.dir.relative(video.path());
-            self.state.summary.bytes += video.finish()?;
-            self.state.finalized.push(relative);
+            self.state.summary.bytes += self.dir.commit(video.finish()?)?;
             self.state.summary.files += 1;
         }
         Ok(())
@@ -410,7 +412,7 @@ impl LeRobotWriter {
         episode
             .validate(width, height, &self.info.features)
             .map_err(ExportError::InvalidEpisode)?;
-        let expected = self.state.episodes.len() as u64;
+        let expected = self.state.episodes;
         if episode.meta.index != expected {
             return Err(ExportError::InvalidEpisode(format!(
                 "episode index {} arrived where {expected} was expected (episodes must come in order)",
@@ -469,7 +471,7 @@ impl LeRobotWriter {
         }
         let length = episode.steps.len() as u64;
         let meta = &episode.meta;
-        self.state.episodes.push(EpisodeRow {
+        let row = EpisodeRow {
             episode_index: meta.index,
             task: meta.instruction.clone(),
             length,
@@ -486,7 +488,13 @@ impl LeRobotWriter {
                 attempts: meta.attempts,
                 success: meta.success,
             },
-        });
+        };
+        let line = serde_json::to_vec(&row).map_err(|source| ExportError::Json {
+            path: self.dir.path(EPISODES_JOURNAL),
+            source,
+        })?;
+        self.dir.append(EPISODES_JOURNAL, &line)?;
+        self.state.episodes += 1;
         self.state.total_frames += length;
         self.state.summary.episodes += 1;
         self.state.summary.frames += length;
@@ -495,7 +503,7 @@ impl LeRobotWriter {
             // complete, and record the state.
             self.close_file()?;
             self.close_video()?;
-            if version.checkpoint_due(self.state.episodes.len()) {
+            if version.checkpoint_due(self.state.episodes) {
                 self.dir.save_checkpoint(&self.state)?;
             }
         }
@@ -503,28 +511,46 @@ impl LeRobotWriter {
         Ok(())
     }
 
-    fn finish_dataset(&mut self) -> Result<Summary, ExportError> {
+    /// Finishing, in an order that an interruption at any point can resume: close the files and
+    /// checkpoint (every episode is durable), write the metadata and the manifest, the sidecar
+    /// (the run's report), and only then remove the marker.
+    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
         self.close_file()?;
         self.close_video()?;
+        self.dir.save_checkpoint(&self.state)?;
         let stats: serde_json::Map<String, Value> = self
             .state
             .stats
             .iter()
             .map(|(name, s)| (name.clone(), s.to_json()))
             .collect();
+        let video_key = self.video_key().map(str::to_string);
         let metadata = layout::Metadata {
             tasks: &self.state.tasks,
-            episodes: &self.state.episodes,
+            episodes: self.state.episodes,
             stats: Value::Object(stats),
             surgvla: self.info.surgvla_json(),
             info: self.info_json(),
             chunks_size: self.options.chunks_size,
-            video_key: self.video_key(),
+            video_key: video_key.as_deref(),
         };
         let mut summary = self.state.summary.clone();
-        for (relative, bytes) in self.options.version.metadata_files(&metadata)? {
-            summary.bytes += self.dir.write_atomically(&relative, &bytes)?;
-            summary.files += 1;
+        let rows = self.dir.journal_lines(EPISODES_JOURNAL)?.map(|line| {
+            let line = line?;
+            serde_json::from_str::<EpisodeRow>(&line).map_err(|source| ExportError::Json {
+                path: EPISODES_JOURNAL.into(),
+                source,
+            })
+        });
+        let (files, bytes) = self
+            .options
+            .version
+            .write_metadata(&mut self.dir, &metadata, rows)?;
+        summary.files += files + 1;
+        summary.bytes += bytes + self.dir.write_manifest()?;
+        if let Some(make) = sidecar {
+            let (relative, bytes) = make(&summary)?;
+            self.dir.write_unlisted(&relative, &bytes)?;
         }
         self.dir.complete()?;
         Ok(summary)
@@ -582,18 +608,18 @@ impl EpisodeSink for LeRobotWriter {
     }
 
     fn next_episode_index(&self) -> u64 {
-        self.state.episodes.len() as u64
+        self.state.episodes
     }
 
     fn timing(&self) -> SinkTiming {
         self.timing
     }
 
-    fn finish(&mut self) -> Result<Summary, ExportError> {
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
         if let Some(summary) = &self.finished {
             return Ok(summary.clone());
         }
-        let summary = self.finish_dataset()?;
+        let summary = self.finish_dataset(sidecar)?;
         self.finished = Some(summary.clone());
         Ok(summary)
     }
