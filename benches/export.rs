@@ -29,7 +29,11 @@ fn bench_lerobot(c: &mut Criterion) {
         })
         .collect();
     let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
-    let info = dataset_info(&CollectOptions::default(), FeatureSet::default(), false);
+    let info = dataset_info(
+        &CollectOptions::default(),
+        FeatureSet::default(),
+        &surgvla::policy::ExpertLibrary::builtin().expect("plans"),
+    );
     for (mode, video) in [
         ("image", None),
         ("video_av1", Some(VideoOptions::default())),

@@ -223,7 +223,7 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         ..FeatureSet::default()
     };
     options.check().map_err(CliError::usage)?;
-    let info = dataset_info(&options, features, args.job.policies.is_some());
+    let info = dataset_info(&options, features, &library);
     let resuming = resumes(&args.out, args.resume);
     let mut sink = open_sink(&args.out, &info, &args.sink_options(), args.resume)?;
     if resuming {

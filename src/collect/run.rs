@@ -255,15 +255,15 @@ pub fn measure_experts(
 }
 
 /// What a collection's dataset is: its features, the camera, the robot and the collection
-/// options (`custom_policies`: plans from a folder rather than the built-in ones).
+/// options, with the experts' plans (`library`; custom plans are named with their checksums).
 pub fn dataset_info(
     options: &CollectOptions,
     features: FeatureSet,
-    custom_policies: bool,
+    library: &ExpertLibrary,
 ) -> DatasetInfo {
     let record = &options.record;
     let camera = crate::view::camera_info(&record.camera);
-    let collection = serde_json::json!({
+    let mut collection = serde_json::json!({
         "seed": options.seed,
         "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
         "episodes_per_task": options.episodes_per_task,
@@ -273,8 +273,11 @@ pub fn dataset_info(
         "instructions": record.task.instruction.name(),
         "spawn_scale": record.task.spawn_scale,
         "randomize_appearance": record.randomize_appearance,
-        "policies": if custom_policies { "custom" } else { "builtin" },
+        "policies": if library.is_custom() { "custom" } else { "builtin" },
     });
+    if library.is_custom() {
+        collection["custom_plans"] = serde_json::json!(library.custom_plans());
+    }
     DatasetInfo {
         fps: crate::sim::Timing::default().control_hz,
         robot_type: "dvrk_psm".into(),

@@ -47,6 +47,8 @@ const BUILTIN: [(&str, &str); 8] = [
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExpertLibrary {
     plans: BTreeMap<TaskId, ExpertPlan>,
+    /// The plans that replace built-in ones: task -> CRC-32C of the plan file's text.
+    custom: BTreeMap<TaskId, u32>,
 }
 
 impl ExpertLibrary {
@@ -62,7 +64,10 @@ impl ExpertLibrary {
             })?;
             plans.insert(task, plan);
         }
-        Ok(ExpertLibrary { plans })
+        Ok(ExpertLibrary {
+            plans,
+            custom: BTreeMap::new(),
+        })
     }
 
     /// The built-in plans, with every `*.toml` in `folder` replacing the plan of its task.
@@ -120,8 +125,23 @@ impl ExpertLibrary {
                 })?;
             sources.insert(task, path);
             library.plans.insert(task, plan);
+            library.custom.insert(task, crc32c::crc32c(text.as_bytes()));
         }
         Ok(library)
+    }
+
+    /// Whether any plan replaces a built-in one.
+    pub fn is_custom(&self) -> bool {
+        !self.custom.is_empty()
+    }
+
+    /// The plans that replace built-in ones, by task name, with the CRC-32C of their text:
+    /// what a dataset records so that a resume with edited plans is refused.
+    pub fn custom_plans(&self) -> BTreeMap<&'static str, String> {
+        self.custom
+            .iter()
+            .map(|(task, crc)| (task.name(), format!("{crc:08x}")))
+            .collect()
     }
 
     /// The plan of `task`.

@@ -20,7 +20,11 @@ fn cli_info() -> surgvla::export::DatasetInfo {
         episodes_per_task: 2,
         ..CollectOptions::default()
     };
-    dataset_info(&options, FeatureSet::default(), false)
+    dataset_info(
+        &options,
+        FeatureSet::default(),
+        &ExpertLibrary::builtin().expect("plans"),
+    )
 }
 
 const CLI_ARGS: [&str; 5] = ["collect", "--tasks", "T1-1", "--episodes-per-task", "2"];

@@ -92,6 +92,6 @@ pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
     surgvla::collect::run::dataset_info(
         &surgvla::collect::run::CollectOptions::default(),
         features,
-        false,
+        &surgvla::policy::ExpertLibrary::builtin().expect("plans"),
     )
 }
