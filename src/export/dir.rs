@@ -309,7 +309,23 @@ impl DatasetDir {
                 interrupted: Self::is_interrupted(root),
             });
         }
-        let dir = DatasetDir {
+        let dir = DatasetDir::locked(root, lock, options);
+        // A marker that cannot be written (read-only, no permission) is the output's problem,
+        // except a full disk, which is the work's.
+        dir.write_marker::<()>(None).map_err(|e| match e {
+            ExportError::Io { path, source }
+                if source.kind() != std::io::ErrorKind::StorageFull =>
+            {
+                ExportError::Output { path, source }
+            }
+            other => other,
+        })?;
+        Ok(dir)
+    }
+
+    /// This process's hold on `root`, with no file recorded yet.
+    fn locked(root: &Path, lock: File, options: &RunOptions) -> Self {
+        DatasetDir {
             root: root.to_path_buf(),
             _lock: lock,
             holder: Holder::this_process(),
@@ -317,12 +333,7 @@ impl DatasetDir {
             files: Vec::new(),
             synced: 0,
             journals: BTreeMap::new(),
-        };
-        dir.write_marker::<()>(None).map_err(|e| match e {
-            ExportError::Io { path, source } => ExportError::Output { path, source },
-            other => other,
-        })?;
-        Ok(dir)
+        }
     }
 
     /// Whether `root` holds an interrupted dataset (one with the marker).
@@ -349,15 +360,7 @@ impl DatasetDir {
         }
         let lock = lock(root)?;
         let marker: Marker<Value> = read_marker(root)?;
-        let mut dir = DatasetDir {
-            root: root.to_path_buf(),
-            _lock: lock,
-            holder: Holder::this_process(),
-            options: options.clone(),
-            files: Vec::new(),
-            synced: 0,
-            journals: BTreeMap::new(),
-        };
+        let mut dir = DatasetDir::locked(root, lock, options);
         let Some(checkpoint) = marker.checkpoint else {
             dir.remove_files_except(folders, &HashSet::new())?;
             dir.write_marker::<()>(None)?;
