@@ -72,17 +72,26 @@ impl WaypointPolicy {
     }
 
     fn reached(&self, waypoint: &Waypoint, observation: &Observation) -> bool {
-        let error = position_error(waypoint, observation);
+        let mut error = position_error(waypoint, observation);
+        // A held object resting on a surface stops the descent: a waypoint below counts as
+        // reached in height.
+        if observation.descent_stopped && error[2] < 0.0 {
+            error[2] = 0.0;
+        }
         let distance = error.iter().map(|e| e * e).sum::<f64>().sqrt();
         let yaw_error = wrap_angle(waypoint.yaw_rad - observation.tip_euler_xyz_rad[2]).abs();
-        let jaw_goal = match waypoint.jaw {
-            JawCommand::Open => JAW_OPEN_RAD,
-            JawCommand::Close => JAW_CLOSED_RAD,
+        // Closing jaws stop on a held object.
+        let jaws_there = match waypoint.jaw {
+            JawCommand::Open => (observation.jaw_angle_rad - JAW_OPEN_RAD).abs() < 1e-6,
+            JawCommand::Close => {
+                observation.bound_object.is_some()
+                    || (observation.jaw_angle_rad - JAW_CLOSED_RAD).abs() < 1e-6
+            }
         };
         distance <= self.position_tolerance_m
             && yaw_error <= self.yaw_tolerance_rad
             && observation.jaw_command == waypoint.jaw
-            && (observation.jaw_angle_rad - jaw_goal).abs() < 1e-6
+            && jaws_there
     }
 }
 

@@ -15,6 +15,9 @@ use nalgebra::{Isometry3, Vector3};
 pub const TABLE_TOP_Z_M: f64 = 0.675;
 /// Tray pad top height, metres.
 pub const TRAY_TOP_Z_M: f64 = 0.678;
+/// Radius of T2-3's vessel, which lies on the tray pad: centre line 2.5 mm above the pad, clip
+/// sites marked on its top.
+pub const VESSEL_RADIUS_M: f64 = 0.0025;
 /// Tray pad centre (x, y) and half extents (x, y), metres: the pad fills most of the
 /// endoscope's view as in the reference frame.
 pub const TRAY_CENTER_XY_M: [f64; 2] = [0.5225, 0.0];
@@ -64,6 +67,16 @@ pub enum ObjectKind {
 }
 
 impl ObjectKind {
+    /// How far apart held jaws stay on this object, metres: the gauze's and the block's
+    /// thickness, the needle's wire diameter.
+    pub fn grip_thickness_m(self) -> f64 {
+        match self {
+            ObjectKind::Gauze => 2.0 * GAUZE_HALF_EXTENTS_M[2],
+            ObjectKind::Needle => 2.0 * NEEDLE_WIRE_RADIUS_M,
+            ObjectKind::Block => 2.0 * BLOCK_HALF_EXTENTS_M[2],
+        }
+    }
+
     /// Lower-case name used in output.
     pub fn name(self) -> &'static str {
         match self {

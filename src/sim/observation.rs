@@ -43,6 +43,12 @@ pub struct Observation {
     pub bound_object: Option<usize>,
     /// What IK had to clamp on the last step.
     pub ik: IkReport,
+    /// Per scene mark: the jaw angle when the tip first came within
+    /// [`crate::sim::MARK_APPROACH_RADIUS_M`] of it (None: not yet).
+    pub mark_approach_jaw_rad: Vec<Option<f64>>,
+    /// On the last step the held object met static geometry and the tip stopped above its
+    /// target.
+    pub descent_stopped: bool,
 }
 
 impl Observation {

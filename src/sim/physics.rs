@@ -28,6 +28,9 @@ pub const SHAFT_RADIUS_M: f64 = 0.004;
 /// Length of shaft modelled above the wrist, metres.
 pub const SHAFT_LENGTH_M: f64 = 0.12;
 
+/// Distance within which a held object counts as touching the tray, metres.
+const TOUCH_M: f64 = 0.0002;
+
 /// Parameters of the physics world.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PhysicsParams {
@@ -89,6 +92,8 @@ struct ObjectBody {
 pub struct PhysicsScene {
     world: PhysicsWorld,
     tray: ColliderHandle,
+    /// Every fixed collider (table, tray pad and rim, organs): what a held object must not enter.
+    statics: Vec<ColliderHandle>,
     objects: Vec<ObjectBody>,
     instrument: RigidBodyHandle,
 }
@@ -175,7 +180,8 @@ impl PhysicsScene {
             .natural_frequency = 2.0 * frequency;
 
         let table_half_z = 0.01f32;
-        world.insert(
+        let mut statics = Vec::new();
+        let (_, table) = world.insert(
             RigidBodyBuilder::fixed().translation(Vector::new(
                 0.55,
                 0.0,
@@ -183,6 +189,7 @@ impl PhysicsScene {
             )),
             ColliderBuilder::cuboid(0.4, 0.4, table_half_z).friction(0.8),
         );
+        statics.push(table);
         // The tray: pad first (its handle answers "on the tray"), then the rim walls.
         let mut tray = None;
         for (centre, half) in tray_boxes() {
@@ -191,14 +198,16 @@ impl PhysicsScene {
                 ColliderBuilder::cuboid(half[0] as f32, half[1] as f32, half[2] as f32)
                     .friction(1.0),
             );
+            statics.push(collider);
             tray.get_or_insert(collider);
         }
         let tray = tray.unwrap_or(ColliderHandle::invalid());
         for organ in &spec.organs {
-            world.insert(
+            let (_, collider) = world.insert(
                 RigidBodyBuilder::fixed().pose(to_pose(&organ.world_from_organ)),
                 organ_collider(organ).friction(1.0),
             );
+            statics.push(collider);
         }
         let objects = spec
             .objects
@@ -226,6 +235,7 @@ impl PhysicsScene {
         PhysicsScene {
             world,
             tray,
+            statics,
             objects,
             instrument,
         }
@@ -292,11 +302,60 @@ impl PhysicsScene {
             .is_some_and(|pair| pair.has_any_active_contact())
     }
 
-    /// Whether object `index` is in contact with the tray pad.
+    /// Signed distance between object `index`, were it at `world_from_object`, and the static
+    /// collider `handle`, metres (negative: penetration; `None`: farther than `within_m`).
+    fn static_distance(
+        &self,
+        index: usize,
+        world_from_object: &Isometry3<f64>,
+        handle: ColliderHandle,
+        within_m: f64,
+    ) -> Option<f64> {
+        let object = self
+            .world
+            .colliders
+            .get(self.objects.get(index)?.collider)?;
+        let fixed = self.world.colliders.get(handle)?;
+        let contact = rapier3d::parry::query::contact(
+            &to_pose(world_from_object),
+            object.shape(),
+            fixed.position(),
+            fixed.shape(),
+            within_m as f32,
+        )
+        .ok()??;
+        Some(f64::from(contact.dist))
+    }
+
+    /// How deep object `index`, were it at `world_from_object`, would reach into static
+    /// geometry (tray, organs, table), metres; 0 when clear.
+    pub fn static_penetration(&self, index: usize, world_from_object: &Isometry3<f64>) -> f64 {
+        self.statics
+            .iter()
+            .filter_map(|&h| self.static_distance(index, world_from_object, h, 0.0))
+            .fold(0.0, |deepest, d| deepest.max(-d))
+    }
+
+    /// Whether object `index` is in contact with the tray pad. A held (kinematic) object has no
+    /// contacts with fixed bodies in the engine, so it is tested geometrically (within 0.2 mm).
     pub fn object_on_tray(&self, index: usize) -> bool {
-        self.objects
-            .get(index)
-            .is_some_and(|o| self.touching(o.collider, self.tray))
+        let Some(object) = self.objects.get(index) else {
+            return false;
+        };
+        let kinematic = self
+            .world
+            .bodies
+            .get(object.body)
+            .is_some_and(|b| b.is_kinematic());
+        if kinematic {
+            let Some(pose) = self.object_pose(index) else {
+                return false;
+            };
+            return self
+                .static_distance(index, &pose, self.tray, TOUCH_M)
+                .is_some_and(|d| d <= TOUCH_M);
+        }
+        self.touching(object.collider, self.tray)
     }
 
     /// Whether objects `a` and `b` are in contact.

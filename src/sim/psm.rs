@@ -47,6 +47,12 @@ pub const JAW_OPEN_RAD: f64 = 0.698_131_700_797_731_8;
 /// Jaw opening angle when closed, radians.
 pub const JAW_CLOSED_RAD: f64 = 0.0;
 
+/// The opening angle at which the jaws' tips (each jaw at +-angle/2, [`TIP_OFFSET_M`] long) are
+/// `gap_m` apart: where closing jaws stop on a held object.
+pub fn jaw_angle_for_gap(gap_m: f64) -> f64 {
+    2.0 * (gap_m / (2.0 * TIP_OFFSET_M)).clamp(0.0, 1.0).asin()
+}
+
 /// Lower and upper limit of one joint (radians, or metres for the insertion joint).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct JointLimit {

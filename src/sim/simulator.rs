@@ -18,12 +18,18 @@ use crate::sim::grasp::GraspRule;
 use crate::sim::observation::{ObjectState, Observation};
 use crate::sim::physics::{PhysicsParams, PhysicsScene};
 use crate::sim::psm::{
-    IkReport, JAW_CLOSED_RAD, JAW_OPEN_RAD, Joints, Psm, euler_xyz, pointing_down,
+    IkReport, JAW_CLOSED_RAD, JAW_OPEN_RAD, Joints, Psm, euler_xyz, jaw_angle_for_gap,
+    pointing_down,
 };
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// A displacement larger than this from the spawn pose counts as "moved", metres.
 pub const MOVED_THRESHOLD_M: f64 = 0.002;
+/// How deep a held object may reach into static geometry, metres.
+pub const HELD_PENETRATION_M: f64 = 0.0002;
+/// A tip closer than this to a mark has "approached" it: the simulator records the jaw angle of
+/// the first control step that brings the tip this close (a clip must arrive with open jaws).
+pub const MARK_APPROACH_RADIUS_M: f64 = 0.010;
 
 /// Everything that configures a simulator besides the scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -74,6 +80,8 @@ pub struct StepReport {
     pub bound: Option<usize>,
     /// Index of the object released during this step.
     pub released: Option<usize>,
+    /// The tip's descent was stopped because the held object met static geometry.
+    pub descent_stopped: bool,
 }
 
 /// A headless, deterministic simulation of one scene.
@@ -87,6 +95,9 @@ pub struct Simulator {
     binding: Option<Binding>,
     step_index: u64,
     last_report: StepReport,
+    /// Per scene mark: the jaw angle when the tip first came within
+    /// [`MARK_APPROACH_RADIUS_M`] of it.
+    mark_approach_jaw_rad: Vec<Option<f64>>,
 }
 
 /// Pose of the instrument's shaft frame: origin at the wrist-pitch joint, z from the RCM outward.
@@ -105,7 +116,8 @@ impl Simulator {
             &config.physics,
             &world_from_shaft(&config.psm, &joints),
         );
-        Simulator {
+        let marks = scene.marks.len();
+        let mut sim = Simulator {
             config,
             scene,
             physics,
@@ -118,6 +130,19 @@ impl Simulator {
                 ik,
                 ..StepReport::default()
             },
+            mark_approach_jaw_rad: vec![None; marks],
+        };
+        sim.record_mark_approaches();
+        sim
+    }
+
+    /// Records the jaw angle for every mark the tip has just come near for the first time.
+    fn record_mark_approaches(&mut self) {
+        let tip = self.world_from_tip().translation.vector;
+        for (mark, record) in self.scene.marks.iter().zip(&mut self.mark_approach_jaw_rad) {
+            if record.is_none() && (tip - mark.position_m).norm() <= MARK_APPROACH_RADIUS_M {
+                *record = Some(self.jaw_angle_rad);
+            }
         }
     }
 
@@ -186,22 +211,29 @@ impl Simulator {
         self.step_to(target)
     }
 
-    fn step_to(&mut self, target: TipTarget) -> StepReport {
-        let (target_joints, ik) = self
-            .config
-            .psm
-            .inverse(&target.world_from_tip, self.joints[3]);
+    fn step_to(&mut self, mut target: TipTarget) -> StepReport {
         let mut report = StepReport {
-            ik,
             clipped: target.clipped,
             ..StepReport::default()
         };
         self.apply_jaw_command(target.jaw, &mut report);
+        report.descent_stopped = self.stop_held_object_at_static_geometry(&mut target);
+        let (target_joints, ik) = self
+            .config
+            .psm
+            .inverse(&target.world_from_tip, self.joints[3]);
+        report.ik = ik;
 
         let substeps = self.config.timing.substeps.max(1);
-        let jaw_goal = match self.jaw_command {
-            JawCommand::Open => JAW_OPEN_RAD,
-            JawCommand::Close => JAW_CLOSED_RAD,
+        // Closing jaws stop on a held object, so the jaw angle says what they hold.
+        let jaw_goal = match (self.jaw_command, self.binding) {
+            (JawCommand::Open, _) => JAW_OPEN_RAD,
+            (JawCommand::Close, Some(binding)) => {
+                let kind = self.scene.objects[binding.object].kind;
+                jaw_angle_for_gap(kind.grip_thickness_m())
+                    .min(self.jaw_angle_rad.max(JAW_CLOSED_RAD))
+            }
+            (JawCommand::Close, None) => JAW_CLOSED_RAD,
         };
         let jaw_rate = (JAW_OPEN_RAD - JAW_CLOSED_RAD) / f64::from(substeps);
         let start = self.joints;
@@ -230,7 +262,29 @@ impl Simulator {
         }
         self.step_index += 1;
         self.last_report = report;
+        self.record_mark_approaches();
         report
+    }
+
+    /// A held object must not be pushed into static geometry (the tray, organs): raises the
+    /// tip's target until the object, carried rigidly, reaches no deeper than
+    /// [`HELD_PENETRATION_M`] (the jaws' descent stops where the object meets the surface).
+    /// Returns whether it did.
+    fn stop_held_object_at_static_geometry(&self, target: &mut TipTarget) -> bool {
+        let Some(binding) = self.binding else {
+            return false;
+        };
+        let mut stopped = false;
+        for _ in 0..4 {
+            let pose = target.world_from_tip * binding.tip_from_object;
+            let depth = self.physics.static_penetration(binding.object, &pose);
+            if depth <= HELD_PENETRATION_M {
+                break;
+            }
+            target.world_from_tip.translation.vector.z += depth - 0.5 * HELD_PENETRATION_M;
+            stopped = true;
+        }
+        stopped
     }
 
     fn apply_jaw_command(&mut self, command: JawCommand, report: &mut StepReport) {
@@ -321,6 +375,8 @@ impl Simulator {
             objects,
             bound_object: self.bound_object(),
             ik: self.last_report.ik,
+            mark_approach_jaw_rad: self.mark_approach_jaw_rad.clone(),
+            descent_stopped: self.last_report.descent_stopped,
         }
     }
 
@@ -331,6 +387,7 @@ impl Simulator {
         self.joints = joints;
         self.physics
             .move_instrument(&world_from_shaft(&self.config.psm, &self.joints));
+        self.record_mark_approaches();
         ik
     }
 

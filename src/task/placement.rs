@@ -159,7 +159,7 @@ pub(super) fn vessel_with_sites(
     shape: f64,
     order: f64,
 ) -> (OrganSpec, Vec<MarkSpec>) {
-    let radius = 0.0025;
+    let radius = crate::scene::VESSEL_RADIUS_M;
     let vessel = OrganSpec {
         kind: OrganKind::Vessel,
         world_from_organ: Isometry3::translation(x, y, TRAY_TOP_Z_M + radius),

@@ -60,9 +60,11 @@ impl TaskId {
                 )
             }
             TaskId::VesselClipping => ranges((0.535, 0.565), (-0.01, 0.01), none, none, none),
+            // The spleen's centre range puts the bleeding target where the reference has it:
+            // x 0.532..0.552, y +-0.03, z ~0.705.
             TaskId::Hemostasis => ranges(
-                (0.49, 0.51),
-                (-0.015, 0.015),
+                (0.522, 0.542),
+                (-0.03, 0.03),
                 (0.57, 0.59),
                 (0.0, 0.02),
                 (-10.0, 10.0),
@@ -224,11 +226,13 @@ impl TaskId {
             TaskId::Hemostasis => {
                 let (spleen, target) = placer.organ_with_mark(
                     OrganKind::Spleen,
-                    [0.032, 0.06, 0.02],
+                    SPLEEN_SEMI_AXES_M,
                     spawn,
                     yaw_rad,
                     (Vector3::new(0.55, 0.0, 0.83), "bleeding_target"),
                 );
+                // The gauze must not start on the spleen.
+                placer.placed.push(organ_outline(&spleen));
                 scene.marks.push(target);
                 scene.organs.push(spleen);
                 let range = (spawn.secondary_x_m, spawn.secondary_y_m);
@@ -241,6 +245,23 @@ impl TaskId {
         }
         Ok(instance)
     }
+}
+
+/// The spleen of T3-2 (semi-axes, metres): 56 x 120 x 32 mm before its base is flattened (it
+/// stands 27 mm above the pad), so the target on its upper surface is at z ~0.705.
+const SPLEEN_SEMI_AXES_M: [f64; 3] = [0.028, 0.06, 0.016];
+
+/// Points every ~2.5 mm along an organ's base outline, world xy (for clearance tests).
+fn organ_outline(organ: &crate::scene::OrganSpec) -> Vec<nalgebra::Vector2<f64>> {
+    let [a, b, _] = organ.semi_axes_m;
+    let n = 160;
+    (0..n)
+        .map(|i| {
+            let t = std::f64::consts::TAU * f64::from(i) / f64::from(n);
+            let p = organ.world_from_organ * nalgebra::Point3::new(a * t.cos(), b * t.sin(), 0.0);
+            nalgebra::Vector2::new(p.x, p.y)
+        })
+        .collect()
 }
 
 /// The instruction of an instance, drawn from its own stream so the scene does not depend on
@@ -397,6 +418,51 @@ mod tests {
             seen.insert(instance.instruction);
         }
         assert!(seen.len() > 1);
+    }
+
+    #[test]
+    fn the_hemostasis_target_is_where_the_reference_puts_it() {
+        // Reference: x 0.532..0.552, y +-0.03, z 0.705; the spleen's yaw and surface noise add a
+        // few millimetres.
+        let (mut low, mut high) = ([f64::MAX; 3], [f64::MIN; 3]);
+        for seed in 0..200 {
+            let instance = TaskId::Hemostasis
+                .instance(seed, &TaskConfig::default())
+                .unwrap();
+            let target = instance.scene.marks[0].position_m;
+            for axis in 0..3 {
+                low[axis] = low[axis].min(target[axis]);
+                high[axis] = high[axis].max(target[axis]);
+            }
+            let gauze = instance.scene.objects[0]
+                .world_from_object
+                .translation
+                .vector;
+            assert!(
+                gauze.x >= 0.57 && gauze.x <= 0.59,
+                "seed {seed}: gauze x {}",
+                gauze.x
+            );
+        }
+        assert!(
+            low[0] > 0.528 && high[0] < 0.556,
+            "x {:.4}..{:.4}",
+            low[0],
+            high[0]
+        );
+        assert!(
+            low[1] > -0.036 && high[1] < 0.036,
+            "y {:.4}..{:.4}",
+            low[1],
+            high[1]
+        );
+        assert!(high[1] - low[1] > 0.045, "y spans the reference's range");
+        assert!(
+            low[2] > 0.699 && high[2] < 0.711,
+            "z {:.4}..{:.4}",
+            low[2],
+            high[2]
+        );
     }
 
     #[test]

@@ -6,16 +6,18 @@
 //! | T1-2, T2-2 | the named needle bound, raised >= 4 mm, not touching the tray |
 //! | T2-1, T2-2 | ... and no distractor moved more than 2 mm from its spawn |
 //! | T1-3 | jaws closed with the tip within 4 mm of the spot |
-//! | T2-3 | jaws closed with the tip within 4 mm of the named site, crossing the vessel within 20 deg |
+//! | T2-3 | a clip: the jaws were open when the tip came within 10 mm of the named site; now closed, the tip within 4 mm of it horizontally and between the tissue surface and the vessel's centre line (the jaws straddle the vessel), crossing the vessel within 20 deg |
 //! | T3-1 | gauze released, its centre over the block's top, bottom-to-top gap < 3 mm |
 //! | T3-2 | gauze released, its centre within 10 mm of the target |
 //!
 //! Every verdict carries a short reason, so a failed episode says why.
 
-use crate::scene::{BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, ObjectKind};
+use crate::scene::{
+    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, ObjectKind, TRAY_TOP_Z_M, VESSEL_RADIUS_M,
+};
 use crate::sim::grasp::line_angle_difference;
 use crate::sim::observation::Observation;
-use crate::sim::psm::JAW_CLOSED_RAD;
+use crate::sim::psm::{JAW_CLOSED_RAD, JAW_OPEN_RAD};
 use crate::task::{TaskId, TaskInstance};
 use nalgebra::{Point3, Vector3};
 use std::f64::consts::FRAC_PI_2;
@@ -34,6 +36,8 @@ pub const PLACE_GAP_M: f64 = 0.003;
 pub const HEMOSTASIS_RADIUS_M: f64 = 0.010;
 /// Jaw angle that counts as closed, radians.
 const JAWS_CLOSED_RAD: f64 = JAW_CLOSED_RAD + 0.02;
+/// Jaw angle that counts as open when a clip reaches its site: at least half open, radians.
+const JAWS_OPEN_FOR_CLIP_RAD: f64 = 0.5 * JAW_OPEN_RAD;
 
 /// The outcome of a success check.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,8 +71,8 @@ impl TaskInstance {
             | TaskId::NeedlePick
             | TaskId::GauzePickDistractors
             | TaskId::NeedlePickDistractors => self.picked(observation),
-            TaskId::Electrocoagulation => self.touched(observation, false),
-            TaskId::VesselClipping => self.touched(observation, true),
+            TaskId::Electrocoagulation => self.touched(observation),
+            TaskId::VesselClipping => self.clipped(observation),
             TaskId::PickAndPlace => self.placed_on_block(observation),
             TaskId::Hemostasis => self.placed_on_mark(observation),
         }
@@ -123,7 +127,7 @@ impl TaskInstance {
         Verdict::pass(format!("'{}' held {:.1} mm up", spec.name, lift * 1e3))
     }
 
-    fn touched(&self, observation: &Observation, crossing: bool) -> Verdict {
+    fn touched(&self, observation: &Observation) -> Verdict {
         let Some(mark) = self.target_mark.and_then(|i| self.scene.marks.get(i)) else {
             return Verdict::fail("no target mark");
         };
@@ -143,7 +147,69 @@ impl TaskInstance {
                 TOUCH_RADIUS_M * 1e3
             ));
         }
-        if let (true, Some(line)) = (crossing, mark.line_direction) {
+        Verdict::pass(format!("tip {:.1} mm from '{}'", distance * 1e3, mark.name))
+    }
+
+    /// A clip: arrived with open jaws, closed around the vessel at the named site.
+    fn clipped(&self, observation: &Observation) -> Verdict {
+        let Some((index, mark)) = self
+            .target_mark
+            .and_then(|i| self.scene.marks.get(i).map(|m| (i, m)))
+        else {
+            return Verdict::fail("no target mark");
+        };
+        match observation
+            .mark_approach_jaw_rad
+            .get(index)
+            .copied()
+            .flatten()
+        {
+            None => {
+                return Verdict::fail(format!(
+                    "the tip never came within {:.0} mm of '{}'",
+                    crate::sim::MARK_APPROACH_RADIUS_M * 1e3,
+                    mark.name
+                ));
+            }
+            Some(jaw) if jaw < JAWS_OPEN_FOR_CLIP_RAD => {
+                return Verdict::fail(format!(
+                    "the jaws were closed ({:.0} deg) when the tip reached '{}': a clip arrives open",
+                    jaw.to_degrees(),
+                    mark.name
+                ));
+            }
+            Some(_) => {}
+        }
+        if observation.jaw_angle_rad > JAWS_CLOSED_RAD {
+            return Verdict::fail(format!(
+                "jaws open ({:.0} deg)",
+                observation.jaw_angle_rad.to_degrees()
+            ));
+        }
+        let tip = Vector3::from(observation.tip_position_m);
+        let offset = tip - mark.position_m;
+        let horizontal = offset.x.hypot(offset.y);
+        if horizontal > TOUCH_RADIUS_M {
+            return Verdict::fail(format!(
+                "tip {:.1} mm beside '{}' (> {:.0} mm)",
+                horizontal * 1e3,
+                mark.name,
+                TOUCH_RADIUS_M * 1e3
+            ));
+        }
+        // The site mark sits on the vessel's top; the jaws straddle the vessel when the tip is
+        // between the tissue below it and its centre line.
+        let centre_line_z = mark.position_m.z - VESSEL_RADIUS_M;
+        if !(TRAY_TOP_Z_M..=centre_line_z).contains(&tip.z) {
+            return Verdict::fail(format!(
+                "tip {:.1} mm {} the vessel's top: the jaws do not straddle the vessel (need {:.1}..{:.1} mm below it)",
+                offset.z.abs() * 1e3,
+                if offset.z >= 0.0 { "above" } else { "below" },
+                VESSEL_RADIUS_M * 1e3,
+                (mark.position_m.z - TRAY_TOP_Z_M) * 1e3
+            ));
+        }
+        if let Some(line) = mark.line_direction {
             let jaw_line = observation.tip_euler_xyz_rad[2] + FRAC_PI_2;
             let off = line_angle_difference(line.y.atan2(line.x), jaw_line);
             if off > CLIP_CROSSING_TOLERANCE_RAD {
@@ -153,7 +219,12 @@ impl TaskInstance {
                 ));
             }
         }
-        Verdict::pass(format!("tip {:.1} mm from '{}'", distance * 1e3, mark.name))
+        Verdict::pass(format!(
+            "clipped '{}': tip {:.1} mm beside it, {:.1} mm below its top",
+            mark.name,
+            horizontal * 1e3,
+            -offset.z * 1e3
+        ))
     }
 
     fn released_target<'a>(

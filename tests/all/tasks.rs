@@ -179,7 +179,7 @@ fn the_vessel_expert_clips_the_site_the_instruction_names() {
         assert!(wrong.verdict.success, "the decoy run clips its own site");
         let verdict = verify_replay(&instance, &wrong.actions, GripperEncoding::Continuous);
         assert!(
-            !verdict.success && verdict.reason.contains("mm from"),
+            !verdict.success && verdict.reason.contains(&target.name),
             "{}",
             verdict.reason
         );

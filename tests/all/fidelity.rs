@@ -1,0 +1,148 @@
+//! Every success predicate can fail, and fails for what a surgeon would not accept: a clip that
+//! touches or closes on top of the vessel, a gauze placed beside the block or 15 mm from the
+//! hemostasis target, a needle dragged along the tray; and a held object never sinks into the
+//! pad.
+
+use surgvla::collect::record::{attempt_seed, run_expert};
+use surgvla::collect::rollout;
+use surgvla::episode::GripperEncoding;
+use surgvla::policy::plan::ExpertPlan;
+use surgvla::scene::{GAUZE_HALF_EXTENTS_M, TRAY_TOP_Z_M};
+use surgvla::sim::{HELD_PENETRATION_M, SimConfig, Simulator};
+use surgvla::task::{TaskConfig, TaskId, TaskInstance};
+
+fn builtin(task: TaskId) -> String {
+    let path = format!(
+        "{}/scripted_policies/{}.toml",
+        env!("CARGO_MANIFEST_DIR"),
+        task.name()
+    );
+    std::fs::read_to_string(path).expect("plan")
+}
+
+fn plan(text: &str) -> ExpertPlan {
+    ExpertPlan::parse(text, std::path::Path::new("edited.toml")).expect("a valid plan")
+}
+
+fn instance(task: TaskId, k: u64) -> TaskInstance {
+    task.instance(attempt_seed(5, task, k, 0), &TaskConfig::default())
+        .expect("scene")
+}
+
+/// Runs `text` as the expert of `task` on a few slots: every verdict fails, saying `why`.
+fn always_fails(task: TaskId, text: &str, why: &str) {
+    let plan = plan(text);
+    for k in 0..4 {
+        let run = run_expert(
+            &instance(task, k),
+            &plan,
+            task.step_limit(),
+            GripperEncoding::Continuous,
+        )
+        .expect("run");
+        assert!(!run.verdict.success, "{task} k {k}: {}", run.verdict.reason);
+        assert!(
+            run.verdict.reason.contains(why),
+            "{task} k {k}: {}",
+            run.verdict.reason
+        );
+    }
+}
+
+#[test]
+fn a_clip_must_arrive_open_and_straddle_the_vessel() {
+    let task = TaskId::VesselClipping;
+    let expert = builtin(task);
+    // The built-in expert clips (checked on every task elsewhere); these must not.
+    let touch = expert.replace("jaw = \"open\"", "jaw = \"close\"");
+    always_fails(task, &touch, "a clip arrives open");
+    let on_top = expert.replace("-0.0035", "0.0");
+    always_fails(task, &on_top, "do not straddle");
+}
+
+#[test]
+fn a_gauze_beside_the_block_or_15_mm_from_the_target_is_not_placed() {
+    let beside = builtin(TaskId::PickAndPlace).replace(
+        "frame = \"place\"\noffset_m = [0.0, 0.0,",
+        "frame = \"place\"\noffset_m = [-0.02, 0.0,",
+    );
+    always_fails(TaskId::PickAndPlace, &beside, "not over the block");
+    let off_target = builtin(TaskId::Hemostasis).replace(
+        "frame = \"place\"\noffset_m = [0.0, 0.0,",
+        "frame = \"place\"\noffset_m = [0.0, 0.015,",
+    );
+    always_fails(TaskId::Hemostasis, &off_target, "from the target");
+}
+
+#[test]
+fn a_needle_dragged_along_the_tray_is_not_picked() {
+    // Grasp, then slide 20 mm sideways at grasp height instead of lifting.
+    let dragged = builtin(TaskId::NeedlePick).replace(
+        "offset_m = [0.0, 0.0, 0.03]",
+        "offset_m = [0.02, 0.0, 0.0005]",
+    );
+    always_fails(TaskId::NeedlePick, &dragged, "needle");
+    // And the "off the tray" test itself fails while the held needle lies on the tray.
+    let instance = instance(TaskId::NeedlePick, 0);
+    let plan = plan(&builtin(TaskId::NeedlePick));
+    let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+    let mut expert = plan
+        .expert(&instance, &sim.observation(), instance.seed)
+        .expect("expert");
+    let trajectory = rollout(&mut sim, &mut expert, 100);
+    let held: Vec<_> = trajectory
+        .steps
+        .iter()
+        .map(|s| &s.observation)
+        .filter(|o| o.bound_object == Some(0))
+        .collect();
+    assert!(
+        held.first().expect("grasped").objects[0].on_tray,
+        "held on the tray"
+    );
+    assert!(
+        !held.last().expect("lifted").objects[0].on_tray,
+        "lifted off it"
+    );
+}
+
+#[test]
+fn a_held_gauze_pressed_into_the_pad_stops_at_its_surface() {
+    // Close 5 mm below the grasp point: the jaws try to press the gauze into the pad.
+    let pressed = builtin(TaskId::GauzePick).replace(
+        "name = \"close\"\nframe = \"pick\"\noffset_m = [0.0, 0.0, 0.0005]",
+        "name = \"close\"\nframe = \"pick\"\noffset_m = [0.0, 0.0, -0.005]",
+    );
+    assert_ne!(pressed, builtin(TaskId::GauzePick));
+    let plan = plan(&pressed);
+    for k in 0..4 {
+        let instance = instance(TaskId::GauzePick, k);
+        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        let mut expert = plan
+            .expert(&instance, &sim.observation(), instance.seed)
+            .expect("expert");
+        let trajectory = rollout(&mut sim, &mut expert, 100);
+        let mut held_steps = 0;
+        for observation in trajectory.steps.iter().map(|s| &s.observation) {
+            if observation.bound_object != Some(0) {
+                continue;
+            }
+            held_steps += 1;
+            let bottom =
+                observation.objects[0].world_from_object.translation.z - GAUZE_HALF_EXTENTS_M[2];
+            assert!(
+                bottom >= TRAY_TOP_Z_M - HELD_PENETRATION_M - 1e-5,
+                "k {k} step {}: the gauze's bottom is {:.2} mm into the pad",
+                observation.step_index,
+                (TRAY_TOP_Z_M - bottom) * 1e3
+            );
+            // The jaws stop at the gauze's thickness, not at zero.
+            assert!(
+                observation.jaw_angle_rad > 0.2,
+                "{}",
+                observation.jaw_angle_rad
+            );
+        }
+        assert!(held_steps > 5, "k {k}: the gauze was held");
+    }
+}
