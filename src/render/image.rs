@@ -119,18 +119,38 @@ pub fn depth_visualisation(frame: &Frame) -> Vec<u8> {
     let valid = frame.depth_m.iter().copied().filter(|z| *z > 0.0);
     let (near, far) = valid.fold((f32::INFINITY, 0f32), |(lo, hi), z| (lo.min(z), hi.max(z)));
     let span = (far - near).max(1e-6);
-    frame
-        .depth_m
-        .iter()
-        .flat_map(|z| {
-            if *z > 0.0 {
-                plasma(1.0 - (z - near) / span)
+    let (w, h) = (frame.width_px as usize, frame.height_px as usize);
+    (0..w * h)
+        .flat_map(|i| {
+            let z = frame.depth_m[i];
+            if z <= 0.0 {
+                return [0, 0, 0];
+            }
+            let colour = plasma(1.0 - (z - near) / span);
+            // Relief: a surface nearer than the mean of its two neighbours along a row or a
+            // column by more than RELIEF_M (a 1 mm needle wire on the pad; a plane, however
+            // tilted, has none) is drawn lighter, so thin objects show even where the colour
+            // scale cannot resolve them.
+            let (u, v) = (i % w, i / w);
+            let at = |uu: usize, vv: usize| frame.depth_m[vv * w + uu];
+            let mut behind = 0f32;
+            if u > 0 && u + 1 < w && at(u - 1, v) > 0.0 && at(u + 1, v) > 0.0 {
+                behind = behind.max(0.5 * (at(u - 1, v) + at(u + 1, v)));
+            }
+            if v > 0 && v + 1 < h && at(u, v - 1) > 0.0 && at(u, v + 1) > 0.0 {
+                behind = behind.max(0.5 * (at(u, v - 1) + at(u, v + 1)));
+            }
+            if behind - z > RELIEF_M {
+                colour.map(|c| ((u16::from(c) + 255) / 2) as u8)
             } else {
-                [0, 0, 0]
+                colour
             }
         })
         .collect()
 }
+
+/// Depth step that the depth visualisation outlines, metres.
+const RELIEF_M: f32 = 0.0004;
 
 /// A distinct colour for a mask id (0 is black).
 pub fn mask_colour(id: u8) -> [u8; 3] {
@@ -178,5 +198,39 @@ mod tests {
         assert!(encode_png(2, 2, 3, &[0; 11], &mut bytes).is_err());
         encode_png(2, 2, 3, &[7; 12], &mut bytes).expect("encode");
         assert_eq!(&bytes[1..4], b"PNG");
+    }
+
+    #[test]
+    fn the_depth_image_outlines_thin_relief_but_not_a_tilted_plane() {
+        let (w, h) = (16u32, 16u32);
+        // A plane 2 mm deeper per row, and a 1 mm ridge along column 8.
+        let depth_m: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (u, v) = (i % w, i / w);
+                0.1 + 0.002 * v as f32 - if u == 8 { 0.001 } else { 0.0 }
+            })
+            .collect();
+        let frame = Frame {
+            width_px: w,
+            height_px: h,
+            rgb: vec![0; (w * h * 3) as usize],
+            depth_m,
+            mask: vec![1; (w * h) as usize],
+        };
+        let image = depth_visualisation(&frame);
+        let brightness = |u: u32, v: u32| -> u32 {
+            let i = ((v * w + u) * 3) as usize;
+            image[i..i + 3].iter().map(|c| u32::from(*c)).sum()
+        };
+        // Along the plane's rows, neighbouring columns look alike; the ridge stands out.
+        assert_eq!(
+            brightness(4, 5),
+            brightness(5, 5),
+            "no outline on the plane"
+        );
+        assert!(
+            brightness(8, 5) > brightness(7, 5) + 60,
+            "the ridge is outlined"
+        );
     }
 }

@@ -218,12 +218,15 @@ pub struct InstrumentPose {
     pub jaw_angle_rad: f64,
 }
 
-/// Everything a scene holds besides the instrument.
+/// Everything a scene holds besides the instrument, and where the instrument's tip starts.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SceneSpec {
     pub objects: Vec<ObjectSpec>,
     pub organs: Vec<OrganSpec>,
     pub marks: Vec<MarkSpec>,
+    /// Where the tip starts (pointing down, jaws open), world, metres; `None`: the
+    /// simulator's configured start pose.
+    pub tip_start_m: Option<Vector3<f64>>,
 }
 
 impl SceneSpec {
@@ -246,8 +249,7 @@ impl SceneSpec {
                 place("needle", ObjectKind::Needle, 0.52, -0.03),
                 place("block", ObjectKind::Block, 0.58, 0.03),
             ],
-            organs: Vec::new(),
-            marks: Vec::new(),
+            ..SceneSpec::default()
         }
     }
 

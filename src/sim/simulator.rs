@@ -110,7 +110,11 @@ fn world_from_shaft(psm: &Psm, joints: &Joints) -> Isometry3<f64> {
 impl Simulator {
     /// A simulator at the configured start pose with jaws open.
     pub fn new(config: SimConfig, scene: SceneSpec) -> Self {
-        let (joints, ik) = config.psm.inverse(&config.world_from_start_tip, 0.0);
+        let mut world_from_start_tip = config.world_from_start_tip;
+        if let Some(start) = scene.tip_start_m {
+            world_from_start_tip.translation.vector = start;
+        }
+        let (joints, ik) = config.psm.inverse(&world_from_start_tip, 0.0);
         let physics = PhysicsScene::build(
             &scene,
             &config.physics,

@@ -185,7 +185,9 @@ pub(super) fn vessel_with_sites(
             MarkSpec {
                 name: format!("{}_clip_site", colour.name()),
                 position_m: (vessel.world_from_organ * Point3::from(local)).coords,
-                radius_m: 0.0012,
+                // 2 mm (the reference's 1.2 mm spheres are 2-3 px dots at 224 px): a colour
+                // the instruction names must be visible.
+                radius_m: CLIP_SITE_RADIUS_M,
                 colour,
                 target: false,
                 line_direction: Some(vessel.world_from_organ.rotation * tangent),
@@ -194,6 +196,9 @@ pub(super) fn vessel_with_sites(
         .collect();
     (vessel, marks)
 }
+
+/// Radius of T2-3's clip-site marks, metres.
+pub const CLIP_SITE_RADIUS_M: f64 = 0.002;
 
 /// A kidney or spleen resting on the tray (its flattened base on the pad) at `xy`.
 fn solid_organ(

@@ -203,6 +203,7 @@ impl TaskId {
                 scene.organs.push(kidney);
                 scene.marks.push(spot);
                 instance.target_mark = Some(0);
+                scene.tip_start_m = Some(electrocoagulation_start(seed));
             }
             TaskId::VesselClipping => {
                 let [x, y] = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
@@ -245,6 +246,14 @@ impl TaskId {
         }
         Ok(instance)
     }
+}
+
+/// T1-3's start: the reference randomises the start pose's x by +-4 cm; the -x half lies
+/// outside the workspace (x >= 0.496 m), from which the first command would jump the tip back
+/// in, so ours draws the +x half, x 0.50..0.54 (own stream: the scene does not change).
+fn electrocoagulation_start(seed: u64) -> Vector3<f64> {
+    let mut rng = SplitMix64::stream(seed, "start pose");
+    Vector3::new(rng.uniform(0.50, 0.54), 0.05, 0.7202)
 }
 
 /// The spleen of T3-2 (semi-axes, metres): 56 x 120 x 32 mm before its base is flattened (it
@@ -418,6 +427,27 @@ mod tests {
             seen.insert(instance.instruction);
         }
         assert!(seen.len() > 1);
+    }
+
+    #[test]
+    fn only_electrocoagulation_randomises_the_start_pose() {
+        let mut xs = Vec::new();
+        for seed in 0..50 {
+            let instance = TaskId::Electrocoagulation
+                .instance(seed, &TaskConfig::default())
+                .unwrap();
+            let start = instance.scene.tip_start_m.expect("a start pose");
+            assert!((0.50..=0.54).contains(&start.x), "{start:?}");
+            assert_eq!((start.y, start.z), (0.05, 0.7202));
+            xs.push(start.x);
+            let other = TaskId::GauzePick
+                .instance(seed, &TaskConfig::default())
+                .unwrap();
+            assert_eq!(other.scene.tip_start_m, None);
+        }
+        let spread = xs.iter().cloned().fold(f64::MIN, f64::max)
+            - xs.iter().cloned().fold(f64::MAX, f64::min);
+        assert!(spread > 0.03, "{spread}");
     }
 
     #[test]

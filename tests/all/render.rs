@@ -361,3 +361,38 @@ fn per_pixel_lighting_changes_only_the_gouraud_surfaces() {
         "{far_off} of {differing} changed pixels differ by > 16 levels"
     );
 }
+
+#[test]
+fn the_needles_thin_wire_is_in_the_depth_image_where_the_mask_has_it() {
+    // The wire is 1 mm thick, about 1.3 px at the endoscope's distance: every pixel the mask
+    // gives to the needle must carry the wire's depth (back-projected above the pad), not the
+    // pad's, and the wire must be continuous (an arc, not a few dots).
+    let camera = Camera::endoscope();
+    for seed in [2, 5, 9] {
+        let frame = task_frame(TaskId::NeedlePick, seed, 0, 1);
+        let needle = MaskClass::Needle.id();
+        let mut heights = Vec::new();
+        for v in 0..frame.height_px {
+            for u in 0..frame.width_px {
+                if frame.mask[(v * frame.width_px + u) as usize] != needle {
+                    continue;
+                }
+                let optical = pixel_point(&camera, &frame, u, v).expect("depth under the mask");
+                let world = camera.world_from_camera * optical;
+                heights.push(world.z - surgvla::scene::TRAY_TOP_Z_M);
+            }
+        }
+        assert!(
+            heights.len() > 40,
+            "seed {seed}: {} wire pixels",
+            heights.len()
+        );
+        for h in &heights {
+            assert!(
+                (0.0001..=0.0012).contains(h),
+                "seed {seed}: a wire pixel back-projects {:.2} mm above the pad",
+                h * 1e3
+            );
+        }
+    }
+}
