@@ -63,6 +63,16 @@ impl Verdict {
     }
 }
 
+/// The failure of a task that needs closed jaws, when they are open.
+fn jaws_open(observation: &Observation) -> Option<Verdict> {
+    (observation.jaw_angle_rad > JAWS_CLOSED_RAD).then(|| {
+        Verdict::fail(format!(
+            "jaws open ({:.0} deg)",
+            observation.jaw_angle_rad.to_degrees()
+        ))
+    })
+}
+
 impl TaskInstance {
     /// Whether `observation` completes this instance's task.
     pub fn success(&self, observation: &Observation) -> Verdict {
@@ -133,11 +143,8 @@ impl TaskInstance {
         };
         let tip = Vector3::from(observation.tip_position_m);
         let distance = (tip - mark.position_m).norm();
-        if observation.jaw_angle_rad > JAWS_CLOSED_RAD {
-            return Verdict::fail(format!(
-                "jaws open ({:.0} deg)",
-                observation.jaw_angle_rad.to_degrees()
-            ));
+        if let Some(open) = jaws_open(observation) {
+            return open;
         }
         if distance > TOUCH_RADIUS_M {
             return Verdict::fail(format!(
@@ -180,11 +187,8 @@ impl TaskInstance {
             }
             Some(_) => {}
         }
-        if observation.jaw_angle_rad > JAWS_CLOSED_RAD {
-            return Verdict::fail(format!(
-                "jaws open ({:.0} deg)",
-                observation.jaw_angle_rad.to_degrees()
-            ));
+        if let Some(open) = jaws_open(observation) {
+            return open;
         }
         let tip = Vector3::from(observation.tip_position_m);
         let offset = tip - mark.position_m;
