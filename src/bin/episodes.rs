@@ -64,6 +64,18 @@ pub enum LayoutVersion {
     V21,
 }
 
+/// A feature of the default dataset to leave out.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Omit {
+    /// `observation.images.depth`: lerobot-train feeds every image feature to the policy, and
+    /// ACT and Diffusion need 3-channel images of one shape.
+    Depth,
+    /// `observation.environment_state`: ground-truth object poses, privileged information a
+    /// vision policy must not see.
+    #[value(name = "environment_state")]
+    EnvironmentState,
+}
+
 /// How action[6] (the gripper) is written.
 #[derive(ValueEnum, Clone, Copy, Debug)]
 pub enum Gripper {
@@ -159,9 +171,14 @@ pub struct CollectArgs {
     /// Output format.
     #[arg(long, value_enum, default_value = "lerobot")]
     format: Format,
-    /// Also store the segmentation mask as an image feature.
+    /// Also store the segmentation mask as an image feature (another 1-channel image).
     #[arg(long)]
     with_mask: bool,
+    /// Leave features of the default dataset out, comma-separated: `depth`, `environment_state`.
+    /// Training with lerobot-train: `--without depth,environment_state` (README, "Train a
+    /// policy").
+    #[arg(long, value_enum, value_delimiter = ',')]
+    without: Vec<Omit>,
     /// Store the endoscope RGB as MP4 video (LeRobot video mode) instead of PNG: av1 (rav1e,
     /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "av1")]
@@ -220,7 +237,8 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
     options.record.randomize_appearance = args.randomize_appearance;
     let features = FeatureSet {
         mask: args.with_mask,
-        ..FeatureSet::default()
+        depth: !args.without.contains(&Omit::Depth),
+        environment_state: !args.without.contains(&Omit::EnvironmentState),
     };
     options.check().map_err(CliError::usage)?;
     let info = dataset_info(&options, features, &library);

@@ -225,3 +225,32 @@ fn a_closed_output_pipe_is_a_quiet_exit() {
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
 }
+
+#[test]
+fn collect_without_depth_and_object_poses_writes_the_training_dataset() {
+    let out = temp_root("without");
+    let path = out.to_str().expect("utf-8");
+    let (code, _, stderr) = surgvla(&[
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "1",
+        "--without",
+        "depth,environment_state",
+        "--out",
+        path,
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("meta/info.json")).expect("info"))
+            .expect("json");
+    let features = info["features"].as_object().expect("features");
+    assert!(features.contains_key("observation.images.endoscope"));
+    assert!(features.contains_key("observation.state") && features.contains_key("action"));
+    assert!(!features.contains_key("observation.images.depth"));
+    assert!(!features.contains_key("observation.environment_state"));
+    let (code, _, stderr) = surgvla(&["collect", "--without", "mask", "--out", path]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("depth, environment_state"), "{stderr}");
+}
