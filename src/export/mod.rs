@@ -18,6 +18,7 @@ pub mod dir;
 pub mod image;
 pub mod info;
 pub mod lerobot;
+pub mod rlds;
 pub mod stats;
 pub mod tiff;
 pub mod video;
