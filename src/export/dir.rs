@@ -183,11 +183,6 @@ impl RunOptions {
         self.0.extend(other.0);
     }
 
-    /// The value recorded for `option`.
-    pub fn get(&self, option: &str) -> Option<&Value> {
-        self.0.get(option)
-    }
-
     /// CRC-32C of the options' canonical JSON (keys sorted), 8 hex digits.
     pub fn digest(&self) -> String {
         let text = serde_json::to_string(&self.0).unwrap_or_default();

@@ -239,40 +239,13 @@ pub enum SinkOptions {
 }
 
 impl SinkOptions {
-    /// What the format's options change in the bytes, by option name (for resume).
+    /// What the format's options change in the bytes, by option name (for resume), with the
+    /// format's name under `format`.
     pub fn run_options(&self) -> RunOptions {
-        let mut options = RunOptions::default();
         match self {
-            SinkOptions::LeRobot(o) => {
-                options.set("format", "lerobot".into());
-                options.set(
-                    "lerobot_version",
-                    match o.version {
-                        lerobot::LeRobotVersion::V30 => "3.0",
-                        lerobot::LeRobotVersion::V21 => "2.1",
-                    }
-                    .into(),
-                );
-                options.set(
-                    "video",
-                    o.video.map_or(serde_json::Value::Null, |v| {
-                        serde_json::json!({"codec": v.codec.name(), "quality": v.quality, "file_mb": v.file_size_mb})
-                    }),
-                );
-                options.set("data_file_mb", o.data_file_size_mb.into());
-                options.set("chunks_size", o.chunks_size.into());
-                options.set("png", format!("{:?}", o.png).into());
-            }
+            SinkOptions::LeRobot(options) => options.run_options(),
         }
-        options
     }
-}
-
-/// Everything the bytes of a dataset of `info` in format `options` depend on.
-pub fn run_options(info: &DatasetInfo, options: &SinkOptions) -> RunOptions {
-    let mut run = info.run_options();
-    run.merge(options.run_options());
-    run
 }
 
 /// Whether [`open_sink`] with `resume` continues the dataset in `root` (it holds an interrupted

@@ -200,6 +200,19 @@ pub(super) fn vessel_with_sites(
 /// Radius of T2-3's clip-site marks, metres.
 pub const CLIP_SITE_RADIUS_M: f64 = 0.002;
 
+/// Points every ~2.5 mm along an organ's base outline, world xy (for clearance tests).
+pub(super) fn organ_outline(organ: &OrganSpec) -> Vec<Vector2<f64>> {
+    let [a, b, _] = organ.semi_axes_m;
+    let n = 160;
+    (0..n)
+        .map(|i| {
+            let t = std::f64::consts::TAU * f64::from(i) / f64::from(n);
+            let p = organ.world_from_organ * Point3::new(a * t.cos(), b * t.sin(), 0.0);
+            Vector2::new(p.x, p.y)
+        })
+        .collect()
+}
+
 /// A kidney or spleen resting on the tray (its flattened base on the pad) at `xy`.
 fn solid_organ(
     kind: OrganKind,

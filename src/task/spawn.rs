@@ -14,7 +14,7 @@ pub use crate::task::instance::{
     InstructionChoice, MAX_DISTRACTORS, Range, SpawnRanges, TaskConfig, TaskInstance,
 };
 pub use crate::task::placement::CLEARANCE_M;
-use crate::task::placement::{Placer, unreachable_target, vessel_with_sites};
+use crate::task::placement::{Placer, organ_outline, unreachable_target, vessel_with_sites};
 use nalgebra::Vector3;
 
 /// The spawn is impossible: the ranges leave no room for the objects, or put the target out of
@@ -259,19 +259,6 @@ fn electrocoagulation_start(seed: u64) -> Vector3<f64> {
 /// The spleen of T3-2 (semi-axes, metres): 56 x 120 x 32 mm before its base is flattened (it
 /// stands 27 mm above the pad), so the target on its upper surface is at z ~0.705.
 const SPLEEN_SEMI_AXES_M: [f64; 3] = [0.028, 0.06, 0.016];
-
-/// Points every ~2.5 mm along an organ's base outline, world xy (for clearance tests).
-fn organ_outline(organ: &crate::scene::OrganSpec) -> Vec<nalgebra::Vector2<f64>> {
-    let [a, b, _] = organ.semi_axes_m;
-    let n = 160;
-    (0..n)
-        .map(|i| {
-            let t = std::f64::consts::TAU * f64::from(i) / f64::from(n);
-            let p = organ.world_from_organ * nalgebra::Point3::new(a * t.cos(), b * t.sin(), 0.0);
-            nalgebra::Vector2::new(p.x, p.y)
-        })
-        .collect()
-}
 
 /// The instruction of an instance, drawn from its own stream so the scene does not depend on
 /// the instruction choice.

@@ -19,7 +19,6 @@ use parquet::arrow::ArrowWriter;
 use parquet::basic::Compression;
 use parquet::file::properties::WriterProperties;
 use serde_json::{Value, json};
-use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
@@ -53,15 +52,19 @@ fn json_lines(values: impl Iterator<Item = Value>) -> Vec<u8> {
         .into_bytes()
 }
 
+/// How the metadata tables are written: snappy, the parquet defaults otherwise.
+fn snappy() -> WriterProperties {
+    WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .build()
+}
+
 /// A whole parquet file in memory (snappy, one row group).
 fn parquet_bytes(name: &str, batch: &arrow_array::RecordBatch) -> Result<Vec<u8>, ExportError> {
     let parquet_error = ExportError::parquet(Path::new(name));
-    let props = WriterProperties::builder()
-        .set_compression(Compression::SNAPPY)
-        .build();
     let mut bytes = Vec::new();
     let mut writer =
-        ArrowWriter::try_new(&mut bytes, batch.schema(), Some(props)).map_err(&parquet_error)?;
+        ArrowWriter::try_new(&mut bytes, batch.schema(), Some(snappy())).map_err(&parquet_error)?;
     writer.write(batch).map_err(&parquet_error)?;
     writer.close().map_err(&parquet_error)?;
     Ok(bytes)
@@ -175,49 +178,39 @@ impl LeRobotVersion {
 const EPISODES_V30: &str = "meta/episodes/chunk-000/file-000.parquet";
 
 /// Rows of the episodes table held in memory at once: one row group each.
-pub(super) const ROWS_PER_GROUP: usize = 256;
+const ROWS_PER_GROUP: usize = 256;
 
 fn write_episodes_parquet(
     dir: &mut DatasetDir,
     relative: &str,
-    rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
+    mut rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
     video_key: Option<&str>,
 ) -> Result<u64, ExportError> {
     let (file, pending) = dir.create_file(relative)?;
     let parquet_error = ExportError::parquet(&pending.path);
-    let props = WriterProperties::builder()
-        .set_compression(Compression::SNAPPY)
-        .build();
-    let mut writer: Option<ArrowWriter<File>> = None;
-    let mut group = Vec::with_capacity(ROWS_PER_GROUP);
-    let mut rows = rows.peekable();
-    let mut file = Some(file);
-    while rows.peek().is_some() || !group.is_empty() || writer.is_none() {
-        while group.len() < ROWS_PER_GROUP {
-            match rows.next() {
-                Some(row) => group.push(row?),
-                None => break,
-            }
+    let mut next_batch = || -> Result<arrow_array::RecordBatch, ExportError> {
+        let group = rows
+            .by_ref()
+            .take(ROWS_PER_GROUP)
+            .collect::<Result<Vec<_>, _>>()?;
+        episodes_batch(&group, video_key)
+    };
+    // The first batch (empty when there are no episodes) gives the schema.
+    let mut batch = next_batch()?;
+    let mut writer =
+        ArrowWriter::try_new(file, batch.schema(), Some(snappy())).map_err(&parquet_error)?;
+    loop {
+        writer.write(&batch).map_err(&parquet_error)?;
+        writer.flush().map_err(&parquet_error)?;
+        if batch.num_rows() < ROWS_PER_GROUP {
+            break;
         }
-        let batch = episodes_batch(&group, video_key)?;
-        group.clear();
-        if writer.is_none() {
-            let handle = file
-                .take()
-                .ok_or_else(|| ExportError::Internal("episodes file reopened".into()))?;
-            writer = Some(
-                ArrowWriter::try_new(handle, batch.schema(), Some(props.clone()))
-                    .map_err(&parquet_error)?,
-            );
-        }
-        if let Some(writer) = writer.as_mut() {
-            writer.write(&batch).map_err(&parquet_error)?;
-            writer.flush().map_err(&parquet_error)?;
+        batch = next_batch()?;
+        if batch.num_rows() == 0 {
+            break;
         }
     }
-    if let Some(writer) = writer {
-        writer.close().map_err(&parquet_error)?;
-    }
+    writer.close().map_err(&parquet_error)?;
     dir.commit(pending)
 }
 

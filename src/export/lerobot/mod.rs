@@ -24,14 +24,13 @@ mod work;
 pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
 
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::export::dir::RunOptions;
 use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
 use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
 pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile};
-use crate::export::{
-    EpisodeSink, ExportError, Sidecar, SinkOptions, SinkTiming, Summary, run_options,
-};
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
@@ -59,6 +58,29 @@ pub struct LeRobotOptions {
     pub video: Option<VideoOptions>,
     /// The on-disk layout.
     pub version: LeRobotVersion,
+}
+
+impl LeRobotOptions {
+    /// What these options change in the bytes, by option name (for resume).
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = RunOptions::default();
+        options.set("format", "lerobot".into());
+        let version = match self.version {
+            LeRobotVersion::V30 => "3.0",
+            LeRobotVersion::V21 => "2.1",
+        };
+        options.set("lerobot_version", version.into());
+        options.set(
+            "video",
+            self.video.map_or(Value::Null, |v| {
+                json!({"codec": v.codec.name(), "quality": v.quality, "file_mb": v.file_size_mb})
+            }),
+        );
+        options.set("data_file_mb", self.data_file_size_mb.into());
+        options.set("chunks_size", self.chunks_size.into());
+        options.set("png", format!("{:?}", self.png).into());
+        options
+    }
 }
 
 impl Default for LeRobotOptions {
@@ -166,8 +188,7 @@ impl LeRobotWriter {
         info: &DatasetInfo,
         options: LeRobotOptions,
     ) -> Result<Self, ExportError> {
-        LeRobotWriter::check(info, &options)?;
-        let run = run_options(info, &SinkOptions::LeRobot(options.clone()));
+        let run = LeRobotWriter::check(info, &options)?;
         Ok(LeRobotWriter::fresh(
             DatasetDir::create(root, &run)?,
             info,
@@ -186,8 +207,7 @@ impl LeRobotWriter {
         info: &DatasetInfo,
         options: LeRobotOptions,
     ) -> Result<Self, ExportError> {
-        LeRobotWriter::check(info, &options)?;
-        let run = run_options(info, &SinkOptions::LeRobot(options.clone()));
+        let run = LeRobotWriter::check(info, &options)?;
         let (dir, checkpoint) =
             DatasetDir::resume::<State>(root, &run, &["data", "videos", "meta"])?;
         let mut writer = LeRobotWriter::fresh(dir, info, options);
@@ -203,13 +223,16 @@ impl LeRobotWriter {
         Ok(writer)
     }
 
-    fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<(), ExportError> {
+    /// Refuses options the dataset cannot have; returns what its bytes depend on.
+    fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<RunOptions, ExportError> {
         if options.video.is_some() && !info.has(FeatureKind::Rgb) {
             return Err(ExportError::InvalidEpisode(
                 "video mode needs an RGB camera feature".into(),
             ));
         }
-        Ok(())
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
     }
 
     /// A writer with empty state.
