@@ -2,13 +2,13 @@
 //! (the experts' success rates, without rendering or writing). Both share [`JobArgs`].
 
 use crate::error::CliError;
+use crate::formats::{Format, FormatArgs};
 use crate::progress;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surgvla::collect::run::{CollectOptions, Shard, collect, dataset_info, measure_experts};
 use surgvla::episode::{FeatureSet, GripperEncoding};
-use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
-use surgvla::export::{SinkOptions, open_sink, resumes};
+use surgvla::export::{open_sink, resumes};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
 
@@ -35,33 +35,6 @@ pub enum Instructions {
     Paraphrase,
     /// A seeded mix of the canonical instruction and the paraphrases.
     Mixed,
-}
-
-/// The dataset format.
-#[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum Format {
-    /// LeRobot (v3.0 by default; see --lerobot-version).
-    Lerobot,
-}
-
-/// The codec of video mode.
-#[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum VideoCodec {
-    /// AV1 (rav1e), LeRobot's codec family.
-    Av1,
-    /// H.264 (openh264), faster.
-    H264,
-}
-
-/// The LeRobot layout.
-#[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum LayoutVersion {
-    /// v3.0 (current): many episodes per file, parquet metadata.
-    #[value(name = "3.0")]
-    V30,
-    /// v2.1: one file per episode, JSON-lines metadata.
-    #[value(name = "2.1")]
-    V21,
 }
 
 /// A feature of the default dataset to leave out.
@@ -168,7 +141,7 @@ pub struct CollectArgs {
     /// Output folder (must not exist or be empty).
     #[arg(long, default_value = "data")]
     out: PathBuf,
-    /// Output format.
+    /// Output format: lerobot or rlds.
     #[arg(long, value_enum, default_value = "lerobot")]
     format: Format,
     /// Also store the segmentation mask as an image feature (another 1-channel image).
@@ -179,10 +152,6 @@ pub struct CollectArgs {
     /// policy").
     #[arg(long, value_enum, value_delimiter = ',')]
     without: Vec<Omit>,
-    /// Store the endoscope RGB as MP4 video (LeRobot video mode) instead of PNG: av1 (rav1e,
-    /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
-    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "av1")]
-    video: Option<VideoCodec>,
     /// This machine's part of the episode list, I/N (0-based): N machines with I = 0..N-1 each
     /// write the I-th contiguous range of episodes as their own dataset.
     #[arg(long, default_value = "0/1")]
@@ -191,9 +160,6 @@ pub struct CollectArgs {
     /// checkpoint are kept, the rest are recorded again.
     #[arg(long)]
     resume: bool,
-    /// LeRobot layout: 3.0 (current) or 2.1 (one file per episode, JSON-lines metadata).
-    #[arg(long, value_enum, default_value = "3.0")]
-    lerobot_version: LayoutVersion,
     /// action[6]: "continuous" (1 while commanded open, 0 while closed) or "pulse" (+1/-1 on
     /// the step the command changes, 0 otherwise; for ablations).
     #[arg(long, value_enum, default_value = "continuous")]
@@ -201,30 +167,8 @@ pub struct CollectArgs {
     /// Randomise light, tissue colour and texture contrast per episode.
     #[arg(long)]
     randomize_appearance: bool,
-    /// Size at which a data file is closed and a new one begun, MB (LeRobot's
-    /// data_files_size_in_mb); each closed file is also a resume checkpoint.
-    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=100_000))]
-    data_file_mb: u64,
-}
-
-impl CollectArgs {
-    /// The format's options.
-    fn sink_options(&self) -> SinkOptions {
-        match self.format {
-            Format::Lerobot => SinkOptions::LeRobot(LeRobotOptions {
-                video: self.video.map(|codec| match codec {
-                    VideoCodec::H264 => VideoOptions::h264(),
-                    VideoCodec::Av1 => VideoOptions::default(),
-                }),
-                version: match self.lerobot_version {
-                    LayoutVersion::V30 => LeRobotVersion::V30,
-                    LayoutVersion::V21 => LeRobotVersion::V21,
-                },
-                data_file_size_mb: self.data_file_mb,
-                ..LeRobotOptions::default()
-            }),
-        }
-    }
+    #[command(flatten)]
+    formats: FormatArgs,
 }
 
 pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
@@ -241,9 +185,10 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         environment_state: !args.without.contains(&Omit::EnvironmentState),
     };
     options.check().map_err(CliError::usage)?;
+    let sink_options = args.formats.sink_options(args.format, "--format")?;
     let info = dataset_info(&options, features, &library);
     let resuming = resumes(&args.out, args.resume);
-    let mut sink = open_sink(&args.out, &info, &args.sink_options(), args.resume)?;
+    let mut sink = open_sink(&args.out, &info, &sink_options, args.resume)?;
     if resuming {
         let next = sink.next_episode_index();
         eprintln!("resuming {} at episode {next}", args.out.display());

@@ -50,6 +50,20 @@ impl Bars {
     }
 }
 
+/// One bar of `total` episodes, labelled `what`.
+pub fn episode_bar(total: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>12} [{bar:30}] {pos}/{len} episodes  {elapsed_precise} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_prefix(what.to_string());
+    bar
+}
+
 impl CollectProgress for Bars {
     fn start(&mut self, slots: &[Slot], already_written: usize) {
         self.overall.set_length(slots.len() as u64);

@@ -13,6 +13,7 @@ macro_rules! say {
 
 mod episodes;
 mod error;
+mod formats;
 mod progress;
 
 use error::CliError;
@@ -49,9 +50,11 @@ enum Command {
     Render(RenderArgs),
     /// Render the start frame of all eight tasks into one PNG grid (RGB, depth and mask rows).
     ContactSheet(ContactSheetArgs),
-    /// Record verified expert episodes of the tasks and write a LeRobot dataset (defaults: all
-    /// eight tasks, 100 episodes each, into ./data).
+    /// Record verified expert episodes of the tasks and write a dataset, LeRobot or RLDS
+    /// (defaults: all eight tasks, 100 episodes each, LeRobot v3.0 into ./data).
     Collect(episodes::CollectArgs),
+    /// Convert a dataset into another format: `convert INPUT --to rlds --out DIR`.
+    Convert(formats::ConvertArgs),
     /// Measure the experts' success rates as `collect` would run them (same attempts and replay
     /// check) without rendering or writing: the quick check of a new or edited plan.
     Experts(episodes::ExpertsArgs),
@@ -306,6 +309,7 @@ fn main() -> ExitCode {
         Command::Render(args) => run_render(&args),
         Command::ContactSheet(args) => run_contact_sheet(&args),
         Command::Collect(args) => episodes::run_collect(&args),
+        Command::Convert(args) => formats::run_convert(&args),
         Command::Experts(args) => episodes::run_experts(&args),
         Command::Schema { with_mask } => run_schema(with_mask),
         Command::Tasks => run_tasks(),

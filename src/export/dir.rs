@@ -239,12 +239,15 @@ struct Marker<T> {
     checkpoint: Option<Checkpoint<T>>,
 }
 
-/// What a checkpoint records: the finished files, the journals' lengths, the format's state.
+/// What a checkpoint records: the finished files, the journals' lengths, the format's state,
+/// and renames of finished files that may have begun after it (undone by a resume).
 #[derive(Serialize, Deserialize)]
 struct Checkpoint<T> {
     files: Vec<FileRecord>,
     journals: BTreeMap<String, JournalMark>,
     state: T,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    renames: Vec<(String, String)>,
 }
 
 /// A journal's length and the CRC-32C of its bytes up to there.
@@ -274,6 +277,8 @@ pub struct DatasetDir {
     /// How many of `files` a checkpoint made durable.
     synced: usize,
     journals: BTreeMap<String, Journal>,
+    /// Renames being made ([`DatasetDir::rename_files`]), recorded with the next checkpoint.
+    renames: Vec<(String, String)>,
 }
 
 fn sync_dir(path: &Path) -> Result<(), ExportError> {
@@ -328,6 +333,7 @@ impl DatasetDir {
             files: Vec::new(),
             synced: 0,
             journals: BTreeMap::new(),
+            renames: Vec::new(),
         }
     }
 
@@ -365,6 +371,13 @@ impl DatasetDir {
             path: root.to_path_buf(),
             reason: format!("its checkpoint is unreadable ({e})"),
         })?;
+        // Renames an interrupted finish began go back, so the checkpoint's names hold again.
+        for (from, to) in &checkpoint.renames {
+            let (from, to) = (dir.path(from), dir.path(to));
+            if !from.exists() && to.exists() {
+                std::fs::rename(&to, &from).map_err(ExportError::io(&from))?;
+            }
+        }
         for record in &checkpoint.files {
             let path = dir.path(&record.path);
             if let Some(problem) = record.problem(&path)? {
@@ -585,6 +598,7 @@ impl DatasetDir {
                     .map(|(name, j)| (name.clone(), j.mark))
                     .collect(),
                 state,
+                renames: self.renames.clone(),
             }),
         };
         let path = self.path(INCOMPLETE_MARKER);
@@ -606,6 +620,36 @@ impl DatasetDir {
     pub fn save_checkpoint<T: Serialize>(&mut self, state: &T) -> Result<(), ExportError> {
         self.sync()?;
         self.write_marker(Some(state))
+    }
+
+    /// Gives finished files new names (`(from, to)` relative paths; e.g. shards whose count is
+    /// known only at the end). A checkpoint with `state` first records the renames, so a resume
+    /// after an interruption here undoes those already made; then each file is renamed and its
+    /// record follows it.
+    pub fn rename_files<T: Serialize>(
+        &mut self,
+        renames: &[(String, String)],
+        state: &T,
+    ) -> Result<(), ExportError> {
+        self.renames = renames.to_vec();
+        let saved = self.save_checkpoint(state);
+        self.renames.clear();
+        saved?;
+        let mut folders = BTreeSet::new();
+        for (from, to) in renames {
+            let (from_path, to_path) = (self.path(from), self.path(to));
+            std::fs::rename(&from_path, &to_path).map_err(ExportError::io(&to_path))?;
+            if let Some(record) = self.files.iter_mut().find(|f| &f.path == from) {
+                record.path = to.clone();
+            }
+            if let Some(parent) = to_path.parent() {
+                folders.insert(parent.to_path_buf());
+            }
+        }
+        for folder in folders {
+            sync_dir(&folder)?;
+        }
+        Ok(())
     }
 
     /// Deletes every file under `folders` whose relative path is not in `keep` (what was written
@@ -634,11 +678,11 @@ impl DatasetDir {
         Ok(())
     }
 
-    /// Writes the manifest (every recorded file, by path); returns its size. The dataset is
-    /// complete once [`DatasetDir::complete`] follows.
-    pub fn write_manifest(&mut self) -> Result<u64, ExportError> {
+    /// Writes the manifest `relative` (every recorded file, by path; [`MANIFEST`] in LeRobot);
+    /// returns its size. The dataset is complete once [`DatasetDir::complete`] follows.
+    pub fn write_manifest(&mut self, relative: &str) -> Result<u64, ExportError> {
         let mut files = self.files.clone();
-        files.retain(|f| f.path != MANIFEST);
+        files.retain(|f| f.path != relative);
         files.sort_by(|a, b| a.path.cmp(&b.path));
         let manifest = serde_json::json!({
             "checksum": "crc32c",
@@ -646,10 +690,10 @@ impl DatasetDir {
             "files": files,
         });
         let text = serde_json::to_vec_pretty(&manifest).map_err(|source| ExportError::Json {
-            path: self.path(MANIFEST),
+            path: self.path(relative),
             source,
         })?;
-        self.write_atomically(MANIFEST, &text)
+        self.write_atomically(relative, &text)
     }
 
     /// Marks the dataset complete: makes everything durable, removes the marker (with the
@@ -805,7 +849,7 @@ mod tests {
             DatasetDir::resume::<Vec<u32>>(&root, &options(1), &["meta"]).expect("resume");
         assert_eq!(state, Some(vec![1, 2]));
         assert_eq!(dir.files().len(), 1);
-        dir.write_manifest().expect("manifest");
+        dir.write_manifest(MANIFEST).expect("manifest");
         dir.complete().expect("complete");
         dir.complete().expect("complete twice");
         assert!(!DatasetDir::is_interrupted(&root));
@@ -888,6 +932,34 @@ mod tests {
         assert_eq!(rows, ["one"]);
         dir.complete().expect("complete");
         assert!(!root.join("meta/.rows").exists());
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn renames_interrupted_halfway_are_undone_by_a_resume() {
+        let root = scratch("rename");
+        let mut dir = DatasetDir::create(&root, &options(1)).expect("create");
+        dir.write_atomically("data/a-0", b"zero").expect("write");
+        dir.write_atomically("data/a-1", b"one").expect("write");
+        let renames = [
+            ("data/a-0".to_string(), "data/a-0-of-2".to_string()),
+            ("data/a-1".to_string(), "data/a-1-of-2".to_string()),
+        ];
+        dir.rename_files(&renames, &5u32).expect("rename");
+        let paths: Vec<&str> = dir.files().iter().map(|f| f.path.as_str()).collect();
+        assert_eq!(paths, ["data/a-0-of-2", "data/a-1-of-2"]);
+        dir.write_atomically("data/info", b"{}").expect("write");
+        drop(dir);
+        // As if the run died with one rename made: the resume puts it back.
+        std::fs::rename(root.join("data/a-1-of-2"), root.join("data/a-1")).expect("undo one");
+        let (dir, state) =
+            DatasetDir::resume::<u32>(&root, &options(1), &["data"]).expect("resume");
+        assert_eq!(state, Some(5));
+        let paths: Vec<&str> = dir.files().iter().map(|f| f.path.as_str()).collect();
+        assert_eq!(paths, ["data/a-0", "data/a-1"]);
+        assert_eq!(std::fs::read(root.join("data/a-0")).expect("back"), b"zero");
+        assert!(!root.join("data/a-0-of-2").exists() && !root.join("data/info").exists());
+        drop(dir);
         std::fs::remove_dir_all(&root).ok();
     }
 

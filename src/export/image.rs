@@ -1,5 +1,6 @@
-//! Image encoding and decoding shared by every format: 8-bit PNG (RGB, grey masks) here, float32
-//! TIFF (depth in metres, LeRobot) in [`crate::export::tiff`].
+//! Image encoding and decoding shared by every format: 8-bit PNG (RGB, grey masks) and 16-bit
+//! grey PNG (RLDS depth in millimetres) here, float32 TIFF (depth in metres, LeRobot) in
+//! [`crate::export::tiff`].
 
 use crate::export::ExportError;
 
@@ -63,6 +64,47 @@ fn encode_png_raw(
     Ok(out)
 }
 
+/// Encodes row-major 16-bit grey values as PNG (big-endian samples, as PNG stores them).
+pub fn encode_png16(
+    width: usize,
+    height: usize,
+    values: &[u16],
+    level: PngLevel,
+) -> Result<Vec<u8>, ExportError> {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+    encode_png_raw(
+        width,
+        height,
+        png::ColorType::Grayscale,
+        png::BitDepth::Sixteen,
+        &bytes,
+        level,
+    )
+}
+
+/// Decodes a 16-bit grey PNG: (width, height, row-major values).
+pub fn decode_png16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), String> {
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| "the PNG is too large".to_string())?;
+    let mut buffer = vec![0; size];
+    let info = reader.next_frame(&mut buffer).map_err(|e| e.to_string())?;
+    if info.bit_depth != png::BitDepth::Sixteen || info.color_type != png::ColorType::Grayscale {
+        return Err(format!(
+            "a {:?}-bit {:?} PNG where 16-bit grey was expected",
+            info.bit_depth, info.color_type
+        ));
+    }
+    buffer.truncate(info.buffer_size());
+    let values = buffer
+        .chunks_exact(2)
+        .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+        .collect();
+    Ok((info.width, info.height, values))
+}
+
 /// A decoded 8-bit PNG: (width, height, channels, row-major pixels).
 pub type DecodedPng = (u32, u32, usize, Vec<u8>);
 
@@ -100,5 +142,15 @@ mod tests {
         assert_eq!(decode_png(&encoded).expect("decode"), (2, 2, 1, grey));
         assert!(encode_png(2, 2, 2, &[0; 8], PngLevel::Fast).is_err());
         assert!(decode_png(b"not a png").is_err());
+    }
+
+    #[test]
+    fn png16_round_trips_and_refuses_8_bit() {
+        let values = vec![0, 1, 255, 256, 40_000, u16::MAX];
+        let encoded = encode_png16(3, 2, &values, PngLevel::Fast).expect("encode");
+        assert_eq!(decode_png16(&encoded).expect("decode"), (3, 2, values));
+        let eight = encode_png(2, 2, 1, &[1, 2, 3, 4], PngLevel::Fast).expect("encode");
+        assert!(decode_png16(&eight).is_err());
+        assert!(decode_png(&encoded).is_err());
     }
 }

@@ -2,7 +2,7 @@
 //! rate, camera (intrinsics and `world_from_camera`), robot, mask ids and how its episodes were
 //! made. A format derives its metadata files from it; a source returns one for what it read.
 
-use crate::episode::{CameraInfo, FeatureKind, FeatureSpec};
+use crate::episode::{CameraInfo, Dtype, FeatureKind, FeatureSpec};
 use crate::export::dir::RunOptions;
 use serde_json::{Value, json};
 
@@ -73,6 +73,34 @@ impl DatasetInfo {
         options
     }
 
+    /// The info of a dataset read back: `surgvla` is its surgvla metadata
+    /// ([`DatasetInfo::surgvla_json`]; `Value::Null` when it has none: the camera then has the
+    /// images' size and unknown intrinsics).
+    pub fn from_surgvla_json(
+        surgvla: &Value,
+        fps: u32,
+        robot_type: &str,
+        features: Vec<FeatureSpec>,
+    ) -> Self {
+        let mask_ids = surgvla["mask_ids"]
+            .as_object()
+            .map(|m| {
+                m.iter()
+                    .filter_map(|(id, name)| Some((id.parse().ok()?, name.as_str()?.to_string())))
+                    .collect()
+            })
+            .unwrap_or_default();
+        DatasetInfo {
+            fps,
+            robot_type: robot_type.into(),
+            camera: camera_of(surgvla, &features),
+            features,
+            mask_ids,
+            collection: surgvla["collection"].clone(),
+            generator: surgvla["generator"].as_str().unwrap_or_default().into(),
+        }
+    }
+
     /// The surgvla metadata of a dataset (`meta/surgvla.json` in LeRobot): the camera with its
     /// intrinsics and `world_from_camera` (row-major 4x4), the depth convention, the mask id
     /// table and the collection.
@@ -108,5 +136,32 @@ impl DatasetInfo {
             metadata["collection"] = self.collection.clone();
         }
         metadata
+    }
+}
+
+/// The camera of surgvla metadata, or one with the images' size and unknown intrinsics.
+fn camera_of(surgvla: &Value, features: &[FeatureSpec]) -> CameraInfo {
+    let c = &surgvla["camera"];
+    let image = features.iter().find(|f| f.dtype == Dtype::Image);
+    let size = |i: usize| image.and_then(|f| f.shape.get(i)).copied().unwrap_or(0) as u32;
+    let mut world_from_camera = [[0.0; 4]; 4];
+    for (r, row) in world_from_camera.iter_mut().enumerate() {
+        for (k, v) in row.iter_mut().enumerate() {
+            *v = c["world_from_camera"][r][k]
+                .as_f64()
+                .unwrap_or(if r == k { 1.0 } else { 0.0 });
+        }
+    }
+    let number = |key: &str| c[key].as_f64().unwrap_or(0.0);
+    CameraInfo {
+        width_px: size(1),
+        height_px: size(0),
+        fx_px: number("fx"),
+        fy_px: number("fy"),
+        cx_px: number("cx"),
+        cy_px: number("cy"),
+        near_m: number("near_m"),
+        far_m: number("far_m"),
+        world_from_camera,
     }
 }

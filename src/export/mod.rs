@@ -13,7 +13,11 @@
 //! reads) plus its variant of [`SinkOptions`].
 //!
 //! - [`lerobot`]: LeRobot v3.0 and v2.1 (parquet + metadata, images embedded or MP4 video).
+//! - [`rlds`]: RLDS in the TFDS layout (TFRecord shards of `tf.train.Example` episodes).
+//!
+//! [`convert`] copies any source into any sink.
 
+pub mod convert;
 pub mod dir;
 pub mod image;
 pub mod info;
@@ -63,6 +67,9 @@ pub enum ExportError {
     },
     #[error("building arrow data")]
     Arrow(#[from] arrow_schema::ArrowError),
+    /// An input path that does not exist.
+    #[error("{path} does not exist")]
+    NotFound { path: PathBuf },
     #[error("{}", not_empty(path, *interrupted))]
     NotEmpty { path: PathBuf, interrupted: bool },
     /// Another run holds the folder's lock.
@@ -88,6 +95,10 @@ pub enum ExportError {
     NotResumable { path: PathBuf, reason: String },
     #[error("invalid episode: {0}")]
     InvalidEpisode(String),
+    /// A format's options that cannot make a loadable dataset (a name or key the readers
+    /// refuse).
+    #[error("{0}")]
+    InvalidOptions(String),
     /// A dataset being read is not what its format requires.
     #[error("{path}: {problem}")]
     InvalidDataset { path: PathBuf, problem: String },
@@ -150,10 +161,21 @@ impl ExportError {
             | ExportError::NotEmpty { .. }
             | ExportError::Locked { .. }
             | ExportError::OptionsChanged { .. }
+            | ExportError::InvalidOptions(_)
+            | ExportError::NotFound { .. }
             | ExportError::NotResumable { .. } => ErrorKind::Usage,
             _ => ErrorKind::Failed,
         }
     }
+}
+
+/// Reads a JSON file, naming it in the error.
+pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, ExportError> {
+    let bytes = std::fs::read(path).map_err(ExportError::io(path))?;
+    serde_json::from_slice(&bytes).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 fn not_empty(path: &Path, interrupted: bool) -> String {
@@ -236,6 +258,7 @@ pub trait EpisodeSource {
 #[derive(Clone, Debug, PartialEq)]
 pub enum SinkOptions {
     LeRobot(lerobot::LeRobotOptions),
+    Rlds(rlds::RldsOptions),
 }
 
 impl SinkOptions {
@@ -244,6 +267,7 @@ impl SinkOptions {
     pub fn run_options(&self) -> RunOptions {
         match self {
             SinkOptions::LeRobot(options) => options.run_options(),
+            SinkOptions::Rlds(options) => options.run_options(),
         }
     }
 }
@@ -270,10 +294,24 @@ pub fn open_sink(
         } else {
             lerobot::LeRobotWriter::create(root, info, options.clone())?
         }),
+        SinkOptions::Rlds(options) => Box::new(if resuming {
+            rlds::RldsWriter::resume(root, info, options.clone())?
+        } else {
+            rlds::RldsWriter::create(root, info, options.clone())?
+        }),
     })
 }
 
-/// Opens a dataset for reading, detecting its format.
-pub fn open_source(root: &Path) -> Result<Box<dyn EpisodeSource>, ExportError> {
+/// Opens a dataset for reading, detecting its format: RLDS (a TFDS version folder or the data
+/// directory above it), else LeRobot.
+pub fn open_source(root: &Path) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
+    if !root.exists() {
+        return Err(ExportError::NotFound {
+            path: root.to_path_buf(),
+        });
+    }
+    if rlds::read::is_rlds(root) {
+        return Ok(Box::new(rlds::read::RldsSource::open(root)?));
+    }
     Ok(Box::new(lerobot::read::LeRobotSource::open(root)?))
 }

@@ -6,27 +6,52 @@ use std::path::Path;
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::episode::Episode;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion};
+use surgvla::export::rlds::RldsOptions;
+use surgvla::export::rlds::record::depth_to_mm;
 use surgvla::export::{DatasetInfo, SinkOptions, open_sink, open_source};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 
+/// A format under test.
+struct Format {
+    name: &'static str,
+    options: SinkOptions,
+    /// A folder the format owns, where a stray file of an interrupted run is left.
+    data_folder: &'static str,
+    /// Depth is stored in whole millimetres (RLDS), not as float metres.
+    depth_in_mm: bool,
+}
+
 /// Every format, with options that make files roll and checkpoint often.
-fn formats() -> Vec<(&'static str, SinkOptions)> {
+fn formats() -> Vec<Format> {
     vec![
-        (
-            "lerobot-3.0",
-            SinkOptions::LeRobot(LeRobotOptions {
+        Format {
+            name: "lerobot-3.0",
+            options: SinkOptions::LeRobot(LeRobotOptions {
                 data_file_size_mb: 1,
                 ..LeRobotOptions::default()
             }),
-        ),
-        (
-            "lerobot-2.1",
-            SinkOptions::LeRobot(LeRobotOptions {
+            data_folder: "data",
+            depth_in_mm: false,
+        },
+        Format {
+            name: "lerobot-2.1",
+            options: SinkOptions::LeRobot(LeRobotOptions {
                 version: LeRobotVersion::V21,
                 ..LeRobotOptions::default()
             }),
-        ),
+            data_folder: "data",
+            depth_in_mm: false,
+        },
+        Format {
+            name: "rlds",
+            options: SinkOptions::Rlds(RldsOptions {
+                shard_size_mb: 1,
+                ..RldsOptions::default()
+            }),
+            data_folder: "surgvla_benchmark/1.0.0",
+            depth_in_mm: true,
+        },
     ]
 }
 
@@ -64,10 +89,11 @@ fn write_all(root: &Path, info: &DatasetInfo, options: &SinkOptions, episodes: &
 fn every_sink_keeps_the_contract() {
     let recorded = episodes(4);
     let info = info(true);
-    for (name, options) in formats() {
+    for format in formats() {
+        let (name, options) = (format.name, &format.options);
         // Episodes out of order and episodes that do not match the features are rejected.
         let bad = temp_root("contract-bad");
-        let mut sink = open_sink(&bad, &info, &options, false).expect("open");
+        let mut sink = open_sink(&bad, &info, options, false).expect("open");
         let error = sink.write_episode(&recorded[1]).expect_err("out of order");
         assert!(
             error.to_string().contains("episode index 1"),
@@ -88,7 +114,7 @@ fn every_sink_keeps_the_contract() {
                 .num_threads(threads)
                 .build()
                 .expect("pool");
-            pool.install(|| write_all(&root, &info, &options, &recorded));
+            pool.install(|| write_all(&root, &info, options, &recorded));
             trees.push(tree(&root));
         }
         assert!(trees[0] == trees[1], "{name}: 1 and 2 threads differ");
@@ -96,16 +122,17 @@ fn every_sink_keeps_the_contract() {
         // Interrupted after two episodes (a stray partial file in flight), resumed: the same bytes.
         let interrupted = temp_root("contract-resume");
         {
-            let mut sink = open_sink(&interrupted, &info, &options, false).expect("open");
+            let mut sink = open_sink(&interrupted, &info, options, false).expect("open");
             sink.write_batch(&recorded[..2]).expect("write");
-            std::fs::create_dir_all(interrupted.join("data")).expect("data");
-            std::fs::write(interrupted.join("data/.stray.partial"), b"half").expect("stray");
+            let folder = interrupted.join(format.data_folder);
+            std::fs::create_dir_all(&folder).expect("data");
+            std::fs::write(folder.join(".stray.partial"), b"half").expect("stray");
         }
         assert!(
-            open_sink(&interrupted, &info, &options, false).is_err(),
+            open_sink(&interrupted, &info, options, false).is_err(),
             "{name}: not overwritten"
         );
-        let mut sink = open_sink(&interrupted, &info, &options, true).expect("resume");
+        let mut sink = open_sink(&interrupted, &info, options, true).expect("resume");
         let next = sink.next_episode_index() as usize;
         assert!(next <= 2, "{name}");
         sink.write_batch(&recorded[next..]).expect("write rest");
@@ -148,7 +175,16 @@ fn every_sink_keeps_the_contract() {
             assert_eq!(read.steps.len(), expected.steps.len(), "{name}");
             for (a, b) in read.steps.iter().zip(&expected.steps) {
                 assert!(a.rgb == b.rgb && a.mask == b.mask, "{name}: images");
-                assert_eq!(a.depth_m, b.depth_m, "{name}: depth");
+                if format.depth_in_mm {
+                    let mm: Vec<f32> = b
+                        .depth_m
+                        .iter()
+                        .map(|&d| f32::from(depth_to_mm(d)) / 1000.0)
+                        .collect();
+                    assert_eq!(a.depth_m, mm, "{name}: depth");
+                } else {
+                    assert_eq!(a.depth_m, b.depth_m, "{name}: depth");
+                }
                 assert_eq!((a.state, a.action), (b.state, b.action), "{name}");
                 assert_eq!(a.environment_state, b.environment_state, "{name}");
             }
@@ -163,7 +199,7 @@ fn every_sink_keeps_the_contract() {
 #[test]
 fn a_source_refuses_an_incomplete_dataset_by_name() {
     let root = temp_root("contract-incomplete");
-    let (_, options) = formats().remove(0);
+    let options = formats().remove(0).options;
     let mut sink = open_sink(&root, &info(false), &options, false).expect("open");
     sink.write_batch(&episodes(1)).expect("write");
     let error = open_source(&root).err().expect("no info.json yet");

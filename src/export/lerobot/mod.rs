@@ -570,7 +570,7 @@ impl LeRobotWriter {
             .version
             .write_metadata(&mut self.dir, &metadata, rows)?;
         summary.files += files + 1;
-        summary.bytes += bytes + self.dir.write_manifest()?;
+        summary.bytes += bytes + self.dir.write_manifest(crate::export::MANIFEST)?;
         if let Some(make) = sidecar {
             let (relative, bytes) = make(&summary)?;
             self.dir.write_unlisted(&relative, &bytes)?;

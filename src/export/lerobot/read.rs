@@ -3,13 +3,13 @@
 //! with the real lerobot loader in `tests/interop/`.
 
 use crate::episode::{
-    CameraInfo, Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, MAX_OBJECTS, POSE_VALUES,
-    Step, StepExtras,
+    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, MAX_OBJECTS, POSE_VALUES, Step,
+    StepExtras,
 };
 use crate::export::image::decode_png;
 use crate::export::info::DatasetInfo;
 use crate::export::tiff::decode_f32_tiff;
-use crate::export::{EpisodeSource, ExportError};
+use crate::export::{EpisodeSource, ExportError, read_json};
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch, StructArray,
 };
@@ -168,14 +168,6 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
     }
 }
 
-fn read_json(path: &Path) -> Result<Value, ExportError> {
-    let bytes = std::fs::read(path).map_err(ExportError::io(path))?;
-    serde_json::from_slice(&bytes).map_err(|source| ExportError::Json {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
 /// The features of info.json as surgvla's model knows them (defaults left out).
 fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportError> {
     let features = info["features"]
@@ -242,33 +234,6 @@ fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportErro
         });
     }
     Ok(specs)
-}
-
-/// The camera of `meta/surgvla.json`, or one with the images' size and unknown intrinsics.
-fn camera_of(surgvla: &Value, features: &[FeatureSpec]) -> CameraInfo {
-    let c = &surgvla["camera"];
-    let image = features.iter().find(|f| f.dtype == Dtype::Image);
-    let size = |i: usize| image.and_then(|f| f.shape.get(i)).copied().unwrap_or(0) as u32;
-    let mut world_from_camera = [[0.0; 4]; 4];
-    for (r, row) in world_from_camera.iter_mut().enumerate() {
-        for (k, v) in row.iter_mut().enumerate() {
-            *v = c["world_from_camera"][r][k]
-                .as_f64()
-                .unwrap_or(if r == k { 1.0 } else { 0.0 });
-        }
-    }
-    let number = |key: &str| c[key].as_f64().unwrap_or(0.0);
-    CameraInfo {
-        width_px: size(1),
-        height_px: size(0),
-        fx_px: number("fx"),
-        fy_px: number("fy"),
-        cx_px: number("cx"),
-        cy_px: number("cy"),
-        near_m: number("near_m"),
-        far_m: number("far_m"),
-        world_from_camera,
-    }
 }
 
 /// Per episode: instruction-independent provenance from the episodes metadata.
@@ -368,23 +333,12 @@ impl LeRobotSource {
             }
             tasks
         };
-        let mask_ids = surgvla["mask_ids"]
-            .as_object()
-            .map(|m| {
-                m.iter()
-                    .filter_map(|(id, name)| Some((id.parse().ok()?, name.as_str()?.to_string())))
-                    .collect()
-            })
-            .unwrap_or_default();
-        let info = DatasetInfo {
-            fps: info_json["fps"].as_u64().unwrap_or(0) as u32,
-            robot_type: info_json["robot_type"].as_str().unwrap_or_default().into(),
-            camera: camera_of(&surgvla, &features),
+        let info = DatasetInfo::from_surgvla_json(
+            &surgvla,
+            info_json["fps"].as_u64().unwrap_or(0) as u32,
+            info_json["robot_type"].as_str().unwrap_or_default(),
             features,
-            mask_ids,
-            collection: surgvla["collection"].clone(),
-            generator: surgvla["generator"].as_str().unwrap_or_default().into(),
-        };
+        );
         Ok(LeRobotSource {
             root: root.to_path_buf(),
             total_episodes: info_json["total_episodes"].as_u64().unwrap_or(0),

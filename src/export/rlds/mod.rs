@@ -1,8 +1,488 @@
-//! RLDS in the TFDS on-disk layout, written without TensorFlow (issue 13; see
-//! `../shared/spec/rlds.md`). So far the two encodings every RLDS shard is made of:
-//! TFRecord framing with masked CRC-32C ([`tfrecord`]) and `tf.train.Example` ([`example`]),
-//! both checked against the spec's test vectors. The sink, source, `dataset_info.json` and
-//! `features.json` come next.
+//! RLDS in the TFDS on-disk layout, written without TensorFlow (see `../shared/spec/rlds.md`):
+//! [`RldsWriter`] (an [`EpisodeSink`]) and [`read::RldsSource`].
+//!
+//! Layout, in the output folder (TFDS's `data_dir`):
+//! ```text
+//! <name>/<version>/dataset_info.json                   name, version, shardLengths (checked)
+//! <name>/<version>/features.json                       the feature tree readers decode with
+//! <name>/<version>/<name>-train.tfrecord-NNNNN-of-MMMMM  one tf.train.Example per episode
+//! <name>/<version>/surgvla.json                        camera, mask ids, collection, RLDS keys
+//! OPENVLA.md                                           how to fine-tune OpenVLA on it
+//! surgvla_manifest.json                                every file with size and CRC-32C
+//! ```
+//! Shards roll once they reach [`RldsOptions::shard_size_mb`] (TFDS sizes shards from 64 MiB
+//! up) and are written as `<name>-train.tfrecord-NNNNN` until the run finishes: only then is
+//! the count `MMMMM` known, and [`DatasetDir::rename_files`] gives them their final names (a
+//! resume after an interruption there undoes the renames first). Every closed shard is a
+//! checkpoint. Encodings: TFRecord framing with masked CRC-32C ([`tfrecord`]),
+//! `tf.train.Example` ([`example`]), episodes ([`record`]), metadata ([`features`]).
 
 pub mod example;
+pub mod features;
+mod openvla;
+pub mod read;
+pub mod record;
 pub mod tfrecord;
+
+pub use openvla::openvla_md;
+
+use crate::episode::Episode;
+use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
+use crate::export::image::PngLevel;
+use crate::export::info::DatasetInfo;
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary};
+use rayon::prelude::*;
+use record::{StepLayout, encode_episode};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+/// Every file with its size and CRC-32C, at the top of the output folder.
+pub const MANIFEST: &str = "surgvla_manifest.json";
+/// The guide beside the dataset.
+pub const OPENVLA_GUIDE: &str = "OPENVLA.md";
+/// surgvla's own metadata inside the version folder.
+pub const SURGVLA_JSON: &str = "surgvla.json";
+
+/// The observation keys of a step (`steps/observation/<key>`).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RldsKeys {
+    /// The RGB camera (OpenVLA's primary image key).
+    pub image: String,
+    pub depth: String,
+    pub mask: String,
+    pub state: String,
+    pub environment_state: String,
+}
+
+impl Default for RldsKeys {
+    /// OpenVLA-friendly names: `image`, `depth`, `mask`, `state`, `environment_state`.
+    fn default() -> Self {
+        RldsKeys {
+            image: "image".into(),
+            depth: "depth".into(),
+            mask: "mask".into(),
+            state: "state".into(),
+            environment_state: "environment_state".into(),
+        }
+    }
+}
+
+/// Options of the RLDS format.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RldsOptions {
+    /// The dataset name (folder and shard prefix; what `tfds.builder(name)` takes).
+    pub name: String,
+    /// The version folder, x.y.z.
+    pub version: String,
+    /// A shard is closed once it reaches this size.
+    pub shard_size_mb: u64,
+    pub png: PngLevel,
+    pub keys: RldsKeys,
+}
+
+impl Default for RldsOptions {
+    fn default() -> Self {
+        RldsOptions {
+            name: "surgvla_benchmark".into(),
+            version: "1.0.0".into(),
+            shard_size_mb: 64,
+            png: PngLevel::Fast,
+            keys: RldsKeys::default(),
+        }
+    }
+}
+
+impl RldsOptions {
+    /// Refuses a name TFDS cannot load, a version that is not x.y.z, or keys that are empty,
+    /// contain '/' or repeat.
+    pub fn check(&self) -> Result<(), ExportError> {
+        let bad = |problem: String| Err(ExportError::InvalidOptions(problem));
+        let name = &self.name;
+        let snake = name.starts_with(|c: char| c.is_ascii_lowercase())
+            && name
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_');
+        if !snake {
+            return bad(format!(
+                "RLDS name {name:?} must be snake_case (a-z, 0-9, _; starting with a letter), as tfds.builder requires"
+            ));
+        }
+        let parts: Vec<&str> = self.version.split('.').collect();
+        if parts.len() != 3
+            || parts
+                .iter()
+                .any(|p| p.is_empty() || !p.chars().all(|c| c.is_ascii_digit()))
+        {
+            return bad(format!(
+                "RLDS version {:?} must be x.y.z, e.g. 1.0.0",
+                self.version
+            ));
+        }
+        let keys = &self.keys;
+        let all = [
+            &keys.image,
+            &keys.depth,
+            &keys.mask,
+            &keys.state,
+            &keys.environment_state,
+        ];
+        for (i, key) in all.iter().enumerate() {
+            let ok = !key.is_empty()
+                && key
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+            if !ok {
+                return bad(format!(
+                    "RLDS observation key {key:?} must be non-empty letters, digits, _ or -"
+                ));
+            }
+            if all[..i].contains(key) {
+                return bad(format!("RLDS observation key {key:?} is given twice"));
+            }
+        }
+        Ok(())
+    }
+
+    /// What these options change in the bytes, by option name (for resume).
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = RunOptions::default();
+        options.set("format", "rlds".into());
+        options.set("rlds_name", self.name.clone().into());
+        options.set("rlds_version", self.version.clone().into());
+        options.set("rlds_shard_mb", self.shard_size_mb.into());
+        options.set("png", format!("{:?}", self.png).into());
+        options.set("rlds_keys", json!(self.keys));
+        options
+    }
+
+    /// The version folder, relative to the output folder.
+    pub fn version_dir(&self) -> String {
+        format!("{}/{}", self.name, self.version)
+    }
+
+    /// Shard `index` of `count` (`count` None: the name while the run is going on).
+    pub fn shard_path(&self, index: usize, count: Option<usize>) -> String {
+        let base = format!(
+            "{}/{}-train.tfrecord-{index:05}",
+            self.version_dir(),
+            self.name
+        );
+        match count {
+            Some(count) => format!("{base}-of-{count:05}"),
+            None => base,
+        }
+    }
+}
+
+/// The writer's state at a checkpoint (every shard closed): what the metadata needs.
+#[derive(Clone, Default, Serialize, Deserialize)]
+struct State {
+    /// Episodes in each closed shard.
+    shard_lengths: Vec<u64>,
+    episodes: u64,
+    /// Serialized Example bytes (dataset_info's numBytes).
+    example_bytes: u64,
+    summary: Summary,
+}
+
+/// The shard being written.
+struct OpenShard {
+    writer: BufWriter<std::fs::File>,
+    pending: PendingFile,
+    bytes: u64,
+    episodes: u64,
+}
+
+/// Streams episodes into an RLDS dataset: one Example per episode, rolled into shards.
+pub struct RldsWriter {
+    dir: DatasetDir,
+    info: DatasetInfo,
+    options: RldsOptions,
+    layout: StepLayout,
+    open: Option<OpenShard>,
+    state: State,
+    timing: SinkTiming,
+    finished: Option<Summary>,
+}
+
+impl RldsWriter {
+    /// Starts a dataset of `info` in `root` (TFDS's data_dir), which must not exist or be
+    /// empty.
+    pub fn create(
+        root: &Path,
+        info: &DatasetInfo,
+        options: RldsOptions,
+    ) -> Result<Self, ExportError> {
+        let run = RldsWriter::check(info, &options)?;
+        Ok(RldsWriter::fresh(
+            DatasetDir::create(root, &run)?,
+            info,
+            options,
+            State::default(),
+        ))
+    }
+
+    /// Continues an interrupted dataset in `root` from its last checkpoint (see
+    /// `LeRobotWriter::resume`); with the same info, options and episodes the result is
+    /// byte-identical to an uninterrupted run.
+    pub fn resume(
+        root: &Path,
+        info: &DatasetInfo,
+        options: RldsOptions,
+    ) -> Result<Self, ExportError> {
+        let run = RldsWriter::check(info, &options)?;
+        let (dir, state) = DatasetDir::resume::<State>(root, &run, &[options.name.as_str()])?;
+        Ok(RldsWriter::fresh(
+            dir,
+            info,
+            options,
+            state.unwrap_or_default(),
+        ))
+    }
+
+    fn check(info: &DatasetInfo, options: &RldsOptions) -> Result<RunOptions, ExportError> {
+        options.check()?;
+        let shapes_fit = info
+            .features
+            .iter()
+            .all(|f| f.dtype != crate::episode::Dtype::Image || f.shape.len() == 3);
+        if info.rgb_key().is_none() || !shapes_fit {
+            return Err(ExportError::InvalidOptions(
+                "RLDS needs an RGB camera feature and images of height x width x channels".into(),
+            ));
+        }
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
+    }
+
+    fn fresh(dir: DatasetDir, info: &DatasetInfo, options: RldsOptions, state: State) -> Self {
+        RldsWriter {
+            dir,
+            layout: StepLayout::of(info, &options.keys),
+            info: info.clone(),
+            options,
+            open: None,
+            state,
+            timing: SinkTiming::default(),
+            finished: None,
+        }
+    }
+
+    fn check_episode(&self, episode: &Episode, index: u64) -> Result<(), ExportError> {
+        if self.finished.is_some() {
+            return Err(ExportError::Internal(
+                "an episode arrived after the dataset was finished".into(),
+            ));
+        }
+        let (width, height) = self.info.image_size();
+        episode
+            .validate(width, height, &self.info.features)
+            .map_err(ExportError::InvalidEpisode)?;
+        if episode.meta.index != index {
+            return Err(ExportError::InvalidEpisode(format!(
+                "episode index {} arrived where {index} was expected (episodes must come in order)",
+                episode.meta.index
+            )));
+        }
+        Ok(())
+    }
+
+    /// Appends one serialized episode to the open shard (opening one), closing the shard and
+    /// checkpointing once it is full.
+    fn append(&mut self, example: &[u8], steps: u64) -> Result<(), ExportError> {
+        if self.open.is_none() {
+            let index = self.state.shard_lengths.len();
+            let (file, pending) = self
+                .dir
+                .create_file(&self.options.shard_path(index, None))?;
+            self.open = Some(OpenShard {
+                writer: BufWriter::with_capacity(1 << 20, file),
+                pending,
+                bytes: 0,
+                episodes: 0,
+            });
+        }
+        let shard = self
+            .open
+            .as_mut()
+            .ok_or_else(|| ExportError::Internal("no open shard".into()))?;
+        tfrecord::write_record(&mut shard.writer, example)
+            .map_err(ExportError::io(&shard.pending.path))?;
+        shard.bytes += tfrecord::framed_len(example.len());
+        shard.episodes += 1;
+        let full = shard.bytes >= self.options.shard_size_mb * 1024 * 1024;
+        self.state.episodes += 1;
+        self.state.example_bytes += example.len() as u64;
+        self.state.summary.episodes += 1;
+        self.state.summary.frames += steps;
+        if full {
+            self.close_shard()?;
+            self.dir.save_checkpoint(&self.state)?;
+        }
+        Ok(())
+    }
+
+    fn close_shard(&mut self) -> Result<(), ExportError> {
+        if let Some(mut shard) = self.open.take() {
+            let path = shard.pending.path.clone();
+            shard.writer.flush().map_err(ExportError::io(&path))?;
+            drop(shard.writer);
+            let bytes = self.dir.commit(shard.pending)?;
+            self.state.shard_lengths.push(shard.episodes);
+            self.state.summary.files += 1;
+            self.state.summary.bytes += bytes;
+        }
+        Ok(())
+    }
+
+    /// Writes a metadata file and counts it.
+    fn write_file(
+        &mut self,
+        summary: &mut Summary,
+        relative: &str,
+        bytes: &[u8],
+    ) -> Result<(), ExportError> {
+        summary.bytes += self.dir.write_atomically(relative, bytes)?;
+        summary.files += 1;
+        Ok(())
+    }
+
+    fn json_bytes(
+        &self,
+        relative: &str,
+        value: &serde_json::Value,
+    ) -> Result<Vec<u8>, ExportError> {
+        serde_json::to_vec_pretty(value).map_err(|source| ExportError::Json {
+            path: self.dir.path(relative),
+            source,
+        })
+    }
+
+    /// Finishing, in an order an interruption at any point can resume: close the shard and
+    /// checkpoint, give the shards their final names, write the metadata, the guide, the
+    /// manifest and the sidecar, and only then remove the marker.
+    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        self.close_shard()?;
+        self.dir.save_checkpoint(&self.state)?;
+        let count = self.state.shard_lengths.len();
+        let renames: Vec<(String, String)> = (0..count)
+            .map(|i| {
+                (
+                    self.options.shard_path(i, None),
+                    self.options.shard_path(i, Some(count)),
+                )
+            })
+            .collect();
+        self.dir.rename_files(&renames, &self.state)?;
+        let mut summary = self.state.summary.clone();
+        let version_dir = self.options.version_dir();
+        let features = features::features_json(&self.info, &self.options);
+        let dataset_info = features::dataset_info_json(
+            &self.info,
+            &self.options,
+            &self.state.shard_lengths,
+            self.state.example_bytes,
+        );
+        let mut surgvla = self.info.surgvla_json();
+        surgvla["fps"] = json!(self.info.fps);
+        surgvla["robot_type"] = json!(self.info.robot_type);
+        surgvla["rlds"] = json!({"keys": self.options.keys, "depth_unit": "mm"});
+        for (file, value) in [
+            ("features.json", features),
+            (SURGVLA_JSON, surgvla),
+            ("dataset_info.json", dataset_info),
+        ] {
+            let relative = format!("{version_dir}/{file}");
+            let bytes = self.json_bytes(&relative, &value)?;
+            self.write_file(&mut summary, &relative, &bytes)?;
+        }
+        let guide = openvla_md(&self.info, &self.options);
+        self.write_file(&mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
+        summary.bytes += self.dir.write_manifest(MANIFEST)?;
+        summary.files += 1;
+        if let Some(make) = sidecar {
+            let (relative, bytes) = make(&summary)?;
+            self.dir.write_unlisted(&relative, &bytes)?;
+        }
+        self.dir.complete()?;
+        Ok(summary)
+    }
+}
+
+impl EpisodeSink for RldsWriter {
+    /// A batch's episodes are encoded in parallel, then appended in order.
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        let first = self.state.episodes;
+        for (i, episode) in episodes.iter().enumerate() {
+            self.check_episode(episode, first + i as u64)?;
+        }
+        let started = std::time::Instant::now();
+        let (layout, png) = (&self.layout, self.options.png);
+        let examples: Vec<Vec<u8>> = episodes
+            .par_iter()
+            .map(|episode| encode_episode(layout, episode, png))
+            .collect::<Result<_, _>>()?;
+        let written = std::time::Instant::now();
+        self.timing.encode_secs += (written - started).as_secs_f64();
+        for (episode, example) in episodes.iter().zip(examples) {
+            self.append(&example, episode.steps.len() as u64)?;
+        }
+        self.timing.write_secs += written.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn next_episode_index(&self) -> u64 {
+        self.state.episodes
+    }
+
+    fn timing(&self) -> SinkTiming {
+        self.timing
+    }
+
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        if let Some(summary) = &self.finished {
+            return Ok(summary.clone());
+        }
+        let summary = self.finish_dataset(sidecar)?;
+        self.finished = Some(summary.clone());
+        Ok(summary)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn options_refuse_names_tfds_cannot_load() {
+        assert!(RldsOptions::default().check().is_ok());
+        let with = |f: &dyn Fn(&mut RldsOptions)| {
+            let mut options = RldsOptions::default();
+            f(&mut options);
+            options.check()
+        };
+        assert!(with(&|o| o.name = "Surg-VLA".into()).is_err());
+        assert!(with(&|o| o.name = "9lives".into()).is_err());
+        assert!(with(&|o| o.version = "1.0".into()).is_err());
+        assert!(with(&|o| o.version = "1.0.x".into()).is_err());
+        assert!(with(&|o| o.keys.state = "image".into()).is_err());
+        assert!(with(&|o| o.keys.image = "a/b".into()).is_err());
+        assert!(with(&|o| o.keys.image = "agentview_rgb".into()).is_ok());
+    }
+
+    #[test]
+    fn shards_get_their_count_only_at_the_end() {
+        let options = RldsOptions::default();
+        assert_eq!(
+            options.shard_path(3, None),
+            "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00003"
+        );
+        assert_eq!(
+            options.shard_path(3, Some(12)),
+            "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00003-of-00012"
+        );
+    }
+}

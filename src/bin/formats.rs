@@ -1,0 +1,240 @@
+//! The output formats on the command line: `--format` / `--to`, each format's own options
+//! (refused with another format), and the `convert` command.
+
+use crate::error::CliError;
+use clap::{Args, ValueEnum};
+use std::path::PathBuf;
+use surgvla::export::image::PngLevel;
+use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
+use surgvla::export::rlds::{RldsKeys, RldsOptions};
+use surgvla::export::{SinkOptions, open_sink, open_source, resumes};
+
+/// A dataset format to write.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// LeRobot (v3.0 by default; see --lerobot-version).
+    Lerobot,
+    /// RLDS in the TFDS layout (tensorflow_datasets, OpenVLA, Octo); see --rlds-name.
+    Rlds,
+}
+
+/// The codec of video mode.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum VideoCodec {
+    /// AV1 (rav1e), LeRobot's codec family.
+    Av1,
+    /// H.264 (openh264), faster.
+    H264,
+}
+
+/// The LeRobot layout.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum LayoutVersion {
+    /// v3.0 (current): many episodes per file, parquet metadata.
+    #[value(name = "3.0")]
+    V30,
+    /// v2.1: one file per episode, JSON-lines metadata.
+    #[value(name = "2.1")]
+    V21,
+}
+
+/// Options of the LeRobot format.
+#[derive(Args, Debug)]
+pub struct LeRobotArgs {
+    /// LeRobot: store the endoscope RGB as MP4 video (video mode) instead of PNG: av1 (rav1e,
+    /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
+    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "av1")]
+    video: Option<VideoCodec>,
+    /// LeRobot layout: 3.0 (current, the default) or 2.1 (one file per episode, JSON-lines
+    /// metadata).
+    #[arg(long, value_enum)]
+    lerobot_version: Option<LayoutVersion>,
+    /// LeRobot: size at which a data file is closed and a new one begun, MB (LeRobot's
+    /// data_files_size_in_mb; default 100); each closed file is also a resume checkpoint.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    data_file_mb: Option<u64>,
+}
+
+impl LeRobotArgs {
+    /// The first LeRobot option given, by flag.
+    fn given(&self) -> Option<&'static str> {
+        [
+            self.video.map(|_| "--video"),
+            self.lerobot_version.map(|_| "--lerobot-version"),
+            self.data_file_mb.map(|_| "--data-file-mb"),
+        ]
+        .into_iter()
+        .flatten()
+        .next()
+    }
+
+    fn options(&self) -> LeRobotOptions {
+        let defaults = LeRobotOptions::default();
+        LeRobotOptions {
+            video: self.video.map(|codec| match codec {
+                VideoCodec::H264 => VideoOptions::h264(),
+                VideoCodec::Av1 => VideoOptions::default(),
+            }),
+            version: match self.lerobot_version {
+                Some(LayoutVersion::V21) => LeRobotVersion::V21,
+                Some(LayoutVersion::V30) | None => LeRobotVersion::V30,
+            },
+            data_file_size_mb: self.data_file_mb.unwrap_or(defaults.data_file_size_mb),
+            ..defaults
+        }
+    }
+}
+
+/// Options of the RLDS format.
+#[derive(Args, Debug)]
+pub struct RldsArgs {
+    /// RLDS: the dataset name, its folder and shard prefix, what `tfds.builder(name)` takes
+    /// (snake_case; default surgvla_benchmark).
+    #[arg(long)]
+    rlds_name: Option<String>,
+    /// RLDS: the version folder, x.y.z (default 1.0.0).
+    #[arg(long)]
+    rlds_version: Option<String>,
+    /// RLDS: a shard is closed once it reaches this size, MB (default 64, TFDS's smallest
+    /// shard size); each closed shard is also a resume checkpoint.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    rlds_shard_mb: Option<u64>,
+    /// RLDS: the observation key of the endoscope RGB image (default image, OpenVLA's).
+    #[arg(long)]
+    rlds_image_key: Option<String>,
+    /// RLDS: the observation key of the 7-D robot state (default state).
+    #[arg(long)]
+    rlds_state_key: Option<String>,
+    /// RLDS: the observation key of the depth image (default depth).
+    #[arg(long)]
+    rlds_depth_key: Option<String>,
+}
+
+impl RldsArgs {
+    /// The first RLDS option given, by flag.
+    fn given(&self) -> Option<&'static str> {
+        [
+            self.rlds_name.as_ref().map(|_| "--rlds-name"),
+            self.rlds_version.as_ref().map(|_| "--rlds-version"),
+            self.rlds_shard_mb.map(|_| "--rlds-shard-mb"),
+            self.rlds_image_key.as_ref().map(|_| "--rlds-image-key"),
+            self.rlds_state_key.as_ref().map(|_| "--rlds-state-key"),
+            self.rlds_depth_key.as_ref().map(|_| "--rlds-depth-key"),
+        ]
+        .into_iter()
+        .flatten()
+        .next()
+    }
+
+    fn options(&self) -> RldsOptions {
+        let defaults = RldsOptions::default();
+        let keys = RldsKeys::default();
+        let or = |given: &Option<String>, default: String| given.clone().unwrap_or(default);
+        RldsOptions {
+            name: or(&self.rlds_name, defaults.name),
+            version: or(&self.rlds_version, defaults.version),
+            shard_size_mb: self.rlds_shard_mb.unwrap_or(defaults.shard_size_mb),
+            png: PngLevel::Fast,
+            keys: RldsKeys {
+                image: or(&self.rlds_image_key, keys.image),
+                state: or(&self.rlds_state_key, keys.state),
+                depth: or(&self.rlds_depth_key, keys.depth),
+                ..keys
+            },
+        }
+    }
+}
+
+/// Every format's options, for a command that writes one format.
+#[derive(Args, Debug)]
+pub struct FormatArgs {
+    #[command(flatten)]
+    lerobot: LeRobotArgs,
+    #[command(flatten)]
+    rlds: RldsArgs,
+}
+
+impl FormatArgs {
+    /// The options of `format`; another format's option is a usage error (`flag` names how
+    /// the format was chosen, e.g. "--format").
+    pub fn sink_options(&self, format: Format, flag: &str) -> Result<SinkOptions, CliError> {
+        let refuse = |option: &str, owner: &str| {
+            Err(CliError::usage(format!(
+                "{option} is {owner} option; it means nothing with {flag} {}",
+                format
+                    .to_possible_value()
+                    .map_or(String::new(), |v| v.get_name().to_string())
+            )))
+        };
+        match format {
+            Format::Lerobot => {
+                if let Some(option) = self.rlds.given() {
+                    return refuse(option, "an RLDS");
+                }
+                Ok(SinkOptions::LeRobot(self.lerobot.options()))
+            }
+            Format::Rlds => {
+                if let Some(option) = self.lerobot.given() {
+                    return refuse(option, "a LeRobot");
+                }
+                let options = self.rlds.options();
+                options.check()?;
+                Ok(SinkOptions::Rlds(options))
+            }
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// The dataset to read: LeRobot (v3.0 or v2.1, image mode) or RLDS (a TFDS data directory
+    /// or its <name>/<version> folder).
+    input: PathBuf,
+    /// The format to write.
+    #[arg(long, value_enum)]
+    to: Format,
+    /// Output folder (must not exist or be empty); for RLDS the TFDS data directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue an interrupted conversion into --out (same input and options).
+    #[arg(long)]
+    resume: bool,
+    #[command(flatten)]
+    formats: FormatArgs,
+}
+
+/// `surgvla convert INPUT --to FORMAT --out DIR`.
+pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
+    let options = args.formats.sink_options(args.to, "--to")?;
+    let mut source = open_source(&args.input)
+        .map_err(|e| CliError::from(e).context(format!("reading {}", args.input.display())))?;
+    let info = source.info().clone();
+    let resuming = resumes(&args.out, args.resume);
+    let mut sink = open_sink(&args.out, &info, &options, args.resume)?;
+    if resuming {
+        eprintln!(
+            "resuming {} at episode {}",
+            args.out.display(),
+            sink.next_episode_index()
+        );
+    }
+    let bar = crate::progress::episode_bar(source.len(), "converting");
+    let summary = surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), &mut |done| {
+        bar.set_position(done)
+    })
+    .map_err(|e| {
+        let resumable = surgvla::export::DatasetDir::is_interrupted(&args.out);
+        CliError::from(e).resumable(resumable)
+    })?;
+    bar.finish_and_clear();
+    say!(
+        "converted {} episodes, {} frames from {} to {} ({} files, {:.1} MB)",
+        summary.episodes,
+        summary.frames,
+        args.input.display(),
+        args.out.display(),
+        summary.files,
+        summary.bytes as f64 / 1e6
+    );
+    Ok(())
+}

@@ -1,0 +1,309 @@
+//! The two metadata files of a TFDS dataset folder: `features.json` (the feature tree
+//! `tensorflow_datasets` rebuilds the decoders from) and `dataset_info.json` (name, version and
+//! the train split's `shardLengths`, which readers check exactly). Both derive from the
+//! [`DatasetInfo`] and the [`RldsOptions`]; nothing here knows how the episodes were made.
+
+use crate::episode::FeatureKind;
+use crate::export::info::DatasetInfo;
+use crate::export::rlds::RldsOptions;
+use serde_json::{Value, json};
+
+const FEATURES_DICT: &str = "tensorflow_datasets.core.features.features_dict.FeaturesDict";
+const DATASET: &str = "tensorflow_datasets.core.features.dataset_feature.Dataset";
+const TENSOR: &str = "tensorflow_datasets.core.features.tensor_feature.Tensor";
+const SCALAR: &str = "tensorflow_datasets.core.features.scalar.Scalar";
+const IMAGE: &str = "tensorflow_datasets.core.features.image_feature.Image";
+const TEXT: &str = "tensorflow_datasets.core.features.text_feature.Text";
+
+/// The split template TFDS writes (and reads when it is given).
+pub const FILEPATH_TEMPLATE: &str = "{DATASET}-{SPLIT}.{FILEFORMAT}-{SHARD_X_OF_Y}";
+
+fn features_dict(features: serde_json::Map<String, Value>, description: &str) -> Value {
+    json!({
+        "pythonClassName": FEATURES_DICT,
+        "featuresDict": {"features": features},
+        "description": description,
+    })
+}
+
+fn tensor(length: usize, description: &str) -> Value {
+    json!({
+        "pythonClassName": TENSOR,
+        "tensor": {"dtype": "float32", "encoding": "none", "shape": {"dimensions": [length.to_string()]}},
+        "description": description,
+    })
+}
+
+fn scalar(dtype: &str, description: &str) -> Value {
+    json!({
+        "pythonClassName": SCALAR,
+        "tensor": {"dtype": dtype, "encoding": "none", "shape": {}},
+        "description": description,
+    })
+}
+
+fn image(shape: [usize; 3], dtype: &str, description: &str) -> Value {
+    json!({
+        "pythonClassName": IMAGE,
+        "image": {
+            "dtype": dtype,
+            "encodingFormat": "png",
+            "shape": {"dimensions": shape.map(|d| d.to_string())},
+        },
+        "description": description,
+    })
+}
+
+fn text(description: &str) -> Value {
+    json!({"pythonClassName": TEXT, "text": {}, "description": description})
+}
+
+/// Names of a vector feature's elements, for its description.
+fn element_names(info: &DatasetInfo, kind: FeatureKind) -> String {
+    info.feature(kind)
+        .map(|f| f.names.join(", "))
+        .unwrap_or_default()
+}
+
+/// The observation features of one step, by RLDS key.
+fn observation(info: &DatasetInfo, options: &RldsOptions) -> serde_json::Map<String, Value> {
+    let (width, height) = info.image_size();
+    let keys = &options.keys;
+    let mut observation = serde_json::Map::new();
+    for feature in &info.features {
+        let (key, node) = match feature.kind {
+            FeatureKind::Rgb => (
+                &keys.image,
+                image(
+                    [height, width, 3],
+                    "uint8",
+                    "Endoscope RGB image (3-channel PNG).",
+                ),
+            ),
+            FeatureKind::Depth => (
+                &keys.depth,
+                image(
+                    [height, width, 1],
+                    "uint16",
+                    "Endoscope depth along the optical axis in millimetres (uint16 PNG; 0 = nothing in range).",
+                ),
+            ),
+            FeatureKind::Mask => (
+                &keys.mask,
+                image(
+                    [height, width, 1],
+                    "uint8",
+                    "Segmentation mask ids (uint8 PNG); the id table is in surgvla.json.",
+                ),
+            ),
+            FeatureKind::State => (
+                &keys.state,
+                tensor(
+                    feature.shape.iter().product(),
+                    &format!(
+                        "Robot state: {} (metres, radians).",
+                        element_names(info, FeatureKind::State)
+                    ),
+                ),
+            ),
+            FeatureKind::EnvironmentState => (
+                &keys.environment_state,
+                tensor(
+                    feature.shape.iter().product(),
+                    "Ground-truth object poses, x y z (m) qx qy qz qw per object, zero-padded (privileged).",
+                ),
+            ),
+            FeatureKind::Action => continue,
+        };
+        observation.insert(key.clone(), node);
+    }
+    observation
+}
+
+/// `features.json`: the RLDS tree of steps and episode metadata.
+pub fn features_json(info: &DatasetInfo, options: &RldsOptions) -> Value {
+    let mut step = serde_json::Map::new();
+    step.insert(
+        "observation".into(),
+        features_dict(observation(info, options), "What the robot observed."),
+    );
+    step.insert(
+        "action".into(),
+        tensor(
+            7,
+            &format!(
+                "Action: {} (end-effector deltas in metres and radians; gripper absolute, 1 = open, 0 = closed).",
+                element_names(info, FeatureKind::Action)
+            ),
+        ),
+    );
+    step.insert("language_instruction".into(), text("The task instruction."));
+    step.insert("is_first".into(), scalar("bool", "True on the first step."));
+    step.insert("is_last".into(), scalar("bool", "True on the last step."));
+    step.insert(
+        "is_terminal".into(),
+        scalar(
+            "bool",
+            "True on the last step of a successful episode (the task's success state).",
+        ),
+    );
+    step.insert(
+        "reward".into(),
+        scalar(
+            "float32",
+            "1.0 on the step after which the task's success predicate holds (the last step of a successful episode), else 0.0.",
+        ),
+    );
+    step.insert("discount".into(), scalar("float32", "Always 1.0."));
+    let mut metadata = serde_json::Map::new();
+    metadata.insert(
+        "file_path".into(),
+        text("A stable id of the episode: task id and seed, e.g. T1-1/seed-123."),
+    );
+    metadata.insert(
+        "episode_index".into(),
+        scalar("int64", "Position in the dataset, 0-based."),
+    );
+    metadata.insert(
+        "task_id".into(),
+        text("The benchmark's task id, e.g. T1-1."),
+    );
+    metadata.insert(
+        "task_name".into(),
+        text("The task's name, e.g. gauze_pick."),
+    );
+    metadata.insert("level".into(), scalar("int64", "The task's level, 1..3."));
+    metadata.insert(
+        "seed".into(),
+        scalar("uint64", "The seed that re-creates the episode's scene."),
+    );
+    metadata.insert(
+        "attempts".into(),
+        scalar(
+            "int64",
+            "Expert attempts for this episode including the saved one.",
+        ),
+    );
+    metadata.insert(
+        "success".into(),
+        scalar("bool", "The task's success predicate held at the end."),
+    );
+    let mut top = serde_json::Map::new();
+    top.insert(
+        "steps".into(),
+        json!({
+            "pythonClassName": DATASET,
+            "sequence": {"feature": features_dict(step, "One control step."), "length": "-1"},
+            "description": "The episode's control steps.",
+        }),
+    );
+    top.insert(
+        "episode_metadata".into(),
+        features_dict(metadata, "The episode's provenance."),
+    );
+    features_dict(top, "")
+}
+
+/// `dataset_info.json`: `shard_lengths` holds the episodes of each shard in order and
+/// `example_bytes` the sum of the serialized Examples.
+pub fn dataset_info_json(
+    info: &DatasetInfo,
+    options: &RldsOptions,
+    shard_lengths: &[u64],
+    example_bytes: u64,
+) -> Value {
+    json!({
+        "name": options.name,
+        "version": options.version,
+        "fileFormat": "tfrecord",
+        "description": format!(
+            "Surgical robot episodes in RLDS, written by {} (one episode per tf.train.Example). \
+             Camera intrinsics, world_from_camera and mask ids are in surgvla.json beside this file; \
+             OPENVLA.md in the data directory shows how to fine-tune OpenVLA on it.",
+            info.generator
+        ),
+        "citation": "",
+        "releaseNotes": {options.version.clone(): "Written by surgvla."},
+        "splits": [{
+            "name": "train",
+            "shardLengths": shard_lengths.iter().map(u64::to_string).collect::<Vec<_>>(),
+            "numBytes": example_bytes.to_string(),
+            "filepathTemplate": FILEPATH_TEMPLATE,
+        }],
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::{FeatureSet, standard_features};
+
+    fn info(set: FeatureSet) -> DatasetInfo {
+        DatasetInfo {
+            fps: 5,
+            robot_type: "dvrk_psm".into(),
+            camera: crate::episode::CameraInfo {
+                width_px: 224,
+                height_px: 224,
+                fx_px: 1.0,
+                fy_px: 1.0,
+                cx_px: 1.0,
+                cy_px: 1.0,
+                near_m: 0.01,
+                far_m: 1.0,
+                world_from_camera: [[0.0; 4]; 4],
+            },
+            features: standard_features(224, 224, set),
+            mask_ids: Vec::new(),
+            collection: Value::Null,
+            generator: "surgvla test".into(),
+        }
+    }
+
+    #[test]
+    fn the_feature_tree_follows_the_dataset_features_and_key_names() {
+        let options = RldsOptions::default();
+        let tree = features_json(&info(FeatureSet::default()), &options);
+        let step = &tree["featuresDict"]["features"]["steps"]["sequence"]["feature"]["featuresDict"]
+            ["features"];
+        let observation = &step["observation"]["featuresDict"]["features"];
+        let keys: Vec<&String> = observation.as_object().expect("dict").keys().collect();
+        assert_eq!(keys, ["image", "depth", "state", "environment_state"]);
+        assert_eq!(observation["image"]["image"]["dtype"], "uint8");
+        assert_eq!(
+            observation["depth"]["image"]["shape"]["dimensions"],
+            json!(["224", "224", "1"])
+        );
+        assert_eq!(observation["depth"]["image"]["dtype"], "uint16");
+        assert_eq!(
+            step["action"]["tensor"]["shape"]["dimensions"],
+            json!(["7"])
+        );
+        let lean = FeatureSet {
+            depth: false,
+            mask: true,
+            environment_state: false,
+        };
+        let mut renamed = RldsOptions::default();
+        renamed.keys.image = "agentview_rgb".into();
+        let tree = features_json(&info(lean), &renamed);
+        let observation = &tree["featuresDict"]["features"]["steps"]["sequence"]["feature"]["featuresDict"]
+            ["features"]["observation"]["featuresDict"]["features"];
+        let keys: Vec<&String> = observation.as_object().expect("dict").keys().collect();
+        assert_eq!(keys, ["agentview_rgb", "mask", "state"]);
+    }
+
+    #[test]
+    fn dataset_info_lists_shard_lengths_as_strings() {
+        let json = dataset_info_json(
+            &info(FeatureSet::default()),
+            &RldsOptions::default(),
+            &[3, 2],
+            1234,
+        );
+        assert_eq!(json["name"], "surgvla_benchmark");
+        assert_eq!(json["version"], "1.0.0");
+        assert_eq!(json["splits"][0]["shardLengths"], json!(["3", "2"]));
+        assert_eq!(json["splits"][0]["numBytes"], "1234");
+    }
+}

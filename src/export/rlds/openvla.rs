@@ -1,0 +1,107 @@
+//! `OPENVLA.md`, written beside an RLDS dataset: the dataset-registry entry and standardize
+//! transform a user pastes into OpenVLA (`prismatic/vla/datasets/rlds/oxe/configs.py` and
+//! `transforms.py`), the fine-tuning command and the normalisation to expect. The interop test
+//! executes its Python blocks on the dataset with `tf.data`.
+
+use crate::episode::FeatureKind;
+use crate::export::info::DatasetInfo;
+use crate::export::rlds::RldsOptions;
+
+/// The guide for a dataset of `info` written with `options`.
+pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
+    let name = &options.name;
+    let keys = &options.keys;
+    let state_names = info
+        .feature(FeatureKind::State)
+        .map(|f| f.names.join(", "))
+        .unwrap_or_default();
+    let depth = if info.has(FeatureKind::Depth) {
+        format!(
+            "\n`steps/observation/{}` holds depth as 1-channel uint16 PNG in millimetres along the optical \
+             axis (0 = nothing in range). OpenVLA does not use depth; to load it in Octo-style \
+             pipelines set `depth_obs_keys` to `{{\"primary\": \"{}\"}}` and divide by 1000 for metres.\n",
+            keys.depth, keys.depth
+        )
+    } else {
+        String::new()
+    };
+    format!(
+        r#"# Fine-tuning OpenVLA on `{name}`
+
+This folder is a TFDS data directory: `{name}/{version}/` holds RLDS (one episode per
+`tf.train.Example`, written by {generator} without TensorFlow). Load it with
+
+```text
+tfds.builder("{name}", data_dir="<this folder>")
+tfds.builder_from_directory("<this folder>/{name}/{version}")
+```
+
+Each step: `observation/{image}` (224 x 224 x 3 uint8 PNG, the endoscope),
+`observation/{state}` (float32 x 7: {state_names}), `action` (float32 x 7: dx, dy, dz in
+metres, droll, dpitch, dyaw in radians per control step at {fps} Hz, and the gripper, absolute,
+**1 = open, 0 = closed**), `language_instruction`, `is_first`, `is_last`, `is_terminal`,
+`reward` (1.0 on the last step of a successful episode) and `discount`.
+`episode_metadata/` holds `file_path` (task id and seed), `task_id`, `level`, `seed`, `success`.
+{depth}
+## 1. Register the dataset
+
+Append to `prismatic/vla/datasets/rlds/oxe/configs.py` (after `OXE_DATASET_CONFIGS`):
+
+```python
+OXE_DATASET_CONFIGS["{name}"] = {{
+    "image_obs_keys": {{"primary": "{image}", "secondary": None, "wrist": None}},
+    "depth_obs_keys": {{"primary": None, "secondary": None, "wrist": None}},
+    "state_obs_keys": ["EEF_state", None, "gripper_state"],
+    "state_encoding": StateEncoding.POS_EULER,
+    "action_encoding": ActionEncoding.EEF_POS,
+}}
+```
+
+## 2. The standardize transform
+
+Append to `prismatic/vla/datasets/rlds/oxe/transforms.py` (after
+`OXE_STANDARDIZATION_TRANSFORMS`):
+
+```python
+def {name}_dataset_transform(trajectory: Dict[str, Any]) -> Dict[str, Any]:
+    # The action already is OpenVLA's EEF_POS: six end-effector deltas and an absolute
+    # gripper with 1 = open, 0 = closed. Only the state is split.
+    state = trajectory["observation"]["{state}"]
+    trajectory["observation"]["EEF_state"] = state[:, :6]
+    trajectory["observation"]["gripper_state"] = state[:, -1:]
+    return trajectory
+
+
+OXE_STANDARDIZATION_TRANSFORMS["{name}"] = {name}_dataset_transform
+```
+
+## 3. Fine-tune
+
+```text
+torchrun --standalone --nnodes 1 --nproc-per-node 1 vla-scripts/finetune.py \
+  --vla_path "openvla/openvla-7b" \
+  --data_root_dir <this folder> \
+  --dataset_name {name} \
+  --run_root_dir <checkpoints> --adapter_tmp_dir <adapters> \
+  --lora_rank 32 --batch_size 16 --grad_accumulation_steps 1 --learning_rate 5e-4 \
+  --image_aug True --save_steps 5000
+```
+
+## Normalisation to expect
+
+OpenVLA computes the dataset's statistics on first load (cached in its data directory) and
+normalises with `BOUNDS_Q99`: each of the six deltas is mapped from its [1st, 99th] percentile
+to [-1, 1] and clipped. The gripper is absolute (`absolute_action_mask = [False] * 6 + [True]`)
+and is not normalised (`action_normalization_mask = [True] * 6 + [False]`): it stays 1 = open,
+0 = closed, which is what the policy must output. The deltas are small (millimetres per step),
+so the percentiles, not the units, decide their scale. The state's last element is the jaw
+angle in radians, not 0/1. There is one `train` split; OpenVLA trains on `train[:95%]` and
+validates on `train[95%:]`.
+"#,
+        version = options.version,
+        generator = info.generator,
+        image = keys.image,
+        state = keys.state,
+        fps = info.fps,
+    )
+}

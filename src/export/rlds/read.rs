@@ -1,0 +1,293 @@
+//! Reading an RLDS dataset back: [`RldsSource`], an [`EpisodeSource`] of the TFDS layout this
+//! module writes (and of other RLDS datasets with the same step keys). It checks what the real
+//! readers check (record CRCs, shard names, `shardLengths`, per-key step counts, image shapes)
+//! and names the shard and record of a defect. Interop is proven with `tensorflow_datasets` in
+//! `tests/interop/`.
+
+use crate::episode::{Episode, FeatureSet, standard_features};
+use crate::export::info::DatasetInfo;
+use crate::export::rlds::record::{StepLayout, decode_episode};
+use crate::export::rlds::tfrecord::{RecordError, RecordReader};
+use crate::export::rlds::{RldsKeys, SURGVLA_JSON};
+use crate::export::{EpisodeSource, ExportError, read_json};
+use serde_json::Value;
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
+    ExportError::InvalidDataset {
+        path: path.to_path_buf(),
+        problem: problem.into(),
+    }
+}
+
+/// Whether `path` holds an RLDS dataset: a version folder with `dataset_info.json`, or a data
+/// directory with `<name>/<version>/dataset_info.json` in it.
+pub fn is_rlds(path: &Path) -> bool {
+    version_dir(path).is_ok()
+}
+
+/// x.y.z as numbers, for ordering versions.
+fn version_number(name: &str) -> Option<[u64; 3]> {
+    let parts: Vec<u64> = name
+        .split('.')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .ok()?;
+    parts.try_into().ok()
+}
+
+/// The version folder `path` names: itself, or in a data directory the highest version of its
+/// one dataset.
+pub fn version_dir(path: &Path) -> Result<PathBuf, ExportError> {
+    if path.join("dataset_info.json").is_file() {
+        return Ok(path.to_path_buf());
+    }
+    let mut found: Vec<(String, [u64; 3], PathBuf)> = Vec::new();
+    let entries = std::fs::read_dir(path).map_err(ExportError::io(path))?;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Ok(versions) = std::fs::read_dir(entry.path()) else {
+            continue;
+        };
+        for version in versions.flatten() {
+            let folder = version.path();
+            let number = version_number(&version.file_name().to_string_lossy());
+            if let Some(number) = number
+                && folder.join("dataset_info.json").is_file()
+            {
+                found.push((name.clone(), number, folder));
+            }
+        }
+    }
+    let mut names: Vec<&String> = found.iter().map(|(n, ..)| n).collect();
+    names.sort();
+    names.dedup();
+    match names.len() {
+        0 => Err(invalid(
+            path,
+            "no dataset_info.json here or in <name>/<version>/ below: not an RLDS dataset, or an incomplete one",
+        )),
+        1 => Ok(found
+            .into_iter()
+            .max_by_key(|(_, number, _)| *number)
+            .map(|(.., folder)| folder)
+            .unwrap_or_default()),
+        _ => Err(invalid(
+            path,
+            format!(
+                "holds several RLDS datasets ({}); give one as <path>/<name>/<version>",
+                names
+                    .iter()
+                    .map(|n| n.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+    }
+}
+
+/// The observation node of features.json.
+fn observation_features(features: &Value) -> Option<&serde_json::Map<String, Value>> {
+    features["featuresDict"]["features"]["steps"]["sequence"]["feature"]["featuresDict"]["features"]
+        ["observation"]["featuresDict"]["features"]
+        .as_object()
+}
+
+/// (height, width) of an image node.
+fn image_size(node: &Value) -> Option<(usize, usize)> {
+    let dimensions = node["image"]["shape"]["dimensions"].as_array()?;
+    let dimension = |i: usize| -> Option<usize> {
+        let value = dimensions.get(i)?;
+        value
+            .as_str()
+            .and_then(|s| s.parse().ok())
+            .or_else(|| value.as_u64().map(|v| v as usize))
+    };
+    Some((dimension(0)?, dimension(1)?))
+}
+
+/// A shard of the train split: its path and the episodes dataset_info.json says it holds.
+struct Shard {
+    path: PathBuf,
+    episodes: u64,
+}
+
+/// Reads an RLDS dataset episode by episode (one record in memory at a time).
+pub struct RldsSource {
+    info: DatasetInfo,
+    layout: StepLayout,
+    shards: std::vec::IntoIter<Shard>,
+    /// The shard being read: path, reader, episodes expected and read.
+    current: Option<(PathBuf, RecordReader<BufReader<File>>, u64, u64)>,
+    total_episodes: u64,
+    failed: bool,
+}
+
+impl RldsSource {
+    /// Opens the dataset at `path` (a version folder or the data directory above it).
+    pub fn open(path: &Path) -> Result<Self, ExportError> {
+        let folder = version_dir(path)?;
+        let info_path = folder.join("dataset_info.json");
+        let dataset_info = read_json(&info_path)?;
+        let name = dataset_info["name"]
+            .as_str()
+            .ok_or_else(|| invalid(&info_path, "has no name"))?
+            .to_string();
+        let split = dataset_info["splits"]
+            .as_array()
+            .and_then(|splits| splits.iter().find(|s| s["name"] == "train"))
+            .ok_or_else(|| invalid(&info_path, "has no train split"))?;
+        let lengths: Vec<u64> = split["shardLengths"]
+            .as_array()
+            .ok_or_else(|| invalid(&info_path, "the train split has no shardLengths"))?
+            .iter()
+            .map(|v| {
+                v.as_str()
+                    .and_then(|s| s.parse().ok())
+                    .or_else(|| v.as_u64())
+                    .ok_or_else(|| invalid(&info_path, format!("shard length {v} is not a count")))
+            })
+            .collect::<Result<_, _>>()?;
+        let count = lengths.len();
+        let shards: Vec<Shard> = lengths
+            .iter()
+            .enumerate()
+            .map(|(i, &episodes)| {
+                let path = folder.join(format!("{name}-train.tfrecord-{i:05}-of-{count:05}"));
+                if path.is_file() {
+                    Ok(Shard { path, episodes })
+                } else {
+                    Err(invalid(
+                        &path,
+                        format!("is missing (dataset_info.json lists {count} shards)"),
+                    ))
+                }
+            })
+            .collect::<Result<_, _>>()?;
+        let features_path = folder.join("features.json");
+        if !features_path.is_file() {
+            return Err(invalid(&features_path, "is missing"));
+        }
+        let features = read_json(&features_path)?;
+        let surgvla_path = folder.join(SURGVLA_JSON);
+        let surgvla = if surgvla_path.is_file() {
+            read_json(&surgvla_path)?
+        } else {
+            Value::Null
+        };
+        let keys: RldsKeys =
+            serde_json::from_value(surgvla["rlds"]["keys"].clone()).unwrap_or_default();
+        let observation = observation_features(&features)
+            .ok_or_else(|| invalid(&features_path, "has no steps/observation features"))?;
+        let (height, width) = observation
+            .get(&keys.image)
+            .and_then(image_size)
+            .ok_or_else(|| {
+                invalid(
+                    &features_path,
+                    format!("has no image feature steps/observation/{}", keys.image),
+                )
+            })?;
+        if !observation.contains_key(&keys.state) {
+            return Err(invalid(
+                &features_path,
+                format!("has no steps/observation/{}", keys.state),
+            ));
+        }
+        let set = FeatureSet {
+            depth: observation.contains_key(&keys.depth),
+            mask: observation.contains_key(&keys.mask),
+            environment_state: observation.contains_key(&keys.environment_state),
+        };
+        let info = DatasetInfo::from_surgvla_json(
+            &surgvla,
+            surgvla["fps"].as_u64().unwrap_or(0) as u32,
+            surgvla["robot_type"].as_str().unwrap_or_default(),
+            standard_features(height, width, set),
+        );
+        Ok(RldsSource {
+            layout: StepLayout::of(&info, &keys),
+            info,
+            total_episodes: lengths.iter().sum(),
+            shards: shards.into_iter(),
+            current: None,
+            failed: false,
+        })
+    }
+
+    fn next_result(&mut self) -> Result<Option<Episode>, ExportError> {
+        loop {
+            if self.current.is_none() {
+                let Some(shard) = self.shards.next() else {
+                    return Ok(None);
+                };
+                let file = File::open(&shard.path).map_err(ExportError::io(&shard.path))?;
+                let reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
+                self.current = Some((shard.path, reader, shard.episodes, 0));
+            }
+            let Some((path, reader, expected, read)) = self.current.as_mut() else {
+                continue;
+            };
+            match reader.next_record() {
+                Some(Ok(bytes)) => {
+                    let index = *read;
+                    *read += 1;
+                    if *read > *expected {
+                        return Err(invalid(
+                            path,
+                            format!(
+                                "holds more than the {expected} episodes dataset_info.json's shardLengths gives it"
+                            ),
+                        ));
+                    }
+                    return decode_episode(&self.layout, &bytes)
+                        .map(Some)
+                        .map_err(|problem| invalid(path, format!("record {index}: {problem}")));
+                }
+                Some(Err(RecordError::Io { source, .. })) => {
+                    return Err(ExportError::Io {
+                        path: path.clone(),
+                        source,
+                    });
+                }
+                Some(Err(error)) => {
+                    return Err(invalid(path, error.to_string()));
+                }
+                None => {
+                    if *read != *expected {
+                        return Err(invalid(
+                            path,
+                            format!(
+                                "holds {read} episodes where dataset_info.json's shardLengths gives {expected}"
+                            ),
+                        ));
+                    }
+                    self.current = None;
+                }
+            }
+        }
+    }
+}
+
+impl EpisodeSource for RldsSource {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn len(&self) -> u64 {
+        self.total_episodes
+    }
+
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        if self.failed {
+            return None;
+        }
+        let result = self.next_result().transpose();
+        if matches!(result, Some(Err(_))) {
+            self.failed = true;
+        }
+        result
+    }
+}

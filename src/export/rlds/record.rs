@@ -1,0 +1,482 @@
+//! One episode as one `tf.train.Example` and back. Per-step values are concatenated over the
+//! steps under `steps/...` keys (the step count is implicit and must agree across keys);
+//! provenance goes under `episode_metadata/...`. Images are PNG: RGB 3-channel uint8, depth
+//! 1-channel uint16 in millimetres, mask 1-channel uint8.
+
+use crate::episode::{Episode, EpisodeMeta, FeatureKind, MAX_OBJECTS, POSE_VALUES, Step};
+use crate::export::ExportError;
+use crate::export::image::{PngLevel, decode_png, decode_png16, encode_png, encode_png16};
+use crate::export::info::DatasetInfo;
+use crate::export::rlds::RldsKeys;
+use crate::export::rlds::example::{Feature, decode_example, encode_example};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Depth in metres as the uint16 millimetres RLDS stores (rounded; 0 stays 0, beyond 65.535 m
+/// saturates).
+pub fn depth_to_mm(depth_m: f32) -> u16 {
+    if depth_m.is_finite() && depth_m > 0.0 {
+        (f64::from(depth_m) * 1000.0)
+            .round()
+            .min(f64::from(u16::MAX)) as u16
+    } else {
+        0
+    }
+}
+
+/// What the steps of a dataset hold: its image size and which optional features it has,
+/// under which observation keys.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepLayout {
+    pub keys: RldsKeys,
+    pub width_px: usize,
+    pub height_px: usize,
+    pub depth: bool,
+    pub mask: bool,
+    pub environment_state: bool,
+}
+
+impl StepLayout {
+    pub fn of(info: &DatasetInfo, keys: &RldsKeys) -> Self {
+        let (width_px, height_px) = info.image_size();
+        StepLayout {
+            keys: keys.clone(),
+            width_px,
+            height_px,
+            depth: info.has(FeatureKind::Depth),
+            mask: info.has(FeatureKind::Mask),
+            environment_state: info.has(FeatureKind::EnvironmentState),
+        }
+    }
+
+    fn observation(key: &str) -> String {
+        format!("steps/observation/{key}")
+    }
+}
+
+/// The id `episode_metadata/file_path` holds: "T1-1/seed-123" (or "episode-7" without a task).
+pub fn file_path(meta: &EpisodeMeta) -> String {
+    if meta.task_code.is_empty() {
+        format!("episode-{}", meta.index)
+    } else {
+        format!("{}/seed-{}", meta.task_code, meta.seed)
+    }
+}
+
+/// The encoded images of one step.
+struct StepImages {
+    rgb: Vec<u8>,
+    depth: Option<Vec<u8>>,
+    mask: Option<Vec<u8>>,
+}
+
+fn text(value: &str) -> Feature {
+    Feature::Bytes(vec![value.as_bytes().to_vec()])
+}
+
+/// The serialized Example of `episode` (its images encoded in parallel).
+pub fn encode_episode(
+    layout: &StepLayout,
+    episode: &Episode,
+    png: PngLevel,
+) -> Result<Vec<u8>, ExportError> {
+    let (w, h) = (layout.width_px, layout.height_px);
+    let images: Vec<StepImages> = episode
+        .steps
+        .par_iter()
+        .map(|step| {
+            Ok(StepImages {
+                rgb: encode_png(w, h, 3, &step.rgb, png)?,
+                depth: if layout.depth {
+                    let mm: Vec<u16> = step.depth_m.iter().map(|&d| depth_to_mm(d)).collect();
+                    Some(encode_png16(w, h, &mm, png)?)
+                } else {
+                    None
+                },
+                mask: if layout.mask {
+                    Some(encode_png(w, h, 1, &step.mask, png)?)
+                } else {
+                    None
+                },
+            })
+        })
+        .collect::<Result<_, ExportError>>()?;
+    let steps = &episode.steps;
+    let last = steps.len().saturating_sub(1);
+    let meta = &episode.meta;
+    let mut features = BTreeMap::new();
+    let keys = &layout.keys;
+    let mut images = images.into_iter().fold(
+        (Vec::new(), Vec::new(), Vec::new()),
+        |(mut rgb, mut depth, mut mask), step| {
+            rgb.push(step.rgb);
+            depth.extend(step.depth);
+            mask.extend(step.mask);
+            (rgb, depth, mask)
+        },
+    );
+    features.insert(
+        StepLayout::observation(&keys.image),
+        Feature::Bytes(std::mem::take(&mut images.0)),
+    );
+    if layout.depth {
+        features.insert(
+            StepLayout::observation(&keys.depth),
+            Feature::Bytes(std::mem::take(&mut images.1)),
+        );
+    }
+    if layout.mask {
+        features.insert(
+            StepLayout::observation(&keys.mask),
+            Feature::Bytes(std::mem::take(&mut images.2)),
+        );
+    }
+    let floats = |pick: &dyn Fn(&Step) -> &[f32]| {
+        Feature::Float(steps.iter().flat_map(|s| pick(s).iter().copied()).collect())
+    };
+    features.insert(StepLayout::observation(&keys.state), floats(&|s| &s.state));
+    if layout.environment_state {
+        features.insert(
+            StepLayout::observation(&keys.environment_state),
+            floats(&|s| &s.environment_state),
+        );
+    }
+    features.insert("steps/action".into(), floats(&|s| &s.action));
+    features.insert(
+        "steps/language_instruction".into(),
+        Feature::Bytes(vec![meta.instruction.as_bytes().to_vec(); steps.len()]),
+    );
+    let flags = |on: &dyn Fn(usize) -> bool| {
+        Feature::Int64((0..steps.len()).map(|i| i64::from(on(i))).collect())
+    };
+    features.insert("steps/is_first".into(), flags(&|i| i == 0));
+    features.insert("steps/is_last".into(), flags(&|i| i == last));
+    features.insert(
+        "steps/is_terminal".into(),
+        flags(&|i| i == last && meta.success),
+    );
+    features.insert(
+        "steps/reward".into(),
+        Feature::Float(
+            (0..steps.len())
+                .map(|i| f32::from(u8::from(i == last && meta.success)))
+                .collect(),
+        ),
+    );
+    features.insert(
+        "steps/discount".into(),
+        Feature::Float(vec![1.0; steps.len()]),
+    );
+    let metadata = |key: &str| format!("episode_metadata/{key}");
+    features.insert(metadata("file_path"), text(&file_path(meta)));
+    features.insert(
+        metadata("episode_index"),
+        Feature::Int64(vec![meta.index as i64]),
+    );
+    features.insert(metadata("task_id"), text(&meta.task_code));
+    features.insert(metadata("task_name"), text(&meta.task_name));
+    features.insert(
+        metadata("level"),
+        Feature::Int64(vec![i64::from(meta.level)]),
+    );
+    // uint64 travels as int64 (two's complement); TFDS casts it back.
+    features.insert(metadata("seed"), Feature::Int64(vec![meta.seed as i64]));
+    features.insert(
+        metadata("attempts"),
+        Feature::Int64(vec![i64::from(meta.attempts)]),
+    );
+    features.insert(
+        metadata("success"),
+        Feature::Int64(vec![i64::from(meta.success)]),
+    );
+    Ok(encode_example(&features))
+}
+
+/// Takes the values of `key` out of an Example, checking their kind and count.
+struct Fields {
+    features: BTreeMap<String, Feature>,
+}
+
+impl Fields {
+    fn take(&mut self, key: &str) -> Result<Feature, String> {
+        self.features
+            .remove(key)
+            .ok_or_else(|| format!("has no {key}"))
+    }
+
+    fn floats(&mut self, key: &str, count: usize) -> Result<Vec<f32>, String> {
+        match self.take(key)? {
+            Feature::Float(values) if values.len() == count => Ok(values),
+            Feature::Float(values) => Err(format!(
+                "{key} has {} values where its steps need {count}",
+                values.len()
+            )),
+            _ => Err(format!("{key} is not a float list")),
+        }
+    }
+
+    fn ints(&mut self, key: &str, count: usize) -> Result<Vec<i64>, String> {
+        match self.take(key)? {
+            Feature::Int64(values) if values.len() == count => Ok(values),
+            Feature::Int64(values) => Err(format!(
+                "{key} has {} values where {count} were expected",
+                values.len()
+            )),
+            _ => Err(format!("{key} is not an int64 list")),
+        }
+    }
+
+    fn bytes(&mut self, key: &str, count: usize) -> Result<Vec<Vec<u8>>, String> {
+        match self.take(key)? {
+            Feature::Bytes(values) if values.len() == count => Ok(values),
+            Feature::Bytes(values) => Err(format!(
+                "{key} has {} values where {count} were expected",
+                values.len()
+            )),
+            _ => Err(format!("{key} is not a bytes list")),
+        }
+    }
+
+    fn text(&mut self, key: &str) -> Result<String, String> {
+        let mut values = self.bytes(key, 1)?;
+        String::from_utf8(values.remove(0)).map_err(|_| format!("{key} is not UTF-8"))
+    }
+
+    fn int(&mut self, key: &str) -> Result<i64, String> {
+        Ok(self.ints(key, 1)?[0])
+    }
+}
+
+fn copy(values: &[f32], into: &mut [f32]) {
+    into.copy_from_slice(values);
+}
+
+/// Decodes one serialized Example into an episode; the error says what is wrong with it.
+pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, String> {
+    let mut fields = Fields {
+        features: decode_example(bytes).map_err(|e| e.to_string())?,
+    };
+    let first = fields.take("steps/is_first")?;
+    let Feature::Int64(is_first) = first else {
+        return Err("steps/is_first is not an int64 list".into());
+    };
+    let count = is_first.len();
+    if count == 0 {
+        return Err("has no steps".into());
+    }
+    let (w, h) = (layout.width_px, layout.height_px);
+    let keys = &layout.keys;
+    let bad_image = |key: &str, i: usize, problem: String| format!("{key} step {i}: {problem}");
+    let image_key = StepLayout::observation(&keys.image);
+    let rgb = fields.bytes(&image_key, count)?;
+    let depth_key = StepLayout::observation(&keys.depth);
+    let depth = if layout.depth {
+        fields.bytes(&depth_key, count)?
+    } else {
+        Vec::new()
+    };
+    let mask_key = StepLayout::observation(&keys.mask);
+    let mask = if layout.mask {
+        fields.bytes(&mask_key, count)?
+    } else {
+        Vec::new()
+    };
+    let state = fields.floats(&StepLayout::observation(&keys.state), count * 7)?;
+    let environment = if layout.environment_state {
+        fields.floats(
+            &StepLayout::observation(&keys.environment_state),
+            count * MAX_OBJECTS * POSE_VALUES,
+        )?
+    } else {
+        Vec::new()
+    };
+    let action = fields.floats("steps/action", count * 7)?;
+    let instructions = fields.bytes("steps/language_instruction", count)?;
+    let is_last = fields.ints("steps/is_last", count)?;
+    let is_terminal = fields.ints("steps/is_terminal", count)?;
+    fields.floats("steps/reward", count)?;
+    fields.floats("steps/discount", count)?;
+    for (i, flags) in [&is_first, &is_last, &is_terminal].into_iter().enumerate() {
+        if flags.iter().any(|&v| v != 0 && v != 1) {
+            let name = ["is_first", "is_last", "is_terminal"][i];
+            return Err(format!("steps/{name} holds a value other than 0 and 1"));
+        }
+    }
+    if is_first[0] != 1 || is_last[count - 1] != 1 {
+        return Err("is_first or is_last is not set on the first or last step".into());
+    }
+    let instruction = String::from_utf8(instructions[0].clone())
+        .map_err(|_| "steps/language_instruction is not UTF-8".to_string())?;
+    let steps = (0..count)
+        .into_par_iter()
+        .map(|i| {
+            let (rw, rh, channels, pixels) =
+                decode_png(&rgb[i]).map_err(|e| bad_image(&image_key, i, e))?;
+            if (rw as usize, rh as usize, channels) != (w, h, 3) {
+                return Err(bad_image(
+                    &image_key,
+                    i,
+                    format!(
+                        "a {rw}x{rh} image with {channels} channels where {w}x{h} RGB was declared"
+                    ),
+                ));
+            }
+            let mut step = Step {
+                rgb: pixels,
+                depth_m: Vec::new(),
+                mask: Vec::new(),
+                state: [0.0; 7],
+                action: [0.0; 7],
+                environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
+                extras: Default::default(),
+            };
+            if layout.depth {
+                let (dw, dh, mm) =
+                    decode_png16(&depth[i]).map_err(|e| bad_image(&depth_key, i, e))?;
+                if (dw as usize, dh as usize) != (w, h) {
+                    return Err(bad_image(&depth_key, i, format!("a {dw}x{dh} depth image")));
+                }
+                step.depth_m = mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
+            }
+            if layout.mask {
+                let (mw, mh, channels, ids) =
+                    decode_png(&mask[i]).map_err(|e| bad_image(&mask_key, i, e))?;
+                if (mw as usize, mh as usize, channels) != (w, h, 1) {
+                    return Err(bad_image(
+                        &mask_key,
+                        i,
+                        format!("a {mw}x{mh} mask with {channels} channels"),
+                    ));
+                }
+                step.mask = ids;
+            }
+            copy(&state[i * 7..(i + 1) * 7], &mut step.state);
+            copy(&action[i * 7..(i + 1) * 7], &mut step.action);
+            if layout.environment_state {
+                let n = MAX_OBJECTS * POSE_VALUES;
+                copy(
+                    &environment[i * n..(i + 1) * n],
+                    &mut step.environment_state,
+                );
+            }
+            Ok(step)
+        })
+        .collect::<Result<Vec<Step>, String>>()?;
+    let meta = EpisodeMeta {
+        index: fields.int("episode_metadata/episode_index")? as u64,
+        task_code: fields.text("episode_metadata/task_id")?,
+        task_name: fields.text("episode_metadata/task_name")?,
+        level: fields.int("episode_metadata/level")? as u8,
+        instruction,
+        seed: fields.int("episode_metadata/seed")? as u64,
+        attempts: fields.int("episode_metadata/attempts")? as u32,
+        success: fields.int("episode_metadata/success")? == 1,
+    };
+    Ok(Episode { meta, steps })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    fn layout() -> StepLayout {
+        StepLayout {
+            keys: RldsKeys::default(),
+            width_px: 4,
+            height_px: 3,
+            depth: true,
+            mask: true,
+            environment_state: true,
+        }
+    }
+
+    /// A seeded episode of `steps` random steps (depth on whole millimetres, so it survives).
+    fn episode(seed: u64, steps: usize, success: bool) -> Episode {
+        let mut rng = SplitMix64::new(seed);
+        let mut byte = || (rng.next_u64() >> 56) as u8;
+        let steps = (0..steps)
+            .map(|i| Step {
+                rgb: (0..36).map(|_| byte()).collect(),
+                depth_m: (0..12)
+                    .map(|k| ((i * 12 + k) % 300) as f32 / 1000.0)
+                    .collect(),
+                mask: (0..12).map(|_| byte() % 5).collect(),
+                state: [i as f32, 0.5, -1.0, 0.1, 0.2, 0.3, 0.4],
+                action: [0.001, -0.002, 0.0, 0.0, 0.01, -0.01, (i % 2) as f32],
+                environment_state: [0.25; MAX_OBJECTS * POSE_VALUES],
+                extras: Default::default(),
+            })
+            .collect();
+        Episode {
+            meta: EpisodeMeta {
+                index: 3,
+                task_code: "T1-1".into(),
+                task_name: "gauze_pick".into(),
+                level: 1,
+                instruction: "pick up the gauze".into(),
+                seed: u64::MAX - seed,
+                attempts: 2,
+                success,
+            },
+            steps,
+        }
+    }
+
+    #[test]
+    fn seeded_episodes_round_trip_through_an_example() {
+        for seed in 0..6u64 {
+            let original = episode(seed, 1 + (seed as usize) * 3, seed % 2 == 0);
+            let bytes = encode_episode(&layout(), &original, PngLevel::Fast).expect("encode");
+            let decoded = decode_episode(&layout(), &bytes).expect("decode");
+            assert_eq!(decoded, original, "seed {seed}");
+        }
+    }
+
+    #[test]
+    fn reward_and_terminal_mark_the_last_step_of_a_success_only() {
+        let keys = |success| {
+            let bytes =
+                encode_episode(&layout(), &episode(1, 3, success), PngLevel::Fast).expect("encode");
+            decode_example(&bytes).expect("decode")
+        };
+        let won = keys(true);
+        assert_eq!(won["steps/reward"], Feature::Float(vec![0.0, 0.0, 1.0]));
+        assert_eq!(won["steps/is_terminal"], Feature::Int64(vec![0, 0, 1]));
+        assert_eq!(won["steps/is_first"], Feature::Int64(vec![1, 0, 0]));
+        assert_eq!(
+            won["episode_metadata/file_path"],
+            text(&format!("T1-1/seed-{}", u64::MAX - 1))
+        );
+        let lost = keys(false);
+        assert_eq!(lost["steps/reward"], Feature::Float(vec![0.0; 3]));
+        assert_eq!(lost["steps/is_last"], Feature::Int64(vec![0, 0, 1]));
+        assert_eq!(lost["steps/is_terminal"], Feature::Int64(vec![0; 3]));
+    }
+
+    #[test]
+    fn depth_rounds_to_millimetres_and_saturates() {
+        assert_eq!(depth_to_mm(0.1234), 123);
+        assert_eq!(depth_to_mm(0.0), 0);
+        assert_eq!(depth_to_mm(f32::NAN), 0);
+        assert_eq!(depth_to_mm(100.0), u16::MAX);
+    }
+
+    #[test]
+    fn a_wrong_step_count_or_image_names_the_key() {
+        let bytes =
+            encode_episode(&layout(), &episode(2, 2, true), PngLevel::Fast).expect("encode");
+        let mut features = decode_example(&bytes).expect("decode");
+        features.insert("steps/action".into(), Feature::Float(vec![0.0; 13]));
+        let error = decode_episode(&layout(), &encode_example(&features)).unwrap_err();
+        assert!(error.contains("steps/action has 13 values"), "{error}");
+        let mut features = decode_example(&bytes).expect("decode");
+        let rgba = encode_png(4, 3, 4, &[0; 48], PngLevel::Fast).expect("png");
+        features.insert(
+            "steps/observation/image".into(),
+            Feature::Bytes(vec![rgba.clone(), rgba]),
+        );
+        let error = decode_episode(&layout(), &encode_example(&features)).unwrap_err();
+        assert!(error.contains("4 channels"), "{error}");
+    }
+}
