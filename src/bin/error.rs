@@ -87,6 +87,15 @@ impl From<surgvla::collect::run::CollectError> for CliError {
     }
 }
 
+impl From<surgvla::export::convert::ConvertError> for CliError {
+    fn from(error: surgvla::export::convert::ConvertError) -> Self {
+        let full = error.is_disk_full();
+        let mut cli = CliError::new(error.kind(), error);
+        cli.hint = full.then_some(DISK_FULL);
+        cli
+    }
+}
+
 impl From<surgvla::policy::PlanError> for CliError {
     fn from(error: surgvla::policy::PlanError) -> Self {
         CliError::new(error.kind(), error)

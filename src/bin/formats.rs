@@ -4,6 +4,7 @@
 use crate::error::CliError;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
+use surgvla::export::convert::ConvertError;
 use surgvla::export::image::PngLevel;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
 use surgvla::export::rlds::{RldsKeys, RldsOptions};
@@ -206,8 +207,7 @@ pub struct ConvertArgs {
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
 pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
-    let mut source = open_source(&args.input)
-        .map_err(|e| CliError::from(e).context(format!("reading {}", args.input.display())))?;
+    let mut source = open_source(&args.input).map_err(ConvertError::Read)?;
     let info = source.info().clone();
     let resuming = resumes(&args.out, args.resume);
     let mut sink = open_sink(&args.out, &info, &options, args.resume)?;
@@ -223,7 +223,9 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         bar.set_position(done)
     })
     .map_err(|e| {
-        let resumable = surgvla::export::DatasetDir::is_interrupted(&args.out);
+        // Resuming helps after a failed write, not after a damaged input.
+        let write = matches!(e, ConvertError::Write(_));
+        let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
         CliError::from(e).resumable(resumable)
     })?;
     bar.finish_and_clear();

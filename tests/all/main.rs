@@ -1,5 +1,5 @@
 //! The one integration test binary: kinematics, physics, grasping, determinism, tasks and
-//! experts, collection, the LeRobot exporter, rendering and the CLI.
+//! experts, collection, the LeRobot and RLDS formats, rendering and the CLI.
 
 mod cli;
 mod collect;
@@ -13,5 +13,6 @@ mod layers;
 mod lerobot;
 mod physics;
 mod render;
+mod rlds;
 mod tasks;
 mod util;

@@ -168,10 +168,6 @@ pub fn features_json(info: &DatasetInfo, options: &RldsOptions) -> Value {
         "task_id".into(),
         text("The benchmark's task id, e.g. T1-1."),
     );
-    metadata.insert(
-        "task_name".into(),
-        text("The task's name, e.g. gauze_pick."),
-    );
     metadata.insert("level".into(), scalar("int64", "The task's level, 1..3."));
     metadata.insert(
         "seed".into(),

@@ -174,7 +174,6 @@ pub fn encode_episode(
         Feature::Int64(vec![meta.index as i64]),
     );
     features.insert(metadata("task_id"), text(&meta.task_code));
-    features.insert(metadata("task_name"), text(&meta.task_name));
     features.insert(
         metadata("level"),
         Feature::Int64(vec![i64::from(meta.level)]),
@@ -365,7 +364,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     let meta = EpisodeMeta {
         index: fields.int("episode_metadata/episode_index")? as u64,
         task_code: fields.text("episode_metadata/task_id")?,
-        task_name: fields.text("episode_metadata/task_name")?,
+        task_name: String::new(),
         level: fields.int("episode_metadata/level")? as u8,
         instruction,
         seed: fields.int("episode_metadata/seed")? as u64,
@@ -412,7 +411,7 @@ mod tests {
             meta: EpisodeMeta {
                 index: 3,
                 task_code: "T1-1".into(),
-                task_name: "gauze_pick".into(),
+                task_name: String::new(),
                 level: 1,
                 instruction: "pick up the gauze".into(),
                 seed: u64::MAX - seed,

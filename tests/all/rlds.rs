@@ -1,0 +1,249 @@
+//! The RLDS format end to end through the CLI: `collect --format rlds` writes what `convert
+//! --to rlds` makes of the same LeRobot dataset, converting RLDS to RLDS changes nothing, format
+//! options are refused with the other format, and damaged shards are named. (The framing test
+//! vectors and the Example round trip are unit tests; tensorflow_datasets reads the output in
+//! `tests/interop/rlds/`.)
+
+use crate::util::{surgvla, temp_root, tree};
+use std::collections::BTreeMap;
+use std::path::Path;
+use surgvla::export::open_source;
+
+const VERSION_DIR: &str = "surgvla_benchmark/1.0.0";
+const SMALL: [&str; 4] = ["--tasks", "T1-1,T2-3", "--episodes-per-task", "2"];
+
+fn run_ok(args: &[&str]) -> String {
+    let (code, out, err) = surgvla(args);
+    assert_eq!(code, 0, "surgvla {args:?}: {err}");
+    out
+}
+
+fn collect(out: &Path, extra: &[&str]) {
+    let mut args = vec!["collect", "--out", path(out)];
+    args.extend(SMALL);
+    args.extend(extra);
+    run_ok(&args);
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// The dataset's files, without the run's report (its timings vary).
+fn dataset_files(root: &Path) -> BTreeMap<String, Vec<u8>> {
+    let mut files = tree(root);
+    files.remove("collect_report.json");
+    files
+}
+
+#[test]
+fn collect_rlds_writes_what_convert_makes_of_the_lerobot_dataset() {
+    let lerobot = temp_root("rlds-lerobot");
+    let direct = temp_root("rlds-direct");
+    let converted = temp_root("rlds-converted");
+    collect(&lerobot, &["--with-mask"]);
+    collect(&direct, &["--with-mask", "--format", "rlds"]);
+    let said = run_ok(&[
+        "convert",
+        path(&lerobot),
+        "--to",
+        "rlds",
+        "--out",
+        path(&converted),
+    ]);
+    assert!(said.contains("converted 4 episodes"), "{said}");
+    let direct_files = dataset_files(&direct);
+    let names: Vec<&String> = direct_files.keys().collect();
+    assert_eq!(
+        names,
+        [
+            "OPENVLA.md",
+            "surgvla_benchmark/1.0.0/dataset_info.json",
+            "surgvla_benchmark/1.0.0/features.json",
+            "surgvla_benchmark/1.0.0/surgvla.json",
+            "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00000-of-00001",
+            "surgvla_manifest.json",
+        ]
+    );
+    assert!(
+        direct_files == dataset_files(&converted),
+        "collect --format rlds and convert --to rlds differ"
+    );
+
+    // RLDS -> RLDS changes nothing (depth in millimetres survives the trip through metres).
+    let again = temp_root("rlds-again");
+    run_ok(&[
+        "convert",
+        path(&direct),
+        "--to",
+        "rlds",
+        "--out",
+        path(&again),
+    ]);
+    assert!(
+        dataset_files(&again) == direct_files,
+        "rlds -> rlds differs"
+    );
+
+    // RLDS -> LeRobot keeps every episode and its provenance.
+    let back = temp_root("rlds-back");
+    run_ok(&[
+        "convert",
+        &format!("{}/{VERSION_DIR}", path(&direct)),
+        "--to",
+        "lerobot",
+        "--out",
+        path(&back),
+    ]);
+    let mut original = open_source(&lerobot).expect("lerobot");
+    let mut returned = open_source(&back).expect("lerobot from rlds");
+    assert_eq!(returned.len(), original.len());
+    assert_eq!(returned.info().features, original.info().features);
+    while let Some(episode) = original.next_episode() {
+        let (a, b) = (
+            episode.expect("read"),
+            returned.next_episode().expect("one").expect("read"),
+        );
+        assert_eq!(
+            (
+                a.meta.seed,
+                &a.meta.task_code,
+                a.meta.success,
+                &a.meta.instruction
+            ),
+            (
+                b.meta.seed,
+                &b.meta.task_code,
+                b.meta.success,
+                &b.meta.instruction
+            )
+        );
+        assert_eq!(a.steps.len(), b.steps.len());
+        assert!(
+            a.steps
+                .iter()
+                .zip(&b.steps)
+                .all(|(x, y)| x.rgb == y.rgb && x.mask == y.mask && x.action == y.action)
+        );
+    }
+}
+
+#[test]
+fn format_options_are_refused_with_the_other_format() {
+    let out = temp_root("rlds-refused");
+    for (args, named) in [
+        (vec!["--format", "rlds", "--video"], "--video"),
+        (
+            vec!["--format", "rlds", "--lerobot-version", "2.1"],
+            "--lerobot-version",
+        ),
+        (vec!["--rlds-name", "mine"], "--rlds-name"),
+        (
+            vec!["--format", "rlds", "--rlds-name", "Not-Snake"],
+            "snake_case",
+        ),
+        (vec!["--format", "rlds", "--rlds-version", "1.0"], "x.y.z"),
+        (
+            vec!["--format", "rlds", "--rlds-image-key", "state"],
+            "given twice",
+        ),
+    ] {
+        let mut all = vec!["collect", "--out", path(&out)];
+        all.extend(SMALL);
+        all.extend(&args);
+        let (code, _, err) = surgvla(&all);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(named), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} touched the output");
+    }
+    let (code, _, err) = surgvla(&[
+        "convert",
+        "/no/such/dataset",
+        "--to",
+        "rlds",
+        "--out",
+        path(&out),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("/no/such/dataset") && err.contains("does not exist"),
+        "{err}"
+    );
+}
+
+#[test]
+fn damaged_shards_are_named_and_exit_1() {
+    let good = temp_root("rlds-good");
+    collect(&good, &["--format", "rlds", "--rlds-shard-mb", "1"]);
+    let shards: Vec<String> = dataset_files(&good)
+        .into_keys()
+        .filter(|name| name.contains(".tfrecord-"))
+        .collect();
+    assert!(shards.len() >= 2, "{shards:?}");
+    /// (what, how the first shard is harmed, what the error says).
+    type Damage<'a> = (&'a str, &'a dyn Fn(&Path), &'a str);
+    let damage: [Damage; 4] = [
+        (
+            "a flipped byte",
+            &|shard| {
+                let mut bytes = std::fs::read(shard).expect("read");
+                let middle = bytes.len() / 2;
+                bytes[middle] ^= 0x40;
+                std::fs::write(shard, bytes).expect("write");
+            },
+            "CRC",
+        ),
+        (
+            "a truncated shard",
+            &|shard| {
+                let bytes = std::fs::read(shard).expect("read");
+                std::fs::write(shard, &bytes[..bytes.len() - 100]).expect("write");
+            },
+            "truncated",
+        ),
+        (
+            "a missing shard",
+            &|shard| std::fs::remove_file(shard).expect("remove"),
+            "is missing",
+        ),
+        (
+            "a wrong shardLengths",
+            &|shard| {
+                let info = shard.with_file_name("dataset_info.json");
+                let text = std::fs::read_to_string(&info).expect("read");
+                let mut json: serde_json::Value = serde_json::from_str(&text).expect("json");
+                let first = &mut json["splits"][0]["shardLengths"][0];
+                let count: u64 = first.as_str().expect("a count").parse().expect("number");
+                *first = (count + 1).to_string().into();
+                std::fs::write(&info, json.to_string()).expect("write");
+            },
+            "shardLengths",
+        ),
+    ];
+    for (what, harm, said) in damage {
+        let broken = temp_root("rlds-broken");
+        for (name, bytes) in tree(&good) {
+            let target = broken.join(&name);
+            std::fs::create_dir_all(target.parent().expect("parent")).expect("dir");
+            std::fs::write(target, bytes).expect("copy");
+        }
+        let shard = broken.join(&shards[0]);
+        harm(&shard);
+        let out = temp_root("rlds-broken-out");
+        let (code, _, err) = surgvla(&[
+            "convert",
+            path(&broken),
+            "--to",
+            "lerobot",
+            "--out",
+            path(&out),
+        ]);
+        assert_eq!(code, 1, "{what}: {err}");
+        let named = shard.display().to_string();
+        assert!(err.contains(&named) && err.contains(said), "{what}: {err}");
+        assert!(
+            err.contains("reading the input dataset") && !err.contains("--resume"),
+            "{what}: a damaged input is not resumable: {err}"
+        );
+    }
+}

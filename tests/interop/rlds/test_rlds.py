@@ -1,0 +1,216 @@
+"""surgvla's RLDS datasets, read by the real tensorflow_datasets (and OpenVLA's standardisation).
+
+.ci/run writes, from the same options and seed:
+- SURGVLA_LEROBOT_DATASET: a LeRobot dataset (`collect`, with the mask), the reference values;
+- SURGVLA_RLDS_DATASET: `collect --format rlds --rlds-shard-mb 1` (several shards);
+- SURGVLA_RLDS_CONVERTED: `convert <the LeRobot dataset> --to rlds`.
+
+Expected values are read independently of surgvla: the LeRobot parquet with pyarrow, its PNG
+with TensorFlow and its float TIFF depth with Pillow. The RLDS side is read only through
+tensorflow_datasets.
+"""
+
+import io
+import json
+import os
+import re
+from pathlib import Path
+from typing import Any, Dict
+
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+import numpy as np  # noqa: E402
+import pyarrow.parquet as pq  # noqa: E402
+import pytest  # noqa: E402
+import tensorflow as tf  # noqa: E402
+import tensorflow_datasets as tfds  # noqa: E402
+from PIL import Image  # noqa: E402
+
+LEROBOT = Path(os.environ.get("SURGVLA_LEROBOT_DATASET", "")).resolve()
+RLDS = Path(os.environ.get("SURGVLA_RLDS_DATASET", "")).resolve()
+CONVERTED = Path(os.environ.get("SURGVLA_RLDS_CONVERTED", "")).resolve()
+NAME, VERSION = "surgvla_benchmark", "1.0.0"
+
+
+def steps_of(episode):
+    """An episode's steps as numpy, stacked per key (decoded images included)."""
+    steps = list(episode["steps"].as_numpy_iterator())
+    return steps
+
+
+@pytest.fixture(scope="module")
+def builder():
+    return tfds.builder_from_directory(str(RLDS / NAME / VERSION))
+
+
+@pytest.fixture(scope="module")
+def episodes(builder):
+    """Every episode through tfds: (metadata, steps), decoded."""
+    out = []
+    for episode in builder.as_dataset(split="train"):
+        metadata = {k: v.numpy() for k, v in episode["episode_metadata"].items()}
+        out.append((metadata, steps_of(episode)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference():
+    """The LeRobot dataset's frames by episode, straight from its parquet files."""
+    rows = []
+    for path in sorted((LEROBOT / "data").glob("*/*.parquet")):
+        rows.extend(pq.read_table(path).to_pylist())
+    tasks = pq.read_table(LEROBOT / "meta" / "tasks.parquet").to_pylist()
+    instruction = {t["task_index"]: t["task"] for t in tasks}
+    episodes = {}
+    for row in rows:
+        episodes.setdefault(row["episode_index"], []).append(row)
+    meta = pq.read_table(LEROBOT / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()
+    return episodes, instruction, meta
+
+
+def test_dataset_info_and_shards(builder):
+    info = builder.info
+    assert info.name == NAME
+    assert str(info.version) == VERSION
+    shards = sorted((RLDS / NAME / VERSION).glob(f"{NAME}-train.tfrecord-*"))
+    assert len(shards) >= 2, "the CI dataset rolls shards at 1 MB"
+    assert all(re.fullmatch(rf"{NAME}-train\.tfrecord-\d{{5}}-of-{len(shards):05d}", s.name) for s in shards)
+    assert info.splits["train"].num_shards == len(shards)
+    assert info.splits["train"].num_examples == sum(info.splits["train"].shard_lengths)
+    observation = info.features["steps"]["observation"]
+    assert observation["image"].shape == (224, 224, 3) and observation["image"].dtype == tf.uint8
+    assert observation["depth"].shape == (224, 224, 1) and observation["depth"].dtype == tf.uint16
+    assert "millimetres" in observation["depth"].doc.desc
+    assert observation["mask"].shape == (224, 224, 1)
+    assert observation["state"].shape == (7,)
+    assert info.features["steps"]["action"].shape == (7,)
+
+
+def test_tfds_builder_by_name_finds_the_same_dataset(builder):
+    by_name = tfds.builder(NAME, data_dir=str(RLDS))
+    assert by_name.info.splits["train"].num_examples == builder.info.splits["train"].num_examples
+    first = next(iter(by_name.as_dataset(split="train[:1]")))
+    assert first["episode_metadata"]["episode_index"].numpy() == 0
+
+
+def test_every_step_matches_what_was_written(episodes, reference):
+    by_episode, instruction, meta = reference
+    assert len(episodes) == len(by_episode) == len(meta)
+    for index, (metadata, steps) in enumerate(episodes):
+        rows = by_episode[index]
+        assert metadata["episode_index"] == index
+        assert len(steps) == len(rows)
+        provenance = meta[index]
+        assert metadata["task_id"].decode() == provenance["surgvla/task_id"]
+        assert metadata["level"] == provenance["surgvla/level"]
+        assert int(metadata["seed"]) == provenance["surgvla/seed"] % (1 << 64)
+        assert bool(metadata["success"]) == provenance["surgvla/success"]
+        assert metadata["file_path"].decode() == f"{provenance['surgvla/task_id']}/seed-{int(metadata['seed'])}"
+        for t, (step, row) in enumerate(zip(steps, rows)):
+            rgb = tf.io.decode_png(row["observation.images.endoscope"]["bytes"]).numpy()
+            np.testing.assert_array_equal(step["observation"]["image"], rgb)
+            depth_m = np.asarray(Image.open(io.BytesIO(row["observation.images.depth"]["bytes"])), dtype=np.float32)
+            expected_mm = np.rint(depth_m.astype(np.float64) * 1000.0).astype(np.uint16)
+            np.testing.assert_array_equal(step["observation"]["depth"][..., 0], expected_mm)
+            mask = tf.io.decode_png(row["observation.images.mask"]["bytes"]).numpy()
+            np.testing.assert_array_equal(step["observation"]["mask"], mask)
+            np.testing.assert_array_equal(step["observation"]["state"], np.float32(row["observation.state"]))
+            np.testing.assert_array_equal(step["action"], np.float32(row["action"]))
+            np.testing.assert_array_equal(
+                step["observation"]["environment_state"], np.float32(row["observation.environment_state"])
+            )
+            assert step["language_instruction"].decode() == instruction[row["task_index"]]
+            last = t == len(rows) - 1
+            assert step["is_first"] == (t == 0) and step["is_last"] == last
+            assert step["is_terminal"] == (last and bool(metadata["success"]))
+            assert step["reward"] == (1.0 if last and metadata["success"] else 0.0)
+            assert step["discount"] == 1.0
+            assert step["action"][6] in (0.0, 1.0)
+
+
+def test_collect_and_convert_give_the_same_episodes(episodes):
+    converted = tfds.builder_from_directory(str(CONVERTED / NAME / VERSION))
+    assert converted.info.features.to_json() == tfds.builder_from_directory(str(RLDS / NAME / VERSION)).info.features.to_json()
+    count = 0
+    for (metadata, steps), episode in zip(episodes, converted.as_dataset(split="train")):
+        assert {k: v.numpy() for k, v in episode["episode_metadata"].items()} == metadata
+        for a, b in zip(steps, steps_of(episode)):
+            tf.nest.map_structure(np.testing.assert_array_equal, a, b)
+        count += 1
+    assert count == len(episodes)
+
+
+def openvla_snippets():
+    """The Python blocks of OPENVLA.md: the config entry and the standardize transform."""
+    text = (RLDS / "OPENVLA.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert len(blocks) == 2, "OPENVLA.md has the config entry and the transform"
+    return blocks
+
+
+class StateEncoding:
+    POS_EULER = 1
+
+
+class ActionEncoding:
+    EEF_POS = 1
+
+
+def test_openvla_standardisation_yields_what_openvla_expects():
+    config_block, transform_block = openvla_snippets()
+    namespace = {
+        "OXE_DATASET_CONFIGS": {},
+        "OXE_STANDARDIZATION_TRANSFORMS": {},
+        "StateEncoding": StateEncoding,
+        "ActionEncoding": ActionEncoding,
+        "Dict": Dict,
+        "Any": Any,
+        "tf": tf,
+    }
+    exec(config_block, namespace)
+    exec(transform_block, namespace)
+    config = namespace["OXE_DATASET_CONFIGS"][NAME]
+    standardize = namespace["OXE_STANDARDIZATION_TRANSFORMS"][NAME]
+
+    # What OpenVLA does (prismatic/vla/datasets/rlds/dataset.py, dlimp's from_rlds): read with
+    # tfds.builder(name, data_dir), keep the steps encoded, broadcast the metadata.
+    builder = tfds.builder(NAME, data_dir=str(RLDS))
+    dataset = builder.as_dataset(split="train[:95%]", decoders={"steps": tfds.decode.SkipDecoding()})
+
+    def broadcast(i, traj):
+        steps = traj.pop("steps")
+        length = tf.shape(tf.nest.flatten(steps)[0])[0]
+        metadata = tf.nest.map_structure(lambda x: tf.repeat(x, length), traj)
+        return {**steps, "traj_metadata": metadata, "_len": tf.repeat(length, length), "_traj_index": tf.repeat(i, length)}
+
+    def restructure(traj):
+        traj = standardize(traj)
+        length = tf.shape(traj["action"])[0]
+        old = traj["observation"]
+        image_key = config["image_obs_keys"]["primary"]
+        proprio = tf.concat(
+            [tf.zeros((length, 1), tf.float32) if k is None else tf.cast(old[k], tf.float32) for k in config["state_obs_keys"]],
+            axis=1,
+        )
+        return {
+            "observation": {"image_primary": old[image_key], "proprio": proprio},
+            "task": {"language_instruction": traj["language_instruction"]},
+            "action": tf.cast(traj["action"], tf.float32),
+        }
+
+    trajectories = list(dataset.enumerate().map(broadcast).map(restructure).as_numpy_iterator())
+    assert len(trajectories) >= 1
+    for traj in trajectories:
+        length = traj["action"].shape[0]
+        assert traj["action"].shape == (length, 7) and traj["action"].dtype == np.float32
+        assert set(np.unique(traj["action"][:, 6])) <= {0.0, 1.0}, "absolute gripper, 1 open / 0 closed"
+        # POS_EULER: EEF xyz + rpy (6), a pad (1), the gripper state (1).
+        assert traj["observation"]["proprio"].shape == (length, 8)
+        assert traj["task"]["language_instruction"].shape == (length,)
+        assert all(s for s in traj["task"]["language_instruction"])
+        image = tf.io.decode_image(traj["observation"]["image_primary"][0], expand_animations=False).numpy()
+        assert image.shape == (224, 224, 3) and image.dtype == np.uint8
+    # BOUNDS_Q99 needs spread in each delta over the dataset.
+    actions = np.concatenate([t["action"] for t in trajectories])
+    q01, q99 = np.quantile(actions[:, :6], [0.01, 0.99], axis=0)
+    assert np.all(q99[:3] > q01[:3]), "translation deltas vary"
