@@ -5,10 +5,15 @@
 #
 #   scripts/bench_pipeline.sh [episodes-per-task] [threads]
 #   scripts/bench_pipeline.sh memory [threads]
+#   scripts/bench_pipeline.sh rlds [threads]
 #
 # Default: 8 tasks x 100 episodes on all cores. `memory`: peak RSS of the default collection at
 # about 100 and 1,000 episodes (8 tasks x 13 and x 125), which must not grow with the number of
-# episodes. Figures go to BENCHMARKS.md by hand.
+# episodes. `rlds`: `convert --to rlds` of the default 800-episode dataset and of a 104-episode
+# one (wall time, peak RSS flat in the number of episodes), then `collect --format rlds` of the
+# default dataset; with SURGVLA_RLDS_PYTHON (the RLDS interop venv's python) tensorflow_datasets
+# then reads all 800 episodes, compares every step with the LeRobot dataset and the collected RLDS
+# with the converted one (tests/interop/rlds). Figures go to BENCHMARKS.md by hand.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked --quiet
@@ -26,7 +31,31 @@ measure() {
     rm -rf "${work}/dataset"
 }
 
-if [ "${1:-}" = memory ]; then
+# Runs one command under /usr/bin/time; prints its last line, wall, CPU and peak RSS.
+timed() {
+    /usr/bin/time -v "$@" >"${work}/stdout" 2>"${work}/time"
+    tail -n 1 "${work}/stdout"
+    grep -E "Elapsed \(wall clock\)|User time|System time|Maximum resident set size" "${work}/time"
+}
+
+if [ "${1:-}" = rlds ]; then
+    threads="${2:-$(nproc)}"
+    surgvla=./target/release/surgvla
+    for episodes in 13 100; do
+        echo "== convert --to rlds: 8 tasks x ${episodes} episodes, ${threads} threads"
+        "${surgvla}" collect --episodes-per-task "${episodes}" --threads "${threads}" --out "${work}/lerobot-${episodes}" | tail -n 1
+        timed "${surgvla}" convert "${work}/lerobot-${episodes}" --to rlds --threads "${threads}" --out "${work}/rlds-${episodes}"
+        du -sh "${work}/rlds-${episodes}"
+    done
+    echo "== collect --format rlds: 8 tasks x 100 episodes, ${threads} threads"
+    timed "${surgvla}" collect --threads "${threads}" --format rlds --out "${work}/rlds-collected"
+    if [ -n "${SURGVLA_RLDS_PYTHON:-}" ]; then
+        echo "== tensorflow_datasets reads the 800 episodes and compares every step"
+        SURGVLA_LEROBOT_DATASET="${work}/lerobot-100" SURGVLA_RLDS_DATASET="${work}/rlds-100" \
+            SURGVLA_RLDS_CONVERTED="${work}/rlds-collected" \
+            "${SURGVLA_RLDS_PYTHON}" -m pytest -q -p no:cacheprovider tests/interop/rlds
+    fi
+elif [ "${1:-}" = memory ]; then
     threads="${2:-$(nproc)}"
     for episodes in 13 125; do
         echo "== 8 tasks x ${episodes} episodes, ${threads} threads"

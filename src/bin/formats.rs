@@ -200,6 +200,9 @@ pub struct ConvertArgs {
     /// Continue an interrupted conversion into --out (same input and options).
     #[arg(long)]
     resume: bool,
+    /// Worker threads encoding episodes (default: all cores).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    threads: Option<u64>,
     #[command(flatten)]
     formats: FormatArgs,
 }
@@ -219,15 +222,17 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         );
     }
     let bar = crate::progress::episode_bar(source.len(), "converting");
-    let summary = surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), &mut |done| {
-        bar.set_position(done)
-    })
-    .map_err(|e| {
-        // Resuming helps after a failed write, not after a damaged input.
-        let write = matches!(e, ConvertError::Write(_));
-        let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
-        CliError::from(e).resumable(resumable)
-    })?;
+    let threads = args.threads.unwrap_or(0) as usize;
+    let summary =
+        surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), threads, &mut |done| {
+            bar.set_position(done)
+        })
+        .map_err(|e| {
+            // Resuming helps after a failed write, not after a damaged input.
+            let write = matches!(e, ConvertError::Write(_));
+            let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
+            CliError::from(e).resumable(resumable)
+        })?;
     bar.finish_and_clear();
     say!(
         "converted {} episodes, {} frames from {} to {} ({} files, {:.1} MB)",

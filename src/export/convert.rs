@@ -31,12 +31,27 @@ impl ConvertError {
     }
 }
 
-/// Copies every episode of `source` into `sink` and finishes it; `progress` is told the
-/// number of episodes done after each batch.
+/// Copies every episode of `source` into `sink` on `threads` worker threads (0: one per core)
+/// and finishes it; `progress` is told the number of episodes done after each batch.
 pub fn convert(
-    source: &mut dyn EpisodeSource,
-    sink: &mut dyn EpisodeSink,
-    progress: &mut dyn FnMut(u64),
+    source: &mut (dyn EpisodeSource + Send),
+    sink: &mut (dyn EpisodeSink + Send),
+    threads: usize,
+    progress: &mut (dyn FnMut(u64) + Send),
+) -> Result<Summary, ConvertError> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| {
+            ConvertError::Write(ExportError::Internal(format!("no worker threads: {e}")))
+        })?;
+    pool.install(|| copy(source, sink, progress))
+}
+
+fn copy(
+    source: &mut (dyn EpisodeSource + Send),
+    sink: &mut (dyn EpisodeSink + Send),
+    progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<Summary, ConvertError> {
     let skip = sink.next_episode_index();
     let batch_size = rayon::current_num_threads().max(1);

@@ -11,7 +11,6 @@ tensorflow_datasets.
 """
 
 import io
-import json
 import os
 import re
 from pathlib import Path
@@ -33,39 +32,39 @@ NAME, VERSION = "surgvla_benchmark", "1.0.0"
 
 
 def steps_of(episode):
-    """An episode's steps as numpy, stacked per key (decoded images included)."""
-    steps = list(episode["steps"].as_numpy_iterator())
-    return steps
+    """An episode's steps as numpy (decoded images included)."""
+    return list(episode["steps"].as_numpy_iterator())
+
+
+def tfds_episodes(path):
+    """Every episode of the RLDS dataset at `path` through tfds, one at a time: (metadata, steps)."""
+    for episode in tfds.builder_from_directory(str(path / NAME / VERSION)).as_dataset(split="train"):
+        yield {k: v.numpy() for k, v in episode["episode_metadata"].items()}, steps_of(episode)
+
+
+def lerobot_episodes():
+    """The LeRobot dataset's frames, episode by episode, straight from its parquet files:
+    (episode metadata row, frame rows, instruction by task index). Streams: the full dataset
+    does not fit in memory."""
+    tasks = pq.read_table(LEROBOT / "meta" / "tasks.parquet").to_pylist()
+    instruction = {t["task_index"]: t["task"] for t in tasks}
+    meta = pq.read_table(LEROBOT / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()
+    current, rows = None, []
+    for path in sorted((LEROBOT / "data").glob("*/*.parquet")):
+        for batch in pq.ParquetFile(path).iter_batches(batch_size=64):
+            for row in batch.to_pylist():
+                if current is not None and row["episode_index"] != current:
+                    yield meta[current], rows, instruction
+                    rows = []
+                current = row["episode_index"]
+                rows.append(row)
+    if rows:
+        yield meta[current], rows, instruction
 
 
 @pytest.fixture(scope="module")
 def builder():
     return tfds.builder_from_directory(str(RLDS / NAME / VERSION))
-
-
-@pytest.fixture(scope="module")
-def episodes(builder):
-    """Every episode through tfds: (metadata, steps), decoded."""
-    out = []
-    for episode in builder.as_dataset(split="train"):
-        metadata = {k: v.numpy() for k, v in episode["episode_metadata"].items()}
-        out.append((metadata, steps_of(episode)))
-    return out
-
-
-@pytest.fixture(scope="module")
-def reference():
-    """The LeRobot dataset's frames by episode, straight from its parquet files."""
-    rows = []
-    for path in sorted((LEROBOT / "data").glob("*/*.parquet")):
-        rows.extend(pq.read_table(path).to_pylist())
-    tasks = pq.read_table(LEROBOT / "meta" / "tasks.parquet").to_pylist()
-    instruction = {t["task_index"]: t["task"] for t in tasks}
-    episodes = {}
-    for row in rows:
-        episodes.setdefault(row["episode_index"], []).append(row)
-    meta = pq.read_table(LEROBOT / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()
-    return episodes, instruction, meta
 
 
 def test_dataset_info_and_shards(builder):
@@ -93,14 +92,14 @@ def test_tfds_builder_by_name_finds_the_same_dataset(builder):
     assert first["episode_metadata"]["episode_index"].numpy() == 0
 
 
-def test_every_step_matches_what_was_written(episodes, reference):
-    by_episode, instruction, meta = reference
-    assert len(episodes) == len(by_episode) == len(meta)
-    for index, (metadata, steps) in enumerate(episodes):
-        rows = by_episode[index]
+def test_every_step_matches_what_was_written(builder):
+    count = 0
+    for index, ((metadata, steps), (provenance, rows, instruction)) in enumerate(
+        zip(tfds_episodes(RLDS), lerobot_episodes(), strict=True)
+    ):
+        count += 1
         assert metadata["episode_index"] == index
         assert len(steps) == len(rows)
-        provenance = meta[index]
         assert metadata["task_id"].decode() == provenance["surgvla/task_id"]
         assert metadata["level"] == provenance["surgvla/level"]
         assert int(metadata["seed"]) == provenance["surgvla/seed"] % (1 << 64)
@@ -112,8 +111,9 @@ def test_every_step_matches_what_was_written(episodes, reference):
             depth_m = np.asarray(Image.open(io.BytesIO(row["observation.images.depth"]["bytes"])), dtype=np.float32)
             expected_mm = np.rint(depth_m.astype(np.float64) * 1000.0).astype(np.uint16)
             np.testing.assert_array_equal(step["observation"]["depth"][..., 0], expected_mm)
-            mask = tf.io.decode_png(row["observation.images.mask"]["bytes"]).numpy()
-            np.testing.assert_array_equal(step["observation"]["mask"], mask)
+            if "observation.images.mask" in row:
+                mask = tf.io.decode_png(row["observation.images.mask"]["bytes"]).numpy()
+                np.testing.assert_array_equal(step["observation"]["mask"], mask)
             np.testing.assert_array_equal(step["observation"]["state"], np.float32(row["observation.state"]))
             np.testing.assert_array_equal(step["action"], np.float32(row["action"]))
             np.testing.assert_array_equal(
@@ -126,18 +126,22 @@ def test_every_step_matches_what_was_written(episodes, reference):
             assert step["reward"] == (1.0 if last and metadata["success"] else 0.0)
             assert step["discount"] == 1.0
             assert step["action"][6] in (0.0, 1.0)
+    assert count == builder.info.splits["train"].num_examples
 
 
-def test_collect_and_convert_give_the_same_episodes(episodes):
+def test_collect_and_convert_give_the_same_episodes(builder):
     converted = tfds.builder_from_directory(str(CONVERTED / NAME / VERSION))
-    assert converted.info.features.to_json() == tfds.builder_from_directory(str(RLDS / NAME / VERSION)).info.features.to_json()
+    assert converted.info.features.to_json() == builder.info.features.to_json()
     count = 0
-    for (metadata, steps), episode in zip(episodes, converted.as_dataset(split="train")):
-        assert {k: v.numpy() for k, v in episode["episode_metadata"].items()} == metadata
-        for a, b in zip(steps, steps_of(episode)):
+    for (metadata, steps), (other_metadata, other_steps) in zip(
+        tfds_episodes(RLDS), tfds_episodes(CONVERTED), strict=True
+    ):
+        assert other_metadata == metadata
+        assert len(steps) == len(other_steps)
+        for a, b in zip(steps, other_steps):
             tf.nest.map_structure(np.testing.assert_array_equal, a, b)
         count += 1
-    assert count == len(episodes)
+    assert count == builder.info.splits["train"].num_examples
 
 
 def openvla_snippets():
@@ -198,9 +202,8 @@ def test_openvla_standardisation_yields_what_openvla_expects():
             "action": tf.cast(traj["action"], tf.float32),
         }
 
-    trajectories = list(dataset.enumerate().map(broadcast).map(restructure).as_numpy_iterator())
-    assert len(trajectories) >= 1
-    for traj in trajectories:
+    actions = []
+    for traj in dataset.enumerate().map(broadcast).map(restructure).as_numpy_iterator():
         length = traj["action"].shape[0]
         assert traj["action"].shape == (length, 7) and traj["action"].dtype == np.float32
         assert set(np.unique(traj["action"][:, 6])) <= {0.0, 1.0}, "absolute gripper, 1 open / 0 closed"
@@ -210,7 +213,9 @@ def test_openvla_standardisation_yields_what_openvla_expects():
         assert all(s for s in traj["task"]["language_instruction"])
         image = tf.io.decode_image(traj["observation"]["image_primary"][0], expand_animations=False).numpy()
         assert image.shape == (224, 224, 3) and image.dtype == np.uint8
+        actions.append(traj["action"])
+    assert actions, "OpenVLA's train[:95%] split holds episodes"
     # BOUNDS_Q99 needs spread in each delta over the dataset.
-    actions = np.concatenate([t["action"] for t in trajectories])
+    actions = np.concatenate(actions)
     q01, q99 = np.quantile(actions[:, :6], [0.01, 0.99], axis=0)
     assert np.all(q99[:3] > q01[:3]), "translation deltas vary"
