@@ -58,11 +58,15 @@ enum Command {
     /// Measure the experts' success rates as `collect` would run them (same attempts and replay
     /// check) without rendering or writing: the quick check of a new or edited plan.
     Experts(episodes::ExpertsArgs),
-    /// Print the LeRobot features schema (what schemas/lerobot_features.json records).
+    /// Print a format's features schema (what schemas/lerobot_features.json and
+    /// schemas/rlds_features.json record).
     Schema {
         /// Include the segmentation mask feature.
         #[arg(long)]
         with_mask: bool,
+        /// The format: lerobot (info.json's features) or rlds (features.json).
+        #[arg(long, value_enum, default_value = "lerobot")]
+        format: formats::Format,
     },
     /// List the tasks: id, level, name, step limit, canonical instruction and paraphrases.
     Tasks,
@@ -311,7 +315,7 @@ fn main() -> ExitCode {
         Command::Collect(args) => episodes::run_collect(&args),
         Command::Convert(args) => formats::run_convert(&args),
         Command::Experts(args) => episodes::run_experts(&args),
-        Command::Schema { with_mask } => run_schema(with_mask),
+        Command::Schema { with_mask, format } => run_schema(with_mask, format),
         Command::Tasks => run_tasks(),
     };
     match result {
@@ -324,13 +328,24 @@ fn main() -> ExitCode {
     }
 }
 
-fn run_schema(with_mask: bool) -> Result<(), CliError> {
+fn run_schema(with_mask: bool, format: formats::Format) -> Result<(), CliError> {
     let set = surgvla::episode::FeatureSet {
         mask: with_mask,
         ..Default::default()
     };
-    let features = surgvla::episode::standard_features(224, 224, set);
-    let json = surgvla::export::lerobot::features_json(&features);
+    let json = match format {
+        formats::Format::Lerobot => {
+            let features = surgvla::episode::standard_features(224, 224, set);
+            surgvla::export::lerobot::features_json(&features)
+        }
+        formats::Format::Rlds => {
+            let options = surgvla::collect::run::CollectOptions::default();
+            let info =
+                surgvla::collect::run::dataset_info(&options, set, &ExpertLibrary::builtin()?);
+            let rlds = surgvla::export::rlds::RldsOptions::default();
+            surgvla::export::rlds::features::features_json(&info, &rlds)
+        }
+    };
     say!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())
 }

@@ -82,8 +82,8 @@ pub fn encode_png16(
     )
 }
 
-/// Decodes a 16-bit grey PNG: (width, height, row-major values).
-pub fn decode_png16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), String> {
+/// Decodes any PNG into its frame info and its samples as stored (16-bit ones big-endian).
+fn decode_png_raw(bytes: &[u8]) -> Result<(png::OutputInfo, Vec<u8>), String> {
     let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
     let size = reader
@@ -91,13 +91,19 @@ pub fn decode_png16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), String> {
         .ok_or_else(|| "the PNG is too large".to_string())?;
     let mut buffer = vec![0; size];
     let info = reader.next_frame(&mut buffer).map_err(|e| e.to_string())?;
+    buffer.truncate(info.buffer_size());
+    Ok((info, buffer))
+}
+
+/// Decodes a 16-bit grey PNG: (width, height, row-major values).
+pub fn decode_png16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), String> {
+    let (info, buffer) = decode_png_raw(bytes)?;
     if info.bit_depth != png::BitDepth::Sixteen || info.color_type != png::ColorType::Grayscale {
         return Err(format!(
             "a {:?}-bit {:?} PNG where 16-bit grey was expected",
             info.bit_depth, info.color_type
         ));
     }
-    buffer.truncate(info.buffer_size());
     let values = buffer
         .chunks_exact(2)
         .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
@@ -110,20 +116,13 @@ pub type DecodedPng = (u32, u32, usize, Vec<u8>);
 
 /// Decodes an 8-bit grey, RGB or RGBA PNG.
 pub fn decode_png(bytes: &[u8]) -> Result<DecodedPng, String> {
-    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
-    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
-    let size = reader
-        .output_buffer_size()
-        .ok_or_else(|| "the PNG is too large".to_string())?;
-    let mut buffer = vec![0; size];
-    let info = reader.next_frame(&mut buffer).map_err(|e| e.to_string())?;
+    let (info, buffer) = decode_png_raw(bytes)?;
     if info.bit_depth != png::BitDepth::Eight {
         return Err(format!(
             "a {:?}-bit PNG where 8 bits were expected",
             info.bit_depth
         ));
     }
-    buffer.truncate(info.buffer_size());
     let channels = info.color_type.samples();
     Ok((info.width, info.height, channels, buffer))
 }

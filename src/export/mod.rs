@@ -238,6 +238,20 @@ pub trait EpisodeSink {
     fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError>;
 }
 
+/// [`EpisodeSink::finish_with`]'s "safe twice" for every format: runs `finish` the first time
+/// and remembers its summary in `finished`; later calls return that summary and do nothing.
+pub(crate) fn finish_once(
+    finished: &mut Option<Summary>,
+    finish: impl FnOnce() -> Result<Summary, ExportError>,
+) -> Result<Summary, ExportError> {
+    if let Some(summary) = finished {
+        return Ok(summary.clone());
+    }
+    let summary = finish()?;
+    *finished = Some(summary.clone());
+    Ok(summary)
+}
+
 /// Makes a file to write beside a finished dataset from its summary: (relative path, bytes).
 pub type Sidecar<'a> = &'a mut dyn FnMut(&Summary) -> Result<(String, Vec<u8>), ExportError>;
 

@@ -247,3 +247,18 @@ fn damaged_shards_are_named_and_exit_1() {
         );
     }
 }
+
+/// The committed RLDS feature tree is what the writer declares. After an intended change,
+/// regenerate with `cargo run --release -- schema --format rlds --with-mask >
+/// schemas/rlds_features.json`.
+#[test]
+fn rlds_schema_snapshot_matches_the_features() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas/rlds_features.json");
+    let committed: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).expect("schema file")).expect("json");
+    let options = surgvla::export::rlds::RldsOptions::default();
+    assert_eq!(
+        committed,
+        surgvla::export::rlds::features::features_json(&crate::util::info(true), &options)
+    );
+}

@@ -30,7 +30,7 @@ use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
 pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile};
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary};
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
@@ -639,11 +639,9 @@ impl EpisodeSink for LeRobotWriter {
     }
 
     fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        if let Some(summary) = &self.finished {
-            return Ok(summary.clone());
-        }
-        let summary = self.finish_dataset(sidecar)?;
-        self.finished = Some(summary.clone());
-        Ok(summary)
+        let mut finished = self.finished.take();
+        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
+        self.finished = finished;
+        result
     }
 }

@@ -30,7 +30,7 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
 use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary};
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
 use rayon::prelude::*;
 use record::{StepLayout, encode_episode};
 use serde::{Deserialize, Serialize};
@@ -443,12 +443,10 @@ impl EpisodeSink for RldsWriter {
     }
 
     fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        if let Some(summary) = &self.finished {
-            return Ok(summary.clone());
-        }
-        let summary = self.finish_dataset(sidecar)?;
-        self.finished = Some(summary.clone());
-        Ok(summary)
+        let mut finished = self.finished.take();
+        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
+        self.finished = finished;
+        result
     }
 }
 
