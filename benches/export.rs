@@ -1,5 +1,9 @@
 //! Criterion benches of the exporters.
 //!
+//! `export/pointcloud/frame_{1024,512}`: one recorded 224 x 224 frame (T1-1, mid-episode) to a
+//! cloud of 1024 or 512 points (back-projection, crop to the workspace with 20 mm margins, 3 mm
+//! voxel grid, farthest point sampling), one core.
+//!
 //! `export/rlds/{1,2}_threads`: the same episodes into RLDS (RGB PNG + uint16 depth PNG at the
 //! fast PNG level, state, action, object poses; TFRecord framing and CRCs). Throughput is in
 //! steps.
@@ -79,6 +83,36 @@ fn bench_rlds(c: &mut Criterion) {
     });
 }
 
+fn bench_pointcloud(c: &mut Criterion) {
+    use surgvla::export::pointcloud::{Aabb, CloudOptions, frame_cloud};
+    let (episodes, info) = episodes();
+    let episode = &episodes[0];
+    let step = &episode.steps[episode.steps.len() / 2];
+    let workspace = surgvla::sim::control::Workspace::reference();
+    let crop = Aabb {
+        min_m: workspace.min_m,
+        max_m: workspace.max_m,
+    }
+    .grown(0.02);
+    let mut group = c.benchmark_group("export/pointcloud");
+    for points in [1024, 512] {
+        let options = CloudOptions {
+            points,
+            ..CloudOptions::new(crop)
+        };
+        let cloud = frame_cloud(&info.camera, step, &options);
+        assert!(
+            cloud.valid == points,
+            "a full cloud: {} points",
+            cloud.valid
+        );
+        group.bench_function(format!("frame_{points}"), |b| {
+            b.iter(|| frame_cloud(&info.camera, step, &options))
+        });
+    }
+    group.finish();
+}
+
 fn bench_lerobot(c: &mut Criterion) {
     let (episodes, info) = episodes();
     let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
@@ -103,5 +137,5 @@ fn bench_lerobot(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_lerobot, bench_rlds);
+criterion_group!(benches, bench_lerobot, bench_rlds, bench_pointcloud);
 criterion_main!(benches);

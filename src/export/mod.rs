@@ -14,6 +14,7 @@
 //!
 //! - [`lerobot`]: LeRobot v3.0 and v2.1 (parquet + metadata, images embedded or MP4 video).
 //! - [`rlds`]: RLDS in the TFDS layout (TFRecord shards of `tf.train.Example` episodes).
+//! - [`pointcloud`]: point clouds of frames (the computation and PLY / PCD encoders so far).
 //!
 //! [`convert`] copies any source into any sink.
 
@@ -22,6 +23,7 @@ pub mod dir;
 pub mod image;
 pub mod info;
 pub mod lerobot;
+pub mod pointcloud;
 pub mod rlds;
 pub mod stats;
 pub mod tiff;
