@@ -214,6 +214,27 @@ pub struct CameraInfo {
     pub world_from_camera: [[f64; 4]; 4],
 }
 
+/// An axis-aligned box in the world frame, metres.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Aabb {
+    pub min_m: [f64; 3],
+    pub max_m: [f64; 3],
+}
+
+impl Aabb {
+    /// The box grown by `margin_m` on every side.
+    pub fn grown(&self, margin_m: f64) -> Aabb {
+        Aabb {
+            min_m: self.min_m.map(|v| v - margin_m),
+            max_m: self.max_m.map(|v| v + margin_m),
+        }
+    }
+
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        (0..3).all(|i| p[i] >= self.min_m[i] && p[i] <= self.max_m[i])
+    }
+}
+
 /// What an episode is, besides its steps: its place, its instruction and its provenance (what
 /// it takes to re-run or audit it).
 #[derive(Clone, Debug, PartialEq, Serialize)]

@@ -7,7 +7,10 @@ use std::path::PathBuf;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::image::PngLevel;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
+use surgvla::export::pointcloud::files::CloudFileFormat;
+use surgvla::export::pointcloud::{Aabb, CloudSettings};
 use surgvla::export::rlds::{RldsKeys, RldsOptions};
+use surgvla::export::zarr::ZarrOptions;
 use surgvla::export::{SinkOptions, open_sink, open_source, resumes};
 
 /// A dataset format to write.
@@ -17,6 +20,12 @@ pub enum Format {
     Lerobot,
     /// RLDS in the TFDS layout (tensorflow_datasets, OpenVLA, Octo); see --rlds-name.
     Rlds,
+    /// One PLY point cloud per frame (Open3D, CloudCompare); see --points, --crop.
+    Ply,
+    /// One PCD v0.7 point cloud per frame (PCL, Open3D); see --points, --crop.
+    Pcd,
+    /// The DP3 zarr v2 store (3D Diffusion Policy); see --points, --crop, --zarr-images.
+    Zarr,
 }
 
 /// The codec of video mode.
@@ -146,6 +155,69 @@ impl RldsArgs {
     }
 }
 
+/// Options of the point-cloud formats.
+#[derive(Args, Debug)]
+pub struct CloudArgs {
+    /// Point clouds: points per frame (default 1024; DP3 also uses 512).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=65_536))]
+    points: Option<u64>,
+    /// Point clouds: the crop box in the world frame, metres: MINX,MINY,MINZ,MAXX,MAXY,MAXZ
+    /// (default: the robot's workspace with 20 mm margins, from the dataset).
+    #[arg(long, value_parser = parse_box)]
+    crop: Option<Aabb>,
+    /// zarr: also store the images (data/img RGB, data/depth metres).
+    #[arg(long)]
+    zarr_images: bool,
+    /// zarr: a seventh point channel with the point's mask id (needs a dataset with the mask).
+    #[arg(long)]
+    zarr_mask_channel: bool,
+}
+
+fn parse_box(text: &str) -> Result<Aabb, String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    let [x0, y0, z0, x1, y1, z1]: [f64; 6] = values
+        .try_into()
+        .map_err(|_| "six numbers: MINX,MINY,MINZ,MAXX,MAXY,MAXZ".to_string())?;
+    if ![x0, y0, z0, x1, y1, z1].iter().all(|v| v.is_finite()) || x0 >= x1 || y0 >= y1 || z0 >= z1 {
+        return Err("finite numbers with each minimum below its maximum".into());
+    }
+    Ok(Aabb {
+        min_m: [x0, y0, z0],
+        max_m: [x1, y1, z1],
+    })
+}
+
+impl CloudArgs {
+    fn given(&self) -> Option<&'static str> {
+        [self.points.map(|_| "--points"), self.crop.map(|_| "--crop")]
+            .into_iter()
+            .flatten()
+            .next()
+    }
+
+    fn zarr_given(&self) -> Option<&'static str> {
+        [
+            self.zarr_images.then_some("--zarr-images"),
+            self.zarr_mask_channel.then_some("--zarr-mask-channel"),
+        ]
+        .into_iter()
+        .flatten()
+        .next()
+    }
+
+    fn settings(&self) -> CloudSettings {
+        let defaults = CloudSettings::default();
+        CloudSettings {
+            points: self.points.map_or(defaults.points, |p| p as usize),
+            crop: self.crop,
+            ..defaults
+        }
+    }
+}
+
 /// Every format's options, for a command that writes one format.
 #[derive(Args, Debug)]
 pub struct FormatArgs {
@@ -153,6 +225,8 @@ pub struct FormatArgs {
     lerobot: LeRobotArgs,
     #[command(flatten)]
     rlds: RldsArgs,
+    #[command(flatten)]
+    cloud: CloudArgs,
 }
 
 impl FormatArgs {
@@ -167,22 +241,37 @@ impl FormatArgs {
                     .map_or(String::new(), |v| v.get_name().to_string())
             )))
         };
-        match format {
-            Format::Lerobot => {
-                if let Some(option) = self.rlds.given() {
-                    return refuse(option, "an RLDS");
-                }
-                Ok(SinkOptions::LeRobot(self.lerobot.options()))
-            }
-            Format::Rlds => {
-                if let Some(option) = self.lerobot.given() {
-                    return refuse(option, "a LeRobot");
-                }
-                let options = self.rlds.options();
-                options.check()?;
-                Ok(SinkOptions::Rlds(options))
+        // Each format's options, by owner; only the chosen format's may be given.
+        let owners = [
+            ("a LeRobot", self.lerobot.given(), format == Format::Lerobot),
+            ("an RLDS", self.rlds.given(), format == Format::Rlds),
+            (
+                "a point-cloud",
+                self.cloud.given(),
+                matches!(format, Format::Ply | Format::Pcd | Format::Zarr),
+            ),
+            ("a zarr", self.cloud.zarr_given(), format == Format::Zarr),
+        ];
+        for (owner, given, chosen) in owners {
+            if let (Some(option), false) = (given, chosen) {
+                return refuse(option, owner);
             }
         }
+        Ok(match format {
+            Format::Lerobot => SinkOptions::LeRobot(self.lerobot.options()),
+            Format::Rlds => {
+                let options = self.rlds.options();
+                options.check()?;
+                SinkOptions::Rlds(options)
+            }
+            Format::Ply => SinkOptions::CloudFiles(CloudFileFormat::Ply, self.cloud.settings()),
+            Format::Pcd => SinkOptions::CloudFiles(CloudFileFormat::Pcd, self.cloud.settings()),
+            Format::Zarr => SinkOptions::Zarr(ZarrOptions {
+                cloud: self.cloud.settings(),
+                images: self.cloud.zarr_images,
+                mask_channel: self.cloud.zarr_mask_channel,
+            }),
+        })
     }
 }
 

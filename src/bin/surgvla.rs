@@ -66,7 +66,7 @@ enum Command {
         with_mask: bool,
         /// The format: lerobot (info.json's features) or rlds (features.json).
         #[arg(long, value_enum, default_value = "lerobot")]
-        format: formats::Format,
+        format: SchemaFormat,
     },
     /// List the tasks: id, level, name, step limit, canonical instruction and paraphrases.
     Tasks,
@@ -328,17 +328,26 @@ fn main() -> ExitCode {
     }
 }
 
-fn run_schema(with_mask: bool, format: formats::Format) -> Result<(), CliError> {
+/// The formats with a feature schema.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum SchemaFormat {
+    /// The `features` of LeRobot's meta/info.json.
+    Lerobot,
+    /// RLDS's features.json.
+    Rlds,
+}
+
+fn run_schema(with_mask: bool, format: SchemaFormat) -> Result<(), CliError> {
     let set = surgvla::episode::FeatureSet {
         mask: with_mask,
         ..Default::default()
     };
     let json = match format {
-        formats::Format::Lerobot => {
+        SchemaFormat::Lerobot => {
             let features = surgvla::episode::standard_features(224, 224, set);
             surgvla::export::lerobot::features_json(&features)
         }
-        formats::Format::Rlds => {
+        SchemaFormat::Rlds => {
             let options = surgvla::collect::run::CollectOptions::default();
             let info =
                 surgvla::collect::run::dataset_info(&options, set, &ExpertLibrary::builtin()?);

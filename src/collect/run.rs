@@ -290,6 +290,13 @@ pub fn dataset_info(
         mask_ids: crate::view::mask_ids(),
         collection,
         generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+        tip_workspace: {
+            let workspace = crate::sim::control::Workspace::reference();
+            Some(crate::episode::Aabb {
+                min_m: workspace.min_m,
+                max_m: workspace.max_m,
+            })
+        },
     }
 }
 

@@ -652,8 +652,9 @@ impl DatasetDir {
         Ok(())
     }
 
-    /// Deletes every file under `folders` whose relative path is not in `keep` (what was written
-    /// after the last checkpoint, including temporary files).
+    /// Deletes every file under `folders` (`""`: the whole folder) whose relative path is not
+    /// in `keep` (what was written after the last checkpoint, including temporary files); never
+    /// the marker.
     fn remove_files_except(
         &self,
         folders: &[&str],
@@ -667,9 +668,13 @@ impl DatasetDir {
                 };
                 for entry in entries {
                     let path = entry.map_err(ExportError::io(&dir))?.path();
+                    let relative = self.relative(&path);
+                    // The marker is never pruned, even when a format owns the whole folder.
+                    let marker = relative == INCOMPLETE_MARKER
+                        || relative == format!(".{INCOMPLETE_MARKER}.partial");
                     if path.is_dir() {
                         pending.push(path);
-                    } else if !keep.contains(&self.relative(&path)) {
+                    } else if !marker && !keep.contains(&relative) {
                         std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
                     }
                 }

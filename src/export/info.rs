@@ -2,7 +2,7 @@
 //! rate, camera (intrinsics and `world_from_camera`), robot, mask ids and how its episodes were
 //! made. A format derives its metadata files from it; a source returns one for what it read.
 
-use crate::episode::{CameraInfo, Dtype, FeatureKind, FeatureSpec};
+use crate::episode::{Aabb, CameraInfo, Dtype, FeatureKind, FeatureSpec};
 use crate::export::dir::RunOptions;
 use serde_json::{Value, json};
 
@@ -24,6 +24,9 @@ pub struct DatasetInfo {
     pub collection: Value,
     /// The program and version that made the episodes, e.g. "surgvla 0.1.0".
     pub generator: String,
+    /// The box the robot's tool tip moves in, world frame (the default point-cloud crop, with
+    /// margins); None when unknown.
+    pub tip_workspace: Option<Aabb>,
 }
 
 impl DatasetInfo {
@@ -69,6 +72,10 @@ impl DatasetInfo {
         );
         options.set("mask_ids", json!(self.mask_ids));
         options.set("generator", json!(self.generator));
+        // Only when known, so a dataset started before the key existed still resumes.
+        if let Some(workspace) = self.tip_workspace {
+            options.set("tip_workspace_m", workspace_json(workspace));
+        }
         options.extend_from(&self.collection);
         options
     }
@@ -98,6 +105,7 @@ impl DatasetInfo {
             mask_ids,
             collection: surgvla["collection"].clone(),
             generator: surgvla["generator"].as_str().unwrap_or_default().into(),
+            tip_workspace: workspace_of(&surgvla["tip_workspace_m"]),
         }
     }
 
@@ -132,6 +140,9 @@ impl DatasetInfo {
                   "back_projection": "X = (u + 0.5 - cx) z / fx, Y = (v + 0.5 - cy) z / fy, Z = z"});
         }
         metadata["mask_ids"] = Value::Object(masks);
+        if let Some(workspace) = self.tip_workspace {
+            metadata["tip_workspace_m"] = workspace_json(workspace);
+        }
         if !self.collection.is_null() {
             metadata["collection"] = self.collection.clone();
         }
@@ -164,4 +175,23 @@ fn camera_of(surgvla: &Value, features: &[FeatureSpec]) -> CameraInfo {
         far_m: number("far_m"),
         world_from_camera,
     }
+}
+
+fn workspace_json(workspace: Aabb) -> Value {
+    json!({"min": workspace.min_m, "max": workspace.max_m})
+}
+
+fn workspace_of(value: &Value) -> Option<Aabb> {
+    let corner = |key: &str| -> Option<[f64; 3]> {
+        let values: Vec<f64> = value[key]
+            .as_array()?
+            .iter()
+            .map(Value::as_f64)
+            .collect::<Option<_>>()?;
+        values.try_into().ok()
+    };
+    Some(Aabb {
+        min_m: corner("min")?,
+        max_m: corner("max")?,
+    })
 }

@@ -14,7 +14,8 @@
 //!
 //! - [`lerobot`]: LeRobot v3.0 and v2.1 (parquet + metadata, images embedded or MP4 video).
 //! - [`rlds`]: RLDS in the TFDS layout (TFRecord shards of `tf.train.Example` episodes).
-//! - [`pointcloud`]: point clouds of frames (the computation and PLY / PCD encoders so far).
+//! - [`pointcloud`]: point clouds of frames; one PLY or PCD file per frame.
+//! - [`zarr`]: the DP3 zarr v2 store (point clouds, state, action, optional images).
 //!
 //! [`convert`] copies any source into any sink.
 
@@ -28,6 +29,7 @@ pub mod rlds;
 pub mod stats;
 pub mod tiff;
 pub mod video;
+pub mod zarr;
 
 pub use dir::{
     DatasetDir, FileRecord, INCOMPLETE_MARKER, MANIFEST, OptionChange, RunOptions, temporary_name,
@@ -275,6 +277,13 @@ pub trait EpisodeSource {
 pub enum SinkOptions {
     LeRobot(lerobot::LeRobotOptions),
     Rlds(rlds::RldsOptions),
+    /// One point-cloud file per frame.
+    CloudFiles(
+        pointcloud::files::CloudFileFormat,
+        pointcloud::CloudSettings,
+    ),
+    /// The DP3 zarr store.
+    Zarr(zarr::ZarrOptions),
 }
 
 impl SinkOptions {
@@ -284,6 +293,12 @@ impl SinkOptions {
         match self {
             SinkOptions::LeRobot(options) => options.run_options(),
             SinkOptions::Rlds(options) => options.run_options(),
+            SinkOptions::CloudFiles(format, settings) => {
+                let mut options = settings.run_options();
+                options.set("format", serde_json::json!(format));
+                options
+            }
+            SinkOptions::Zarr(options) => options.run_options(),
         }
     }
 }
@@ -314,6 +329,19 @@ pub fn open_sink(
             rlds::RldsWriter::resume(root, info, options.clone())?
         } else {
             rlds::RldsWriter::create(root, info, options.clone())?
+        }),
+        SinkOptions::CloudFiles(format, settings) => {
+            use pointcloud::files::CloudFilesWriter;
+            Box::new(if resuming {
+                CloudFilesWriter::resume(root, info, *format, *settings)?
+            } else {
+                CloudFilesWriter::create(root, info, *format, *settings)?
+            })
+        }
+        SinkOptions::Zarr(options) => Box::new(if resuming {
+            zarr::ZarrWriter::resume(root, info, *options)?
+        } else {
+            zarr::ZarrWriter::create(root, info, *options)?
         }),
     })
 }

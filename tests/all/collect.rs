@@ -242,7 +242,7 @@ fn collect_mistakes_exit_2_with_the_reason() {
             vec!["collect", "--spawn-scale", "9", "--out", &out],
             "--spawn-scale",
         ),
-        (vec!["collect", "--format", "zarr", "--out", &out], "zarr"),
+        (vec!["collect", "--format", "hdf5", "--out", &out], "hdf5"),
     ] {
         let (code, _, stderr) = surgvla(&args);
         assert_eq!(code, 2, "{args:?}: {stderr}");

@@ -14,31 +14,16 @@
 //!
 //! [`ply`] and [`pcd`] encode one cloud as a file for inspection tools.
 
+pub mod files;
 pub mod pcd;
 pub mod ply;
 
+pub use crate::episode::Aabb;
 use crate::episode::{CameraInfo, Step};
-
-/// An axis-aligned box in the world frame, metres.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Aabb {
-    pub min_m: [f64; 3],
-    pub max_m: [f64; 3],
-}
-
-impl Aabb {
-    /// The box grown by `margin_m` on every side.
-    pub fn grown(&self, margin_m: f64) -> Aabb {
-        Aabb {
-            min_m: self.min_m.map(|v| v - margin_m),
-            max_m: self.max_m.map(|v| v + margin_m),
-        }
-    }
-
-    pub fn contains(&self, p: [f64; 3]) -> bool {
-        (0..3).all(|i| p[i] >= self.min_m[i] && p[i] <= self.max_m[i])
-    }
-}
+use crate::export::ExportError;
+use crate::export::dir::RunOptions;
+use crate::export::info::DatasetInfo;
+use serde_json::{Value, json};
 
 /// How clouds are made.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -59,6 +44,79 @@ impl CloudOptions {
             crop,
             voxel_m: 0.003,
         }
+    }
+}
+
+/// Cloud settings as a user gives them: the crop box may be left to the dataset's workspace.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CloudSettings {
+    /// Points per cloud.
+    pub points: usize,
+    /// The crop box; None: the dataset's tip workspace grown by `margin_m`.
+    pub crop: Option<Aabb>,
+    pub margin_m: f64,
+    pub voxel_m: f64,
+}
+
+impl Default for CloudSettings {
+    /// 1024 points, the workspace with 20 mm margins, 3 mm voxels.
+    fn default() -> Self {
+        CloudSettings {
+            points: 1024,
+            crop: None,
+            margin_m: 0.02,
+            voxel_m: 0.003,
+        }
+    }
+}
+
+impl CloudSettings {
+    /// The options for clouds of `info`'s frames; refuses a dataset without a recorded workspace
+    /// when no box is given, and a point count of 0.
+    pub fn options(&self, info: &DatasetInfo) -> Result<CloudOptions, ExportError> {
+        if self.points == 0 {
+            return Err(ExportError::InvalidOptions(
+                "a point cloud needs at least one point".into(),
+            ));
+        }
+        let crop = match (self.crop, info.tip_workspace) {
+            (Some(crop), _) => crop,
+            (None, Some(workspace)) => workspace.grown(self.margin_m),
+            (None, None) => {
+                return Err(ExportError::InvalidOptions(
+                    "the dataset does not record the robot's workspace: give the crop box (--crop)"
+                        .into(),
+                ));
+            }
+        };
+        Ok(CloudOptions {
+            points: self.points,
+            crop,
+            voxel_m: self.voxel_m,
+        })
+    }
+
+    /// What these settings change in the bytes, by option name.
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = RunOptions::default();
+        options.set("cloud_points", json!(self.points));
+        options.set("cloud_crop_m", json!(self.crop));
+        options.set("cloud_margin_m", json!(self.margin_m));
+        options.set("cloud_voxel_m", json!(self.voxel_m));
+        options
+    }
+
+    /// The settings as a dataset records them (the crop box resolved).
+    pub fn describe(&self, info: &DatasetInfo) -> Result<Value, ExportError> {
+        let options = self.options(info)?;
+        Ok(json!({
+            "points": options.points,
+            "frame": "world",
+            "unit": "m",
+            "crop_m": {"min": options.crop.min_m, "max": options.crop.max_m},
+            "voxel_m": options.voxel_m,
+            "sampling": "crop, one point per voxel (first in pixel order), farthest point sampling from the first; zero-padded",
+        }))
     }
 }
 

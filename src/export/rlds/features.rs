@@ -253,6 +253,7 @@ mod tests {
             mask_ids: Vec::new(),
             collection: Value::Null,
             generator: "surgvla test".into(),
+            tip_workspace: None,
         }
     }
 

@@ -1,0 +1,306 @@
+//! The DP3 zarr v2 store (3D Diffusion Policy's replay-buffer layout), written by
+//! [`ZarrWriter`]:
+//! ```text
+//! .zgroup, .zattrs            the root group; .zattrs holds surgvla's metadata and the cloud settings
+//! data/point_cloud            (T, N, 6) float32: x y z (world, m), r g b (0..255); 7 with the mask id
+//! data/state, data/action     (T, 7) float32
+//! data/img, data/depth        (T, H, W, 3) uint8 and (T, H, W) float32 metres, with images on
+//! meta/episode_ends           (E,) int64, cumulative exclusive ends
+//! ```
+//! Every episode's frames are concatenated along T; chunks of [`array::CHUNK_ROWS`] along T,
+//! zstd level 3. Why our own writer: see [`array`]. Clouds come from
+//! [`crate::export::pointcloud`]. A checkpoint every [`CHECKPOINT_EPISODES`] episodes writes the
+//! partial chunks too, and a resume reads them back.
+
+pub mod array;
+
+use crate::episode::Episode;
+use crate::export::dir::{DatasetDir, RunOptions};
+use crate::export::info::DatasetInfo;
+use crate::export::pointcloud::{CloudSettings, frame_cloud};
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use array::{ArrayMark, ArrayWriter};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::path::Path;
+
+/// Episodes between checkpoints.
+pub const CHECKPOINT_EPISODES: u64 = 16;
+/// Every file with its size and CRC-32C.
+pub const MANIFEST: &str = "surgvla_manifest.json";
+
+/// Options of the DP3 zarr store (default: the default clouds, no images, no mask channel).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ZarrOptions {
+    pub cloud: CloudSettings,
+    /// Also store `data/img` and `data/depth`.
+    pub images: bool,
+    /// A seventh point channel: the mask id of the point's pixel (needs the mask feature).
+    pub mask_channel: bool,
+}
+
+impl ZarrOptions {
+    /// What these options change in the bytes, by option name.
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = self.cloud.run_options();
+        options.set("format", json!("zarr"));
+        options.set("zarr_images", json!(self.images));
+        options.set("zarr_mask_channel", json!(self.mask_channel));
+        options
+    }
+}
+
+/// What a checkpoint records besides the files.
+#[derive(Clone, Default, Serialize, Deserialize)]
+struct State {
+    episode_ends: Vec<i64>,
+    arrays: Vec<ArrayMark>,
+    summary: Summary,
+}
+
+/// Streams episodes into a DP3 zarr store.
+pub struct ZarrWriter {
+    dir: DatasetDir,
+    info: DatasetInfo,
+    options: ZarrOptions,
+    /// point_cloud, state, action, then img and depth with images.
+    arrays: Vec<ArrayWriter>,
+    state: State,
+    timing: SinkTiming,
+    finished: Option<Summary>,
+}
+
+impl ZarrWriter {
+    fn check(info: &DatasetInfo, options: &ZarrOptions) -> Result<RunOptions, ExportError> {
+        options.cloud.options(info)?;
+        if options.mask_channel && !info.has(crate::episode::FeatureKind::Mask) {
+            return Err(ExportError::InvalidOptions(
+                "the mask channel needs a dataset with the mask (collect --with-mask)".into(),
+            ));
+        }
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
+    }
+
+    fn arrays(info: &DatasetInfo, options: &ZarrOptions) -> Vec<ArrayWriter> {
+        let channels = if options.mask_channel { 7 } else { 6 };
+        let mut arrays = vec![
+            ArrayWriter::new(
+                "data/point_cloud",
+                "<f4",
+                4,
+                &[options.cloud.points, channels],
+            ),
+            ArrayWriter::new("data/state", "<f4", 4, &[7]),
+            ArrayWriter::new("data/action", "<f4", 4, &[7]),
+        ];
+        if options.images {
+            let (width, height) = info.image_size();
+            arrays.push(ArrayWriter::new("data/img", "|u1", 1, &[height, width, 3]));
+            arrays.push(ArrayWriter::new("data/depth", "<f4", 4, &[height, width]));
+        }
+        arrays
+    }
+
+    /// Starts a store in `root`, which must not exist or be empty.
+    pub fn create(
+        root: &Path,
+        info: &DatasetInfo,
+        options: ZarrOptions,
+    ) -> Result<Self, ExportError> {
+        let run = Self::check(info, &options)?;
+        let dir = DatasetDir::create(root, &run)?;
+        Ok(ZarrWriter {
+            dir,
+            arrays: Self::arrays(info, &options),
+            info: info.clone(),
+            options,
+            state: State::default(),
+            timing: SinkTiming::default(),
+            finished: None,
+        })
+    }
+
+    /// Continues an interrupted store from its last checkpoint.
+    pub fn resume(
+        root: &Path,
+        info: &DatasetInfo,
+        options: ZarrOptions,
+    ) -> Result<Self, ExportError> {
+        let run = Self::check(info, &options)?;
+        let (dir, state) = DatasetDir::resume::<State>(root, &run, &["data", "meta"])?;
+        let state = state.unwrap_or_default();
+        let mut arrays = Self::arrays(info, &options);
+        if !state.arrays.is_empty() {
+            arrays = arrays
+                .into_iter()
+                .zip(&state.arrays)
+                .map(|(array, mark)| array.resume(&dir, mark))
+                .collect::<Result<_, _>>()?;
+        }
+        Ok(ZarrWriter {
+            dir,
+            arrays,
+            info: info.clone(),
+            options,
+            state,
+            timing: SinkTiming::default(),
+            finished: None,
+        })
+    }
+
+    /// Writes the partial chunks and records the state.
+    fn checkpoint(&mut self) -> Result<(), ExportError> {
+        for array in &self.arrays {
+            array.flush(&mut self.dir)?;
+        }
+        self.state.arrays = self.arrays.iter().map(ArrayWriter::mark).collect();
+        self.dir.save_checkpoint(&self.state)
+    }
+
+    fn write_one(&mut self, episode: &Episode) -> Result<(), ExportError> {
+        if self.finished.is_some() {
+            return Err(ExportError::Internal(
+                "an episode arrived after the dataset was finished".into(),
+            ));
+        }
+        let expected = self.state.episode_ends.len() as u64;
+        if episode.meta.index != expected {
+            return Err(ExportError::InvalidEpisode(format!(
+                "episode index {} arrived where {expected} was expected (episodes must come in order)",
+                episode.meta.index
+            )));
+        }
+        let (width, height) = self.info.image_size();
+        episode
+            .validate(width, height, &self.info.features)
+            .map_err(ExportError::InvalidEpisode)?;
+        if episode.steps.iter().any(|s| s.depth_m.is_empty()) {
+            return Err(ExportError::InvalidEpisode(
+                "point clouds need the depth image, which this dataset does not have".into(),
+            ));
+        }
+        let started = std::time::Instant::now();
+        let cloud_options = self.options.cloud.options(&self.info)?;
+        let camera = self.info.camera;
+        let mask_channel = self.options.mask_channel;
+        let clouds: Vec<Vec<u8>> = episode
+            .steps
+            .par_iter()
+            .map(|step| {
+                let cloud = frame_cloud(&camera, step, &cloud_options);
+                let mut bytes = Vec::with_capacity(cloud.xyz_m.len() * 28);
+                for i in 0..cloud.xyz_m.len() {
+                    let rgb = cloud.rgb[i].map(f32::from);
+                    let mut point: Vec<f32> = cloud.xyz_m[i].into_iter().chain(rgb).collect();
+                    if mask_channel {
+                        point.push(cloud.mask.get(i).map_or(0.0, |&id| f32::from(id)));
+                    }
+                    bytes.extend(point.iter().flat_map(|v| v.to_le_bytes()));
+                }
+                bytes
+            })
+            .collect();
+        let written = std::time::Instant::now();
+        self.timing.encode_secs += (written - started).as_secs_f64();
+        let floats = |values: &mut dyn Iterator<Item = f32>| -> Vec<u8> {
+            values.flat_map(f32::to_le_bytes).collect()
+        };
+        let steps = &episode.steps;
+        let mut columns: Vec<Vec<u8>> = vec![
+            clouds.concat(),
+            floats(&mut steps.iter().flat_map(|s| s.state)),
+            floats(&mut steps.iter().flat_map(|s| s.action)),
+        ];
+        if self.options.images {
+            columns.push(steps.iter().flat_map(|s| s.rgb.iter().copied()).collect());
+            columns.push(floats(
+                &mut steps.iter().flat_map(|s| s.depth_m.iter().copied()),
+            ));
+        }
+        for (array, bytes) in self.arrays.iter_mut().zip(&columns) {
+            array.push(&mut self.dir, bytes)?;
+        }
+        let end = self.state.episode_ends.last().copied().unwrap_or(0) + steps.len() as i64;
+        self.state.episode_ends.push(end);
+        self.state.summary.episodes += 1;
+        self.state.summary.frames += steps.len() as u64;
+        if (self.state.episode_ends.len() as u64).is_multiple_of(CHECKPOINT_EPISODES) {
+            self.checkpoint()?;
+        }
+        self.timing.write_secs += written.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        self.checkpoint()?;
+        let mut summary = self.state.summary.clone();
+        let mut ends = ArrayWriter::new("meta/episode_ends", "<i8", 8, &[]);
+        let end_bytes: Vec<u8> = self
+            .state
+            .episode_ends
+            .iter()
+            .flat_map(|e| e.to_le_bytes())
+            .collect();
+        ends.push(&mut self.dir, &end_bytes)?;
+        ends.flush(&mut self.dir)?;
+        let mut attributes = self.info.surgvla_json();
+        attributes["fps"] = json!(self.info.fps);
+        attributes["point_cloud"] = self.options.cloud.describe(&self.info)?;
+        attributes["point_cloud"]["channels"] = if self.options.mask_channel {
+            json!(["x", "y", "z", "r", "g", "b", "mask_id"])
+        } else {
+            json!(["x", "y", "z", "r", "g", "b"])
+        };
+        let group = json!({"zarr_format": 2});
+        let files = [
+            (".zgroup", group.clone()),
+            ("data/.zgroup", group.clone()),
+            ("meta/.zgroup", group),
+            (".zattrs", json!({"surgvla": attributes})),
+        ];
+        for array in self.arrays.iter().chain([&ends]) {
+            array.write_metadata(&mut self.dir)?;
+        }
+        for (relative, value) in files {
+            let bytes = serde_json::to_vec_pretty(&value).map_err(|source| ExportError::Json {
+                path: self.dir.path(relative),
+                source,
+            })?;
+            self.dir.write_atomically(relative, &bytes)?;
+        }
+        self.dir.write_manifest(MANIFEST)?;
+        // Partial chunks are rewritten as they fill: count the files as they stand.
+        summary.files = self.dir.files().len() as u64;
+        summary.bytes = self.dir.files().iter().map(|f| f.bytes).sum();
+        if let Some(make) = sidecar {
+            let (relative, bytes) = make(&summary)?;
+            self.dir.write_unlisted(&relative, &bytes)?;
+        }
+        self.dir.complete()?;
+        Ok(summary)
+    }
+}
+
+impl EpisodeSink for ZarrWriter {
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        episodes.iter().try_for_each(|e| self.write_one(e))
+    }
+
+    fn next_episode_index(&self) -> u64 {
+        self.state.episode_ends.len() as u64
+    }
+
+    fn timing(&self) -> SinkTiming {
+        self.timing
+    }
+
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        let mut finished = self.finished.take();
+        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
+        self.finished = finished;
+        result
+    }
+}
