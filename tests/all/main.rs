@@ -1,5 +1,5 @@
 //! The one integration test binary: kinematics, physics, grasping, determinism, tasks and
-//! experts, collection, the LeRobot and RLDS formats, rendering and the CLI.
+//! experts, collection, the LeRobot, RLDS and point-cloud formats, rendering and the CLI.
 
 mod cli;
 mod collect;
@@ -12,6 +12,7 @@ mod kinematics;
 mod layers;
 mod lerobot;
 mod physics;
+mod pointcloud;
 mod render;
 mod rlds;
 mod tasks;

@@ -1,0 +1,139 @@
+//! Point clouds against the simulator's ground truth: every point whose mask id names a movable
+//! object lies within 2 mm of that object's true surface (box faces for gauze and block, the wire
+//! for the needle), in scenes with every object kind and distractors, before and after the
+//! expert moved things.
+
+use nalgebra::{Point3, Vector3};
+use surgvla::assets::{Appearance, SceneAssets};
+use surgvla::collect::rollout;
+use surgvla::episode::{Aabb, MAX_OBJECTS, POSE_VALUES, Step};
+use surgvla::export::pointcloud::{CloudOptions, frame_cloud};
+use surgvla::policy::ExpertLibrary;
+use surgvla::render::{Camera, RenderOptions, Renderer};
+use surgvla::scene::{
+    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, NEEDLE_SEGMENTS, NEEDLE_WIRE_RADIUS_M, ObjectKind,
+    needle_arc_points,
+};
+use surgvla::sim::{SimConfig, Simulator};
+use surgvla::task::{TaskConfig, TaskId};
+use surgvla::view::{camera_info, render_simulator};
+
+/// Distance from `p` (object frame) to the surface of a box of half extents `h`.
+fn box_surface_distance(p: Vector3<f64>, h: [f64; 3]) -> f64 {
+    let q = Vector3::new(p.x.abs() - h[0], p.y.abs() - h[1], p.z.abs() - h[2]);
+    let outside = Vector3::new(q.x.max(0.0), q.y.max(0.0), q.z.max(0.0)).norm();
+    let inside = q.x.max(q.y).max(q.z).min(0.0);
+    (outside + inside).abs()
+}
+
+/// Distance from `p` (object frame) to the needle's wire surface.
+fn needle_surface_distance(p: Vector3<f64>) -> f64 {
+    let arc = needle_arc_points(NEEDLE_SEGMENTS * 4);
+    let to_line = arc
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (w[0], w[1]);
+            let t = ((p - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+            (p - (a + (b - a) * t)).norm()
+        })
+        .fold(f64::INFINITY, f64::min);
+    (to_line - NEEDLE_WIRE_RADIUS_M).abs()
+}
+
+#[test]
+fn points_labelled_as_an_object_lie_on_its_true_surface() {
+    let library = ExpertLibrary::builtin().expect("plans");
+    let camera = Camera::endoscope();
+    let info = camera_info(&camera);
+    let workspace = surgvla::sim::control::Workspace::reference();
+    let crop = Aabb {
+        min_m: workspace.min_m,
+        max_m: workspace.max_m,
+    }
+    .grown(0.02);
+    let options = CloudOptions {
+        points: 4096,
+        ..CloudOptions::new(crop)
+    };
+    let config = TaskConfig {
+        distractors: 3,
+        ..TaskConfig::default()
+    };
+    let mut checked = std::collections::BTreeMap::new();
+    for (task, seed, steps) in [
+        (TaskId::PickAndPlace, 3, 0),
+        (TaskId::PickAndPlace, 3, 30),
+        (TaskId::GauzePickDistractors, 5, 0),
+        (TaskId::NeedlePickDistractors, 7, 0),
+        (TaskId::NeedlePickDistractors, 7, 25),
+    ] {
+        let instance = task.instance(seed, &config).expect("instance");
+        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        if steps > 0 {
+            let mut policy = library
+                .plan(task)
+                .expect("plan")
+                .expert(&instance, &sim.observation(), seed)
+                .expect("expert");
+            rollout(&mut sim, &mut policy, steps);
+        }
+        let assets = SceneAssets::new(&instance.scene, seed, Appearance::default());
+        let mut renderer = Renderer::new(RenderOptions::default());
+        let frame = render_simulator(&assets, &mut renderer, &camera, &sim);
+        let step = Step {
+            rgb: frame.rgb,
+            depth_m: frame.depth_m,
+            mask: frame.mask,
+            state: [0.0; 7],
+            action: [0.0; 7],
+            environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
+            extras: Default::default(),
+        };
+        let cloud = frame_cloud(&info, &step, &options);
+        let poses = sim.object_poses();
+        for i in 0..cloud.valid {
+            let id = cloud.mask[i];
+            let (kind, distractor) = match id {
+                6 => (ObjectKind::Gauze, false),
+                7 => (ObjectKind::Needle, false),
+                8 => (ObjectKind::Block, false),
+                16 => (ObjectKind::Gauze, true),
+                17 => (ObjectKind::Needle, true),
+                18 => (ObjectKind::Block, true),
+                _ => continue,
+            };
+            let [x, y, z] = cloud.xyz_m[i].map(f64::from);
+            let point = Point3::new(x, y, z);
+            // The nearest object of the labelled class (distractors share an id).
+            let distance = sim
+                .scene()
+                .objects
+                .iter()
+                .zip(&poses)
+                .filter(|(o, _)| o.kind == kind && o.distractor == distractor)
+                .map(|(_, pose)| {
+                    let local = pose.inverse_transform_point(&point).coords;
+                    match kind {
+                        ObjectKind::Gauze => box_surface_distance(local, GAUZE_HALF_EXTENTS_M),
+                        ObjectKind::Block => box_surface_distance(local, BLOCK_HALF_EXTENTS_M),
+                        ObjectKind::Needle => needle_surface_distance(local),
+                    }
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                distance <= 0.002,
+                "{} seed {seed} step {steps}: a point labelled {id} is {:.2} mm from its object",
+                task.code(),
+                distance * 1e3
+            );
+            *checked.entry(id).or_insert(0) += 1;
+        }
+    }
+    // Every object class was seen and checked, the distractors included.
+    for id in [6, 7, 8, 16, 17, 18] {
+        assert!(
+            checked.get(&id).copied().unwrap_or(0) >= 5,
+            "mask id {id}: {checked:?}"
+        );
+    }
+}
