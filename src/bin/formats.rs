@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::image::PngLevel;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
+use surgvla::export::mcap::McapOptions;
 use surgvla::export::pointcloud::files::CloudFileFormat;
 use surgvla::export::pointcloud::{Aabb, CloudSettings};
 use surgvla::export::rlds::{RldsKeys, RldsOptions};
@@ -26,6 +27,9 @@ pub enum Format {
     Pcd,
     /// The DP3 zarr v2 store (3D Diffusion Policy); see --points, --crop, --zarr-images.
     Zarr,
+    /// One MCAP recording per episode for Foxglove (images, depth, point cloud, frames, state,
+    /// action); see --points, --crop.
+    Mcap,
 }
 
 /// The codec of video mode.
@@ -248,7 +252,10 @@ impl FormatArgs {
             (
                 "a point-cloud",
                 self.cloud.given(),
-                matches!(format, Format::Ply | Format::Pcd | Format::Zarr),
+                matches!(
+                    format,
+                    Format::Ply | Format::Pcd | Format::Zarr | Format::Mcap
+                ),
             ),
             ("a zarr", self.cloud.zarr_given(), format == Format::Zarr),
         ];
@@ -270,6 +277,9 @@ impl FormatArgs {
                 cloud: self.cloud.settings(),
                 images: self.cloud.zarr_images,
                 mask_channel: self.cloud.zarr_mask_channel,
+            }),
+            Format::Mcap => SinkOptions::Mcap(McapOptions {
+                cloud: self.cloud.settings(),
             }),
         })
     }

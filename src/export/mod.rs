@@ -16,6 +16,7 @@
 //! - [`rlds`]: RLDS in the TFDS layout (TFRecord shards of `tf.train.Example` episodes).
 //! - [`pointcloud`]: point clouds of frames; one PLY or PCD file per frame.
 //! - [`zarr`]: the DP3 zarr v2 store (point clouds, state, action, optional images).
+//! - [`mcap`]: one MCAP recording per episode, Foxglove's well-known schemas.
 //!
 //! [`convert`] copies any source into any sink.
 
@@ -24,6 +25,7 @@ pub mod dir;
 pub mod image;
 pub mod info;
 pub mod lerobot;
+pub mod mcap;
 pub mod pointcloud;
 pub mod rlds;
 pub mod stats;
@@ -284,6 +286,8 @@ pub enum SinkOptions {
     ),
     /// The DP3 zarr store.
     Zarr(zarr::ZarrOptions),
+    /// One MCAP recording per episode.
+    Mcap(mcap::McapOptions),
 }
 
 impl SinkOptions {
@@ -299,6 +303,7 @@ impl SinkOptions {
                 options
             }
             SinkOptions::Zarr(options) => options.run_options(),
+            SinkOptions::Mcap(options) => options.run_options(),
         }
     }
 }
@@ -342,6 +347,11 @@ pub fn open_sink(
             zarr::ZarrWriter::resume(root, info, *options)?
         } else {
             zarr::ZarrWriter::create(root, info, *options)?
+        }),
+        SinkOptions::Mcap(options) => Box::new(if resuming {
+            mcap::McapWriter::resume(root, info, *options)?
+        } else {
+            mcap::McapWriter::create(root, info, *options)?
         }),
     })
 }

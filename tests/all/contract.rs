@@ -6,6 +6,7 @@ use std::path::Path;
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::episode::Episode;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion};
+use surgvla::export::mcap::McapOptions;
 use surgvla::export::pointcloud::CloudSettings;
 use surgvla::export::pointcloud::files::CloudFileFormat;
 use surgvla::export::rlds::RldsOptions;
@@ -68,6 +69,13 @@ fn formats() -> Vec<Format> {
                 ..ZarrOptions::default()
             }),
             data_folder: "data/img",
+            depth_in_mm: false,
+            readable: false,
+        },
+        Format {
+            name: "mcap",
+            options: SinkOptions::Mcap(McapOptions::default()),
+            data_folder: "",
             depth_in_mm: false,
             readable: false,
         },

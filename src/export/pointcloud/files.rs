@@ -144,11 +144,6 @@ impl CloudFilesWriter {
         episode
             .validate(width, height, &self.info.features)
             .map_err(ExportError::InvalidEpisode)?;
-        if episode.steps.iter().any(|s| s.depth_m.is_empty()) {
-            return Err(ExportError::InvalidEpisode(
-                "point clouds need the depth image, which this dataset does not have".into(),
-            ));
-        }
         let started = std::time::Instant::now();
         let options = self.settings.options(&self.info)?;
         let camera = self.info.camera;

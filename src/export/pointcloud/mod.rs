@@ -71,12 +71,17 @@ impl Default for CloudSettings {
 }
 
 impl CloudSettings {
-    /// The options for clouds of `info`'s frames; refuses a dataset without a recorded workspace
-    /// when no box is given, and a point count of 0.
+    /// The options for clouds of `info`'s frames; refuses a dataset without depth, one without a
+    /// recorded workspace when no box is given, and a point count of 0.
     pub fn options(&self, info: &DatasetInfo) -> Result<CloudOptions, ExportError> {
         if self.points == 0 {
             return Err(ExportError::InvalidOptions(
                 "a point cloud needs at least one point".into(),
+            ));
+        }
+        if !info.has(crate::episode::FeatureKind::Depth) {
+            return Err(ExportError::InvalidOptions(
+                "point clouds need the depth image, which this dataset does not have".into(),
             ));
         }
         let crop = match (self.crop, info.tip_workspace) {

@@ -1,0 +1,224 @@
+//! One step as Foxglove messages: the endoscope image (CompressedImage, PNG), depth (RawImage,
+//! 32FC1 metres), its calibration (CameraCalibration), the point cloud (PointCloud: x y z
+//! float32 and r g b a uint8, stride 16, world frame), the frames (FrameTransforms: world to the
+//! endoscope's optical frame, to the tool tip from the state, to each object from the object
+//! poses), and the robot's state and action as JSON. Everything comes from the episode and the
+//! `DatasetInfo`.
+
+use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, Step};
+use crate::export::pointcloud::Cloud;
+use foxglove::messages::{
+    CameraCalibration, CompressedImage, FrameTransform, FrameTransforms, PackedElementField,
+    PointCloud, Quaternion, RawImage, Timestamp, Vector3, packed_element_field::NumericType,
+};
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+use serde_json::{Value, json};
+
+/// The world frame's id.
+pub const WORLD: &str = "world";
+/// The endoscope's optical frame (x right, y down, z forward): the images' frame.
+pub const OPTICAL: &str = "endoscope_optical";
+/// The tool tip's frame, from the state.
+pub const TOOL_TIP: &str = "tool_tip";
+
+/// Nanoseconds as a Foxglove timestamp.
+pub fn timestamp(ns: u64) -> Timestamp {
+    Timestamp::new((ns / 1_000_000_000) as u32, (ns % 1_000_000_000) as u32)
+}
+
+fn transform(
+    ns: u64,
+    child: &str,
+    translation: [f64; 3],
+    rotation: UnitQuaternion<f64>,
+) -> FrameTransform {
+    FrameTransform {
+        timestamp: Some(timestamp(ns)),
+        parent_frame_id: WORLD.into(),
+        child_frame_id: child.into(),
+        translation: Some(Vector3 {
+            x: translation[0],
+            y: translation[1],
+            z: translation[2],
+        }),
+        rotation: Some(Quaternion {
+            x: rotation.i,
+            y: rotation.j,
+            z: rotation.k,
+            w: rotation.w,
+        }),
+    }
+}
+
+pub fn compressed_image(ns: u64, png: Vec<u8>) -> CompressedImage {
+    CompressedImage {
+        timestamp: Some(timestamp(ns)),
+        frame_id: OPTICAL.into(),
+        data: png.into(),
+        format: "png".into(),
+    }
+}
+
+pub fn depth_image(ns: u64, camera: &CameraInfo, depth_m: &[f32]) -> RawImage {
+    RawImage {
+        timestamp: Some(timestamp(ns)),
+        frame_id: OPTICAL.into(),
+        width: camera.width_px,
+        height: camera.height_px,
+        encoding: "32FC1".into(),
+        step: camera.width_px * 4,
+        data: depth_m
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>()
+            .into(),
+    }
+}
+
+/// The calibration in Foxglove's (ROS's) convention, where pixel centres sit on integer
+/// coordinates: our principal point (pixel centres at +0.5) moves by half a pixel.
+pub fn calibration(ns: u64, camera: &CameraInfo) -> CameraCalibration {
+    let (fx, fy) = (camera.fx_px, camera.fy_px);
+    let (cx, cy) = (camera.cx_px - 0.5, camera.cy_px - 0.5);
+    CameraCalibration {
+        timestamp: Some(timestamp(ns)),
+        frame_id: OPTICAL.into(),
+        width: camera.width_px,
+        height: camera.height_px,
+        distortion_model: "plumb_bob".into(),
+        d: vec![0.0; 5],
+        k: vec![fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: vec![fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    }
+}
+
+/// The cloud's real points, world frame.
+pub fn point_cloud(ns: u64, cloud: &Cloud) -> PointCloud {
+    let field = |name: &str, offset: u32, kind: NumericType| PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: kind as i32,
+    };
+    let mut data = Vec::with_capacity(cloud.valid * 16);
+    for i in 0..cloud.valid {
+        for v in cloud.xyz_m[i] {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+        data.extend_from_slice(&cloud.rgb[i]);
+        data.push(255);
+    }
+    PointCloud {
+        timestamp: Some(timestamp(ns)),
+        frame_id: WORLD.into(),
+        pose: None,
+        point_stride: 16,
+        fields: vec![
+            field("x", 0, NumericType::Float32),
+            field("y", 4, NumericType::Float32),
+            field("z", 8, NumericType::Float32),
+            field("red", 12, NumericType::Uint8),
+            field("green", 13, NumericType::Uint8),
+            field("blue", 14, NumericType::Uint8),
+            field("alpha", 15, NumericType::Uint8),
+        ],
+        data: data.into(),
+    }
+}
+
+/// World -> optical frame, -> tool tip (state: x y z, Euler xyz with R = Rz Ry Rx), -> each
+/// object with a pose (named by `objects`).
+pub fn frames(ns: u64, camera: &CameraInfo, step: &Step, objects: &[String]) -> FrameTransforms {
+    let m = &camera.world_from_camera;
+    let rotation = Matrix3::from_fn(|r, c| m[r][c]);
+    let optical = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&rotation));
+    let mut transforms = vec![transform(ns, OPTICAL, [m[0][3], m[1][3], m[2][3]], optical)];
+    let s = step.state.map(f64::from);
+    let tip = UnitQuaternion::from_euler_angles(s[3], s[4], s[5]);
+    transforms.push(transform(ns, TOOL_TIP, [s[0], s[1], s[2]], tip));
+    for (i, name) in objects.iter().enumerate().take(MAX_OBJECTS) {
+        let pose = &step.environment_state[i * POSE_VALUES..(i + 1) * POSE_VALUES];
+        if pose.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        let p = pose.iter().map(|&v| f64::from(v)).collect::<Vec<_>>();
+        let rotation =
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(p[6], p[3], p[4], p[5]));
+        transforms.push(transform(ns, name, [p[0], p[1], p[2]], rotation));
+    }
+    FrameTransforms { transforms }
+}
+
+/// `/robot/state` as JSON.
+pub fn state_json(ns: u64, step: &Step) -> Value {
+    let s = step.state;
+    json!({
+        "timestamp_ns": ns,
+        "tip_position_m": [s[0], s[1], s[2]],
+        "tip_euler_xyz_rad": [s[3], s[4], s[5]],
+        "jaw_angle_rad": s[6],
+        "held_object": step.extras.held_object,
+    })
+}
+
+/// `/robot/action` as JSON.
+pub fn action_json(ns: u64, step: &Step) -> Value {
+    let a = step.action;
+    json!({
+        "timestamp_ns": ns,
+        "delta_position_m": [a[0], a[1], a[2]],
+        "delta_euler_xyz_rad": [a[3], a[4], a[5]],
+        "gripper_open": a[6],
+    })
+}
+
+/// The JSON schemas of the JSON channels.
+pub fn state_schema() -> Value {
+    let vector =
+        json!({"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3});
+    json!({
+        "title": "surgvla.RobotState",
+        "type": "object",
+        "properties": {
+            "timestamp_ns": {"type": "integer"},
+            "tip_position_m": vector,
+            "tip_euler_xyz_rad": vector,
+            "jaw_angle_rad": {"type": "number"},
+            "held_object": {"type": ["string", "null"]},
+        },
+        "required": ["timestamp_ns", "tip_position_m", "tip_euler_xyz_rad", "jaw_angle_rad"],
+    })
+}
+
+pub fn action_schema() -> Value {
+    let vector =
+        json!({"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3});
+    json!({
+        "title": "surgvla.RobotAction",
+        "type": "object",
+        "properties": {
+            "timestamp_ns": {"type": "integer"},
+            "delta_position_m": vector,
+            "delta_euler_xyz_rad": vector,
+            "gripper_open": {"type": "number", "description": "1 = open, 0 = closed"},
+        },
+        "required": ["timestamp_ns", "delta_position_m", "delta_euler_xyz_rad", "gripper_open"],
+    })
+}
+
+pub fn info_schema() -> Value {
+    json!({
+        "title": "surgvla.EpisodeInfo",
+        "type": "object",
+        "properties": {
+            "episode_index": {"type": "integer"},
+            "task_id": {"type": "string"},
+            "level": {"type": "integer"},
+            "seed": {"type": "integer"},
+            "instruction": {"type": "string"},
+            "success": {"type": "boolean"},
+            "frames": {"type": "integer"},
+        },
+        "required": ["episode_index", "task_id", "seed", "instruction", "success", "frames"],
+    })
+}

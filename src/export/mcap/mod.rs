@@ -1,0 +1,396 @@
+//! MCAP recordings for Foxglove, one file per episode ([`McapWriter`]):
+//! ```text
+//! episode_NNNNNN.mcap     zstd chunks, summary, message and chunk indexes, CRCs
+//! episodes.jsonl          per episode: index, file, frames, task id, level, seed, success, instruction
+//! surgvla_manifest.json   every file with size and CRC-32C
+//! ```
+//! Topics (`../shared/spec/formats.md`): `/endoscope/rgb` (foxglove.CompressedImage, PNG),
+//! `/endoscope/depth` (foxglove.RawImage, 32FC1 metres), `/endoscope/camera_info`
+//! (foxglove.CameraCalibration), `/endoscope/points` (foxglove.PointCloud, with depth), `/tf`
+//! (foxglove.FrameTransforms), `/robot/state` and `/robot/action` (JSON with a JSON schema),
+//! `/episode/info` (JSON, once), and an `episode` Metadata record with the provenance. Every
+//! message of a step has log time = publish time = [`T0_NS`] + step / fps: a fixed origin, never
+//! the wall clock, so the same episode gives the same bytes. The Metadata record is written
+//! before any channel (writing it later leaves an empty chunk), and zstd runs on one thread.
+
+pub mod messages;
+
+use crate::episode::{Episode, FeatureKind};
+use crate::export::dir::{DatasetDir, RunOptions};
+use crate::export::image::{PngLevel, encode_png};
+use crate::export::info::DatasetInfo;
+use crate::export::pointcloud::{CloudSettings, frame_cloud};
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use foxglove::Encode;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// The recordings' time origin: 2024-01-01T00:00:00Z in nanoseconds.
+pub const T0_NS: u64 = 1_704_067_200_000_000_000;
+/// Episodes between checkpoints.
+pub const CHECKPOINT_EPISODES: u64 = 16;
+/// Every file with its size and CRC-32C.
+pub const MANIFEST: &str = "surgvla_manifest.json";
+const EPISODES_JOURNAL: &str = ".surgvla-episodes.jsonl";
+
+/// Options of the MCAP recordings.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct McapOptions {
+    /// How `/endoscope/points` clouds are made.
+    pub cloud: CloudSettings,
+}
+
+impl McapOptions {
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = self.cloud.run_options();
+        options.set("format", json!("mcap"));
+        options
+    }
+}
+
+fn mcap_error(what: &str) -> impl FnOnce(mcap::McapError) -> ExportError + '_ {
+    move |source| ExportError::Encode {
+        what: format!("MCAP {what}"),
+        source: Box::new(source),
+    }
+}
+
+/// What a checkpoint records besides the files.
+#[derive(Clone, Default, Serialize, Deserialize)]
+struct State {
+    episodes: u64,
+    summary: Summary,
+}
+
+/// Writes one MCAP file per episode.
+pub struct McapWriter {
+    dir: DatasetDir,
+    info: DatasetInfo,
+    options: McapOptions,
+    state: State,
+    timing: SinkTiming,
+    finished: Option<Summary>,
+}
+
+/// A message type's schema added to a writer.
+fn schema_of<T: Encode>(
+    writer: &mut mcap::Writer<std::io::Cursor<Vec<u8>>>,
+) -> Result<u16, ExportError> {
+    let schema = T::get_schema()
+        .ok_or_else(|| ExportError::Internal("a Foxglove type without a schema".into()))?;
+    writer
+        .add_schema(&schema.name, &schema.encoding, &schema.data)
+        .map_err(mcap_error("schema"))
+}
+
+fn encoded<T: Encode>(message: &T) -> Result<Vec<u8>, ExportError> {
+    let mut bytes = Vec::with_capacity(message.encoded_len().unwrap_or(1024));
+    message
+        .encode(&mut bytes)
+        .map_err(|e| ExportError::Encode {
+            what: "a Foxglove message".into(),
+            source: Box::new(std::io::Error::other(e.to_string())),
+        })?;
+    Ok(bytes)
+}
+
+/// The MCAP file of one episode.
+pub fn record_episode(
+    info: &DatasetInfo,
+    options: &McapOptions,
+    episode: &Episode,
+) -> Result<Vec<u8>, ExportError> {
+    let camera = &info.camera;
+    let (width, height) = info.image_size();
+    let cloud_options = if info.has(FeatureKind::Depth) {
+        Some(options.cloud.options(info)?)
+    } else {
+        None
+    };
+    let write_options = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .compression_threads(0)
+        .profile("")
+        .library(info.generator.clone());
+    let mut writer = write_options
+        .create(std::io::Cursor::new(Vec::new()))
+        .map_err(mcap_error("writer"))?;
+    let meta = &episode.meta;
+    let provenance: BTreeMap<String, String> = [
+        ("episode_index", meta.index.to_string()),
+        ("task_id", meta.task_code.clone()),
+        ("level", meta.level.to_string()),
+        ("seed", meta.seed.to_string()),
+        ("instruction", meta.instruction.clone()),
+        ("success", meta.success.to_string()),
+        ("generator", info.generator.clone()),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    writer
+        .write_metadata(&mcap::records::Metadata {
+            name: "episode".into(),
+            metadata: provenance,
+        })
+        .map_err(mcap_error("metadata"))?;
+    let no_metadata = BTreeMap::new();
+    let rgb_schema = schema_of::<foxglove::messages::CompressedImage>(&mut writer)?;
+    let depth_schema = schema_of::<foxglove::messages::RawImage>(&mut writer)?;
+    let calibration_schema = schema_of::<foxglove::messages::CameraCalibration>(&mut writer)?;
+    let points_schema = schema_of::<foxglove::messages::PointCloud>(&mut writer)?;
+    let tf_schema = schema_of::<foxglove::messages::FrameTransforms>(&mut writer)?;
+    let json_schema = |writer: &mut mcap::Writer<_>, value: Value, name: &str| {
+        writer
+            .add_schema(name, "jsonschema", value.to_string().as_bytes())
+            .map_err(mcap_error("schema"))
+    };
+    let state_schema = json_schema(&mut writer, messages::state_schema(), "surgvla.RobotState")?;
+    let action_schema = json_schema(
+        &mut writer,
+        messages::action_schema(),
+        "surgvla.RobotAction",
+    )?;
+    let info_schema = json_schema(&mut writer, messages::info_schema(), "surgvla.EpisodeInfo")?;
+    let mut add = |schema: u16, topic: &str, encoding: &str| {
+        writer
+            .add_channel(schema, topic, encoding, &no_metadata)
+            .map_err(mcap_error("channel"))
+    };
+    let info_channel = add(info_schema, "/episode/info", "json")?;
+    let rgb = add(rgb_schema, "/endoscope/rgb", "protobuf")?;
+    let depth = if info.has(FeatureKind::Depth) {
+        Some(add(depth_schema, "/endoscope/depth", "protobuf")?)
+    } else {
+        None
+    };
+    let calibration = add(calibration_schema, "/endoscope/camera_info", "protobuf")?;
+    let points = if cloud_options.is_some() {
+        Some(add(points_schema, "/endoscope/points", "protobuf")?)
+    } else {
+        None
+    };
+    let tf = add(tf_schema, "/tf", "protobuf")?;
+    let state = add(state_schema, "/robot/state", "json")?;
+    let action = add(action_schema, "/robot/action", "json")?;
+    let objects: Vec<String> = (0..crate::episode::MAX_OBJECTS)
+        .map(|i| format!("object_{i}"))
+        .collect();
+    // Per step, encoded in parallel: every message's bytes.
+    let fps = u64::from(info.fps.max(1));
+    let step_messages: Vec<Vec<(u16, Vec<u8>)>> = episode
+        .steps
+        .par_iter()
+        .enumerate()
+        .map(|(t, step)| -> Result<Vec<(u16, Vec<u8>)>, ExportError> {
+            let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
+            let png = encode_png(width, height, 3, &step.rgb, PngLevel::Fast)?;
+            let mut out = vec![(rgb, encoded(&messages::compressed_image(ns, png))?)];
+            if let Some(channel) = depth {
+                out.push((
+                    channel,
+                    encoded(&messages::depth_image(ns, camera, &step.depth_m))?,
+                ));
+            }
+            out.push((calibration, encoded(&messages::calibration(ns, camera))?));
+            if let (Some(channel), Some(cloud_options)) = (points, &cloud_options) {
+                let cloud = frame_cloud(camera, step, cloud_options);
+                out.push((channel, encoded(&messages::point_cloud(ns, &cloud))?));
+            }
+            out.push((tf, encoded(&messages::frames(ns, camera, step, &objects))?));
+            out.push((
+                state,
+                messages::state_json(ns, step).to_string().into_bytes(),
+            ));
+            out.push((
+                action,
+                messages::action_json(ns, step).to_string().into_bytes(),
+            ));
+            Ok(out)
+        })
+        .collect::<Result<_, _>>()?;
+    let info_message = json!({
+        "episode_index": meta.index,
+        "task_id": meta.task_code,
+        "level": meta.level,
+        "seed": meta.seed,
+        "instruction": meta.instruction,
+        "success": meta.success,
+        "frames": episode.steps.len(),
+    });
+    let mut sequence = 0u32;
+    let mut write = |writer: &mut mcap::Writer<_>, channel: u16, ns: u64, data: &[u8]| {
+        sequence += 1;
+        writer
+            .write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id: channel,
+                    sequence,
+                    log_time: ns,
+                    publish_time: ns,
+                },
+                data,
+            )
+            .map_err(mcap_error("message"))
+    };
+    write(
+        &mut writer,
+        info_channel,
+        T0_NS,
+        info_message.to_string().as_bytes(),
+    )?;
+    for (t, messages) in step_messages.iter().enumerate() {
+        let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
+        for (channel, data) in messages {
+            write(&mut writer, *channel, ns, data)?;
+        }
+    }
+    writer.finish().map_err(mcap_error("summary"))?;
+    Ok(writer.into_inner().into_inner())
+}
+
+impl McapWriter {
+    fn run_options(info: &DatasetInfo, options: &McapOptions) -> Result<RunOptions, ExportError> {
+        if info.has(FeatureKind::Depth) {
+            options.cloud.options(info)?;
+        }
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
+    }
+
+    /// Starts the folder `root`, which must not exist or be empty.
+    pub fn create(
+        root: &Path,
+        info: &DatasetInfo,
+        options: McapOptions,
+    ) -> Result<Self, ExportError> {
+        let run = Self::run_options(info, &options)?;
+        Ok(McapWriter {
+            dir: DatasetDir::create(root, &run)?,
+            info: info.clone(),
+            options,
+            state: State::default(),
+            timing: SinkTiming::default(),
+            finished: None,
+        })
+    }
+
+    /// Continues an interrupted folder from its last checkpoint.
+    pub fn resume(
+        root: &Path,
+        info: &DatasetInfo,
+        options: McapOptions,
+    ) -> Result<Self, ExportError> {
+        let run = Self::run_options(info, &options)?;
+        let (dir, state) = DatasetDir::resume::<State>(root, &run, &[""])?;
+        Ok(McapWriter {
+            dir,
+            info: info.clone(),
+            options,
+            state: state.unwrap_or_default(),
+            timing: SinkTiming::default(),
+            finished: None,
+        })
+    }
+
+    fn check(&self, episode: &Episode, index: u64) -> Result<(), ExportError> {
+        if self.finished.is_some() {
+            return Err(ExportError::Internal(
+                "an episode arrived after the dataset was finished".into(),
+            ));
+        }
+        if episode.meta.index != index {
+            return Err(ExportError::InvalidEpisode(format!(
+                "episode index {} arrived where {index} was expected (episodes must come in order)",
+                episode.meta.index
+            )));
+        }
+        let (width, height) = self.info.image_size();
+        episode
+            .validate(width, height, &self.info.features)
+            .map_err(ExportError::InvalidEpisode)
+    }
+
+    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        self.dir.save_checkpoint(&self.state)?;
+        let mut summary = self.state.summary.clone();
+        let mut episodes = Vec::new();
+        for line in self.dir.journal_lines(EPISODES_JOURNAL)? {
+            episodes.extend_from_slice(line?.as_bytes());
+            episodes.push(b'\n');
+        }
+        summary.bytes += self.dir.write_atomically("episodes.jsonl", &episodes)?;
+        summary.bytes += self.dir.write_manifest(MANIFEST)?;
+        summary.files += 2;
+        if let Some(make) = sidecar {
+            let (relative, bytes) = make(&summary)?;
+            self.dir.write_unlisted(&relative, &bytes)?;
+        }
+        self.dir.complete()?;
+        Ok(summary)
+    }
+}
+
+impl EpisodeSink for McapWriter {
+    /// A batch's episodes are recorded in parallel, then written in order.
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        let first = self.state.episodes;
+        for (i, episode) in episodes.iter().enumerate() {
+            self.check(episode, first + i as u64)?;
+        }
+        let started = std::time::Instant::now();
+        let (info, options) = (&self.info, &self.options);
+        let files: Vec<Vec<u8>> = episodes
+            .par_iter()
+            .map(|episode| record_episode(info, options, episode))
+            .collect::<Result<_, _>>()?;
+        let written = std::time::Instant::now();
+        self.timing.encode_secs += (written - started).as_secs_f64();
+        for (episode, bytes) in episodes.iter().zip(files) {
+            let index = episode.meta.index;
+            let file = format!("episode_{index:06}.mcap");
+            self.state.summary.bytes += self.dir.write_atomically(&file, &bytes)?;
+            self.state.summary.files += 1;
+            let meta = &episode.meta;
+            let line = json!({
+                "episode_index": index,
+                "file": file,
+                "frames": episode.steps.len(),
+                "task_id": meta.task_code,
+                "level": meta.level,
+                "seed": meta.seed,
+                "success": meta.success,
+                "instruction": meta.instruction,
+            });
+            self.dir
+                .append(EPISODES_JOURNAL, line.to_string().as_bytes())?;
+            self.state.episodes += 1;
+            self.state.summary.episodes += 1;
+            self.state.summary.frames += episode.steps.len() as u64;
+            if self.state.episodes.is_multiple_of(CHECKPOINT_EPISODES) {
+                self.dir.save_checkpoint(&self.state)?;
+            }
+        }
+        self.timing.write_secs += written.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn next_episode_index(&self) -> u64 {
+        self.state.episodes
+    }
+
+    fn timing(&self) -> SinkTiming {
+        self.timing
+    }
+
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        let mut finished = self.finished.take();
+        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
+        self.finished = finished;
+        result
+    }
+}
