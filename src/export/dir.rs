@@ -520,6 +520,16 @@ impl DatasetDir {
             .map(move |line| line.map_err(ExportError::io(&path))))
     }
 
+    /// Journal `relative`'s records as one file's bytes (a line each).
+    pub fn journal_bytes(&mut self, relative: &str) -> Result<Vec<u8>, ExportError> {
+        let mut bytes = Vec::new();
+        for line in self.journal_lines(relative)? {
+            bytes.extend_from_slice(line?.as_bytes());
+            bytes.push(b'\n');
+        }
+        Ok(bytes)
+    }
+
     fn reopen_journal(&self, relative: &str, mark: JournalMark) -> Result<Journal, ExportError> {
         let path = self.path(relative);
         let damaged = |problem: String| ExportError::Damaged {

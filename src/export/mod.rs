@@ -244,6 +244,62 @@ pub trait EpisodeSink {
     fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError>;
 }
 
+/// What every sink checks before it writes an episode: that the dataset is not finished yet,
+/// that the episode is the `expected` one (episodes come in index order), and that its steps
+/// hold the dataset's features.
+pub(crate) fn check_episode(
+    info: &DatasetInfo,
+    finished: bool,
+    episode: &Episode,
+    expected: u64,
+) -> Result<(), ExportError> {
+    if finished {
+        return Err(ExportError::Internal(
+            "an episode arrived after the dataset was finished".into(),
+        ));
+    }
+    if episode.meta.index != expected {
+        return Err(ExportError::InvalidEpisode(format!(
+            "episode index {} arrived where {expected} was expected (episodes must come in order)",
+            episode.meta.index
+        )));
+    }
+    let (width, height) = info.image_size();
+    episode
+        .validate(width, height, &info.features)
+        .map_err(ExportError::InvalidEpisode)
+}
+
+/// [`check_episode`] for consecutive episodes starting at `first`.
+pub(crate) fn check_batch(
+    info: &DatasetInfo,
+    finished: bool,
+    episodes: &[Episode],
+    first: u64,
+) -> Result<(), ExportError> {
+    (first..)
+        .zip(episodes)
+        .try_for_each(|(index, episode)| check_episode(info, finished, episode, index))
+}
+
+/// The end every format's finish shares, after its own files: the manifest `manifest`, the
+/// sidecar, and only then the marker goes (see [`DatasetDir::complete`]).
+pub(crate) fn seal(
+    dir: &mut DatasetDir,
+    manifest: &str,
+    mut summary: Summary,
+    sidecar: Option<Sidecar<'_>>,
+) -> Result<Summary, ExportError> {
+    summary.bytes += dir.write_manifest(manifest)?;
+    summary.files += 1;
+    if let Some(make) = sidecar {
+        let (relative, bytes) = make(&summary)?;
+        dir.write_unlisted(&relative, &bytes)?;
+    }
+    dir.complete()?;
+    Ok(summary)
+}
+
 /// [`EpisodeSink::finish_with`]'s "safe twice" for every format: runs `finish` the first time
 /// and remembers its summary in `finished`; later calls return that summary and do nothing.
 pub(crate) fn finish_once(

@@ -30,7 +30,9 @@ use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
 pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile};
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use crate::export::{
+    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_episode, finish_once, seal,
+};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
@@ -426,22 +428,12 @@ impl LeRobotWriter {
         episode: &Episode,
         video: Option<Option<Vec<EncodedFrame>>>,
     ) -> Result<(), ExportError> {
-        if self.finished.is_some() {
-            return Err(ExportError::Internal(
-                "an episode arrived after the dataset was finished".into(),
-            ));
-        }
-        let (width, height) = self.info.image_size();
-        episode
-            .validate(width, height, &self.info.features)
-            .map_err(ExportError::InvalidEpisode)?;
-        let expected = self.state.episodes;
-        if episode.meta.index != expected {
-            return Err(ExportError::InvalidEpisode(format!(
-                "episode index {} arrived where {expected} was expected (episodes must come in order)",
-                episode.meta.index
-            )));
-        }
+        check_episode(
+            &self.info,
+            self.finished.is_some(),
+            episode,
+            self.state.episodes,
+        )?;
         let task_index = self.task_index(&episode.meta.instruction);
         let first_index = self.state.total_frames;
         let encode_started = std::time::Instant::now();
@@ -569,14 +561,9 @@ impl LeRobotWriter {
             .options
             .version
             .write_metadata(&mut self.dir, &metadata, rows)?;
-        summary.files += files + 1;
-        summary.bytes += bytes + self.dir.write_manifest(crate::export::MANIFEST)?;
-        if let Some(make) = sidecar {
-            let (relative, bytes) = make(&summary)?;
-            self.dir.write_unlisted(&relative, &bytes)?;
-        }
-        self.dir.complete()?;
-        Ok(summary)
+        summary.files += files;
+        summary.bytes += bytes;
+        seal(&mut self.dir, crate::export::MANIFEST, summary, sidecar)
     }
 }
 

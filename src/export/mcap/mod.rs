@@ -20,7 +20,9 @@ use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::image::{PngLevel, encode_png};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use crate::export::{
+    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch, finish_once, seal,
+};
 use foxglove::Encode;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -297,51 +299,25 @@ impl McapWriter {
         })
     }
 
-    fn check(&self, episode: &Episode, index: u64) -> Result<(), ExportError> {
-        if self.finished.is_some() {
-            return Err(ExportError::Internal(
-                "an episode arrived after the dataset was finished".into(),
-            ));
-        }
-        if episode.meta.index != index {
-            return Err(ExportError::InvalidEpisode(format!(
-                "episode index {} arrived where {index} was expected (episodes must come in order)",
-                episode.meta.index
-            )));
-        }
-        let (width, height) = self.info.image_size();
-        episode
-            .validate(width, height, &self.info.features)
-            .map_err(ExportError::InvalidEpisode)
-    }
-
     fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
         self.dir.save_checkpoint(&self.state)?;
         let mut summary = self.state.summary.clone();
-        let mut episodes = Vec::new();
-        for line in self.dir.journal_lines(EPISODES_JOURNAL)? {
-            episodes.extend_from_slice(line?.as_bytes());
-            episodes.push(b'\n');
-        }
+        let episodes = self.dir.journal_bytes(EPISODES_JOURNAL)?;
         summary.bytes += self.dir.write_atomically("episodes.jsonl", &episodes)?;
-        summary.bytes += self.dir.write_manifest(MANIFEST)?;
-        summary.files += 2;
-        if let Some(make) = sidecar {
-            let (relative, bytes) = make(&summary)?;
-            self.dir.write_unlisted(&relative, &bytes)?;
-        }
-        self.dir.complete()?;
-        Ok(summary)
+        summary.files += 1;
+        seal(&mut self.dir, MANIFEST, summary, sidecar)
     }
 }
 
 impl EpisodeSink for McapWriter {
     /// A batch's episodes are recorded in parallel, then written in order.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        let first = self.state.episodes;
-        for (i, episode) in episodes.iter().enumerate() {
-            self.check(episode, first + i as u64)?;
-        }
+        check_batch(
+            &self.info,
+            self.finished.is_some(),
+            episodes,
+            self.state.episodes,
+        )?;
         let started = std::time::Instant::now();
         let (info, options) = (&self.info, &self.options);
         let files: Vec<Vec<u8>> = episodes

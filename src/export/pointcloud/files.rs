@@ -12,7 +12,9 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud, pcd, ply};
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use crate::export::{
+    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_episode, finish_once, seal,
+};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -128,22 +130,12 @@ impl CloudFilesWriter {
     }
 
     fn write_one(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        if self.finished.is_some() {
-            return Err(ExportError::Internal(
-                "an episode arrived after the dataset was finished".into(),
-            ));
-        }
-        let expected = self.state.episodes;
-        if episode.meta.index != expected {
-            return Err(ExportError::InvalidEpisode(format!(
-                "episode index {} arrived where {expected} was expected (episodes must come in order)",
-                episode.meta.index
-            )));
-        }
-        let (width, height) = self.info.image_size();
-        episode
-            .validate(width, height, &self.info.features)
-            .map_err(ExportError::InvalidEpisode)?;
+        check_episode(
+            &self.info,
+            self.finished.is_some(),
+            episode,
+            self.state.episodes,
+        )?;
         let started = std::time::Instant::now();
         let options = self.settings.options(&self.info)?;
         let camera = self.info.camera;
@@ -192,11 +184,7 @@ impl CloudFilesWriter {
     fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
         self.dir.save_checkpoint(&self.state)?;
         let mut summary = self.state.summary.clone();
-        let mut episodes = Vec::new();
-        for line in self.dir.journal_lines(EPISODES_JOURNAL)? {
-            episodes.extend_from_slice(line?.as_bytes());
-            episodes.push(b'\n');
-        }
+        let episodes = self.dir.journal_bytes(EPISODES_JOURNAL)?;
         let mut surgvla = self.info.surgvla_json();
         surgvla["fps"] = json!(self.info.fps);
         surgvla["point_cloud"] = self.settings.describe(&self.info)?;
@@ -209,14 +197,7 @@ impl CloudFilesWriter {
             summary.bytes += self.dir.write_atomically(relative, &bytes)?;
             summary.files += 1;
         }
-        summary.bytes += self.dir.write_manifest(MANIFEST)?;
-        summary.files += 1;
-        if let Some(make) = sidecar {
-            let (relative, bytes) = make(&summary)?;
-            self.dir.write_unlisted(&relative, &bytes)?;
-        }
-        self.dir.complete()?;
-        Ok(summary)
+        seal(&mut self.dir, MANIFEST, summary, sidecar)
     }
 }
 

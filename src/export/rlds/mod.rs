@@ -30,7 +30,9 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
 use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use crate::export::{
+    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch, finish_once, seal,
+};
 use rayon::prelude::*;
 use record::{StepLayout, encode_episode};
 use serde::{Deserialize, Serialize};
@@ -271,25 +273,6 @@ impl RldsWriter {
         }
     }
 
-    fn check_episode(&self, episode: &Episode, index: u64) -> Result<(), ExportError> {
-        if self.finished.is_some() {
-            return Err(ExportError::Internal(
-                "an episode arrived after the dataset was finished".into(),
-            ));
-        }
-        let (width, height) = self.info.image_size();
-        episode
-            .validate(width, height, &self.info.features)
-            .map_err(ExportError::InvalidEpisode)?;
-        if episode.meta.index != index {
-            return Err(ExportError::InvalidEpisode(format!(
-                "episode index {} arrived where {index} was expected (episodes must come in order)",
-                episode.meta.index
-            )));
-        }
-        Ok(())
-    }
-
     /// Appends one serialized episode to the open shard (opening one), closing the shard and
     /// checkpointing once it is full.
     fn append(&mut self, example: &[u8], steps: u64) -> Result<(), ExportError> {
@@ -401,24 +384,19 @@ impl RldsWriter {
         }
         let guide = openvla_md(&self.info, &self.options);
         self.write_file(&mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
-        summary.bytes += self.dir.write_manifest(MANIFEST)?;
-        summary.files += 1;
-        if let Some(make) = sidecar {
-            let (relative, bytes) = make(&summary)?;
-            self.dir.write_unlisted(&relative, &bytes)?;
-        }
-        self.dir.complete()?;
-        Ok(summary)
+        seal(&mut self.dir, MANIFEST, summary, sidecar)
     }
 }
 
 impl EpisodeSink for RldsWriter {
     /// A batch's episodes are encoded in parallel, then appended in order.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        let first = self.state.episodes;
-        for (i, episode) in episodes.iter().enumerate() {
-            self.check_episode(episode, first + i as u64)?;
-        }
+        check_batch(
+            &self.info,
+            self.finished.is_some(),
+            episodes,
+            self.state.episodes,
+        )?;
         let started = std::time::Instant::now();
         let (layout, png) = (&self.layout, self.options.png);
         let examples: Vec<Vec<u8>> = episodes

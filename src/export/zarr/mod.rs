@@ -18,7 +18,9 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, finish_once};
+use crate::export::{
+    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_episode, finish_once, seal,
+};
 use array::{ArrayMark, ArrayWriter};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -161,22 +163,12 @@ impl ZarrWriter {
     }
 
     fn write_one(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        if self.finished.is_some() {
-            return Err(ExportError::Internal(
-                "an episode arrived after the dataset was finished".into(),
-            ));
-        }
-        let expected = self.state.episode_ends.len() as u64;
-        if episode.meta.index != expected {
-            return Err(ExportError::InvalidEpisode(format!(
-                "episode index {} arrived where {expected} was expected (episodes must come in order)",
-                episode.meta.index
-            )));
-        }
-        let (width, height) = self.info.image_size();
-        episode
-            .validate(width, height, &self.info.features)
-            .map_err(ExportError::InvalidEpisode)?;
+        check_episode(
+            &self.info,
+            self.finished.is_some(),
+            episode,
+            self.state.episode_ends.len() as u64,
+        )?;
         let started = std::time::Instant::now();
         let cloud_options = self.options.cloud.options(&self.info)?;
         let camera = self.info.camera;
@@ -266,16 +258,10 @@ impl ZarrWriter {
             })?;
             self.dir.write_atomically(relative, &bytes)?;
         }
-        self.dir.write_manifest(MANIFEST)?;
         // Partial chunks are rewritten as they fill: count the files as they stand.
         summary.files = self.dir.files().len() as u64;
         summary.bytes = self.dir.files().iter().map(|f| f.bytes).sum();
-        if let Some(make) = sidecar {
-            let (relative, bytes) = make(&summary)?;
-            self.dir.write_unlisted(&relative, &bytes)?;
-        }
-        self.dir.complete()?;
-        Ok(summary)
+        seal(&mut self.dir, MANIFEST, summary, sidecar)
     }
 }
 
