@@ -184,6 +184,7 @@ impl Env {
                 held_object: sim.bound_object.map(|i| self.object_name(i)),
                 grasped: None,
                 released: None,
+                frames: crate::view::instrument_frames(&self.sim.instrument_pose()),
             },
             sim,
         }

@@ -285,6 +285,30 @@ pub struct StepExtras {
     pub grasped: Option<String>,
     /// The object the jaws released during the step.
     pub released: Option<String>,
+    /// The instrument's frames in the world before the step (`psm_shaft`, `psm_jaw_pivot`).
+    pub frames: Vec<NamedPose>,
+}
+
+/// A named pose in the world frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedPose {
+    pub name: String,
+    pub position_m: [f64; 3],
+    /// Unit quaternion (x, y, z, w).
+    pub rotation_xyzw: [f64; 4],
+}
+
+/// One triangle mesh of a scene, for viewers: its vertices are in `frame`, which is `world`, a
+/// movable object's `object_<i>` (scene order) or an instrument frame of [`StepExtras::frames`],
+/// so it moves with that frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneMesh {
+    pub name: String,
+    pub frame: String,
+    /// Linear RGB, 0..1.
+    pub rgb: [f32; 3],
+    pub positions_m: Vec<[f32; 3]>,
+    pub triangles: Vec<[u32; 3]>,
 }
 
 /// A recorded episode.

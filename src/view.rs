@@ -6,6 +6,7 @@ use crate::assets::{Appearance, SceneAssets};
 use crate::episode::CameraInfo;
 use crate::render::image::{depth_visualisation, mask_visualisation};
 use crate::render::{Camera, Frame, RenderOptions, Renderer};
+use crate::scene::InstrumentPose;
 use crate::sim::{SimConfig, Simulator};
 use crate::task::TaskId;
 
@@ -104,5 +105,104 @@ pub fn mask_ids() -> Vec<(u8, String)> {
     crate::assets::MaskClass::ALL
         .iter()
         .map(|(class, name)| (class.id(), name.to_string()))
+        .collect()
+}
+
+fn named_pose(name: &str, pose: &nalgebra::Isometry3<f64>) -> crate::episode::NamedPose {
+    let q = pose.rotation.coords;
+    crate::episode::NamedPose {
+        name: name.into(),
+        position_m: pose.translation.vector.into(),
+        rotation_xyzw: [q[0], q[1], q[2], q[3]],
+    }
+}
+
+/// The instrument's frames for viewers: the shaft and the jaw pivot.
+pub fn instrument_frames(pose: &InstrumentPose) -> Vec<crate::episode::NamedPose> {
+    vec![
+        named_pose("psm_shaft", &pose.world_from_shaft),
+        named_pose("psm_jaw_pivot", &pose.world_from_jaw_pivot),
+    ]
+}
+
+/// [`scene_meshes`] of `scene` before its first step, drawn as `collect` draws episode `seed`.
+pub fn scene_meshes_at_start(
+    scene: &crate::scene::SceneSpec,
+    seed: u64,
+    randomize_appearance: bool,
+) -> Vec<crate::episode::SceneMesh> {
+    let appearance = if randomize_appearance {
+        Appearance::randomized(seed)
+    } else {
+        Appearance::default()
+    };
+    let assets = SceneAssets::new(scene, seed, appearance);
+    scene_meshes(
+        &assets,
+        &Simulator::new(SimConfig::default(), scene.clone()),
+    )
+}
+
+/// The scene's meshes as data for viewers (the MCAP recorder's SceneUpdate), as they stand in
+/// `sim` now: static parts in the world frame, movable objects in their `object_<i>` frames, the
+/// instrument's shaft in `psm_shaft` and its wrist and jaws in `psm_jaw_pivot`.
+pub fn scene_meshes(assets: &SceneAssets, sim: &Simulator) -> Vec<crate::episode::SceneMesh> {
+    let object_poses = sim.object_poses();
+    let instrument = sim.instrument_pose();
+    let instances = assets.instances(&object_poses, &instrument);
+    let statics = instances.len() - object_poses.len() - 4;
+    instances
+        .iter()
+        .enumerate()
+        .map(|(i, instance)| {
+            let (name, frame, frame_pose) = if i < statics {
+                (
+                    format!("static_{i}"),
+                    "world".to_string(),
+                    nalgebra::Isometry3::identity(),
+                )
+            } else if i < statics + object_poses.len() {
+                let k = i - statics;
+                let name = sim
+                    .scene()
+                    .objects
+                    .get(k)
+                    .map_or(format!("object_{k}"), |o| o.name.clone());
+                (name, format!("object_{k}"), object_poses[k])
+            } else if i == statics + object_poses.len() {
+                (
+                    "instrument_shaft".into(),
+                    "psm_shaft".into(),
+                    instrument.world_from_shaft,
+                )
+            } else {
+                (
+                    format!("instrument_{}", i - statics - object_poses.len()),
+                    "psm_jaw_pivot".into(),
+                    instrument.world_from_jaw_pivot,
+                )
+            };
+            let frame_from_mesh = frame_pose.inverse() * instance.world_from_mesh;
+            crate::episode::SceneMesh {
+                name,
+                frame,
+                rgb: instance.material.albedo,
+                positions_m: instance
+                    .mesh
+                    .positions
+                    .iter()
+                    .map(|p| {
+                        let q = frame_from_mesh
+                            * nalgebra::Point3::new(
+                                f64::from(p[0]),
+                                f64::from(p[1]),
+                                f64::from(p[2]),
+                            );
+                        [q.x as f32, q.y as f32, q.z as f32]
+                    })
+                    .collect(),
+                triangles: instance.mesh.triangles.clone(),
+            }
+        })
         .collect()
 }

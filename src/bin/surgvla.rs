@@ -55,6 +55,9 @@ enum Command {
     Collect(episodes::CollectArgs),
     /// Convert a dataset into another format: `convert INPUT --to rlds --out DIR`.
     Convert(formats::ConvertArgs),
+    /// Simulate one expert episode and record it as MCAP for Foxglove: images, depth, point
+    /// cloud, the instrument's frames, the scene's meshes, state and action.
+    Record(RecordArgs),
     /// Measure the experts' success rates as `collect` would run them (same attempts and replay
     /// check) without rendering or writing: the quick check of a new or edited plan.
     Experts(episodes::ExpertsArgs),
@@ -206,6 +209,68 @@ fn run_contact_sheet(args: &ContactSheetArgs) -> Result<(), CliError> {
 }
 
 #[derive(clap::Args, Debug)]
+struct RecordArgs {
+    /// Task name (gauze_pick, ...) or id (T1-1, ...).
+    #[arg(long)]
+    task: TaskId,
+    /// Episode seed: decides the spawn positions.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The MCAP file to write (must not exist).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn run_record(args: &RecordArgs) -> Result<(), CliError> {
+    if args.out.exists() {
+        return Err(CliError::usage(format!(
+            "{} already exists; remove it or choose another path",
+            args.out.display()
+        )));
+    }
+    let library = ExpertLibrary::builtin()?;
+    let options = surgvla::collect::record::RecordOptions::default();
+    let collect = surgvla::collect::run::CollectOptions {
+        tasks: vec![args.task],
+        episodes_per_task: 1,
+        seed: args.seed,
+        ..Default::default()
+    };
+    let features = surgvla::episode::FeatureSet {
+        mask: true,
+        ..Default::default()
+    };
+    let info = surgvla::collect::run::dataset_info(&collect, features, &library);
+    let (episode, bytes) =
+        surgvla::collect::record::record_mcap(&library, args.task, args.seed, &options, &info)
+            .map_err(|e| {
+                use surgvla::collect::record::{RecordError, RecordMcapError};
+                match e {
+                    RecordMcapError::Export(e) => CliError::from(e),
+                    RecordMcapError::Record(RecordError::Plan(e)) => CliError::from(e),
+                    RecordMcapError::Record(RecordError::Spawn(e)) => CliError::from(e),
+                }
+            })?;
+    surgvla::export::write_atomically(&args.out, &bytes)
+        .map_err(|e| CliError::from(e).context(format!("writing {}", args.out.display())))?;
+    say!(
+        "{} ({}), seed {}: {} steps, {}; wrote {} ({:.1} MB)",
+        args.task.code(),
+        args.task.name(),
+        args.seed,
+        episode.steps.len(),
+        if episode.meta.success {
+            "success"
+        } else {
+            "failure"
+        },
+        args.out.display(),
+        bytes.len() as f64 / 1e6
+    );
+    Ok(())
+}
+
+#[derive(clap::Args, Debug)]
 struct SimArgs {
     /// Task name (gauze_pick, ...) or id (T1-1, ...).
     #[arg(long, default_value = "gauze_pick")]
@@ -314,6 +379,7 @@ fn main() -> ExitCode {
         Command::ContactSheet(args) => run_contact_sheet(&args),
         Command::Collect(args) => episodes::run_collect(&args),
         Command::Convert(args) => formats::run_convert(&args),
+        Command::Record(args) => run_record(&args),
         Command::Experts(args) => episodes::run_experts(&args),
         Command::Schema { with_mask, format } => run_schema(with_mask, format),
         Command::Tasks => run_tasks(),

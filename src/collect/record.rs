@@ -246,3 +246,33 @@ pub fn record_episode(
     let expert = run_expert(&instance, library.plan(task)?, max_steps, options.gripper)?;
     Ok(render_replay(&instance, &expert.actions, index, 1, options).episode)
 }
+
+/// Why recording an episode as MCAP failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordMcapError {
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error(transparent)]
+    Export(#[from] crate::export::ExportError),
+}
+
+/// Simulates one episode of `task` with its expert (as `collect` records it) and returns it with
+/// its MCAP recording: every dataset topic plus the instrument's frames on `/tf` and the scene's
+/// meshes (organs, tray, objects, instrument) on `/scene`.
+pub fn record_mcap(
+    library: &ExpertLibrary,
+    task: TaskId,
+    seed: u64,
+    options: &RecordOptions,
+    info: &crate::export::DatasetInfo,
+) -> Result<(Episode, Vec<u8>), RecordMcapError> {
+    let episode = record_episode(library, task, seed, 0, options)?;
+    let instance = task
+        .instance(seed, &options.task)
+        .map_err(RecordError::from)?;
+    let meshes =
+        crate::view::scene_meshes_at_start(&instance.scene, seed, options.randomize_appearance);
+    let options = crate::export::mcap::McapOptions::default();
+    let bytes = crate::export::mcap::record_episode(info, &options, &episode, Some(&meshes))?;
+    Ok((episode, bytes))
+}

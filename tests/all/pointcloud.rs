@@ -175,3 +175,49 @@ fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
         "a given box will do"
     );
 }
+
+#[test]
+fn record_writes_one_mcap_and_refuses_to_overwrite_it() {
+    let dir = crate::util::temp_root("record");
+    std::fs::create_dir_all(&*dir).expect("dir");
+    let out = dir.join("ep.mcap");
+    let out_text = out.display().to_string();
+    let args = [
+        "record", "--task", "T1-1", "--seed", "2", "--out", &out_text,
+    ];
+    let (code, stdout, stderr) = crate::util::surgvla(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("success") && stdout.contains("ep.mcap"),
+        "{stdout}"
+    );
+    let bytes = std::fs::read(&out).expect("mcap");
+    assert_eq!(&bytes[..8], b"\x89MCAP0\r\n", "the MCAP magic");
+    // Channel records are not compressed; the messages are (their content: tests/interop/mcap).
+    for topic in ["/scene", "/tf", "/endoscope/points"] {
+        assert!(
+            bytes.windows(topic.len()).any(|w| w == topic.as_bytes()),
+            "{topic} is recorded"
+        );
+    }
+    let (code, _, stderr) = crate::util::surgvla(&args);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("already exists"), "{stderr}");
+    // Same task and seed, same bytes.
+    let again = dir.join("again.mcap");
+    let again_text = again.display().to_string();
+    let (code, _, _) = crate::util::surgvla(&[
+        "record",
+        "--task",
+        "T1-1",
+        "--seed",
+        "2",
+        "--out",
+        &again_text,
+    ]);
+    assert_eq!(code, 0);
+    assert!(
+        std::fs::read(&again).expect("again") == bytes,
+        "deterministic"
+    );
+}

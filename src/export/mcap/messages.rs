@@ -5,11 +5,12 @@
 //! poses), and the robot's state and action as JSON. Everything comes from the episode and the
 //! `DatasetInfo`.
 
-use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, Step};
+use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, SceneMesh, Step};
 use crate::export::pointcloud::Cloud;
 use foxglove::messages::{
-    CameraCalibration, CompressedImage, FrameTransform, FrameTransforms, PackedElementField,
-    PointCloud, Quaternion, RawImage, Timestamp, Vector3, packed_element_field::NumericType,
+    CameraCalibration, Color, CompressedImage, FrameTransform, FrameTransforms, PackedElementField,
+    Point3, PointCloud, Quaternion, RawImage, SceneEntity, SceneUpdate, Timestamp,
+    TriangleListPrimitive, Vector3, packed_element_field::NumericType,
 };
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use serde_json::{Value, json};
@@ -146,7 +147,59 @@ pub fn frames(ns: u64, camera: &CameraInfo, step: &Step, objects: &[String]) -> 
             UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(p[6], p[3], p[4], p[5]));
         transforms.push(transform(ns, name, [p[0], p[1], p[2]], rotation));
     }
+    for frame in &step.extras.frames {
+        let [x, y, z, w] = frame.rotation_xyzw;
+        let rotation = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        transforms.push(transform(ns, &frame.name, frame.position_m, rotation));
+    }
     FrameTransforms { transforms }
+}
+
+/// The scene's meshes as one SceneUpdate: an entity per mesh, locked to its frame, so objects
+/// and the instrument move with their `/tf` frames.
+pub fn scene_update(ns: u64, meshes: &[SceneMesh]) -> SceneUpdate {
+    let entities = meshes
+        .iter()
+        .map(|mesh| SceneEntity {
+            timestamp: Some(timestamp(ns)),
+            frame_id: mesh.frame.clone(),
+            id: mesh.name.clone(),
+            lifetime: None,
+            frame_locked: true,
+            metadata: Vec::new(),
+            arrows: Vec::new(),
+            cubes: Vec::new(),
+            spheres: Vec::new(),
+            cylinders: Vec::new(),
+            lines: Vec::new(),
+            triangles: vec![TriangleListPrimitive {
+                pose: None,
+                points: mesh
+                    .positions_m
+                    .iter()
+                    .map(|p| Point3 {
+                        x: f64::from(p[0]),
+                        y: f64::from(p[1]),
+                        z: f64::from(p[2]),
+                    })
+                    .collect(),
+                color: Some(Color {
+                    r: f64::from(mesh.rgb[0]),
+                    g: f64::from(mesh.rgb[1]),
+                    b: f64::from(mesh.rgb[2]),
+                    a: 1.0,
+                }),
+                colors: Vec::new(),
+                indices: mesh.triangles.iter().flatten().copied().collect(),
+            }],
+            texts: Vec::new(),
+            models: Vec::new(),
+        })
+        .collect();
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities,
+    }
 }
 
 /// `/robot/state` as JSON.

@@ -8,14 +8,15 @@
 //! `/endoscope/depth` (foxglove.RawImage, 32FC1 metres), `/endoscope/camera_info`
 //! (foxglove.CameraCalibration), `/endoscope/points` (foxglove.PointCloud, with depth), `/tf`
 //! (foxglove.FrameTransforms), `/robot/state` and `/robot/action` (JSON with a JSON schema),
-//! `/episode/info` (JSON, once), and an `episode` Metadata record with the provenance. Every
+//! `/episode/info` (JSON, once), `/scene` (foxglove.SceneUpdate with the meshes, once, when
+//! recording from the simulator), and an `episode` Metadata record with the provenance. Every
 //! message of a step has log time = publish time = [`T0_NS`] + step / fps: a fixed origin, never
 //! the wall clock, so the same episode gives the same bytes. The Metadata record is written
 //! before any channel (writing it later leaves an empty chunk), and zstd runs on one thread.
 
 pub mod messages;
 
-use crate::episode::{Episode, FeatureKind};
+use crate::episode::{Episode, FeatureKind, SceneMesh};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::image::{PngLevel, encode_png};
 use crate::export::info::DatasetInfo;
@@ -99,11 +100,13 @@ fn encoded<T: Encode>(message: &T) -> Result<Vec<u8>, ExportError> {
     Ok(bytes)
 }
 
-/// The MCAP file of one episode.
+/// The MCAP file of one episode; `scene`, when given, goes on `/scene` once at the start (the
+/// simulator's recorder has it, a dataset does not).
 pub fn record_episode(
     info: &DatasetInfo,
     options: &McapOptions,
     episode: &Episode,
+    scene: Option<&[SceneMesh]>,
 ) -> Result<Vec<u8>, ExportError> {
     let camera = &info.camera;
     let (width, height) = info.image_size();
@@ -145,6 +148,10 @@ pub fn record_episode(
     let calibration_schema = schema_of::<foxglove::messages::CameraCalibration>(&mut writer)?;
     let points_schema = schema_of::<foxglove::messages::PointCloud>(&mut writer)?;
     let tf_schema = schema_of::<foxglove::messages::FrameTransforms>(&mut writer)?;
+    let scene_schema = match scene {
+        Some(_) => Some(schema_of::<foxglove::messages::SceneUpdate>(&mut writer)?),
+        None => None,
+    };
     let json_schema = |writer: &mut mcap::Writer<_>, value: Value, name: &str| {
         writer
             .add_schema(name, "jsonschema", value.to_string().as_bytes())
@@ -176,6 +183,10 @@ pub fn record_episode(
         None
     };
     let tf = add(tf_schema, "/tf", "protobuf")?;
+    let scene_channel = match scene_schema {
+        Some(schema) => Some(add(schema, "/scene", "protobuf")?),
+        None => None,
+    };
     let state = add(state_schema, "/robot/state", "json")?;
     let action = add(action_schema, "/robot/action", "json")?;
     let objects: Vec<String> = (0..crate::episode::MAX_OBJECTS)
@@ -244,6 +255,10 @@ pub fn record_episode(
         T0_NS,
         info_message.to_string().as_bytes(),
     )?;
+    if let (Some(channel), Some(meshes)) = (scene_channel, scene) {
+        let update = encoded(&messages::scene_update(T0_NS, meshes))?;
+        write(&mut writer, channel, T0_NS, &update)?;
+    }
     for (t, messages) in step_messages.iter().enumerate() {
         let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
         for (channel, data) in messages {
@@ -322,7 +337,7 @@ impl EpisodeSink for McapWriter {
         let (info, options) = (&self.info, &self.options);
         let files: Vec<Vec<u8>> = episodes
             .par_iter()
-            .map(|episode| record_episode(info, options, episode))
+            .map(|episode| record_episode(info, options, episode, None))
             .collect::<Result<_, _>>()?;
         let written = std::time::Instant::now();
         self.timing.encode_secs += (written - started).as_secs_f64();
