@@ -184,7 +184,8 @@ impl Env {
                 held_object: sim.bound_object.map(|i| self.object_name(i)),
                 grasped: None,
                 released: None,
-                frames: crate::view::instrument_frames(&self.sim.instrument_pose()),
+                success_after: None,
+                frames: crate::view::robot_frames(&self.sim),
             },
             sim,
         }

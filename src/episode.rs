@@ -285,7 +285,11 @@ pub struct StepExtras {
     pub grasped: Option<String>,
     /// The object the jaws released during the step.
     pub released: Option<String>,
-    /// The instrument's frames in the world before the step (`psm_shaft`, `psm_jaw_pivot`).
+    /// Whether the task's success predicate held after the step (None: unknown, e.g. read from
+    /// a dataset).
+    pub success_after: Option<bool>,
+    /// The robot's frames in the world before the step (`psm_rcm`, `psm_link_1..`, `psm_shaft`,
+    /// `psm_jaw_pivot`).
     pub frames: Vec<NamedPose>,
 }
 

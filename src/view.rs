@@ -117,12 +117,21 @@ fn named_pose(name: &str, pose: &nalgebra::Isometry3<f64>) -> crate::episode::Na
     }
 }
 
-/// The instrument's frames for viewers: the shaft and the jaw pivot.
-pub fn instrument_frames(pose: &InstrumentPose) -> Vec<crate::episode::NamedPose> {
-    vec![
-        named_pose("psm_shaft", &pose.world_from_shaft),
-        named_pose("psm_jaw_pivot", &pose.world_from_jaw_pivot),
-    ]
+/// The robot's frames for viewers: the PSM's remote centre of motion and link frames, the
+/// instrument's shaft and its jaw pivot.
+pub fn robot_frames(sim: &Simulator) -> Vec<crate::episode::NamedPose> {
+    let mut frames: Vec<crate::episode::NamedPose> = sim
+        .link_frames()
+        .iter()
+        .map(|(name, pose)| named_pose(name, pose))
+        .collect();
+    let instrument: InstrumentPose = sim.instrument_pose();
+    frames.push(named_pose("psm_shaft", &instrument.world_from_shaft));
+    frames.push(named_pose(
+        "psm_jaw_pivot",
+        &instrument.world_from_jaw_pivot,
+    ));
+    frames
 }
 
 /// [`scene_meshes`] of `scene` before its first step, drawn as `collect` draws episode `seed`.

@@ -188,6 +188,7 @@ pub fn render_replay(
         let Images { rgb, depth_m, mask } = observation.images.take().unwrap_or_default();
         let mut extras = std::mem::take(&mut observation.extras);
         (extras.grasped, extras.released) = env.events(&report);
+        extras.success_after = Some(env.verdict().success);
         steps.push(Step {
             rgb,
             depth_m,

@@ -168,6 +168,22 @@ impl Simulator {
         self.config.psm.forward(&self.joints)
     }
 
+    /// The PSM's frames in the world: the remote centre of motion (`psm_rcm`) and each DH link
+    /// frame (`psm_link_1` ..).
+    pub fn link_frames(&self) -> Vec<(String, Isometry3<f64>)> {
+        let psm = &self.config.psm;
+        let frames = psm.chain(&self.joints);
+        let mut out = vec![("psm_rcm".to_string(), psm.world_from_rcm)];
+        out.extend(
+            frames
+                .rcm_from_link
+                .iter()
+                .enumerate()
+                .map(|(i, link)| (format!("psm_link_{}", i + 1), psm.world_from_rcm * link)),
+        );
+        out
+    }
+
     /// Pose of the instrument's visible parts (for drawing).
     pub fn instrument_pose(&self) -> InstrumentPose {
         let psm = &self.config.psm;

@@ -211,6 +211,10 @@ pub fn state_json(ns: u64, step: &Step) -> Value {
         "tip_euler_xyz_rad": [s[3], s[4], s[5]],
         "jaw_angle_rad": s[6],
         "held_object": step.extras.held_object,
+        "joint_positions": step.extras.joint_positions,
+        "grasped": step.extras.grasped,
+        "released": step.extras.released,
+        "success_so_far": step.extras.success_after,
     })
 }
 
@@ -238,6 +242,10 @@ pub fn state_schema() -> Value {
             "tip_euler_xyz_rad": vector,
             "jaw_angle_rad": {"type": "number"},
             "held_object": {"type": ["string", "null"]},
+            "joint_positions": {"type": "array", "items": {"type": "number"}, "description": "PSM joints (rad; the insertion joint in m); empty when converted from a dataset"},
+            "grasped": {"type": ["string", "null"], "description": "the object the jaws grasped during the step"},
+            "released": {"type": ["string", "null"], "description": "the object the jaws released during the step"},
+            "success_so_far": {"type": ["boolean", "null"], "description": "the task's success predicate after the step (null when converted from a dataset)"},
         },
         "required": ["timestamp_ns", "tip_position_m", "tip_euler_xyz_rad", "jaw_angle_rad"],
     })

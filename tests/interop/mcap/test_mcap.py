@@ -105,11 +105,15 @@ def test_a_recorded_episode_has_the_scene_and_the_instruments_frames():
     path = Path(os.environ.get("SURGVLA_MCAP_RECORDED", "")).resolve()
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory(), JsonDecoderFactory()])
-        scenes, frames, moved = [], set(), {}
+        scenes, frames, moved, events, successes = [], set(), {}, [], []
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):
             if channel.topic == "/scene":
                 assert schema.name == "foxglove.SceneUpdate"
                 scenes.append(decoded)
+            elif channel.topic == "/robot/state":
+                assert len(decoded["joint_positions"]) == 6
+                events += [e for e in (decoded["grasped"], decoded["released"]) if e]
+                successes.append(decoded["success_so_far"])
             elif channel.topic == "/tf":
                 for t in decoded.transforms:
                     frames.add(t.child_frame_id)
@@ -123,5 +127,7 @@ def test_a_recorded_episode_has_the_scene_and_the_instruments_frames():
         (triangles,) = entity.triangles
         assert len(triangles.points) > 0 and len(triangles.indices) % 3 == 0
         assert max(triangles.indices) < len(triangles.points)
-    assert {"psm_shaft", "psm_jaw_pivot", "tool_tip"} <= frames
+    assert {"psm_rcm", "psm_link_1", "psm_link_6", "psm_shaft", "psm_jaw_pivot", "tool_tip"} <= frames
+    assert events == ["gauze", "gauze"], "T3-1 grasps the gauze and releases it"
+    assert successes[-1] is True and successes[0] is False, "success is reached, not given"
     assert len(moved["psm_shaft"]) > 10, "the instrument moves"
