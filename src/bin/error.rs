@@ -38,6 +38,11 @@ impl CliError {
         CliError::new(ErrorKind::Usage, anyhow::anyhow!("{message}"))
     }
 
+    /// The work found the data invalid (exit 1).
+    pub fn invalid(message: impl std::fmt::Display) -> Self {
+        CliError::new(ErrorKind::Failed, anyhow::anyhow!("{message}"))
+    }
+
     /// Says how to continue when the failure left a dataset that `--resume` continues (and
     /// only then).
     pub fn resumable(mut self, resumable: bool) -> Self {

@@ -14,6 +14,7 @@ macro_rules! say {
 mod episodes;
 mod error;
 mod formats;
+mod inspect;
 mod progress;
 
 use error::CliError;
@@ -61,6 +62,11 @@ enum Command {
     /// Measure the experts' success rates as `collect` would run them (same attempts and replay
     /// check) without rendering or writing: the quick check of a new or edited plan.
     Experts(episodes::ExpertsArgs),
+    /// Check a dataset (LeRobot v3.0/v2.1, RLDS, DP3 zarr, MCAP; ours or not) frame by frame
+    /// and name every defect: exit 0 valid, 1 invalid, 2 nothing recognisable at the path.
+    Validate(inspect::ValidateArgs),
+    /// Describe a dataset: format, episodes, frames, features, tasks, size, provenance.
+    Info(inspect::InfoArgs),
     /// Print a format's features schema (what schemas/lerobot_features.json and
     /// schemas/rlds_features.json record).
     Schema {
@@ -381,6 +387,8 @@ fn main() -> ExitCode {
         Command::Convert(args) => formats::run_convert(&args),
         Command::Record(args) => run_record(&args),
         Command::Experts(args) => episodes::run_experts(&args),
+        Command::Validate(args) => inspect::run_validate(&args),
+        Command::Info(args) => inspect::run_info(&args),
         Command::Schema { with_mask, format } => run_schema(with_mask, format),
         Command::Tasks => run_tasks(),
     };

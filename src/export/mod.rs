@@ -28,8 +28,10 @@ pub mod lerobot;
 pub mod mcap;
 pub mod pointcloud;
 pub mod rlds;
+pub mod schema;
 pub mod stats;
 pub mod tiff;
+pub mod validate;
 pub mod video;
 pub mod zarr;
 
@@ -76,6 +78,16 @@ pub enum ExportError {
     /// An input path that does not exist.
     #[error("{path} does not exist")]
     NotFound { path: PathBuf },
+    /// An input path that cannot be read (permissions).
+    #[error("cannot read {path}")]
+    Unreadable {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// An input path that holds nothing surgvla recognises.
+    #[error("{path} {problem}")]
+    Unrecognised { path: PathBuf, problem: String },
     #[error("{}", not_empty(path, *interrupted))]
     NotEmpty { path: PathBuf, interrupted: bool },
     /// Another run holds the folder's lock.
@@ -169,6 +181,8 @@ impl ExportError {
             | ExportError::OptionsChanged { .. }
             | ExportError::InvalidOptions(_)
             | ExportError::NotFound { .. }
+            | ExportError::Unreadable { .. }
+            | ExportError::Unrecognised { .. }
             | ExportError::NotResumable { .. } => ErrorKind::Usage,
             _ => ErrorKind::Failed,
         }

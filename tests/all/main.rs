@@ -17,3 +17,4 @@ mod render;
 mod rlds;
 mod tasks;
 mod util;
+mod validate;

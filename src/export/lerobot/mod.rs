@@ -16,6 +16,7 @@
 //! belong to [`DatasetDir`]; whenever a data file closes (and the open MP4 with it) the writer's
 //! whole state is checkpointed, and [`LeRobotWriter::resume`] continues from there.
 
+pub mod check;
 mod layout;
 pub mod read;
 mod table;

@@ -14,6 +14,7 @@
 //! the wall clock, so the same episode gives the same bytes. The Metadata record is written
 //! before any channel (writing it later leaves an empty chunk), and zstd runs on one thread.
 
+pub mod check;
 pub mod messages;
 
 use crate::episode::{Episode, FeatureKind, SceneMesh};

@@ -17,6 +17,7 @@
 //! checkpoint. Encodings: TFRecord framing with masked CRC-32C ([`tfrecord`]),
 //! `tf.train.Example` ([`example`]), episodes ([`record`]), metadata ([`features`]).
 
+pub mod check;
 pub mod example;
 pub mod features;
 mod openvla;

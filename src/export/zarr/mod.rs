@@ -13,6 +13,7 @@
 //! partial chunks too, and a resume reads them back.
 
 pub mod array;
+pub mod check;
 
 use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};

@@ -1,0 +1,165 @@
+//! `validate` and `info`: reading a dataset back, ours or not. The library does the work
+//! (`surgvla::export::validate`); here are the arguments, the printing, and the exit code
+//! (0 valid, 1 invalid, 2 could not run).
+
+use crate::error::CliError;
+use clap::Args;
+use std::path::PathBuf;
+use surgvla::export::validate::{Report, ValidateOptions, validate};
+use surgvla::task::TaskId;
+
+/// Findings printed in the human summary (the JSON has them all).
+const PRINTED_FINDINGS: usize = 50;
+
+#[derive(Args, Debug)]
+pub struct ValidateArgs {
+    /// The dataset: a LeRobot folder, an RLDS version folder (or the data dir above it), a DP3
+    /// zarr store, an MCAP file or a folder of them.
+    pub path: PathBuf,
+    /// Print the report as JSON: {"valid", "format", "errors": [{"file", "episode", "frame",
+    /// "check", "message"}], "warnings": [...], ...}.
+    #[arg(long)]
+    pub json: bool,
+    /// Metadata and one frame per episode instead of every frame.
+    #[arg(long)]
+    pub quick: bool,
+    /// Worker threads for the full pass (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+}
+
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// The dataset (as for `validate`).
+    pub path: PathBuf,
+    /// Print as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn step_limits() -> std::collections::BTreeMap<String, usize> {
+    TaskId::ALL
+        .iter()
+        .map(|t| (t.code().to_string(), t.step_limit() as usize))
+        .collect()
+}
+
+fn place(path: &std::path::Path) -> String {
+    path.display().to_string()
+}
+
+pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
+    let options = ValidateOptions {
+        quick: args.quick,
+        step_limits: step_limits(),
+        threads: args.threads,
+    };
+    let report = validate(&args.path, &options)?;
+    if args.json {
+        say!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_report(&report)?;
+    }
+    if report.valid {
+        Ok(())
+    } else {
+        Err(CliError::invalid(format!(
+            "{} is not a valid {} dataset: {} error{}",
+            place(&report.path),
+            report.format.name(),
+            report.errors.len(),
+            if report.errors.len() == 1 { "" } else { "s" }
+        )))
+    }
+}
+
+fn print_report(report: &Report) -> Result<(), CliError> {
+    say!(
+        "{}: {} dataset, {} episodes, {} frames{}",
+        place(&report.path),
+        report.format.name(),
+        report.episodes,
+        report.frames,
+        if report.valid { ": valid" } else { "" }
+    );
+    for (label, findings) in [("error", &report.errors), ("warning", &report.warnings)] {
+        for finding in findings.iter().take(PRINTED_FINDINGS) {
+            say!("{label}: {finding}");
+        }
+        if findings.len() > PRINTED_FINDINGS {
+            say!(
+                "... {} more {label}s (--json lists them all)",
+                findings.len() - PRINTED_FINDINGS
+            );
+        }
+    }
+    Ok(())
+}
+
+pub fn run_info(args: &InfoArgs) -> Result<(), CliError> {
+    let options = ValidateOptions {
+        quick: true,
+        step_limits: step_limits(),
+        threads: 0,
+    };
+    let report = validate(&args.path, &options)?;
+    let facts = &report.facts;
+    if args.json {
+        let json = serde_json::json!({
+            "path": report.path,
+            "format": report.format,
+            "episodes": report.episodes,
+            "frames": report.frames,
+            "bytes": report.bytes,
+            "fps": facts.fps,
+            "robot_type": facts.robot_type,
+            "features": facts.features,
+            "tasks": facts.tasks,
+            "generator": facts.generator,
+            "collection": facts.collection,
+            "quick_check_errors": report.errors.len(),
+        });
+        say!("{}", serde_json::to_string_pretty(&json)?);
+        return Ok(());
+    }
+    say!("path       {}", place(&report.path));
+    say!("format     {}", report.format.name());
+    say!("episodes   {}", report.episodes);
+    say!("frames     {}", report.frames);
+    say!("size       {:.1} MB", report.bytes as f64 / 1e6);
+    if let Some(fps) = facts.fps {
+        say!("fps        {fps}");
+    }
+    if let Some(robot) = &facts.robot_type {
+        say!("robot      {robot}");
+    }
+    if let Some(generator) = &facts.generator {
+        say!("generator  {generator}");
+    }
+    if !facts.collection.is_null() {
+        say!("collection {}", facts.collection);
+    }
+    say!("features");
+    for feature in &facts.features {
+        say!(
+            "  {:<40} {:<28} {:?}",
+            feature.name,
+            feature.dtype,
+            feature.shape
+        );
+    }
+    if !facts.tasks.is_empty() {
+        say!("tasks (episodes)");
+        for (task, episodes) in &facts.tasks {
+            say!("  {episodes:>6}  {task}");
+        }
+    }
+    if !report.valid {
+        say!(
+            "the quick check found {} problem(s): run `surgvla validate {}`",
+            report.errors.len(),
+            place(&args.path)
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,491 @@
+//! The metadata files of a LeRobot dataset: the tasks table (with its pandas index), the
+//! episodes table (v3.0 parquet or v2.1 JSON lines), `stats.json` against the data, and the
+//! video files' spans.
+
+use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
+use crate::export::read_json;
+use crate::export::validate::{At, Findings};
+use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The tasks, by task_index.
+pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<String> {
+    let relative = if v21 {
+        "meta/tasks.jsonl"
+    } else {
+        "meta/tasks.parquet"
+    };
+    let path = root.join(relative);
+    if !path.is_file() {
+        findings.file_error(&path, "present", "is missing");
+        return Vec::new();
+    }
+    let mut tasks: Vec<(i64, String)> = Vec::new();
+    if v21 {
+        let Ok(text) = std::fs::read_to_string(&path) else {
+            findings.file_error(&path, "readable", "cannot be read");
+            return Vec::new();
+        };
+        for (line_number, line) in text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty())
+        {
+            let value: Value = serde_json::from_str(line).unwrap_or(Value::Null);
+            match (value["task_index"].as_i64(), value["task"].as_str()) {
+                (Some(index), Some(task)) => tasks.push((index, task.to_string())),
+                _ => findings.file_error(
+                    &path,
+                    "tasks",
+                    format!("line {} lacks task_index or task", line_number + 1),
+                ),
+            }
+        }
+    } else {
+        match crate::export::lerobot::read::schema_metadata(&path, "pandas") {
+            Ok(Some(pandas)) => {
+                let pandas: Value = serde_json::from_str(&pandas).unwrap_or(Value::Null);
+                if pandas["index_columns"] != serde_json::json!(["task"]) {
+                    findings.file_error(
+                        &path,
+                        "tasks",
+                        "the pandas metadata does not index by \"task\" (lerobot then returns task indices as the task)",
+                    );
+                }
+            }
+            _ => findings.file_error(
+                &path,
+                "tasks",
+                "has no pandas schema metadata with index_columns [\"task\"] (lerobot then returns task indices as the task)",
+            ),
+        }
+        for batch in read_table(&path, findings).unwrap_or_default() {
+            let index = batch
+                .column_by_name("task_index")
+                .and_then(|c| c.as_any().downcast_ref::<Int64Array>());
+            let task = batch
+                .column_by_name("task")
+                .and_then(|c| c.as_any().downcast_ref::<StringArray>());
+            let (Some(index), Some(task)) = (index, task) else {
+                findings.file_error(
+                    &path,
+                    "tasks",
+                    "lacks an int64 task_index or a string task column",
+                );
+                break;
+            };
+            for row in 0..batch.num_rows() {
+                tasks.push((index.value(row), task.value(row).to_string()));
+            }
+        }
+    }
+    for (position, (index, task)) in tasks.iter().enumerate() {
+        if *index != position as i64 {
+            findings.file_error(
+                &path,
+                "tasks",
+                format!(
+                    "row {position} has task_index {index}; task indices must be 0..n in order"
+                ),
+            );
+        }
+        if task.trim().is_empty() {
+            findings.file_error(
+                &path,
+                "instruction",
+                format!("task {index} is an empty language instruction"),
+            );
+        }
+    }
+    tasks.into_iter().map(|(_, t)| t).collect()
+}
+
+/// The episodes metadata, in row order.
+pub(super) fn read_episodes(
+    root: &Path,
+    v21: bool,
+    features: &[Declared],
+    findings: &Findings,
+) -> Vec<EpisodeEntry> {
+    let mut entries = Vec::new();
+    if v21 {
+        let path = root.join("meta/episodes.jsonl");
+        let Ok(text) = std::fs::read_to_string(&path) else {
+            findings.file_error(&path, "present", "is missing or unreadable");
+            return entries;
+        };
+        for (row, line) in text.lines().filter(|l| !l.trim().is_empty()).enumerate() {
+            let value: Value = serde_json::from_str(line).unwrap_or(Value::Null);
+            if value["episode_index"].as_i64() != Some(row as i64) {
+                findings.error(
+                    At::file("meta/episodes.jsonl").episode(row as u64),
+                    "episodes",
+                    format!(
+                        "line {} has episode_index {}; lines must be in episode order",
+                        row + 1,
+                        value["episode_index"]
+                    ),
+                );
+            }
+            let mut entry = EpisodeEntry {
+                length: value["length"].as_i64(),
+                tasks: value["tasks"]
+                    .as_array()
+                    .map(|t| {
+                        t.iter()
+                            .filter_map(|v| v.as_str().map(String::from))
+                            .collect()
+                    })
+                    .unwrap_or_default(),
+                ..EpisodeEntry::default()
+            };
+            if let Some(object) = value.as_object() {
+                for (key, v) in object.iter().filter(|(k, _)| k.starts_with("surgvla/")) {
+                    entry.provenance.insert(key.clone(), v.clone());
+                }
+            }
+            entries.push(entry);
+        }
+        let stats_path = root.join("meta/episodes_stats.jsonl");
+        match std::fs::read_to_string(&stats_path) {
+            Ok(text) => {
+                let lines = text.lines().filter(|l| !l.trim().is_empty()).count();
+                if lines != entries.len() {
+                    findings.file_error(
+                        &stats_path,
+                        "stats",
+                        format!("has {lines} lines for {} episodes", entries.len()),
+                    );
+                }
+            }
+            Err(_) => findings.file_error(&stats_path, "stats", "is missing"),
+        }
+        return entries;
+    }
+    let folder = root.join("meta/episodes");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&folder)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .flat_map(|chunk| {
+            std::fs::read_dir(chunk.path())
+                .into_iter()
+                .flatten()
+                .flatten()
+        })
+        .map(|f| f.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "parquet"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        findings.error(
+            At::file("meta/episodes"),
+            "present",
+            "no episodes table (meta/episodes/chunk-*/file-*.parquet)",
+        );
+    }
+    for path in files {
+        for batch in read_table(&path, findings).unwrap_or_default() {
+            let ints = |name: &str| {
+                batch
+                    .column_by_name(name)
+                    .and_then(|c| c.as_any().downcast_ref::<Int64Array>())
+            };
+            let floats = |name: &str| {
+                batch
+                    .column_by_name(name)
+                    .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
+            };
+            for required in [
+                "episode_index",
+                "length",
+                "dataset_from_index",
+                "dataset_to_index",
+                "data/chunk_index",
+                "data/file_index",
+            ] {
+                if ints(required).is_none() {
+                    findings.file_error(
+                        &path,
+                        "episodes",
+                        format!("lacks the int64 column {required}"),
+                    );
+                }
+            }
+            if batch.column_by_name("tasks").is_none() {
+                findings.file_error(&path, "episodes", "lacks the tasks column");
+            }
+            for feature in features.iter().filter(|f| !is_index_column(&f.name)) {
+                for stat in STATS_KEYS {
+                    let name = format!("stats/{}/{stat}", feature.name);
+                    if batch.column_by_name(&name).is_none() {
+                        findings.file_error(&path, "stats", format!("lacks the column {name}"));
+                    }
+                }
+            }
+            let tasks = batch
+                .column_by_name("tasks")
+                .and_then(|c| c.as_any().downcast_ref::<ListArray>());
+            for row in 0..batch.num_rows() {
+                let position = entries.len() as i64;
+                let get = |name: &str| ints(name).map(|c| c.value(row));
+                if let Some(index) = get("episode_index")
+                    && index != position
+                {
+                    findings.error(
+                        At::file(findings.relative(&path)).episode(position as u64),
+                        "episodes",
+                        format!("row {position} has episode_index {index}; lerobot looks episodes up by row"),
+                    );
+                }
+                let mut entry = EpisodeEntry {
+                    length: get("length"),
+                    from: get("dataset_from_index"),
+                    to: get("dataset_to_index"),
+                    data_file: get("data/chunk_index").zip(get("data/file_index")),
+                    ..EpisodeEntry::default()
+                };
+                if let Some(tasks) = tasks {
+                    let list = tasks.value(row);
+                    if let Some(strings) = list.as_any().downcast_ref::<StringArray>() {
+                        entry.tasks = strings.iter().flatten().map(String::from).collect();
+                    }
+                }
+                for feature in features.iter().filter(|f| f.dtype == "video") {
+                    let key = &feature.name;
+                    let chunk = get(&format!("videos/{key}/chunk_index"));
+                    let file = get(&format!("videos/{key}/file_index"));
+                    let from =
+                        floats(&format!("videos/{key}/from_timestamp")).map(|c| c.value(row));
+                    let to = floats(&format!("videos/{key}/to_timestamp")).map(|c| c.value(row));
+                    match (chunk, file, from, to) {
+                        (Some(c), Some(f), Some(from), Some(to)) => {
+                            entry.videos.insert(key.clone(), (c, f, from, to));
+                        }
+                        _ => findings.error(
+                            At::file(findings.relative(&path)).episode(position as u64),
+                            "videos",
+                            format!("lacks the videos/{key}/... columns of the video feature"),
+                        ),
+                    }
+                }
+                for key in crate::export::lerobot::Provenance::KEYS {
+                    if let Some(column) = batch.column_by_name(key) {
+                        let any = column.as_any();
+                        let value = if let Some(a) = any.downcast_ref::<Int64Array>() {
+                            Value::from(a.value(row))
+                        } else if let Some(a) = any.downcast_ref::<StringArray>() {
+                            Value::from(a.value(row))
+                        } else if let Some(a) = any.downcast_ref::<BooleanArray>() {
+                            Value::from(a.value(row))
+                        } else {
+                            Value::Null
+                        };
+                        entry.provenance.insert(key.to_string(), value);
+                    }
+                }
+                entries.push(entry);
+            }
+        }
+    }
+    entries
+}
+
+/// `meta/stats.json`: every feature with every statistic, vectors of the right length, and for
+/// numeric features (on a full pass) min, max and mean matching the data.
+pub(super) fn check_stats(
+    root: &Path,
+    features: &[Declared],
+    parts: &[Part],
+    full: bool,
+    findings: &Findings,
+) {
+    let path = root.join("meta/stats.json");
+    if !path.is_file() {
+        findings.file_error(&path, "stats", "is missing (normalisation needs it)");
+        return;
+    }
+    let Ok(stats) = read_json(&path) else {
+        findings.file_error(&path, "stats", "is not valid JSON");
+        return;
+    };
+    let mut data: BTreeMap<&str, Moments> = BTreeMap::new();
+    for part in parts {
+        for (name, moments) in &part.moments {
+            let total = data
+                .entry(name.as_str())
+                .or_insert_with(|| vec![(f64::INFINITY, f64::NEG_INFINITY, 0.0, 0); moments.len()]);
+            for (t, m) in total.iter_mut().zip(moments) {
+                *t = (t.0.min(m.0), t.1.max(m.1), t.2 + m.2, t.3 + m.3);
+            }
+        }
+    }
+    for feature in features
+        .iter()
+        .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
+    {
+        let entry = &stats[&feature.name];
+        if !entry.is_object() {
+            findings.file_error(
+                &path,
+                "stats",
+                format!("has no statistics for {}", feature.name),
+            );
+            continue;
+        }
+        for key in STATS_KEYS {
+            if entry.get(key).is_none() {
+                findings.file_error(&path, "stats", format!("{} lacks {key}", feature.name));
+            }
+        }
+        let numeric = matches!(feature.dtype.as_str(), "float32" | "float64");
+        if numeric {
+            let n = feature.elements();
+            for key in ["min", "max", "mean", "std", "q01", "q50", "q99"] {
+                if let Some(values) = entry[key].as_array()
+                    && values.len() != n
+                {
+                    findings.file_error(
+                        &path,
+                        "stats",
+                        format!(
+                            "{}.{key} has {} values for shape {:?}",
+                            feature.name,
+                            values.len(),
+                            feature.shape
+                        ),
+                    );
+                }
+            }
+        }
+        let Some(moments) = data.get(feature.name.as_str()).filter(|_| full && numeric) else {
+            continue;
+        };
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-4 * (1.0 + a.abs().max(b.abs()));
+        for (i, &(min, max, sum, count)) in moments.iter().enumerate() {
+            let stat = |key: &str| entry[key][i].as_f64();
+            let mean = sum / count.max(1) as f64;
+            for (key, value) in [("min", min), ("max", max), ("mean", mean)] {
+                if stat(key).is_some_and(|s| !close(s, value)) {
+                    findings.file_error(
+                        &path,
+                        "stats",
+                        format!(
+                            "{}.{key}[{i}] is {}, the data gives {value}",
+                            feature.name,
+                            stat(key).unwrap_or_default()
+                        ),
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Video features: each episode's span lies inside its MP4 file.
+pub(super) fn check_videos(
+    root: &Path,
+    v21: bool,
+    info: &Value,
+    features: &[Declared],
+    entries: &[EpisodeEntry],
+    findings: &Findings,
+) {
+    let chunks_size = info["chunks_size"].as_u64().unwrap_or(1000).max(1) as i64;
+    let mut durations: BTreeMap<PathBuf, Option<f64>> = BTreeMap::new();
+    for feature in features.iter().filter(|f| f.dtype == "video") {
+        for (i, entry) in entries.iter().enumerate() {
+            let key = &feature.name;
+            let (relative, span) = if v21 {
+                let i = i as i64;
+                (
+                    format!(
+                        "videos/chunk-{:03}/{key}/episode_{i:06}.mp4",
+                        i / chunks_size
+                    ),
+                    None,
+                )
+            } else {
+                let Some(&(chunk, file, from, to)) = entry.videos.get(key) else {
+                    continue;
+                };
+                (
+                    crate::export::video::video_path(key, chunk as u64, file as u64),
+                    Some((from, to)),
+                )
+            };
+            let path = root.join(&relative);
+            let duration = *durations
+                .entry(path.clone())
+                .or_insert_with(|| mp4_duration_secs(&path));
+            let at = || At::file(relative.clone()).episode(i as u64);
+            match (duration, span) {
+                (None, _) if !path.is_file() => findings.error(at(), "present", "is missing"),
+                (None, _) => {
+                    findings.error(at(), "video", "is not an MP4 file with a movie header")
+                }
+                (Some(duration), Some((from, to))) => {
+                    if from < 0.0 || to < from || to > duration + 1e-3 {
+                        findings.error(
+                            at(),
+                            "video",
+                            format!(
+                                "the span {from}..{to} s is not inside the file's {duration} s"
+                            ),
+                        );
+                    }
+                }
+                (Some(duration), None) => {
+                    if let Some(length) = entry.length {
+                        let needed = length as f64 / info["fps"].as_f64().unwrap_or(1.0).max(1e-9);
+                        if duration + 1e-3 < needed {
+                            findings.error(at(), "video", format!("lasts {duration} s, the episode's {length} frames need {needed} s"));
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The duration of an MP4 file from its movie header (`moov/mvhd`), seconds.
+fn mp4_duration_secs(path: &Path) -> Option<f64> {
+    let bytes = std::fs::read(path).ok()?;
+    let moov = find_box(&bytes, b"moov")?;
+    let mvhd = find_box(moov, b"mvhd")?;
+    let version = *mvhd.first()?;
+    let be32 = |o: usize| Some(u32::from_be_bytes(mvhd.get(o..o + 4)?.try_into().ok()?));
+    let be64 = |o: usize| Some(u64::from_be_bytes(mvhd.get(o..o + 8)?.try_into().ok()?));
+    let (timescale, duration) = if version == 1 {
+        (be32(20)?, be64(24)?)
+    } else {
+        (be32(12)?, u64::from(be32(16)?))
+    };
+    (timescale > 0).then(|| duration as f64 / f64::from(timescale))
+}
+
+/// The body of the first box of `kind` among the boxes in `bytes`.
+fn find_box<'a>(bytes: &'a [u8], kind: &[u8; 4]) -> Option<&'a [u8]> {
+    let mut offset = 0usize;
+    while offset + 8 <= bytes.len() {
+        let size32 = u32::from_be_bytes(bytes[offset..offset + 4].try_into().ok()?) as usize;
+        let (header, size) = match size32 {
+            1 => (
+                16,
+                u64::from_be_bytes(bytes.get(offset + 8..offset + 16)?.try_into().ok()?) as usize,
+            ),
+            0 => (8, bytes.len() - offset),
+            n => (8, n),
+        };
+        if size < header || offset + size > bytes.len() {
+            return None;
+        }
+        if &bytes[offset + 4..offset + 8] == kind {
+            return Some(&bytes[offset + header..offset + size]);
+        }
+        offset += size;
+    }
+    None
+}

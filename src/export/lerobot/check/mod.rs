@@ -1,0 +1,526 @@
+//! Validating a LeRobot v3.0 or v2.1 dataset, ours or written by lerobot itself: `meta/info.json`
+//! against its schema, the data files' columns exactly the declared features with their types
+//! and shapes, every row (indices contiguous in row order, timestamps = frame_index / fps, task
+//! indices known, numbers finite, images decodable with the declared size and channels), the
+//! tasks table with its pandas index, the episodes table against the data (lengths, from/to,
+//! file locations, video spans inside their files), `stats.json` present with quantiles and
+//! consistent with the data, totals, the manifest, and for our datasets the semantic checks.
+//! Row groups are checked in parallel; `quick` reads one frame per row group.
+//!
+//! `mod.rs` runs the checks and stitches row groups together; [`meta`] checks the metadata
+//! files (tasks, episodes, stats, videos); [`rows`] checks the rows of one row group.
+
+use crate::export::read_json;
+use crate::export::schema;
+use crate::export::validate::{
+    At, FeatureFact, Findings, Format, Semantics, ValidateOptions, check_manifest,
+};
+use arrow_array::RecordBatch;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use rayon::prelude::*;
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+mod meta;
+mod rows;
+
+use meta::{check_stats, check_videos, read_episodes, read_tasks};
+
+/// The columns every LeRobot frame has besides its features.
+pub(super) const INDEX_COLUMNS: [&str; 4] = ["frame_index", "episode_index", "index", "task_index"];
+/// The statistics lerobot's normalisation reads for every feature.
+pub(super) const STATS_KEYS: [&str; 10] = [
+    "min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99",
+];
+/// Timestamps may differ from frame_index / fps by this much (lerobot's tolerance).
+pub(super) const TIMESTAMP_TOLERANCE_SECS: f64 = 1e-4;
+
+/// A declared feature.
+#[derive(Clone, Debug)]
+pub(super) struct Declared {
+    pub(super) name: String,
+    pub(super) dtype: String,
+    pub(super) shape: Vec<usize>,
+}
+
+impl Declared {
+    pub(super) fn elements(&self) -> usize {
+        self.shape.iter().product::<usize>().max(1)
+    }
+}
+
+fn declared_features(info: &Value) -> Vec<Declared> {
+    info["features"]
+        .as_object()
+        .map(|features| {
+            features
+                .iter()
+                .map(|(name, f)| Declared {
+                    name: name.clone(),
+                    dtype: f["dtype"].as_str().unwrap_or_default().to_string(),
+                    shape: f["shape"]
+                        .as_array()
+                        .map(|s| s.iter().filter_map(Value::as_u64).map(|v| v as usize))
+                        .into_iter()
+                        .flatten()
+                        .collect(),
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// One episode as the episodes metadata describes it.
+#[derive(Clone, Debug, Default)]
+pub(super) struct EpisodeEntry {
+    pub(super) length: Option<i64>,
+    pub(super) from: Option<i64>,
+    pub(super) to: Option<i64>,
+    pub(super) data_file: Option<(i64, i64)>,
+    pub(super) tasks: Vec<String>,
+    /// Video key -> (chunk, file, from_secs, to_secs).
+    pub(super) videos: BTreeMap<String, (i64, i64, f64, f64)>,
+    pub(super) provenance: BTreeMap<String, Value>,
+}
+
+/// A run of consecutive rows of one episode in one row group.
+#[derive(Clone, Debug)]
+pub(super) struct Run {
+    pub(super) episode: i64,
+    pub(super) first_index: i64,
+    pub(super) last_index: i64,
+    pub(super) first_frame: i64,
+    pub(super) last_frame: i64,
+    pub(super) rows: u64,
+}
+
+/// Per element of a numeric feature: (min, max, sum, count).
+pub(super) type Moments = Vec<(f64, f64, f64, u64)>;
+
+/// What one row group held.
+#[derive(Debug, Default)]
+pub(super) struct Part {
+    pub(super) runs: Vec<Run>,
+    pub(super) rows: u64,
+    pub(super) moments: BTreeMap<String, Moments>,
+}
+
+/// Checks the LeRobot dataset at `root`; returns (episodes, frames) found.
+pub fn check(
+    root: &Path,
+    format: Format,
+    options: &ValidateOptions,
+    findings: &Findings,
+) -> (u64, u64) {
+    let v21 = format == Format::LeRobotV21;
+    let info_path = root.join("meta/info.json");
+    let info = if info_path.is_file() {
+        match read_json(&info_path) {
+            Ok(info) => {
+                for (pointer, problem) in schema::check_text(&info, schema::LEROBOT_INFO) {
+                    findings.file_error(&info_path, "schema", format!("{pointer} {problem}"));
+                }
+                info
+            }
+            Err(_) => {
+                findings.file_error(&info_path, "readable", "is not valid JSON");
+                Value::Null
+            }
+        }
+    } else {
+        findings.file_error(
+            &info_path,
+            "present",
+            "is missing: the loader cannot open the dataset",
+        );
+        Value::Null
+    };
+    let features = declared_features(&info);
+    let fps = info["fps"].as_f64().filter(|f| *f > 0.0);
+    findings.learn(|facts| {
+        facts.fps = fps;
+        facts.robot_type = info["robot_type"].as_str().map(String::from);
+        facts.features = features
+            .iter()
+            .map(|f| FeatureFact {
+                name: f.name.clone(),
+                dtype: f.dtype.clone(),
+                shape: f.shape.clone(),
+            })
+            .collect();
+    });
+    let surgvla = read_optional_json(root, "meta/surgvla.json", findings);
+    if !surgvla.is_null() {
+        let path = root.join("meta/surgvla.json");
+        for (pointer, problem) in schema::check_text(&surgvla, schema::SURGVLA_META) {
+            findings.file_error(&path, "schema", format!("{pointer} {problem}"));
+        }
+    }
+    let report = read_optional_json(root, "collect_report.json", findings);
+    if !report.is_null() {
+        let path = root.join("collect_report.json");
+        for (pointer, problem) in schema::check_text(&report, schema::COLLECT_REPORT) {
+            findings.file_error(&path, "schema", format!("{pointer} {problem}"));
+        }
+    }
+    let semantics = Semantics::of(&surgvla, options);
+    findings.learn(|facts| {
+        facts.generator = surgvla["generator"].as_str().map(String::from);
+        facts.collection = surgvla["collection"].clone();
+    });
+    check_manifest(root, crate::export::MANIFEST, findings);
+
+    let tasks = read_tasks(root, v21, findings);
+    let entries = read_episodes(root, v21, &features, findings);
+    findings.learn(|facts| {
+        for task in &tasks {
+            facts.tasks.insert(task.clone(), 0);
+        }
+        for entry in &entries {
+            if let Some(task) = entry.tasks.first() {
+                *facts.tasks.entry(task.clone()).or_default() += 1;
+            }
+        }
+    });
+    if !surgvla.is_null() {
+        for (i, entry) in entries.iter().enumerate() {
+            for key in super::Provenance::KEYS {
+                if !entry.provenance.contains_key(key) {
+                    findings.error(
+                        At::file(episodes_file(v21)).episode(i as u64),
+                        "provenance",
+                        format!("the episodes table has no {key}"),
+                    );
+                }
+            }
+        }
+    }
+
+    let files = super::read::data_files(root).unwrap_or_default();
+    if files.is_empty() {
+        findings.error(
+            At::file("data"),
+            "present",
+            "no data files (data/chunk-*/*.parquet)",
+        );
+    }
+    let context = Context {
+        root,
+        features: &features,
+        fps,
+        tasks: tasks.len(),
+        quick: options.quick,
+        entries: &entries,
+        task_names: &tasks,
+        semantics: semantics.as_ref(),
+        findings,
+        info_known: !info.is_null(),
+    };
+    // Every row group of every file, in order, checked in parallel.
+    let groups: Vec<(usize, usize)> = files
+        .iter()
+        .enumerate()
+        .flat_map(|(f, path)| (0..row_groups(path, findings)).map(move |g| (f, g)))
+        .collect();
+    let parts: Vec<Part> = groups
+        .par_iter()
+        .map(|&(f, g)| context.check_row_group(&files[f], g))
+        .collect();
+    let (episodes, frames) = stitch(
+        &context,
+        &files,
+        &groups,
+        &parts,
+        &info,
+        v21,
+        !options.quick,
+    );
+    check_stats(root, &features, &parts, !options.quick, findings);
+    check_videos(root, v21, &info, &features, &entries, findings);
+    (episodes, frames)
+}
+
+pub(super) fn episodes_file(v21: bool) -> &'static str {
+    if v21 {
+        "meta/episodes.jsonl"
+    } else {
+        "meta/episodes/chunk-000/file-000.parquet"
+    }
+}
+
+fn read_optional_json(root: &Path, relative: &str, findings: &Findings) -> Value {
+    let path = root.join(relative);
+    if !path.is_file() {
+        return Value::Null;
+    }
+    read_json(&path).unwrap_or_else(|_| {
+        findings.file_error(&path, "readable", "is not valid JSON");
+        Value::Null
+    })
+}
+
+fn row_groups(path: &Path, findings: &Findings) -> usize {
+    let opened = File::open(path)
+        .map_err(|e| e.to_string())
+        .and_then(|f| ParquetRecordBatchReaderBuilder::try_new(f).map_err(|e| e.to_string()));
+    match opened {
+        Ok(builder) => builder.metadata().num_row_groups(),
+        Err(problem) => {
+            findings.file_error(
+                path,
+                "readable",
+                format!("is not a readable parquet file: {problem}"),
+            );
+            0
+        }
+    }
+}
+
+/// Reads every batch of a parquet file, or names the file in a finding.
+pub(super) fn read_table(path: &Path, findings: &Findings) -> Option<Vec<RecordBatch>> {
+    match super::read::read_parquet(path) {
+        Ok(batches) => Some(batches),
+        Err(_) => {
+            findings.file_error(path, "readable", "is not a readable parquet file");
+            None
+        }
+    }
+}
+
+pub(super) fn is_index_column(name: &str) -> bool {
+    name == "timestamp" || INDEX_COLUMNS.contains(&name)
+}
+
+/// What every row group's check needs.
+pub(super) struct Context<'a> {
+    pub(super) root: &'a Path,
+    pub(super) features: &'a [Declared],
+    pub(super) fps: Option<f64>,
+    pub(super) tasks: usize,
+    pub(super) quick: bool,
+    pub(super) entries: &'a [EpisodeEntry],
+    pub(super) task_names: &'a [String],
+    pub(super) semantics: Option<&'a Semantics>,
+    pub(super) findings: &'a Findings,
+    pub(super) info_known: bool,
+}
+
+/// The cross-row-group checks: indices contiguous across groups and files, episodes contiguous,
+/// the episodes table and the totals against the data. Returns (episodes, frames).
+fn stitch(
+    context: &Context<'_>,
+    files: &[PathBuf],
+    groups: &[(usize, usize)],
+    parts: &[Part],
+    info: &Value,
+    v21: bool,
+    full: bool,
+) -> (u64, u64) {
+    let findings = context.findings;
+    // Whole episodes: (episode, first_index, last_index, rows, file).
+    let mut episodes: Vec<(i64, i64, i64, u64, usize, i64)> = Vec::new();
+    let mut frames = 0u64;
+    for (&(file, _), part) in groups.iter().zip(parts) {
+        frames += part.rows;
+        for run in &part.runs {
+            let relative = findings.relative(&files[file]);
+            let at = || At::file(relative.clone()).episode(run.episode.max(0) as u64);
+            match episodes.last_mut() {
+                Some(last) if last.0 == run.episode => {
+                    if full && run.first_index != last.2 + 1 {
+                        findings.error(
+                            at(),
+                            "index",
+                            format!("index {} follows {}", run.first_index, last.2),
+                        );
+                    }
+                    last.2 = run.last_index;
+                    last.3 += run.rows;
+                }
+                previous => {
+                    let previous = previous.map(|p| (p.0, p.2));
+                    let expected = previous.map_or(0, |p| p.0 + 1);
+                    if run.episode != expected {
+                        findings.error(
+                            at(),
+                            "episode_index",
+                            format!(
+                                "episode {} follows episode {} in row order",
+                                run.episode,
+                                expected - 1
+                            ),
+                        );
+                    }
+                    let expected_index = previous.map_or(0, |p| p.1 + 1);
+                    if full && run.first_index != expected_index {
+                        findings.error(
+                            at(),
+                            "index",
+                            format!(
+                                "the episode starts at index {} where {expected_index} was next",
+                                run.first_index
+                            ),
+                        );
+                    }
+                    if run.first_frame != 0 {
+                        findings.error(
+                            at(),
+                            "frame_index",
+                            format!("the episode starts at frame_index {}", run.first_frame),
+                        );
+                    }
+                    episodes.push((
+                        run.episode,
+                        run.first_index,
+                        run.last_index,
+                        run.rows,
+                        file,
+                        run.first_index,
+                    ));
+                }
+            }
+        }
+    }
+    if !full {
+        // Quick: one row per group, so counts come from the parquet metadata.
+        frames = files
+            .iter()
+            .filter_map(|p| File::open(p).ok())
+            .filter_map(|f| ParquetRecordBatchReaderBuilder::try_new(f).ok())
+            .map(|b| b.metadata().file_metadata().num_rows() as u64)
+            .sum();
+    }
+    let entries = context.entries;
+    let episodes_file = episodes_file(v21);
+    if entries.len() != episodes.len() && (full || entries.len() < episodes.len()) {
+        findings.error(
+            At::file(episodes_file),
+            "episodes",
+            format!(
+                "the episodes table has {} rows, the data {} episodes",
+                entries.len(),
+                episodes.len()
+            ),
+        );
+    }
+    for &(episode, first, last, rows, file, _) in &episodes {
+        let Some(entry) = entries.get(episode.max(0) as usize) else {
+            continue;
+        };
+        let at = || At::file(episodes_file).episode(episode.max(0) as u64);
+        if full && entry.length != Some(rows as i64) {
+            findings.error(
+                at(),
+                "length",
+                format!("length {:?}, the data holds {rows} frames", entry.length),
+            );
+        }
+        if !v21 {
+            if entry.from != Some(first) {
+                findings.error(
+                    at(),
+                    "from_to",
+                    format!(
+                        "dataset_from_index {:?}, the episode's first index is {first}",
+                        entry.from
+                    ),
+                );
+            }
+            if full && entry.to != Some(last + 1) {
+                findings.error(at(), "from_to", format!("dataset_to_index {:?}, the episode's last index is {last} (to is exclusive)", entry.to));
+            }
+            if let Some((chunk, data_file)) = entry.data_file {
+                let expected = format!("data/chunk-{chunk:03}/file-{data_file:03}.parquet");
+                if findings.relative(&files[file]) != expected {
+                    findings.error(at(), "location", format!("data/chunk_index, data/file_index name {expected}, the episode is in {}", findings.relative(&files[file])));
+                }
+            }
+        }
+        if entry.tasks.is_empty() {
+            findings.error(at(), "tasks", "the episode lists no task");
+        }
+        for task in &entry.tasks {
+            if !context.task_names.contains(task) {
+                findings.error(
+                    at(),
+                    "tasks",
+                    format!("task {task:?} is not in the tasks table"),
+                );
+            }
+        }
+    }
+    for (i, entry) in entries.iter().enumerate() {
+        if let Some((chunk, file)) = entry.data_file
+            && !v21
+        {
+            let path = context
+                .root
+                .join(format!("data/chunk-{chunk:03}/file-{file:03}.parquet"));
+            if !path.is_file() {
+                findings.error(
+                    At::file(findings.relative(&path)).episode(i as u64),
+                    "present",
+                    "is missing (the episodes table names it)",
+                );
+            }
+        }
+        if v21 && i >= episodes.len() {
+            let chunks_size = info["chunks_size"].as_u64().unwrap_or(1000).max(1) as usize;
+            let path = context.root.join(format!(
+                "data/chunk-{:03}/episode_{i:06}.parquet",
+                i / chunks_size
+            ));
+            if !path.is_file() {
+                findings.error(
+                    At::file(findings.relative(&path)).episode(i as u64),
+                    "present",
+                    "is missing",
+                );
+            }
+        }
+        if entry.length == Some(0) {
+            findings.error(
+                At::file(episodes_file).episode(i as u64),
+                "steps",
+                "the episode has zero frames",
+            );
+        }
+    }
+    let total = |key: &str| info[key].as_u64();
+    if let Some(total) = total("total_episodes")
+        && total != episodes.len() as u64
+    {
+        findings.error(
+            At::file("meta/info.json"),
+            "totals",
+            format!(
+                "total_episodes is {total}, the data holds {}",
+                episodes.len()
+            ),
+        );
+    }
+    if let Some(total) = total("total_frames")
+        && total != frames
+    {
+        findings.error(
+            At::file("meta/info.json"),
+            "totals",
+            format!("total_frames is {total}, the data holds {frames}"),
+        );
+    }
+    if let Some(total) = total("total_tasks")
+        && total != context.tasks as u64
+    {
+        findings.error(
+            At::file("meta/info.json"),
+            "totals",
+            format!(
+                "total_tasks is {total}, the tasks table holds {}",
+                context.tasks
+            ),
+        );
+    }
+    (episodes.len() as u64, frames)
+}

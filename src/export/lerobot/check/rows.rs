@@ -1,0 +1,497 @@
+//! The rows of one row group of a LeRobot data file: columns against the declared features,
+//! indices, timestamps, task indices, finite numbers, decodable images of the declared size and
+//! channels, and the semantic checks of our datasets per episode.
+
+use super::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
+use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step, StepExtras};
+use crate::export::image::decode_png;
+use crate::export::tiff::decode_f32_tiff;
+use crate::export::validate::{At, Semantics, check_semantics};
+use arrow_array::{
+    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    LargeBinaryArray, RecordBatch, StructArray,
+};
+use arrow_schema::DataType;
+use parquet::arrow::arrow_reader::{ParquetRecordBatchReaderBuilder, RowSelection, RowSelector};
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::Path;
+
+impl Context<'_> {
+    pub(super) fn check_row_group(&self, path: &Path, group: usize) -> Part {
+        let findings = self.findings;
+        let file = findings.relative(path);
+        let mut part = Part::default();
+        let reader = File::open(path)
+            .map_err(|e| e.to_string())
+            .and_then(|f| ParquetRecordBatchReaderBuilder::try_new(f).map_err(|e| e.to_string()))
+            .and_then(|builder| {
+                let rows = builder.metadata().row_group(group).num_rows() as usize;
+                let mut builder = builder.with_row_groups(vec![group]).with_batch_size(256);
+                if self.quick && rows > 1 {
+                    builder = builder.with_row_selection(RowSelection::from(vec![
+                        RowSelector::select(1),
+                        RowSelector::skip(rows - 1),
+                    ]));
+                }
+                builder.build().map_err(|e| e.to_string())
+            });
+        let reader = match reader {
+            Ok(reader) => reader,
+            Err(problem) => {
+                findings.error(
+                    At::file(file),
+                    "readable",
+                    format!("row group {group}: {problem}"),
+                );
+                return part;
+            }
+        };
+        let mut schema_checked = false;
+        let mut semantic_rows: Vec<(i64, i64, Step)> = Vec::new();
+        for batch in reader {
+            let batch = match batch {
+                Ok(batch) => batch,
+                Err(problem) => {
+                    findings.error(
+                        At::file(file.clone()),
+                        "readable",
+                        format!("row group {group} cannot be decoded: {problem}"),
+                    );
+                    return part;
+                }
+            };
+            if !schema_checked {
+                schema_checked = true;
+                if group == 0 && self.info_known {
+                    self.check_columns(&batch, &file);
+                }
+            }
+            self.check_batch(&batch, &file, &mut part, &mut semantic_rows);
+        }
+        if self.semantics.is_some() || !semantic_rows.is_empty() {
+            self.check_episodes_semantics(&file, semantic_rows);
+        }
+        part
+    }
+
+    /// The columns are exactly the declared features (video features live in MP4 files).
+    fn check_columns(&self, batch: &RecordBatch, file: &str) {
+        let schema = batch.schema();
+        for feature in self.features.iter().filter(|f| f.dtype != "video") {
+            let Some(field) = schema.field_with_name(&feature.name).ok() else {
+                self.findings.error(
+                    At::file(file),
+                    "columns",
+                    format!("the declared feature {} has no column", feature.name),
+                );
+                continue;
+            };
+            if let Some(problem) = type_problem(feature, field.data_type()) {
+                self.findings.error(
+                    At::file(file),
+                    "types",
+                    format!("{}: {problem}", feature.name),
+                );
+            }
+        }
+        for field in schema.fields() {
+            let declared = self
+                .features
+                .iter()
+                .any(|f| &f.name == field.name() && f.dtype != "video");
+            if !declared {
+                self.findings.error(
+                    At::file(file),
+                    "columns",
+                    format!(
+                        "column {} is not a declared feature of meta/info.json",
+                        field.name()
+                    ),
+                );
+            }
+        }
+    }
+
+    fn check_batch(
+        &self,
+        batch: &RecordBatch,
+        file: &str,
+        part: &mut Part,
+        semantic_rows: &mut Vec<(i64, i64, Step)>,
+    ) {
+        let findings = self.findings;
+        let ints = |name: &str| -> Option<Vec<i64>> {
+            let column = batch.column_by_name(name)?;
+            if let Some(a) = column.as_any().downcast_ref::<Int64Array>() {
+                return Some(a.values().to_vec());
+            }
+            let list = column.as_any().downcast_ref::<FixedSizeListArray>()?;
+            let values = list.values().as_any().downcast_ref::<Int64Array>()?;
+            (list.value_length() == 1).then(|| values.values().to_vec())
+        };
+        let (Some(index), Some(episode), Some(frame)) =
+            (ints("index"), ints("episode_index"), ints("frame_index"))
+        else {
+            findings.error(
+                At::file(file),
+                "columns",
+                "lacks an int64 index, episode_index or frame_index column",
+            );
+            return;
+        };
+        let task = ints("task_index");
+        let timestamp = batch.column_by_name("timestamp").and_then(|c| {
+            c.as_any()
+                .downcast_ref::<Float32Array>()
+                .map(|a| a.values().iter().map(|&v| f64::from(v)).collect::<Vec<_>>())
+                .or_else(|| {
+                    c.as_any()
+                        .downcast_ref::<Float64Array>()
+                        .map(|a| a.values().to_vec())
+                })
+        });
+        for row in 0..batch.num_rows() {
+            let at = || {
+                At::file(file)
+                    .episode(episode[row].max(0) as u64)
+                    .frame(frame[row].max(0) as u64)
+            };
+            match part.runs.last_mut() {
+                Some(run) if run.episode == episode[row] => {
+                    if !self.quick && index[row] != run.last_index + 1 {
+                        findings.error(
+                            at(),
+                            "index",
+                            format!("index {} follows {}", index[row], run.last_index),
+                        );
+                    }
+                    if !self.quick && frame[row] != run.last_frame + 1 {
+                        findings.error(
+                            at(),
+                            "frame_index",
+                            format!("frame_index {} follows {}", frame[row], run.last_frame),
+                        );
+                    }
+                    run.last_index = index[row];
+                    run.last_frame = frame[row];
+                    run.rows += 1;
+                }
+                _ => part.runs.push(Run {
+                    episode: episode[row],
+                    first_index: index[row],
+                    last_index: index[row],
+                    first_frame: frame[row],
+                    last_frame: frame[row],
+                    rows: 1,
+                }),
+            }
+            if let (Some(timestamps), Some(fps)) = (&timestamp, self.fps) {
+                let expected = frame[row] as f64 / fps;
+                if (timestamps[row] - expected).abs() > TIMESTAMP_TOLERANCE_SECS {
+                    findings.error(
+                        at(),
+                        "timestamps",
+                        format!(
+                            "timestamp {} s where frame_index / fps = {expected:.6} s",
+                            timestamps[row]
+                        ),
+                    );
+                }
+            }
+            if let Some(task) = &task
+                && (task[row] < 0 || task[row] as usize >= self.tasks)
+            {
+                findings.error(
+                    at(),
+                    "task_index",
+                    format!(
+                        "task_index {} is not in the tasks table ({} tasks)",
+                        task[row], self.tasks
+                    ),
+                );
+            }
+        }
+        part.rows += batch.num_rows() as u64;
+        let mut steps: Vec<Step> = (0..batch.num_rows()).map(|_| empty_step()).collect();
+        for feature in self.features.iter().filter(|f| !is_index_column(&f.name)) {
+            let Some(column) = batch.column_by_name(&feature.name) else {
+                continue;
+            };
+            match feature.dtype.as_str() {
+                "float32" | "float64" => {
+                    let Some(values) = float_values(column.as_ref(), feature.elements()) else {
+                        continue;
+                    };
+                    let n = feature.elements();
+                    let moments = part
+                        .moments
+                        .entry(feature.name.clone())
+                        .or_insert_with(|| vec![(f64::INFINITY, f64::NEG_INFINITY, 0.0, 0); n]);
+                    for (row, chunk) in values.chunks_exact(n).enumerate() {
+                        if let Some(bad) = chunk.iter().find(|v| !v.is_finite()) {
+                            let at = At::file(file)
+                                .episode(episode[row].max(0) as u64)
+                                .frame(frame[row].max(0) as u64);
+                            findings.error(at, "finite", format!("{} holds {bad}", feature.name));
+                            continue;
+                        }
+                        for (m, &v) in moments.iter_mut().zip(chunk) {
+                            *m = (m.0.min(v), m.1.max(v), m.2 + v, m.3 + 1);
+                        }
+                        let target: Option<&mut [f32]> = match feature.name.as_str() {
+                            "observation.state" if n == 7 => Some(&mut steps[row].state),
+                            "action" if n == 7 => Some(&mut steps[row].action),
+                            "observation.environment_state" if n == MAX_OBJECTS * POSE_VALUES => {
+                                Some(&mut steps[row].environment_state)
+                            }
+                            _ => None,
+                        };
+                        if let Some(target) = target {
+                            for (t, v) in target.iter_mut().zip(chunk) {
+                                *t = *v as f32;
+                            }
+                        }
+                    }
+                }
+                "image" => self.check_images(feature, column.as_ref(), &episode, &frame, file),
+                _ => {}
+            }
+        }
+        if self.semantics.is_some() {
+            semantic_rows.extend(
+                steps
+                    .into_iter()
+                    .enumerate()
+                    .map(|(row, step)| (episode[row], frame[row], step)),
+            );
+        }
+    }
+
+    fn check_images(
+        &self,
+        feature: &Declared,
+        column: &dyn Array,
+        episode: &[i64],
+        frame: &[i64],
+        file: &str,
+    ) {
+        let findings = self.findings;
+        let Some(images) = column.as_any().downcast_ref::<StructArray>() else {
+            return;
+        };
+        let bytes = images.column_by_name("bytes");
+        let binary = bytes.and_then(|b| b.as_any().downcast_ref::<BinaryArray>());
+        let large = bytes.and_then(|b| b.as_any().downcast_ref::<LargeBinaryArray>());
+        let (height, width) = (
+            feature.shape.first().copied().unwrap_or(0),
+            feature.shape.get(1).copied().unwrap_or(0),
+        );
+        let channels = feature.shape.get(2).copied().unwrap_or(1);
+        for row in 0..images.len() {
+            let at = || {
+                At::file(file)
+                    .episode(episode[row].max(0) as u64)
+                    .frame(frame[row].max(0) as u64)
+            };
+            let encoded: Option<&[u8]> = if bytes.is_some_and(|b| b.is_null(row)) {
+                None
+            } else {
+                binary
+                    .map(|b| b.value(row))
+                    .or_else(|| large.map(|b| b.value(row)))
+            };
+            let Some(encoded) = encoded.filter(|e| !e.is_empty()) else {
+                findings.error(
+                    at(),
+                    "image",
+                    format!("{} has no image bytes", feature.name),
+                );
+                continue;
+            };
+            if encoded.starts_with(&[0xff, 0xd8]) {
+                continue; // JPEG: not decoded here.
+            }
+            let decoded = if encoded.starts_with(b"II*\0") || encoded.starts_with(b"MM\0*") {
+                decode_f32_tiff(encoded)
+                    .map(|(w, h, _)| (w as usize, h as usize, 1))
+                    .ok_or_else(|| "a TIFF that is not a float32 depth image".to_string())
+            } else {
+                decode_png(encoded)
+                    .map(|(w, h, c, _)| (w as usize, h as usize, c))
+                    .or_else(|e| {
+                        crate::export::image::decode_png16(encoded)
+                            .map(|(w, h, _)| (w as usize, h as usize, 1))
+                            .map_err(|_| e)
+                    })
+            };
+            match decoded {
+                Ok((w, h, c)) => {
+                    if (w, h) != (width, height) {
+                        findings.error(
+                            at(),
+                            "image",
+                            format!("{} is {w}x{h}, declared {width}x{height}", feature.name),
+                        );
+                    }
+                    if c != channels {
+                        let what = if c == 4 {
+                            " (RGBA: lerobot and OpenVLA expect RGB)"
+                        } else {
+                            ""
+                        };
+                        findings.error(
+                            at(),
+                            "image",
+                            format!(
+                                "{} has {c} channels, declared {channels}{what}",
+                                feature.name
+                            ),
+                        );
+                    }
+                }
+                Err(problem) => findings.error(
+                    at(),
+                    "image",
+                    format!("{} does not decode: {problem}", feature.name),
+                ),
+            }
+        }
+    }
+
+    /// Groups rows into episodes and runs the shared semantic checks.
+    fn check_episodes_semantics(&self, file: &str, rows: Vec<(i64, i64, Step)>) {
+        let mut start = 0;
+        while start < rows.len() {
+            let episode = rows[start].0;
+            let end = rows[start..]
+                .iter()
+                .position(|r| r.0 != episode)
+                .map_or(rows.len(), |p| start + p);
+            let entry = self.entries.get(episode.max(0) as usize);
+            let provenance = |key: &str| {
+                entry
+                    .and_then(|e| e.provenance.get(key))
+                    .cloned()
+                    .unwrap_or(Value::Null)
+            };
+            let instruction = entry
+                .and_then(|e| e.tasks.first().cloned())
+                .or_else(|| self.task_names.first().cloned())
+                .unwrap_or_default();
+            let meta = EpisodeMeta {
+                index: episode.max(0) as u64,
+                task_code: provenance("surgvla/task_id")
+                    .as_str()
+                    .unwrap_or_default()
+                    .into(),
+                task_name: String::new(),
+                level: provenance("surgvla/level").as_u64().unwrap_or(0) as u8,
+                instruction,
+                seed: provenance("surgvla/seed").as_i64().unwrap_or(0) as u64,
+                attempts: provenance("surgvla/attempts").as_u64().unwrap_or(0) as u32,
+                success: provenance("surgvla/success").as_bool().unwrap_or(false),
+            };
+            let steps: Vec<Step> = rows[start..end].iter().map(|r| r.2.clone()).collect();
+            let full_episode = entry.and_then(|e| e.length) == Some(steps.len() as i64);
+            let episode = Episode { meta, steps };
+            let semantics = self.semantics.map(|s| Semantics {
+                // A part of an episode cannot be judged against its step limit.
+                step_limits: if full_episode || self.quick {
+                    s.step_limits.clone()
+                } else {
+                    BTreeMap::new()
+                },
+                ..s.clone()
+            });
+            if !self.quick {
+                check_semantics(&episode, semantics.as_ref(), &At::file(file), self.findings);
+            }
+            start = end;
+        }
+    }
+}
+
+fn empty_step() -> Step {
+    Step {
+        rgb: Vec::new(),
+        depth_m: Vec::new(),
+        mask: Vec::new(),
+        state: [0.0; 7],
+        action: [0.0; 7],
+        environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
+        extras: StepExtras::default(),
+    }
+}
+
+/// The values of a float feature's column, row-major, when it has `n` per row.
+fn float_values(column: &dyn Array, n: usize) -> Option<Vec<f64>> {
+    let any = column.as_any();
+    let values = if let Some(list) = any.downcast_ref::<FixedSizeListArray>() {
+        if list.value_length() as usize != n {
+            return None;
+        }
+        let inner = list.values();
+        let offset = list.offset() * n;
+        let len = list.len() * n;
+        if let Some(a) = inner.as_any().downcast_ref::<Float32Array>() {
+            a.values()[offset..offset + len]
+                .iter()
+                .map(|&v| f64::from(v))
+                .collect()
+        } else {
+            inner.as_any().downcast_ref::<Float64Array>()?.values()[offset..offset + len].to_vec()
+        }
+    } else if n == 1 {
+        if let Some(a) = any.downcast_ref::<Float32Array>() {
+            a.values().iter().map(|&v| f64::from(v)).collect()
+        } else {
+            any.downcast_ref::<Float64Array>()?.values().to_vec()
+        }
+    } else {
+        return None;
+    };
+    Some(values)
+}
+
+/// What is wrong with a column's type for its declared feature, if anything.
+fn type_problem(feature: &Declared, data_type: &DataType) -> Option<String> {
+    let scalar = |wanted: &DataType| -> Option<String> {
+        let n = feature.elements();
+        match data_type {
+            DataType::FixedSizeList(item, len)
+                if item.data_type() == wanted && *len as usize == n =>
+            {
+                None
+            }
+            t if t == wanted && n == 1 => None,
+            DataType::FixedSizeList(item, len) => Some(format!(
+                "stored as {len} x {}, declared {} x {n}",
+                item.data_type(),
+                feature.dtype
+            )),
+            t => Some(format!(
+                "stored as {t}, declared {} with shape {:?}",
+                feature.dtype, feature.shape
+            )),
+        }
+    };
+    match feature.dtype.as_str() {
+        "float32" => scalar(&DataType::Float32),
+        "float64" => scalar(&DataType::Float64),
+        "int64" => scalar(&DataType::Int64),
+        "bool" => scalar(&DataType::Boolean),
+        "string" => match data_type {
+            DataType::Utf8 | DataType::LargeUtf8 => None,
+            t => Some(format!("stored as {t}, declared string")),
+        },
+        "image" => match data_type {
+            DataType::Struct(fields) if fields.iter().any(|f| f.name() == "bytes") => None,
+            t => Some(format!(
+                "stored as {t}, declared image (a struct with bytes and path)"
+            )),
+        },
+        _ => None,
+    }
+}

@@ -1,0 +1,201 @@
+//! Validating MCAP recordings (one file, or a folder of them): magic, chunk CRCs, the summary
+//! with its statistics and chunk indexes, every message decodable as its channel says: a
+//! protobuf channel's schema named `foxglove.<Name>`, a JSON channel's messages valid JSON that
+//! satisfies the channel's JSON Schema, and message counts matching the summary. An episode is a
+//! file; a frame is an `/endoscope/rgb` message.
+
+use crate::export::schema;
+use crate::export::validate::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
+use mcap::read::{MessageStream, Options, Summary};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Checks one recording; returns its `/endoscope/rgb` message count.
+fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u64 {
+    let at = || At::file(findings.relative(path)).episode(episode);
+    let Ok(bytes) = std::fs::read(path) else {
+        findings.error(at(), "readable", "cannot be read");
+        return 0;
+    };
+    let summary = match Summary::read(&bytes) {
+        Ok(Some(summary)) => Some(summary),
+        Ok(None) => {
+            findings.error(
+                at(),
+                "summary",
+                "has no summary section (no indexes or statistics)",
+            );
+            None
+        }
+        Err(error) => {
+            findings.error(
+                at(),
+                "summary",
+                format!("the summary cannot be read: {error}"),
+            );
+            None
+        }
+    };
+    if let Some(summary) = &summary
+        && episode == 0
+    {
+        findings.learn(|facts| {
+            let mut channels: Vec<_> = summary.channels.values().collect();
+            channels.sort_by(|a, b| a.topic.cmp(&b.topic));
+            facts.features = channels
+                .iter()
+                .map(|c| FeatureFact {
+                    name: c.topic.clone(),
+                    dtype: c
+                        .schema
+                        .as_ref()
+                        .map_or_else(|| c.message_encoding.clone(), |s| s.name.clone()),
+                    shape: Vec::new(),
+                })
+                .collect();
+        });
+    }
+    if let Some(summary) = &summary {
+        if summary.stats.is_none() {
+            findings.error(at(), "summary", "has no statistics record");
+        }
+        if summary.chunk_indexes.is_empty() {
+            findings.error(at(), "summary", "has no chunk indexes");
+        }
+        for schema in summary.schemas.values() {
+            if schema.encoding == "protobuf" && !schema.name.starts_with("foxglove.") {
+                findings.error(
+                    at(),
+                    "schema_name",
+                    format!(
+                        "protobuf schema {} is not a foxglove.<Name> well-known schema",
+                        schema.name
+                    ),
+                );
+            }
+        }
+    }
+    if quick {
+        return summary
+            .as_ref()
+            .and_then(|s| {
+                let id = s
+                    .channels
+                    .values()
+                    .find(|c| c.topic == "/endoscope/rgb")?
+                    .id;
+                s.stats.as_ref()?.channel_message_counts.get(&id).copied()
+            })
+            .unwrap_or(0);
+    }
+    let stream = match MessageStream::new_with_options(&bytes, Options::ValidateChunkCrcs.into()) {
+        Ok(stream) => stream,
+        Err(error) => {
+            findings.error(at(), "magic", format!("is not an MCAP file: {error}"));
+            return 0;
+        }
+    };
+    let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
+    let mut json_schemas: BTreeMap<u16, Option<serde_json::Value>> = BTreeMap::new();
+    let mut frames = 0u64;
+    for message in stream {
+        let message = match message {
+            Ok(message) => message,
+            Err(error) => {
+                findings.error(
+                    at(),
+                    "crc",
+                    format!(
+                        "reading stops after {} messages: {error}",
+                        counts.values().sum::<u64>()
+                    ),
+                );
+                return frames;
+            }
+        };
+        let channel = &message.channel;
+        *counts.entry(channel.id).or_default() += 1;
+        if channel.topic == "/endoscope/rgb" {
+            frames += 1;
+        }
+        if channel.message_encoding == "json" {
+            let value: serde_json::Value = match serde_json::from_slice(&message.data) {
+                Ok(value) => value,
+                Err(_) => {
+                    findings.error(
+                        at().frame(frames),
+                        "json",
+                        format!("a {} message is not JSON", channel.topic),
+                    );
+                    continue;
+                }
+            };
+            let schema = json_schemas.entry(channel.id).or_insert_with(|| {
+                channel
+                    .schema
+                    .as_ref()
+                    .filter(|s| s.encoding == "jsonschema")
+                    .and_then(|s| serde_json::from_slice(&s.data).ok())
+            });
+            if let Some(schema) = schema {
+                for (pointer, problem) in schema::check(&value, schema) {
+                    findings.error(
+                        at().frame(frames),
+                        "json_schema",
+                        format!("{} message {pointer} {problem}", channel.topic),
+                    );
+                }
+            }
+        } else if channel.message_encoding == "protobuf"
+            && channel
+                .schema
+                .as_ref()
+                .is_some_and(|s| !s.name.starts_with("foxglove."))
+        {
+            findings.error(
+                at(),
+                "schema_name",
+                format!("{} uses a schema not named foxglove.<Name>", channel.topic),
+            );
+        }
+    }
+    if let Some(stats) = summary.as_ref().and_then(|s| s.stats.as_ref()) {
+        let total: u64 = counts.values().sum();
+        if stats.message_count != total {
+            findings.error(
+                at(),
+                "summary",
+                format!(
+                    "the statistics count {} messages, the file holds {total}",
+                    stats.message_count
+                ),
+            );
+        }
+    }
+    frames
+}
+
+/// Checks the MCAP file or folder at `root`; returns (episodes, frames).
+pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
+    let files: Vec<PathBuf> = if root.is_file() {
+        vec![root.to_path_buf()]
+    } else {
+        check_manifest(root, super::MANIFEST, findings);
+        let mut files: Vec<PathBuf> = std::fs::read_dir(root)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+            .collect();
+        files.sort();
+        files
+    };
+    let frames: u64 = files
+        .par_iter()
+        .enumerate()
+        .map(|(i, path)| check_file(path, i as u64, options.quick, findings))
+        .sum();
+    (files.len() as u64, frames)
+}

@@ -1,0 +1,320 @@
+//! Validating a DP3 zarr v2 store (ours or another writer's): the root group, every array's
+//! `.zarray` (zarr v2, C order, a compressor we can decode: zstd or none), every chunk present
+//! and decoding to the chunk's size, `meta/episode_ends` strictly increasing and ending at the
+//! length of every `data/` array, point clouds shaped (T, N, 6 or 7), and no NaN or Inf in float
+//! arrays (every chunk; `quick` reads the metadata and the first chunk of each array).
+
+use crate::export::validate::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
+use crate::export::{read_json, schema};
+use rayon::prelude::*;
+use serde_json::Value;
+use std::path::Path;
+
+/// An array's metadata as `.zarray` gives it.
+struct ArrayMeta {
+    name: String,
+    shape: Vec<usize>,
+    chunks: Vec<usize>,
+    dtype: String,
+    item_bytes: usize,
+    zstd: bool,
+}
+
+fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta> {
+    let path = root.join(name).join(".zarray");
+    let Ok(meta) = read_json(&path) else {
+        findings.file_error(&path, "present", "is missing or not JSON");
+        return None;
+    };
+    let numbers = |key: &str| -> Option<Vec<usize>> {
+        meta[key]
+            .as_array()?
+            .iter()
+            .map(|v| v.as_u64().map(|v| v as usize))
+            .collect()
+    };
+    let (Some(shape), Some(chunks)) = (numbers("shape"), numbers("chunks")) else {
+        findings.file_error(&path, "schema", "lacks shape or chunks");
+        return None;
+    };
+    if meta["zarr_format"] != 2 {
+        findings.file_error(
+            &path,
+            "schema",
+            format!("zarr_format is {}, not 2", meta["zarr_format"]),
+        );
+    }
+    if shape.len() != chunks.len() || chunks.contains(&0) {
+        findings.file_error(
+            &path,
+            "schema",
+            format!("chunks {chunks:?} do not fit shape {shape:?}"),
+        );
+        return None;
+    }
+    if meta["order"] != "C" {
+        findings.file_error(&path, "schema", "order is not C");
+    }
+    let dtype = meta["dtype"].as_str().unwrap_or_default().to_string();
+    let item_bytes = dtype.get(2..).and_then(|n| n.parse().ok()).unwrap_or(0);
+    if item_bytes == 0 {
+        findings.file_error(
+            &path,
+            "schema",
+            format!("dtype {dtype:?} is not a numpy type string"),
+        );
+        return None;
+    }
+    let zstd = match &meta["compressor"] {
+        Value::Null => false,
+        c if c["id"] == "zstd" => true,
+        c => {
+            findings.file_error(
+                &path,
+                "schema",
+                format!(
+                    "compressor {} is not one surgvla decodes (zstd or none)",
+                    c["id"]
+                ),
+            );
+            return None;
+        }
+    };
+    Some(ArrayMeta {
+        name: name.into(),
+        shape,
+        chunks,
+        dtype,
+        item_bytes,
+        zstd,
+    })
+}
+
+/// Checks every chunk of `array` (only the first when `quick`).
+fn check_chunks(root: &Path, array: &ArrayMeta, quick: bool, findings: &Findings) {
+    let grid: Vec<usize> = array
+        .shape
+        .iter()
+        .zip(&array.chunks)
+        .map(|(s, c)| s.div_ceil(*c))
+        .collect();
+    let count: usize = grid.iter().product();
+    let chunk_bytes = array.chunks.iter().product::<usize>() * array.item_bytes;
+    let float = array.dtype.ends_with("f4") || array.dtype.ends_with("f8");
+    let rows_per_chunk = array.chunks.first().copied().unwrap_or(1);
+    let limit = if quick { count.min(1) } else { count };
+    (0..limit).into_par_iter().for_each(|linear| {
+        let mut rest = linear;
+        let mut key = vec![0usize; grid.len()];
+        for (axis, size) in grid.iter().enumerate().rev() {
+            key[axis] = rest % size;
+            rest /= size;
+        }
+        let name = key
+            .iter()
+            .map(usize::to_string)
+            .collect::<Vec<_>>()
+            .join(".");
+        let name = if name.is_empty() {
+            "0".to_string()
+        } else {
+            name
+        };
+        let path = root.join(&array.name).join(&name);
+        let at = || At::file(findings.relative(&path));
+        let Ok(stored) = std::fs::read(&path) else {
+            findings.error(at(), "present", "chunk is missing");
+            return;
+        };
+        let bytes = if array.zstd {
+            match zstd::stream::decode_all(stored.as_slice()) {
+                Ok(bytes) => bytes,
+                Err(_) => {
+                    findings.error(at(), "chunk", "is not a zstd frame");
+                    return;
+                }
+            }
+        } else {
+            stored
+        };
+        if bytes.len() != chunk_bytes {
+            findings.error(
+                at(),
+                "chunk",
+                format!(
+                    "decodes to {} bytes, a chunk of {:?} {} is {chunk_bytes}",
+                    bytes.len(),
+                    array.chunks,
+                    array.dtype
+                ),
+            );
+            return;
+        }
+        if float {
+            let row_bytes = chunk_bytes / rows_per_chunk.max(1);
+            let valid_rows = array.shape.first().map_or(0, |t| {
+                t.saturating_sub(key[0] * rows_per_chunk)
+                    .min(rows_per_chunk)
+            });
+            let bad = if array.dtype.ends_with("f4") {
+                bytes[..valid_rows * row_bytes]
+                    .chunks_exact(4)
+                    .position(|b| !f32::from_le_bytes([b[0], b[1], b[2], b[3]]).is_finite())
+            } else {
+                bytes[..valid_rows * row_bytes]
+                    .chunks_exact(8)
+                    .position(|b| !f64::from_le_bytes(b.try_into().unwrap_or([0; 8])).is_finite())
+            };
+            if let Some(position) = bad {
+                let row = key[0] * rows_per_chunk + position * array.item_bytes / row_bytes.max(1);
+                findings.error(
+                    at().frame(row as u64),
+                    "finite",
+                    format!("{} holds NaN or Inf at row {row}", array.name),
+                );
+            }
+        }
+    });
+}
+
+/// Reads an int64 1-D array whole.
+fn read_ints(root: &Path, array: &ArrayMeta) -> Option<Vec<i64>> {
+    let mut values = Vec::new();
+    let rows = *array.shape.first()?;
+    let per_chunk = *array.chunks.first()?;
+    for chunk in 0..rows.div_ceil(per_chunk) {
+        let stored = std::fs::read(root.join(&array.name).join(chunk.to_string())).ok()?;
+        let bytes = if array.zstd {
+            zstd::stream::decode_all(stored.as_slice()).ok()?
+        } else {
+            stored
+        };
+        values.extend(
+            bytes
+                .chunks_exact(8)
+                .map(|b| i64::from_le_bytes(b.try_into().unwrap_or([0; 8]))),
+        );
+    }
+    values.truncate(rows);
+    Some(values)
+}
+
+/// Checks the store at `root`; returns (episodes, frames).
+pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
+    if !root.join(".zgroup").is_file() {
+        findings.error(
+            At::file(".zgroup"),
+            "present",
+            "is missing: zarr cannot open the store",
+        );
+    }
+    if let Ok(attributes) = read_json(&root.join(".zattrs"))
+        && let Some(surgvla) = attributes.get("surgvla")
+    {
+        findings.learn(|facts| {
+            facts.fps = surgvla["fps"].as_f64();
+            facts.generator = surgvla["generator"].as_str().map(String::from);
+            facts.collection = surgvla["collection"].clone();
+        });
+        for (pointer, problem) in schema::check_text(surgvla, schema::SURGVLA_META) {
+            findings.error(
+                At::file(".zattrs"),
+                "schema",
+                format!("/surgvla{pointer} {problem}"),
+            );
+        }
+    }
+    check_manifest(root, super::MANIFEST, findings);
+    let data_names: Vec<String> = std::fs::read_dir(root.join("data"))
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| e.path().join(".zarray").is_file())
+        .map(|e| format!("data/{}", e.file_name().to_string_lossy()))
+        .collect();
+    for required in ["data/point_cloud", "data/state", "data/action"] {
+        if !data_names.iter().any(|n| n == required) {
+            findings.error(At::file(required), "present", "array is missing");
+        }
+    }
+    let arrays: Vec<ArrayMeta> = data_names
+        .iter()
+        .filter_map(|n| array_meta(root, n, findings))
+        .collect();
+    let ends_meta = array_meta(root, "meta/episode_ends", findings);
+    findings.learn(|facts| {
+        facts.features = arrays
+            .iter()
+            .map(|a| FeatureFact {
+                name: a.name.clone(),
+                dtype: a.dtype.clone(),
+                shape: a.shape.clone(),
+            })
+            .collect();
+    });
+    for array in &arrays {
+        check_chunks(root, array, options.quick, findings);
+        if array.name == "data/point_cloud"
+            && (array.shape.len() != 3 || !matches!(array.shape[2], 6 | 7))
+        {
+            findings.error(
+                At::file("data/point_cloud/.zarray"),
+                "shape",
+                format!("shape {:?} is not (T, N, 6) or (T, N, 7)", array.shape),
+            );
+        }
+        if matches!(array.name.as_str(), "data/state" | "data/action") && array.shape.len() != 2 {
+            findings.error(
+                At::file(format!("{}/.zarray", array.name)),
+                "shape",
+                format!("shape {:?} is not (T, D)", array.shape),
+            );
+        }
+    }
+    let frames = arrays
+        .first()
+        .and_then(|a| a.shape.first())
+        .copied()
+        .unwrap_or(0) as u64;
+    for array in &arrays {
+        if array.shape.first().copied().unwrap_or(0) as u64 != frames {
+            findings.error(
+                At::file(format!("{}/.zarray", array.name)),
+                "shape",
+                format!(
+                    "{} rows where {} has {frames}",
+                    array.shape[0], arrays[0].name
+                ),
+            );
+        }
+    }
+    let Some(ends_meta) = ends_meta else {
+        return (0, frames);
+    };
+    let Some(ends) = read_ints(root, &ends_meta) else {
+        findings.error(
+            At::file("meta/episode_ends"),
+            "chunk",
+            "cannot be read whole",
+        );
+        return (0, frames);
+    };
+    let mut previous = 0i64;
+    for (episode, &end) in ends.iter().enumerate() {
+        if end <= previous {
+            findings.error(At::file("meta/episode_ends").episode(episode as u64), "episode_ends", format!("end {end} does not follow {previous} (episodes need at least one frame, ends increase)"));
+        }
+        previous = end;
+    }
+    if ends.last().copied().unwrap_or(0) as u64 != frames {
+        findings.error(
+            At::file("meta/episode_ends"),
+            "episode_ends",
+            format!(
+                "the last end is {}, the data arrays hold {frames} frames",
+                ends.last().copied().unwrap_or(0)
+            ),
+        );
+    }
+    (ends.len() as u64, frames)
+}

@@ -1,0 +1,718 @@
+//! `surgvla validate` and `info` on a corpus of broken datasets made from good ones: each defect
+//! class is found by content checks (the manifest is removed first, so checksums cannot be what
+//! finds it) and named with its file, episode and check; good datasets, and a byte-differently
+//! rewritten good one, pass; exit codes 0 / 1 / 2; and a seeded random-corruption test over
+//! every format's reader, which must never panic.
+
+use crate::util::{surgvla, temp_root, tree};
+use arrow_array::{
+    Array, ArrayRef, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch,
+    StructArray,
+};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+use surgvla::export::validate::{Report, ValidateOptions, validate};
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// The good datasets, made once: LeRobot v3.0, v2.1, RLDS, zarr, MCAP (2 episodes).
+struct Corpus {
+    _root: crate::util::TempRoot,
+    lerobot: PathBuf,
+    lerobot21: PathBuf,
+    rlds: PathBuf,
+    zarr: PathBuf,
+    mcap: PathBuf,
+}
+
+fn corpus() -> &'static Corpus {
+    static CORPUS: OnceLock<Corpus> = OnceLock::new();
+    CORPUS.get_or_init(|| {
+        let root = temp_root("validate-corpus");
+        let lerobot = root.join("lerobot");
+        let small = ["--tasks", "T1-1,T3-1", "--episodes-per-task", "1"];
+        let run = |args: &[&str]| {
+            let (code, _, err) = surgvla(args);
+            assert_eq!(code, 0, "{args:?}: {err}");
+        };
+        let mut args = vec!["collect", "--out", path(&lerobot)];
+        args.extend(small);
+        run(&args);
+        let lerobot21 = root.join("lerobot21");
+        let mut args = vec![
+            "collect",
+            "--out",
+            path(&lerobot21),
+            "--lerobot-version",
+            "2.1",
+        ];
+        args.extend(small);
+        run(&args);
+        let convert = |to: &str, name: &str| {
+            let out = root.join(name);
+            run(&["convert", path(&lerobot), "--to", to, "--out", path(&out)]);
+            out
+        };
+        let rlds = convert("rlds", "rlds");
+        let zarr = convert("zarr", "zarr");
+        let mcap = convert("mcap", "mcap");
+        Corpus {
+            _root: root,
+            lerobot,
+            lerobot21,
+            rlds,
+            zarr,
+            mcap,
+        }
+    })
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    for (name, bytes) in tree(from) {
+        let target = to.join(&name);
+        std::fs::create_dir_all(target.parent().expect("parent")).expect("dir");
+        std::fs::write(target, bytes).expect("copy");
+    }
+}
+
+fn check(root: &Path) -> Report {
+    validate(root, &ValidateOptions::default()).expect("validate runs")
+}
+
+/// A copy of `good` without its manifest (content checks only), harmed by `harm`.
+fn broken(good: &Path, harm: impl FnOnce(&Path)) -> (crate::util::TempRoot, Report) {
+    let copy = temp_root("validate-broken");
+    copy_tree(good, &copy);
+    std::fs::remove_file(copy.join("meta/surgvla_manifest.json")).ok();
+    std::fs::remove_file(copy.join("surgvla_manifest.json")).ok();
+    harm(&copy);
+    let report = check(&copy);
+    (copy, report)
+}
+
+fn assert_found(report: &Report, check: &str, file: &str, what: &str) {
+    assert!(!report.valid, "{what}: reported valid");
+    assert!(
+        report
+            .errors
+            .iter()
+            .any(|e| e.check == check && e.file.as_deref().is_some_and(|f| f.contains(file))),
+        "{what}: no [{check}] error naming {file} in {:#?}",
+        report.errors
+    );
+}
+
+const DATA: &str = "data/chunk-000/file-000.parquet";
+
+/// Rewrites a parquet file's batches through `change` (uncompressed: bytes differ anyway).
+fn rewrite_parquet(file: &Path, change: impl Fn(RecordBatch) -> RecordBatch) {
+    let batches = surgvla::export::lerobot::read::read_parquet(file).expect("read");
+    let metadata = batches[0].schema().metadata().clone();
+    let changed: Vec<RecordBatch> = batches.into_iter().map(change).collect();
+    let schema = Arc::new(
+        arrow_schema::Schema::new(changed[0].schema().fields().clone()).with_metadata(metadata),
+    );
+    let mut bytes = Vec::new();
+    let mut writer =
+        parquet::arrow::ArrowWriter::try_new(&mut bytes, schema.clone(), None).expect("writer");
+    for batch in changed {
+        let batch = RecordBatch::try_new(schema.clone(), batch.columns().to_vec()).expect("batch");
+        writer.write(&batch).expect("write");
+    }
+    writer.close().expect("close");
+    std::fs::write(file, bytes).expect("write file");
+}
+
+/// The batch with column `name` replaced.
+fn with_column(batch: RecordBatch, name: &str, column: ArrayRef) -> RecordBatch {
+    let schema = batch.schema();
+    let index = schema.index_of(name).expect("column");
+    let mut columns = batch.columns().to_vec();
+    columns[index] = column;
+    let mut fields: Vec<arrow_schema::FieldRef> = schema.fields().iter().cloned().collect();
+    fields[index] = Arc::new(arrow_schema::Field::new(
+        name,
+        columns[index].data_type().clone(),
+        true,
+    ));
+    let schema = arrow_schema::Schema::new(fields).with_metadata(schema.metadata().clone());
+    RecordBatch::try_new(Arc::new(schema), columns).expect("batch")
+}
+
+fn ints(batch: &RecordBatch, name: &str) -> Vec<i64> {
+    let column = batch.column_by_name(name).expect("column");
+    column
+        .as_any()
+        .downcast_ref::<Int64Array>()
+        .expect("int64")
+        .values()
+        .to_vec()
+}
+
+/// A float vector column's values changed by `change(row, values)`.
+fn map_vectors(batch: &RecordBatch, name: &str, change: impl Fn(usize, &mut [f32])) -> ArrayRef {
+    let list = batch
+        .column_by_name(name)
+        .expect("column")
+        .as_any()
+        .downcast_ref::<FixedSizeListArray>()
+        .expect("list")
+        .clone();
+    let n = list.value_length() as usize;
+    let mut values = list
+        .values()
+        .as_any()
+        .downcast_ref::<Float32Array>()
+        .expect("f32")
+        .values()
+        .to_vec();
+    for (row, chunk) in values.chunks_mut(n).enumerate() {
+        change(row, chunk);
+    }
+    let field = Arc::new(arrow_schema::Field::new(
+        "item",
+        arrow_schema::DataType::Float32,
+        true,
+    ));
+    Arc::new(
+        FixedSizeListArray::try_new(field, n as i32, Arc::new(Float32Array::from(values)), None)
+            .expect("list"),
+    )
+}
+
+/// The image column `name` with row `row`'s bytes replaced.
+fn replace_image(batch: &RecordBatch, name: &str, row: usize, bytes: Vec<u8>) -> ArrayRef {
+    let images = batch
+        .column_by_name(name)
+        .expect("column")
+        .as_any()
+        .downcast_ref::<StructArray>()
+        .expect("struct")
+        .clone();
+    let old = images
+        .column_by_name("bytes")
+        .expect("bytes")
+        .as_any()
+        .downcast_ref::<BinaryArray>()
+        .expect("binary")
+        .clone();
+    let mut values: Vec<Vec<u8>> = (0..old.len()).map(|i| old.value(i).to_vec()).collect();
+    values[row] = bytes;
+    let binary: ArrayRef = Arc::new(BinaryArray::from_iter_values(values));
+    let mut columns = images.columns().to_vec();
+    let index = images
+        .fields()
+        .iter()
+        .position(|f| f.name() == "bytes")
+        .expect("bytes field");
+    columns[index] = binary;
+    Arc::new(StructArray::new(images.fields().clone(), columns, None))
+}
+
+fn edit_json(file: &Path, change: impl FnOnce(&mut serde_json::Value)) {
+    let mut value: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(file).expect("read")).expect("json");
+    change(&mut value);
+    std::fs::write(file, serde_json::to_vec(&value).expect("json")).expect("write");
+}
+
+#[test]
+fn good_datasets_of_every_format_are_valid_and_described() {
+    let c = corpus();
+    for (root, format, episodes) in [
+        (&c.lerobot, "lerobot-v3.0", 2),
+        (&c.lerobot21, "lerobot-v2.1", 2),
+        (&c.rlds, "rlds", 2),
+        (&c.zarr, "zarr", 2),
+        (&c.mcap, "mcap", 2),
+    ] {
+        let report = check(root);
+        assert!(report.valid, "{format}: {:#?}", report.errors);
+        assert_eq!(report.format.name(), format);
+        assert_eq!(report.episodes, episodes, "{format}");
+        assert!(report.frames > 2 * 10, "{format}: {} frames", report.frames);
+        let quick = validate(
+            root,
+            &ValidateOptions {
+                quick: true,
+                ..Default::default()
+            },
+        )
+        .expect("quick");
+        assert!(quick.valid, "{format} quick: {:#?}", quick.errors);
+        assert_eq!(quick.episodes, episodes, "{format} quick");
+        assert_eq!(quick.frames, report.frames, "{format} quick");
+    }
+    // A byte-for-byte copy and a byte-differently rewritten copy (no manifest) are valid.
+    let (_copy, report) = broken(&c.lerobot, |_| {});
+    assert!(report.valid, "{:#?}", report.errors);
+    let (_copy, report) = broken(&c.lerobot, |root| rewrite_parquet(&root.join(DATA), |b| b));
+    assert!(report.valid, "rewritten: {:#?}", report.errors);
+    // With the manifest kept, the rewrite is a checksum mismatch naming the file.
+    let copy = temp_root("validate-manifest");
+    copy_tree(&c.lerobot, &copy);
+    rewrite_parquet(&copy.join(DATA), |b| b);
+    assert_found(&check(&copy), "checksum", DATA, "rewritten with a manifest");
+}
+
+#[test]
+fn lerobot_defects_are_each_named() {
+    let good = &corpus().lerobot;
+    type Harm = Box<dyn Fn(&Path)>;
+    let png = |pixels: &[u8], channels: usize| {
+        surgvla::export::image::encode_png(
+            224,
+            224,
+            channels,
+            pixels,
+            surgvla::export::image::PngLevel::Fast,
+        )
+        .expect("png")
+    };
+    let rgba = png(&vec![7u8; 224 * 224 * 4], 4);
+    let cases: Vec<(&str, Harm, &str, &str)> = vec![
+        (
+            "missing info.json",
+            Box::new(|r: &Path| std::fs::remove_file(r.join("meta/info.json")).expect("rm")),
+            "present",
+            "meta/info.json",
+        ),
+        (
+            "every data file missing",
+            Box::new(|r: &Path| std::fs::remove_dir_all(r.join("data")).expect("rm")),
+            "present",
+            "data",
+        ),
+        (
+            "a truncated data file",
+            Box::new(|r: &Path| {
+                let bytes = std::fs::read(r.join(DATA)).expect("read");
+                std::fs::write(r.join(DATA), &bytes[..bytes.len() / 2]).expect("write");
+            }),
+            "readable",
+            DATA,
+        ),
+        (
+            "an extra column",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let mut fields: Vec<_> = b.schema().fields().iter().cloned().collect();
+                    fields.push(Arc::new(arrow_schema::Field::new(
+                        "extra",
+                        arrow_schema::DataType::Int64,
+                        true,
+                    )));
+                    let mut columns = b.columns().to_vec();
+                    columns.push(Arc::new(Int64Array::from(vec![0; b.num_rows()])));
+                    RecordBatch::try_new(Arc::new(arrow_schema::Schema::new(fields)), columns)
+                        .expect("batch")
+                })
+            }),
+            "columns",
+            DATA,
+        ),
+        (
+            "a missing column",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let keep: Vec<usize> = (0..b.num_columns())
+                        .filter(|&i| b.schema().field(i).name() != "action")
+                        .collect();
+                    b.project(&keep).expect("project")
+                })
+            }),
+            "columns",
+            DATA,
+        ),
+        (
+            "a wrong shape",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let n = b.num_rows();
+                    let field = Arc::new(arrow_schema::Field::new(
+                        "item",
+                        arrow_schema::DataType::Float32,
+                        true,
+                    ));
+                    let six = FixedSizeListArray::try_new(
+                        field,
+                        6,
+                        Arc::new(Float32Array::from(vec![0.0f32; n * 6])),
+                        None,
+                    )
+                    .expect("list");
+                    with_column(b, "action", Arc::new(six))
+                })
+            }),
+            "types",
+            DATA,
+        ),
+        (
+            "an index gap",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let index: Vec<i64> = ints(&b, "index")
+                        .iter()
+                        .enumerate()
+                        .map(|(i, v)| if i >= 5 { v + 1 } else { *v })
+                        .collect();
+                    with_column(b, "index", Arc::new(Int64Array::from(index)))
+                })
+            }),
+            "index",
+            DATA,
+        ),
+        (
+            "a wrong timestamp",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let column = b
+                        .column_by_name("timestamp")
+                        .expect("ts")
+                        .as_any()
+                        .downcast_ref::<Float32Array>()
+                        .expect("f32")
+                        .clone();
+                    let values: Vec<f32> = column
+                        .values()
+                        .iter()
+                        .enumerate()
+                        .map(|(i, v)| if i == 3 { v + 0.05 } else { *v })
+                        .collect();
+                    with_column(b, "timestamp", Arc::new(Float32Array::from(values)))
+                })
+            }),
+            "timestamps",
+            DATA,
+        ),
+        (
+            "NaN in a state",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let column = map_vectors(&b, "observation.state", |row, v| {
+                        if row == 4 {
+                            v[2] = f32::NAN
+                        }
+                    });
+                    with_column(b, "observation.state", column)
+                })
+            }),
+            "finite",
+            DATA,
+        ),
+        (
+            "a half-open gripper",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let column = map_vectors(&b, "action", |row, v| {
+                        if row == 2 {
+                            v[6] = 0.5
+                        }
+                    });
+                    with_column(b, "action", column)
+                })
+            }),
+            "gripper",
+            DATA,
+        ),
+        (
+            "an RGBA frame",
+            Box::new(move |r: &Path| {
+                let rgba = rgba.clone();
+                rewrite_parquet(&r.join(DATA), move |b| {
+                    let column = replace_image(&b, "observation.images.endoscope", 7, rgba.clone());
+                    with_column(b, "observation.images.endoscope", column)
+                })
+            }),
+            "image",
+            DATA,
+        ),
+        (
+            "a corrupt image",
+            Box::new(|r: &Path| {
+                rewrite_parquet(&r.join(DATA), |b| {
+                    let column = replace_image(
+                        &b,
+                        "observation.images.endoscope",
+                        9,
+                        b"\x89PNG\r\n\x1a\nbroken".to_vec(),
+                    );
+                    with_column(b, "observation.images.endoscope", column)
+                })
+            }),
+            "image",
+            DATA,
+        ),
+        (
+            "shifted from/to",
+            Box::new(|r: &Path| {
+                let file = r.join("meta/episodes/chunk-000/file-000.parquet");
+                rewrite_parquet(&file, |b| {
+                    let from: Vec<i64> = ints(&b, "dataset_from_index")
+                        .iter()
+                        .map(|v| v + 1)
+                        .collect();
+                    let to: Vec<i64> = ints(&b, "dataset_to_index").iter().map(|v| v + 1).collect();
+                    let b = with_column(b, "dataset_from_index", Arc::new(Int64Array::from(from)));
+                    with_column(b, "dataset_to_index", Arc::new(Int64Array::from(to)))
+                })
+            }),
+            "from_to",
+            "meta/episodes",
+        ),
+        (
+            "tasks without pandas metadata",
+            Box::new(|r: &Path| {
+                let file = r.join("meta/tasks.parquet");
+                let batches = surgvla::export::lerobot::read::read_parquet(&file).expect("read");
+                let schema = Arc::new(arrow_schema::Schema::new(
+                    batches[0].schema().fields().clone(),
+                ));
+                let mut bytes = Vec::new();
+                let mut writer =
+                    parquet::arrow::ArrowWriter::try_new(&mut bytes, schema.clone(), None)
+                        .expect("writer");
+                for batch in batches {
+                    writer
+                        .write(
+                            &RecordBatch::try_new(schema.clone(), batch.columns().to_vec())
+                                .expect("batch"),
+                        )
+                        .expect("write");
+                }
+                writer.close().expect("close");
+                std::fs::write(&file, bytes).expect("write");
+            }),
+            "tasks",
+            "meta/tasks.parquet",
+        ),
+        (
+            "wrong totals",
+            Box::new(|r: &Path| {
+                edit_json(&r.join("meta/info.json"), |v| v["total_frames"] = 5.into())
+            }),
+            "totals",
+            "meta/info.json",
+        ),
+        (
+            "info.json breaking its schema",
+            Box::new(|r: &Path| edit_json(&r.join("meta/info.json"), |v| v["fps"] = "fast".into())),
+            "schema",
+            "meta/info.json",
+        ),
+        (
+            "a missing stats file",
+            Box::new(|r: &Path| std::fs::remove_file(r.join("meta/stats.json")).expect("rm")),
+            "stats",
+            "meta/stats.json",
+        ),
+        (
+            "stats inconsistent with the data",
+            Box::new(|r: &Path| {
+                edit_json(&r.join("meta/stats.json"), |v| {
+                    v["action"]["max"][0] = 9.0.into()
+                })
+            }),
+            "stats",
+            "meta/stats.json",
+        ),
+        (
+            "an empty instruction",
+            Box::new(|r: &Path| {
+                let file = r.join("meta/tasks.parquet");
+                rewrite_parquet(&file, |b| {
+                    with_column(
+                        b.clone(),
+                        "task",
+                        Arc::new(arrow_array::StringArray::from(vec![""; b.num_rows()])),
+                    )
+                })
+            }),
+            "instruction",
+            "meta/tasks.parquet",
+        ),
+    ];
+    for (what, harm, check_name, file) in cases {
+        let (_copy, report) = broken(good, harm);
+        assert_found(&report, check_name, file, what);
+        let located = report
+            .errors
+            .iter()
+            .find(|e| e.check == check_name)
+            .expect("found");
+        if matches!(check_name, "finite" | "gripper" | "image" | "timestamps") {
+            assert!(
+                located.episode.is_some() && located.frame.is_some(),
+                "{what}: {located:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn other_format_defects_are_each_named() {
+    let c = corpus();
+    let shard = "surgvla_benchmark-train.tfrecord-00000-of-00001";
+    let version = c.rlds.join("surgvla_benchmark/1.0.0");
+    // RLDS: a bad CRC, a wrong shardLengths, a step count mismatch inside a record.
+    let (_c1, report) = broken(&version, |r| {
+        let mut bytes = std::fs::read(r.join(shard)).expect("read");
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 0x10;
+        std::fs::write(r.join(shard), bytes).expect("write");
+    });
+    assert_found(&report, "crc", shard, "a flipped byte");
+    let (_c2, report) = broken(&version, |r| {
+        edit_json(&r.join("dataset_info.json"), |v| {
+            v["splits"][0]["shardLengths"][0] = "3".into()
+        })
+    });
+    assert_found(&report, "shard_lengths", shard, "wrong shardLengths");
+    let (_c3, report) = broken(&version, |r| {
+        use surgvla::export::rlds::example::{Feature, decode_example, encode_example};
+        use surgvla::export::rlds::tfrecord::{RecordReader, write_record};
+        let file = std::fs::File::open(r.join(shard)).expect("open");
+        let mut reader = RecordReader::new(std::io::BufReader::new(file));
+        let mut out = Vec::new();
+        let mut first = true;
+        while let Some(record) = reader.next_record() {
+            let mut example = decode_example(&record.expect("record")).expect("example");
+            if first {
+                if let Some(Feature::Float(values)) = example.get_mut("steps/reward") {
+                    values.pop();
+                }
+                first = false;
+            }
+            write_record(&mut out, &encode_example(&example)).expect("write");
+        }
+        std::fs::write(r.join(shard), out).expect("write");
+    });
+    assert!(!report.valid, "a step count mismatch: valid");
+    assert!(
+        report
+            .errors
+            .iter()
+            .any(|e| e.check == "record" && e.message.contains("reward")),
+        "{:#?}",
+        report.errors
+    );
+    // zarr: episode ends that do not match the arrays.
+    let (_c4, report) = broken(&c.zarr, |r| {
+        let ends: Vec<u8> = [5i64, 7].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mut padded = ends.clone();
+        padded.resize(100 * 8, 0);
+        let frame = zstd::stream::encode_all(padded.as_slice(), 3).expect("zstd");
+        std::fs::write(r.join("meta/episode_ends/0"), frame).expect("write");
+    });
+    assert_found(
+        &report,
+        "episode_ends",
+        "meta/episode_ends",
+        "zarr ends mismatch",
+    );
+    // MCAP: a corrupt chunk.
+    let (_c5, report) = broken(&c.mcap, |r| {
+        let file = r.join("episode_000000.mcap");
+        let mut bytes = std::fs::read(&file).expect("read");
+        let middle = bytes.len() / 3;
+        for b in &mut bytes[middle..middle + 64] {
+            *b ^= 0x5a;
+        }
+        std::fs::write(&file, bytes).expect("write");
+    });
+    assert_found(&report, "crc", "episode_000000.mcap", "corrupt MCAP chunk");
+}
+
+#[test]
+fn validate_and_info_exit_codes_and_json() {
+    let c = corpus();
+    let (code, out, err) = surgvla(&["validate", path(&c.lerobot), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+    assert_eq!(json["valid"], true);
+    assert_eq!(json["format"], "lerobot-v3.0");
+    assert_eq!(json["errors"], serde_json::json!([]));
+    let (_copy, _) = broken(&c.lerobot, |r| {
+        edit_json(&r.join("meta/info.json"), |v| {
+            v["total_episodes"] = 9.into()
+        });
+        let (code, out, err) = surgvla(&["validate", path(r), "--json"]);
+        assert_eq!(code, 1, "{err}");
+        let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+        assert_eq!(json["valid"], false);
+        let error = &json["errors"][0];
+        for key in ["file", "episode", "frame", "check", "message"] {
+            assert!(error.get(key).is_some(), "{key} in {error}");
+        }
+        let (code, out, _) = surgvla(&["validate", path(r)]);
+        assert_eq!(code, 1);
+        assert!(
+            out.contains("meta/info.json: [totals] total_episodes is 9"),
+            "{out}"
+        );
+    });
+    let nothing = temp_root("validate-nothing");
+    std::fs::create_dir_all(nothing.join("stuff")).expect("dir");
+    std::fs::write(nothing.join("stuff/notes.txt"), "hello").expect("write");
+    let (code, _, err) = surgvla(&["validate", path(&nothing)]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("recognises"), "{err}");
+    let (code, _, err) = surgvla(&["validate", path(&nothing.join("missing"))]);
+    assert_eq!(code, 2, "{err}");
+    let (code, out, err) = surgvla(&["info", path(&c.lerobot), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let info: serde_json::Value = serde_json::from_str(&out).expect("json");
+    assert_eq!(info["episodes"], 2);
+    assert_eq!(info["fps"], 5.0);
+    assert_eq!(info["tasks"].as_object().map(|t| t.len()), Some(2));
+    assert!(info["features"].as_array().is_some_and(|f| f.len() >= 8));
+    assert!(info["bytes"].as_u64().is_some_and(|b| b > 100_000));
+    let (code, out, _) = surgvla(&["info", path(&c.rlds)]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("format     rlds") && out.contains("episodes   2"),
+        "{out}"
+    );
+}
+
+/// Seeded random corruption (flipped bytes, truncations, deletions) of each format's files:
+/// validation must finish with a report, never panic.
+#[test]
+fn random_corruption_never_panics_a_reader() {
+    let c = corpus();
+    let mut rng = surgvla::rng::SplitMix64::stream(7, "validate-fuzz");
+    for good in [&c.lerobot, &c.lerobot21, &c.rlds, &c.zarr, &c.mcap] {
+        let files: Vec<String> = tree(good).into_keys().collect();
+        for _ in 0..12 {
+            let copy = temp_root("validate-fuzz");
+            copy_tree(good, &copy);
+            for _ in 0..3 {
+                let name = &files[(rng.next_u64() % files.len() as u64) as usize];
+                let file = copy.join(name);
+                let Ok(mut bytes) = std::fs::read(&file) else {
+                    continue;
+                };
+                match rng.next_u64() % 3 {
+                    0 if !bytes.is_empty() => {
+                        for _ in 0..8 {
+                            let at = (rng.next_u64() % bytes.len() as u64) as usize;
+                            bytes[at] = rng.next_u64() as u8;
+                        }
+                    }
+                    1 => bytes.truncate((rng.next_u64() % (bytes.len() as u64 + 1)) as usize),
+                    _ => {
+                        std::fs::remove_file(&file).ok();
+                        continue;
+                    }
+                }
+                std::fs::write(&file, bytes).expect("write");
+            }
+            let result = validate(&copy, &ValidateOptions::default());
+            if let Ok(report) = result {
+                assert!(report.valid || !report.errors.is_empty());
+            }
+        }
+    }
+}
