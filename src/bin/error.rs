@@ -92,6 +92,16 @@ impl From<surgvla::collect::run::CollectError> for CliError {
     }
 }
 
+impl From<surgvla::export::merge::MergeError> for CliError {
+    fn from(error: surgvla::export::merge::MergeError) -> Self {
+        let full =
+            matches!(&error, surgvla::export::merge::MergeError::Convert(e) if e.is_disk_full());
+        let mut cli = CliError::new(error.kind(), error);
+        cli.hint = full.then_some(DISK_FULL);
+        cli
+    }
+}
+
 impl From<surgvla::export::convert::ConvertError> for CliError {
     fn from(error: surgvla::export::convert::ConvertError) -> Self {
         let full = error.is_disk_full();

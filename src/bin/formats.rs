@@ -344,3 +344,38 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     );
     Ok(())
 }
+
+#[derive(Args, Debug)]
+pub struct MergeArgs {
+    /// The LeRobot datasets to merge (e.g. the outputs of `collect --shard I/N`; shards are put
+    /// in shard order).
+    #[arg(required = true, num_args = 1..)]
+    inputs: Vec<PathBuf>,
+    /// Output folder (must not exist or be empty).
+    #[arg(long)]
+    out: PathBuf,
+    /// Worker threads encoding episodes (default: all cores).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    threads: Option<u64>,
+}
+
+/// `surgvla merge INPUT... --out DIR`.
+pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
+    let bar = crate::progress::episode_bar(0, "merging");
+    let threads = args.threads.unwrap_or(0) as usize;
+    let summary = surgvla::export::merge::merge(&args.inputs, &args.out, threads, &mut |done| {
+        bar.set_length(done);
+        bar.set_position(done)
+    })?;
+    bar.finish_and_clear();
+    say!(
+        "merged {} datasets: {} episodes, {} frames into {} ({} files, {:.1} MB)",
+        args.inputs.len(),
+        summary.episodes,
+        summary.frames,
+        args.out.display(),
+        summary.files,
+        summary.bytes as f64 / 1e6
+    );
+    Ok(())
+}

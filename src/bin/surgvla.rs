@@ -62,6 +62,9 @@ enum Command {
     /// Measure the experts' success rates as `collect` would run them (same attempts and replay
     /// check) without rendering or writing: the quick check of a new or edited plan.
     Experts(episodes::ExpertsArgs),
+    /// Merge LeRobot datasets (the outputs of `collect --shard I/N`, or any compatible ones)
+    /// into one: episodes re-indexed, statistics recomputed, files rolled by size.
+    Merge(formats::MergeArgs),
     /// Check a dataset (LeRobot v3.0/v2.1, RLDS, DP3 zarr, MCAP; ours or not) frame by frame
     /// and name every defect: exit 0 valid, 1 invalid, 2 nothing recognisable at the path.
     Validate(inspect::ValidateArgs),
@@ -387,6 +390,7 @@ fn main() -> ExitCode {
         Command::Convert(args) => formats::run_convert(&args),
         Command::Record(args) => run_record(&args),
         Command::Experts(args) => episodes::run_experts(&args),
+        Command::Merge(args) => formats::run_merge(&args),
         Command::Validate(args) => inspect::run_validate(&args),
         Command::Info(args) => inspect::run_info(&args),
         Command::Schema { with_mask, format } => run_schema(with_mask, format),

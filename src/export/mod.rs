@@ -26,6 +26,7 @@ pub mod image;
 pub mod info;
 pub mod lerobot;
 pub mod mcap;
+pub mod merge;
 pub mod pointcloud;
 pub mod rlds;
 pub mod schema;

@@ -11,6 +11,7 @@ mod hardening;
 mod kinematics;
 mod layers;
 mod lerobot;
+mod merge;
 mod physics;
 mod pointcloud;
 mod render;

@@ -1,0 +1,346 @@
+//! Merging LeRobot datasets (the outputs of `collect --shard I/N`, or any compatible ones) into
+//! one: every input's episodes in turn, re-indexed, through one LeRobot writer, so files roll by
+//! size and the statistics are recomputed over the merged data in global order (quantiles
+//! exact, never averaged). Inputs must agree on everything that shapes the bytes (features, fps,
+//! robot, camera, mask ids, collection options, layout); shards of one collection are put in
+//! shard order, and when they are all N of N the merged dataset says shard "0/1", so it equals
+//! the single-machine run byte for byte. Their collect reports, when every input has one, are
+//! merged into the output's (counts summed, failures concatenated).
+
+use crate::error::ErrorKind;
+use crate::export::convert::ConvertError;
+use crate::export::lerobot::read::LeRobotSource;
+use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter};
+use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
+use serde_json::{Value, json};
+use std::path::{Path, PathBuf};
+
+/// The report file `collect` leaves in a dataset, merged when every input has one.
+pub const REPORT: &str = "collect_report.json";
+
+/// Why a merge could not start or failed.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    /// Inputs that cannot make one dataset.
+    #[error("{path} cannot be merged with {first}: {reasons}")]
+    Incompatible {
+        path: PathBuf,
+        first: PathBuf,
+        reasons: String,
+    },
+    /// An input of a kind merge does not handle.
+    #[error("{path}: {problem}")]
+    Unsupported { path: PathBuf, problem: String },
+    #[error("give at least one input dataset")]
+    NoInput,
+    /// Reading an input or writing the output failed.
+    #[error(transparent)]
+    Convert(#[from] ConvertError),
+}
+
+impl MergeError {
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            MergeError::Incompatible { .. }
+            | MergeError::Unsupported { .. }
+            | MergeError::NoInput => ErrorKind::Usage,
+            MergeError::Convert(error) => error.kind(),
+        }
+    }
+}
+
+/// One input: its source, its LeRobot layout, and its shard ("I/N") if it says.
+struct Input {
+    path: PathBuf,
+    source: LeRobotSource,
+    layout: Value,
+    shard: Option<(u64, u64)>,
+}
+
+fn shard_of(collection: &Value) -> Option<(u64, u64)> {
+    let (i, n) = collection["shard"].as_str()?.split_once('/')?;
+    Some((i.parse().ok()?, n.parse().ok()?))
+}
+
+fn open(path: &Path) -> Result<Input, MergeError> {
+    let read = |e| MergeError::Convert(ConvertError::Read(e));
+    if !path.exists() {
+        return Err(read(ExportError::NotFound {
+            path: path.to_path_buf(),
+        }));
+    }
+    let info_path = path.join("meta/info.json");
+    let info = read_json(&info_path).map_err(read)?;
+    if info["features"]
+        .as_object()
+        .is_some_and(|f| f.values().any(|f| f["dtype"] == "video"))
+    {
+        return Err(MergeError::Unsupported {
+            path: path.to_path_buf(),
+            problem: "a video-mode dataset: merge reads image-mode LeRobot datasets (MP4 passthrough is not built yet)".into(),
+        });
+    }
+    let source = LeRobotSource::open(path).map_err(read)?;
+    let layout = json!({
+        "codebase_version": info["codebase_version"],
+        "data_files_size_in_mb": info["data_files_size_in_mb"],
+        "chunks_size": info["chunks_size"],
+    });
+    let shard = shard_of(&source.info().collection);
+    Ok(Input {
+        path: path.to_path_buf(),
+        source,
+        layout,
+        shard,
+    })
+}
+
+/// What differs between two inputs, by name ("fps", "collection.seed", ...).
+fn differences(a: &Input, b: &Input) -> Vec<String> {
+    let (x, y) = (a.source.info(), b.source.info());
+    let mut differ = Vec::new();
+    if x.fps != y.fps {
+        differ.push(format!("fps {} vs {}", y.fps, x.fps));
+    }
+    if x.robot_type != y.robot_type {
+        differ.push(format!(
+            "robot type {:?} vs {:?}",
+            y.robot_type, x.robot_type
+        ));
+    }
+    if x.features != y.features {
+        differ.push("features".into());
+    }
+    if x.camera != y.camera {
+        differ.push("camera".into());
+    }
+    if x.mask_ids != y.mask_ids {
+        differ.push("mask ids".into());
+    }
+    if x.generator != y.generator {
+        differ.push(format!("generator {:?} vs {:?}", y.generator, x.generator));
+    }
+    if x.tip_workspace != y.tip_workspace {
+        differ.push("tool-tip workspace".into());
+    }
+    let without_shard = |c: &Value| {
+        let mut c = c.clone();
+        if let Some(object) = c.as_object_mut() {
+            object.remove("shard");
+        }
+        c
+    };
+    let (cx, cy) = (without_shard(&x.collection), without_shard(&y.collection));
+    if cx != cy {
+        let keys: std::collections::BTreeSet<&String> = cx
+            .as_object()
+            .into_iter()
+            .chain(cy.as_object())
+            .flat_map(|o| o.keys())
+            .collect();
+        let changed: Vec<String> = keys
+            .into_iter()
+            .filter(|k| cx[k.as_str()] != cy[k.as_str()])
+            .map(|k| {
+                format!(
+                    "collection option {k} ({} vs {})",
+                    cy[k.as_str()],
+                    cx[k.as_str()]
+                )
+            })
+            .collect();
+        differ.extend(changed);
+    }
+    if a.layout != b.layout {
+        differ.push(format!("layout {} vs {}", b.layout, a.layout));
+    }
+    differ
+}
+
+/// Merges `inputs` into a new LeRobot dataset at `out` (see the module overview), on `threads`
+/// worker threads (0: one per core); `progress` hears the episodes done so far.
+pub fn merge(
+    inputs: &[PathBuf],
+    out: &Path,
+    threads: usize,
+    progress: &mut (dyn FnMut(u64) + Send),
+) -> Result<Summary, MergeError> {
+    let mut opened: Vec<Input> = inputs.iter().map(|p| open(p)).collect::<Result<_, _>>()?;
+    let Some(first) = opened.first() else {
+        return Err(MergeError::NoInput);
+    };
+    for input in &opened[1..] {
+        let reasons = differences(first, input);
+        if !reasons.is_empty() {
+            return Err(MergeError::Incompatible {
+                path: input.path.clone(),
+                first: first.path.clone(),
+                reasons: reasons.join("; "),
+            });
+        }
+    }
+    // Shards of one collection go in shard order; the same shard twice is a mistake.
+    if opened.iter().all(|i| i.shard.is_some()) {
+        opened.sort_by_key(|i| i.shard);
+        for pair in opened.windows(2) {
+            if pair[0].shard == pair[1].shard {
+                return Err(MergeError::Incompatible {
+                    path: pair[1].path.clone(),
+                    first: pair[0].path.clone(),
+                    reasons: format!(
+                        "both are shard {}",
+                        pair[0].source.info().collection["shard"]
+                    ),
+                });
+            }
+        }
+    }
+    let mut info = opened[0].source.info().clone();
+    let shards: Vec<Option<(u64, u64)>> = opened.iter().map(|i| i.shard).collect();
+    let complete = shards
+        .iter()
+        .enumerate()
+        .all(|(k, s)| *s == Some((k as u64, shards.len() as u64)));
+    if let Some(collection) = info
+        .collection
+        .as_object_mut()
+        .filter(|_| shards[0].is_some())
+    {
+        let merged = if complete {
+            "0/1".to_string()
+        } else {
+            let list: Vec<String> = shards
+                .iter()
+                .flatten()
+                .map(|(i, n)| format!("{i}/{n}"))
+                .collect();
+            format!("merged {}", list.join(","))
+        };
+        collection.insert("shard".into(), Value::from(merged));
+    }
+    let layout = &opened[0].layout;
+    let options = LeRobotOptions {
+        version: if layout["codebase_version"] == "v2.1" {
+            LeRobotVersion::V21
+        } else {
+            LeRobotVersion::V30
+        },
+        data_file_size_mb: layout["data_files_size_in_mb"].as_u64().unwrap_or(100),
+        chunks_size: layout["chunks_size"].as_u64().unwrap_or(1000),
+        ..LeRobotOptions::default()
+    };
+    let reports: Option<Vec<Value>> = opened
+        .iter()
+        .map(|i| read_json(&i.path.join(REPORT)).ok())
+        .collect();
+    let write = |e| MergeError::Convert(ConvertError::Write(e));
+    let mut sink = LeRobotWriter::create(out, &info, options).map_err(write)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| write(ExportError::Internal(format!("no worker threads: {e}"))))?;
+    pool.install(|| -> Result<(), MergeError> {
+        let batch_size = rayon::current_num_threads().max(1);
+        let mut batch = Vec::with_capacity(batch_size);
+        let mut next = 0u64;
+        for input in &mut opened {
+            while let Some(episode) = input.source.next_episode() {
+                let mut episode =
+                    episode.map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
+                episode.meta.index = next;
+                next += 1;
+                batch.push(episode);
+                if batch.len() == batch_size {
+                    sink.write_batch(&batch).map_err(write)?;
+                    batch.clear();
+                    progress(next);
+                }
+            }
+        }
+        if !batch.is_empty() {
+            sink.write_batch(&batch).map_err(write)?;
+        }
+        progress(next);
+        Ok(())
+    })?;
+    let shard = info.collection["shard"].clone();
+    let summary = match reports {
+        Some(reports) => {
+            let mut sidecar = |summary: &Summary| -> Result<(String, Vec<u8>), ExportError> {
+                let report = merge_reports(&reports, summary, &shard);
+                let bytes =
+                    serde_json::to_vec_pretty(&report).map_err(|source| ExportError::Json {
+                        path: REPORT.into(),
+                        source,
+                    })?;
+                Ok((REPORT.to_string(), bytes))
+            };
+            sink.finish_with(Some(&mut sidecar))
+        }
+        None => sink.finish(),
+    }
+    .map_err(write)?;
+    Ok(summary)
+}
+
+/// One collect report of several: counts summed per task (in order of first appearance),
+/// rates recomputed, failures concatenated, the slot range spanning them all, the merged
+/// dataset's summary, timings summed.
+fn merge_reports(reports: &[Value], summary: &Summary, shard: &Value) -> Value {
+    let mut merged = reports.first().cloned().unwrap_or(Value::Null);
+    let sum = |key: &str| -> u64 { reports.iter().filter_map(|r| r[key].as_u64()).sum() };
+    let mut tasks: Vec<Value> = Vec::new();
+    for report in reports {
+        for task in report["tasks"].as_array().into_iter().flatten() {
+            match tasks.iter_mut().find(|t| t["code"] == task["code"]) {
+                Some(total) => {
+                    for key in [
+                        "episodes",
+                        "frames",
+                        "attempts",
+                        "expert_successes",
+                        "replay_failures",
+                    ] {
+                        let value =
+                            total[key].as_u64().unwrap_or(0) + task[key].as_u64().unwrap_or(0);
+                        total[key] = value.into();
+                    }
+                }
+                None => tasks.push(task.clone()),
+            }
+        }
+    }
+    for task in &mut tasks {
+        let attempts = task["attempts"].as_u64().unwrap_or(0);
+        let successes = task["expert_successes"].as_u64().unwrap_or(0);
+        task["expert_success_rate"] = if attempts > 0 {
+            (successes as f64 / attempts as f64).into()
+        } else {
+            0.0.into()
+        };
+    }
+    let failures: Vec<Value> = reports
+        .iter()
+        .flat_map(|r| r["failures"].as_array().cloned().unwrap_or_default())
+        .collect();
+    let range = |k: usize| {
+        reports
+            .iter()
+            .filter_map(move |r| r["slot_range"][k].as_u64())
+    };
+    merged["shard"] = shard.clone();
+    merged["slot_range"] = json!([range(0).min(), range(1).max()]);
+    merged["episodes"] = sum("episodes").into();
+    merged["frames"] = sum("frames").into();
+    merged["tasks"] = tasks.into();
+    merged["failures"] = failures.into();
+    merged["resumed_at_episode"] = Value::Null;
+    merged["dataset"] = serde_json::to_value(summary).unwrap_or(Value::Null);
+    merged["merged_from"] = reports.len().into();
+    let wall: f64 = reports
+        .iter()
+        .filter_map(|r| r["timing"]["wall_secs"].as_f64())
+        .sum();
+    merged["timing"] = json!({"wall_secs_summed_over_inputs": wall});
+    merged
+}
