@@ -92,6 +92,12 @@ impl From<surgvla::collect::run::CollectError> for CliError {
     }
 }
 
+impl From<surgvla::collect::replay::ReplayError> for CliError {
+    fn from(error: surgvla::collect::replay::ReplayError) -> Self {
+        CliError::new(error.kind(), error)
+    }
+}
+
 impl From<surgvla::export::merge::MergeError> for CliError {
     fn from(error: surgvla::export::merge::MergeError) -> Self {
         let full =

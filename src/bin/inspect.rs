@@ -23,6 +23,10 @@ pub struct ValidateArgs {
     /// Metadata and one frame per episode instead of every frame.
     #[arg(long)]
     pub quick: bool,
+    /// Also re-simulate every episode from its recorded seed, replay its actions and confirm
+    /// success and the recorded frames (datasets surgvla collected; LeRobot image mode or RLDS).
+    #[arg(long)]
+    pub replay: bool,
     /// Worker threads for the full pass (0: one per core).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -54,7 +58,23 @@ pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
         step_limits: step_limits(),
         threads: args.threads,
     };
-    let report = validate(&args.path, &options)?;
+    let mut report = validate(&args.path, &options)?;
+    if args.replay {
+        use surgvla::export::validate::Format;
+        if matches!(report.format, Format::Zarr | Format::Mcap) {
+            return Err(CliError::usage(format!(
+                "--replay reads LeRobot or RLDS datasets; {} is {}",
+                place(&report.path),
+                report.format.name()
+            )));
+        }
+        if report.valid {
+            let bar = crate::progress::episode_bar(report.episodes, "replaying");
+            let found = surgvla::collect::replay::replay_dataset(&report.path, args.threads)?;
+            bar.finish_and_clear();
+            report.add_errors(found);
+        }
+    }
     if args.json {
         say!("{}", serde_json::to_string_pretty(&report)?);
     } else {

@@ -10,6 +10,7 @@
 //! `collect_report.json`.
 
 pub mod record;
+pub mod replay;
 pub mod report;
 pub mod run;
 pub mod slot;

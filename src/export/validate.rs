@@ -97,6 +97,14 @@ pub struct Report {
     pub warnings: Vec<Finding>,
 }
 
+impl Report {
+    /// Adds errors found by another check (e.g. `validate --replay`).
+    pub fn add_errors(&mut self, errors: Vec<Finding>) {
+        self.valid &= errors.is_empty();
+        self.errors.extend(errors);
+    }
+}
+
 /// What a dataset is: what `surgvla info` prints besides the counts.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Facts {

@@ -56,9 +56,10 @@ fn merged_shards_equal_the_single_machine_run() {
         for (name, bytes) in &expected {
             assert!(merged[name] == *bytes, "N = {n}: {name} differs");
         }
-        let report: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("collect_report.json")).expect("report"))
-                .expect("json");
+        let report: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(out.join("collect_report.json")).expect("report"),
+        )
+        .expect("json");
         assert_eq!(report["episodes"], 4);
         assert_eq!(report["merged_from"], n);
         let (code, _, err) = surgvla(&["validate", path(&out)]);

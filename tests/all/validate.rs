@@ -716,3 +716,43 @@ fn random_corruption_never_panics_a_reader() {
         }
     }
 }
+
+/// `--replay` re-simulates every episode: the good dataset replays to its own frames and
+/// success; a changed action (still a valid number, 0/1 gripper) is caught by the replay alone;
+/// formats without episodes to replay and datasets without provenance exit 2.
+#[test]
+fn replay_confirms_recorded_frames_and_catches_changed_actions() {
+    let c = corpus();
+    let (code, out, err) = surgvla(&["validate", path(&c.lerobot), "--replay"]);
+    assert_eq!(code, 0, "{out}{err}");
+    let (code, _, err) = surgvla(&["validate", path(&c.rlds), "--replay"]);
+    assert_eq!(code, 0, "rlds: {err}");
+    let (_copy, report) = broken(&c.lerobot, |r| {
+        rewrite_parquet(&r.join(DATA), |b| {
+            // Every step commands the jaws open: nothing can be grasped.
+            let column = map_vectors(&b, "action", |_, v| v[6] = 1.0);
+            with_column(b, "action", column)
+        });
+        edit_json(&r.join("meta/stats.json"), |v| {
+            v["action"]["min"][6] = 1.0.into();
+            v["action"]["mean"][6] = 1.0.into();
+        });
+        let (code, out, err) = surgvla(&["validate", path(r), "--replay", "--json"]);
+        assert_eq!(code, 1, "{err}");
+        let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+        let errors = json["errors"].as_array().expect("errors");
+        assert!(
+            errors.iter().any(|e| e["check"] == "replay" && e["episode"] == 0),
+            "{errors:#?}"
+        );
+    });
+    assert!(report.valid, "the change is invisible without --replay: {:#?}", report.errors);
+    let (code, _, err) = surgvla(&["validate", path(&c.zarr), "--replay"]);
+    assert_eq!(code, 2, "{err}");
+    let (_copy, _) = broken(&c.lerobot, |r| {
+        std::fs::remove_file(r.join("meta/surgvla.json")).expect("rm");
+        let (code, _, err) = surgvla(&["validate", path(r), "--replay"]);
+        assert_eq!(code, 2, "{err}");
+        assert!(err.contains("no surgvla collection metadata"), "{err}");
+    });
+}

@@ -1,0 +1,209 @@
+//! `validate --replay`: the check no other dataset validator can make. Every episode of a
+//! dataset surgvla collected is re-simulated from its recorded provenance (task id and seed)
+//! with the collection's options, its recorded actions replayed and rendered as `collect`
+//! renders them; the replay must reach success and reproduce the recorded frames (state and
+//! object poses exactly, images pixel for pixel, depth to the format's precision).
+
+use crate::episode::{Episode, GripperEncoding};
+use crate::export::validate::Finding;
+use crate::export::{ExportError, open_source};
+use crate::task::{InstructionChoice, TaskConfig, TaskId};
+use rayon::prelude::*;
+use serde_json::Value;
+use std::path::Path;
+
+use super::record::{RecordOptions, render_replay};
+
+/// Why a replay could not start (exit 2).
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("cannot replay {path}: {problem}")]
+    NotReplayable {
+        path: std::path::PathBuf,
+        problem: String,
+    },
+    #[error(transparent)]
+    Export(#[from] ExportError),
+}
+
+impl ReplayError {
+    pub fn kind(&self) -> crate::error::ErrorKind {
+        match self {
+            ReplayError::NotReplayable { .. } => crate::error::ErrorKind::Usage,
+            ReplayError::Export(error) => error.kind(),
+        }
+    }
+}
+
+/// The recording options a collection's metadata describes.
+fn record_options(collection: &Value) -> RecordOptions {
+    let instruction = match collection["instructions"].as_str() {
+        Some("paraphrase") => InstructionChoice::Paraphrase,
+        Some("mixed") => InstructionChoice::Mixed,
+        _ => InstructionChoice::Canonical,
+    };
+    RecordOptions {
+        randomize_appearance: collection["randomize_appearance"] == true,
+        gripper: if collection["gripper_encoding"] == "pulse" {
+            GripperEncoding::Pulse
+        } else {
+            GripperEncoding::Continuous
+        },
+        task: TaskConfig {
+            distractors: collection["distractors"].as_u64().unwrap_or(1) as usize,
+            instruction,
+            spawn_scale: collection["spawn_scale"].as_f64().unwrap_or(1.0),
+            ..TaskConfig::default()
+        },
+        ..RecordOptions::default()
+    }
+}
+
+/// Depth may differ by this much (RLDS stores millimetres).
+const DEPTH_TOLERANCE_M: f32 = 0.000_51;
+
+/// What is wrong with one recorded episode's replay, if anything: (frame, check, message).
+fn replay_episode(
+    recorded: &Episode,
+    options: &RecordOptions,
+) -> Option<(Option<u64>, &'static str, String)> {
+    let meta = &recorded.meta;
+    let Ok(task) = meta.task_code.parse::<TaskId>() else {
+        return Some((
+            None,
+            "provenance",
+            format!("task id {:?} is not a surgvla task", meta.task_code),
+        ));
+    };
+    let instance = match task.instance(meta.seed, &options.task) {
+        Ok(instance) => instance,
+        Err(error) => {
+            return Some((
+                None,
+                "replay",
+                format!("seed {} does not spawn: {error}", meta.seed),
+            ));
+        }
+    };
+    let actions: Vec<[f32; 7]> = recorded.steps.iter().map(|s| s.action).collect();
+    let replayed = render_replay(&instance, &actions, meta.index, meta.attempts, options);
+    if instance.instruction != meta.instruction {
+        return Some((
+            None,
+            "replay",
+            format!(
+                "the instruction is {:?}; seed {} gives {:?}",
+                meta.instruction, meta.seed, instance.instruction
+            ),
+        ));
+    }
+    for (frame, (a, b)) in recorded
+        .steps
+        .iter()
+        .zip(&replayed.episode.steps)
+        .enumerate()
+    {
+        let differs = if a.state != b.state {
+            Some("the robot state")
+        } else if a.environment_state.iter().any(|v| *v != 0.0)
+            && a.environment_state != b.environment_state
+        {
+            Some("the object poses")
+        } else if !a.rgb.is_empty() && a.rgb != b.rgb {
+            Some("the RGB image")
+        } else if !a.mask.is_empty() && a.mask != b.mask {
+            Some("the mask")
+        } else if !a.depth_m.is_empty()
+            && a.depth_m
+                .iter()
+                .zip(&b.depth_m)
+                .any(|(x, y)| (x - y).abs() > DEPTH_TOLERANCE_M)
+        {
+            Some("the depth")
+        } else {
+            None
+        };
+        if let Some(what) = differs {
+            return Some((
+                Some(frame as u64),
+                "replay",
+                format!(
+                    "{what} differs from the replay of task {} seed {}",
+                    meta.task_code, meta.seed
+                ),
+            ));
+        }
+    }
+    if !replayed.verdict.success {
+        return Some((
+            None,
+            "replay",
+            format!(
+                "the recorded actions do not succeed when replayed ({})",
+                replayed.verdict.reason
+            ),
+        ));
+    }
+    None
+}
+
+/// Replays every episode of the dataset at `path` (LeRobot in image mode, or RLDS) on
+/// `threads` worker threads (0: one per core) and returns what failed.
+pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, ReplayError> {
+    let mut source = open_source(path)?;
+    let collection = source.info().collection.clone();
+    if collection.is_null() {
+        return Err(ReplayError::NotReplayable {
+            path: path.to_path_buf(),
+            problem:
+                "it has no surgvla collection metadata (its episodes carry no seeds to re-run)"
+                    .into(),
+        });
+    }
+    let options = record_options(&collection);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| ExportError::Internal(format!("no worker threads: {e}")))?;
+    let mut findings = Vec::new();
+    let batch_size = pool.current_num_threads().max(1);
+    loop {
+        let mut batch = Vec::with_capacity(batch_size);
+        while batch.len() < batch_size {
+            match source.next_episode() {
+                Some(Ok(episode)) => batch.push(episode),
+                Some(Err(error)) => {
+                    findings.push(Finding {
+                        file: None,
+                        episode: None,
+                        frame: None,
+                        check: "replay".into(),
+                        message: format!("reading stopped: {error}"),
+                    });
+                    return Ok(findings);
+                }
+                None => break,
+            }
+        }
+        if batch.is_empty() {
+            return Ok(findings);
+        }
+        let problems: Vec<_> = pool.install(|| {
+            batch
+                .par_iter()
+                .map(|episode| (episode.meta.index, replay_episode(episode, &options)))
+                .collect()
+        });
+        for (episode, problem) in problems {
+            if let Some((frame, check, message)) = problem {
+                findings.push(Finding {
+                    file: None,
+                    episode: Some(episode),
+                    frame,
+                    check: check.into(),
+                    message,
+                });
+            }
+        }
+    }
+}
