@@ -1,0 +1,175 @@
+"""`surgvla validate` and `info` on datasets written by lerobot 0.6.1 itself (other robots'
+features and shapes, image and video mode): the good ones are valid, and defects made in them
+with pyarrow (the kinds lerobot's loader accepts silently) are each named.
+
+SURGVLA_BIN is the surgvla binary.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
+
+BIN = os.environ.get("SURGVLA_BIN", "surgvla")
+
+
+def make(root: Path, video: bool) -> Path:
+    """Three episodes of an ALOHA-like robot: 14-D state and action, 6 efforts, one camera."""
+    camera = {"dtype": "video" if video else "image", "shape": (48, 64, 3), "names": ["height", "width", "channels"]}
+    features = {
+        "observation.state": {"dtype": "float32", "shape": (14,), "names": [f"j{i}" for i in range(14)]},
+        "observation.effort": {"dtype": "float32", "shape": (6,), "names": None},
+        "action": {"dtype": "float32", "shape": (14,), "names": [f"a{i}" for i in range(14)]},
+        "observation.images.cam_high": camera,
+    }
+    dataset = LeRobotDataset.create("someone/aloha-like", fps=50, features=features, root=root, robot_type="aloha", use_videos=video)
+    rng = np.random.default_rng(0)
+    for episode, task in enumerate(["fold the towel", "open the drawer", "fold the towel"]):
+        for _ in range(12 + episode):
+            dataset.add_frame({
+                "observation.state": rng.standard_normal(14).astype(np.float32),
+                "observation.effort": rng.standard_normal(6).astype(np.float32),
+                "action": rng.standard_normal(14).astype(np.float32),
+                "observation.images.cam_high": rng.integers(0, 255, (48, 64, 3), dtype=np.uint8),
+                "task": task,
+            })
+        dataset.save_episode()
+    dataset.finalize()
+    return root
+
+
+@pytest.fixture(scope="module")
+def images(tmp_path_factory):
+    return make(tmp_path_factory.mktemp("foreign") / "images", video=False)
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory):
+    return make(tmp_path_factory.mktemp("foreign") / "videos", video=True)
+
+
+def validate(root: Path):
+    done = subprocess.run([BIN, "validate", str(root), "--json"], capture_output=True, text=True)
+    return done.returncode, json.loads(done.stdout) if done.stdout else None, done.stderr
+
+
+def copy(root: Path, tmp_path: Path) -> Path:
+    target = tmp_path / "copy"
+    shutil.copytree(root, target)
+    return target
+
+
+def rewrite(path: Path, change):
+    table = pq.read_table(path)
+    pq.write_table(change(table), path, compression="zstd")
+
+
+def test_lerobot_written_datasets_are_valid(images, videos):
+    for root in [images, videos]:
+        code, report, err = validate(root)
+        assert code == 0, (root, report, err)
+        assert report["valid"] and report["format"] == "lerobot-v3.0"
+        assert report["episodes"] == 3 and report["frames"] == 39
+
+
+def test_info_describes_a_lerobot_written_dataset(images):
+    done = subprocess.run([BIN, "info", str(images), "--json"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    info = json.loads(done.stdout)
+    assert info["fps"] == 50 and info["robot_type"] == "aloha"
+    assert info["tasks"] == {"fold the towel": 2, "open the drawer": 1}
+    shapes = {f["name"]: f["shape"] for f in info["features"]}
+    assert shapes["observation.state"] == [14] and shapes["observation.images.cam_high"] == [48, 64, 3]
+
+
+def test_a_byte_differently_rewritten_dataset_is_valid(images, tmp_path):
+    root = copy(images, tmp_path)
+    rewrite(root / "data/chunk-000/file-000.parquet", lambda t: t)
+    code, report, err = validate(root)
+    assert code == 0, (report, err)
+
+
+def errors(root):
+    code, report, err = validate(root)
+    assert code == 1, (report, err)
+    return report["errors"]
+
+
+def test_shifted_from_to_is_named(images, tmp_path):
+    root = copy(images, tmp_path)
+    path = root / "meta/episodes/chunk-000/file-000.parquet"
+
+    def shift(table):
+        for name in ["dataset_from_index", "dataset_to_index"]:
+            index = table.schema.get_field_index(name)
+            table = table.set_column(index, name, pa.array([v + 1 for v in table[name].to_pylist()], pa.int64()))
+        return table
+
+    rewrite(path, shift)
+    assert any(e["check"] == "from_to" and e["file"].startswith("meta/episodes") for e in errors(root))
+
+
+def test_a_nan_in_one_frame_is_named(images, tmp_path):
+    root = copy(images, tmp_path)
+
+    def poison(table):
+        values = table["observation.effort"].to_pylist()
+        values[20][3] = float("nan")
+        index = table.schema.get_field_index("observation.effort")
+        field = table.schema.field(index)
+        return table.set_column(index, field, pa.array(values, field.type))
+
+    rewrite(root / "data/chunk-000/file-000.parquet", poison)
+    found = [e for e in errors(root) if e["check"] == "finite"]
+    assert found and found[0]["episode"] == 1 and found[0]["frame"] == 8, found
+
+
+def test_an_rgba_frame_is_named(images, tmp_path):
+    import io
+    from PIL import Image
+
+    root = copy(images, tmp_path)
+
+    def rgba(table):
+        values = table["observation.images.cam_high"].to_pylist()
+        buffer = io.BytesIO()
+        Image.new("RGBA", (64, 48)).save(buffer, format="PNG")
+        values[5]["bytes"] = buffer.getvalue()
+        index = table.schema.get_field_index("observation.images.cam_high")
+        field = table.schema.field(index)
+        return table.set_column(index, field, pa.array(values, field.type))
+
+    rewrite(root / "data/chunk-000/file-000.parquet", rgba)
+    found = [e for e in errors(root) if e["check"] == "image"]
+    assert found and "RGBA" in found[0]["message"] and found[0]["frame"] == 5, found
+
+
+def test_tasks_without_their_pandas_index_are_named(images, tmp_path):
+    root = copy(images, tmp_path)
+    path = root / "meta/tasks.parquet"
+    table = pq.read_table(path).replace_schema_metadata(None)
+    pq.write_table(table, path)
+    assert any(e["check"] == "tasks" for e in errors(root))
+
+
+def test_a_video_span_past_its_file_is_named(videos, tmp_path):
+    root = copy(videos, tmp_path)
+    path = root / "meta/episodes/chunk-000/file-000.parquet"
+    name = "videos/observation.images.cam_high/to_timestamp"
+
+    def stretch(table):
+        index = table.schema.get_field_index(name)
+        return table.set_column(index, name, pa.array([v + 10.0 for v in table[name].to_pylist()], pa.float64()))
+
+    rewrite(path, stretch)
+    assert any(e["check"] == "video" for e in errors(root))
