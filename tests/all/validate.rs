@@ -594,7 +594,7 @@ fn other_format_defects_are_each_named() {
         report
             .errors
             .iter()
-            .any(|e| e.check == "record" && e.message.contains("reward")),
+            .any(|e| e.check == "step_counts" && e.message.contains("steps/reward")),
         "{:#?}",
         report.errors
     );
@@ -742,11 +742,17 @@ fn replay_confirms_recorded_frames_and_catches_changed_actions() {
         let json: serde_json::Value = serde_json::from_str(&out).expect("json");
         let errors = json["errors"].as_array().expect("errors");
         assert!(
-            errors.iter().any(|e| e["check"] == "replay" && e["episode"] == 0),
+            errors
+                .iter()
+                .any(|e| e["check"] == "replay" && e["episode"] == 0),
             "{errors:#?}"
         );
     });
-    assert!(report.valid, "the change is invisible without --replay: {:#?}", report.errors);
+    assert!(
+        report.valid,
+        "the change is invisible without --replay: {:#?}",
+        report.errors
+    );
     let (code, _, err) = surgvla(&["validate", path(&c.zarr), "--replay"]);
     assert_eq!(code, 2, "{err}");
     let (_copy, _) = broken(&c.lerobot, |r| {

@@ -6,6 +6,7 @@
 //! the first episode of each shard only.
 
 use crate::export::rlds::example::{Feature, decode_example};
+use crate::export::rlds::generic::{Leaf, check_record, leaves};
 use crate::export::rlds::read::RldsSource;
 use crate::export::rlds::tfrecord::{RecordError, RecordReader};
 use crate::export::validate::{
@@ -14,6 +15,7 @@ use crate::export::validate::{
 use crate::export::{EpisodeSource, ExportError, read_json, schema};
 use rayon::prelude::*;
 use serde_json::Value;
+use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
@@ -37,22 +39,50 @@ fn schema_check(path: &Path, schema_text: &str, findings: &Findings) -> Value {
     }
 }
 
-/// Counts a shard's records and their steps (`steps/is_first` entries), checking framing and
-/// CRCs; None when unreadable.
-fn count_records(path: &Path, findings: &Findings) -> Option<(u64, u64)> {
+/// Reads a shard: framing and CRCs of every record, and each record checked against the
+/// features (`leaves`; images decoded in every record, or only the first when `quick`).
+/// Returns (records, steps), or None when the shard is unreadable.
+fn scan_shard(
+    path: &Path,
+    leaves: Option<&BTreeMap<String, Leaf>>,
+    quick: bool,
+    findings: &Findings,
+) -> Option<(u64, u64)> {
     let file = File::open(path).ok()?;
     let mut reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
     let mut count = 0u64;
     let mut steps = 0u64;
+    let at = |record: u64| At::file(findings.relative(path)).episode(record);
     while let Some(record) = reader.next_record() {
         match record {
             Ok(bytes) => {
-                count += 1;
-                if let Ok(example) = decode_example(&bytes)
-                    && let Some(Feature::Int64(first)) = example.get("steps/is_first")
-                {
+                let example = match decode_example(&bytes) {
+                    Ok(example) => example,
+                    Err(error) => {
+                        findings.error(
+                            at(count),
+                            "record",
+                            format!("record {count} is not a tf.train.Example: {}", error.0),
+                        );
+                        count += 1;
+                        continue;
+                    }
+                };
+                if let Some(Feature::Int64(first)) = example.get("steps/is_first") {
                     steps += first.len() as u64;
                 }
+                if let Some(leaves) = leaves {
+                    for (step, check, message) in
+                        check_record(leaves, &example, !quick || count == 0)
+                    {
+                        let place = match step {
+                            Some(step) => at(count).frame(step),
+                            None => at(count),
+                        };
+                        findings.error(place, check, format!("record {count}: {message}"));
+                    }
+                }
+                count += 1;
             }
             Err(RecordError::Io { .. }) => {
                 findings.file_error(
@@ -63,11 +93,7 @@ fn count_records(path: &Path, findings: &Findings) -> Option<(u64, u64)> {
                 return None;
             }
             Err(error) => {
-                findings.error(
-                    At::file(findings.relative(path)).episode(count),
-                    "crc",
-                    format!("record {count}: {error}"),
-                );
+                findings.error(at(count), "crc", format!("record {count}: {error}"));
                 return None;
             }
         }
@@ -82,7 +108,15 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         schema::RLDS_DATASET_INFO,
         findings,
     );
-    schema_check(&root.join("features.json"), schema::RLDS_FEATURES, findings);
+    let features = schema_check(&root.join("features.json"), schema::RLDS_FEATURES, findings);
+    let leaves = match leaves(&features) {
+        Ok(leaves) if !features.is_null() => Some(leaves),
+        Ok(_) => None,
+        Err(problem) => {
+            findings.file_error(&root.join("features.json"), "schema", problem);
+            None
+        }
+    };
     let surgvla_path = root.join(super::SURGVLA_JSON);
     let surgvla = if surgvla_path.is_file() {
         schema_check(&surgvla_path, schema::SURGVLA_META, findings)
@@ -152,7 +186,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
                 );
                 return None;
             }
-            count_records(path, findings)
+            scan_shard(path, leaves.as_ref(), options.quick, findings)
         })
         .collect();
     for ((path, counted), listed) in expected.iter().zip(&counts).zip(&lengths) {
@@ -172,59 +206,65 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             _ => {}
         }
     }
-    // Content: every episode through the source (it stops at the first defect it meets).
-    let mut episodes = 0u64;
-    let mut frames = 0u64;
-    if findings.has_errors() {
-        return counts
+    let (records, steps) = counts
+        .iter()
+        .flatten()
+        .fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1));
+    findings.learn(|facts| {
+        facts.features = leaves
             .iter()
             .flatten()
-            .fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1));
+            .map(|(key, leaf)| match leaf {
+                Leaf::Tensor { dtype, elements } => FeatureFact {
+                    name: key.clone(),
+                    dtype: dtype.clone(),
+                    shape: vec![*elements],
+                },
+                Leaf::Image { shape, dtype } => FeatureFact {
+                    name: key.clone(),
+                    dtype: format!("image {dtype}"),
+                    shape: shape.iter().map(|d| d.unwrap_or(0)).collect(),
+                },
+                Leaf::Text => FeatureFact {
+                    name: key.clone(),
+                    dtype: "text".into(),
+                    shape: Vec::new(),
+                },
+            })
+            .collect();
+        facts.fps = surgvla["fps"].as_f64();
+        facts.robot_type = surgvla["robot_type"].as_str().map(String::from);
+        facts.generator = surgvla["generator"].as_str().map(String::from);
+        facts.collection = surgvla["collection"].clone();
+    });
+    // Ours: the episodes through our own reader, for the semantic checks.
+    if surgvla.is_null() || options.quick || findings.has_errors() {
+        return (records, steps);
     }
     let mut source = match RldsSource::open(root) {
         Ok(source) => source,
         Err(error) => {
             findings.error(At::default(), "open", error_text(&error));
-            return (0, 0);
+            return (records, steps);
         }
     };
     let semantics = Semantics::of(&surgvla, options);
-    let info = source.info();
-    findings.learn(|facts| {
-        facts.fps = Some(f64::from(info.fps)).filter(|f| *f > 0.0);
-        facts.robot_type = Some(info.robot_type.clone()).filter(|r| !r.is_empty());
-        facts.features = info
-            .features
-            .iter()
-            .map(|f| FeatureFact {
-                name: f.name.clone(),
-                dtype: format!("{:?}", f.dtype).to_lowercase(),
-                shape: f.shape.clone(),
-            })
-            .collect();
-        facts.generator = surgvla["generator"].as_str().map(String::from);
-        facts.collection = surgvla["collection"].clone();
-    });
-    let limit = if options.quick { 1 } else { u64::MAX };
+    let mut episode_index = 0u64;
     while let Some(episode) = source.next_episode() {
         match episode {
             Ok(episode) => {
-                frames += episode.steps.len() as u64;
+                check_semantics(&episode, semantics.as_ref(), &At::default(), findings);
                 findings.learn(|facts| {
                     *facts
                         .tasks
                         .entry(episode.meta.instruction.clone())
                         .or_default() += 1
                 });
-                check_semantics(&episode, semantics.as_ref(), &At::default(), findings);
-                episodes += 1;
-                if episodes >= limit {
-                    break;
-                }
+                episode_index += 1;
             }
             Err(error) => {
                 findings.error(
-                    At::default().episode(episodes),
+                    At::default().episode(episode_index),
                     "record",
                     error_text(&error),
                 );
@@ -232,13 +272,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             }
         }
     }
-    if options.quick {
-        (episodes, frames) = counts
-            .iter()
-            .flatten()
-            .fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1));
-    }
-    (episodes, frames)
+    (records, steps)
 }
 
 /// An error's message with its causes.

@@ -1,0 +1,260 @@
+//! Checking RLDS records of any dataset against its own `features.json`, not our step layout:
+//! an Open X-Embodiment dataset written by tensorflow_datasets has other keys and shapes. The
+//! feature tree gives each leaf's flattened key (`steps/observation/image`), kind, shape and
+//! dtype; every record must hold every leaf and nothing else, steps-level leaves with the same
+//! step count, images that decode with the declared size and channels (RGB, not RGBA), finite
+//! floats, `is_first` / `is_last` / `is_terminal` as 0/1 on the right steps, and a non-empty
+//! language instruction.
+
+use crate::export::image::{decode_png, decode_png16};
+use crate::export::rlds::example::Feature;
+use serde_json::Value;
+use std::collections::BTreeMap;
+
+/// A leaf of the feature tree.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Leaf {
+    /// Tensor or Scalar: values per step (or per episode outside `steps/`).
+    Tensor {
+        dtype: String,
+        elements: usize,
+    },
+    /// An encoded image with (height, width, channels); dimensions may be unknown (None).
+    Image {
+        shape: [Option<usize>; 3],
+        dtype: String,
+    },
+    Text,
+}
+
+/// Every leaf of `features.json` by flattened key ("steps/observation/image"); `Err` names a
+/// node surgvla does not understand.
+pub fn leaves(features: &Value) -> Result<BTreeMap<String, Leaf>, String> {
+    let mut out = BTreeMap::new();
+    walk(features, "", &mut out)?;
+    Ok(out)
+}
+
+fn dimension(value: &Value) -> Option<usize> {
+    value
+        .as_str()
+        .and_then(|s| s.parse::<i64>().ok())
+        .or_else(|| value.as_i64())
+        .filter(|v| *v >= 0)
+        .map(|v| v as usize)
+}
+
+fn walk(node: &Value, prefix: &str, out: &mut BTreeMap<String, Leaf>) -> Result<(), String> {
+    let class = node["pythonClassName"].as_str().unwrap_or_default();
+    let join = |key: &str| {
+        if prefix.is_empty() {
+            key.to_string()
+        } else {
+            format!("{prefix}/{key}")
+        }
+    };
+    if let Some(children) = node["featuresDict"]["features"].as_object() {
+        for (key, child) in children {
+            walk(child, &join(key), out)?;
+        }
+        return Ok(());
+    }
+    if let Some(feature) = node.get("sequence").map(|s| &s["feature"]) {
+        return walk(feature, prefix, out);
+    }
+    if class.ends_with("Image") || node.get("image").is_some() {
+        let dims = node["image"]["shape"]["dimensions"].as_array();
+        let dim = |i: usize| dims.and_then(|d| d.get(i)).and_then(dimension);
+        out.insert(
+            prefix.to_string(),
+            Leaf::Image {
+                shape: [dim(0), dim(1), dim(2)],
+                dtype: node["image"]["dtype"].as_str().unwrap_or("uint8").into(),
+            },
+        );
+        return Ok(());
+    }
+    if class.ends_with("Text") || node.get("text").is_some() {
+        out.insert(prefix.to_string(), Leaf::Text);
+        return Ok(());
+    }
+    if let Some(tensor) = node.get("tensor") {
+        let elements = tensor["shape"]["dimensions"]
+            .as_array()
+            .map(|d| d.iter().map(|v| dimension(v).unwrap_or(1)).product())
+            .unwrap_or(1);
+        out.insert(
+            prefix.to_string(),
+            Leaf::Tensor {
+                dtype: tensor["dtype"].as_str().unwrap_or_default().into(),
+                elements,
+            },
+        );
+        return Ok(());
+    }
+    Err(format!("{prefix}: a {class} node surgvla does not read"))
+}
+
+/// What is wrong with one decoded record, as (step, check, message); empty when nothing.
+pub fn check_record(
+    leaves: &BTreeMap<String, Leaf>,
+    record: &BTreeMap<String, Feature>,
+    decode_images: bool,
+) -> Vec<(Option<u64>, &'static str, String)> {
+    let mut problems = Vec::new();
+    for key in record.keys() {
+        if !leaves.contains_key(key) {
+            problems.push((
+                None,
+                "features",
+                format!("{key} is in the record but not in features.json"),
+            ));
+        }
+    }
+    let steps = match record.get("steps/is_first").or_else(|| {
+        leaves
+            .keys()
+            .find(|k| k.starts_with("steps/"))
+            .and_then(|k| record.get(k))
+    }) {
+        Some(Feature::Int64(v)) => v.len(),
+        Some(Feature::Float(v)) => v.len(),
+        Some(Feature::Bytes(v)) => v.len(),
+        None => 0,
+    };
+    if steps == 0 {
+        problems.push((None, "steps", "the episode has zero steps".into()));
+        return problems;
+    }
+    for (key, leaf) in leaves {
+        let per_step = key.starts_with("steps/");
+        let count = if per_step { steps } else { 1 };
+        let Some(value) = record.get(key) else {
+            problems.push((
+                None,
+                "features",
+                format!("{key} is declared in features.json but missing"),
+            ));
+            continue;
+        };
+        let (len, kind) = match value {
+            Feature::Int64(v) => (v.len(), "int64"),
+            Feature::Float(v) => (v.len(), "float"),
+            Feature::Bytes(v) => (v.len(), "bytes"),
+        };
+        let expected = match leaf {
+            Leaf::Tensor { elements, .. } => count * elements,
+            _ => count,
+        };
+        if len != expected {
+            problems.push((
+                None,
+                "step_counts",
+                format!("{key} holds {len} {kind} values where {count} steps need {expected}"),
+            ));
+            continue;
+        }
+        match (leaf, value) {
+            (_, Feature::Float(values)) => {
+                if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+                    let step = per_step.then_some((i / (len / count).max(1)) as u64);
+                    problems.push((step, "finite", format!("{key} holds {}", values[i])));
+                }
+            }
+            (Leaf::Text, Feature::Bytes(texts)) if key.ends_with("language_instruction") => {
+                if let Some(i) = texts
+                    .iter()
+                    .position(|t| t.iter().all(u8::is_ascii_whitespace))
+                {
+                    problems.push((Some(i as u64), "instruction", format!("{key} is empty")));
+                }
+            }
+            (Leaf::Image { shape, dtype }, Feature::Bytes(images)) if decode_images => {
+                for (i, bytes) in images.iter().enumerate() {
+                    if let Some(problem) = image_problem(bytes, *shape, dtype) {
+                        problems.push((
+                            per_step.then_some(i as u64),
+                            "image",
+                            format!("{key} {problem}"),
+                        ));
+                        break;
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    for (name, first_last) in [
+        ("is_first", true),
+        ("is_last", false),
+        ("is_terminal", false),
+    ] {
+        let key = format!("steps/{name}");
+        let Some(Feature::Int64(flags)) = record.get(&key) else {
+            if name != "is_terminal" {
+                problems.push((None, "flags", format!("{key} is missing or not a 0/1 list")));
+            }
+            continue;
+        };
+        if let Some(i) = flags.iter().position(|v| *v != 0 && *v != 1) {
+            problems.push((
+                Some(i as u64),
+                "flags",
+                format!("{key} is {}, not 0 or 1", flags[i]),
+            ));
+            continue;
+        }
+        let at = if first_last { 0 } else { steps - 1 };
+        let wrong = match name {
+            "is_first" | "is_last" => flags
+                .iter()
+                .enumerate()
+                .position(|(i, v)| (*v == 1) != (i == at)),
+            _ => flags
+                .iter()
+                .enumerate()
+                .position(|(i, v)| *v == 1 && i != at),
+        };
+        if let Some(i) = wrong {
+            problems.push((
+                Some(i as u64),
+                "flags",
+                format!("{key} is {} on step {i} of {steps}", flags[i]),
+            ));
+        }
+    }
+    problems
+}
+
+/// What is wrong with one encoded image, if anything.
+fn image_problem(bytes: &[u8], shape: [Option<usize>; 3], dtype: &str) -> Option<String> {
+    if bytes.starts_with(&[0xff, 0xd8]) {
+        return None; // JPEG: not decoded here.
+    }
+    let (w, h, c) = if dtype == "uint16" {
+        match decode_png16(bytes) {
+            Ok((w, h, _)) => (w as usize, h as usize, 1),
+            Err(e) => return Some(format!("does not decode: {e}")),
+        }
+    } else {
+        match decode_png(bytes) {
+            Ok((w, h, c, _)) => (w as usize, h as usize, c),
+            Err(e) => return Some(format!("does not decode: {e}")),
+        }
+    };
+    if shape[0].is_some_and(|v| v != h) || shape[1].is_some_and(|v| v != w) {
+        return Some(format!(
+            "is {w}x{h}, declared {:?}x{:?}",
+            shape[1], shape[0]
+        ));
+    }
+    if shape[2].is_some_and(|v| v != c) {
+        let rgba = if c == 4 {
+            " (RGBA: RLDS readers expect RGB)"
+        } else {
+            ""
+        };
+        return Some(format!("has {c} channels, declared {:?}{rgba}", shape[2]));
+    }
+    None
+}

@@ -1,0 +1,147 @@
+"""`surgvla validate` and `info` on an RLDS dataset written by tensorflow_datasets itself, laid
+out as Open X-Embodiment datasets are (other keys and shapes than ours: two cameras, an 8-D
+state, bool flags, a language instruction): valid as written, and defects made in it (a flipped
+byte, a wrong shardLengths, an episode whose is_last is missing on the last step) are named.
+
+SURGVLA_BIN is the surgvla binary.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import tensorflow as tf  # noqa: E402
+import tensorflow_datasets as tfds  # noqa: E402
+
+BIN = os.environ.get("SURGVLA_BIN", "surgvla")
+
+
+class OxeLike(tfds.core.GeneratorBasedBuilder):
+    """Three episodes in the Open X-Embodiment RLDS layout."""
+
+    VERSION = tfds.core.Version("1.0.0")
+
+    def _info(self):
+        step = {
+            "observation": {
+                "image": tfds.features.Image(shape=(32, 40, 3)),
+                "wrist_image": tfds.features.Image(shape=(16, 16, 3)),
+                "state": tfds.features.Tensor(shape=(8,), dtype=np.float32),
+            },
+            "action": tfds.features.Tensor(shape=(7,), dtype=np.float32),
+            "reward": tfds.features.Scalar(dtype=np.float32),
+            "discount": tfds.features.Scalar(dtype=np.float32),
+            "is_first": tfds.features.Scalar(dtype=np.bool_),
+            "is_last": tfds.features.Scalar(dtype=np.bool_),
+            "is_terminal": tfds.features.Scalar(dtype=np.bool_),
+            "language_instruction": tfds.features.Text(),
+        }
+        return tfds.core.DatasetInfo(
+            builder=self,
+            features=tfds.features.FeaturesDict({
+                "steps": tfds.features.Dataset(step),
+                "episode_metadata": {"file_path": tfds.features.Text()},
+            }),
+        )
+
+    def _split_generators(self, dl_manager):
+        return {"train": self._generate_examples()}
+
+    def _generate_examples(self):
+        rng = np.random.default_rng(0)
+        for episode in range(3):
+            n = 5 + episode
+            steps = [{
+                "observation": {
+                    "image": rng.integers(0, 255, (32, 40, 3), dtype=np.uint8),
+                    "wrist_image": rng.integers(0, 255, (16, 16, 3), dtype=np.uint8),
+                    "state": rng.standard_normal(8).astype(np.float32),
+                },
+                "action": rng.standard_normal(7).astype(np.float32),
+                "reward": float(i == n - 1),
+                "discount": 1.0,
+                "is_first": i == 0,
+                "is_last": i == n - 1,
+                "is_terminal": i == n - 1,
+                "language_instruction": "put the cup on the plate",
+            } for i in range(n)]
+            yield f"episode_{episode}", {"steps": steps, "episode_metadata": {"file_path": f"ep{episode}"}}
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    data_dir = tmp_path_factory.mktemp("tfds")
+    builder = OxeLike(data_dir=str(data_dir))
+    builder.download_and_prepare()
+    return Path(builder.data_dir)
+
+
+def validate(root: Path):
+    done = subprocess.run([BIN, "validate", str(root), "--json"], capture_output=True, text=True)
+    return done.returncode, json.loads(done.stdout) if done.stdout else None, done.stderr
+
+
+def test_tfds_written_dataset_is_valid_and_described(written):
+    code, report, err = validate(written)
+    assert code == 0, (report, err)
+    assert report["format"] == "rlds" and report["episodes"] == 3 and report["frames"] == 18
+    code, report, err = validate(written.parent.parent)  # the data directory above <name>/<version>
+    assert code == 0, (report, err)
+    done = subprocess.run([BIN, "info", str(written), "--json"], capture_output=True, text=True)
+    info = json.loads(done.stdout)
+    shapes = {f["name"]: f["shape"] for f in info["features"]}
+    assert shapes["steps/observation/state"] == [8], shapes
+    assert shapes["steps/observation/wrist_image"] == [16, 16, 3], shapes
+
+
+def shard(root: Path) -> Path:
+    return next(root.glob("*.tfrecord-*"))
+
+
+def copied(written, tmp_path) -> Path:
+    target = tmp_path / "copy"
+    shutil.copytree(written, target)
+    return target
+
+
+def errors(root):
+    code, report, err = validate(root)
+    assert code == 1, (report, err)
+    return report["errors"]
+
+
+def test_a_flipped_byte_is_a_crc_error(written, tmp_path):
+    root = copied(written, tmp_path)
+    data = bytearray(shard(root).read_bytes())
+    data[len(data) // 2] ^= 0x20
+    shard(root).write_bytes(bytes(data))
+    assert any(e["check"] == "crc" for e in errors(root))
+
+
+def test_wrong_shard_lengths_are_named(written, tmp_path):
+    root = copied(written, tmp_path)
+    info_path = root / "dataset_info.json"
+    info = json.loads(info_path.read_text())
+    info["splits"][0]["shardLengths"] = ["4"]
+    info_path.write_text(json.dumps(info))
+    assert any(e["check"] == "shard_lengths" for e in errors(root))
+
+
+def test_a_missing_is_last_is_named(written, tmp_path):
+    root = copied(written, tmp_path)
+    records = list(tf.data.TFRecordDataset(str(shard(root))).as_numpy_iterator())
+    example = tf.train.Example.FromString(records[1])
+    flags = example.features.feature["steps/is_last"].int64_list.value
+    flags[len(flags) - 1] = 0
+    records[1] = example.SerializeToString()
+    with tf.io.TFRecordWriter(str(shard(root))) as writer:
+        for record in records:
+            writer.write(record)
+    found = [e for e in errors(root) if e["check"] == "flags"]
+    assert found and found[0]["episode"] == 1, found
