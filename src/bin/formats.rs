@@ -4,6 +4,7 @@
 use crate::error::CliError;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
+use surgvla::episode::FeatureKind;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::image::PngLevel;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
@@ -302,14 +303,125 @@ pub struct ConvertArgs {
     /// Worker threads encoding episodes (default: all cores).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
     threads: Option<u64>,
+    /// Leave optional features out, comma-separated: depth, mask, environment_state.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    without: Vec<ConvertOmit>,
+    /// Afterwards read both sides and compare every frame (LeRobot and RLDS targets; for zarr
+    /// and MCAP the output is validated and its episodes and frames counted, for PLY/PCD its
+    /// files counted); a difference exits 1.
+    #[arg(long)]
+    verify: bool,
     #[command(flatten)]
     formats: FormatArgs,
+}
+
+/// An optional feature `convert --without` leaves out.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConvertOmit {
+    /// `observation.images.depth`.
+    Depth,
+    /// `observation.images.mask`.
+    Mask,
+    /// `observation.environment_state`.
+    #[value(name = "environment_state")]
+    EnvironmentState,
+}
+
+impl ConvertOmit {
+    fn kind(self) -> FeatureKind {
+        match self {
+            ConvertOmit::Depth => FeatureKind::Depth,
+            ConvertOmit::Mask => FeatureKind::Mask,
+            ConvertOmit::EnvironmentState => FeatureKind::EnvironmentState,
+        }
+    }
+}
+
+fn omitted(without: &[ConvertOmit]) -> Vec<FeatureKind> {
+    without.iter().map(|w| w.kind()).collect()
+}
+
+/// The input as `convert` reads it: `--without` applied.
+fn converted_source(
+    args: &ConvertArgs,
+) -> Result<Box<dyn surgvla::export::EpisodeSource + Send>, CliError> {
+    let source = open_source(&args.input).map_err(ConvertError::Read)?;
+    Ok(if args.without.is_empty() {
+        source
+    } else {
+        Box::new(surgvla::export::convert::Without::new(
+            source,
+            &omitted(&args.without),
+        ))
+    })
+}
+
+/// `--verify`: what the output holds against the input.
+fn verify(args: &ConvertArgs, summary: &surgvla::export::Summary) -> Result<(), CliError> {
+    let differences = match args.to {
+        Format::Lerobot | Format::Rlds => {
+            let mut source = converted_source(args)?;
+            let mut target = open_source(&args.out).map_err(ConvertError::Write)?;
+            let verification = surgvla::export::convert::verify(source.as_mut(), target.as_mut())?;
+            verification.differences
+        }
+        Format::Zarr | Format::Mcap => {
+            let report = surgvla::export::validate::validate(
+                &args.out,
+                &surgvla::export::validate::ValidateOptions::default(),
+            )?;
+            let mut differences: Vec<String> =
+                report.errors.iter().map(ToString::to_string).collect();
+            if (report.episodes, report.frames) != (summary.episodes, summary.frames) {
+                differences.push(format!(
+                    "the output holds {} episodes and {} frames, {} and {} were converted",
+                    report.episodes, report.frames, summary.episodes, summary.frames
+                ));
+            }
+            differences
+        }
+        Format::Ply | Format::Pcd => {
+            let extension = if args.to == Format::Ply { "ply" } else { "pcd" };
+            let mut episodes = 0u64;
+            let mut frames = 0u64;
+            for entry in std::fs::read_dir(&args.out)?.flatten() {
+                if entry.path().is_dir() {
+                    episodes += 1;
+                    frames += std::fs::read_dir(entry.path())?
+                        .flatten()
+                        .filter(|f| f.path().extension().is_some_and(|e| e == extension))
+                        .count() as u64;
+                }
+            }
+            if (episodes, frames) == (summary.episodes, summary.frames) {
+                Vec::new()
+            } else {
+                vec![format!(
+                    "the output holds {episodes} episode folders and {frames} {extension} files, {} and {} were converted",
+                    summary.episodes, summary.frames
+                )]
+            }
+        }
+    };
+    if differences.is_empty() {
+        say!("verified: the output holds what was read");
+        return Ok(());
+    }
+    for difference in &differences {
+        say!("difference: {difference}");
+    }
+    Err(CliError::invalid(format!(
+        "{} does not hold what {} holds ({} differences)",
+        args.out.display(),
+        args.input.display(),
+        differences.len()
+    )))
 }
 
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
 pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
-    let mut source = open_source(&args.input).map_err(ConvertError::Read)?;
+    let mut source = converted_source(args)?;
     let info = source.info().clone();
     let resuming = resumes(&args.out, args.resume);
     let mut sink = open_sink(&args.out, &info, &options, args.resume)?;
@@ -342,6 +454,9 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         summary.files,
         summary.bytes as f64 / 1e6
     );
+    if args.verify {
+        verify(args, &summary)?;
+    }
     Ok(())
 }
 

@@ -3,6 +3,7 @@
 //! batches (one per worker thread, so the sink encodes them in parallel and memory stays
 //! bounded by a few episodes); a resumed sink skips the episodes it already holds.
 
+use crate::episode::{Episode, FeatureKind, MAX_OBJECTS, POSE_VALUES};
 use crate::error::ErrorKind;
 use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary};
 
@@ -75,4 +76,181 @@ fn copy(
     }
     progress(done);
     sink.finish().map_err(ConvertError::Write)
+}
+
+/// A source with some optional features left out (`convert --without`): they leave the
+/// dataset's features and every step.
+pub struct Without {
+    inner: Box<dyn EpisodeSource + Send>,
+    info: crate::export::DatasetInfo,
+    kinds: Vec<FeatureKind>,
+}
+
+impl Without {
+    /// `inner` without the features of `kinds` (RGB, state and action cannot be left out: they
+    /// are ignored here).
+    pub fn new(inner: Box<dyn EpisodeSource + Send>, kinds: &[FeatureKind]) -> Self {
+        let kinds: Vec<FeatureKind> = kinds
+            .iter()
+            .copied()
+            .filter(|k| {
+                matches!(
+                    k,
+                    FeatureKind::Depth | FeatureKind::Mask | FeatureKind::EnvironmentState
+                )
+            })
+            .collect();
+        let mut info = inner.info().clone();
+        info.features.retain(|f| !kinds.contains(&f.kind));
+        Without { inner, info, kinds }
+    }
+
+    fn strip(&self, mut episode: Episode) -> Episode {
+        for step in &mut episode.steps {
+            for kind in &self.kinds {
+                match kind {
+                    FeatureKind::Depth => step.depth_m = Vec::new(),
+                    FeatureKind::Mask => step.mask = Vec::new(),
+                    FeatureKind::EnvironmentState => {
+                        step.environment_state = [0.0; MAX_OBJECTS * POSE_VALUES]
+                    }
+                    _ => {}
+                }
+            }
+        }
+        episode
+    }
+}
+
+impl EpisodeSource for Without {
+    fn info(&self) -> &crate::export::DatasetInfo {
+        &self.info
+    }
+
+    fn len(&self) -> u64 {
+        self.inner.len()
+    }
+
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        let episode = self.inner.next_episode()?;
+        Some(episode.map(|e| self.strip(e)))
+    }
+}
+
+/// Depth may differ by this much between a source and a target that stores millimetres (RLDS).
+const DEPTH_TOLERANCE_M: f32 = 0.000_51;
+
+/// What `convert --verify` found: episodes and frames compared, and the first differences.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Verification {
+    pub episodes: u64,
+    pub frames: u64,
+    /// Each difference: where and what (empty: the target holds the source's data).
+    pub differences: Vec<String>,
+}
+
+/// Reads `source` and `target` (opened again after a conversion) side by side and compares
+/// every episode and frame: instruction and provenance, RGB and mask pixel for pixel, state,
+/// action and object poses bit for bit, depth exactly (to 0.5 mm when the target stores
+/// millimetres). Only features both sides hold are compared.
+pub fn verify(
+    source: &mut dyn EpisodeSource,
+    target: &mut dyn EpisodeSource,
+) -> Result<Verification, ConvertError> {
+    let mut result = Verification::default();
+    let has = |info: &crate::export::DatasetInfo, kind| info.has(kind);
+    let (a_info, b_info) = (source.info().clone(), target.info().clone());
+    let both = |kind| has(&a_info, kind) && has(&b_info, kind);
+    let note = |result: &mut Verification, text: String| {
+        if result.differences.len() < 20 {
+            result.differences.push(text);
+        }
+    };
+    loop {
+        let (a, b) = (source.next_episode(), target.next_episode());
+        let (a, b) = match (a, b) {
+            (None, None) => return Ok(result),
+            (Some(a), Some(b)) => (
+                a.map_err(ConvertError::Read)?,
+                b.map_err(ConvertError::Write)?,
+            ),
+            (Some(_), None) => {
+                let text = format!(
+                    "the output lacks episode {} and later ones",
+                    result.episodes
+                );
+                note(&mut result, text);
+                return Ok(result);
+            }
+            (None, Some(_)) => {
+                let text = format!(
+                    "the output has more than the input's {} episodes",
+                    result.episodes
+                );
+                note(&mut result, text);
+                return Ok(result);
+            }
+        };
+        let index = a.meta.index;
+        result.episodes += 1;
+        result.frames += a.steps.len() as u64;
+        if a.meta.instruction != b.meta.instruction {
+            note(
+                &mut result,
+                format!(
+                    "episode {index}: instruction {:?} became {:?}",
+                    a.meta.instruction, b.meta.instruction
+                ),
+            );
+        }
+        if (a.meta.seed, &a.meta.task_code) != (b.meta.seed, &b.meta.task_code) {
+            note(
+                &mut result,
+                format!("episode {index}: provenance (task id, seed) differs"),
+            );
+        }
+        if a.steps.len() != b.steps.len() {
+            note(
+                &mut result,
+                format!(
+                    "episode {index}: {} frames became {}",
+                    a.steps.len(),
+                    b.steps.len()
+                ),
+            );
+            continue;
+        }
+        for (frame, (x, y)) in a.steps.iter().zip(&b.steps).enumerate() {
+            let what = if both(FeatureKind::Rgb) && x.rgb != y.rgb {
+                Some("RGB")
+            } else if both(FeatureKind::Mask) && x.mask != y.mask {
+                Some("mask")
+            } else if both(FeatureKind::Depth)
+                && (x.depth_m.len() != y.depth_m.len()
+                    || x.depth_m
+                        .iter()
+                        .zip(&y.depth_m)
+                        .any(|(p, q)| (p - q).abs() > DEPTH_TOLERANCE_M))
+            {
+                Some("depth")
+            } else if x.state.map(f32::to_bits) != y.state.map(f32::to_bits) {
+                Some("state")
+            } else if x.action.map(f32::to_bits) != y.action.map(f32::to_bits) {
+                Some("action")
+            } else if both(FeatureKind::EnvironmentState)
+                && x.environment_state.map(f32::to_bits) != y.environment_state.map(f32::to_bits)
+            {
+                Some("object poses")
+            } else {
+                None
+            };
+            if let Some(what) = what {
+                note(
+                    &mut result,
+                    format!("episode {index} frame {frame}: {what} differs"),
+                );
+                break;
+            }
+        }
+    }
 }

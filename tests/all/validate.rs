@@ -762,3 +762,72 @@ fn replay_confirms_recorded_frames_and_catches_changed_actions() {
         assert!(err.contains("no surgvla collection metadata"), "{err}");
     });
 }
+
+/// `convert --verify` compares every frame of the output with the input (and can fail: a frame
+/// changed after conversion is found); `--without` leaves features out of the output, and the
+/// verification compares what both sides hold; v3.0 -> v2.1 -> v3.0 and RLDS -> LeRobot verify.
+#[test]
+fn convert_verifies_every_frame_and_leaves_features_out() {
+    let c = corpus();
+    let out = temp_root("verify-out");
+    let lean = out.join("v21");
+    let (code, stdout, err) = surgvla(&[
+        "convert",
+        path(&c.lerobot),
+        "--to",
+        "lerobot",
+        "--lerobot-version",
+        "2.1",
+        "--without",
+        "depth,environment_state",
+        "--out",
+        path(&lean),
+        "--verify",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(stdout.contains("verified"), "{stdout}");
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(lean.join("meta/info.json")).expect("info"))
+            .expect("json");
+    assert_eq!(info["codebase_version"], "v2.1");
+    assert!(info["features"].get("observation.images.depth").is_none());
+    assert!(
+        info["features"]
+            .get("observation.environment_state")
+            .is_none()
+    );
+    for (input, to, name) in [(&lean, "lerobot", "v30"), (&c.rlds, "lerobot", "from-rlds")] {
+        let target = out.join(name);
+        let (code, _, err) = surgvla(&[
+            "convert",
+            path(input),
+            "--to",
+            to,
+            "--out",
+            path(&target),
+            "--verify",
+        ]);
+        assert_eq!(code, 0, "{name}: {err}");
+    }
+    // A frame changed after conversion: the comparison finds it.
+    let (_copy, _) = broken(&out.join("from-rlds"), |r| {
+        rewrite_parquet(&r.join(DATA), |b| {
+            let column = map_vectors(&b, "observation.state", |row, v| {
+                if row == 3 {
+                    v[0] += 1e-3
+                }
+            });
+            with_column(b, "observation.state", column)
+        });
+        let mut source = surgvla::export::open_source(&c.lerobot).expect("source");
+        let mut target = surgvla::export::open_source(r).expect("target");
+        let verification =
+            surgvla::export::convert::verify(source.as_mut(), target.as_mut()).expect("verify");
+        assert_eq!(verification.episodes, 2);
+        assert_eq!(
+            verification.differences,
+            ["episode 0 frame 3: state differs"],
+            "{verification:?}"
+        );
+    });
+}
