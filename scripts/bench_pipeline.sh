@@ -6,6 +6,7 @@
 #   scripts/bench_pipeline.sh [episodes-per-task] [threads]
 #   scripts/bench_pipeline.sh memory [threads]
 #   scripts/bench_pipeline.sh rlds [threads]
+#   scripts/bench_pipeline.sh datasets [threads]
 #
 # Default: 8 tasks x 100 episodes on all cores. `memory`: peak RSS of the default collection at
 # about 100 and 1,000 episodes (8 tasks x 13 and x 125), which must not grow with the number of
@@ -13,7 +14,10 @@
 # one (wall time, peak RSS flat in the number of episodes), then `collect --format rlds` of the
 # default dataset; with SURGVLA_RLDS_PYTHON (the RLDS interop venv's python) tensorflow_datasets
 # then reads all 800 episodes, compares every step with the LeRobot dataset and the collected RLDS
-# with the converted one (tests/interop/rlds). Figures go to BENCHMARKS.md by hand.
+# with the converted one (tests/interop/rlds). `datasets`: on the default 800-episode dataset,
+# `validate --quick`, `validate` (every frame), `validate --replay`, `info`, `convert --to
+# lerobot --lerobot-version 2.1 --verify`; then the same collection as two shards, `merge`d and
+# compared byte for byte with the single run. Figures go to BENCHMARKS.md by hand.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked --quiet
@@ -54,6 +58,33 @@ if [ "${1:-}" = rlds ]; then
         SURGVLA_LEROBOT_DATASET="${work}/lerobot-100" SURGVLA_RLDS_DATASET="${work}/rlds-100" \
             SURGVLA_RLDS_CONVERTED="${work}/rlds-collected" \
             "${SURGVLA_RLDS_PYTHON}" -m pytest -q -p no:cacheprovider tests/interop/rlds
+    fi
+elif [ "${1:-}" = datasets ]; then
+    threads="${2:-$(nproc)}"
+    surgvla=./target/release/surgvla
+    echo "== the default dataset: 8 tasks x 100 episodes, ${threads} threads"
+    timed "${surgvla}" collect --threads "${threads}" --out "${work}/data"
+    echo "== validate --quick"
+    timed "${surgvla}" validate --quick "${work}/data"
+    echo "== validate (every frame)"
+    timed "${surgvla}" validate --threads "${threads}" "${work}/data"
+    echo "== validate --replay"
+    timed "${surgvla}" validate --replay --threads "${threads}" "${work}/data"
+    echo "== info"
+    timed "${surgvla}" info "${work}/data"
+    echo "== convert --to lerobot --lerobot-version 2.1 --verify"
+    timed "${surgvla}" convert "${work}/data" --to lerobot --lerobot-version 2.1 --threads "${threads}" --out "${work}/v21" --verify
+    rm -rf "${work}/v21"
+    echo "== two shards, merged"
+    for shard in 0 1; do
+        "${surgvla}" collect --threads "${threads}" --shard "${shard}/2" --out "${work}/shard-${shard}" | tail -n 1
+    done
+    timed "${surgvla}" merge "${work}/shard-0" "${work}/shard-1" --threads "${threads}" --out "${work}/merged"
+    if diff -r -x collect_report.json "${work}/data" "${work}/merged" >/dev/null; then
+        echo "merged = single run, byte for byte (collect_report.json aside)"
+    else
+        echo "merged differs from the single run" >&2
+        exit 1
     fi
 elif [ "${1:-}" = memory ]; then
     threads="${2:-$(nproc)}"

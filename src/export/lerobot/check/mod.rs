@@ -16,7 +16,7 @@ use crate::export::validate::{
     At, FeatureFact, Findings, Format, Semantics, ValidateOptions, check_manifest,
 };
 use arrow_array::RecordBatch;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -219,15 +219,28 @@ pub fn check(
         info_known: !info.is_null(),
     };
     // Every row group of every file, in order, checked in parallel.
-    let groups: Vec<(usize, usize)> = files
+    // Each file's footer is read once and shared by its row groups.
+    let metadata: Vec<Option<ArrowReaderMetadata>> = files
+        .par_iter()
+        .map(|path| open_metadata(path, findings))
+        .collect();
+    let groups: Vec<(usize, usize)> = metadata
         .iter()
         .enumerate()
-        .flat_map(|(f, path)| (0..row_groups(path, findings)).map(move |g| (f, g)))
+        .flat_map(|(f, m)| {
+            let count = m.as_ref().map_or(0, |m| m.metadata().num_row_groups());
+            (0..count).map(move |g| (f, g))
+        })
         .collect();
     let parts: Vec<Part> = groups
         .par_iter()
-        .map(|&(f, g)| context.check_row_group(&files[f], g))
+        .filter_map(|&(f, g)| Some(context.check_row_group(&files[f], metadata[f].as_ref()?, g)))
         .collect();
+    let rows_in_files: u64 = metadata
+        .iter()
+        .flatten()
+        .map(|m| m.metadata().file_metadata().num_rows() as u64)
+        .sum();
     let (episodes, frames) = stitch(
         &context,
         &files,
@@ -235,7 +248,7 @@ pub fn check(
         &parts,
         &info,
         v21,
-        !options.quick,
+        options.quick.then_some(rows_in_files),
     );
     check_stats(root, &features, &parts, !options.quick, findings);
     check_videos(root, v21, &info, &features, &entries, findings);
@@ -261,19 +274,23 @@ fn read_optional_json(root: &Path, relative: &str, findings: &Findings) -> Value
     })
 }
 
-fn row_groups(path: &Path, findings: &Findings) -> usize {
+/// A data file's parquet metadata (its footer), or a finding naming the file.
+fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata> {
     let opened = File::open(path)
         .map_err(|e| e.to_string())
-        .and_then(|f| ParquetRecordBatchReaderBuilder::try_new(f).map_err(|e| e.to_string()));
+        .and_then(|mut f| {
+            ArrowReaderMetadata::load(&mut f, ArrowReaderOptions::default())
+                .map_err(|e| e.to_string())
+        });
     match opened {
-        Ok(builder) => builder.metadata().num_row_groups(),
+        Ok(metadata) => Some(metadata),
         Err(problem) => {
             findings.file_error(
                 path,
                 "readable",
                 format!("is not a readable parquet file: {problem}"),
             );
-            0
+            None
         }
     }
 }
@@ -316,8 +333,10 @@ fn stitch(
     parts: &[Part],
     info: &Value,
     v21: bool,
-    full: bool,
+    // Quick: the rows the files hold (only one per row group was read).
+    quick_rows: Option<u64>,
 ) -> (u64, u64) {
+    let full = quick_rows.is_none();
     let findings = context.findings;
     // Whole episodes: (episode, first_index, last_index, rows, file).
     let mut episodes: Vec<(i64, i64, i64, u64, usize, i64)> = Vec::new();
@@ -383,14 +402,8 @@ fn stitch(
             }
         }
     }
-    if !full {
-        // Quick: one row per group, so counts come from the parquet metadata.
-        frames = files
-            .iter()
-            .filter_map(|p| File::open(p).ok())
-            .filter_map(|f| ParquetRecordBatchReaderBuilder::try_new(f).ok())
-            .map(|b| b.metadata().file_metadata().num_rows() as u64)
-            .sum();
+    if let Some(rows) = quick_rows {
+        frames = rows;
     }
     let entries = context.entries;
     let episodes_file = episodes_file(v21);

@@ -12,20 +12,27 @@ use arrow_array::{
     LargeBinaryArray, RecordBatch, StructArray,
 };
 use arrow_schema::DataType;
-use parquet::arrow::arrow_reader::{ParquetRecordBatchReaderBuilder, RowSelection, RowSelector};
+use parquet::arrow::arrow_reader::{
+    ArrowReaderMetadata, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
+};
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::path::Path;
 
 impl Context<'_> {
-    pub(super) fn check_row_group(&self, path: &Path, group: usize) -> Part {
+    pub(super) fn check_row_group(
+        &self,
+        path: &Path,
+        metadata: &ArrowReaderMetadata,
+        group: usize,
+    ) -> Part {
         let findings = self.findings;
         let file = findings.relative(path);
         let mut part = Part::default();
         let reader = File::open(path)
             .map_err(|e| e.to_string())
-            .and_then(|f| ParquetRecordBatchReaderBuilder::try_new(f).map_err(|e| e.to_string()))
+            .map(|f| ParquetRecordBatchReaderBuilder::new_with_metadata(f, metadata.clone()))
             .and_then(|builder| {
                 let rows = builder.metadata().row_group(group).num_rows() as usize;
                 let mut builder = builder.with_row_groups(vec![group]).with_batch_size(256);
