@@ -279,8 +279,7 @@ fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata
     let opened = File::open(path)
         .map_err(|e| e.to_string())
         .and_then(|mut f| {
-            ArrowReaderMetadata::load(&mut f, ArrowReaderOptions::default())
-                .map_err(|e| e.to_string())
+            ArrowReaderMetadata::load(&f, ArrowReaderOptions::default()).map_err(|e| e.to_string())
         });
     match opened {
         Ok(metadata) => Some(metadata),
