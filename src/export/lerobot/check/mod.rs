@@ -276,11 +276,9 @@ fn read_optional_json(root: &Path, relative: &str, findings: &Findings) -> Value
 
 /// A data file's parquet metadata (its footer), or a finding naming the file.
 fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata> {
-    let opened = File::open(path)
-        .map_err(|e| e.to_string())
-        .and_then(|mut f| {
-            ArrowReaderMetadata::load(&f, ArrowReaderOptions::default()).map_err(|e| e.to_string())
-        });
+    let opened = File::open(path).map_err(|e| e.to_string()).and_then(|f| {
+        ArrowReaderMetadata::load(&f, ArrowReaderOptions::default()).map_err(|e| e.to_string())
+    });
     match opened {
         Ok(metadata) => Some(metadata),
         Err(problem) => {
