@@ -76,7 +76,8 @@ enum Command {
         /// Include the segmentation mask feature.
         #[arg(long)]
         with_mask: bool,
-        /// The format: lerobot (info.json's features) or rlds (features.json).
+        /// The format: lerobot (info.json's features), rlds (features.json) or mcap (the JSON
+        /// channels' schemas).
         #[arg(long, value_enum, default_value = "lerobot")]
         format: SchemaFormat,
     },
@@ -413,6 +414,8 @@ enum SchemaFormat {
     Lerobot,
     /// RLDS's features.json.
     Rlds,
+    /// The JSON Schemas of an MCAP recording's JSON channels, by topic.
+    Mcap,
 }
 
 fn run_schema(with_mask: bool, format: SchemaFormat) -> Result<(), CliError> {
@@ -432,6 +435,7 @@ fn run_schema(with_mask: bool, format: SchemaFormat) -> Result<(), CliError> {
             let rlds = surgvla::export::rlds::RldsOptions::default();
             surgvla::export::rlds::features::features_json(&info, &rlds)
         }
+        SchemaFormat::Mcap => surgvla::export::mcap::messages::json_channel_schemas(),
     };
     say!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())

@@ -16,6 +16,8 @@ pub const SURGVLA_META: &str = include_str!("../../schemas/surgvla_meta.schema.j
 pub const COLLECT_REPORT: &str = include_str!("../../schemas/collect_report.schema.json");
 /// An RLDS version folder's `dataset_info.json`.
 pub const RLDS_DATASET_INFO: &str = include_str!("../../schemas/rlds_dataset_info.schema.json");
+/// The JSON Schemas of our MCAP recordings' JSON channels, by topic.
+pub const MCAP_JSON_CHANNELS: &str = include_str!("../../schemas/mcap_json_channels.json");
 /// An RLDS version folder's `features.json`.
 pub const RLDS_FEATURES: &str = include_str!("../../schemas/rlds_features.schema.json");
 

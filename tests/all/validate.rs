@@ -831,3 +831,17 @@ fn convert_verifies_every_frame_and_leaves_features_out() {
         );
     });
 }
+
+/// The committed MCAP JSON channel schemas are what the recorder writes. After an intended
+/// change, regenerate with `cargo run --release -- schema --format mcap >
+/// schemas/mcap_json_channels.json`.
+#[test]
+fn mcap_json_channel_schema_snapshot_matches_the_recorder() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("schemas/mcap_json_channels.json");
+    let committed: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).expect("schema file")).expect("json");
+    assert_eq!(
+        committed,
+        surgvla::export::mcap::messages::json_channel_schemas()
+    );
+}

@@ -131,12 +131,24 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
                     continue;
                 }
             };
+            // Our channels against schemas/, others against their own channel's schema.
             let schema = json_schemas.entry(channel.id).or_insert_with(|| {
-                channel
+                let ours = channel
                     .schema
                     .as_ref()
-                    .filter(|s| s.encoding == "jsonschema")
-                    .and_then(|s| serde_json::from_slice(&s.data).ok())
+                    .is_some_and(|s| s.name.starts_with("surgvla."));
+                let built_in =
+                    serde_json::from_str::<serde_json::Value>(schema::MCAP_JSON_CHANNELS)
+                        .ok()
+                        .and_then(|all| all.get(&channel.topic).cloned())
+                        .filter(|_| ours);
+                built_in.or_else(|| {
+                    channel
+                        .schema
+                        .as_ref()
+                        .filter(|s| s.encoding == "jsonschema")
+                        .and_then(|s| serde_json::from_slice(&s.data).ok())
+                })
             });
             if let Some(schema) = schema {
                 for (pointer, problem) in schema::check(&value, schema) {

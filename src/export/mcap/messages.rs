@@ -283,3 +283,12 @@ pub fn info_schema() -> Value {
         "required": ["episode_index", "task_id", "seed", "instruction", "success", "frames"],
     })
 }
+
+/// The JSON Schemas of the JSON channels, by topic (`schemas/mcap_json_channels.json`).
+pub fn json_channel_schemas() -> Value {
+    serde_json::json!({
+        "/robot/state": state_schema(),
+        "/robot/action": action_schema(),
+        "/episode/info": info_schema(),
+    })
+}
