@@ -41,6 +41,9 @@ pub enum FeatureKind {
     Action,
     /// Object poses, [`MAX_OBJECTS`] x [`POSE_VALUES`], zero-padded.
     EnvironmentState,
+    /// A feature surgvla has no role for (another robot's state, a second camera, ...): its
+    /// values travel in [`Step::other`] unchanged, images as their encoded bytes.
+    Other,
 }
 
 /// One feature of the dataset.
@@ -271,6 +274,17 @@ pub struct Step {
     pub environment_state: [f32; MAX_OBJECTS * POSE_VALUES],
     /// What the simulator knew besides the features (empty when read from a dataset).
     pub extras: StepExtras,
+    /// The values of the dataset's [`FeatureKind::Other`] features, in feature order.
+    pub other: Vec<FeatureValue>,
+}
+
+/// One step's value of a [`FeatureKind::Other`] feature.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FeatureValue {
+    Float32(Vec<f32>),
+    Int64(Vec<i64>),
+    /// An encoded image (PNG or JPEG), passed through as stored.
+    Image(Vec<u8>),
 }
 
 /// Per-step facts the simulator knows beyond the dataset features, for formats that have room
@@ -335,7 +349,34 @@ impl Episode {
             return Err(format!("episode {} has no steps", self.meta.index));
         }
         let pixels = width_px * height_px;
+        let others: Vec<&FeatureSpec> = features
+            .iter()
+            .filter(|f| f.kind == FeatureKind::Other)
+            .collect();
         for (i, step) in self.steps.iter().enumerate() {
+            if step.other.len() != others.len() {
+                return Err(format!(
+                    "episode {} step {i}: {} values of other features where the dataset has {}",
+                    self.meta.index,
+                    step.other.len(),
+                    others.len()
+                ));
+            }
+            for (feature, value) in others.iter().zip(&step.other) {
+                let elements: usize = feature.shape.iter().product();
+                let fits = match (feature.dtype, value) {
+                    (Dtype::Float32, FeatureValue::Float32(v)) => v.len() == elements,
+                    (Dtype::Int64, FeatureValue::Int64(v)) => v.len() == elements,
+                    (Dtype::Image, FeatureValue::Image(bytes)) => !bytes.is_empty(),
+                    _ => false,
+                };
+                if !fits {
+                    return Err(format!(
+                        "episode {} step {i}: {} does not hold a {:?} of shape {:?}",
+                        self.meta.index, feature.name, feature.dtype, feature.shape
+                    ));
+                }
+            }
             for feature in features {
                 let (what, len, expected) = match feature.kind {
                     FeatureKind::Rgb => ("rgb", step.rgb.len(), pixels * 3),

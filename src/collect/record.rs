@@ -197,6 +197,7 @@ pub fn render_replay(
             action: *dataset_action,
             environment_state: observation.environment_state,
             extras,
+            other: Vec::new(),
         });
         if i + 1 < physical.len() {
             observation = env.observe();

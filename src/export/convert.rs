@@ -152,7 +152,8 @@ pub struct Verification {
 /// Reads `source` and `target` (opened again after a conversion) side by side and compares
 /// every episode and frame: instruction and provenance, RGB and mask pixel for pixel, state,
 /// action and object poses bit for bit, depth exactly (to 0.5 mm when the target stores
-/// millimetres). Only features both sides hold are compared.
+/// millimetres), other datasets' features value for value (images byte for byte). Only
+/// features both sides hold are compared.
 pub fn verify(
     source: &mut dyn EpisodeSource,
     target: &mut dyn EpisodeSource,
@@ -241,6 +242,8 @@ pub fn verify(
                 && x.environment_state.map(f32::to_bits) != y.environment_state.map(f32::to_bits)
             {
                 Some("object poses")
+            } else if x.other != y.other {
+                Some("another feature")
             } else {
                 None
             };

@@ -40,6 +40,12 @@ impl DatasetInfo {
         self.feature(kind).is_some()
     }
 
+    /// Whether surgvla made the episodes (it says which program did); a dataset read from
+    /// another tool's files has no generator.
+    pub fn is_ours(&self) -> bool {
+        !self.generator.is_empty()
+    }
+
     /// Image (width, height) in pixels.
     pub fn image_size(&self) -> (usize, usize) {
         (

@@ -395,6 +395,18 @@ pub fn open_sink(
     resume: bool,
 ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
     let resuming = resumes(root, resume);
+    let others: Vec<&str> = info
+        .features
+        .iter()
+        .filter(|f| f.kind == crate::episode::FeatureKind::Other)
+        .map(|f| f.name.as_str())
+        .collect();
+    if !others.is_empty() && !matches!(options, SinkOptions::LeRobot(_)) {
+        return Err(ExportError::InvalidOptions(format!(
+            "the features {} have no place in this format yet (RLDS, point clouds and MCAP hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to LeRobot, or leave them out",
+            others.join(", ")
+        )));
+    }
     Ok(match options {
         SinkOptions::LeRobot(options) => Box::new(if resuming {
             lerobot::LeRobotWriter::resume(root, info, options.clone())?

@@ -381,7 +381,12 @@ impl FeatureStats {
             FeatureKind::Rgb => FeatureStats::Image(ImageStats::unit_scaled(3)),
             FeatureKind::Mask => FeatureStats::Image(ImageStats::unit_scaled(1)),
             FeatureKind::Depth => FeatureStats::Image(ImageStats::depth()),
-            _ => FeatureStats::Vector(VectorStats::new(feature.shape[0])),
+            FeatureKind::Other if feature.dtype == crate::episode::Dtype::Image => {
+                FeatureStats::Image(ImageStats::unit_scaled(
+                    feature.shape.get(2).copied().unwrap_or(1),
+                ))
+            }
+            _ => FeatureStats::Vector(VectorStats::new(feature.shape.iter().product())),
         }
     }
 

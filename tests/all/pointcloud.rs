@@ -88,6 +88,7 @@ fn points_labelled_as_an_object_lie_on_its_true_surface() {
             action: [0.0; 7],
             environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
             extras: Default::default(),
+            other: Vec::new(),
         };
         let cloud = frame_cloud(&info, &step, &options);
         let poses = sim.object_poses();

@@ -158,10 +158,12 @@ impl LeRobotVersion {
             }
         }
         files.push(("meta/stats.json".into(), pretty("stats.json", &m.stats)?));
-        files.push((
-            "meta/surgvla.json".into(),
-            pretty("surgvla.json", &m.surgvla)?,
-        ));
+        if !m.surgvla.is_null() {
+            files.push((
+                "meta/surgvla.json".into(),
+                pretty("surgvla.json", &m.surgvla)?,
+            ));
+        }
         files.push(("meta/info.json".into(), pretty("info.json", &info)?));
         for (relative, bytes) in files {
             written = (

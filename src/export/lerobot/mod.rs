@@ -545,7 +545,13 @@ impl LeRobotWriter {
             tasks: &self.state.tasks,
             episodes: self.state.episodes,
             stats: Value::Object(stats),
-            surgvla: self.info.surgvla_json(),
+            // A dataset surgvla did not make (converted from another tool's) gets no surgvla
+            // metadata: it has no camera intrinsics or collection to state.
+            surgvla: if self.info.is_ours() {
+                self.info.surgvla_json()
+            } else {
+                Value::Null
+            },
             info: self.info_json(),
             chunks_size: self.options.chunks_size,
             video_key: video_key.as_deref(),

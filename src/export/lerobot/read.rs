@@ -3,15 +3,16 @@
 //! with the real lerobot loader in `tests/interop/`.
 
 use crate::episode::{
-    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, MAX_OBJECTS, POSE_VALUES, Step,
-    StepExtras,
+    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, MAX_OBJECTS, POSE_VALUES,
+    Step, StepExtras,
 };
 use crate::export::image::decode_png;
 use crate::export::info::DatasetInfo;
 use crate::export::tiff::decode_f32_tiff;
 use crate::export::{EpisodeSource, ExportError, read_json};
 use arrow_array::{
-    Array, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch, StructArray,
+    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
+    StructArray,
 };
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::Value;
@@ -168,11 +169,21 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
     }
 }
 
-/// The features of info.json as surgvla's model knows them (defaults left out).
-fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportError> {
+/// The features of info.json as surgvla's model knows them (defaults left out). Our roles
+/// (RGB camera, depth, mask, 7-D state and action, object poses) go to the features our
+/// metadata (`surgvla`, Null for another tool's dataset) names; every other float32, int64 or
+/// image feature is [`FeatureKind::Other`] and travels unchanged.
+fn features_of(
+    info: &Value,
+    surgvla: &Value,
+    path: &Path,
+) -> Result<Vec<FeatureSpec>, ExportError> {
     let features = info["features"]
         .as_object()
         .ok_or_else(|| invalid(path, "no features object"))?;
+    let ours = !surgvla.is_null();
+    let camera_key = surgvla["camera"]["key"].as_str();
+    let depth_key = surgvla["depth"]["key"].as_str();
     let mut specs = Vec::new();
     for (name, f) in features {
         if super::DEFAULT_COLUMNS.contains(&name.as_str()) {
@@ -195,8 +206,10 @@ fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportErro
                     .collect()
             })
             .unwrap_or_default();
-        let (dtype, kind) = match (f["dtype"].as_str(), name.as_str()) {
-            (Some("video"), _) => {
+        let dtype = f["dtype"].as_str().unwrap_or_default();
+        let named = |key: Option<&str>| ours && key == Some(name.as_str());
+        let (dtype, kind) = match dtype {
+            "video" => {
                 return Err(invalid(
                     path,
                     format!(
@@ -204,23 +217,31 @@ fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportErro
                     ),
                 ));
             }
-            (Some("image"), _) if shape.last() == Some(&3) => (Dtype::Image, FeatureKind::Rgb),
-            (Some("image"), _) if f["info"]["is_depth_map"] == true => {
-                (Dtype::Image, FeatureKind::Depth)
+            "image" if named(camera_key) && shape.last() == Some(&3) => {
+                (Dtype::Image, FeatureKind::Rgb)
             }
-            (Some("image"), _) => (Dtype::Image, FeatureKind::Mask),
-            (Some("float32"), "observation.state") => (Dtype::Float32, FeatureKind::State),
-            (Some("float32"), "action") => (Dtype::Float32, FeatureKind::Action),
-            (Some("float32"), "observation.environment_state")
-                if shape == [MAX_OBJECTS * POSE_VALUES] =>
+            "image" if named(depth_key) => (Dtype::Image, FeatureKind::Depth),
+            "image" if ours && name == "observation.images.mask" => {
+                (Dtype::Image, FeatureKind::Mask)
+            }
+            "float32" if name == "observation.state" && shape == [7] => {
+                (Dtype::Float32, FeatureKind::State)
+            }
+            "float32" if name == "action" && shape == [7] => (Dtype::Float32, FeatureKind::Action),
+            "float32"
+                if name == "observation.environment_state"
+                    && shape == [MAX_OBJECTS * POSE_VALUES] =>
             {
                 (Dtype::Float32, FeatureKind::EnvironmentState)
             }
-            (dtype, _) => {
+            "image" if shape.len() == 3 => (Dtype::Image, FeatureKind::Other),
+            "float32" if shape.len() == 1 => (Dtype::Float32, FeatureKind::Other),
+            "int64" if shape.len() == 1 => (Dtype::Int64, FeatureKind::Other),
+            dtype => {
                 return Err(invalid(
                     path,
                     format!(
-                        "feature {name} ({dtype:?}, shape {shape:?}) is not one surgvla reads yet"
+                        "feature {name} ({dtype}, shape {shape:?}) is not one surgvla reads yet (float32 and int64 vectors, images)"
                     ),
                 ));
             }
@@ -234,6 +255,80 @@ fn features_of(info: &Value, path: &Path) -> Result<Vec<FeatureSpec>, ExportErro
         });
     }
     Ok(specs)
+}
+
+/// Each row's value of an [`FeatureKind::Other`] feature, as stored.
+fn other_values(
+    batch: &RecordBatch,
+    feature: &FeatureSpec,
+    path: &Path,
+) -> Result<Vec<FeatureValue>, ExportError> {
+    let name = feature.name.as_str();
+    let column = batch
+        .column_by_name(name)
+        .ok_or_else(|| invalid(path, format!("column {name} is missing")))?;
+    let n: usize = feature.shape.iter().product();
+    let rows = batch.num_rows();
+    let bad = || {
+        invalid(
+            path,
+            format!(
+                "column {name} is not a {:?} of shape {:?}",
+                feature.dtype, feature.shape
+            ),
+        )
+    };
+    let any = column.as_any();
+    let (values, offset): (&dyn Array, usize) = match any.downcast_ref::<FixedSizeListArray>() {
+        Some(list) if list.value_length() as usize == n => {
+            (list.values().as_ref(), list.offset() * n)
+        }
+        Some(_) => return Err(bad()),
+        None if n == 1 => (column.as_ref(), 0),
+        None if feature.dtype == Dtype::Image => (column.as_ref(), 0),
+        None => return Err(bad()),
+    };
+    let chunk = |row: usize| offset + row * n..offset + (row + 1) * n;
+    Ok(match feature.dtype {
+        Dtype::Image => {
+            let images = any.downcast_ref::<StructArray>().ok_or_else(bad)?;
+            let bytes = images
+                .column_by_name("bytes")
+                .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
+                .ok_or_else(bad)?;
+            (0..rows)
+                .map(|r| FeatureValue::Image(bytes.value(r).to_vec()))
+                .collect()
+        }
+        Dtype::Float32 => {
+            if let Some(a) = values.as_any().downcast_ref::<Float32Array>() {
+                (0..rows)
+                    .map(|r| FeatureValue::Float32(a.values()[chunk(r)].to_vec()))
+                    .collect()
+            } else {
+                let a = values
+                    .as_any()
+                    .downcast_ref::<Float64Array>()
+                    .ok_or_else(bad)?;
+                (0..rows)
+                    .map(|r| {
+                        FeatureValue::Float32(
+                            a.values()[chunk(r)].iter().map(|&v| v as f32).collect(),
+                        )
+                    })
+                    .collect()
+            }
+        }
+        Dtype::Int64 => {
+            let a = values
+                .as_any()
+                .downcast_ref::<Int64Array>()
+                .ok_or_else(bad)?;
+            (0..rows)
+                .map(|r| FeatureValue::Int64(a.values()[chunk(r)].to_vec()))
+                .collect()
+        }
+    })
 }
 
 /// Per episode: instruction-independent provenance from the episodes metadata.
@@ -310,13 +405,13 @@ impl LeRobotSource {
         }
         let info_json = read_json(&info_path)?;
         let v21 = info_json["codebase_version"] == "v2.1";
-        let features = features_of(&info_json, &info_path)?;
         let surgvla_path = root.join("meta/surgvla.json");
         let surgvla = if surgvla_path.exists() {
             read_json(&surgvla_path)?
         } else {
             Value::Null
         };
+        let features = features_of(&info_json, &surgvla, &info_path)?;
         let tasks = if v21 {
             let path = root.join("meta/tasks.jsonl");
             let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
@@ -395,6 +490,7 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
                 action: [0.0; 7],
                 environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
                 extras: StepExtras::default(),
+                other: Vec::new(),
             };
             (episode.value(row), task.value(row), step)
         })
@@ -402,6 +498,13 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
     let (width, height) = info.image_size();
     for feature in &info.features {
         let name = feature.name.as_str();
+        if feature.kind == FeatureKind::Other {
+            let values = other_values(batch, feature, path)?;
+            for ((_, _, step), value) in steps.iter_mut().zip(values) {
+                step.other.push(value);
+            }
+            continue;
+        }
         match feature.dtype {
             Dtype::Image => {
                 let images = column::<StructArray>(batch, name, path)?;

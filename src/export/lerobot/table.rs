@@ -1,7 +1,7 @@
 //! Arrow tables of a LeRobot dataset: the frame table (one row per step, one row group per
 //! episode), `tasks.parquet` with its pandas index metadata, and the episodes table.
 
-use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
 use crate::export::ExportError;
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{
@@ -34,20 +34,33 @@ pub const DEFAULT_COLUMNS: [&str; 5] = [
     "task_index",
 ];
 
+/// Values per step of a vector feature.
+fn elements(feature: &FeatureSpec) -> usize {
+    feature.shape.iter().product()
+}
+
+/// Whether a feature is a plain column: another dataset's shape-[1] feature (ours are lists).
+fn is_scalar(feature: &FeatureSpec) -> bool {
+    feature.kind == FeatureKind::Other && feature.shape == [1]
+}
+
 /// The frame table's schema: features in order, then the defaults.
 pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
     let mut fields: Vec<Field> = features
         .iter()
         .map(|f| match f.dtype {
             Dtype::Image => Field::new(&f.name, DataType::Struct(image_fields()), true),
+            // Another robot's one-value feature is a plain column, as lerobot writes it.
+            Dtype::Float32 if is_scalar(f) => Field::new(&f.name, DataType::Float32, true),
+            Dtype::Int64 if is_scalar(f) => Field::new(&f.name, DataType::Int64, true),
             Dtype::Float32 => Field::new(
                 &f.name,
-                DataType::FixedSizeList(list_item(DataType::Float32), f.shape[0] as i32),
+                DataType::FixedSizeList(list_item(DataType::Float32), elements(f) as i32),
                 true,
             ),
             Dtype::Int64 => Field::new(
                 &f.name,
-                DataType::FixedSizeList(list_item(DataType::Int64), f.shape[0] as i32),
+                DataType::FixedSizeList(list_item(DataType::Int64), elements(f) as i32),
                 true,
             ),
         })
@@ -74,8 +87,14 @@ pub fn frame_batch(
 ) -> Result<RecordBatch, ExportError> {
     let n = episode.steps.len();
     let mut columns: Vec<ArrayRef> = Vec::with_capacity(features.len() + 5);
+    let mut other = 0usize;
     for feature in features {
         let column: ArrayRef = match feature.kind {
+            FeatureKind::Other => {
+                let column = other_column(feature, episode, other)?;
+                other += 1;
+                column
+            }
             FeatureKind::Rgb | FeatureKind::Depth | FeatureKind::Mask => {
                 let encoded = images.get(&feature.name).ok_or_else(|| {
                     ExportError::Internal(format!("no encoded images for {}", feature.name))
@@ -125,6 +144,82 @@ pub fn frame_batch(
         n,
     ))));
     Ok(RecordBatch::try_new(schema.clone(), columns)?)
+}
+
+/// The column of the `position`-th [`FeatureKind::Other`] feature: its values as they came.
+fn other_column(
+    feature: &FeatureSpec,
+    episode: &Episode,
+    position: usize,
+) -> Result<ArrayRef, ExportError> {
+    let values = episode.steps.iter().map(|s| s.other.get(position));
+    let wrong = || {
+        ExportError::InvalidEpisode(format!(
+            "episode {}: {} does not hold {:?} values",
+            episode.meta.index, feature.name, feature.dtype
+        ))
+    };
+    let scalar = is_scalar(feature);
+    let n = elements(feature) as i32;
+    Ok(match feature.dtype {
+        Dtype::Image => {
+            let mut bytes = Vec::with_capacity(episode.steps.len());
+            for value in values {
+                match value {
+                    Some(FeatureValue::Image(b)) => bytes.push(b.as_slice()),
+                    _ => return Err(wrong()),
+                }
+            }
+            Arc::new(StructArray::new(
+                image_fields(),
+                vec![
+                    Arc::new(BinaryArray::from_iter_values(bytes)),
+                    Arc::new(StringArray::new_null(episode.steps.len())),
+                ],
+                None,
+            ))
+        }
+        Dtype::Float32 => {
+            let mut flat = Vec::new();
+            for value in values {
+                match value {
+                    Some(FeatureValue::Float32(v)) => flat.extend_from_slice(v),
+                    _ => return Err(wrong()),
+                }
+            }
+            let array = Arc::new(Float32Array::from(flat));
+            if scalar {
+                array
+            } else {
+                Arc::new(FixedSizeListArray::new(
+                    list_item(DataType::Float32),
+                    n,
+                    array,
+                    None,
+                ))
+            }
+        }
+        Dtype::Int64 => {
+            let mut flat = Vec::new();
+            for value in values {
+                match value {
+                    Some(FeatureValue::Int64(v)) => flat.extend_from_slice(v),
+                    _ => return Err(wrong()),
+                }
+            }
+            let array = Arc::new(Int64Array::from(flat));
+            if scalar {
+                array
+            } else {
+                Arc::new(FixedSizeListArray::new(
+                    list_item(DataType::Int64),
+                    n,
+                    array,
+                    None,
+                ))
+            }
+        }
+    })
 }
 
 /// `tasks.parquet`: task_index and task, written as a pandas frame indexed by the task string.

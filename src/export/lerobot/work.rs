@@ -4,9 +4,9 @@
 
 use super::LeRobotOptions;
 use super::table::{DEFAULT_COLUMNS, EncodedImages};
-use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
 use crate::export::ExportError;
-use crate::export::image::encode_png;
+use crate::export::image::{decode_png, encode_png};
 use crate::export::info::DatasetInfo;
 use crate::export::stats::FeatureStats;
 use crate::export::tiff::encode_f32_tiff;
@@ -64,10 +64,11 @@ impl EpisodeWork<'_> {
         let (w, h) = self.info.image_size();
         let level = self.options.png;
         let mut images = EncodedImages::new();
+        // Other features' images are stored as they came (no encoding).
         for feature in self
             .parquet_features
             .iter()
-            .filter(|f| f.dtype == Dtype::Image)
+            .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
         {
             let kind = feature.kind;
             let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
@@ -110,6 +111,7 @@ impl EpisodeWork<'_> {
                     task_index as f64,
                 ];
                 let mut default_values = defaults.iter();
+                let mut others = step.other.iter();
                 for (kind, (_, s)) in kinds
                     .iter()
                     .copied()
@@ -129,6 +131,20 @@ impl EpisodeWork<'_> {
                         (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
                             s.push(&step.environment_state)
                         }
+                        (Some(FeatureKind::Other), s) => match (others.next(), s) {
+                            (Some(FeatureValue::Float32(v)), FeatureStats::Vector(s)) => s.push(v),
+                            (Some(FeatureValue::Int64(v)), FeatureStats::Vector(s)) => {
+                                s.push(&v.iter().map(|&x| x as f32).collect::<Vec<_>>())
+                            }
+                            (Some(FeatureValue::Image(bytes)), FeatureStats::Image(s)) => {
+                                // Statistics need pixels: PNG decodes here; other encodings
+                                // leave the image out of them.
+                                if let Ok((_, _, _, pixels)) = decode_png(bytes) {
+                                    s.push_u8(&pixels)
+                                }
+                            }
+                            _ => {}
+                        },
                         (None, FeatureStats::Vector(s)) => {
                             s.push(&[default_values.next().copied().unwrap_or(0.0) as f32])
                         }

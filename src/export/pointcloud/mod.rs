@@ -279,6 +279,7 @@ mod tests {
             action: [0.0; 7],
             environment_state: [0.0; crate::episode::MAX_OBJECTS * crate::episode::POSE_VALUES],
             extras: Default::default(),
+            other: Vec::new(),
         }
     }
 

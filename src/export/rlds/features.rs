@@ -113,7 +113,7 @@ fn observation(info: &DatasetInfo, options: &RldsOptions) -> serde_json::Map<Str
                     "Ground-truth object poses, x y z (m) qx qy qz qw per object, zero-padded (privileged).",
                 ),
             ),
-            FeatureKind::Action => continue,
+            FeatureKind::Action | FeatureKind::Other => continue,
         };
         observation.insert(key.clone(), node);
     }

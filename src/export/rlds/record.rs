@@ -328,6 +328,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
                 action: [0.0; 7],
                 environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
                 extras: Default::default(),
+                other: Vec::new(),
             };
             if layout.depth {
                 let (dw, dh, mm) =
@@ -405,6 +406,7 @@ mod tests {
                 action: [0.001, -0.002, 0.0, 0.0, 0.01, -0.01, (i % 2) as f32],
                 environment_state: [0.25; MAX_OBJECTS * POSE_VALUES],
                 extras: Default::default(),
+                other: Vec::new(),
             })
             .collect();
         Episode {

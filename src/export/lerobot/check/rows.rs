@@ -429,6 +429,7 @@ fn empty_step() -> Step {
         action: [0.0; 7],
         environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
         extras: StepExtras::default(),
+        other: Vec::new(),
     }
 }
 
