@@ -303,6 +303,12 @@ pub struct ConvertArgs {
     /// Worker threads encoding episodes (default: all cores).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
     threads: Option<u64>,
+    /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    fps: Option<u32>,
+    /// The robot type of an input that states none (default "unknown").
+    #[arg(long)]
+    robot_type: Option<String>,
     /// Leave optional features out, comma-separated: depth, mask, environment_state.
     #[arg(long, value_enum, value_delimiter = ',')]
     without: Vec<ConvertOmit>,
@@ -345,7 +351,12 @@ fn omitted(without: &[ConvertOmit]) -> Vec<FeatureKind> {
 fn converted_source(
     args: &ConvertArgs,
 ) -> Result<Box<dyn surgvla::export::EpisodeSource + Send>, CliError> {
-    let source = open_source(&args.input).map_err(ConvertError::Read)?;
+    let options = surgvla::export::SourceOptions {
+        fps: args.fps,
+        robot_type: args.robot_type.clone(),
+    };
+    let source =
+        surgvla::export::open_source_with(&args.input, &options).map_err(ConvertError::Read)?;
     Ok(if args.without.is_empty() {
         source
     } else {

@@ -439,16 +439,48 @@ pub fn open_sink(
     })
 }
 
+/// What a reader needs to know that a dataset may not say.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SourceOptions {
+    /// Steps per second, for datasets that store none (RLDS another tool wrote).
+    pub fps: Option<u32>,
+    /// The robot type of such datasets ("unknown" when not given).
+    pub robot_type: Option<String>,
+}
+
 /// Opens a dataset for reading, detecting its format: RLDS (a TFDS version folder or the data
 /// directory above it), else LeRobot.
 pub fn open_source(root: &Path) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
+    open_source_with(root, &SourceOptions::default())
+}
+
+/// [`open_source`] with what the dataset may not say: an RLDS dataset surgvla did not write
+/// (no `surgvla.json` beside its `dataset_info.json`) is read through its own `features.json`
+/// and needs `options.fps`.
+pub fn open_source_with(
+    root: &Path,
+    options: &SourceOptions,
+) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
     if !root.exists() {
         return Err(ExportError::NotFound {
             path: root.to_path_buf(),
         });
     }
     if rlds::read::is_rlds(root) {
-        return Ok(Box::new(rlds::read::RldsSource::open(root)?));
+        let folder = rlds::read::version_dir(root)?;
+        if folder.join(rlds::SURGVLA_JSON).is_file() {
+            return Ok(Box::new(rlds::read::RldsSource::open(root)?));
+        }
+        let fps = options.fps.ok_or_else(|| {
+            ExportError::InvalidOptions(format!(
+                "{} is an RLDS dataset another tool wrote, and RLDS stores no frame rate: give --fps",
+                folder.display()
+            ))
+        })?;
+        let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
+        return Ok(Box::new(rlds::foreign::ForeignRldsSource::open(
+            root, fps, robot_type,
+        )?));
     }
     Ok(Box::new(lerobot::read::LeRobotSource::open(root)?))
 }

@@ -224,12 +224,15 @@ fn features_of(
             "image" if ours && name == "observation.images.mask" => {
                 (Dtype::Image, FeatureKind::Mask)
             }
-            "float32" if name == "observation.state" && shape == [7] => {
+            "float32" if ours && name == "observation.state" && shape == [7] => {
                 (Dtype::Float32, FeatureKind::State)
             }
-            "float32" if name == "action" && shape == [7] => (Dtype::Float32, FeatureKind::Action),
+            "float32" if ours && name == "action" && shape == [7] => {
+                (Dtype::Float32, FeatureKind::Action)
+            }
             "float32"
-                if name == "observation.environment_state"
+                if ours
+                    && name == "observation.environment_state"
                     && shape == [MAX_OBJECTS * POSE_VALUES] =>
             {
                 (Dtype::Float32, FeatureKind::EnvironmentState)

@@ -20,6 +20,7 @@
 pub mod check;
 pub mod example;
 pub mod features;
+pub mod foreign;
 pub mod generic;
 mod openvla;
 pub mod read;
