@@ -278,6 +278,22 @@ pub struct Step {
     pub other: Vec<FeatureValue>,
 }
 
+impl Step {
+    /// A step holding nothing yet (readers fill in what their dataset has).
+    pub fn empty() -> Step {
+        Step {
+            rgb: Vec::new(),
+            depth_m: Vec::new(),
+            mask: Vec::new(),
+            state: [0.0; 7],
+            action: [0.0; 7],
+            environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
+            extras: StepExtras::default(),
+            other: Vec::new(),
+        }
+    }
+}
+
 /// One step's value of a [`FeatureKind::Other`] feature.
 #[derive(Clone, Debug, PartialEq)]
 pub enum FeatureValue {

@@ -4,7 +4,7 @@
 
 use crate::episode::{
     Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, MAX_OBJECTS, POSE_VALUES,
-    Step, StepExtras,
+    Step,
 };
 use crate::export::image::decode_png;
 use crate::export::info::DatasetInfo;
@@ -484,19 +484,7 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
     let episode = column::<Int64Array>(batch, "episode_index", path)?;
     let task = column::<Int64Array>(batch, "task_index", path)?;
     let mut steps: Vec<Row> = (0..batch.num_rows())
-        .map(|row| {
-            let step = Step {
-                rgb: Vec::new(),
-                depth_m: Vec::new(),
-                mask: Vec::new(),
-                state: [0.0; 7],
-                action: [0.0; 7],
-                environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
-                extras: StepExtras::default(),
-                other: Vec::new(),
-            };
-            (episode.value(row), task.value(row), step)
-        })
+        .map(|row| (episode.value(row), task.value(row), Step::empty()))
         .collect();
     let (width, height) = info.image_size();
     for feature in &info.features {

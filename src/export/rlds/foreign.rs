@@ -7,9 +7,7 @@
 //! `is_first` / `is_last` are structure, not features; other texts and the episode metadata are
 //! left out. RLDS has no frame rate: the caller gives one.
 
-use crate::episode::{
-    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step, StepExtras,
-};
+use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, leaves};
@@ -238,15 +236,8 @@ impl ForeignRldsSource {
             steps: rows
                 .into_iter()
                 .map(|other| Step {
-                    rgb: Vec::new(),
-                    depth_m: Vec::new(),
-                    mask: Vec::new(),
-                    state: [0.0; 7],
-                    action: [0.0; 7],
-                    environment_state: [0.0; crate::episode::MAX_OBJECTS
-                        * crate::episode::POSE_VALUES],
-                    extras: StepExtras::default(),
                     other,
+                    ..Step::empty()
                 })
                 .collect(),
         })

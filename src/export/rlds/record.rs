@@ -322,13 +322,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
             }
             let mut step = Step {
                 rgb: pixels,
-                depth_m: Vec::new(),
-                mask: Vec::new(),
-                state: [0.0; 7],
-                action: [0.0; 7],
-                environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
-                extras: Default::default(),
-                other: Vec::new(),
+                ..Step::empty()
             };
             if layout.depth {
                 let (dw, dh, mm) =

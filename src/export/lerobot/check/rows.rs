@@ -3,7 +3,7 @@
 //! channels, and the semantic checks of our datasets per episode.
 
 use super::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
-use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step, StepExtras};
+use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
 use crate::export::image::decode_png;
 use crate::export::tiff::decode_f32_tiff;
 use crate::export::validate::{At, Semantics, check_semantics};
@@ -221,7 +221,7 @@ impl Context<'_> {
             }
         }
         part.rows += batch.num_rows() as u64;
-        let mut steps: Vec<Step> = (0..batch.num_rows()).map(|_| empty_step()).collect();
+        let mut steps: Vec<Step> = (0..batch.num_rows()).map(|_| Step::empty()).collect();
         for feature in self.features.iter().filter(|f| !is_index_column(&f.name)) {
             let Some(column) = batch.column_by_name(&feature.name) else {
                 continue;
@@ -417,19 +417,6 @@ impl Context<'_> {
             }
             start = end;
         }
-    }
-}
-
-fn empty_step() -> Step {
-    Step {
-        rgb: Vec::new(),
-        depth_m: Vec::new(),
-        mask: Vec::new(),
-        state: [0.0; 7],
-        action: [0.0; 7],
-        environment_state: [0.0; MAX_OBJECTS * POSE_VALUES],
-        extras: StepExtras::default(),
-        other: Vec::new(),
     }
 }
 
