@@ -713,6 +713,28 @@ fn random_corruption_never_panics_a_reader() {
             if let Ok(report) = result {
                 assert!(report.valid || !report.errors.is_empty());
             }
+            // The readers `convert` uses: every episode, or an error, never a panic. Without
+            // surgvla.json an RLDS dataset is read as another tool's (ForeignRldsSource).
+            if good != &c.zarr && good != &c.mcap {
+                for drop_metadata in [false, true] {
+                    if drop_metadata {
+                        std::fs::remove_file(copy.join("surgvla_benchmark/1.0.0/surgvla.json"))
+                            .ok();
+                        std::fs::remove_file(copy.join("meta/surgvla.json")).ok();
+                    }
+                    let options = surgvla::export::SourceOptions {
+                        fps: Some(5),
+                        robot_type: None,
+                    };
+                    if let Ok(mut source) = surgvla::export::open_source_with(&copy, &options) {
+                        while let Some(episode) = source.next_episode() {
+                            if episode.is_err() {
+                                break;
+                            }
+                        }
+                    }
+                }
+            }
         }
     }
 }
