@@ -13,7 +13,7 @@ use surgvla::export::pointcloud::files::CloudFileFormat;
 use surgvla::export::pointcloud::{Aabb, CloudSettings};
 use surgvla::export::rlds::{RldsKeys, RldsOptions};
 use surgvla::export::zarr::ZarrOptions;
-use surgvla::export::{SinkOptions, open_sink, open_source, resumes};
+use surgvla::export::{SinkOptions, open_sink, resumes};
 
 /// A dataset format to write.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -372,7 +372,14 @@ fn verify(args: &ConvertArgs, summary: &surgvla::export::Summary) -> Result<(), 
     let differences = match args.to {
         Format::Lerobot | Format::Rlds => {
             let mut source = converted_source(args)?;
-            let mut target = open_source(&args.out).map_err(ConvertError::Write)?;
+            // The output states what the input did; an RLDS output of another tool's dataset
+            // has no frame rate of its own, so it is read with the input's.
+            let options = surgvla::export::SourceOptions {
+                fps: Some(source.info().fps),
+                robot_type: Some(source.info().robot_type.clone()),
+            };
+            let mut target = surgvla::export::open_source_with(&args.out, &options)
+                .map_err(ConvertError::Write)?;
             let verification = surgvla::export::convert::verify(source.as_mut(), target.as_mut())?;
             verification.differences
         }

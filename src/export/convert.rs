@@ -162,6 +162,22 @@ pub fn verify(
     let has = |info: &crate::export::DatasetInfo, kind| info.has(kind);
     let (a_info, b_info) = (source.info().clone(), target.info().clone());
     let both = |kind| has(&a_info, kind) && has(&b_info, kind);
+    // Other features by name: formats may order them differently.
+    let others = |info: &crate::export::DatasetInfo| -> Vec<String> {
+        info.features
+            .iter()
+            .filter(|f| f.kind == FeatureKind::Other)
+            .map(|f| f.name.clone())
+            .collect()
+    };
+    let (a_others, b_others) = (others(&a_info), others(&b_info));
+    let named = |names: &[String], values: &[crate::episode::FeatureValue]| {
+        names
+            .iter()
+            .cloned()
+            .zip(values.iter().cloned())
+            .collect::<std::collections::BTreeMap<_, _>>()
+    };
     let note = |result: &mut Verification, text: String| {
         if result.differences.len() < 20 {
             result.differences.push(text);
@@ -242,7 +258,7 @@ pub fn verify(
                 && x.environment_state.map(f32::to_bits) != y.environment_state.map(f32::to_bits)
             {
                 Some("object poses")
-            } else if x.other != y.other {
+            } else if named(&a_others, &x.other) != named(&b_others, &y.other) {
                 Some("another feature")
             } else {
                 None

@@ -401,9 +401,9 @@ pub fn open_sink(
         .filter(|f| f.kind == crate::episode::FeatureKind::Other)
         .map(|f| f.name.as_str())
         .collect();
-    if !others.is_empty() && !matches!(options, SinkOptions::LeRobot(_)) {
+    if !others.is_empty() && !matches!(options, SinkOptions::LeRobot(_) | SinkOptions::Rlds(_)) {
         return Err(ExportError::InvalidOptions(format!(
-            "the features {} have no place in this format yet (RLDS, point clouds and MCAP hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to LeRobot, or leave them out",
+            "the features {} have no place in this format yet (point clouds, zarr and MCAP hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to LeRobot or RLDS",
             others.join(", ")
         )));
     }

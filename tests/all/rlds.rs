@@ -262,3 +262,44 @@ fn rlds_schema_snapshot_matches_the_features() {
         surgvla::export::rlds::features::features_json(&crate::util::info(true), &options)
     );
 }
+
+/// Another tool's features (a 14-D vector, an int64, a camera PNG) go to RLDS under their
+/// paths (`observation/state`, `observation/wrist`) and come back, by name, unchanged, images
+/// byte for byte; the dataset gets no surgvla.json, so reading it needs a frame rate.
+#[test]
+fn other_features_round_trip_through_rlds() {
+    use std::collections::BTreeMap;
+    let (dataset, episodes) = crate::util::foreign_dataset();
+    let root = temp_root("rlds-other");
+    let mut writer = surgvla::export::rlds::RldsWriter::create(&root, &dataset, Default::default())
+        .expect("writer");
+    surgvla::export::EpisodeSink::write_batch(&mut writer, &episodes).expect("write");
+    surgvla::export::EpisodeSink::finish(&mut writer).expect("finish");
+    assert!(!root.join(VERSION_DIR).join("surgvla.json").exists());
+    assert!(open_source(&root).is_err(), "no frame rate given");
+    let options = surgvla::export::SourceOptions {
+        fps: Some(5),
+        robot_type: None,
+    };
+    let mut source = surgvla::export::open_source_with(&root, &options).expect("source");
+    let named = |info: &surgvla::export::DatasetInfo, values: &[surgvla::episode::FeatureValue]| {
+        info.features
+            .iter()
+            .map(|f| f.name.clone())
+            .zip(values.iter().cloned())
+            .collect::<BTreeMap<_, _>>()
+    };
+    let read_info = source.info().clone();
+    assert_eq!(read_info.robot_type, "unknown");
+    for expected in &episodes {
+        let read = source.next_episode().expect("episode").expect("readable");
+        assert_eq!(read.meta.instruction, expected.meta.instruction);
+        assert_eq!(read.steps.len(), expected.steps.len());
+        for (a, b) in read.steps.iter().zip(&expected.steps) {
+            assert_eq!(named(&read_info, &a.other), named(&dataset, &b.other));
+        }
+    }
+    assert!(source.next_episode().is_none());
+    let report = surgvla::export::validate::validate(&root, &Default::default()).expect("runs");
+    assert!(report.valid, "{:#?}", report.errors);
+}

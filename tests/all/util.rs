@@ -95,3 +95,68 @@ pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
         &surgvla::policy::ExpertLibrary::builtin().expect("plans"),
     )
 }
+
+/// A dataset another tool made: a 14-D float vector, a one-value int64 and a camera's PNG,
+/// all `FeatureKind::Other`, no generator; three episodes of seeded values.
+pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode::Episode>) {
+    use surgvla::episode::{
+        Dtype, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step, StepExtras,
+    };
+    use surgvla::export::image::{PngLevel, encode_png};
+    let spec = |name: &str, dtype, shape: Vec<usize>| FeatureSpec {
+        name: name.into(),
+        dtype,
+        shape,
+        names: Vec::new(),
+        kind: FeatureKind::Other,
+    };
+    let mut dataset = info(false);
+    dataset.features = vec![
+        spec("observation.state", Dtype::Float32, vec![14]),
+        spec("observation.gripper_count", Dtype::Int64, vec![1]),
+        spec("observation.images.wrist", Dtype::Image, vec![8, 10, 3]),
+    ];
+    dataset.generator = String::new();
+    dataset.collection = serde_json::Value::Null;
+    let mut rng = surgvla::rng::SplitMix64::stream(3, "other-features");
+    let episodes: Vec<surgvla::episode::Episode> = (0..3u64)
+        .map(|index| surgvla::episode::Episode {
+            meta: EpisodeMeta {
+                index,
+                task_code: String::new(),
+                task_name: String::new(),
+                level: 0,
+                instruction: format!("task {}", index % 2),
+                seed: 0,
+                attempts: 1,
+                success: true,
+            },
+            steps: (0..4 + index)
+                .map(|_| {
+                    let pixels: Vec<u8> = (0..8 * 10 * 3).map(|_| rng.next_u64() as u8).collect();
+                    Step {
+                        rgb: Vec::new(),
+                        depth_m: Vec::new(),
+                        mask: Vec::new(),
+                        state: [0.0; 7],
+                        action: [0.0; 7],
+                        environment_state: [0.0; 28],
+                        extras: StepExtras::default(),
+                        other: vec![
+                            FeatureValue::Float32(
+                                (0..14)
+                                    .map(|_| (rng.next_u64() % 1000) as f32 / 7.0)
+                                    .collect(),
+                            ),
+                            FeatureValue::Int64(vec![(rng.next_u64() % 5) as i64]),
+                            FeatureValue::Image(
+                                encode_png(10, 8, 3, &pixels, PngLevel::Best).expect("png"),
+                            ),
+                        ],
+                    }
+                })
+                .collect(),
+        })
+        .collect();
+    (dataset, episodes)
+}

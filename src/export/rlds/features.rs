@@ -3,7 +3,7 @@
 //! the train split's `shardLengths`, which readers check exactly). Both derive from the
 //! [`DatasetInfo`] and the [`RldsOptions`]; nothing here knows how the episodes were made.
 
-use crate::episode::FeatureKind;
+use crate::episode::{Dtype, FeatureKind};
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::RldsOptions;
 use serde_json::{Value, json};
@@ -227,6 +227,93 @@ pub fn dataset_info_json(
             "filepathTemplate": FILEPATH_TEMPLATE,
         }],
     })
+}
+
+fn int_tensor(length: usize, description: &str) -> Value {
+    json!({
+        "pythonClassName": TENSOR,
+        "tensor": {"dtype": "int64", "encoding": "none", "shape": {"dimensions": [length.to_string()]}},
+        "description": description,
+    })
+}
+
+/// Nests `leaf` at `path` in a tree of plain maps.
+fn insert_at(tree: &mut serde_json::Map<String, Value>, path: &[String], leaf: Value) {
+    match path {
+        [] => {}
+        [last] => {
+            tree.insert(last.clone(), leaf);
+        }
+        [first, rest @ ..] => {
+            let child = tree
+                .entry(first.clone())
+                .or_insert_with(|| Value::Object(serde_json::Map::new()));
+            if let Value::Object(child) = child {
+                insert_at(child, rest, leaf);
+            }
+        }
+    }
+}
+
+/// A tree of plain maps as nested FeaturesDicts (leaves have a pythonClassName already).
+fn as_features_dicts(tree: serde_json::Map<String, Value>) -> serde_json::Map<String, Value> {
+    tree.into_iter()
+        .map(|(key, value)| match value {
+            Value::Object(map) if !map.contains_key("pythonClassName") => {
+                (key, features_dict(as_features_dicts(map), ""))
+            }
+            leaf => (key, leaf),
+        })
+        .collect()
+}
+
+/// `features.json` of a dataset another tool made (its features all
+/// [`FeatureKind::Other`]): each feature at its [`rlds_path`], the language instruction and
+/// the RLDS flags; `episode_metadata/file_path`.
+pub fn foreign_features_json(info: &DatasetInfo) -> Value {
+    let mut step = serde_json::Map::new();
+    for feature in &info.features {
+        let elements: usize = feature.shape.iter().product();
+        let leaf = match feature.dtype {
+            Dtype::Image => {
+                let mut shape = [0usize; 3];
+                for (s, v) in shape.iter_mut().zip(&feature.shape) {
+                    *s = *v;
+                }
+                image(shape, "uint8", &format!("{} (as stored).", feature.name))
+            }
+            Dtype::Float32 => tensor(elements, &feature.name),
+            Dtype::Int64 => int_tensor(elements, &feature.name),
+        };
+        insert_at(
+            &mut step,
+            &crate::export::rlds::rlds_path(&feature.name),
+            leaf,
+        );
+    }
+    step.insert("language_instruction".into(), text("The episode's task."));
+    for flag in ["is_first", "is_last", "is_terminal"] {
+        step.insert(flag.into(), scalar("bool", flag));
+    }
+    let mut metadata = serde_json::Map::new();
+    metadata.insert(
+        "file_path".into(),
+        text("episode-N, N the episode's index."),
+    );
+    let mut top = serde_json::Map::new();
+    top.insert(
+        "steps".into(),
+        json!({
+            "pythonClassName": DATASET,
+            "sequence": {"feature": features_dict(as_features_dicts(step), "One step."), "length": "-1"},
+            "description": "The episode's steps.",
+        }),
+    );
+    top.insert(
+        "episode_metadata".into(),
+        features_dict(metadata, "Where the episode came from."),
+    );
+    features_dict(top, "")
 }
 
 #[cfg(test)]

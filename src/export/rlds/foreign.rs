@@ -27,9 +27,10 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
 }
 
 /// Keys that are structure, not features.
-const STRUCTURE: [&str; 3] = [
+const STRUCTURE: [&str; 4] = [
     "steps/is_first",
     "steps/is_last",
+    "steps/is_terminal",
     "steps/language_instruction",
 ];
 

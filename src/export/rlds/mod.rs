@@ -29,7 +29,7 @@ pub mod tfrecord;
 
 pub use openvla::openvla_md;
 
-use crate::episode::Episode;
+use crate::episode::{Episode, FeatureKind};
 use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
 use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
@@ -37,7 +37,7 @@ use crate::export::{
     EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch, finish_once, seal,
 };
 use rayon::prelude::*;
-use record::{StepLayout, encode_episode};
+use record::{StepLayout, encode_episode, encode_foreign_episode};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::io::{BufWriter, Write};
@@ -49,6 +49,16 @@ pub const MANIFEST: &str = "surgvla_manifest.json";
 pub const OPENVLA_GUIDE: &str = "OPENVLA.md";
 /// surgvla's own metadata inside the version folder.
 pub const SURGVLA_JSON: &str = "surgvla.json";
+
+/// Where another tool's feature goes in an RLDS step: `observation.images.X` ->
+/// `observation/X`, otherwise its dotted name as a path (`observation.state` ->
+/// `observation/state`, `action` -> `action`); [`foreign`] reads the names back.
+pub fn rlds_path(name: &str) -> Vec<String> {
+    match name.strip_prefix("observation.images.") {
+        Some(camera) => vec!["observation".into(), camera.replace('.', "_")],
+        None => name.split('.').map(String::from).collect(),
+    }
+}
 
 /// The observation keys of a step (`steps/observation/<key>`).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -253,7 +263,13 @@ impl RldsWriter {
             .features
             .iter()
             .all(|f| f.dtype != crate::episode::Dtype::Image || f.shape.len() == 3);
-        if info.rgb_key().is_none() || !shapes_fit {
+        let others = info.features.iter().any(|f| f.kind == FeatureKind::Other);
+        if info.is_ours() && others {
+            return Err(ExportError::InvalidOptions(
+                "RLDS holds either surgvla's features or another tool's, not both".into(),
+            ));
+        }
+        if info.is_ours() && info.rgb_key().is_none() || !shapes_fit {
             return Err(ExportError::InvalidOptions(
                 "RLDS needs an RGB camera feature and images of height x width x channels".into(),
             ));
@@ -365,7 +381,12 @@ impl RldsWriter {
         self.dir.rename_files(&renames, &self.state)?;
         let mut summary = self.state.summary.clone();
         let version_dir = self.options.version_dir();
-        let features = features::features_json(&self.info, &self.options);
+        let ours = self.info.is_ours();
+        let features = if ours {
+            features::features_json(&self.info, &self.options)
+        } else {
+            features::foreign_features_json(&self.info)
+        };
         let dataset_info = features::dataset_info_json(
             &self.info,
             &self.options,
@@ -376,17 +397,24 @@ impl RldsWriter {
         surgvla["fps"] = json!(self.info.fps);
         surgvla["robot_type"] = json!(self.info.robot_type);
         surgvla["rlds"] = json!({"keys": self.options.keys, "depth_unit": "mm"});
+        // A dataset another tool made gets no surgvla metadata (readers then take its
+        // features from features.json) and no OpenVLA guide (its keys are not ours).
         for (file, value) in [
             ("features.json", features),
             (SURGVLA_JSON, surgvla),
             ("dataset_info.json", dataset_info),
         ] {
+            if file == SURGVLA_JSON && !ours {
+                continue;
+            }
             let relative = format!("{version_dir}/{file}");
             let bytes = self.json_bytes(&relative, &value)?;
             self.write_file(&mut summary, &relative, &bytes)?;
         }
-        let guide = openvla_md(&self.info, &self.options);
-        self.write_file(&mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
+        if ours {
+            let guide = openvla_md(&self.info, &self.options);
+            self.write_file(&mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
+        }
         seal(&mut self.dir, MANIFEST, summary, sidecar)
     }
 }
@@ -404,7 +432,13 @@ impl EpisodeSink for RldsWriter {
         let (layout, png) = (&self.layout, self.options.png);
         let examples: Vec<Vec<u8>> = episodes
             .par_iter()
-            .map(|episode| encode_episode(layout, episode, png))
+            .map(|episode| {
+                if self.info.is_ours() {
+                    encode_episode(layout, episode, png)
+                } else {
+                    encode_foreign_episode(&self.info, episode)
+                }
+            })
             .collect::<Result<_, _>>()?;
         let written = std::time::Instant::now();
         self.timing.encode_secs += (written - started).as_secs_f64();

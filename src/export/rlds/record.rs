@@ -3,7 +3,9 @@
 //! provenance goes under `episode_metadata/...`. Images are PNG: RGB 3-channel uint8, depth
 //! 1-channel uint16 in millimetres, mask 1-channel uint8.
 
-use crate::episode::{Episode, EpisodeMeta, FeatureKind, MAX_OBJECTS, POSE_VALUES, Step};
+use crate::episode::{
+    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureValue, MAX_OBJECTS, POSE_VALUES, Step,
+};
 use crate::export::ExportError;
 use crate::export::image::{PngLevel, decode_png, decode_png16, encode_png, encode_png16};
 use crate::export::info::DatasetInfo;
@@ -72,6 +74,81 @@ struct StepImages {
 
 fn text(value: &str) -> Feature {
     Feature::Bytes(vec![value.as_bytes().to_vec()])
+}
+
+/// The serialized Example of an episode of a dataset another tool made (features all
+/// [`FeatureKind::Other`](crate::episode::FeatureKind::Other)): each feature under
+/// `steps/<its rlds_path>` as stored (images byte for byte), the instruction on every step,
+/// `is_first` / `is_last` / `is_terminal` (the last step), `episode_metadata/file_path`.
+pub fn encode_foreign_episode(
+    info: &DatasetInfo,
+    episode: &Episode,
+) -> Result<Vec<u8>, ExportError> {
+    let steps = &episode.steps;
+    let last = steps.len().saturating_sub(1);
+    let mut features = BTreeMap::new();
+    for (position, feature) in info.features.iter().enumerate() {
+        let key = format!(
+            "steps/{}",
+            crate::export::rlds::rlds_path(&feature.name).join("/")
+        );
+        let wrong = || {
+            ExportError::InvalidEpisode(format!(
+                "episode {}: {} does not hold {:?} values",
+                episode.meta.index, feature.name, feature.dtype
+            ))
+        };
+        let value = match feature.dtype {
+            Dtype::Image => Feature::Bytes(
+                steps
+                    .iter()
+                    .map(|s| match s.other.get(position) {
+                        Some(FeatureValue::Image(bytes)) => Ok(bytes.clone()),
+                        _ => Err(wrong()),
+                    })
+                    .collect::<Result<_, _>>()?,
+            ),
+            Dtype::Float32 => {
+                let mut flat = Vec::new();
+                for step in steps {
+                    match step.other.get(position) {
+                        Some(FeatureValue::Float32(v)) => flat.extend_from_slice(v),
+                        _ => return Err(wrong()),
+                    }
+                }
+                Feature::Float(flat)
+            }
+            Dtype::Int64 => {
+                let mut flat = Vec::new();
+                for step in steps {
+                    match step.other.get(position) {
+                        Some(FeatureValue::Int64(v)) => flat.extend_from_slice(v),
+                        _ => return Err(wrong()),
+                    }
+                }
+                Feature::Int64(flat)
+            }
+        };
+        features.insert(key, value);
+    }
+    features.insert(
+        "steps/language_instruction".into(),
+        Feature::Bytes(vec![
+            episode.meta.instruction.as_bytes().to_vec();
+            steps.len()
+        ]),
+    );
+    let flags = |on: &dyn Fn(usize) -> bool| {
+        Feature::Int64((0..steps.len()).map(|i| i64::from(on(i))).collect())
+    };
+    features.insert("steps/is_first".into(), flags(&|i| i == 0));
+    features.insert("steps/is_last".into(), flags(&|i| i == last));
+    features.insert("steps/is_terminal".into(), flags(&|i| i == last));
+    features.insert(
+        "episode_metadata/file_path".into(),
+        text(&format!("episode-{}", episode.meta.index)),
+    );
+    Ok(encode_example(&features))
 }
 
 /// The serialized Example of `episode` (its images encoded in parallel).

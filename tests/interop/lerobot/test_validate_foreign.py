@@ -206,7 +206,15 @@ def test_lerobot_written_dataset_converts_through_v21_unchanged(images, tmp_path
     assert [x["bytes"] for x in before] == [x["bytes"] for x in after]
 
 
-def test_formats_without_room_for_other_features_refuse_them(images, tmp_path):
-    done = subprocess.run([BIN, "convert", str(images), "--to", "rlds", "--out", str(tmp_path / "rlds")], capture_output=True, text=True)
-    assert done.returncode == 2, done.stderr
-    assert "observation.effort" in done.stderr
+def test_other_features_go_to_rlds_and_formats_without_room_refuse_them(images, tmp_path):
+    done = subprocess.run(
+        [BIN, "convert", str(images), "--to", "rlds", "--out", str(tmp_path / "rlds"), "--verify"],
+        capture_output=True, text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    code, report, err = validate(tmp_path / "rlds")
+    assert code == 0, (report, err)
+    for to in ["zarr", "mcap"]:
+        done = subprocess.run([BIN, "convert", str(images), "--to", to, "--out", str(tmp_path / to)], capture_output=True, text=True)
+        assert done.returncode == 2, done.stderr
+        assert "observation.effort" in done.stderr

@@ -180,3 +180,30 @@ def test_tfds_written_dataset_converts_to_lerobot(written, tmp_path):
             assert np.array_equal(pixels, step["observation"]["image"].numpy())
             row += 1
     assert row == len(table["index"]) == 18
+
+
+def test_tfds_written_dataset_round_trips_through_lerobot_back_to_rlds(written, tmp_path):
+    """RLDS (tfds) -> LeRobot -> RLDS by surgvla: tensorflow_datasets loads the result, with the
+    same steps as the dataset it wrote."""
+    lerobot, rlds = tmp_path / "lerobot", tmp_path / "rlds"
+    for source, to, target in [(written, "lerobot", lerobot), (lerobot, "rlds", rlds)]:
+        done = subprocess.run(
+            [BIN, "convert", str(source), "--to", to, "--fps", "10", "--out", str(target), "--verify"],
+            capture_output=True, text=True,
+        )
+        assert done.returncode == 0, done.stderr
+    code, report, err = validate(rlds)
+    assert code == 0, (report, err)
+    config = tfds.ReadConfig(interleave_cycle_length=1)
+    original = tfds.builder_from_directory(str(written)).as_dataset(split="train", shuffle_files=False, read_config=config)
+    again = tfds.builder_from_directory(str(next(rlds.glob("*/*")))).as_dataset(split="train", shuffle_files=False, read_config=config)
+    count = 0
+    for a, b in zip(original, again):
+        for x, y in zip(a["steps"], b["steps"]):
+            assert np.array_equal(x["observation"]["image"].numpy(), y["observation"]["image"].numpy())
+            assert np.array_equal(x["observation"]["state"].numpy(), y["observation"]["state"].numpy())
+            assert np.array_equal(x["action"].numpy(), y["action"].numpy())
+            assert bool(x["is_first"].numpy()) == bool(y["is_first"].numpy())
+            assert x["language_instruction"].numpy() == y["language_instruction"].numpy()
+            count += 1
+    assert count == 18
