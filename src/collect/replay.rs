@@ -5,6 +5,7 @@
 //! object poses exactly, images pixel for pixel, depth to the format's precision).
 
 use crate::episode::{Episode, GripperEncoding};
+use crate::export::convert::DEPTH_TOLERANCE_M;
 use crate::export::validate::Finding;
 use crate::export::{ExportError, open_source};
 use crate::task::{InstructionChoice, TaskConfig, TaskId};
@@ -58,9 +59,6 @@ fn record_options(collection: &Value) -> RecordOptions {
         ..RecordOptions::default()
     }
 }
-
-/// Depth may differ by this much (RLDS stores millimetres).
-const DEPTH_TOLERANCE_M: f32 = 0.000_51;
 
 /// What is wrong with one recorded episode's replay, if anything: (frame, check, message).
 fn replay_episode(

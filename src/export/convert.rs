@@ -137,8 +137,9 @@ impl EpisodeSource for Without {
     }
 }
 
-/// Depth may differ by this much between a source and a target that stores millimetres (RLDS).
-const DEPTH_TOLERANCE_M: f32 = 0.000_51;
+/// Depth may differ by this much between a source and a target that stores millimetres (RLDS):
+/// half a millimetre of rounding, plus float slack.
+pub const DEPTH_TOLERANCE_M: f32 = 0.000_51;
 
 /// What `convert --verify` found: episodes and frames compared, and the first differences.
 #[derive(Clone, Debug, Default, PartialEq)]

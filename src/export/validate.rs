@@ -11,7 +11,7 @@
 //! [`check_semantics`].
 
 use crate::episode::{Aabb, Episode, GripperEncoding};
-use crate::export::{ExportError, MANIFEST, read_json};
+use crate::export::{ExportError, read_json};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -465,9 +465,6 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
     }
 }
 
-/// The manifest's name in a LeRobot dataset.
-pub const LEROBOT_MANIFEST: &str = MANIFEST;
-
 /// What our own datasets promise beyond their format, from their surgvla metadata.
 #[derive(Clone, Debug, Default)]
 pub struct Semantics {
@@ -506,42 +503,12 @@ impl Semantics {
 /// Slack on the workspace box: states are measured, the box bounds commands.
 const WORKSPACE_SLACK_M: f64 = 0.002;
 
-/// The checks every episode of every format gets once decoded: steps present, no NaN or Inf in
-/// state, action or object poses, a non-empty instruction; for our datasets ([`Semantics`]) the
-/// gripper encoding, states inside the workspace, the task's step limit and provenance.
-pub fn check_semantics(
-    episode: &Episode,
-    semantics: Option<&Semantics>,
-    at: &At,
-    findings: &Findings,
-) {
+/// What our own datasets promise beyond their format, per decoded episode: the gripper
+/// encoding, states inside the workspace, the task's step limit and provenance. (Steps present,
+/// finite numbers and a non-empty instruction are each format's own content checks.)
+pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findings: &Findings) {
     let index = episode.meta.index;
     let here = || at.clone().episode(index);
-    if episode.steps.is_empty() {
-        findings.error(here(), "steps", "the episode has no steps");
-    }
-    if episode.meta.instruction.trim().is_empty() {
-        findings.error(here(), "instruction", "the language instruction is empty");
-    }
-    for (frame, step) in episode.steps.iter().enumerate() {
-        let vectors: [(&str, &[f32]); 3] = [
-            ("state", &step.state),
-            ("action", &step.action),
-            ("environment_state", &step.environment_state),
-        ];
-        for (name, values) in vectors {
-            if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
-                findings.error(
-                    here().frame(frame as u64),
-                    "finite",
-                    format!("{name} holds {bad}"),
-                );
-            }
-        }
-    }
-    let Some(semantics) = semantics else {
-        return;
-    };
     if let Some(encoding) = semantics.gripper {
         let allowed: &[f32] = match encoding {
             GripperEncoding::Continuous => &[0.0, 1.0],

@@ -99,9 +99,7 @@ pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
 /// A dataset another tool made: a 14-D float vector, a one-value int64 and a camera's PNG,
 /// all `FeatureKind::Other`, no generator; three episodes of seeded values.
 pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode::Episode>) {
-    use surgvla::episode::{
-        Dtype, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step, StepExtras,
-    };
+    use surgvla::episode::{Dtype, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
     use surgvla::export::image::{PngLevel, encode_png};
     let spec = |name: &str, dtype, shape: Vec<usize>| FeatureSpec {
         name: name.into(),
@@ -135,13 +133,6 @@ pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode:
                 .map(|_| {
                     let pixels: Vec<u8> = (0..8 * 10 * 3).map(|_| rng.next_u64() as u8).collect();
                     Step {
-                        rgb: Vec::new(),
-                        depth_m: Vec::new(),
-                        mask: Vec::new(),
-                        state: [0.0; 7],
-                        action: [0.0; 7],
-                        environment_state: [0.0; 28],
-                        extras: StepExtras::default(),
                         other: vec![
                             FeatureValue::Float32(
                                 (0..14)
@@ -153,6 +144,7 @@ pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode:
                                 encode_png(10, 8, 3, &pixels, PngLevel::Best).expect("png"),
                             ),
                         ],
+                        ..Step::empty()
                     }
                 })
                 .collect(),

@@ -688,12 +688,18 @@ fn random_corruption_never_panics_a_reader() {
         for _ in 0..12 {
             let copy = temp_root("validate-fuzz");
             copy_tree(good, &copy);
+            // Whether a file the manifest lists was changed or removed: the copy keeps its
+            // manifest, so validation must then find a defect.
+            let mut harmed = false;
             for _ in 0..3 {
                 let name = &files[(rng.next_u64() % files.len() as u64) as usize];
+                let listed =
+                    !name.ends_with("surgvla_manifest.json") && name != "collect_report.json";
                 let file = copy.join(name);
-                let Ok(mut bytes) = std::fs::read(&file) else {
+                let Ok(original) = std::fs::read(&file) else {
                     continue;
                 };
+                let mut bytes = original.clone();
                 match rng.next_u64() % 3 {
                     0 if !bytes.is_empty() => {
                         for _ in 0..8 {
@@ -704,14 +710,19 @@ fn random_corruption_never_panics_a_reader() {
                     1 => bytes.truncate((rng.next_u64() % (bytes.len() as u64 + 1)) as usize),
                     _ => {
                         std::fs::remove_file(&file).ok();
+                        harmed |= listed;
                         continue;
                     }
                 }
+                harmed |= listed && bytes != original;
                 std::fs::write(&file, bytes).expect("write");
             }
-            let result = validate(&copy, &ValidateOptions::default());
-            if let Ok(report) = result {
-                assert!(report.valid || !report.errors.is_empty());
+            if let Ok(report) = validate(&copy, &ValidateOptions::default()) {
+                assert!(
+                    !harmed || !report.valid,
+                    "{}: a harmed dataset validated",
+                    copy.display()
+                );
             }
             // The readers `convert` uses: every episode, or an error, never a panic. Without
             // surgvla.json an RLDS dataset is read as another tool's (ForeignRldsSource).

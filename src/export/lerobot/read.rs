@@ -65,11 +65,16 @@ pub fn schema_metadata(path: &Path, key: &str) -> Result<Option<String>, ExportE
 
 /// The data files in path order.
 pub fn data_files(root: &Path) -> Result<Vec<PathBuf>, ExportError> {
-    let data = root.join("data");
+    parquet_files(&root.join("data"))
+}
+
+/// The parquet files in the chunk folders of `data` (`data/chunk-*/`, `meta/episodes/chunk-*/`)
+/// in path order, temporary (hidden) files left out.
+pub fn parquet_files(data: &Path) -> Result<Vec<PathBuf>, ExportError> {
     let mut files = Vec::new();
-    let chunks = std::fs::read_dir(&data).map_err(ExportError::io(&data))?;
+    let chunks = std::fs::read_dir(data).map_err(ExportError::io(data))?;
     for chunk in chunks {
-        let chunk = chunk.map_err(ExportError::io(&data))?.path();
+        let chunk = chunk.map_err(ExportError::io(data))?.path();
         for file in std::fs::read_dir(&chunk).map_err(ExportError::io(&chunk))? {
             let file = file.map_err(ExportError::io(&chunk))?.path();
             if file.extension().is_some_and(|e| e == "parquet")

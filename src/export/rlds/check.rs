@@ -248,12 +248,14 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             return (records, steps);
         }
     };
-    let semantics = Semantics::of(&surgvla, options);
+    let Some(semantics) = Semantics::of(&surgvla, options) else {
+        return (records, steps);
+    };
     let mut episode_index = 0u64;
     while let Some(episode) = source.next_episode() {
         match episode {
             Ok(episode) => {
-                check_semantics(&episode, semantics.as_ref(), &At::default(), findings);
+                check_semantics(&episode, &semantics, &At::default(), findings);
                 findings.learn(|facts| {
                     *facts
                         .tasks

@@ -165,20 +165,7 @@ pub(super) fn read_episodes(
         return entries;
     }
     let folder = root.join("meta/episodes");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&folder)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .flat_map(|chunk| {
-            std::fs::read_dir(chunk.path())
-                .into_iter()
-                .flatten()
-                .flatten()
-        })
-        .map(|f| f.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "parquet"))
-        .collect();
-    files.sort();
+    let files = crate::export::lerobot::read::parquet_files(&folder).unwrap_or_default();
     if files.is_empty() {
         findings.error(
             At::file("meta/episodes"),

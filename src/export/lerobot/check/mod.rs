@@ -336,7 +336,7 @@ fn stitch(
     let full = quick_rows.is_none();
     let findings = context.findings;
     // Whole episodes: (episode, first_index, last_index, rows, file).
-    let mut episodes: Vec<(i64, i64, i64, u64, usize, i64)> = Vec::new();
+    let mut episodes: Vec<(i64, i64, i64, u64, usize)> = Vec::new();
     let mut frames = 0u64;
     for (&(file, _), part) in groups.iter().zip(parts) {
         frames += part.rows;
@@ -387,14 +387,7 @@ fn stitch(
                             format!("the episode starts at frame_index {}", run.first_frame),
                         );
                     }
-                    episodes.push((
-                        run.episode,
-                        run.first_index,
-                        run.last_index,
-                        run.rows,
-                        file,
-                        run.first_index,
-                    ));
+                    episodes.push((run.episode, run.first_index, run.last_index, run.rows, file));
                 }
             }
         }
@@ -415,7 +408,7 @@ fn stitch(
             ),
         );
     }
-    for &(episode, first, last, rows, file, _) in &episodes {
+    for &(episode, first, last, rows, file) in &episodes {
         let Some(entry) = entries.get(episode.max(0) as usize) else {
             continue;
         };

@@ -56,7 +56,8 @@ impl Context<'_> {
             }
         };
         let mut schema_checked = false;
-        let mut semantic_rows: Vec<(i64, i64, Step)> = Vec::new();
+        // Our datasets' episodes, as far as the semantic checks need them (full pass only).
+        let mut semantic_rows: Vec<(i64, Step)> = Vec::new();
         for batch in reader {
             let batch = match batch {
                 Ok(batch) => batch,
@@ -77,8 +78,8 @@ impl Context<'_> {
             }
             self.check_batch(&batch, &file, &mut part, &mut semantic_rows);
         }
-        if self.semantics.is_some() || !semantic_rows.is_empty() {
-            self.check_episodes_semantics(&file, semantic_rows);
+        if let Some(semantics) = self.semantics.filter(|_| !self.quick) {
+            self.check_episodes_semantics(&file, semantics, semantic_rows);
         }
         part
     }
@@ -126,7 +127,7 @@ impl Context<'_> {
         batch: &RecordBatch,
         file: &str,
         part: &mut Part,
-        semantic_rows: &mut Vec<(i64, i64, Step)>,
+        semantic_rows: &mut Vec<(i64, Step)>,
     ) {
         let findings = self.findings;
         let ints = |name: &str| -> Option<Vec<i64>> {
@@ -221,7 +222,12 @@ impl Context<'_> {
             }
         }
         part.rows += batch.num_rows() as u64;
-        let mut steps: Vec<Step> = (0..batch.num_rows()).map(|_| Step::empty()).collect();
+        let judged = self.semantics.is_some() && !self.quick;
+        let mut steps: Vec<Step> = if judged {
+            (0..batch.num_rows()).map(|_| Step::empty()).collect()
+        } else {
+            Vec::new()
+        };
         for feature in self.features.iter().filter(|f| !is_index_column(&f.name)) {
             let Some(column) = batch.column_by_name(&feature.name) else {
                 continue;
@@ -247,11 +253,14 @@ impl Context<'_> {
                         for (m, &v) in moments.iter_mut().zip(chunk) {
                             *m = (m.0.min(v), m.1.max(v), m.2 + v, m.3 + 1);
                         }
+                        let Some(step) = steps.get_mut(row) else {
+                            continue;
+                        };
                         let target: Option<&mut [f32]> = match feature.name.as_str() {
-                            "observation.state" if n == 7 => Some(&mut steps[row].state),
-                            "action" if n == 7 => Some(&mut steps[row].action),
+                            "observation.state" if n == 7 => Some(&mut step.state),
+                            "action" if n == 7 => Some(&mut step.action),
                             "observation.environment_state" if n == MAX_OBJECTS * POSE_VALUES => {
-                                Some(&mut steps[row].environment_state)
+                                Some(&mut step.environment_state)
                             }
                             _ => None,
                         };
@@ -266,14 +275,7 @@ impl Context<'_> {
                 _ => {}
             }
         }
-        if self.semantics.is_some() {
-            semantic_rows.extend(
-                steps
-                    .into_iter()
-                    .enumerate()
-                    .map(|(row, step)| (episode[row], frame[row], step)),
-            );
-        }
+        semantic_rows.extend(episode.iter().copied().zip(steps));
     }
 
     fn check_images(
@@ -368,14 +370,14 @@ impl Context<'_> {
     }
 
     /// Groups rows into episodes and runs the shared semantic checks.
-    fn check_episodes_semantics(&self, file: &str, rows: Vec<(i64, i64, Step)>) {
-        let mut start = 0;
-        while start < rows.len() {
-            let episode = rows[start].0;
-            let end = rows[start..]
-                .iter()
-                .position(|r| r.0 != episode)
-                .map_or(rows.len(), |p| start + p);
+    /// Groups one row group's rows into episodes and runs our datasets' semantic checks.
+    fn check_episodes_semantics(&self, file: &str, semantics: &Semantics, rows: Vec<(i64, Step)>) {
+        let mut rows = rows.into_iter().peekable();
+        while let Some((episode, first)) = rows.next() {
+            let mut steps = vec![first];
+            while let Some((_, step)) = rows.next_if(|(e, _)| *e == episode) {
+                steps.push(step);
+            }
             let entry = self.entries.get(episode.max(0) as usize);
             let provenance = |key: &str| {
                 entry
@@ -383,10 +385,6 @@ impl Context<'_> {
                     .cloned()
                     .unwrap_or(Value::Null)
             };
-            let instruction = entry
-                .and_then(|e| e.tasks.first().cloned())
-                .or_else(|| self.task_names.first().cloned())
-                .unwrap_or_default();
             let meta = EpisodeMeta {
                 index: episode.max(0) as u64,
                 task_code: provenance("surgvla/task_id")
@@ -395,27 +393,23 @@ impl Context<'_> {
                     .into(),
                 task_name: String::new(),
                 level: provenance("surgvla/level").as_u64().unwrap_or(0) as u8,
-                instruction,
+                instruction: String::new(),
                 seed: provenance("surgvla/seed").as_i64().unwrap_or(0) as u64,
                 attempts: provenance("surgvla/attempts").as_u64().unwrap_or(0) as u32,
                 success: provenance("surgvla/success").as_bool().unwrap_or(false),
             };
-            let steps: Vec<Step> = rows[start..end].iter().map(|r| r.2.clone()).collect();
-            let full_episode = entry.and_then(|e| e.length) == Some(steps.len() as i64);
-            let episode = Episode { meta, steps };
-            let semantics = self.semantics.map(|s| Semantics {
-                // A part of an episode cannot be judged against its step limit.
-                step_limits: if full_episode || self.quick {
-                    s.step_limits.clone()
+            // A part of an episode cannot be judged against its step limit.
+            let whole = entry.and_then(|e| e.length) == Some(steps.len() as i64);
+            let semantics = Semantics {
+                step_limits: if whole {
+                    semantics.step_limits.clone()
                 } else {
                     BTreeMap::new()
                 },
-                ..s.clone()
-            });
-            if !self.quick {
-                check_semantics(&episode, semantics.as_ref(), &At::file(file), self.findings);
-            }
-            start = end;
+                ..semantics.clone()
+            };
+            let episode = Episode { meta, steps };
+            check_semantics(&episode, &semantics, &At::file(file), self.findings);
         }
     }
 }
