@@ -236,6 +236,18 @@ impl Env {
     /// Applies a physical action and observes the result.
     pub fn step(&mut self, action: &PhysicalAction) -> EnvStep {
         let report = self.apply(action);
+        self.observe_step(report)
+    }
+
+    /// Applies a native command (a scripted expert's, a random baseline's) and observes the
+    /// result.
+    pub fn step_native(&mut self, command: &NativeCommand) -> EnvStep {
+        let report = self.apply_native(command);
+        self.observe_step(report)
+    }
+
+    /// The observation, events and verdict after a step that made `report`.
+    fn observe_step(&mut self, report: StepReport) -> EnvStep {
         let mut observation = self.observe();
         (observation.extras.grasped, observation.extras.released) = self.events(&report);
         let verdict = self.verdict();

@@ -16,6 +16,7 @@ pub mod collect;
 pub mod env;
 pub mod episode;
 pub mod error;
+pub mod eval;
 pub mod export;
 pub mod noise;
 pub mod policy;

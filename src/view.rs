@@ -215,3 +215,32 @@ pub fn scene_meshes(assets: &SceneAssets, sim: &Simulator) -> Vec<crate::episode
         })
         .collect()
 }
+
+/// What a dataset (or an evaluation's recording) of this simulator states once: the camera,
+/// the features (`features` picks depth, mask and object poses), the control rate, the robot,
+/// the mask ids and the tool tip's workspace; `collection` says how the episodes were made.
+pub fn dataset_info(
+    camera: &Camera,
+    features: crate::episode::FeatureSet,
+    collection: serde_json::Value,
+) -> crate::export::DatasetInfo {
+    let camera = camera_info(camera);
+    let workspace = crate::sim::control::Workspace::reference();
+    crate::export::DatasetInfo {
+        fps: crate::sim::Timing::default().control_hz,
+        robot_type: "dvrk_psm".into(),
+        features: crate::episode::standard_features(
+            camera.height_px as usize,
+            camera.width_px as usize,
+            features,
+        ),
+        camera,
+        mask_ids: mask_ids(),
+        collection,
+        generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+        tip_workspace: Some(crate::episode::Aabb {
+            min_m: workspace.min_m,
+            max_m: workspace.max_m,
+        }),
+    }
+}

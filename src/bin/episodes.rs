@@ -14,9 +14,9 @@ use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
 
 /// `--tasks`: "all" or a comma-separated list of names or ids.
 #[derive(Clone, Debug)]
-pub struct TaskList(Vec<TaskId>);
+pub struct TaskList(pub Vec<TaskId>);
 
-fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
+pub fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
     if text.trim() == "all" {
         return Ok(TaskList(TaskId::ALL.to_vec()));
     }
@@ -35,6 +35,17 @@ pub enum Instructions {
     Paraphrase,
     /// A seeded mix of the canonical instruction and the paraphrases.
     Mixed,
+}
+
+impl Instructions {
+    /// The library's choice.
+    pub fn choice(self) -> InstructionChoice {
+        match self {
+            Instructions::Canonical => InstructionChoice::Canonical,
+            Instructions::Paraphrase => InstructionChoice::Paraphrase,
+            Instructions::Mixed => InstructionChoice::Mixed,
+        }
+    }
 }
 
 /// A feature of the default dataset to leave out.
@@ -110,11 +121,7 @@ impl JobArgs {
         };
         let task = TaskConfig {
             distractors: self.distractors as usize,
-            instruction: match self.instructions {
-                Instructions::Canonical => InstructionChoice::Canonical,
-                Instructions::Paraphrase => InstructionChoice::Paraphrase,
-                Instructions::Mixed => InstructionChoice::Mixed,
-            },
+            instruction: self.instructions.choice(),
             spawn_scale: self.spawn_scale,
             ..TaskConfig::default()
         };

@@ -92,6 +92,15 @@ impl From<surgvla::collect::run::CollectError> for CliError {
     }
 }
 
+impl From<surgvla::eval::EvalError> for CliError {
+    fn from(error: surgvla::eval::EvalError) -> Self {
+        let full = error.is_disk_full();
+        let mut cli = CliError::new(error.kind(), error);
+        cli.hint = full.then_some(DISK_FULL);
+        cli
+    }
+}
+
 impl From<surgvla::collect::replay::ReplayError> for CliError {
     fn from(error: surgvla::collect::replay::ReplayError) -> Self {
         CliError::new(error.kind(), error)

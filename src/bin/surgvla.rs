@@ -13,6 +13,7 @@ macro_rules! say {
 
 mod episodes;
 mod error;
+mod eval;
 mod formats;
 mod inspect;
 mod progress;
@@ -65,6 +66,10 @@ enum Command {
     /// Merge LeRobot datasets (the outputs of `collect --shard I/N`, or any compatible ones)
     /// into one: episodes re-indexed, statistics recomputed, files rolled by size.
     Merge(formats::MergeArgs),
+    /// Score a policy in closed loop on the tasks: a VLA behind openpi's policy-server protocol
+    /// (`--policy ws://HOST:PORT`) or a built-in reference (expert, replay, random, noop);
+    /// writes results.json, results.csv and results.md with Wilson 95 % intervals.
+    Eval(eval::EvalArgs),
     /// Check a dataset (LeRobot v3.0/v2.1, RLDS, DP3 zarr, MCAP; ours or not) frame by frame
     /// and name every defect: exit 0 valid, 1 invalid, 2 nothing recognisable at the path.
     Validate(inspect::ValidateArgs),
@@ -392,6 +397,7 @@ fn main() -> ExitCode {
         Command::Record(args) => run_record(&args),
         Command::Experts(args) => episodes::run_experts(&args),
         Command::Merge(args) => formats::run_merge(&args),
+        Command::Eval(args) => eval::run_eval(&args),
         Command::Validate(args) => inspect::run_validate(&args),
         Command::Info(args) => inspect::run_info(&args),
         Command::Schema { with_mask, format } => run_schema(with_mask, format),

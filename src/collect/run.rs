@@ -262,7 +262,6 @@ pub fn dataset_info(
     library: &ExpertLibrary,
 ) -> DatasetInfo {
     let record = &options.record;
-    let camera = crate::view::camera_info(&record.camera);
     let mut collection = serde_json::json!({
         "seed": options.seed,
         "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
@@ -278,26 +277,7 @@ pub fn dataset_info(
     if library.is_custom() {
         collection["custom_plans"] = serde_json::json!(library.custom_plans());
     }
-    DatasetInfo {
-        fps: crate::sim::Timing::default().control_hz,
-        robot_type: "dvrk_psm".into(),
-        features: crate::episode::standard_features(
-            camera.height_px as usize,
-            camera.width_px as usize,
-            features,
-        ),
-        camera,
-        mask_ids: crate::view::mask_ids(),
-        collection,
-        generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
-        tip_workspace: {
-            let workspace = crate::sim::control::Workspace::reference();
-            Some(crate::episode::Aabb {
-                min_m: workspace.min_m,
-                max_m: workspace.max_m,
-            })
-        },
-    }
+    crate::view::dataset_info(&record.camera, features, collection)
 }
 
 /// The collection's report inside the dataset folder.

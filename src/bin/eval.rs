@@ -1,0 +1,212 @@
+//! `surgvla eval`: closed-loop evaluation of a policy on the tasks (see `surgvla::eval`). Turns
+//! the arguments into `EvalOptions`, draws a progress bar per task and prints the results table.
+
+use crate::episodes::{Instructions, TaskList, parse_tasks};
+use crate::error::CliError;
+use clap::{Args, ValueEnum};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+use std::time::Duration;
+use surgvla::eval::{EvalOptions, PolicyChoice, SendExtras, evaluate};
+use surgvla::task::TaskId;
+
+/// `--policy`: a server address or a built-in policy.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PolicyArg {
+    Remote(String),
+    Builtin(Builtin),
+}
+
+/// The built-in reference policies.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Builtin {
+    /// The task's scripted expert (the upper bound).
+    Expert,
+    /// The actions of the nearest training episode of `--dataset` (same task), open loop.
+    Replay,
+    /// Seeded uniform random commands (a lower bound).
+    Random,
+    /// Zero deltas with the jaws open (a lower bound).
+    Noop,
+}
+
+fn parse_policy(text: &str) -> Result<PolicyArg, String> {
+    if text.starts_with("ws://") || text.starts_with("wss://") {
+        return Ok(PolicyArg::Remote(text.to_string()));
+    }
+    Builtin::from_str(text, true)
+        .map(PolicyArg::Builtin)
+        .map_err(|_| {
+            format!("'{text}' is neither ws://HOST:PORT nor one of expert, replay, random, noop")
+        })
+}
+
+/// What a remote policy may be sent beyond the image, the state and the prompt.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SendFeature {
+    /// `observation/depth`, float32 (224, 224), metres.
+    Depth,
+    /// `observation/environment_state`, float32 (28,): ground-truth object poses (privileged).
+    EnvironmentState,
+}
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// The policy: `ws://HOST:PORT` (a server of openpi's protocol), or expert, replay, random,
+    /// noop.
+    #[arg(long, value_parser = parse_policy)]
+    policy: PolicyArg,
+    /// The dataset whose episodes `--policy replay` plays (any format `convert` reads).
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// Tasks: "all" or a comma-separated list of names or ids.
+    #[arg(long, default_value = "all", value_parser = parse_tasks)]
+    tasks: TaskList,
+    /// Trials per task (the benchmark uses 50).
+    #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    trials: u32,
+    /// Evaluation seed: every trial's scene derives from it, from a stream disjoint from
+    /// collection's.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The prompt per trial: the canonical instruction, a seeded paraphrase, or a seeded mix
+    /// (the prompt-robustness study).
+    #[arg(long, value_enum, default_value = "canonical")]
+    instructions: Instructions,
+    /// Distractors in T2-1 and T2-2.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]
+    distractors: u64,
+    /// Scale every task's spawn ranges by F (default: the reference's evaluation ranges, i.e.
+    /// 3 for the needle of T1-2 and 1 elsewhere).
+    #[arg(long)]
+    spawn_scale: Option<f64>,
+    /// Also send the remote policy these observations (comma-separated).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    send: Vec<SendFeature>,
+    /// Execute the first K actions of each returned chunk before asking again (default: all).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    replan_steps: Option<u64>,
+    /// Seconds to wait for the server to connect and for each reply.
+    #[arg(long, default_value_t = 30.0)]
+    timeout_secs: f64,
+    /// Worker threads for the built-in policies (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Failed trials per task to record as MCAP under OUT/failures/.
+    #[arg(long, default_value_t = 3)]
+    record_failures: usize,
+    /// The results folder (results.json, results.csv, results.md, failures/).
+    #[arg(long, default_value = "eval")]
+    out: PathBuf,
+}
+
+impl EvalArgs {
+    fn choice(&self) -> Result<PolicyChoice, CliError> {
+        Ok(match (&self.policy, &self.dataset) {
+            (PolicyArg::Remote(url), _) => PolicyChoice::Remote { url: url.clone() },
+            (PolicyArg::Builtin(Builtin::Replay), Some(dataset)) => PolicyChoice::Replay {
+                dataset: dataset.clone(),
+            },
+            (PolicyArg::Builtin(Builtin::Replay), None) => {
+                return Err(CliError::usage(
+                    "--policy replay needs --dataset DIR (the training dataset)".to_string(),
+                ));
+            }
+            (PolicyArg::Builtin(Builtin::Expert), _) => PolicyChoice::Expert,
+            (PolicyArg::Builtin(Builtin::Random), _) => PolicyChoice::Random,
+            (PolicyArg::Builtin(Builtin::Noop), _) => PolicyChoice::Noop,
+        })
+    }
+
+    fn options(&self) -> Result<EvalOptions, CliError> {
+        if !(self.timeout_secs.is_finite() && self.timeout_secs > 0.0) {
+            return Err(CliError::usage(format!(
+                "--timeout-secs must be a positive number of seconds, not {}",
+                self.timeout_secs
+            )));
+        }
+        if let Some(scale) = self.spawn_scale
+            && !(scale.is_finite() && scale >= 0.0)
+        {
+            return Err(CliError::usage(format!(
+                "--spawn-scale must be a number >= 0, not {scale}"
+            )));
+        }
+        let threads = self.threads.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
+        });
+        Ok(EvalOptions {
+            tasks: self.tasks.0.clone(),
+            trials: self.trials,
+            seed: self.seed,
+            instruction: self.instructions.choice(),
+            distractors: self.distractors as usize,
+            spawn_scale: self.spawn_scale,
+            send: SendExtras {
+                depth: self.send.contains(&SendFeature::Depth),
+                environment_state: self.send.contains(&SendFeature::EnvironmentState),
+            },
+            replan_steps: self.replan_steps.map(|k| k as usize),
+            timeout: Duration::from_secs_f64(self.timeout_secs),
+            threads: threads.max(1),
+            recordings_per_task: self.record_failures,
+            out: self.out.clone(),
+            ..EvalOptions::default()
+        })
+    }
+}
+
+/// One bar per task (on stderr; hidden when stderr is not a terminal).
+fn bars(tasks: &[TaskId], trials: u32) -> (MultiProgress, Vec<(TaskId, ProgressBar)>) {
+    let multi = MultiProgress::new();
+    let style =
+        ProgressStyle::with_template("{prefix:>30} [{bar:30}] {pos}/{len} trials  {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> ");
+    let bars = tasks
+        .iter()
+        .map(|&task| {
+            let bar = multi.add(ProgressBar::new(u64::from(trials)));
+            bar.set_style(style.clone());
+            bar.set_prefix(format!("{} {}", task.code(), task.name()));
+            (task, bar)
+        })
+        .collect();
+    (multi, bars)
+}
+
+pub fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
+    let choice = args.choice()?;
+    let options = args.options()?;
+    let (multi, bars) = bars(&options.tasks, options.trials);
+    let progress = |task: TaskId, done: u32| {
+        if let Some((_, bar)) = bars.iter().find(|(t, _)| *t == task) {
+            bar.set_position(u64::from(done));
+        }
+    };
+    let report = evaluate(&choice, &options, &progress);
+    for (_, bar) in &bars {
+        bar.finish_and_clear();
+    }
+    let _ = multi.clear();
+    let report = report?;
+    say!("policy: {}", report.policy);
+    say!("{}", report.table().trim_end());
+    say!(
+        "mean success rate {:.1} % over {} tasks ({} of {} trials); results in {}",
+        100.0 * report.overall.mean_success_rate,
+        report.tasks.len(),
+        report.overall.successes,
+        report.overall.trials,
+        options.out.display()
+    );
+    let errors: u32 = report.tasks.iter().map(|t| t.policy_errors).sum();
+    if errors > 0 {
+        let first = report.trials.iter().find(|t| t.policy_error);
+        say!(
+            "{errors} trials failed because the policy did not answer properly; first: {}",
+            first.map_or("", |t| t.reason.as_str())
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,342 @@
+//! An evaluation's results: per task the trials, successes, success rate with its Wilson 95 %
+//! score interval and the mean steps of successful trials; every trial with its seed (which
+//! reproduces it) and, for failures, the reason. Written as `results.json`, `results.csv` and
+//! `results.md` (the paper's row: one column per task, then the per-task table).
+
+use crate::task::TaskId;
+use serde::Serialize;
+use std::fmt::Write as _;
+
+/// z of a two-sided 95 % interval.
+const Z95: f64 = 1.959_963_984_540_054;
+
+/// Wilson's score interval for `successes` of `trials` at 95 %: (low, high), (0, 1) when there
+/// are no trials. Unlike the normal approximation it stays inside [0, 1] and is not empty at
+/// 0 % or 100 %.
+pub fn wilson_interval(successes: u32, trials: u32) -> (f64, f64) {
+    if trials == 0 {
+        return (0.0, 1.0);
+    }
+    let n = f64::from(trials);
+    let p = f64::from(successes) / n;
+    let z2 = Z95 * Z95;
+    let denominator = 1.0 + z2 / n;
+    let centre = (p + z2 / (2.0 * n)) / denominator;
+    let half = Z95 * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt() / denominator;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+/// One trial.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TrialResult {
+    pub task_id: String,
+    /// 0-based trial number within the task.
+    pub trial: u32,
+    /// The scene seed: `surgvla eval --policy ... --tasks T --trials ...` draws the same scene,
+    /// and so does `Env::reset(task, seed, ...)`.
+    pub seed: u64,
+    pub instruction: String,
+    pub success: bool,
+    /// Control steps executed.
+    pub steps: u32,
+    /// Why the trial failed (the predicate's reason, the step limit, or the policy's error);
+    /// empty on success.
+    pub reason: String,
+    /// The policy failed to answer (time-out, malformed reply, closed connection).
+    pub policy_error: bool,
+    /// The replay baseline's training episode.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub replayed_episode: Option<u64>,
+    /// The MCAP recording of a failed trial, relative to the results folder.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recording: Option<String>,
+}
+
+/// One task's row.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TaskResult {
+    pub task_id: String,
+    pub name: String,
+    pub level: u8,
+    pub step_limit: u32,
+    pub trials: u32,
+    pub successes: u32,
+    /// successes / trials, 0..1.
+    pub success_rate: f64,
+    pub ci95_low: f64,
+    pub ci95_high: f64,
+    /// Mean control steps of the successful trials (None without one).
+    pub mean_steps_success: Option<f64>,
+    /// Trials that failed because the policy did not answer properly.
+    pub policy_errors: u32,
+}
+
+impl TaskResult {
+    /// The row of `task` from its trials.
+    pub fn of(task: TaskId, trials: &[TrialResult]) -> TaskResult {
+        let n = trials.len() as u32;
+        let successful: Vec<&TrialResult> = trials.iter().filter(|t| t.success).collect();
+        let successes = successful.len() as u32;
+        let (ci95_low, ci95_high) = wilson_interval(successes, n);
+        TaskResult {
+            task_id: task.code().into(),
+            name: task.name().into(),
+            level: task.level(),
+            step_limit: task.step_limit(),
+            trials: n,
+            successes,
+            success_rate: if n == 0 {
+                0.0
+            } else {
+                f64::from(successes) / f64::from(n)
+            },
+            ci95_low,
+            ci95_high,
+            mean_steps_success: (!successful.is_empty()).then(|| {
+                successful.iter().map(|t| f64::from(t.steps)).sum::<f64>() / successful.len() as f64
+            }),
+            policy_errors: trials.iter().filter(|t| t.policy_error).count() as u32,
+        }
+    }
+}
+
+/// The whole evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EvalReport {
+    /// "expert", "random", "noop", "replay" or the server's URL.
+    pub policy: String,
+    /// The server's metadata message (remote policies), arrays summarised.
+    pub policy_metadata: serde_json::Value,
+    /// The options the trials ran with (what the policy was sent, spawn ranges, seeds).
+    pub options: serde_json::Value,
+    pub tasks: Vec<TaskResult>,
+    /// All tasks pooled.
+    pub overall: TaskTotals,
+    pub trials: Vec<TrialResult>,
+    pub generator: String,
+}
+
+/// Trials of all tasks pooled.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TaskTotals {
+    pub trials: u32,
+    pub successes: u32,
+    /// Mean of the per-task success rates (the paper's average column).
+    pub mean_success_rate: f64,
+}
+
+impl EvalReport {
+    pub fn new(
+        policy: String,
+        policy_metadata: serde_json::Value,
+        options: serde_json::Value,
+        tasks: Vec<TaskResult>,
+        trials: Vec<TrialResult>,
+    ) -> EvalReport {
+        let overall = TaskTotals {
+            trials: tasks.iter().map(|t| t.trials).sum(),
+            successes: tasks.iter().map(|t| t.successes).sum(),
+            mean_success_rate: if tasks.is_empty() {
+                0.0
+            } else {
+                tasks.iter().map(|t| t.success_rate).sum::<f64>() / tasks.len() as f64
+            },
+        };
+        EvalReport {
+            policy,
+            policy_metadata,
+            options,
+            tasks,
+            overall,
+            trials,
+            generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+        }
+    }
+
+    /// `results.json`.
+    pub fn json(&self) -> String {
+        let mut text = serde_json::to_string_pretty(self).unwrap_or_default();
+        text.push('\n');
+        text
+    }
+
+    /// `results.csv`: one row per task.
+    pub fn csv(&self) -> String {
+        let mut text = String::from(
+            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors\n",
+        );
+        for t in &self.tasks {
+            let steps = t
+                .mean_steps_success
+                .map(|s| format!("{s:.1}"))
+                .unwrap_or_default();
+            let _ = writeln!(
+                text,
+                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{}",
+                t.task_id,
+                t.name,
+                t.level,
+                t.trials,
+                t.successes,
+                t.success_rate,
+                t.ci95_low,
+                t.ci95_high,
+                steps,
+                t.policy_errors
+            );
+        }
+        text
+    }
+
+    /// The per-task table (what the command prints).
+    pub fn table(&self) -> String {
+        let mut text = String::from(
+            "| task | name | trials | successes | success rate | Wilson 95 % CI | mean steps (successes) |\n|---|---|---:|---:|---:|---|---:|\n",
+        );
+        for t in &self.tasks {
+            let steps = t
+                .mean_steps_success
+                .map_or_else(|| "-".into(), |s| format!("{s:.1}"));
+            let _ = writeln!(
+                text,
+                "| {} | {} | {} | {} | {:.1} % | {:.1} - {:.1} % | {} |",
+                t.task_id,
+                t.name,
+                t.trials,
+                t.successes,
+                100.0 * t.success_rate,
+                100.0 * t.ci95_low,
+                100.0 * t.ci95_high,
+                steps
+            );
+        }
+        text
+    }
+
+    /// `results.md`: the paper-style row, the per-task table, the options and the recordings.
+    pub fn markdown(&self) -> String {
+        let mut text = format!("# surgvla eval: {}\n\n", self.policy);
+        let heads: Vec<&str> = self.tasks.iter().map(|t| t.task_id.as_str()).collect();
+        let _ = writeln!(
+            text,
+            "| policy | {} | mean |\n|---|{}---:|",
+            heads.join(" | "),
+            "---:|".repeat(heads.len())
+        );
+        let rates: Vec<String> = self
+            .tasks
+            .iter()
+            .map(|t| format!("{:.1}", 100.0 * t.success_rate))
+            .collect();
+        let _ = writeln!(
+            text,
+            "| {} | {} | {:.1} |\n",
+            self.policy,
+            rates.join(" | "),
+            100.0 * self.overall.mean_success_rate
+        );
+        text.push_str("Success rates in %.\n\n");
+        text.push_str(&self.table());
+        let _ = writeln!(
+            text,
+            "\nOptions: `{}`\n",
+            serde_json::to_string(&self.options).unwrap_or_default()
+        );
+        if !self.policy_metadata.is_null() {
+            let _ = writeln!(
+                text,
+                "Server metadata: `{}`\n",
+                serde_json::to_string(&self.policy_metadata).unwrap_or_default()
+            );
+        }
+        let recorded: Vec<&TrialResult> = self
+            .trials
+            .iter()
+            .filter(|t| t.recording.is_some())
+            .collect();
+        if !recorded.is_empty() {
+            text.push_str(
+                "Recorded failures (open in Foxglove; the seed reproduces the scene):\n\n",
+            );
+            for t in recorded {
+                let _ = writeln!(
+                    text,
+                    "- {} trial {} (seed {}): {} -> `{}`",
+                    t.task_id,
+                    t.trial,
+                    t.seed,
+                    t.reason,
+                    t.recording.as_deref().unwrap_or_default()
+                );
+            }
+        }
+        text
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilson_matches_published_values() {
+        // Reference values (Newcombe 1998, method 3 without continuity correction).
+        let (low, high) = wilson_interval(81, 263);
+        assert!(
+            (low - 0.2553).abs() < 1e-4 && (high - 0.3662).abs() < 1e-4,
+            "{low} {high}"
+        );
+        let (low, high) = wilson_interval(0, 50);
+        assert_eq!(low, 0.0);
+        assert!((high - 0.0713).abs() < 1e-4, "{high}");
+        let (low, high) = wilson_interval(50, 50);
+        assert!(
+            (low - 0.9287).abs() < 1e-4 && (high - 1.0).abs() < 1e-12,
+            "{low}"
+        );
+        assert_eq!(wilson_interval(0, 0), (0.0, 1.0));
+    }
+
+    fn trial(success: bool, steps: u32) -> TrialResult {
+        TrialResult {
+            task_id: "T1-1".into(),
+            trial: 0,
+            seed: 1,
+            instruction: "pick up the gauze".into(),
+            success,
+            steps,
+            reason: String::new(),
+            policy_error: !success,
+            replayed_episode: None,
+            recording: None,
+        }
+    }
+
+    #[test]
+    fn a_row_counts_its_trials() {
+        let trials = [trial(true, 40), trial(true, 60), trial(false, 100)];
+        let row = TaskResult::of(TaskId::GauzePick, &trials);
+        assert_eq!((row.trials, row.successes, row.policy_errors), (3, 2, 1));
+        assert!((row.success_rate - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(row.mean_steps_success, Some(50.0));
+        let report = EvalReport::new(
+            "noop".into(),
+            serde_json::Value::Null,
+            serde_json::json!({}),
+            vec![row],
+            trials.to_vec(),
+        );
+        assert!(
+            report
+                .csv()
+                .lines()
+                .nth(1)
+                .expect("a row")
+                .starts_with("T1-1,gauze_pick,1,3,2,0.6667,")
+        );
+        assert!(report.markdown().contains("| noop | 66.7 | 66.7 |"));
+        let json: serde_json::Value = serde_json::from_str(&report.json()).expect("json");
+        assert_eq!(json["tasks"][0]["task_id"], "T1-1");
+        assert_eq!(json["overall"]["successes"], 2);
+    }
+}

@@ -1,0 +1,430 @@
+//! Running the trials: each is an [`Env`] of one task drawn from [`trial_seed`], stepped with
+//! the agent's commands until the task succeeds, the step limit is reached, the agent stops or
+//! it fails to answer (that trial fails with the reason; the evaluation goes on).
+//!
+//! The built-in policies run headless and in parallel (their trials are pure functions of the
+//! seed, so a failed one is re-run with rendering to record it); a remote policy sees rendered
+//! observations and runs one trial at a time over its one connection.
+
+use super::agents::{
+    Agent, Command, ExpertAgent, NoopAgent, RandomAgent, RemoteAgent, ReplayLibrary,
+};
+use super::numpy::metadata_json;
+use super::remote::RemotePolicy;
+use super::results::{EvalReport, TaskResult, TrialResult};
+use super::{EvalError, EvalOptions, PolicyChoice};
+use crate::env::{Env, EnvObservation, EnvOptions, Images};
+use crate::episode::{Episode, EpisodeMeta, FeatureSet, Step};
+use crate::export::mcap::{McapOptions, record_episode};
+use crate::policy::{ExpertLibrary, RandomPolicy};
+use crate::rng::SplitMix64;
+use crate::sim::JawCommand;
+use crate::sim::psm::wrap_angle;
+use crate::task::{TaskId, TaskInstance};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
+
+/// The scene seed of trial `trial` of `task`: a stream of its own ("eval/T1-1", ...), so
+/// evaluation scenes are drawn independently of the collection's (which use the stream named by
+/// the task id alone); `tests` checks that the default evaluation and collection seeds share
+/// none.
+pub fn trial_seed(seed: u64, task: TaskId, trial: u32) -> u64 {
+    let mixed = seed ^ u64::from(trial).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    SplitMix64::stream(mixed, &format!("eval/{}", task.code())).next_u64()
+}
+
+/// A policy ready to run.
+enum Prepared {
+    Remote(RemotePolicy),
+    Expert(ExpertLibrary),
+    Replay(ReplayLibrary),
+    Random,
+    Noop,
+}
+
+fn prepare(choice: &PolicyChoice, options: &EvalOptions) -> Result<Prepared, EvalError> {
+    Ok(match choice {
+        PolicyChoice::Remote { url } => Prepared::Remote(
+            RemotePolicy::connect(url, options.timeout).map_err(EvalError::Unreachable)?,
+        ),
+        PolicyChoice::Expert => Prepared::Expert(ExpertLibrary::builtin()?),
+        PolicyChoice::Replay { dataset } => {
+            let library =
+                ReplayLibrary::load(dataset).map_err(|source| EvalError::ReplayDataset {
+                    path: dataset.clone(),
+                    source,
+                })?;
+            if let Some(&task) = options.tasks.iter().find(|t| library.count(**t) == 0) {
+                return Err(EvalError::NoDemonstration {
+                    path: dataset.clone(),
+                    task,
+                });
+            }
+            Prepared::Replay(library)
+        }
+        PolicyChoice::Random => Prepared::Random,
+        PolicyChoice::Noop => Prepared::Noop,
+    })
+}
+
+/// What one trial did, and its episode when it was recorded.
+struct Outcome {
+    result: TrialResult,
+    episode: Option<Episode>,
+}
+
+/// Runs one trial of `instance` with `agent`; `record` keeps every rendered step.
+fn run_trial(
+    instance: &TaskInstance,
+    trial: u32,
+    env_options: &EnvOptions,
+    agent: &mut dyn Agent,
+    record: bool,
+) -> Outcome {
+    let (mut env, mut observation) = Env::from_instance(instance.clone(), env_options);
+    let limit = env.max_steps();
+    let mut verdict = env.verdict();
+    let mut steps = Vec::new();
+    let mut failure = None;
+    while env.steps() < limit && !verdict.success {
+        let command = match agent.act(&observation, &instance.instruction) {
+            Ok(Some(command)) => command,
+            Ok(None) => break,
+            Err(why) => {
+                failure = Some(why);
+                break;
+            }
+        };
+        let (step, open) = match command {
+            Command::Physical(action) => (env.step(&action), action.gripper >= 0.5),
+            Command::Native(command) => (
+                env.step_native(&command),
+                command.jaw_command() == JawCommand::Open,
+            ),
+        };
+        if record {
+            steps.push(dataset_step(&mut observation, &step.observation, open));
+        }
+        verdict = step.verdict;
+        observation = step.observation;
+    }
+    let taken = env.steps();
+    let reason = match (&failure, verdict.success) {
+        (Some(why), _) => format!("policy: {why}"),
+        (None, true) => String::new(),
+        (None, false) if taken >= limit => {
+            format!("step limit {limit} reached: {}", verdict.reason)
+        }
+        (None, false) => format!("policy stopped after {taken} steps: {}", verdict.reason),
+    };
+    let task = instance.task;
+    let result = TrialResult {
+        task_id: task.code().into(),
+        trial,
+        seed: instance.seed,
+        instruction: instance.instruction.clone(),
+        success: verdict.success,
+        steps: taken,
+        reason,
+        policy_error: failure.is_some(),
+        replayed_episode: None,
+        recording: None,
+    };
+    let episode = record.then(|| Episode {
+        meta: EpisodeMeta {
+            index: u64::from(trial),
+            task_code: task.code().into(),
+            task_name: task.name().into(),
+            level: task.level(),
+            instruction: instance.instruction.clone(),
+            seed: instance.seed,
+            attempts: 1,
+            success: verdict.success,
+        },
+        steps,
+    });
+    Outcome { result, episode }
+}
+
+/// The dataset step of `before` (its images taken) and the achieved change to `after`.
+fn dataset_step(before: &mut EnvObservation, after: &EnvObservation, open: bool) -> Step {
+    let Images { rgb, depth_m, mask } = before.images.take().unwrap_or_default();
+    let mut action = [0f32; 7];
+    for axis in 0..3 {
+        action[axis] = after.state[axis] - before.state[axis];
+        let turn = f64::from(after.state[axis + 3] - before.state[axis + 3]);
+        action[axis + 3] = wrap_angle(turn) as f32;
+    }
+    action[6] = if open { 1.0 } else { 0.0 };
+    Step {
+        rgb,
+        depth_m,
+        mask,
+        state: before.state,
+        action,
+        environment_state: before.environment_state,
+        extras: std::mem::take(&mut before.extras),
+        other: Vec::new(),
+    }
+}
+
+/// Progress: called with a task and its trials finished so far.
+pub type Progress<'a> = &'a (dyn Fn(TaskId, u32) + Sync);
+
+/// Evaluates `choice` on `options.tasks`, `options.trials` trials each, writes `results.json`,
+/// `results.csv`, `results.md` and the failure recordings into `options.out`, and returns the
+/// report.
+pub fn evaluate(
+    choice: &PolicyChoice,
+    options: &EvalOptions,
+    progress: Progress,
+) -> Result<EvalReport, EvalError> {
+    if options.trials == 0 || options.tasks.is_empty() {
+        return Err(EvalError::Options(
+            "nothing to evaluate: give at least one task and one trial".into(),
+        ));
+    }
+    if options.out.is_file() {
+        return Err(EvalError::Options(format!(
+            "{} is a file; --out needs a folder",
+            options.out.display()
+        )));
+    }
+    let mut prepared = prepare(choice, options)?;
+    let mut rows = Vec::new();
+    let mut trials = Vec::new();
+    for &task in &options.tasks {
+        let instances = (0..options.trials)
+            .map(|i| {
+                task.instance(
+                    trial_seed(options.seed, task, i),
+                    &options.task_config(task),
+                )
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let results = match &mut prepared {
+            Prepared::Remote(policy) => run_remote(policy, &instances, options, progress)?,
+            builtin => run_builtin(builtin, &instances, options, progress)?,
+        };
+        rows.push(TaskResult::of(task, &results));
+        trials.extend(results);
+    }
+    let metadata = match &prepared {
+        Prepared::Remote(policy) => metadata_json(&policy.metadata),
+        _ => serde_json::Value::Null,
+    };
+    let report = EvalReport::new(
+        choice.name(),
+        metadata,
+        options_json(choice, options),
+        rows,
+        trials,
+    );
+    for (name, text) in [
+        ("results.json", report.json()),
+        ("results.csv", report.csv()),
+        ("results.md", report.markdown()),
+    ] {
+        write(options, name, text.as_bytes())?;
+    }
+    Ok(report)
+}
+
+fn write(options: &EvalOptions, relative: &str, bytes: &[u8]) -> Result<(), EvalError> {
+    let path = options.out.join(relative);
+    crate::export::write_atomically(&path, bytes)
+        .map(|_| ())
+        .map_err(|source| EvalError::Write { path, source })
+}
+
+fn options_json(choice: &PolicyChoice, options: &EvalOptions) -> serde_json::Value {
+    let spawn: serde_json::Map<String, serde_json::Value> = options
+        .tasks
+        .iter()
+        .map(|&t| {
+            (
+                t.code().to_string(),
+                options.task_config(t).spawn_scale.into(),
+            )
+        })
+        .collect();
+    let remote = matches!(choice, PolicyChoice::Remote { .. });
+    let mut json = serde_json::json!({
+        "policy": choice.name(),
+        "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
+        "trials": options.trials,
+        "seed": options.seed,
+        "seed_stream": "eval/<task id> (disjoint from collection's)",
+        "instructions": options.instruction.name(),
+        "distractors": options.distractors,
+        "spawn_scale": spawn,
+    });
+    if remote {
+        json["sent"] = serde_json::json!({
+            "observation/image": true,
+            "observation/state": true,
+            "prompt": true,
+            "observation/depth": options.send.depth,
+            "observation/environment_state": options.send.environment_state,
+        });
+        json["replan_steps"] = options.replan_steps.map_or("chunk".into(), Into::into);
+        json["timeout_secs"] = options.timeout.as_secs_f64().into();
+    }
+    if let PolicyChoice::Replay { dataset } = choice {
+        json["dataset"] = dataset.display().to_string().into();
+    }
+    json
+}
+
+/// The environment of a task's trials.
+fn env_options(options: &EvalOptions, task: TaskId, render: bool) -> EnvOptions {
+    EnvOptions {
+        task: options.task_config(task),
+        camera: options.camera,
+        render: if render {
+            EnvOptions::default().render
+        } else {
+            None
+        },
+        ..EnvOptions::default()
+    }
+}
+
+/// Trials of one task with a built-in policy: headless and in parallel, then the first failures
+/// re-run with rendering and recorded.
+fn run_builtin(
+    prepared: &Prepared,
+    instances: &[TaskInstance],
+    options: &EvalOptions,
+    progress: Progress,
+) -> Result<Vec<TrialResult>, EvalError> {
+    let Some(task) = instances.first().map(|i| i.task) else {
+        return Ok(Vec::new());
+    };
+    let done = AtomicU32::new(0);
+    let headless = env_options(options, task, false);
+    let run = |i: usize, env: &EnvOptions, record: bool| -> Result<Outcome, EvalError> {
+        builtin_trial(prepared, &instances[i], i as u32, env, record)
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(options.threads.max(1))
+        .build()
+        .map_err(|e| EvalError::Options(format!("starting worker threads: {e}")))?;
+    let mut results: Vec<TrialResult> = pool.install(|| {
+        (0..instances.len())
+            .into_par_iter()
+            .map(|i| {
+                let outcome = run(i, &headless, false)?;
+                progress(task, done.fetch_add(1, Ordering::Relaxed) + 1);
+                Ok(outcome.result)
+            })
+            .collect::<Result<_, EvalError>>()
+    })?;
+    let rendered = env_options(options, task, true);
+    let failed: Vec<usize> = (0..results.len())
+        .filter(|&i| !results[i].success)
+        .collect();
+    for &i in failed.iter().take(options.recordings_per_task) {
+        let outcome = run(i, &rendered, true)?;
+        if let Some(episode) = outcome.episode {
+            results[i].recording = Some(save_recording(options, &instances[i], &episode)?);
+        }
+    }
+    Ok(results)
+}
+
+fn builtin_trial(
+    prepared: &Prepared,
+    instance: &TaskInstance,
+    trial: u32,
+    env: &EnvOptions,
+    record: bool,
+) -> Result<Outcome, EvalError> {
+    let (_, first) = Env::from_instance(instance.clone(), &EnvOptions::headless());
+    let mut replayed = None;
+    let mut agent: Box<dyn Agent> = match prepared {
+        Prepared::Expert(library) => {
+            let plan = library.plan(instance.task)?;
+            Box::new(ExpertAgent(plan.expert(
+                instance,
+                &first.sim,
+                instance.seed,
+            )?))
+        }
+        Prepared::Replay(library) => {
+            let (agent, episode) = library.agent(instance.task, &first).ok_or_else(|| {
+                EvalError::Options(format!(
+                    "the replay dataset has no episode of {}",
+                    instance.task
+                ))
+            })?;
+            replayed = Some(episode);
+            Box::new(agent)
+        }
+        Prepared::Random => Box::new(RandomAgent(RandomPolicy::new(instance.seed))),
+        Prepared::Noop | Prepared::Remote(_) => Box::new(NoopAgent),
+    };
+    let mut outcome = run_trial(instance, trial, env, agent.as_mut(), record);
+    outcome.result.replayed_episode = replayed;
+    Ok(outcome)
+}
+
+/// Trials of one task with a remote policy, one at a time, rendered; the first failures are
+/// kept and recorded.
+fn run_remote(
+    policy: &mut RemotePolicy,
+    instances: &[TaskInstance],
+    options: &EvalOptions,
+    progress: Progress,
+) -> Result<Vec<TrialResult>, EvalError> {
+    let mut results = Vec::with_capacity(instances.len());
+    let mut recorded = 0;
+    for (i, instance) in instances.iter().enumerate() {
+        let env = env_options(options, instance.task, true);
+        let size = (
+            options.camera.height_px as usize,
+            options.camera.width_px as usize,
+        );
+        let mut agent = RemoteAgent::new(policy, options.send, options.replan_steps, size);
+        let record = recorded < options.recordings_per_task;
+        let outcome = run_trial(instance, i as u32, &env, &mut agent, record);
+        let mut result = outcome.result;
+        if let (false, Some(episode)) = (result.success, outcome.episode) {
+            result.recording = Some(save_recording(options, instance, &episode)?);
+            recorded += 1;
+        }
+        progress(instance.task, i as u32 + 1);
+        results.push(result);
+    }
+    Ok(results)
+}
+
+/// Writes a failed trial's MCAP (images, depth, point cloud, frames, state, action, the scene's
+/// meshes) under `failures/` and returns its path relative to the results folder.
+fn save_recording(
+    options: &EvalOptions,
+    instance: &TaskInstance,
+    episode: &Episode,
+) -> Result<String, EvalError> {
+    let relative = format!(
+        "failures/{}_trial{:03}_seed{}.mcap",
+        instance.task.code(),
+        episode.meta.index,
+        instance.seed
+    );
+    let collection = serde_json::json!({"evaluation": true, "seed": instance.seed});
+    let features = FeatureSet {
+        mask: true,
+        ..FeatureSet::default()
+    };
+    let info = crate::view::dataset_info(&options.camera, features, collection);
+    let meshes = crate::view::scene_meshes_at_start(&instance.scene, instance.seed, false);
+    let bytes = record_episode(&info, &McapOptions::default(), episode, Some(&meshes)).map_err(
+        |source| EvalError::Write {
+            path: options.out.join(&relative),
+            source,
+        },
+    )?;
+    write(options, &relative, &bytes)?;
+    Ok(relative)
+}
