@@ -47,6 +47,7 @@ pub enum SendFeature {
     /// `observation/depth`, float32 (224, 224), metres.
     Depth,
     /// `observation/environment_state`, float32 (28,): ground-truth object poses (privileged).
+    #[value(name = "environment_state")]
     EnvironmentState,
 }
 

@@ -297,7 +297,7 @@ mod tests {
                 reply("<f4", &[7], f32_bytes(&[0.0, f32::NAN, 0., 0., 0., 0., 0.])),
                 "[0, 1] is NaN",
             ),
-            (vec![0xc1], "not msgpack"),
+            (vec![0x92, 0x01], "not msgpack"),
             (vec![0x01], "not a map but an integer"),
         ];
         for (bytes, expected) in cases {

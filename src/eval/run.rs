@@ -35,7 +35,7 @@ pub fn trial_seed(seed: u64, task: TaskId, trial: u32) -> u64 {
 
 /// A policy ready to run.
 enum Prepared {
-    Remote(RemotePolicy),
+    Remote(Box<RemotePolicy>),
     Expert(ExpertLibrary),
     Replay(ReplayLibrary),
     Random,
@@ -44,9 +44,9 @@ enum Prepared {
 
 fn prepare(choice: &PolicyChoice, options: &EvalOptions) -> Result<Prepared, EvalError> {
     Ok(match choice {
-        PolicyChoice::Remote { url } => Prepared::Remote(
+        PolicyChoice::Remote { url } => Prepared::Remote(Box::new(
             RemotePolicy::connect(url, options.timeout).map_err(EvalError::Unreachable)?,
-        ),
+        )),
         PolicyChoice::Expert => Prepared::Expert(ExpertLibrary::builtin()?),
         PolicyChoice::Replay { dataset } => {
             let library =

@@ -5,6 +5,7 @@ mod cli;
 mod collect;
 mod contract;
 mod determinism;
+mod eval;
 mod fidelity;
 mod grasping;
 mod hardening;

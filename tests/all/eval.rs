@@ -1,0 +1,442 @@
+//! Closed-loop evaluation: a policy server speaking openpi's protocol (here a tungstenite server
+//! in a thread, answering as told per request: good chunks, wrong shapes, NaN, a closed
+//! connection, a stall), the built-in references, seeds, determinism and the results files.
+
+use crate::util::{surgvla, temp_root};
+use rmpv::Value;
+use std::net::TcpListener;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use surgvla::eval::{EvalOptions, PolicyChoice, evaluate, trial_seed};
+use surgvla::task::TaskId;
+
+/// How the fake server answers one request.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Reply {
+    /// A chunk of `n` actions: zero deltas, jaws open.
+    Chunk(usize),
+    WrongShape,
+    Nan,
+    /// Closes the connection without answering.
+    Close,
+    /// Answers only after this long.
+    Stall(Duration),
+    /// Sends an error text, as openpi's server does with its traceback.
+    ErrorText,
+    /// A chunk of 50 absurdly large (finite) actions: clipped by the workspace, never a panic.
+    Huge,
+}
+
+fn array(dtype: &str, shape: &[u64], data: Vec<u8>) -> Value {
+    Value::Map(vec![
+        (Value::Binary(b"__ndarray__".to_vec()), Value::Boolean(true)),
+        (Value::Binary(b"data".to_vec()), Value::Binary(data)),
+        (Value::Binary(b"dtype".to_vec()), dtype.into()),
+        (
+            Value::Binary(b"shape".to_vec()),
+            Value::Array(shape.iter().map(|&d| Value::from(d)).collect()),
+        ),
+    ])
+}
+
+fn actions(rows: usize, values: impl Fn(usize) -> f32) -> Vec<u8> {
+    let mut message = Vec::new();
+    let data = (0..rows * 7)
+        .flat_map(|i| values(i).to_le_bytes())
+        .collect();
+    let reply = Value::Map(vec![(
+        "actions".into(),
+        array("<f4", &[rows as u64, 7], data),
+    )]);
+    rmpv::encode::write_value(&mut message, &reply).expect("encode");
+    message
+}
+
+/// What the server saw of one request: (key, dtype, shape) per array, and the prompt.
+type Seen = (Vec<(String, String, Vec<u64>)>, String);
+
+fn describe(bytes: &[u8]) -> Seen {
+    let value = rmpv::decode::read_value(&mut &bytes[..]).expect("msgpack request");
+    let Value::Map(fields) = value else {
+        panic!("the request is a map")
+    };
+    let mut arrays = Vec::new();
+    let mut prompt = String::new();
+    for (key, value) in fields {
+        let key = key.as_str().expect("string keys").to_string();
+        match value {
+            Value::String(s) => prompt = s.as_str().unwrap_or_default().to_string(),
+            Value::Map(array) => {
+                let get = |name: &[u8]| {
+                    array
+                        .iter()
+                        .find(|(k, _)| k.as_slice() == Some(name))
+                        .map(|(_, v)| v.clone())
+                        .expect("array field under a binary key")
+                };
+                assert_eq!(get(b"__ndarray__"), Value::Boolean(true));
+                let dtype = get(b"dtype").as_str().unwrap_or_default().to_string();
+                let shape: Vec<u64> = get(b"shape")
+                    .as_array()
+                    .expect("shape")
+                    .iter()
+                    .map(|d| d.as_u64().expect("dimension"))
+                    .collect();
+                let width = if dtype == "|u1" { 1 } else { 4 };
+                let data = get(b"data");
+                let n: u64 = shape.iter().product();
+                assert_eq!(data.as_slice().map(<[u8]>::len), Some((n * width) as usize));
+                arrays.push((key, dtype, shape));
+            }
+            other => panic!("unexpected field {key}: {other}"),
+        }
+    }
+    (arrays, prompt)
+}
+
+/// A policy server on a free local port answering the `script`'s replies in request order
+/// (the last one repeats); returns its URL and what it saw.
+fn serve(script: Vec<Reply>) -> (String, Arc<Mutex<Vec<Seen>>>) {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
+    let url = format!("ws://{}", listener.local_addr().expect("address"));
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let counter = Arc::new(AtomicUsize::new(0));
+    let log = seen.clone();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(stream) = stream else { continue };
+            let (script, log, counter) = (script.clone(), log.clone(), counter.clone());
+            // A thread per connection: a stalled one must not keep the next from connecting.
+            std::thread::spawn(move || {
+                let Ok(mut socket) = tungstenite::accept(stream) else {
+                    return;
+                };
+                let mut metadata = Vec::new();
+                let meta = Value::Map(vec![("name".into(), "fake".into())]);
+                rmpv::encode::write_value(&mut metadata, &meta).expect("encode");
+                if socket
+                    .send(tungstenite::Message::Binary(metadata.into()))
+                    .is_err()
+                {
+                    return;
+                }
+                while let Ok(message) = socket.read() {
+                    let tungstenite::Message::Binary(request) = message else {
+                        continue;
+                    };
+                    log.lock().expect("log").push(describe(&request));
+                    let n = counter.fetch_add(1, Ordering::SeqCst);
+                    let reply = script[n.min(script.len() - 1)];
+                    let bytes = match reply {
+                        Reply::Chunk(rows) => actions(rows, |i| if i % 7 == 6 { 1.0 } else { 0.0 }),
+                        Reply::WrongShape => {
+                            let mut message = Vec::new();
+                            let value = Value::Map(vec![(
+                                "actions".into(),
+                                array("<f4", &[6], vec![0; 24]),
+                            )]);
+                            rmpv::encode::write_value(&mut message, &value).expect("encode");
+                            message
+                        }
+                        Reply::Nan => actions(1, |i| if i == 2 { f32::NAN } else { 0.0 }),
+                        Reply::Huge => actions(50, |i| if i % 2 == 0 { 1e30 } else { -1e30 }),
+                        Reply::Close => return,
+                        Reply::Stall(pause) => {
+                            std::thread::sleep(pause);
+                            actions(1, |_| 0.0)
+                        }
+                        Reply::ErrorText => {
+                            let text = "Traceback: ValueError: bad observation".to_string();
+                            let _ = socket.send(tungstenite::Message::Text(text.into()));
+                            return;
+                        }
+                    };
+                    if socket
+                        .send(tungstenite::Message::Binary(bytes.into()))
+                        .is_err()
+                    {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    (url, seen)
+}
+
+fn options(out: &std::path::Path, tasks: &[TaskId], trials: u32) -> EvalOptions {
+    EvalOptions {
+        tasks: tasks.to_vec(),
+        trials,
+        threads: 2,
+        recordings_per_task: 1,
+        out: out.to_path_buf(),
+        ..EvalOptions::default()
+    }
+}
+
+#[test]
+fn a_remote_policy_gets_what_it_was_trained_on_and_chunks_are_replanned() {
+    let out = temp_root("eval-remote");
+    let (url, seen) = serve(vec![Reply::Chunk(8)]);
+    let mut options = options(&out, &[TaskId::GauzePick], 2);
+    options.replan_steps = Some(5);
+    options.send.depth = true;
+    options.recordings_per_task = 0;
+    let report = evaluate(&PolicyChoice::Remote { url }, &options, &|_, _| {}).expect("eval");
+    let row = &report.tasks[0];
+    assert_eq!((row.trials, row.successes, row.policy_errors), (2, 0, 0));
+    assert!(
+        report.trials.iter().all(|t| t.steps == 100),
+        "{:?}",
+        report.trials
+    );
+    let seen = seen.lock().expect("log");
+    // 100 steps per trial, 5 of each 8-action chunk executed: 20 requests per trial.
+    assert_eq!(seen.len(), 40);
+    let (arrays, prompt) = &seen[0];
+    assert_eq!(prompt, "pick up the gauze");
+    let expected = [
+        ("observation/image", "|u1", vec![224, 224, 3]),
+        ("observation/state", "<f4", vec![7]),
+        ("observation/depth", "<f4", vec![224, 224]),
+    ];
+    let expected: Vec<(String, String, Vec<u64>)> = expected
+        .into_iter()
+        .map(|(k, d, s)| (k.to_string(), d.to_string(), s))
+        .collect();
+    assert_eq!(arrays, &expected);
+    assert_eq!(report.policy_metadata["name"], "fake");
+    assert_eq!(
+        report.options["sent"]["observation/environment_state"],
+        false
+    );
+}
+
+#[test]
+fn malformed_replies_fail_their_trial_with_the_reason_and_the_run_goes_on() {
+    let out = temp_root("eval-malformed");
+    let (url, _) = serve(vec![
+        Reply::WrongShape,
+        Reply::Nan,
+        Reply::Close,
+        Reply::Stall(Duration::from_millis(1500)),
+        Reply::ErrorText,
+        Reply::Huge,
+        Reply::Chunk(50),
+    ]);
+    let mut options = options(&out, &[TaskId::NeedlePick], 6);
+    options.timeout = Duration::from_millis(500);
+    let report = evaluate(&PolicyChoice::Remote { url }, &options, &|_, _| {}).expect("eval");
+    let reasons: Vec<&str> = report.trials.iter().map(|t| t.reason.as_str()).collect();
+    let expected = [
+        "shape [6]",
+        "[0, 2] is NaN",
+        "closed the connection",
+        "no reply from",
+        "reported an error: Traceback: ValueError: bad observation",
+        "step limit 100 reached",
+    ];
+    for (i, (reason, expected)) in reasons.iter().zip(expected).enumerate() {
+        assert!(
+            reason.contains(expected),
+            "trial {i}: {reason} lacks {expected}"
+        );
+        assert_eq!(report.trials[i].policy_error, i < 5, "trial {i}");
+    }
+    assert_eq!(report.tasks[0].policy_errors, 5);
+    // The first failure is recorded, with the seed that reproduces it in its name.
+    let recording = report.trials[0].recording.as_deref().expect("a recording");
+    assert!(
+        recording.starts_with("failures/T1-2_trial000_seed"),
+        "{recording}"
+    );
+    assert!(out.join(recording).is_file());
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results.json")).expect("results"))
+            .expect("json");
+    assert_eq!(written["tasks"][0]["policy_errors"], 5);
+}
+
+#[test]
+fn an_unreachable_server_at_start_is_the_users_mistake() {
+    let out = temp_root("eval-unreachable");
+    // A port nobody listens on: bound, then released.
+    let port = TcpListener::bind("127.0.0.1:0")
+        .expect("bind")
+        .local_addr()
+        .expect("address")
+        .port();
+    let url = format!("ws://127.0.0.1:{port}");
+    let error = evaluate(
+        &PolicyChoice::Remote { url: url.clone() },
+        &options(&out, &[TaskId::GauzePick], 1),
+        &|_, _| {},
+    )
+    .expect_err("nobody listens");
+    assert_eq!(error.kind().exit_code(), 2);
+    let (code, _, stderr) = surgvla(&[
+        "eval",
+        "--policy",
+        &url,
+        "--out",
+        &out.display().to_string(),
+    ]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains(&format!("cannot connect to the policy server at {url}")),
+        "{stderr}"
+    );
+    assert!(!out.join("results.json").exists());
+}
+
+#[test]
+fn references_bound_the_table_the_expert_near_all_and_noop_none() {
+    let out = temp_root("eval-references");
+    let all = TaskId::ALL;
+    let expert = evaluate(
+        &PolicyChoice::Expert,
+        &options(&out.join("expert"), &all, 6),
+        &|_, _| {},
+    )
+    .expect("expert");
+    for row in &expert.tasks {
+        assert!(row.successes >= 5, "expert on {}: {:?}", row.task_id, row);
+    }
+    // Every predicate can fail: a policy that does nothing fails every task.
+    let noop = evaluate(
+        &PolicyChoice::Noop,
+        &options(&out.join("noop"), &all, 3),
+        &|_, _| {},
+    )
+    .expect("noop");
+    for row in &noop.tasks {
+        assert_eq!(row.successes, 0, "noop succeeded on {}", row.task_id);
+    }
+    assert!(
+        noop.trials
+            .iter()
+            .all(|t| t.reason.starts_with("step limit"))
+    );
+    // Three failures per task recorded as MCAP that validates.
+    let recorded: Vec<&str> = noop
+        .trials
+        .iter()
+        .filter_map(|t| t.recording.as_deref())
+        .collect();
+    assert_eq!(recorded.len(), 8);
+    let (code, stdout, stderr) = surgvla(&[
+        "validate",
+        &out.join("noop").join(recorded[0]).display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    let markdown = std::fs::read_to_string(out.join("noop/results.md")).expect("results.md");
+    assert!(
+        markdown
+            .contains("| policy | T1-1 | T1-2 | T1-3 | T2-1 | T2-2 | T2-3 | T3-1 | T3-2 | mean |"),
+        "{markdown}"
+    );
+    assert!(markdown.contains("| noop | 0.0 | 0.0 |"), "{markdown}");
+    let csv = std::fs::read_to_string(out.join("expert/results.csv")).expect("results.csv");
+    assert_eq!(csv.lines().count(), 9);
+}
+
+#[test]
+fn results_are_a_function_of_the_seed_not_of_the_threads() {
+    let out = temp_root("eval-determinism");
+    let run = |threads: usize, seed: u64, name: &str| {
+        let mut options = options(
+            &out.join(name),
+            &[TaskId::GauzePick, TaskId::Electrocoagulation],
+            4,
+        );
+        (options.threads, options.seed) = (threads, seed);
+        evaluate(&PolicyChoice::Random, &options, &|_, _| {}).expect("random");
+        std::fs::read(out.join(name).join("results.json")).expect("results")
+    };
+    let one = run(1, 5, "one");
+    assert_eq!(one, run(2, 5, "two"));
+    assert_ne!(one, run(2, 6, "other"));
+    assert_eq!(
+        crate::util::tree(&out.join("one/failures")),
+        crate::util::tree(&out.join("two/failures"))
+    );
+}
+
+#[test]
+fn evaluation_seeds_are_disjoint_from_collection_seeds() {
+    use std::collections::BTreeSet;
+    let mut collected = BTreeSet::new();
+    for task in TaskId::ALL {
+        for k in 0..100 {
+            for attempt in 0..20 {
+                collected.insert(surgvla::collect::record::attempt_seed(0, task, k, attempt));
+            }
+        }
+    }
+    for task in TaskId::ALL {
+        for trial in 0..200 {
+            let seed = trial_seed(0, task, trial);
+            assert!(
+                !collected.contains(&seed),
+                "{task} trial {trial}: seed {seed}"
+            );
+        }
+    }
+    // The needle spawns over the reference's evaluation range (+-0.03 m), wider than collection's.
+    let config = EvalOptions::default().task_config(TaskId::NeedlePick);
+    assert_eq!(config.spawn_scale, 3.0);
+    let xs: Vec<f64> = (0..50)
+        .map(|i| {
+            let instance = TaskId::NeedlePick
+                .instance(trial_seed(0, TaskId::NeedlePick, i), &config)
+                .expect("spawn");
+            instance.scene.objects[0].world_from_object.translation.x
+        })
+        .collect();
+    let spread =
+        xs.iter().cloned().fold(f64::MIN, f64::max) - xs.iter().cloned().fold(f64::MAX, f64::min);
+    assert!(spread > 0.03, "the needle's x spans only {spread} m");
+}
+
+#[test]
+fn replay_plays_the_nearest_training_episode_of_the_task() {
+    let out = temp_root("eval-replay");
+    let data = out.join("data");
+    let (code, _, stderr) = surgvla(&[
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "3",
+        "--out",
+        &data.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let choice = PolicyChoice::Replay {
+        dataset: data.clone(),
+    };
+    let report = evaluate(
+        &choice,
+        &options(&out.join("eval"), &[TaskId::GauzePick], 4),
+        &|_, _| {},
+    )
+    .expect("replay");
+    assert!(
+        report
+            .trials
+            .iter()
+            .all(|t| t.replayed_episode.is_some_and(|e| e < 3))
+    );
+    assert!(report.tasks[0].successes >= 1, "{:?}", report.trials);
+    // A task the dataset lacks is refused before any trial runs.
+    let error = evaluate(
+        &choice,
+        &options(&out.join("none"), &[TaskId::Hemostasis], 1),
+        &|_, _| {},
+    )
+    .expect_err("no T3-2 episodes");
+    assert_eq!(error.kind().exit_code(), 2);
+    assert!(error.to_string().contains("has no episode of"), "{error}");
+}
