@@ -5,7 +5,7 @@
     python examples/serve_lerobot_policy.py --policy-path outputs/train/act/checkpoints/last/pretrained_model --port 8000
     surgvla eval --policy ws://localhost:8000 --replan-steps 10 --out eval-act
 
-The protocol is openpi's (`serve_policy.py`): on connecting, the client gets one metadata
+The protocol is openpi's (`serve_policy.py`; `examples/policy_server.py` serves it): on connecting, the client gets one metadata
 message; then every binary message it sends (msgpack-numpy, `openpi_client.msgpack_numpy`)
 is an observation
 
@@ -27,13 +27,10 @@ image, `observation.state` the state, `observation.environment_state` the object
 import argparse
 import asyncio
 import logging
-import traceback
 
 import numpy as np
 import torch
-import websockets.asyncio.server
-import websockets.frames
-from openpi_client import msgpack_numpy
+from policy_server import serve  # examples/policy_server.py: the protocol, for any policy
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType
@@ -97,32 +94,6 @@ class LeRobotPolicy:
         return {"actions": actions.reshape(-1, actions.shape[-1])}
 
 
-async def serve(policy: LeRobotPolicy, host: str, port: int) -> None:
-    async def handler(websocket):
-        packer = msgpack_numpy.Packer()
-        await websocket.send(packer.pack(policy.metadata()))
-        while True:
-            try:
-                observation = msgpack_numpy.unpackb(await websocket.recv())
-                await websocket.send(packer.pack(policy.infer(observation)))
-            except websockets.ConnectionClosed:
-                break
-            except Exception:
-                await websocket.send(traceback.format_exc())
-                await websocket.close(
-                    code=websockets.frames.CloseCode.INTERNAL_ERROR,
-                    reason="Internal server error. Traceback included in previous frame.",
-                )
-                raise
-
-    async with websockets.asyncio.server.serve(
-        handler, host, port, compression=None, max_size=None
-    ) as server:
-        bound = server.sockets[0].getsockname()[1]
-        print(f"serving {policy.config.type} on ws://{host}:{bound}", flush=True)
-        await server.serve_forever()
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy-path", required=True, help="a pretrained_model folder lerobot-train saved")
@@ -131,7 +102,8 @@ def main() -> None:
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    asyncio.run(serve(LeRobotPolicy(args.policy_path, args.device), args.host, args.port))
+    policy = LeRobotPolicy(args.policy_path, args.device)
+    asyncio.run(serve(policy, args.host, args.port, name=policy.config.type))
 
 
 if __name__ == "__main__":

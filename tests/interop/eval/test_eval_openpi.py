@@ -26,12 +26,12 @@ def server(tmp_path, request):
     policy, chunk = getattr(request, "param", ("zeros", 8))
     log = tmp_path / "seen.jsonl"
     process = subprocess.Popen(
-        [sys.executable, str(HERE / "policy_server.py"), "--policy", policy, "--chunk", str(chunk), "--log", str(log)],
+        [sys.executable, str(HERE / "trivial_server.py"), "--policy", policy, "--chunk", str(chunk), "--log", str(log)],
         stdout=subprocess.PIPE,
         text=True,
     )
     line = process.stdout.readline()
-    assert line.startswith("serving on "), line
+    assert line.startswith("serving policy on "), line
     yield line.split()[-1], log
     process.terminate()
     process.wait(timeout=10)

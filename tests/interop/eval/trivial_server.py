@@ -1,24 +1,26 @@
-"""A trivial policy behind openpi's policy-server protocol, built on openpi-client's own
-msgpack-numpy encoding, as openpi's `WebsocketPolicyServer` serves one: the metadata message on
-connect, then one binary reply per binary request; an exception goes back as text (the
-traceback) before the connection closes.
+"""A trivial policy behind openpi's policy-server protocol (examples/policy_server.py, on
+openpi-client's own msgpack-numpy encoding, as openpi's `WebsocketPolicyServer` serves one: the
+metadata message on connect, then one binary reply per binary request; an exception goes back
+as text, the traceback, before the connection closes).
 
 The policy checks what it is sent (keys, dtypes, shapes, a non-empty prompt) and answers a chunk
 of `--chunk` actions: `zeros` (zero deltas, jaws open) or `square` (a small square in x-y, the
 jaws open). Every observation is described in the JSON-lines `--log`.
 
-    python policy_server.py --port 0 --policy zeros --chunk 8 --log seen.jsonl
+    python trivial_server.py --port 0 --policy zeros --chunk 8 --log seen.jsonl
 """
 
 import argparse
 import asyncio
 import json
-import traceback
+import sys
+from pathlib import Path
 
 import numpy as np
-import websockets.asyncio.server
-import websockets.frames
-from openpi_client import msgpack_numpy
+
+# The protocol's server side, shared with examples/serve_lerobot_policy.py.
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "examples"))
+from policy_server import serve  # noqa: E402
 
 EXPECTED = {
     "observation/image": (np.uint8, (224, 224, 3)),
@@ -32,6 +34,9 @@ class Policy:
     def __init__(self, kind: str, chunk: int, log: str):
         self.kind, self.chunk, self.log = kind, chunk, log
         self.requests = 0
+
+    def metadata(self) -> dict:
+        return {"policy": self.kind, "chunk": self.chunk}
 
     def infer(self, observation: dict) -> dict:
         described = {}
@@ -62,31 +67,6 @@ class Policy:
         return {"actions": actions}
 
 
-async def serve(policy: Policy, port: int) -> None:
-    async def handler(websocket):
-        packer = msgpack_numpy.Packer()
-        await websocket.send(packer.pack({"policy": policy.kind, "chunk": policy.chunk}))
-        while True:
-            try:
-                observation = msgpack_numpy.unpackb(await websocket.recv())
-                await websocket.send(packer.pack(policy.infer(observation)))
-            except websockets.ConnectionClosed:
-                break
-            except Exception:
-                await websocket.send(traceback.format_exc())
-                await websocket.close(
-                    code=websockets.frames.CloseCode.INTERNAL_ERROR,
-                    reason="Internal server error. Traceback included in previous frame.",
-                )
-                raise
-
-    async with websockets.asyncio.server.serve(
-        handler, "127.0.0.1", port, compression=None, max_size=None
-    ) as server:
-        print(f"serving on ws://127.0.0.1:{server.sockets[0].getsockname()[1]}", flush=True)
-        await server.serve_forever()
-
-
 if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("--port", type=int, default=0)
@@ -94,4 +74,4 @@ if __name__ == "__main__":
     parser.add_argument("--chunk", type=int, default=8)
     parser.add_argument("--log", required=True)
     args = parser.parse_args()
-    asyncio.run(serve(Policy(args.policy, args.chunk, args.log), args.port))
+    asyncio.run(serve(Policy(args.policy, args.chunk, args.log), "127.0.0.1", args.port))
