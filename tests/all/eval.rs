@@ -440,3 +440,63 @@ fn replay_plays_the_nearest_training_episode_of_the_task() {
     assert_eq!(error.kind().exit_code(), 2);
     assert!(error.to_string().contains("has no episode of"), "{error}");
 }
+
+#[test]
+fn the_command_prints_the_eight_task_table_and_refuses_bad_policies() {
+    let out = temp_root("eval-cli");
+    let dir = out.display().to_string();
+    let (code, stdout, stderr) =
+        surgvla(&["eval", "--policy", "expert", "--trials", "2", "--out", &dir]);
+    assert_eq!(code, 0, "{stderr}");
+    let rows: Vec<&str> = stdout.lines().filter(|l| l.starts_with("| T")).collect();
+    assert_eq!(rows.len(), 8, "{stdout}");
+    assert!(
+        rows.iter().all(|r| r.contains("| 2 | 2 | 100.0 % |")),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("mean success rate 100.0 % over 8 tasks (16 of 16 trials)"),
+        "{stdout}"
+    );
+    for (args, said) in [
+        (
+            vec!["--policy", "replay"],
+            "--policy replay needs --dataset DIR",
+        ),
+        (
+            vec!["--policy", "greedy"],
+            "neither ws://HOST:PORT nor one of",
+        ),
+        (
+            vec!["--policy", "wss://example.org"],
+            "wss:// is not supported",
+        ),
+        (vec!["--policy", "noop", "--tasks", "T9-9"], "unknown task"),
+        (
+            vec!["--policy", "noop", "--timeout-secs", "0"],
+            "--timeout-secs must be a positive",
+        ),
+        (
+            vec!["--policy", "noop", "--send", "mask"],
+            "invalid value 'mask'",
+        ),
+    ] {
+        let mut full = vec!["eval"];
+        full.extend(args);
+        full.extend(["--out", &dir]);
+        let (code, _, stderr) = surgvla(&full);
+        assert_eq!(code, 2, "{full:?}: {stderr}");
+        assert!(stderr.contains(said), "{full:?}: {stderr}");
+    }
+    let (code, _, stderr) = surgvla(&[
+        "eval",
+        "--policy",
+        "noop",
+        "--trials",
+        "1",
+        "--out",
+        "Cargo.toml",
+    ]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("Cargo.toml is a file"), "{stderr}");
+}
