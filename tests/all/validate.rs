@@ -230,6 +230,11 @@ fn good_datasets_of_every_format_are_valid_and_described() {
     ] {
         let report = check(root);
         assert!(report.valid, "{format}: {:#?}", report.errors);
+        assert!(
+            report.warnings.is_empty(),
+            "{format}: {:#?}",
+            report.warnings
+        );
         assert_eq!(report.format.name(), format);
         assert_eq!(report.episodes, episodes, "{format}");
         assert!(report.frames > 2 * 10, "{format}: {} frames", report.frames);
@@ -245,6 +250,42 @@ fn good_datasets_of_every_format_are_valid_and_described() {
         assert_eq!(quick.episodes, episodes, "{format} quick");
         assert_eq!(quick.frames, report.frames, "{format} quick");
     }
+    // A video-mode dataset is valid, with a warning that its pixels were not decoded.
+    let video = temp_root("validate-video");
+    let (code, _, err) = surgvla(&[
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "1",
+        "--video",
+        "h264",
+        "--out",
+        path(&video),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let report = check(&video);
+    assert!(report.valid, "{:#?}", report.errors);
+    assert_eq!(report.warnings.len(), 1, "{:#?}", report.warnings);
+    let warning = &report.warnings[0];
+    assert_eq!(warning.check, "video-decode");
+    assert!(
+        warning
+            .message
+            .contains("observation.images.endoscope are not decoded"),
+        "{}",
+        warning.message
+    );
+    let (code, stdout, _) = surgvla(&["validate", path(&video), "--json"]);
+    let json: serde_json::Value = serde_json::from_str(&stdout).expect("json");
+    assert_eq!(
+        (
+            code,
+            json["valid"].as_bool(),
+            json["warnings"][0]["check"].as_str()
+        ),
+        (0, Some(true), Some("video-decode"))
+    );
     // A byte-for-byte copy and a byte-differently rewritten copy (no manifest) are valid.
     let (_copy, report) = broken(&c.lerobot, |_| {});
     assert!(report.valid, "{:#?}", report.errors);

@@ -383,6 +383,14 @@ pub(super) fn check_videos(
     let chunks_size = info["chunks_size"].as_u64().unwrap_or(1000).max(1) as i64;
     let mut durations: BTreeMap<PathBuf, Option<f64>> = BTreeMap::new();
     for feature in features.iter().filter(|f| f.dtype == "video") {
+        findings.warning(
+            At::file("meta/info.json"),
+            "video-decode",
+            format!(
+                "the frames of video feature {} are not decoded (surgvla has no video decoder): its files, MP4 headers and episode spans are checked, its pixels are not",
+                feature.name
+            ),
+        );
         for (i, entry) in entries.iter().enumerate() {
             let key = &feature.name;
             let (relative, span) = if v21 {
