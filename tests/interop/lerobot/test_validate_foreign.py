@@ -80,6 +80,11 @@ def test_lerobot_written_datasets_are_valid(images, videos):
         assert code == 0, (root, report, err)
         assert report["valid"] and report["format"] == "lerobot-v3.0"
         assert report["episodes"] == 3 and report["frames"] == 39
+    # Video frames are not decoded, and the report says so (images are decoded: no warning).
+    assert validate(images)[1]["warnings"] == []
+    warnings = validate(videos)[1]["warnings"]
+    assert [w["check"] for w in warnings] == ["video-decode"], warnings
+    assert "observation.images.cam_high" in warnings[0]["message"]
 
 
 def test_info_describes_a_lerobot_written_dataset(images):
