@@ -1,14 +1,13 @@
 //! `surgvla eval`: closed-loop evaluation of a policy on the tasks (see `surgvla::eval`). Turns
-//! the arguments into `EvalOptions`, draws a progress bar per task and prints the results table.
+//! the arguments into `EvalOptions`, shows a progress bar per task and prints the results table.
 
 use crate::episodes::{Instructions, TaskList, parse_tasks};
 use crate::error::CliError;
+use crate::progress::TrialBars;
 use clap::{Args, ValueEnum};
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::time::Duration;
 use surgvla::eval::{EvalOptions, PolicyChoice, SendExtras, evaluate};
-use surgvla::task::TaskId;
 
 /// `--policy`: a server address or a built-in policy.
 #[derive(Clone, Debug, PartialEq)]
@@ -157,39 +156,12 @@ impl EvalArgs {
     }
 }
 
-/// One bar per task (on stderr; hidden when stderr is not a terminal).
-fn bars(tasks: &[TaskId], trials: u32) -> (MultiProgress, Vec<(TaskId, ProgressBar)>) {
-    let multi = MultiProgress::new();
-    let style =
-        ProgressStyle::with_template("{prefix:>30} [{bar:30}] {pos}/{len} trials  {elapsed}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> ");
-    let bars = tasks
-        .iter()
-        .map(|&task| {
-            let bar = multi.add(ProgressBar::new(u64::from(trials)));
-            bar.set_style(style.clone());
-            bar.set_prefix(format!("{} {}", task.code(), task.name()));
-            (task, bar)
-        })
-        .collect();
-    (multi, bars)
-}
-
 pub fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
     let choice = args.choice()?;
     let options = args.options()?;
-    let (multi, bars) = bars(&options.tasks, options.trials);
-    let progress = |task: TaskId, done: u32| {
-        if let Some((_, bar)) = bars.iter().find(|(t, _)| *t == task) {
-            bar.set_position(u64::from(done));
-        }
-    };
-    let report = evaluate(&choice, &options, &progress);
-    for (_, bar) in &bars {
-        bar.finish_and_clear();
-    }
-    let _ = multi.clear();
+    let bars = TrialBars::new(&options.tasks, options.trials);
+    let report = evaluate(&choice, &options, &|task, done| bars.set(task, done));
+    bars.clear();
     let report = report?;
     say!("policy: {}", report.policy);
     say!("{}", report.table().trim_end());

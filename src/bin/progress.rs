@@ -1,4 +1,5 @@
-//! Progress bars (one per task and one overall) and the final summary table of `collect`.
+//! Progress bars (one per task and one overall) and the final summary table of `collect`; the
+//! per-task trial bars of `eval`.
 //! Bars draw on stderr and hide themselves when stderr is not a terminal.
 
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
@@ -62,6 +63,47 @@ pub fn episode_bar(total: u64, what: &str) -> ProgressBar {
     );
     bar.set_prefix(what.to_string());
     bar
+}
+
+/// One bar of trials per task (`eval`).
+pub struct TrialBars {
+    multi: MultiProgress,
+    tasks: Vec<(TaskId, ProgressBar)>,
+}
+
+impl TrialBars {
+    pub fn new(tasks: &[TaskId], trials: u32) -> Self {
+        let multi = MultiProgress::new();
+        let style =
+            ProgressStyle::with_template("{prefix:>30} [{bar:30}] {pos}/{len} trials  {elapsed}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> ");
+        let tasks = tasks
+            .iter()
+            .map(|&task| {
+                let bar = multi.add(ProgressBar::new(u64::from(trials)));
+                bar.set_style(style.clone());
+                bar.set_prefix(format!("{} {}", task.code(), task.name()));
+                (task, bar)
+            })
+            .collect();
+        TrialBars { multi, tasks }
+    }
+
+    /// `done` trials of `task` finished.
+    pub fn set(&self, task: TaskId, done: u32) {
+        if let Some((_, bar)) = self.tasks.iter().find(|(t, _)| *t == task) {
+            bar.set_position(u64::from(done));
+        }
+    }
+
+    /// Removes the bars (before the table is printed).
+    pub fn clear(&self) {
+        for (_, bar) in &self.tasks {
+            bar.finish_and_clear();
+        }
+        let _ = self.multi.clear();
+    }
 }
 
 impl CollectProgress for Bars {

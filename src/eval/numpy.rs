@@ -180,13 +180,10 @@ pub fn decode_actions(bytes: &[u8]) -> Result<Vec<[f32; 7]>, ReplyError> {
     for (row, bytes) in data.chunks_exact(7 * width).enumerate() {
         let mut action = [0f32; 7];
         for (column, value) in bytes.chunks_exact(width).enumerate() {
-            let value = match value.try_into() {
-                Ok(b) if width == 4 => f64::from(f32::from_le_bytes(b)),
-                _ => {
-                    let mut b = [0u8; 8];
-                    b.copy_from_slice(value);
-                    f64::from_le_bytes(b)
-                }
+            let value = match *value {
+                [a, b, c, d] => f64::from(f32::from_le_bytes([a, b, c, d])),
+                [a, b, c, d, e, f, g, h] => f64::from_le_bytes([a, b, c, d, e, f, g, h]),
+                _ => return Err(ReplyError::Dtype(format!("{dtype:?}"))),
             };
             if !value.is_finite() {
                 return Err(ReplyError::NotFinite { row, column, value });

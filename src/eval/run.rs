@@ -36,6 +36,11 @@ pub fn trial_seed(seed: u64, task: TaskId, trial: u32) -> u64 {
 /// A policy ready to run.
 enum Prepared {
     Remote(Box<RemotePolicy>),
+    Builtin(Builtin),
+}
+
+/// A built-in policy: its trials are pure functions of their seeds.
+enum Builtin {
     Expert(ExpertLibrary),
     Replay(ReplayLibrary),
     Random,
@@ -47,7 +52,7 @@ fn prepare(choice: &PolicyChoice, options: &EvalOptions) -> Result<Prepared, Eva
         PolicyChoice::Remote { url } => Prepared::Remote(Box::new(
             RemotePolicy::connect(url, options.timeout).map_err(EvalError::Unreachable)?,
         )),
-        PolicyChoice::Expert => Prepared::Expert(ExpertLibrary::builtin()?),
+        PolicyChoice::Expert => Prepared::Builtin(Builtin::Expert(ExpertLibrary::builtin()?)),
         PolicyChoice::Replay { dataset } => {
             let library =
                 ReplayLibrary::load(dataset).map_err(|source| EvalError::ReplayDataset {
@@ -60,10 +65,10 @@ fn prepare(choice: &PolicyChoice, options: &EvalOptions) -> Result<Prepared, Eva
                     task,
                 });
             }
-            Prepared::Replay(library)
+            Prepared::Builtin(Builtin::Replay(library))
         }
-        PolicyChoice::Random => Prepared::Random,
-        PolicyChoice::Noop => Prepared::Noop,
+        PolicyChoice::Random => Prepared::Builtin(Builtin::Random),
+        PolicyChoice::Noop => Prepared::Builtin(Builtin::Noop),
     })
 }
 
@@ -73,15 +78,15 @@ struct Outcome {
     episode: Option<Episode>,
 }
 
-/// Runs one trial of `instance` with `agent`; `record` keeps every rendered step.
+/// Runs trial `trial` with `agent` on `env`, fresh from `instance` with its first
+/// `observation`; `record` keeps every rendered step.
 fn run_trial(
+    (mut env, mut observation): (Env, EnvObservation),
     instance: &TaskInstance,
     trial: u32,
-    env_options: &EnvOptions,
     agent: &mut dyn Agent,
     record: bool,
 ) -> Outcome {
-    let (mut env, mut observation) = Env::from_instance(instance.clone(), env_options);
     let limit = env.max_steps();
     let mut verdict = env.verdict();
     let mut steps = Vec::new();
@@ -204,7 +209,7 @@ pub fn evaluate(
             .collect::<Result<Vec<_>, _>>()?;
         let results = match &mut prepared {
             Prepared::Remote(policy) => run_remote(policy, &instances, options, progress)?,
-            builtin => run_builtin(builtin, &instances, options, progress)?,
+            Prepared::Builtin(builtin) => run_builtin(builtin, &instances, options, progress)?,
         };
         rows.push(TaskResult::of(task, &results));
         trials.extend(results);
@@ -293,7 +298,7 @@ fn env_options(options: &EvalOptions, task: TaskId, render: bool) -> EnvOptions 
 /// Trials of one task with a built-in policy: headless and in parallel, then the first failures
 /// re-run with rendering and recorded.
 fn run_builtin(
-    prepared: &Prepared,
+    builtin: &Builtin,
     instances: &[TaskInstance],
     options: &EvalOptions,
     progress: Progress,
@@ -304,7 +309,7 @@ fn run_builtin(
     let done = AtomicU32::new(0);
     let headless = env_options(options, task, false);
     let run = |i: usize, env: &EnvOptions, record: bool| -> Result<Outcome, EvalError> {
-        builtin_trial(prepared, &instances[i], i as u32, env, record)
+        builtin_trial(builtin, &instances[i], i as u32, env, record)
     };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(options.threads.max(1))
@@ -333,38 +338,47 @@ fn run_builtin(
     Ok(results)
 }
 
+impl Builtin {
+    /// The agent of a trial from its first observation, and the training episode it replays.
+    fn agent(
+        &self,
+        instance: &TaskInstance,
+        first: &EnvObservation,
+    ) -> Result<(Box<dyn Agent>, Option<u64>), EvalError> {
+        Ok(match self {
+            Builtin::Expert(library) => {
+                let plan = library.plan(instance.task)?;
+                let expert = plan.expert(instance, &first.sim, instance.seed)?;
+                (Box::new(ExpertAgent(expert)), None)
+            }
+            Builtin::Replay(library) => {
+                let (agent, episode) = library.agent(instance.task, first).ok_or_else(|| {
+                    EvalError::Options(format!(
+                        "the replay dataset has no episode of {}",
+                        instance.task
+                    ))
+                })?;
+                (Box::new(agent), Some(episode))
+            }
+            Builtin::Random => (
+                Box::new(RandomAgent(RandomPolicy::new(instance.seed))),
+                None,
+            ),
+            Builtin::Noop => (Box::new(NoopAgent), None),
+        })
+    }
+}
+
 fn builtin_trial(
-    prepared: &Prepared,
+    builtin: &Builtin,
     instance: &TaskInstance,
     trial: u32,
     env: &EnvOptions,
     record: bool,
 ) -> Result<Outcome, EvalError> {
-    let (_, first) = Env::from_instance(instance.clone(), &EnvOptions::headless());
-    let mut replayed = None;
-    let mut agent: Box<dyn Agent> = match prepared {
-        Prepared::Expert(library) => {
-            let plan = library.plan(instance.task)?;
-            Box::new(ExpertAgent(plan.expert(
-                instance,
-                &first.sim,
-                instance.seed,
-            )?))
-        }
-        Prepared::Replay(library) => {
-            let (agent, episode) = library.agent(instance.task, &first).ok_or_else(|| {
-                EvalError::Options(format!(
-                    "the replay dataset has no episode of {}",
-                    instance.task
-                ))
-            })?;
-            replayed = Some(episode);
-            Box::new(agent)
-        }
-        Prepared::Random => Box::new(RandomAgent(RandomPolicy::new(instance.seed))),
-        Prepared::Noop | Prepared::Remote(_) => Box::new(NoopAgent),
-    };
-    let mut outcome = run_trial(instance, trial, env, agent.as_mut(), record);
+    let (env, first) = Env::from_instance(instance.clone(), env);
+    let (mut agent, replayed) = builtin.agent(instance, &first)?;
+    let mut outcome = run_trial((env, first), instance, trial, agent.as_mut(), record);
     outcome.result.replayed_episode = replayed;
     Ok(outcome)
 }
@@ -379,15 +393,15 @@ fn run_remote(
 ) -> Result<Vec<TrialResult>, EvalError> {
     let mut results = Vec::with_capacity(instances.len());
     let mut recorded = 0;
+    let size = (
+        options.camera.height_px as usize,
+        options.camera.width_px as usize,
+    );
     for (i, instance) in instances.iter().enumerate() {
-        let env = env_options(options, instance.task, true);
-        let size = (
-            options.camera.height_px as usize,
-            options.camera.width_px as usize,
-        );
+        let env = Env::from_instance(instance.clone(), &env_options(options, instance.task, true));
         let mut agent = RemoteAgent::new(policy, options.send, options.replan_steps, size);
         let record = recorded < options.recordings_per_task;
-        let outcome = run_trial(instance, i as u32, &env, &mut agent, record);
+        let outcome = run_trial(env, instance, i as u32, &mut agent, record);
         let mut result = outcome.result;
         if let (false, Some(episode)) = (result.success, outcome.episode) {
             result.recording = Some(save_recording(options, instance, &episode)?);

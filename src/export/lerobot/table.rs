@@ -161,6 +161,14 @@ fn other_column(
     };
     let scalar = is_scalar(feature);
     let n = elements(feature) as i32;
+    // A plain column for shape [1], else fixed-size lists of `n`.
+    let vector = |flat: ArrayRef, item: DataType| -> ArrayRef {
+        if scalar {
+            flat
+        } else {
+            Arc::new(FixedSizeListArray::new(list_item(item), n, flat, None))
+        }
+    };
     Ok(match feature.dtype {
         Dtype::Image => {
             let mut bytes = Vec::with_capacity(episode.steps.len());
@@ -187,17 +195,7 @@ fn other_column(
                     _ => return Err(wrong()),
                 }
             }
-            let array = Arc::new(Float32Array::from(flat));
-            if scalar {
-                array
-            } else {
-                Arc::new(FixedSizeListArray::new(
-                    list_item(DataType::Float32),
-                    n,
-                    array,
-                    None,
-                ))
-            }
+            vector(Arc::new(Float32Array::from(flat)), DataType::Float32)
         }
         Dtype::Int64 => {
             let mut flat = Vec::new();
@@ -207,17 +205,7 @@ fn other_column(
                     _ => return Err(wrong()),
                 }
             }
-            let array = Arc::new(Int64Array::from(flat));
-            if scalar {
-                array
-            } else {
-                Arc::new(FixedSizeListArray::new(
-                    list_item(DataType::Int64),
-                    n,
-                    array,
-                    None,
-                ))
-            }
+            vector(Arc::new(Int64Array::from(flat)), DataType::Int64)
         }
     })
 }

@@ -11,20 +11,10 @@ use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, Feat
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, leaves};
-use crate::export::rlds::read::version_dir;
-use crate::export::rlds::tfrecord::{RecordError, RecordReader};
+use crate::export::rlds::read::{ShardRecords, invalid, version_dir};
 use crate::export::{EpisodeSource, ExportError, read_json};
 use serde_json::Value;
-use std::fs::File;
-use std::io::BufReader;
-use std::path::{Path, PathBuf};
-
-fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
-    ExportError::InvalidDataset {
-        path: path.to_path_buf(),
-        problem: problem.into(),
-    }
-}
+use std::path::Path;
 
 /// Keys that are structure, not features.
 const STRUCTURE: [&str; 4] = [
@@ -99,11 +89,8 @@ fn columns(features: &Value, path: &Path) -> Result<Vec<Column>, ExportError> {
 pub struct ForeignRldsSource {
     info: DatasetInfo,
     columns: Vec<Column>,
-    shards: std::vec::IntoIter<PathBuf>,
-    current: Option<(PathBuf, RecordReader<BufReader<File>>, u64)>,
-    total_episodes: u64,
+    records: ShardRecords,
     next_index: u64,
-    failed: bool,
 }
 
 impl ForeignRldsSource {
@@ -111,31 +98,7 @@ impl ForeignRldsSource {
     /// `fps` steps per second and robot type `robot_type`.
     pub fn open(path: &Path, fps: u32, robot_type: &str) -> Result<Self, ExportError> {
         let folder = version_dir(path)?;
-        let info_path = folder.join("dataset_info.json");
-        let dataset_info = read_json(&info_path)?;
-        let name = dataset_info["name"]
-            .as_str()
-            .ok_or_else(|| invalid(&info_path, "has no name"))?;
-        let lengths: Vec<u64> = dataset_info["splits"]
-            .as_array()
-            .and_then(|splits| splits.iter().find(|s| s["name"] == "train"))
-            .and_then(|split| split["shardLengths"].as_array())
-            .ok_or_else(|| invalid(&info_path, "has no train split with shardLengths"))?
-            .iter()
-            .map(|v| {
-                v.as_str()
-                    .and_then(|s| s.parse().ok())
-                    .or_else(|| v.as_u64())
-            })
-            .collect::<Option<_>>()
-            .ok_or_else(|| invalid(&info_path, "has a shard length that is not a count"))?;
-        let count = lengths.len();
-        let shards: Vec<PathBuf> = (0..count)
-            .map(|i| folder.join(format!("{name}-train.tfrecord-{i:05}-of-{count:05}")))
-            .collect();
-        if let Some(missing) = shards.iter().find(|p| !p.is_file()) {
-            return Err(invalid(missing, "is missing"));
-        }
+        let records = ShardRecords::open(&folder)?;
         let features_path = folder.join("features.json");
         let columns = columns(&read_json(&features_path)?, &features_path)?;
         let features: Vec<FeatureSpec> = columns.iter().map(|c| c.spec.clone()).collect();
@@ -143,45 +106,13 @@ impl ForeignRldsSource {
         Ok(ForeignRldsSource {
             info,
             columns,
-            shards: shards.into_iter(),
-            current: None,
-            total_episodes: lengths.iter().sum(),
+            records,
             next_index: 0,
-            failed: false,
         })
     }
 
-    fn next_record(&mut self) -> Result<Option<(PathBuf, u64, Vec<u8>)>, ExportError> {
-        loop {
-            if self.current.is_none() {
-                let Some(path) = self.shards.next() else {
-                    return Ok(None);
-                };
-                let file = File::open(&path).map_err(ExportError::io(&path))?;
-                let reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
-                self.current = Some((path, reader, 0));
-            }
-            let Some((path, reader, read)) = self.current.as_mut() else {
-                continue;
-            };
-            match reader.next_record() {
-                Some(Ok(bytes)) => {
-                    *read += 1;
-                    return Ok(Some((path.clone(), *read - 1, bytes)));
-                }
-                Some(Err(RecordError::Io { source, .. })) => {
-                    return Err(ExportError::Io {
-                        path: path.clone(),
-                        source,
-                    });
-                }
-                Some(Err(error)) => return Err(invalid(path, error.to_string())),
-                None => self.current = None,
-            }
-        }
-    }
-
-    fn decode(&self, bytes: &[u8], index: u64) -> Result<Episode, String> {
+    /// Episode `index` from its record.
+    fn decode(columns: &[Column], bytes: &[u8], index: u64) -> Result<Episode, String> {
         let example = decode_example(bytes).map_err(|e| e.0.to_string())?;
         let steps = match example.get("steps/is_first") {
             Some(Feature::Int64(flags)) => flags.len(),
@@ -198,7 +129,7 @@ impl ForeignRldsSource {
             _ => String::new(),
         };
         let mut rows: Vec<Vec<FeatureValue>> = vec![Vec::new(); steps];
-        for column in &self.columns {
+        for column in columns {
             let n: usize = column.spec.shape.iter().product();
             let wrong = || {
                 format!(
@@ -251,24 +182,14 @@ impl EpisodeSource for ForeignRldsSource {
     }
 
     fn len(&self) -> u64 {
-        self.total_episodes
+        self.records.total()
     }
 
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        if self.failed {
-            return None;
-        }
-        let result = match self.next_record() {
-            Ok(None) => return None,
-            Ok(Some((path, record, bytes))) => {
-                let index = self.next_index;
-                self.next_index += 1;
-                self.decode(&bytes, index)
-                    .map_err(|problem| invalid(&path, format!("record {record}: {problem}")))
-            }
-            Err(error) => Err(error),
-        };
-        self.failed = result.is_err();
-        Some(result)
+        let index = self.next_index;
+        self.next_index += 1;
+        let columns = &self.columns;
+        self.records
+            .next_decoded(|bytes| Self::decode(columns, bytes, index))
     }
 }

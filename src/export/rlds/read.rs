@@ -15,7 +15,7 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
-fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
+pub(super) fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
     ExportError::InvalidDataset {
         path: path.to_path_buf(),
         problem: problem.into(),
@@ -114,27 +114,27 @@ struct Shard {
     episodes: u64,
 }
 
-/// Reads an RLDS dataset episode by episode (one record in memory at a time).
-pub struct RldsSource {
-    info: DatasetInfo,
-    layout: StepLayout,
+/// The episode records of a TFDS train split, shard by shard in order, one record in memory at
+/// a time; each shard must hold the episodes `dataset_info.json`'s `shardLengths` gives it. After
+/// the first error (its own, or a record its caller could not decode) it yields nothing more.
+/// Both RLDS sources read through it: ours and [`super::foreign::ForeignRldsSource`].
+pub struct ShardRecords {
     shards: std::vec::IntoIter<Shard>,
     /// The shard being read: path, reader, episodes expected and read.
     current: Option<(PathBuf, RecordReader<BufReader<File>>, u64, u64)>,
-    total_episodes: u64,
+    total: u64,
     failed: bool,
 }
 
-impl RldsSource {
-    /// Opens the dataset at `path` (a version folder or the data directory above it).
-    pub fn open(path: &Path) -> Result<Self, ExportError> {
-        let folder = version_dir(path)?;
+impl ShardRecords {
+    /// The train split's shards of the version folder `folder`, as `dataset_info.json` lists
+    /// them (every one present).
+    pub fn open(folder: &Path) -> Result<ShardRecords, ExportError> {
         let info_path = folder.join("dataset_info.json");
         let dataset_info = read_json(&info_path)?;
         let name = dataset_info["name"]
             .as_str()
-            .ok_or_else(|| invalid(&info_path, "has no name"))?
-            .to_string();
+            .ok_or_else(|| invalid(&info_path, "has no name"))?;
         let split = dataset_info["splits"]
             .as_array()
             .and_then(|splits| splits.iter().find(|s| s["name"] == "train"))
@@ -166,6 +166,101 @@ impl RldsSource {
                 }
             })
             .collect::<Result<_, _>>()?;
+        Ok(ShardRecords {
+            shards: shards.into_iter(),
+            current: None,
+            total: lengths.iter().sum(),
+            failed: false,
+        })
+    }
+
+    /// Episodes the split holds, by `shardLengths`.
+    pub fn total(&self) -> u64 {
+        self.total
+    }
+
+    /// The next record decoded by `decode` (a failure names the shard and the record), or None
+    /// after the last record or the first error.
+    pub fn next_decoded<T>(
+        &mut self,
+        decode: impl FnOnce(&[u8]) -> Result<T, String>,
+    ) -> Option<Result<T, ExportError>> {
+        if self.failed {
+            return None;
+        }
+        let result = match self.next_record() {
+            Ok(None) => return None,
+            Ok(Some((path, index, bytes))) => decode(&bytes)
+                .map_err(|problem| invalid(&path, format!("record {index}: {problem}"))),
+            Err(error) => Err(error),
+        };
+        self.failed = result.is_err();
+        Some(result)
+    }
+
+    /// The next record: (its shard, its index in the shard, its bytes).
+    fn next_record(&mut self) -> Result<Option<(PathBuf, u64, Vec<u8>)>, ExportError> {
+        loop {
+            if self.current.is_none() {
+                let Some(shard) = self.shards.next() else {
+                    return Ok(None);
+                };
+                let file = File::open(&shard.path).map_err(ExportError::io(&shard.path))?;
+                let reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
+                self.current = Some((shard.path, reader, shard.episodes, 0));
+            }
+            let Some((path, reader, expected, read)) = self.current.as_mut() else {
+                continue;
+            };
+            match reader.next_record() {
+                Some(Ok(bytes)) => {
+                    let index = *read;
+                    *read += 1;
+                    if *read > *expected {
+                        return Err(invalid(
+                            path,
+                            format!(
+                                "holds more than the {expected} episodes dataset_info.json's shardLengths gives it"
+                            ),
+                        ));
+                    }
+                    return Ok(Some((path.clone(), index, bytes)));
+                }
+                Some(Err(RecordError::Io { source, .. })) => {
+                    return Err(ExportError::Io {
+                        path: path.clone(),
+                        source,
+                    });
+                }
+                Some(Err(error)) => return Err(invalid(path, error.to_string())),
+                None => {
+                    if *read != *expected {
+                        return Err(invalid(
+                            path,
+                            format!(
+                                "holds {read} episodes where dataset_info.json's shardLengths gives {expected}"
+                            ),
+                        ));
+                    }
+                    self.current = None;
+                }
+            }
+        }
+    }
+}
+
+/// Reads an RLDS dataset surgvla wrote, episode by episode (one record in memory at a time).
+pub struct RldsSource {
+    info: DatasetInfo,
+    layout: StepLayout,
+    records: ShardRecords,
+}
+
+impl RldsSource {
+    /// Opens the dataset at `path` (a version folder or the data directory above it).
+    pub fn open(path: &Path) -> Result<Self, ExportError> {
+        let folder = version_dir(path)?;
+        let records = ShardRecords::open(&folder)?;
         let features_path = folder.join("features.json");
         if !features_path.is_file() {
             return Err(invalid(&features_path, "is missing"));
@@ -210,64 +305,8 @@ impl RldsSource {
         Ok(RldsSource {
             layout: StepLayout::of(&info, &keys),
             info,
-            total_episodes: lengths.iter().sum(),
-            shards: shards.into_iter(),
-            current: None,
-            failed: false,
+            records,
         })
-    }
-
-    fn next_result(&mut self) -> Result<Option<Episode>, ExportError> {
-        loop {
-            if self.current.is_none() {
-                let Some(shard) = self.shards.next() else {
-                    return Ok(None);
-                };
-                let file = File::open(&shard.path).map_err(ExportError::io(&shard.path))?;
-                let reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
-                self.current = Some((shard.path, reader, shard.episodes, 0));
-            }
-            let Some((path, reader, expected, read)) = self.current.as_mut() else {
-                continue;
-            };
-            match reader.next_record() {
-                Some(Ok(bytes)) => {
-                    let index = *read;
-                    *read += 1;
-                    if *read > *expected {
-                        return Err(invalid(
-                            path,
-                            format!(
-                                "holds more than the {expected} episodes dataset_info.json's shardLengths gives it"
-                            ),
-                        ));
-                    }
-                    return decode_episode(&self.layout, &bytes)
-                        .map(Some)
-                        .map_err(|problem| invalid(path, format!("record {index}: {problem}")));
-                }
-                Some(Err(RecordError::Io { source, .. })) => {
-                    return Err(ExportError::Io {
-                        path: path.clone(),
-                        source,
-                    });
-                }
-                Some(Err(error)) => {
-                    return Err(invalid(path, error.to_string()));
-                }
-                None => {
-                    if *read != *expected {
-                        return Err(invalid(
-                            path,
-                            format!(
-                                "holds {read} episodes where dataset_info.json's shardLengths gives {expected}"
-                            ),
-                        ));
-                    }
-                    self.current = None;
-                }
-            }
-        }
     }
 }
 
@@ -277,17 +316,12 @@ impl EpisodeSource for RldsSource {
     }
 
     fn len(&self) -> u64 {
-        self.total_episodes
+        self.records.total()
     }
 
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        if self.failed {
-            return None;
-        }
-        let result = self.next_result().transpose();
-        if matches!(result, Some(Err(_))) {
-            self.failed = true;
-        }
-        result
+        let layout = &self.layout;
+        self.records
+            .next_decoded(|bytes| decode_episode(layout, bytes))
     }
 }
