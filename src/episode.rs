@@ -56,6 +56,90 @@ pub struct FeatureSpec {
     /// One name per element for vectors; the axis names for images.
     pub names: Vec<String>,
     pub kind: FeatureKind,
+    /// An image feature its source stores as video in this codec: its frames travel encoded in
+    /// [`Episode::encoded`], not as pixels in the steps (nothing here decodes video).
+    pub video: Option<VideoCodec>,
+}
+
+impl FeatureSpec {
+    /// Whether the steps hold this feature's values (pixels, vectors, [`Step::other`]); a
+    /// video feature's frames are in [`Episode::encoded`] instead.
+    pub fn in_steps(&self) -> bool {
+        self.video.is_none()
+    }
+}
+
+/// A video codec.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
+pub enum VideoCodec {
+    /// AV1 (rav1e writes it; LeRobot's own codec family).
+    Av1,
+    /// H.264 (openh264 writes it).
+    H264,
+}
+
+impl VideoCodec {
+    /// The name LeRobot records in `video.codec`.
+    pub fn name(self) -> &'static str {
+        match self {
+            VideoCodec::Av1 => "av1",
+            VideoCodec::H264 => "h264",
+        }
+    }
+
+    /// The codec of a LeRobot `video.codec` name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "av1" | "libsvtav1" | "libaom-av1" | "librav1e" => Some(VideoCodec::Av1),
+            "h264" | "libx264" | "libopenh264" | "avc1" => Some(VideoCodec::H264),
+            _ => None,
+        }
+    }
+}
+
+/// One encoded frame: H.264 as Annex B bytes, AV1 as OBUs without temporal delimiters (what the
+/// MP4 muxer takes); PNG or TIFF as the file's bytes (`keyframe` true).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncodedFrame {
+    pub data: Vec<u8>,
+    pub keyframe: bool,
+}
+
+/// How a feature's stored bytes are encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageEncoding {
+    /// One PNG per frame (lossless).
+    Png,
+    /// One float32 TIFF per frame (depth in metres).
+    Tiff,
+    /// A video stream: frames depend on earlier ones back to the last keyframe.
+    Video(VideoCodec),
+}
+
+/// Statistics of a feature's pixels that its source computed (carried with video frames,
+/// whose pixels nothing here decodes).
+#[derive(Clone, Debug, PartialEq)]
+pub enum PixelStats {
+    /// The exact accumulator of the writer that saw the pixels (surgvla's own datasets):
+    /// merging these gives the same statistics as the pixels would.
+    Exact(serde_json::Value),
+    /// LeRobot's per-episode summary (min, max, mean, std, count, quantiles), all another
+    /// tool's dataset has: merged by count, quantiles approximated.
+    Summary(serde_json::Value),
+}
+
+/// One image feature's frames in one episode as its source stored them, so that a sink storing
+/// the same encoding copies them instead of encoding pixels again (and, for video, the only
+/// form the frames have here).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncodedFeature {
+    /// The feature's key.
+    pub feature: String,
+    pub encoding: ImageEncoding,
+    /// One per step (video: in decode order, the first a keyframe).
+    pub frames: Vec<EncodedFrame>,
+    /// The pixels' statistics, for video features.
+    pub pixel_stats: Option<PixelStats>,
 }
 
 fn names(items: &[&str]) -> Vec<String> {
@@ -92,6 +176,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
         shape: vec![height_px, width_px, channels],
         names: names(&["height", "width", "channels"]),
         kind,
+        video: None,
     };
     let mut features = vec![image("observation.images.endoscope", 3, FeatureKind::Rgb)];
     if set.depth {
@@ -119,6 +204,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
             "jaw_angle_rad",
         ]),
         kind: FeatureKind::State,
+        video: None,
     });
     if set.environment_state {
         features.push(FeatureSpec {
@@ -127,6 +213,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
             shape: vec![MAX_OBJECTS * POSE_VALUES],
             names: environment_names,
             kind: FeatureKind::EnvironmentState,
+            video: None,
         });
     }
     features.push(FeatureSpec {
@@ -143,6 +230,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
             "gripper_open",
         ]),
         kind: FeatureKind::Action,
+        video: None,
     });
     features
 }
@@ -274,7 +362,8 @@ pub struct Step {
     pub environment_state: [f32; MAX_OBJECTS * POSE_VALUES],
     /// What the simulator knew besides the features (empty when read from a dataset).
     pub extras: StepExtras,
-    /// The values of the dataset's [`FeatureKind::Other`] features, in feature order.
+    /// The values of the dataset's [`FeatureKind::Other`] features held in steps
+    /// ([`FeatureSpec::in_steps`]), in feature order.
     pub other: Vec<FeatureValue>,
 }
 
@@ -350,6 +439,9 @@ pub struct SceneMesh {
 pub struct Episode {
     pub meta: EpisodeMeta,
     pub steps: Vec<Step>,
+    /// Image features' frames as the source stored them (empty for a fresh recording): every
+    /// video feature's, and PNG / TIFF bytes a reader already had beside the decoded pixels.
+    pub encoded: Vec<EncodedFeature>,
 }
 
 impl Episode {
@@ -367,8 +459,31 @@ impl Episode {
         let pixels = width_px * height_px;
         let others: Vec<&FeatureSpec> = features
             .iter()
-            .filter(|f| f.kind == FeatureKind::Other)
+            .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
             .collect();
+        for feature in features.iter().filter(|f| !f.in_steps()) {
+            let frames = self
+                .encoded_video(&feature.name)
+                .map_or(0, |e| e.frames.len());
+            if frames != self.steps.len() {
+                return Err(format!(
+                    "episode {}: {} has {frames} video frames for {} steps",
+                    self.meta.index,
+                    feature.name,
+                    self.steps.len()
+                ));
+            }
+            if self
+                .encoded_video(&feature.name)
+                .and_then(|e| e.frames.first())
+                .is_some_and(|f| !f.keyframe)
+            {
+                return Err(format!(
+                    "episode {}: {} does not start on a keyframe",
+                    self.meta.index, feature.name
+                ));
+            }
+        }
         for (i, step) in self.steps.iter().enumerate() {
             if step.other.len() != others.len() {
                 return Err(format!(
@@ -393,7 +508,7 @@ impl Episode {
                     ));
                 }
             }
-            for feature in features {
+            for feature in features.iter().filter(|f| f.in_steps()) {
                 let (what, len, expected) = match feature.kind {
                     FeatureKind::Rgb => ("rgb", step.rgb.len(), pixels * 3),
                     FeatureKind::Depth => ("depth", step.depth_m.len(), pixels),
@@ -409,6 +524,20 @@ impl Episode {
             }
         }
         Ok(())
+    }
+
+    /// The stored frames of `feature` in `encoding`, if the source kept them.
+    pub fn encoded_as(&self, feature: &str, encoding: ImageEncoding) -> Option<&EncodedFeature> {
+        self.encoded
+            .iter()
+            .find(|e| e.feature == feature && e.encoding == encoding)
+    }
+
+    /// The video frames of `feature`, if it arrived as video.
+    pub fn encoded_video(&self, feature: &str) -> Option<&EncodedFeature> {
+        self.encoded
+            .iter()
+            .find(|e| e.feature == feature && matches!(e.encoding, ImageEncoding::Video(_)))
     }
 }
 

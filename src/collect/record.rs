@@ -207,6 +207,7 @@ pub fn render_replay(
     let task = instance.task;
     Recorded {
         episode: Episode {
+            encoded: Vec::new(),
             meta: EpisodeMeta {
                 index,
                 task_code: task.code().into(),

@@ -136,6 +136,7 @@ fn run_trial(
         recording: None,
     };
     let episode = record.then(|| Episode {
+        encoded: Vec::new(),
         meta: EpisodeMeta {
             index: u64::from(trial),
             task_code: task.code().into(),

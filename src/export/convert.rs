@@ -106,6 +106,10 @@ impl Without {
     }
 
     fn strip(&self, mut episode: Episode) -> Episode {
+        let kept = &self.info.features;
+        episode
+            .encoded
+            .retain(|e| kept.iter().any(|f| f.name == e.feature));
         for step in &mut episode.steps {
             for kind in &self.kinds {
                 match kind {
@@ -141,6 +145,18 @@ impl EpisodeSource for Without {
 /// half a millimetre of rounding, plus float slack.
 pub const DEPTH_TOLERANCE_M: f32 = 0.000_51;
 
+/// Whether a video feature both episodes hold as video differs in any frame's bytes (video
+/// is copied, never re-encoded, so the bytes must be the same).
+fn video_differs(a: &Episode, b: &Episode) -> bool {
+    a.encoded
+        .iter()
+        .filter(|e| matches!(e.encoding, crate::episode::ImageEncoding::Video(_)))
+        .any(|x| {
+            b.encoded_video(&x.feature)
+                .is_some_and(|y| y.encoding != x.encoding || y.frames != x.frames)
+        })
+}
+
 /// What `convert --verify` found: episodes and frames compared, and the first differences.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Verification {
@@ -167,7 +183,7 @@ pub fn verify(
     let others = |info: &crate::export::DatasetInfo| -> Vec<String> {
         info.features
             .iter()
-            .filter(|f| f.kind == FeatureKind::Other)
+            .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
             .map(|f| f.name.clone())
             .collect()
     };
@@ -261,6 +277,8 @@ pub fn verify(
                 Some("object poses")
             } else if named(&a_others, &x.other) != named(&b_others, &y.other) {
                 Some("another feature")
+            } else if frame == 0 && video_differs(&a, &b) {
+                Some("video")
             } else {
                 None
             };

@@ -1,7 +1,10 @@
 //! Merging LeRobot datasets (the outputs of `collect --shard I/N`, or any compatible ones) into
 //! one: every input's episodes in turn, re-indexed, through one LeRobot writer, so files roll by
 //! size and the statistics are recomputed over the merged data in global order (quantiles
-//! exact, never averaged). Inputs must agree on everything that shapes the bytes (features, fps,
+//! exact, never averaged). Video is copied frame for frame, not decoded: its statistics come
+//! from the exact per-episode accumulators surgvla stores beside video episodes (another tool's
+//! video datasets have only per-episode summaries, merged by count with approximate
+//! quantiles). Inputs must agree on everything that shapes the bytes (features, fps,
 //! robot, camera, mask ids, collection options, layout); shards of one collection are put in
 //! shard order, and when they are all N of N the merged dataset says shard "0/1", so it equals
 //! the single-machine run byte for byte. Their collect reports, when every input has one, are
@@ -10,7 +13,7 @@
 use crate::error::ErrorKind;
 use crate::export::convert::ConvertError;
 use crate::export::lerobot::read::LeRobotSource;
-use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter};
+use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
 use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
@@ -71,19 +74,11 @@ fn open(path: &Path) -> Result<Input, MergeError> {
     }
     let info_path = path.join("meta/info.json");
     let info = read_json(&info_path).map_err(read)?;
-    if info["features"]
-        .as_object()
-        .is_some_and(|f| f.values().any(|f| f["dtype"] == "video"))
-    {
-        return Err(MergeError::Unsupported {
-            path: path.to_path_buf(),
-            problem: "a video-mode dataset: merge reads image-mode LeRobot datasets (MP4 passthrough is not built yet)".into(),
-        });
-    }
     let source = LeRobotSource::open(path).map_err(read)?;
     let layout = json!({
         "codebase_version": info["codebase_version"],
         "data_files_size_in_mb": info["data_files_size_in_mb"],
+        "video_files_size_in_mb": info["video_files_size_in_mb"],
         "chunks_size": info["chunks_size"],
     });
     let shard = shard_of(&source.info().collection);
@@ -219,7 +214,20 @@ pub fn merge(
         collection.insert("shard".into(), Value::from(merged));
     }
     let layout = &opened[0].layout;
+    // Video is copied as it is, in its own codec, rolled at the inputs' video file size.
+    let video = info
+        .features
+        .iter()
+        .find_map(|f| f.video)
+        .map(|codec| VideoOptions {
+            codec,
+            quality: 0,
+            file_size_mb: layout["video_files_size_in_mb"]
+                .as_u64()
+                .unwrap_or(VideoOptions::default().file_size_mb),
+        });
     let options = LeRobotOptions {
+        video,
         version: if layout["codebase_version"] == "v2.1" {
             LeRobotVersion::V21
         } else {

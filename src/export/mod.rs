@@ -21,6 +21,7 @@
 //! [`convert`] copies any source into any sink.
 
 pub mod convert;
+pub mod demux;
 pub mod dir;
 pub mod image;
 pub mod info;
@@ -401,6 +402,17 @@ pub fn open_sink(
         .filter(|f| f.kind == crate::episode::FeatureKind::Other)
         .map(|f| f.name.as_str())
         .collect();
+    let videos: Vec<String> = info
+        .features
+        .iter()
+        .filter_map(|f| Some(format!("{} ({})", f.name, f.video?.name())))
+        .collect();
+    if !videos.is_empty() && !matches!(options, SinkOptions::LeRobot(_)) {
+        return Err(ExportError::InvalidOptions(format!(
+            "the input stores {} as video, and surgvla copies video without decoding it: it can write them to LeRobot (either layout) but not to a format that needs their pixels",
+            videos.join(", ")
+        )));
+    }
     if !others.is_empty() && !matches!(options, SinkOptions::LeRobot(_) | SinkOptions::Rlds(_)) {
         return Err(ExportError::InvalidOptions(format!(
             "the features {} have no place in this format yet (point clouds, zarr and MCAP hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to LeRobot or RLDS",

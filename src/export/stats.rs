@@ -325,6 +325,40 @@ mod tests {
     use super::*;
 
     #[test]
+    fn summaries_merge_by_count_and_meet_exact_statistics() {
+        let mut a = ImageStats::unit_scaled(1);
+        a.push_u8(&[0, 255, 0, 255]);
+        let mut b = ImageStats::unit_scaled(1);
+        b.push_u8(&[255, 255, 255, 255]);
+        b.push_u8(&[255, 255, 255, 255]);
+        let part = |s: &ImageStats| {
+            FeatureStats::Summary(SummaryStats::from_json(&s.to_json()).expect("summary"))
+        };
+        let mut total = FeatureStats::Image(ImageStats::unit_scaled(1));
+        total.merge(&part(&a));
+        total.merge(&FeatureStats::Image(b.clone()));
+        let json = total.to_json();
+        assert_eq!(json["count"], json!([3]));
+        assert_eq!(json["min"], json!([[[0.0]]]));
+        assert_eq!(json["max"], json!([[[1.0]]]));
+        // 10 of 12 pixels are 1: the pooled mean and deviation are exact.
+        let mean = json["mean"][0][0][0].as_f64().expect("mean");
+        assert!((mean - (0.5 + 2.0) / 3.0).abs() < 1e-12, "{mean}");
+        let exact = {
+            let mut e = a.clone();
+            e.merge(&b);
+            e.to_json()
+        };
+        let std = json["std"][0][0][0].as_f64().expect("std");
+        let exact_std = exact["std"][0][0][0].as_f64().expect("std");
+        assert!((std - exact_std).abs() < 1e-12, "{std} vs {exact_std}");
+        // Quantiles are weighted means of the parts' (here the median: 1/3 * 0 + 2/3 * 1 at
+        // most; a's median of [0, 1, 0, 1] is 0 or 1 by rank).
+        assert!(json["q50"][0][0][0].as_f64().is_some());
+        assert!(SummaryStats::from_json(&json!({"count": [1]})).is_none());
+    }
+
+    #[test]
     fn vector_stats_match_direct_computation() {
         let mut stats = VectorStats::new(2);
         for i in 0..101 {
@@ -365,12 +399,143 @@ mod tests {
     }
 }
 
+/// Statistics known only as LeRobot's per-episode summaries (a video feature of a dataset
+/// surgvla did not write, whose pixels nothing here decodes): merged the way lerobot merges
+/// them, by count: min and max exact, mean and standard deviation pooled exactly, quantiles
+/// the count-weighted mean of the parts' quantiles (an approximation).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct SummaryStats {
+    count: u64,
+    /// Per element (or channel).
+    min: Vec<f64>,
+    max: Vec<f64>,
+    /// Count-weighted sums of mean, mean of squares and each quantile.
+    weighted_mean: Vec<f64>,
+    weighted_square: Vec<f64>,
+    weighted_quantiles: Vec<Vec<f64>>,
+    /// Whether each statistic nests as (C, 1, 1) (images) rather than a flat list.
+    image: bool,
+}
+
+fn flat(value: &Value) -> Vec<f64> {
+    match value {
+        Value::Array(items) => items.iter().flat_map(flat).collect(),
+        other => other.as_f64().into_iter().collect(),
+    }
+}
+
+impl SummaryStats {
+    /// One part from LeRobot's per-episode statistics object (min, max, mean, std, count,
+    /// q01..q99); None when it lacks one of them.
+    pub fn from_json(stats: &Value) -> Option<Self> {
+        let count = flat(&stats["count"]).first().copied()? as u64;
+        let (min, max, mean, std) = (
+            flat(&stats["min"]),
+            flat(&stats["max"]),
+            flat(&stats["mean"]),
+            flat(&stats["std"]),
+        );
+        let n = mean.len();
+        if n == 0 || [min.len(), max.len(), std.len()] != [n, n, n] {
+            return None;
+        }
+        let quantiles: Vec<Vec<f64>> = QUANTILES
+            .iter()
+            .map(|(name, _)| flat(&stats[*name]))
+            .collect();
+        if quantiles.iter().any(|q| q.len() != n) {
+            return None;
+        }
+        let weight = count as f64;
+        Some(SummaryStats {
+            count,
+            min,
+            max,
+            weighted_square: mean
+                .iter()
+                .zip(&std)
+                .map(|(m, s)| (s * s + m * m) * weight)
+                .collect(),
+            weighted_mean: mean.iter().map(|m| m * weight).collect(),
+            weighted_quantiles: quantiles
+                .into_iter()
+                .map(|q| q.iter().map(|v| v * weight).collect())
+                .collect(),
+            image: matches!(&stats["mean"], Value::Array(a) if a.first().is_some_and(Value::is_array)),
+        })
+    }
+
+    /// Folds in another part.
+    pub fn merge(&mut self, other: &SummaryStats) {
+        if other.count == 0 {
+            return;
+        }
+        if self.count == 0 {
+            *self = other.clone();
+            return;
+        }
+        self.count += other.count;
+        let add = |a: &mut Vec<f64>, b: &Vec<f64>| a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+        self.min
+            .iter_mut()
+            .zip(&other.min)
+            .for_each(|(a, b)| *a = a.min(*b));
+        self.max
+            .iter_mut()
+            .zip(&other.max)
+            .for_each(|(a, b)| *a = a.max(*b));
+        add(&mut self.weighted_mean, &other.weighted_mean);
+        add(&mut self.weighted_square, &other.weighted_square);
+        for (a, b) in self
+            .weighted_quantiles
+            .iter_mut()
+            .zip(&other.weighted_quantiles)
+        {
+            add(a, b);
+        }
+    }
+
+    /// The statistics as LeRobot's JSON (images nested (C, 1, 1)).
+    pub fn to_json(&self) -> Value {
+        let weight = (self.count as f64).max(1.0);
+        let shape = |values: Vec<f64>| -> Value {
+            if self.image {
+                json!(values.iter().map(|v| vec![vec![*v]]).collect::<Vec<_>>())
+            } else {
+                json!(values)
+            }
+        };
+        let mean: Vec<f64> = self.weighted_mean.iter().map(|v| v / weight).collect();
+        let std: Vec<f64> = self
+            .weighted_square
+            .iter()
+            .zip(&mean)
+            .map(|(sq, m)| (sq / weight - m * m).max(0.0).sqrt())
+            .collect();
+        let mut out = serde_json::Map::new();
+        out.insert("min".into(), shape(self.min.clone()));
+        out.insert("max".into(), shape(self.max.clone()));
+        out.insert("mean".into(), shape(mean));
+        out.insert("std".into(), shape(std));
+        out.insert("count".into(), json!([self.count]));
+        for ((name, _), q) in QUANTILES.iter().zip(&self.weighted_quantiles) {
+            out.insert(
+                (*name).into(),
+                shape(q.iter().map(|v| v / weight).collect()),
+            );
+        }
+        Value::Object(out)
+    }
+}
+
 /// Statistics of one feature (or one of LeRobot's default columns): per element for vectors,
 /// per channel for images.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub enum FeatureStats {
     Vector(VectorStats),
     Image(ImageStats),
+    /// Only per-episode summaries are known (see [`SummaryStats`]).
+    Summary(SummaryStats),
 }
 
 impl FeatureStats {
@@ -397,9 +562,21 @@ impl FeatureStats {
 
     /// Folds `part` (statistics of later values) into these.
     pub fn merge(&mut self, part: &FeatureStats) {
-        match (self, part) {
+        match (&mut *self, part) {
             (FeatureStats::Vector(a), FeatureStats::Vector(b)) => a.merge(b),
             (FeatureStats::Image(a), FeatureStats::Image(b)) => a.merge(b),
+            (FeatureStats::Summary(a), FeatureStats::Summary(b)) => a.merge(b),
+            // Exact statistics meeting summaries become a summary.
+            (FeatureStats::Summary(a), exact) => {
+                if let Some(b) = SummaryStats::from_json(&exact.to_json()) {
+                    a.merge(&b);
+                }
+            }
+            (exact, FeatureStats::Summary(b)) => {
+                let mut merged = SummaryStats::from_json(&exact.to_json()).unwrap_or_default();
+                merged.merge(b);
+                *self = FeatureStats::Summary(merged);
+            }
             _ => {}
         }
     }
@@ -409,6 +586,7 @@ impl FeatureStats {
         match self {
             FeatureStats::Vector(s) => s.to_json(),
             FeatureStats::Image(s) => s.to_json(),
+            FeatureStats::Summary(s) => s.to_json(),
         }
     }
 }

@@ -14,24 +14,10 @@ use openh264::formats::{RgbSliceU8, YUVBuffer};
 use std::fs::File;
 use std::path::Path;
 
-/// The video codec of a dataset.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Codec {
-    /// AV1 with rav1e (speed preset 10, low latency, keyframe every 2 s).
-    Av1,
-    /// H.264 with openh264 (the fast mode).
-    H264,
-}
-
-impl Codec {
-    /// The name LeRobot records in `video.codec`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Codec::Av1 => "av1",
-            Codec::H264 => "h264",
-        }
-    }
-}
+/// One encoded frame (Annex B bytes for H.264, OBUs for AV1).
+pub use crate::episode::EncodedFrame;
+/// The video codec of a dataset (the episode model's [`VideoCodec`](crate::episode::VideoCodec)).
+pub use crate::episode::VideoCodec as Codec;
 
 /// BT.601 limited-range RGB to planar YUV 4:2:0 (chroma averaged over 2 x 2 blocks).
 pub fn rgb_to_yuv420(rgb: &[u8], width: usize, height: usize) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
@@ -193,13 +179,6 @@ pub fn encode(
         Codec::H264 => encode_h264(frames, width, height, fps, quality.min(51) as u8),
         Codec::Av1 => encode_av1(frames, width, height, fps, quality.min(255) as usize),
     }
-}
-
-/// One encoded frame (Annex B bytes for H.264, OBUs for AV1).
-#[derive(Clone, Debug)]
-pub struct EncodedFrame {
-    pub data: Vec<u8>,
-    pub keyframe: bool,
 }
 
 /// Encodes an episode's RGB frames (row-major, 3 bytes a pixel) as H.264.

@@ -13,6 +13,7 @@ mod kinematics;
 mod layers;
 mod lerobot;
 mod merge;
+mod passthrough;
 mod physics;
 mod pointcloud;
 mod render;

@@ -107,6 +107,7 @@ pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode:
         shape,
         names: Vec::new(),
         kind: FeatureKind::Other,
+        video: None,
     };
     let mut dataset = info(false);
     dataset.features = vec![
@@ -119,6 +120,7 @@ pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode:
     let mut rng = surgvla::rng::SplitMix64::stream(3, "other-features");
     let episodes: Vec<surgvla::episode::Episode> = (0..3u64)
         .map(|index| surgvla::episode::Episode {
+            encoded: Vec::new(),
             meta: EpisodeMeta {
                 index,
                 task_code: String::new(),

@@ -34,8 +34,8 @@ pub(super) struct Metadata<'a> {
     /// info.json's object as v3.0 has it.
     pub info: Value,
     pub chunks_size: u64,
-    /// The video feature's key, in video mode.
-    pub video_key: Option<&'a str>,
+    /// The video features' keys.
+    pub video_keys: &'a [String],
 }
 
 fn pretty(name: &str, value: &Value) -> Result<Vec<u8>, ExportError> {
@@ -125,7 +125,7 @@ impl LeRobotVersion {
                     "meta/tasks.parquet".to_string(),
                     parquet_bytes("meta/tasks.parquet", &tasks_batch(m.tasks)?)?,
                 ));
-                let bytes = write_episodes_parquet(dir, EPISODES_V30, rows, m.video_key)?;
+                let bytes = write_episodes_parquet(dir, EPISODES_V30, rows, m.video_keys)?;
                 written = (written.0 + 1, written.1 + bytes);
             }
             LeRobotVersion::V21 => {
@@ -143,10 +143,10 @@ impl LeRobotVersion {
                 let chunks = m.episodes.div_ceil(m.chunks_size.max(1));
                 info["codebase_version"] = json!("v2.1");
                 info["total_chunks"] = json!(chunks);
-                info["total_videos"] = json!(if m.video_key.is_some() { m.episodes } else { 0 });
+                info["total_videos"] = json!(m.episodes * m.video_keys.len() as u64);
                 info["data_path"] =
                     json!("data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet");
-                if m.video_key.is_some() {
+                if !m.video_keys.is_empty() {
                     info["video_path"] = json!(
                         "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
                     );
@@ -186,7 +186,7 @@ fn write_episodes_parquet(
     dir: &mut DatasetDir,
     relative: &str,
     mut rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
-    video_key: Option<&str>,
+    video_keys: &[String],
 ) -> Result<u64, ExportError> {
     let (file, pending) = dir.create_file(relative)?;
     let parquet_error = ExportError::parquet(&pending.path);
@@ -195,7 +195,7 @@ fn write_episodes_parquet(
             .by_ref()
             .take(ROWS_PER_GROUP)
             .collect::<Result<Vec<_>, _>>()?;
-        episodes_batch(&group, video_key)
+        episodes_batch(&group, video_keys)
     };
     // The first batch (empty when there are no episodes) gives the schema.
     let mut batch = next_batch()?;
@@ -230,6 +230,9 @@ fn write_episodes_jsonl(
             json!({"episode_index": e.episode_index, "tasks": [e.task], "length": e.length});
         for (key, value) in e.provenance.columns() {
             line[key] = value;
+        }
+        for (key, value) in &e.pixel_stats {
+            line[format!("{}{key}", super::table::PIXEL_STATS)] = value.clone();
         }
         writeln!(episodes, "{line}").map_err(ExportError::io(&episodes_pending.path))?;
         let line = json!({"episode_index": e.episode_index, "stats": e.stats});

@@ -24,7 +24,7 @@ mod work;
 
 pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
 
-use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
 use crate::export::dir::RunOptions;
 use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
 use crate::export::image::PngLevel;
@@ -43,7 +43,7 @@ use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::fs::File;
 use std::path::Path;
-use table::{EpisodeRow, VideoSpan, frame_batch};
+use table::{EpisodeRow, KeyedSpan, VideoSpan, frame_batch};
 use work::{EpisodeStats, EpisodeWork, fresh_stats};
 
 /// The codebase version written to info.json.
@@ -172,11 +172,15 @@ pub struct LeRobotWriter {
     dir: DatasetDir,
     info: DatasetInfo,
     options: LeRobotOptions,
-    /// The features stored in the parquet (all but the video one).
+    /// The features stored in the parquet (all but the video ones).
     parquet_features: Vec<FeatureSpec>,
+    /// The features stored as video (the RGB camera in video mode, and every feature that
+    /// arrives as video), with their codec, in feature order.
+    video_features: Vec<(String, VideoCodec)>,
     schema: std::sync::Arc<arrow_schema::Schema>,
     open: Option<OpenFile>,
-    video: Option<VideoFile>,
+    /// The open video files, one per video feature (opened and closed together).
+    videos: Vec<VideoFile>,
     state: State,
     task_lookup: HashMap<String, u64>,
     timing: SinkTiming,
@@ -228,10 +232,26 @@ impl LeRobotWriter {
 
     /// Refuses options the dataset cannot have; returns what its bytes depend on.
     fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<RunOptions, ExportError> {
-        if options.video.is_some() && !info.has(FeatureKind::Rgb) {
+        let arrives_as_video = info.features.iter().any(|f| !f.in_steps());
+        if options.video.is_some() && !info.has(FeatureKind::Rgb) && !arrives_as_video {
             return Err(ExportError::InvalidEpisode(
                 "video mode needs an RGB camera feature".into(),
             ));
+        }
+        if let Some(video) = options.video {
+            let other: Vec<String> = info
+                .features
+                .iter()
+                .filter(|f| f.video.is_some_and(|c| c != video.codec))
+                .map(|f| format!("{} ({})", f.name, f.video.map_or("", |c| c.name())))
+                .collect();
+            if !other.is_empty() {
+                return Err(ExportError::InvalidOptions(format!(
+                    "{} arrive as video in another codec than {}; surgvla copies video without decoding it, so it cannot re-encode them: leave the codec out (video is kept as it is) or give theirs",
+                    other.join(", "),
+                    video.codec.name()
+                )));
+            }
         }
         let mut run = info.run_options();
         run.merge(options.run_options());
@@ -240,10 +260,21 @@ impl LeRobotWriter {
 
     /// A writer with empty state.
     fn fresh(dir: DatasetDir, info: &DatasetInfo, options: LeRobotOptions) -> Self {
+        let video_features: Vec<(String, VideoCodec)> = info
+            .features
+            .iter()
+            .filter_map(|f| {
+                let codec = f.video.or(options
+                    .video
+                    .filter(|_| f.kind == FeatureKind::Rgb)
+                    .map(|v| v.codec))?;
+                Some((f.name.clone(), codec))
+            })
+            .collect();
         let parquet_features: Vec<FeatureSpec> = info
             .features
             .iter()
-            .filter(|f| !(options.video.is_some() && f.kind == FeatureKind::Rgb))
+            .filter(|f| !video_features.iter().any(|(key, _)| *key == f.name))
             .cloned()
             .collect();
         let counter = FileCounter::new(options.chunks_size);
@@ -251,8 +282,9 @@ impl LeRobotWriter {
             dir,
             schema: frame_schema(&parquet_features),
             parquet_features,
+            video_features,
             open: None,
-            video: None,
+            videos: Vec::new(),
             state: State {
                 data_files: counter,
                 video_files: counter,
@@ -323,25 +355,34 @@ impl LeRobotWriter {
         Ok(())
     }
 
-    /// The video feature's key, in video mode.
-    fn video_key(&self) -> Option<&str> {
-        self.options.video.and(self.info.rgb_key())
+    /// The size at which video files roll, MB.
+    fn video_file_size_mb(&self) -> u64 {
+        self.options
+            .video
+            .map_or(VideoOptions::default().file_size_mb, |v| v.file_size_mb)
     }
 
     /// info.json as v3.0 has it.
     fn info_json(&self) -> Value {
         let mut features = features_json(&self.info.features);
-        let (width, height) = self.info.image_size();
-        if let (Some(video), Some(key)) = (self.options.video, self.video_key()) {
+        for (key, codec) in &self.video_features {
+            let shape = self
+                .info
+                .features
+                .iter()
+                .find(|f| f.name == *key)
+                .map(|f| f.shape.clone())
+                .unwrap_or_default();
+            let dimension = |i: usize| shape.get(i).copied().unwrap_or(0);
             features[key]["dtype"] = json!("video");
             features[key]["info"] = json!({
-                "video.height": height,
-                "video.width": width,
-                "video.codec": video.codec.name(),
+                "video.height": dimension(0),
+                "video.width": dimension(1),
+                "video.codec": codec.name(),
                 "video.pix_fmt": "yuv420p",
                 "video.is_depth_map": false,
                 "video.fps": self.info.fps,
-                "video.channels": 3,
+                "video.channels": dimension(2),
                 "has_audio": false,
             });
         }
@@ -354,11 +395,11 @@ impl LeRobotWriter {
             "total_tasks": self.state.tasks.len(),
             "chunks_size": self.options.chunks_size,
             "data_files_size_in_mb": self.options.data_file_size_mb,
-            "video_files_size_in_mb": self.options.video.map_or(VideoOptions::default().file_size_mb, |v| v.file_size_mb),
+            "video_files_size_in_mb": self.video_file_size_mb(),
             "fps": self.info.fps,
             "splits": {"train": format!("0:{episodes}")},
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-            "video_path": if self.options.video.is_some() {
+            "video_path": if !self.video_features.is_empty() {
                 json!("videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4")
             } else {
                 Value::Null
@@ -367,46 +408,66 @@ impl LeRobotWriter {
         })
     }
 
-    /// Appends an episode's encoded frames to the open video file (opening or rolling files).
-    fn append_video(&mut self, frames: &[EncodedFrame]) -> Result<VideoSpan, ExportError> {
+    /// Appends an episode's frames, one list per video feature, to the open video files
+    /// (opening them, or rolling them all when one is full).
+    fn append_videos(
+        &mut self,
+        frames: &[Vec<EncodedFrame>],
+    ) -> Result<Vec<KeyedSpan>, ExportError> {
         let version = self.options.version;
-        let limit = self.options.video.map_or(200, |v| v.file_size_mb) * 1024 * 1024;
+        let limit = self.video_file_size_mb() * 1024 * 1024;
         if self
-            .video
-            .as_ref()
-            .is_some_and(|v| version.file_is_full(v.bytes(), limit))
+            .videos
+            .iter()
+            .any(|v| version.file_is_full(v.bytes(), limit))
         {
-            self.close_video()?;
+            self.close_videos()?;
         }
-        if self.video.is_none() {
-            let key = self.video_key().unwrap_or_default().to_string();
+        if self.videos.is_empty() {
             let episode = self.state.episodes;
             let location = version.next_location(&mut self.state.video_files, episode);
-            let relative = version.video_path(&key, location.0, location.1);
-            let codec = self.options.video.map_or(Codec::Av1, |v| v.codec);
-            self.video = Some(VideoFile::create(
-                self.dir.create_file(&relative)?,
-                codec,
-                location,
-                self.info.image_size(),
-                self.info.fps,
-            )?);
+            for (key, codec) in self.video_features.clone() {
+                let size = self.info.features.iter().find(|f| f.name == key).map_or(
+                    self.info.image_size(),
+                    |f| {
+                        (
+                            f.shape.get(1).copied().unwrap_or(0),
+                            f.shape.first().copied().unwrap_or(0),
+                        )
+                    },
+                );
+                let relative = version.video_path(&key, location.0, location.1);
+                self.videos.push(VideoFile::create(
+                    self.dir.create_file(&relative)?,
+                    codec,
+                    location,
+                    size,
+                    self.info.fps,
+                )?);
+            }
         }
-        let video = self
-            .video
-            .as_mut()
-            .ok_or_else(|| ExportError::Internal("no open video file".into()))?;
-        let (from, to) = video.append(frames)?;
-        Ok(VideoSpan {
-            chunk: video.chunk,
-            file: video.file,
-            from_secs: from,
-            to_secs: to,
-        })
+        let mut spans = Vec::with_capacity(frames.len());
+        for ((key, _), (video, frames)) in self
+            .video_features
+            .iter()
+            .zip(self.videos.iter_mut().zip(frames))
+        {
+            let (from, to) = video.append(frames)?;
+            spans.push(KeyedSpan {
+                key: key.clone(),
+                span: VideoSpan {
+                    chunk: video.chunk,
+                    file: video.file,
+                    from_secs: from,
+                    to_secs: to,
+                },
+            });
+        }
+        Ok(spans)
     }
 
-    fn close_video(&mut self) -> Result<(), ExportError> {
-        if let Some(video) = self.video.take() {
+    fn close_videos(&mut self) -> Result<(), ExportError> {
+        for video in std::mem::take(&mut self.videos) {
             self.state.summary.bytes += self.dir.commit(video.finish()?)?;
             self.state.summary.files += 1;
         }
@@ -423,11 +484,11 @@ impl LeRobotWriter {
         i
     }
 
-    /// Writes one episode; `video` holds its already encoded frames when the caller encoded them.
+    /// Writes one episode; `video` holds its video features' frames when the caller made them.
     fn write_with_video(
         &mut self,
         episode: &Episode,
-        video: Option<Option<Vec<EncodedFrame>>>,
+        video: Option<Vec<Vec<EncodedFrame>>>,
     ) -> Result<(), ExportError> {
         check_episode(
             &self.info,
@@ -438,18 +499,14 @@ impl LeRobotWriter {
         let task_index = self.task_index(&episode.meta.instruction);
         let first_index = self.state.total_frames;
         let encode_started = std::time::Instant::now();
-        let work = EpisodeWork {
-            info: &self.info,
-            parquet_features: &self.parquet_features,
-            options: &self.options,
-        };
+        let work = self.work();
         let ((images, video_frames), episode_stats) = rayon::join(
             || {
                 rayon::join(
                     || work.encode_images(episode),
                     || match video {
                         Some(encoded) => Ok(encoded),
-                        None => work.encode_video(episode),
+                        None => work.video_frames(episode),
                     },
                 )
             },
@@ -458,9 +515,11 @@ impl LeRobotWriter {
         let images = images?;
         let write_started = std::time::Instant::now();
         self.timing.encode_secs += (write_started - encode_started).as_secs_f64();
-        let video_span = match video_frames? {
-            Some(frames) => Some(self.append_video(&frames)?),
-            None => None,
+        let video_frames = video_frames?;
+        let videos = if self.video_features.is_empty() {
+            Vec::new()
+        } else {
+            self.append_videos(&video_frames)?
         };
         let batch = frame_batch(
             &self.schema,
@@ -481,7 +540,20 @@ impl LeRobotWriter {
         let full = version.file_is_full(open.writer.bytes_written() as u64, limit);
 
         let mut stats_json = serde_json::Map::new();
+        // A video feature's exact statistics travel with the episode (surgvla's datasets), so
+        // that merging or converting it later, without decoding the video, gives the same
+        // statistics.
+        let mut pixel_stats = Vec::new();
         for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
+            if self.info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
+                let exact = match &this {
+                    crate::export::stats::FeatureStats::Image(s) => {
+                        serde_json::to_value(s).unwrap_or(Value::Null)
+                    }
+                    _ => Value::Null,
+                };
+                pixel_stats.push((name.clone(), exact));
+            }
             stats_json.insert(name.clone(), this.to_json());
             total.merge(&this);
         }
@@ -496,7 +568,8 @@ impl LeRobotWriter {
             from_index: first_index,
             to_index: first_index + length,
             stats: Value::Object(stats_json),
-            video: video_span,
+            videos,
+            pixel_stats,
             provenance: Provenance {
                 seed: meta.seed,
                 task_id: meta.task_code.clone(),
@@ -518,7 +591,7 @@ impl LeRobotWriter {
             // Close the video file at the same moment, so that everything written so far is
             // complete, and record the state.
             self.close_file()?;
-            self.close_video()?;
+            self.close_videos()?;
             if version.checkpoint_due(self.state.episodes) {
                 self.dir.save_checkpoint(&self.state)?;
             }
@@ -527,12 +600,22 @@ impl LeRobotWriter {
         Ok(())
     }
 
+    /// The per-episode work's view of this writer.
+    fn work(&self) -> EpisodeWork<'_> {
+        EpisodeWork {
+            info: &self.info,
+            parquet_features: &self.parquet_features,
+            video_features: &self.video_features,
+            options: &self.options,
+        }
+    }
+
     /// Finishing, in an order that an interruption at any point can resume: close the files and
     /// checkpoint (every episode is durable), write the metadata and the manifest, the sidecar
     /// (the run's report), and only then remove the marker.
     fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
         self.close_file()?;
-        self.close_video()?;
+        self.close_videos()?;
         self.dir.save_checkpoint(&self.state)?;
         let stats: serde_json::Map<String, Value> = self
             .state
@@ -540,7 +623,7 @@ impl LeRobotWriter {
             .iter()
             .map(|(name, s)| (name.clone(), s.to_json()))
             .collect();
-        let video_key = self.video_key().map(str::to_string);
+        let video_keys: Vec<String> = self.video_features.iter().map(|(k, _)| k.clone()).collect();
         let metadata = layout::Metadata {
             tasks: &self.state.tasks,
             episodes: self.state.episodes,
@@ -554,7 +637,7 @@ impl LeRobotWriter {
             },
             info: self.info_json(),
             chunks_size: self.options.chunks_size,
-            video_key: video_key.as_deref(),
+            video_keys: &video_keys,
         };
         let mut summary = self.state.summary.clone();
         let rows = self.dir.journal_lines(EPISODES_JOURNAL)?.map(|line| {
@@ -606,18 +689,14 @@ impl EpisodeSink for LeRobotWriter {
     /// Video encoders run one per episode: a batch encodes its episodes' videos in parallel
     /// first, then writes the episodes in order.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        if self.options.video.is_none() || episodes.len() < 2 {
+        if self.video_features.is_empty() || episodes.len() < 2 {
             return episodes
                 .iter()
                 .try_for_each(|e| self.write_with_video(e, None));
         }
-        let work = EpisodeWork {
-            info: &self.info,
-            parquet_features: &self.parquet_features,
-            options: &self.options,
-        };
-        let videos: Vec<Result<Option<Vec<EncodedFrame>>, ExportError>> =
-            episodes.par_iter().map(|e| work.encode_video(e)).collect();
+        let work = self.work();
+        let videos: Vec<Result<Vec<Vec<EncodedFrame>>, ExportError>> =
+            episodes.par_iter().map(|e| work.video_frames(e)).collect();
         for (episode, video) in episodes.iter().zip(videos) {
             self.write_with_video(episode, Some(video?))?;
         }

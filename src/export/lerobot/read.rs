@@ -3,9 +3,10 @@
 //! with the real lerobot loader in `tests/interop/`.
 
 use crate::episode::{
-    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, MAX_OBJECTS, POSE_VALUES,
-    Step,
+    Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
+    FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
 };
+use crate::export::demux::VideoReader;
 use crate::export::image::decode_png;
 use crate::export::info::DatasetInfo;
 use crate::export::tiff::decode_f32_tiff;
@@ -211,17 +212,26 @@ fn features_of(
                     .collect()
             })
             .unwrap_or_default();
-        let dtype = f["dtype"].as_str().unwrap_or_default();
+        let mut dtype = f["dtype"].as_str().unwrap_or_default();
         let named = |key: Option<&str>| ours && key == Some(name.as_str());
-        let (dtype, kind) = match dtype {
-            "video" => {
-                return Err(invalid(
+        // Video passes through as its encoded frames: the feature is an image feature whose
+        // pixels are not in the steps.
+        let video = if dtype == "video" {
+            let codec_name = f["info"]["video.codec"].as_str().unwrap_or_default();
+            let codec = VideoCodec::from_name(codec_name).ok_or_else(|| {
+                invalid(
                     path,
                     format!(
-                        "{name} is stored as video; reading video-mode datasets is not supported yet"
+                        "{name} is video in codec {codec_name:?}; surgvla copies AV1 and H.264 video"
                     ),
-                ));
-            }
+                )
+            })?;
+            dtype = "image";
+            Some(codec)
+        } else {
+            None
+        };
+        let (dtype, kind) = match dtype {
             "image" if named(camera_key) && shape.last() == Some(&3) => {
                 (Dtype::Image, FeatureKind::Rgb)
             }
@@ -260,6 +270,7 @@ fn features_of(
             shape,
             names,
             kind,
+            video,
         });
     }
     Ok(specs)
@@ -339,51 +350,120 @@ fn other_values(
     })
 }
 
-/// Per episode: instruction-independent provenance from the episodes metadata.
-fn provenance_of(root: &Path, v21: bool) -> Result<Vec<Value>, ExportError> {
-    if v21 {
-        let path = root.join("meta/episodes.jsonl");
-        let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
-        return text
-            .lines()
-            .filter(|l| !l.trim().is_empty())
-            .map(|l| {
-                serde_json::from_str(l).map_err(|source| ExportError::Json {
-                    path: path.clone(),
-                    source,
-                })
-            })
-            .collect();
+/// One cell of an episodes table as JSON (numbers, strings, booleans, lists of them).
+fn cell(column: &dyn Array, row: usize) -> Value {
+    use arrow_array::{BooleanArray, ListArray, StringArray};
+    let any = column.as_any();
+    if column.is_null(row) {
+        Value::Null
+    } else if let Some(a) = any.downcast_ref::<Int64Array>() {
+        Value::from(a.value(row))
+    } else if let Some(a) = any.downcast_ref::<Float64Array>() {
+        Value::from(a.value(row))
+    } else if let Some(a) = any.downcast_ref::<Float32Array>() {
+        Value::from(f64::from(a.value(row)))
+    } else if let Some(a) = any.downcast_ref::<StringArray>() {
+        Value::from(a.value(row))
+    } else if let Some(a) = any.downcast_ref::<BooleanArray>() {
+        Value::from(a.value(row))
+    } else if let Some(a) = any.downcast_ref::<ListArray>() {
+        let items = a.value(row);
+        Value::Array((0..items.len()).map(|i| cell(items.as_ref(), i)).collect())
+    } else if let Some(a) = any.downcast_ref::<FixedSizeListArray>() {
+        let items = a.value(row);
+        Value::Array((0..items.len()).map(|i| cell(items.as_ref(), i)).collect())
+    } else {
+        Value::Null
     }
-    let path = root.join("meta/episodes/chunk-000/file-000.parquet");
-    let mut rows = Vec::new();
-    for batch in read_parquet(&path)? {
-        for row in 0..batch.num_rows() {
-            let mut values = serde_json::Map::new();
-            for key in super::Provenance::KEYS {
-                let Some(column) = batch.column_by_name(key) else {
-                    continue;
-                };
-                let any = column.as_any();
-                let value = if let Some(a) = any.downcast_ref::<Int64Array>() {
-                    Value::from(a.value(row))
-                } else if let Some(a) = any.downcast_ref::<arrow_array::StringArray>() {
-                    Value::from(a.value(row))
-                } else if let Some(a) = any.downcast_ref::<arrow_array::BooleanArray>() {
-                    Value::from(a.value(row))
-                } else {
-                    continue;
-                };
-                values.insert(key.to_string(), value);
+}
+
+/// Per episode, in order, its row of the episodes metadata as a JSON object keyed the v3.0
+/// way (`surgvla/seed`, `videos/<key>/from_timestamp`, `stats/<key>/<stat>`, ...); v2.1's
+/// `episodes.jsonl` and `episodes_stats.jsonl` are read into the same keys.
+fn episode_rows(root: &Path, v21: bool) -> Result<Vec<Value>, ExportError> {
+    if v21 {
+        let lines = |name: &str| -> Result<Vec<Value>, ExportError> {
+            let path = root.join(name);
+            if !path.exists() && name.ends_with("stats.jsonl") {
+                return Ok(Vec::new());
             }
-            rows.push(Value::Object(values));
+            let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
+            text.lines()
+                .filter(|l| !l.trim().is_empty())
+                .map(|l| {
+                    serde_json::from_str(l).map_err(|source| ExportError::Json {
+                        path: path.clone(),
+                        source,
+                    })
+                })
+                .collect()
+        };
+        let mut rows = lines("meta/episodes.jsonl")?;
+        for line in lines("meta/episodes_stats.jsonl")? {
+            let index = line["episode_index"].as_u64().unwrap_or(u64::MAX) as usize;
+            let (Some(row), Some(stats)) = (
+                rows.get_mut(index).and_then(Value::as_object_mut),
+                line["stats"].as_object(),
+            ) else {
+                continue;
+            };
+            for (feature, values) in stats {
+                for (stat, value) in values.as_object().into_iter().flatten() {
+                    row.insert(format!("stats/{feature}/{stat}"), value.clone());
+                }
+            }
+        }
+        return Ok(rows);
+    }
+    let mut rows = Vec::new();
+    for path in parquet_files(&root.join("meta/episodes"))? {
+        for batch in read_parquet(&path)? {
+            let schema = batch.schema();
+            for row in 0..batch.num_rows() {
+                let values: serde_json::Map<String, Value> = schema
+                    .fields()
+                    .iter()
+                    .zip(batch.columns())
+                    .map(|(field, column)| (field.name().clone(), cell(column.as_ref(), row)))
+                    .collect();
+                rows.push(Value::Object(values));
+            }
         }
     }
     Ok(rows)
 }
 
-/// A decoded frame row: (episode_index, task_index, step).
-type Row = (i64, i64, Step);
+/// Fills a LeRobot path template (`{video_key}`, `{chunk_index:03d}`, ...) with `fields`.
+fn fill_template(template: &str, fields: &[(&str, String)]) -> String {
+    let mut out = template.to_string();
+    for (name, value) in fields {
+        out = out.replace(&format!("{{{name}}}"), value);
+        while let Some(start) = out.find(&format!("{{{name}:")) {
+            let Some(end) = out[start..].find('}').map(|e| start + e) else {
+                break;
+            };
+            let spec = &out[start + name.len() + 2..end];
+            let width: usize = spec
+                .trim_start_matches('0')
+                .trim_end_matches('d')
+                .parse()
+                .unwrap_or(0);
+            let padded = format!("{value:0>width$}");
+            out.replace_range(start..=end, &padded);
+        }
+    }
+    out
+}
+
+/// A decoded frame row.
+struct Row {
+    episode: i64,
+    task: i64,
+    step: Step,
+    /// The encoded bytes of the RGB, mask and depth images, in the order of
+    /// [`stored_images`].
+    stored: Vec<Vec<u8>>,
+}
 
 /// Reads a LeRobot dataset (v3.0 or v2.1, image mode) episode by episode.
 pub struct LeRobotSource {
@@ -391,7 +471,14 @@ pub struct LeRobotSource {
     info: DatasetInfo,
     total_episodes: u64,
     tasks: Vec<String>,
-    provenance: Vec<Value>,
+    /// Each episode's row of the episodes metadata (see [`episode_rows`]).
+    episodes: Vec<Value>,
+    v21: bool,
+    chunks_size: u64,
+    /// info.json's `video_path` template.
+    video_path: String,
+    /// The video file read last, kept open for the next episode in it.
+    video: Option<(PathBuf, VideoReader)>,
     files: std::vec::IntoIter<PathBuf>,
     /// The open data file and its batches.
     batches: Option<(
@@ -445,7 +532,18 @@ impl LeRobotSource {
         Ok(LeRobotSource {
             root: root.to_path_buf(),
             total_episodes: info_json["total_episodes"].as_u64().unwrap_or(0),
-            provenance: provenance_of(root, v21)?,
+            episodes: episode_rows(root, v21)?,
+            v21,
+            chunks_size: info_json["chunks_size"].as_u64().unwrap_or(1000).max(1),
+            video_path: info_json["video_path"]
+                .as_str()
+                .unwrap_or(if v21 {
+                    "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
+                } else {
+                    "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+                })
+                .to_string(),
+            video: None,
             tasks,
             files: data_files(root)?.into_iter(),
             batches: None,
@@ -454,7 +552,104 @@ impl LeRobotSource {
         })
     }
 
-    /// The next batch of rows as (episode_index, task_index, step), or None at the end.
+    /// An episode's frames of the video feature `feature`, with the statistics its metadata
+    /// carries.
+    fn video_frames(
+        &mut self,
+        feature: &FeatureSpec,
+        index: u64,
+        steps: usize,
+    ) -> Result<EncodedFeature, ExportError> {
+        let key = feature.name.as_str();
+        let row = self
+            .episodes
+            .get(index as usize)
+            .cloned()
+            .unwrap_or_default();
+        let number = |name: &str| row[format!("videos/{key}/{name}")].as_f64();
+        let (relative, span) = if self.v21 {
+            let fields = [
+                ("video_key", key.to_string()),
+                ("episode_chunk", (index / self.chunks_size).to_string()),
+                ("episode_index", index.to_string()),
+            ];
+            (fill_template(&self.video_path, &fields), None)
+        } else {
+            let (Some(chunk), Some(file), Some(from), Some(to)) = (
+                number("chunk_index"),
+                number("file_index"),
+                number("from_timestamp"),
+                number("to_timestamp"),
+            ) else {
+                return Err(invalid(
+                    &self.root.join("meta/episodes"),
+                    format!("episode {index} lacks its videos/{key}/... columns"),
+                ));
+            };
+            let fields = [
+                ("video_key", key.to_string()),
+                ("chunk_index", (chunk as u64).to_string()),
+                ("file_index", (file as u64).to_string()),
+            ];
+            (fill_template(&self.video_path, &fields), Some((from, to)))
+        };
+        let path = self.root.join(relative);
+        if self.video.as_ref().is_none_or(|(open, _)| *open != path) {
+            self.video = Some((path.clone(), VideoReader::open(&path)?));
+        }
+        let Some((_, reader)) = self.video.as_mut() else {
+            return Err(ExportError::Internal("no open video".into()));
+        };
+        if Some(reader.codec) != feature.video {
+            return Err(invalid(
+                &path,
+                format!(
+                    "holds {} video where info.json says {key} is {}",
+                    reader.codec.name(),
+                    feature.video.map_or("", VideoCodec::name)
+                ),
+            ));
+        }
+        let frames: Vec<EncodedFrame> = match span {
+            Some((from, to)) => reader.span(from, to)?,
+            None => reader.all()?,
+        };
+        if frames.len() != steps {
+            return Err(invalid(
+                &path,
+                format!(
+                    "holds {} frames of episode {index}, whose data has {steps}",
+                    frames.len()
+                ),
+            ));
+        }
+        let exact = &row[format!("{}{key}", super::table::PIXEL_STATS)];
+        let exact = match exact {
+            Value::String(text) => serde_json::from_str::<Value>(text).ok(),
+            Value::Object(_) => Some(exact.clone()),
+            _ => None,
+        };
+        let prefix = format!("stats/{key}/");
+        let summary: serde_json::Map<String, Value> = row
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter_map(|(k, v)| Some((k.strip_prefix(&prefix)?.to_string(), v.clone())))
+            .collect();
+        let pixel_stats = match exact {
+            Some(exact) => Some(PixelStats::Exact(exact)),
+            None if !summary.is_empty() => Some(PixelStats::Summary(Value::Object(summary))),
+            None => None,
+        };
+        Ok(EncodedFeature {
+            feature: key.to_string(),
+            encoding: ImageEncoding::Video(reader.codec),
+            frames,
+            pixel_stats,
+        })
+    }
+
+    /// The next batch of rows, or None at the end.
     fn next_rows(&mut self) -> Result<Option<Vec<Row>>, ExportError> {
         loop {
             if self.batches.is_none() {
@@ -484,20 +679,33 @@ impl LeRobotSource {
     }
 }
 
+/// The image features surgvla decodes into steps (RGB, mask, depth), whose encoded bytes a
+/// [`Row`] also keeps.
+fn stored_images(info: &DatasetInfo) -> impl Iterator<Item = &FeatureSpec> {
+    info.features
+        .iter()
+        .filter(|f| f.in_steps() && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+}
+
 /// Decodes a batch of frame rows into steps.
 fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<Row>, ExportError> {
     let episode = column::<Int64Array>(batch, "episode_index", path)?;
     let task = column::<Int64Array>(batch, "task_index", path)?;
     let mut steps: Vec<Row> = (0..batch.num_rows())
-        .map(|row| (episode.value(row), task.value(row), Step::empty()))
+        .map(|row| Row {
+            episode: episode.value(row),
+            task: task.value(row),
+            step: Step::empty(),
+            stored: Vec::new(),
+        })
         .collect();
     let (width, height) = info.image_size();
-    for feature in &info.features {
+    for feature in info.features.iter().filter(|f| f.in_steps()) {
         let name = feature.name.as_str();
         if feature.kind == FeatureKind::Other {
             let values = other_values(batch, feature, path)?;
-            for ((_, _, step), value) in steps.iter_mut().zip(values) {
-                step.other.push(value);
+            for (row, value) in steps.iter_mut().zip(values) {
+                row.step.other.push(value);
             }
             continue;
         }
@@ -508,8 +716,9 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
                     .column_by_name("bytes")
                     .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
                     .ok_or_else(|| invalid(path, format!("{name} has no image bytes")))?;
-                for (row, (_, _, step)) in steps.iter_mut().enumerate() {
+                for (row, Row { step, stored, .. }) in steps.iter_mut().enumerate() {
                     let encoded = bytes.value(row);
+                    stored.push(encoded.to_vec());
                     let bad = |e: String| invalid(path, format!("{name} row {row}: {e}"));
                     match feature.kind {
                         FeatureKind::Depth => {
@@ -539,7 +748,7 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
             }
             _ => {
                 let list = column::<FixedSizeListArray>(batch, name, path)?;
-                for (row, (_, _, step)) in steps.iter_mut().enumerate() {
+                for (row, Row { step, .. }) in steps.iter_mut().enumerate() {
                     let values = vector(list, row);
                     let target: &mut [f32] = match feature.kind {
                         FeatureKind::State => &mut step.state,
@@ -575,15 +784,23 @@ impl EpisodeSource for LeRobotSource {
 
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
         let mut steps = Vec::new();
+        let stored_keys: Vec<String> = stored_images(&self.info).map(|f| f.name.clone()).collect();
+        let mut stored: Vec<Vec<EncodedFrame>> = vec![Vec::new(); stored_keys.len()];
         let mut current: Option<(i64, i64)> = None;
         loop {
-            if let Some((episode, task, _)) = self.pending.front() {
+            if let Some(Row { episode, task, .. }) = self.pending.front() {
                 if current.is_some_and(|(e, _)| e != *episode) {
                     break;
                 }
                 current = Some((*episode, *task));
-                if let Some((_, _, step)) = self.pending.pop_front() {
-                    steps.push(step);
+                if let Some(row) = self.pending.pop_front() {
+                    steps.push(row.step);
+                    for (frames, data) in stored.iter_mut().zip(row.stored) {
+                        frames.push(EncodedFrame {
+                            data,
+                            keyframe: true,
+                        });
+                    }
                 }
                 continue;
             }
@@ -595,10 +812,41 @@ impl EpisodeSource for LeRobotSource {
         }
         let (index, task) = current?;
         let provenance = self
-            .provenance
+            .episodes
             .get(index as usize)
             .cloned()
             .unwrap_or_default();
+        let depth_key = self
+            .info
+            .feature(FeatureKind::Depth)
+            .map(|f| f.name.clone());
+        let mut encoded: Vec<EncodedFeature> = stored_keys
+            .into_iter()
+            .zip(stored)
+            .map(|(feature, frames)| EncodedFeature {
+                encoding: if depth_key.as_ref() == Some(&feature) {
+                    ImageEncoding::Tiff
+                } else {
+                    ImageEncoding::Png
+                },
+                feature,
+                frames,
+                pixel_stats: None,
+            })
+            .collect();
+        let videos: Vec<FeatureSpec> = self
+            .info
+            .features
+            .iter()
+            .filter(|f| !f.in_steps())
+            .cloned()
+            .collect();
+        for feature in &videos {
+            match self.video_frames(feature, index as u64, steps.len()) {
+                Ok(frames) => encoded.push(frames),
+                Err(error) => return Some(Err(error)),
+            }
+        }
         let instruction = self.tasks.get(task as usize).cloned();
         let Some(instruction) = instruction else {
             return Some(Err(invalid(
@@ -607,6 +855,7 @@ impl EpisodeSource for LeRobotSource {
             )));
         };
         Some(Ok(Episode {
+            encoded,
             meta: EpisodeMeta {
                 index: index as u64,
                 task_code: provenance["surgvla/task_id"]

@@ -249,10 +249,24 @@ pub struct EpisodeRow {
     /// Per feature, its statistics object (min, max, ... q99), as in stats.json and v2.1's
     /// episodes_stats.jsonl; the episodes table flattens it to `stats/<feature>/<stat>` columns.
     pub stats: Value,
-    /// Where the RGB camera's frames are, in video mode.
-    pub video: Option<VideoSpan>,
+    /// Where each video feature's frames are.
+    pub videos: Vec<KeyedSpan>,
+    /// Per video feature of a surgvla dataset, the exact statistics accumulator of its pixels
+    /// (null when unknown): the `surgvla/pixel_stats/<feature>` column.
+    #[serde(default)]
+    pub pixel_stats: Vec<(String, Value)>,
     pub provenance: Provenance,
 }
+
+/// A video feature's span.
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
+pub struct KeyedSpan {
+    pub key: String,
+    pub span: VideoSpan,
+}
+
+/// The episodes table's column prefix of a video feature's exact pixel statistics.
+pub const PIXEL_STATS: &str = "surgvla/pixel_stats/";
 
 /// Where an episode came from: what it takes to re-run or audit it. Stored as the `surgvla/...`
 /// columns of the episodes table (v3.0) or keys of `episodes.jsonl` (v2.1).
@@ -350,11 +364,10 @@ fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
     Arc::new(builder.finish())
 }
 
-/// The episodes table (episode_index equals row order); `video_key` is the video feature's key
-/// in video mode.
+/// The episodes table (episode_index equals row order); `video_keys` are the video features.
 pub fn episodes_batch(
     rows: &[EpisodeRow],
-    video_key: Option<&str>,
+    video_keys: &[String],
 ) -> Result<RecordBatch, ExportError> {
     let int = |f: &dyn Fn(&EpisodeRow) -> u64| -> ArrayRef {
         Arc::new(Int64Array::from_iter_values(
@@ -377,14 +390,17 @@ pub fn episodes_batch(
         ("meta/episodes/chunk_index".into(), int(&|_| 0)),
         ("meta/episodes/file_index".into(), int(&|_| 0)),
     ];
-    if let Some(key) = video_key.filter(|_| rows.first().is_some_and(|r| r.video.is_some())) {
+    for key in video_keys {
         let span = |r: &EpisodeRow| {
-            r.video.unwrap_or(VideoSpan {
-                chunk: 0,
-                file: 0,
-                from_secs: 0.0,
-                to_secs: 0.0,
-            })
+            r.videos.iter().find(|v| v.key == *key).map_or(
+                VideoSpan {
+                    chunk: 0,
+                    file: 0,
+                    from_secs: 0.0,
+                    to_secs: 0.0,
+                },
+                |v| v.span,
+            )
         };
         columns.push((format!("videos/{key}/chunk_index"), int(&|r| span(r).chunk)));
         columns.push((format!("videos/{key}/file_index"), int(&|r| span(r).file)));
@@ -430,6 +446,23 @@ pub fn episodes_batch(
             .map(|k| k.to_string())
             .zip(provenance),
     );
+    let stats_keys: Vec<&String> = rows
+        .first()
+        .map(|r| r.pixel_stats.iter().map(|(k, _)| k).collect())
+        .unwrap_or_default();
+    for key in stats_keys {
+        let texts = rows.iter().map(|r| {
+            r.pixel_stats
+                .iter()
+                .find(|(k, _)| k == key)
+                .filter(|(_, v)| !v.is_null())
+                .map(|(_, v)| v.to_string())
+        });
+        columns.push((
+            format!("{PIXEL_STATS}{key}"),
+            Arc::new(StringArray::from_iter(texts)),
+        ));
+    }
     let fields: Vec<Field> = columns
         .iter()
         .map(|(name, array)| Field::new(name, array.data_type().clone(), true))

@@ -4,11 +4,13 @@
 
 use super::LeRobotOptions;
 use super::table::{DEFAULT_COLUMNS, EncodedImages};
-use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
+use crate::episode::{
+    Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue, ImageEncoding, PixelStats, VideoCodec,
+};
 use crate::export::ExportError;
 use crate::export::image::{decode_png, encode_png};
 use crate::export::info::DatasetInfo;
-use crate::export::stats::FeatureStats;
+use crate::export::stats::{FeatureStats, ImageStats, SummaryStats};
 use crate::export::tiff::encode_f32_tiff;
 use crate::export::video::{EncodedFrame, encode};
 use rayon::prelude::*;
@@ -32,31 +34,38 @@ pub(super) fn fresh_stats(features: &[FeatureSpec]) -> EpisodeStats {
 
 pub(super) struct EpisodeWork<'a> {
     pub info: &'a DatasetInfo,
-    /// The features stored in the parquet (all but the video one in video mode).
+    /// The features stored in the parquet (all but the video ones).
     pub parquet_features: &'a [FeatureSpec],
+    /// The features stored as video, with their codec, in feature order.
+    pub video_features: &'a [(String, VideoCodec)],
     pub options: &'a LeRobotOptions,
 }
 
 impl EpisodeWork<'_> {
-    /// The RGB frames as video (video mode only).
-    pub fn encode_video(
-        &self,
-        episode: &Episode,
-    ) -> Result<Option<Vec<EncodedFrame>>, ExportError> {
-        let Some(video) = self.options.video else {
-            return Ok(None);
-        };
-        let (width, height) = self.info.image_size();
-        let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
-        encode(
-            video.codec,
-            &frames,
-            width,
-            height,
-            self.info.fps,
-            video.quality,
-        )
-        .map(Some)
+    /// Each video feature's frames, in [`EpisodeWork::video_features`] order: copied when the
+    /// episode brings them in the feature's codec, else (the RGB camera in video mode) encoded
+    /// from its pixels.
+    pub fn video_frames(&self, episode: &Episode) -> Result<Vec<Vec<EncodedFrame>>, ExportError> {
+        self.video_features
+            .iter()
+            .map(|(key, codec)| {
+                if let Some(stored) = episode.encoded_video(key) {
+                    if stored.encoding != ImageEncoding::Video(*codec) {
+                        return Err(ExportError::InvalidEpisode(format!(
+                            "episode {}: {key} arrived as {:?} where this dataset stores {} video (surgvla does not decode video to encode it again)",
+                            episode.meta.index,
+                            stored.encoding,
+                            codec.name()
+                        )));
+                    }
+                    return Ok(stored.frames.clone());
+                }
+                let (width, height) = self.info.image_size();
+                let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
+                let quality = self.options.video.map_or(0, |v| v.quality);
+                encode(*codec, &frames, width, height, self.info.fps, quality)
+            })
+            .collect()
     }
 
     /// Encodes every image stored in the parquet (frames in parallel, order kept).
@@ -71,6 +80,21 @@ impl EpisodeWork<'_> {
             .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
         {
             let kind = feature.kind;
+            // Bytes the source stored in this encoding are copied (PNG and TIFF are lossless: the
+            // pixels are the same whatever compression made them).
+            let encoding = if kind == FeatureKind::Depth {
+                ImageEncoding::Tiff
+            } else {
+                ImageEncoding::Png
+            };
+            if let Some(stored) = episode
+                .encoded_as(&feature.name, encoding)
+                .filter(|e| e.frames.len() == episode.steps.len())
+            {
+                let bytes = stored.frames.iter().map(|f| f.data.clone()).collect();
+                images.insert(feature.name.clone(), bytes);
+                continue;
+            }
             let encoded: Result<Vec<Vec<u8>>, ExportError> = episode
                 .steps
                 .par_iter()
@@ -94,7 +118,11 @@ impl EpisodeWork<'_> {
         first_index: u64,
     ) -> EpisodeStats {
         let features = &self.info.features;
-        let kinds: Vec<Option<FeatureKind>> = features.iter().map(|f| Some(f.kind)).collect();
+        // A feature whose pixels are not in the steps (video) gets its statistics below.
+        let kinds: Vec<Option<FeatureKind>> = features
+            .iter()
+            .map(|f| f.in_steps().then_some(f.kind))
+            .collect();
         let fps = f64::from(self.info.fps);
         let episode_index = episode.meta.index as f64;
         let per_frame: Vec<EpisodeStats> = episode
@@ -112,12 +140,11 @@ impl EpisodeWork<'_> {
                 ];
                 let mut default_values = defaults.iter();
                 let mut others = step.other.iter();
-                for (kind, (_, s)) in kinds
-                    .iter()
-                    .copied()
-                    .chain(std::iter::repeat(None))
-                    .zip(stats.iter_mut())
-                {
+                for (position, (_, s)) in stats.iter_mut().enumerate() {
+                    if position < kinds.len() && kinds[position].is_none() {
+                        continue;
+                    }
+                    let kind = kinds.get(position).copied().flatten();
                     match (kind, s) {
                         (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => s.push_u8(&step.rgb),
                         (Some(FeatureKind::Mask), FeatureStats::Image(s)) => s.push_u8(&step.mask),
@@ -158,6 +185,29 @@ impl EpisodeWork<'_> {
         for frame in per_frame {
             for ((_, t), (_, f)) in total.iter_mut().zip(frame) {
                 t.merge(&f);
+            }
+        }
+        for (feature, (_, t)) in features.iter().zip(total.iter_mut()) {
+            if feature.in_steps() {
+                continue;
+            }
+            // The RGB camera encoded here from its pixels had them in the steps; a copied video
+            // brings its source's statistics.
+            let carried = episode
+                .encoded_video(&feature.name)
+                .and_then(|e| e.pixel_stats.as_ref());
+            match carried {
+                Some(PixelStats::Exact(value)) => {
+                    if let Ok(exact) = serde_json::from_value::<ImageStats>(value.clone()) {
+                        *t = FeatureStats::Image(exact);
+                    }
+                }
+                Some(PixelStats::Summary(value)) => {
+                    if let Some(summary) = SummaryStats::from_json(value) {
+                        *t = FeatureStats::Summary(summary);
+                    }
+                }
+                None => {}
             }
         }
         total

@@ -78,6 +78,7 @@ fn columns(features: &Value, path: &Path) -> Result<Vec<Column>, ExportError> {
                 shape,
                 names: Vec::new(),
                 kind: FeatureKind::Other,
+                video: None,
             },
             key,
         });
@@ -155,6 +156,7 @@ impl ForeignRldsSource {
             }
         }
         Ok(Episode {
+            encoded: Vec::new(),
             meta: EpisodeMeta {
                 index,
                 task_code: String::new(),

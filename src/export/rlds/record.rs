@@ -443,7 +443,11 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
         attempts: fields.int("episode_metadata/attempts")? as u32,
         success: fields.int("episode_metadata/success")? == 1,
     };
-    Ok(Episode { meta, steps })
+    Ok(Episode {
+        meta,
+        steps,
+        encoded: Vec::new(),
+    })
 }
 
 #[cfg(test)]
@@ -481,6 +485,7 @@ mod tests {
             })
             .collect();
         Episode {
+            encoded: Vec::new(),
             meta: EpisodeMeta {
                 index: 3,
                 task_code: "T1-1".into(),

@@ -223,3 +223,42 @@ def test_other_features_go_to_rlds_and_formats_without_room_refuse_them(images, 
         done = subprocess.run([BIN, "convert", str(images), "--to", to, "--out", str(tmp_path / to)], capture_output=True, text=True)
         assert done.returncode == 2, done.stderr
         assert "observation.effort" in done.stderr
+
+
+def test_lerobot_written_video_converts_and_merges_without_reencoding(videos, tmp_path):
+    """A video dataset lerobot wrote (AV1 through PyAV) goes v3.0 -> v2.1 -> v3.0 and is merged
+    with itself: the video samples are copied, never decoded and encoded again, so lerobot
+    decodes exactly the original frames; its statistics are merged from lerobot's per-episode
+    summaries (counts summed)."""
+    import torch
+
+    v21, v30, merged = tmp_path / "v21", tmp_path / "v30", tmp_path / "merged"
+    for source, target, version in [(videos, v21, "2.1"), (v21, v30, "3.0")]:
+        done = subprocess.run(
+            [BIN, "convert", str(source), "--to", "lerobot", "--lerobot-version", version, "--out", str(target), "--verify"],
+            capture_output=True, text=True,
+        )
+        assert done.returncode == 0, done.stderr
+        assert "verified" in done.stdout
+    done = subprocess.run([BIN, "merge", str(videos), str(v30), "--out", str(merged)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    for root in [v30, merged]:
+        code, report, err = validate(root)
+        assert code == 0, (report, err)
+    camera = "observation.images.cam_high"
+    original = LeRobotDataset("someone/aloha-like", root=videos, video_backend="pyav")
+    converted = LeRobotDataset("someone/aloha-like", root=v30, video_backend="pyav")
+    both = LeRobotDataset("someone/aloha-like", root=merged, video_backend="pyav")
+    assert converted.features[camera]["dtype"] == "video"
+    assert both.num_episodes == 2 * original.num_episodes and len(both) == 2 * len(original)
+    for i in range(len(original)):
+        a = original[i]
+        for b in [converted[i], both[i], both[len(original) + i]]:
+            assert torch.equal(a[camera], b[camera]), i
+            assert torch.equal(a["action"], b["action"]), i
+    stats = json.loads((merged / "meta/stats.json").read_text())[camera]
+    assert stats["count"] == [2 * len(original)]
+    assert np.array(stats["mean"]).shape == (3, 1, 1)
+    # A format that needs pixels refuses the video, naming it.
+    done = subprocess.run([BIN, "convert", str(videos), "--to", "rlds", "--out", str(tmp_path / "rlds")], capture_output=True, text=True)
+    assert done.returncode == 2 and camera in done.stderr, done.stderr

@@ -408,7 +408,11 @@ impl Context<'_> {
                 },
                 ..semantics.clone()
             };
-            let episode = Episode { meta, steps };
+            let episode = Episode {
+                meta,
+                steps,
+                encoded: Vec::new(),
+            };
             check_semantics(&episode, &semantics, &At::file(file), self.findings);
         }
     }

@@ -1,0 +1,401 @@
+//! Reading MP4 video back without decoding it ([`re_mp4`]): the samples of a span of a file's
+//! video track, in the form the muxer ([`crate::export::video::VideoFile`]) takes (AV1 OBUs,
+//! H.264 Annex B), so video passes from one dataset to another unchanged.
+//!
+//! A span must start on a keyframe (every episode does: LeRobot and surgvla encode episodes
+//! separately); a keyframe that leaves its parameters to the file's sample description (the
+//! AV1 sequence header, H.264's SPS and PPS) gets them in-band, so the span stands alone in a
+//! new file. Streams that reorder frames (B-frames) are refused: their samples cannot be
+//! appended by presentation time.
+
+use crate::episode::{EncodedFrame, VideoCodec};
+use crate::export::ExportError;
+use crate::export::video::strip_temporal_delimiters;
+use re_mp4::{Mp4, StsdBoxContent};
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+/// Slack when matching sample times to an episode's span, seconds (lerobot's own tolerance).
+const TIME_TOLERANCE_SECS: f64 = 1e-4;
+
+/// A sample's place in the file and its presentation time.
+#[derive(Clone, Copy, Debug)]
+struct SampleRef {
+    offset: u64,
+    size: u64,
+    time_secs: f64,
+    keyframe: bool,
+}
+
+/// The video track of an MP4 file, ready to copy spans of.
+pub struct VideoReader {
+    path: PathBuf,
+    file: File,
+    pub codec: VideoCodec,
+    pub width_px: u32,
+    pub height_px: u32,
+    samples: Vec<SampleRef>,
+    /// What a keyframe lacking its parameters gets in front: the AV1 configuration OBUs, or
+    /// H.264's SPS and PPS as Annex B.
+    parameters: Vec<u8>,
+    /// H.264: bytes of each NAL unit's length prefix.
+    length_size: usize,
+}
+
+fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
+    ExportError::InvalidDataset {
+        path: path.to_path_buf(),
+        problem: problem.into(),
+    }
+}
+
+impl VideoReader {
+    /// Reads the sample tables of the file's video track (not its media data).
+    pub fn open(path: &Path) -> Result<Self, ExportError> {
+        let mut file = File::open(path).map_err(ExportError::io(path))?;
+        let size = file.metadata().map_err(ExportError::io(path))?.len();
+        // re_mp4 indexes its tables without bounds checks in places: a damaged file must be an
+        // error naming it, never a crash.
+        let parsed =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Mp4::read(&mut file, size)));
+        let mp4 = match parsed {
+            Ok(Ok(mp4)) => mp4,
+            Ok(Err(e)) => return Err(invalid(path, format!("not a readable MP4: {e}"))),
+            Err(_) => return Err(invalid(path, "not a readable MP4 (damaged sample tables)")),
+        };
+        let track = mp4
+            .tracks()
+            .values()
+            .find(|t| t.kind == Some(re_mp4::TrackKind::Video))
+            .ok_or_else(|| invalid(path, "has no video track"))?;
+        let trak = mp4
+            .moov
+            .traks
+            .iter()
+            .find(|t| t.tkhd.track_id == track.track_id)
+            .ok_or_else(|| invalid(path, "has no video track"))?;
+        let (codec, parameters, length_size) = match &trak.mdia.minf.stbl.stsd.contents {
+            StsdBoxContent::Av01(av01) => {
+                (VideoCodec::Av1, av01.av1c.contents.config_obus.clone(), 0)
+            }
+            StsdBoxContent::Avc1(avc1) => {
+                let config = &avc1.avcc.contents;
+                let mut parameters = Vec::new();
+                for nal in config
+                    .sequence_parameter_sets
+                    .iter()
+                    .chain(&config.picture_parameter_sets)
+                {
+                    parameters.extend_from_slice(&[0, 0, 0, 1]);
+                    parameters.extend_from_slice(&nal.bytes);
+                }
+                (
+                    VideoCodec::H264,
+                    parameters,
+                    usize::from(config.length_size_minus_one & 3) + 1,
+                )
+            }
+            other => {
+                return Err(invalid(
+                    path,
+                    format!(
+                        "holds {} video; surgvla copies AV1 and H.264",
+                        other.codec_string().unwrap_or_else(|| "unknown".into())
+                    ),
+                ));
+            }
+        };
+        if track.timescale == 0 {
+            return Err(invalid(path, "has a video track with time scale 0"));
+        }
+        if track
+            .samples
+            .iter()
+            .any(|s| s.composition_timestamp != s.decode_timestamp)
+        {
+            return Err(invalid(
+                path,
+                "reorders frames (B-frames), which surgvla cannot copy between files",
+            ));
+        }
+        let samples = track
+            .samples
+            .iter()
+            .map(|s| SampleRef {
+                offset: s.offset,
+                size: s.size,
+                time_secs: s.composition_timestamp as f64 / track.timescale as f64,
+                keyframe: s.is_sync,
+            })
+            .collect::<Vec<_>>();
+        if let Some(bad) = samples
+            .iter()
+            .find(|s| s.offset.saturating_add(s.size) > size)
+        {
+            return Err(invalid(
+                path,
+                format!(
+                    "a sample at byte {} runs past the end of the file ({size} bytes): truncated",
+                    bad.offset
+                ),
+            ));
+        }
+        Ok(VideoReader {
+            path: path.to_path_buf(),
+            file,
+            codec,
+            width_px: u32::from(track.width),
+            height_px: u32::from(track.height),
+            samples,
+            parameters,
+            length_size,
+        })
+    }
+
+    /// Frames in the file.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// The frames presented in `[from_secs, to_secs)`, ready to append to another file; the
+    /// first must be a keyframe.
+    pub fn span(&mut self, from_secs: f64, to_secs: f64) -> Result<Vec<EncodedFrame>, ExportError> {
+        let wanted: Vec<SampleRef> = self
+            .samples
+            .iter()
+            .filter(|s| {
+                s.time_secs >= from_secs - TIME_TOLERANCE_SECS
+                    && s.time_secs < to_secs - TIME_TOLERANCE_SECS
+            })
+            .copied()
+            .collect();
+        if wanted.first().is_some_and(|s| !s.keyframe) {
+            return Err(invalid(
+                &self.path,
+                format!(
+                    "the span {from_secs:.4}..{to_secs:.4} s does not start on a keyframe, so it cannot be copied alone"
+                ),
+            ));
+        }
+        wanted.iter().map(|s| self.frame(s)).collect()
+    }
+
+    /// Every frame of the file.
+    pub fn all(&mut self) -> Result<Vec<EncodedFrame>, ExportError> {
+        self.span(f64::NEG_INFINITY, f64::INFINITY)
+    }
+
+    fn frame(&mut self, sample: &SampleRef) -> Result<EncodedFrame, ExportError> {
+        let mut bytes = vec![0u8; sample.size as usize];
+        self.file
+            .seek(SeekFrom::Start(sample.offset))
+            .and_then(|_| self.file.read_exact(&mut bytes))
+            .map_err(ExportError::io(&self.path))?;
+        let data = match self.codec {
+            VideoCodec::Av1 => {
+                let obus = strip_temporal_delimiters(&bytes);
+                if sample.keyframe && !has_av1_sequence_header(&obus) {
+                    [self.parameters.as_slice(), &obus].concat()
+                } else {
+                    obus
+                }
+            }
+            VideoCodec::H264 => {
+                let annex_b = avcc_to_annex_b(&bytes, self.length_size).ok_or_else(|| {
+                    invalid(
+                        &self.path,
+                        format!(
+                            "the sample at byte {} is not length-prefixed H.264",
+                            sample.offset
+                        ),
+                    )
+                })?;
+                if sample.keyframe && !has_h264_sps(&annex_b) {
+                    [self.parameters.as_slice(), &annex_b].concat()
+                } else {
+                    annex_b
+                }
+            }
+        };
+        Ok(EncodedFrame {
+            data,
+            keyframe: sample.keyframe,
+        })
+    }
+}
+
+/// Whether an AV1 temporal unit starts with (or holds) a sequence header OBU (type 1).
+fn has_av1_sequence_header(data: &[u8]) -> bool {
+    let mut i = 0;
+    while i < data.len() {
+        let header = data[i];
+        if (header >> 3) & 0x0f == 1 {
+            return true;
+        }
+        let mut j = i + 1 + usize::from(header & 0x04 != 0);
+        if header & 0x02 == 0 {
+            return false;
+        }
+        let (mut size, mut shift) = (0usize, 0);
+        loop {
+            let Some(byte) = data.get(j) else {
+                return false;
+            };
+            size |= usize::from(byte & 0x7f) << shift;
+            j += 1;
+            shift += 7;
+            if byte & 0x80 == 0 || shift > 56 {
+                break;
+            }
+        }
+        i = j.saturating_add(size);
+    }
+    false
+}
+
+/// Length-prefixed NAL units (`length_size` bytes each) as Annex B (4-byte start codes).
+fn avcc_to_annex_b(data: &[u8], length_size: usize) -> Option<Vec<u8>> {
+    let mut out = Vec::with_capacity(data.len() + 16);
+    let mut i = 0;
+    while i < data.len() {
+        let prefix = data.get(i..i + length_size)?;
+        let length = prefix
+            .iter()
+            .fold(0usize, |acc, b| (acc << 8) | usize::from(*b));
+        i += length_size;
+        let nal = data.get(i..i.checked_add(length)?)?;
+        out.extend_from_slice(&[0, 0, 0, 1]);
+        out.extend_from_slice(nal);
+        i += length;
+    }
+    Some(out)
+}
+
+/// Whether Annex B bytes hold a sequence parameter set (NAL type 7).
+fn has_h264_sps(annex_b: &[u8]) -> bool {
+    annex_b
+        .windows(4)
+        .any(|w| w[..3] == [0, 0, 1] && w[3] & 0x1f == 7)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::dir::DatasetDir;
+    use crate::export::video::{VideoFile, encode};
+
+    fn frames(n: u8) -> Vec<Vec<u8>> {
+        (0..n)
+            .map(|i| {
+                (0..64 * 48 * 3)
+                    .map(|k| ((k / 7) as u8).wrapping_add(i * 11))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Encodes `frames` twice into one MP4 (two "episodes"), reads both spans back, and
+    /// re-muxes them: the copy is byte-identical to the original.
+    fn round_trip(codec: VideoCodec) {
+        let root = std::env::temp_dir().join(format!(
+            "surgvla-demux-{}-{}",
+            codec.name(),
+            std::process::id()
+        ));
+        let _ = std::fs::remove_dir_all(&root);
+        let run = crate::export::RunOptions::default();
+        let mut dir = DatasetDir::create(&root, &run).expect("dir");
+        let pixels = frames(5);
+        let refs: Vec<&[u8]> = pixels.iter().map(|f| f.as_slice()).collect();
+        let encoded = encode(codec, &refs, 64, 48, 10, 30).expect("encode");
+        let write = |dir: &mut DatasetDir, name: &str, episodes: &[&[EncodedFrame]]| {
+            let mut video = VideoFile::create(
+                dir.create_file(name).expect("file"),
+                codec,
+                (0, 0),
+                (64, 48),
+                10,
+            )
+            .expect("video");
+            let spans: Vec<(f64, f64)> = episodes
+                .iter()
+                .map(|e| video.append(e).expect("append"))
+                .collect();
+            dir.commit(video.finish().expect("finish")).expect("commit");
+            spans
+        };
+        let spans = write(&mut dir, "a.mp4", &[&encoded, &encoded]);
+        let mut reader = VideoReader::open(&root.join("a.mp4")).expect("open");
+        assert_eq!(
+            (reader.codec, reader.width_px, reader.len()),
+            (codec, 64, 10)
+        );
+        let second = reader.span(spans[1].0, spans[1].1).expect("span");
+        assert_eq!(second.len(), 5);
+        assert!(second[0].keyframe);
+        let first = reader.span(spans[0].0, spans[0].1).expect("span");
+        write(&mut dir, "b.mp4", &[&first, &second]);
+        assert_eq!(
+            std::fs::read(root.join("a.mp4")).expect("a"),
+            std::fs::read(root.join("b.mp4")).expect("b")
+        );
+        // The second episode alone starts a valid file of its own.
+        write(&mut dir, "c.mp4", &[&second]);
+        let alone = VideoReader::open(&root.join("c.mp4"))
+            .expect("open")
+            .all()
+            .expect("all");
+        assert_eq!(alone, second);
+        let _ = std::fs::remove_dir_all(&root);
+    }
+
+    #[test]
+    fn av1_spans_copy_byte_for_byte() {
+        round_trip(VideoCodec::Av1);
+    }
+
+    #[test]
+    fn h264_spans_copy_byte_for_byte() {
+        round_trip(VideoCodec::H264);
+    }
+
+    #[test]
+    fn garbage_is_an_error_naming_the_file() {
+        let path =
+            std::env::temp_dir().join(format!("surgvla-demux-bad-{}.mp4", std::process::id()));
+        let mut rng = crate::rng::SplitMix64::stream(1, "demux garbage");
+        for round in 0..50 {
+            let mut bytes: Vec<u8> = (0..200 + round * 13)
+                .map(|_| rng.next_u64() as u8)
+                .collect();
+            if round % 2 == 0 {
+                // A plausible box header first.
+                bytes[..8].copy_from_slice(&[0, 0, 0, 24, b'f', b't', b'y', b'p']);
+            }
+            std::fs::write(&path, &bytes).expect("write");
+            let error = VideoReader::open(&path).err().expect("garbage is refused");
+            assert!(
+                error.to_string().contains(&*path.to_string_lossy()),
+                "{error}"
+            );
+        }
+        let _ = std::fs::remove_file(&path);
+    }
+
+    #[test]
+    fn avcc_becomes_annex_b() {
+        let avcc = [0, 0, 0, 2, 0x67, 1, 0, 0, 0, 1, 0x65];
+        assert_eq!(
+            avcc_to_annex_b(&avcc, 4),
+            Some(vec![0, 0, 0, 1, 0x67, 1, 0, 0, 0, 1, 0x65])
+        );
+        assert_eq!(avcc_to_annex_b(&[0, 0, 0, 9, 1], 4), None);
+        assert!(has_h264_sps(&[0, 0, 0, 1, 0x67, 1]));
+        assert!(!has_h264_sps(&[0, 0, 0, 1, 0x65, 1]));
+    }
+}
