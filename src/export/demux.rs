@@ -162,18 +162,27 @@ impl VideoReader {
         self.samples.is_empty()
     }
 
+    /// The samples presented in `[from_secs, to_secs)`.
+    fn in_span(&self, from_secs: f64, to_secs: f64) -> impl Iterator<Item = &SampleRef> {
+        self.samples.iter().filter(move |s| {
+            s.time_secs >= from_secs - TIME_TOLERANCE_SECS
+                && s.time_secs < to_secs - TIME_TOLERANCE_SECS
+        })
+    }
+
+    /// How many frames `[from_secs, to_secs)` holds, and whether the first is a keyframe (true
+    /// when it holds none), without reading them.
+    pub fn count_span(&self, from_secs: f64, to_secs: f64) -> (usize, bool) {
+        let mut samples = self.in_span(from_secs, to_secs);
+        let first_key = samples.next().is_none_or(|s| s.keyframe);
+        let count = self.in_span(from_secs, to_secs).count();
+        (count, first_key)
+    }
+
     /// The frames presented in `[from_secs, to_secs)`, ready to append to another file; the
     /// first must be a keyframe.
     pub fn span(&mut self, from_secs: f64, to_secs: f64) -> Result<Vec<EncodedFrame>, ExportError> {
-        let wanted: Vec<SampleRef> = self
-            .samples
-            .iter()
-            .filter(|s| {
-                s.time_secs >= from_secs - TIME_TOLERANCE_SECS
-                    && s.time_secs < to_secs - TIME_TOLERANCE_SECS
-            })
-            .copied()
-            .collect();
+        let wanted: Vec<SampleRef> = self.in_span(from_secs, to_secs).copied().collect();
         if wanted.first().is_some_and(|s| !s.keyframe) {
             return Err(invalid(
                 &self.path,

@@ -25,6 +25,8 @@ struct Corpus {
     rlds: PathBuf,
     zarr: PathBuf,
     mcap: PathBuf,
+    /// LeRobot v3.0 in video mode (H.264).
+    video: PathBuf,
 }
 
 fn corpus() -> &'static Corpus {
@@ -58,6 +60,10 @@ fn corpus() -> &'static Corpus {
         let rlds = convert("rlds", "rlds");
         let zarr = convert("zarr", "zarr");
         let mcap = convert("mcap", "mcap");
+        let video = root.join("video");
+        let mut args = vec!["collect", "--out", path(&video), "--video", "h264"];
+        args.extend(small);
+        run(&args);
         Corpus {
             _root: root,
             lerobot,
@@ -65,6 +71,7 @@ fn corpus() -> &'static Corpus {
             rlds,
             zarr,
             mcap,
+            video,
         }
     })
 }
@@ -286,6 +293,38 @@ fn good_datasets_of_every_format_are_valid_and_described() {
         ),
         (0, Some(true), Some("video-decode"))
     );
+    // Video defects, found through the MP4 sample tables: a span one frame short, another
+    // codec declared than the file holds, a truncated file.
+    const MP4: &str = "videos/observation.images.endoscope/chunk-000/file-000.mp4";
+    let (_copy, report) = broken(&video, |root| {
+        let name = "videos/observation.images.endoscope/to_timestamp";
+        rewrite_parquet(
+            &root.join("meta/episodes/chunk-000/file-000.parquet"),
+            |batch| {
+                let index = batch.schema().index_of(name).expect("column");
+                let mut columns = batch.columns().to_vec();
+                let to = columns[index]
+                    .as_any()
+                    .downcast_ref::<arrow_array::Float64Array>()
+                    .expect("f64");
+                let shorter: Vec<f64> = to.values().iter().map(|t| t - 0.2).collect();
+                columns[index] = Arc::new(arrow_array::Float64Array::from(shorter));
+                RecordBatch::try_new(batch.schema(), columns).expect("batch")
+            },
+        )
+    });
+    assert_found(&report, "video", MP4, "a span one frame short");
+    let (_copy, report) = broken(&video, |root| {
+        let info = root.join("meta/info.json");
+        let text = std::fs::read_to_string(&info).expect("info");
+        std::fs::write(&info, text.replace("\"h264\"", "\"av1\"")).expect("write");
+    });
+    assert_found(&report, "video", MP4, "another codec declared");
+    let (_copy, report) = broken(&video, |root| {
+        let bytes = std::fs::read(root.join(MP4)).expect("mp4");
+        std::fs::write(root.join(MP4), &bytes[..bytes.len() * 2 / 3]).expect("write");
+    });
+    assert_found(&report, "video", MP4, "a truncated MP4");
     // A byte-for-byte copy and a byte-differently rewritten copy (no manifest) are valid.
     let (_copy, report) = broken(&c.lerobot, |_| {});
     assert!(report.valid, "{:#?}", report.errors);
@@ -724,7 +763,14 @@ fn validate_and_info_exit_codes_and_json() {
 fn random_corruption_never_panics_a_reader() {
     let c = corpus();
     let mut rng = surgvla::rng::SplitMix64::stream(7, "validate-fuzz");
-    for good in [&c.lerobot, &c.lerobot21, &c.rlds, &c.zarr, &c.mcap] {
+    for good in [
+        &c.lerobot,
+        &c.lerobot21,
+        &c.rlds,
+        &c.zarr,
+        &c.mcap,
+        &c.video,
+    ] {
         let files: Vec<String> = tree(good).into_keys().collect();
         for _ in 0..12 {
             let copy = temp_root("validate-fuzz");

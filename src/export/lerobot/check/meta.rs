@@ -371,7 +371,10 @@ pub(super) fn check_stats(
     }
 }
 
-/// Video features: each episode's span lies inside its MP4 file.
+/// Every video feature's files and episode spans, through the MP4 sample tables (frames are
+/// not decoded: nothing here decodes video): each file readable with its samples inside it, in
+/// the declared codec and frame size, and each episode's span holding exactly its frames and
+/// starting on a keyframe (v2.1: each episode's file holds its frames).
 pub(super) fn check_videos(
     root: &Path,
     v21: bool,
@@ -380,19 +383,22 @@ pub(super) fn check_videos(
     entries: &[EpisodeEntry],
     findings: &Findings,
 ) {
+    use crate::export::demux::VideoReader;
     let chunks_size = info["chunks_size"].as_u64().unwrap_or(1000).max(1) as i64;
-    let mut durations: BTreeMap<PathBuf, Option<f64>> = BTreeMap::new();
+    let mut readers: BTreeMap<PathBuf, Result<VideoReader, String>> = BTreeMap::new();
     for feature in features.iter().filter(|f| f.dtype == "video") {
+        let key = &feature.name;
         findings.warning(
             At::file("meta/info.json"),
             "video-decode",
             format!(
-                "the frames of video feature {} are not decoded (surgvla has no video decoder): its files, MP4 headers and episode spans are checked, its pixels are not",
-                feature.name
+                "the frames of video feature {key} are not decoded (surgvla has no video decoder): its files, sample tables, codec, frame size and each episode's frame count and first keyframe are checked, its pixels are not"
             ),
         );
+        let declared_codec = info["features"][key]["info"]["video.codec"]
+            .as_str()
+            .and_then(crate::episode::VideoCodec::from_name);
         for (i, entry) in entries.iter().enumerate() {
-            let key = &feature.name;
             let (relative, span) = if v21 {
                 let i = i as i64;
                 (
@@ -412,75 +418,75 @@ pub(super) fn check_videos(
                 )
             };
             let path = root.join(&relative);
-            let duration = *durations
-                .entry(path.clone())
-                .or_insert_with(|| mp4_duration_secs(&path));
             let at = || At::file(relative.clone()).episode(i as u64);
-            match (duration, span) {
-                (None, _) if !path.is_file() => findings.error(at(), "present", "is missing"),
-                (None, _) => {
-                    findings.error(at(), "video", "is not an MP4 file with a movie header")
-                }
-                (Some(duration), Some((from, to))) => {
-                    if from < 0.0 || to < from || to > duration + 1e-3 {
-                        findings.error(
-                            at(),
-                            "video",
-                            format!(
-                                "the span {from}..{to} s is not inside the file's {duration} s"
-                            ),
-                        );
+            if !path.is_file() {
+                findings.error(at(), "present", "is missing");
+                continue;
+            }
+            let fresh = !readers.contains_key(&path);
+            let reader = readers.entry(path.clone()).or_insert_with(|| {
+                VideoReader::open(&path).map_err(|e| match e {
+                    crate::export::ExportError::InvalidDataset { problem, .. } => problem,
+                    other => other.to_string(),
+                })
+            });
+            let reader = match reader {
+                Ok(reader) => reader,
+                Err(problem) => {
+                    if fresh {
+                        findings.error(at(), "video", problem.clone());
                     }
+                    continue;
                 }
-                (Some(duration), None) => {
-                    if let Some(length) = entry.length {
-                        let needed = length as f64 / info["fps"].as_f64().unwrap_or(1.0).max(1e-9);
-                        if duration + 1e-3 < needed {
-                            findings.error(at(), "video", format!("lasts {duration} s, the episode's {length} frames need {needed} s"));
-                        }
-                    }
+            };
+            if fresh {
+                if declared_codec.is_some_and(|c| c != reader.codec) {
+                    findings.error(
+                        at(),
+                        "video",
+                        format!(
+                            "holds {} video where info.json declares {}",
+                            reader.codec.name(),
+                            info["features"][key]["info"]["video.codec"]
+                        ),
+                    );
                 }
+                let size = [reader.height_px as usize, reader.width_px as usize];
+                if feature.shape.len() == 3 && feature.shape[..2] != size {
+                    findings.error(
+                        at(),
+                        "video",
+                        format!(
+                            "holds {}x{} frames where {key} is declared {:?}",
+                            size[1], size[0], feature.shape
+                        ),
+                    );
+                }
+            }
+            let (frames, keyframe_first) = match span {
+                Some((from, to)) => reader.count_span(from, to),
+                None => reader.count_span(f64::NEG_INFINITY, f64::INFINITY),
+            };
+            let Some(length) = entry.length else {
+                continue;
+            };
+            if frames as i64 != length {
+                let place = match span {
+                    Some((from, to)) => format!("the span {from}..{to} s holds"),
+                    None => "holds".into(),
+                };
+                findings.error(
+                    at(),
+                    "video",
+                    format!("{place} {frames} frames; the episode has {length}"),
+                );
+            } else if !keyframe_first {
+                findings.error(
+                    at(),
+                    "video",
+                    "the episode's first frame is not a keyframe: it cannot be decoded or copied on its own",
+                );
             }
         }
     }
-}
-
-/// The duration of an MP4 file from its movie header (`moov/mvhd`), seconds.
-fn mp4_duration_secs(path: &Path) -> Option<f64> {
-    let bytes = std::fs::read(path).ok()?;
-    let moov = find_box(&bytes, b"moov")?;
-    let mvhd = find_box(moov, b"mvhd")?;
-    let version = *mvhd.first()?;
-    let be32 = |o: usize| Some(u32::from_be_bytes(mvhd.get(o..o + 4)?.try_into().ok()?));
-    let be64 = |o: usize| Some(u64::from_be_bytes(mvhd.get(o..o + 8)?.try_into().ok()?));
-    let (timescale, duration) = if version == 1 {
-        (be32(20)?, be64(24)?)
-    } else {
-        (be32(12)?, u64::from(be32(16)?))
-    };
-    (timescale > 0).then(|| duration as f64 / f64::from(timescale))
-}
-
-/// The body of the first box of `kind` among the boxes in `bytes`.
-fn find_box<'a>(bytes: &'a [u8], kind: &[u8; 4]) -> Option<&'a [u8]> {
-    let mut offset = 0usize;
-    while offset + 8 <= bytes.len() {
-        let size32 = u32::from_be_bytes(bytes[offset..offset + 4].try_into().ok()?) as usize;
-        let (header, size) = match size32 {
-            1 => (
-                16,
-                u64::from_be_bytes(bytes.get(offset + 8..offset + 16)?.try_into().ok()?) as usize,
-            ),
-            0 => (8, bytes.len() - offset),
-            n => (8, n),
-        };
-        if size < header || offset + size > bytes.len() {
-            return None;
-        }
-        if &bytes[offset + 4..offset + 8] == kind {
-            return Some(&bytes[offset + header..offset + size]);
-        }
-        offset += size;
-    }
-    None
 }
