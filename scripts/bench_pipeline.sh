@@ -17,7 +17,11 @@
 # with the converted one (tests/interop/rlds). `datasets`: on the default 800-episode dataset,
 # `validate --quick`, `validate` (every frame), `validate --replay`, `info`, `convert --to
 # lerobot --lerobot-version 2.1 --verify`; then the same collection as two shards, `merge`d and
-# compared byte for byte with the single run. Figures go to BENCHMARKS.md by hand.
+# compared byte for byte with the single run. `video`: the default dataset in video mode
+# (H.264), `convert` to v2.1 and back (compared byte for byte with the original), two video
+# shards `merge`d (compared with the single run), `validate`; and the image-mode dataset
+# converted to v2.1 and to RLDS, its PNG and TIFF bytes copied. Figures go to BENCHMARKS.md by
+# hand.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked --quiet
@@ -86,6 +90,36 @@ elif [ "${1:-}" = datasets ]; then
         echo "merged differs from the single run" >&2
         exit 1
     fi
+elif [ "${1:-}" = video ]; then
+    threads="${2:-$(nproc)}"
+    surgvla=./target/release/surgvla
+    # Every file but the report (timings) and the manifest's options digest (the encoder's
+    # quality, which a copy does not know); the manifests' file lists are compared.
+    same() {
+        diff -r -x collect_report.json -x surgvla_manifest.json "$1" "$2" >/dev/null &&
+            diff <(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["files"])' "$1/meta/surgvla_manifest.json") \
+                <(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["files"])' "$2/meta/surgvla_manifest.json") >/dev/null
+    }
+    echo "== the default dataset in video mode (H.264), ${threads} threads"
+    timed "${surgvla}" collect --threads "${threads}" --video h264 --out "${work}/video"
+    echo "== convert video --to lerobot --lerobot-version 2.1 (samples copied)"
+    timed "${surgvla}" convert "${work}/video" --to lerobot --lerobot-version 2.1 --threads "${threads}" --out "${work}/video21"
+    echo "== and back to v3.0"
+    timed "${surgvla}" convert "${work}/video21" --to lerobot --threads "${threads}" --out "${work}/video30"
+    same "${work}/video" "${work}/video30" && echo "v3.0 -> v2.1 -> v3.0 = the original, byte for byte"
+    echo "== validate (video: sample tables and spans)"
+    timed "${surgvla}" validate --threads "${threads}" "${work}/video"
+    echo "== two video shards, merged"
+    for shard in 0 1; do
+        "${surgvla}" collect --threads "${threads}" --video h264 --shard "${shard}/2" --out "${work}/vshard-${shard}" | tail -n 1
+    done
+    timed "${surgvla}" merge "${work}/vshard-0" "${work}/vshard-1" --threads "${threads}" --out "${work}/vmerged"
+    same "${work}/video" "${work}/vmerged" && echo "merged video = single run, byte for byte"
+    rm -rf "${work}/video"*  "${work}/vshard-"* "${work}/vmerged"
+    echo "== the default dataset in image mode; PNG and TIFF bytes copied by convert"
+    "${surgvla}" collect --threads "${threads}" --out "${work}/data" | tail -n 1
+    timed "${surgvla}" convert "${work}/data" --to lerobot --lerobot-version 2.1 --threads "${threads}" --out "${work}/v21"
+    timed "${surgvla}" convert "${work}/data" --to rlds --threads "${threads}" --out "${work}/rlds"
 elif [ "${1:-}" = memory ]; then
     threads="${2:-$(nproc)}"
     for episodes in 13 125; do

@@ -533,6 +533,13 @@ impl Episode {
             .find(|e| e.feature == feature && e.encoding == encoding)
     }
 
+    /// The PNG bytes of `feature`, one per step, if the source kept them.
+    pub fn stored_png(&self, feature: &str) -> Option<&[EncodedFrame]> {
+        self.encoded_as(feature, ImageEncoding::Png)
+            .filter(|e| e.frames.len() == self.steps.len())
+            .map(|e| e.frames.as_slice())
+    }
+
     /// The video frames of `feature`, if it arrived as video.
     pub fn encoded_video(&self, feature: &str) -> Option<&EncodedFeature> {
         self.encoded

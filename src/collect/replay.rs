@@ -145,8 +145,8 @@ fn replay_episode(
     None
 }
 
-/// Replays every episode of the dataset at `path` (LeRobot in image mode, or RLDS) on
-/// `threads` worker threads (0: one per core) and returns what failed.
+/// Replays every episode of the dataset at `path` (LeRobot, or RLDS; video frames are not
+/// compared) on `threads` worker threads (0: one per core) and returns what failed.
 pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, ReplayError> {
     let mut source = open_source(path)?;
     let collection = source.info().collection.clone();

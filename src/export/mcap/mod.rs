@@ -193,6 +193,7 @@ pub fn record_episode(
     let objects: Vec<String> = (0..crate::episode::MAX_OBJECTS)
         .map(|i| format!("object_{i}"))
         .collect();
+    let stored_rgb = info.rgb_key().and_then(|key| episode.stored_png(key));
     // Per step, encoded in parallel: every message's bytes.
     let fps = u64::from(info.fps.max(1));
     let step_messages: Vec<Vec<(u16, Vec<u8>)>> = episode
@@ -201,7 +202,11 @@ pub fn record_episode(
         .enumerate()
         .map(|(t, step)| -> Result<Vec<(u16, Vec<u8>)>, ExportError> {
             let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
-            let png = encode_png(width, height, 3, &step.rgb, PngLevel::Fast)?;
+            // PNG bytes the source stored are copied (lossless: the same pixels).
+            let png = match stored_rgb {
+                Some(frames) => frames[t].data.clone(),
+                None => encode_png(width, height, 3, &step.rgb, PngLevel::Fast)?,
+            };
             let mut out = vec![(rgb, encoded(&messages::compressed_image(ns, png))?)];
             if let Some(channel) = depth {
                 out.push((

@@ -36,6 +36,9 @@ pub struct StepLayout {
     pub depth: bool,
     pub mask: bool,
     pub environment_state: bool,
+    /// The dataset's RGB and mask feature names: PNG bytes an episode brings for them are
+    /// copied rather than encoded again.
+    pub png_features: [Option<String>; 2],
 }
 
 impl StepLayout {
@@ -48,6 +51,8 @@ impl StepLayout {
             depth: info.has(FeatureKind::Depth),
             mask: info.has(FeatureKind::Mask),
             environment_state: info.has(FeatureKind::EnvironmentState),
+            png_features: [FeatureKind::Rgb, FeatureKind::Mask]
+                .map(|kind| info.feature(kind).map(|f| f.name.clone())),
         }
     }
 
@@ -158,12 +163,25 @@ pub fn encode_episode(
     png: PngLevel,
 ) -> Result<Vec<u8>, ExportError> {
     let (w, h) = (layout.width_px, layout.height_px);
+    let [stored_rgb, stored_mask] = layout
+        .png_features
+        .clone()
+        .map(|name| name.and_then(|n| episode.stored_png(&n)));
+    let copy_or = |stored: Option<&[crate::episode::EncodedFrame]>,
+                   i: usize,
+                   encode: &dyn Fn() -> Result<Vec<u8>, ExportError>| {
+        match stored {
+            Some(frames) => Ok(frames[i].data.clone()),
+            None => encode(),
+        }
+    };
     let images: Vec<StepImages> = episode
         .steps
         .par_iter()
-        .map(|step| {
+        .enumerate()
+        .map(|(i, step)| {
             Ok(StepImages {
-                rgb: encode_png(w, h, 3, &step.rgb, png)?,
+                rgb: copy_or(stored_rgb, i, &|| encode_png(w, h, 3, &step.rgb, png))?,
                 depth: if layout.depth {
                     let mm: Vec<u16> = step.depth_m.iter().map(|&d| depth_to_mm(d)).collect();
                     Some(encode_png16(w, h, &mm, png)?)
@@ -171,7 +189,9 @@ pub fn encode_episode(
                     None
                 },
                 mask: if layout.mask {
-                    Some(encode_png(w, h, 1, &step.mask, png)?)
+                    Some(copy_or(stored_mask, i, &|| {
+                        encode_png(w, h, 1, &step.mask, png)
+                    })?)
                 } else {
                     None
                 },
@@ -463,6 +483,7 @@ mod tests {
             depth: true,
             mask: true,
             environment_state: true,
+            png_features: [None, None],
         }
     }
 
