@@ -180,20 +180,26 @@ def test_a_video_span_past_its_file_is_named(videos, tmp_path):
     assert any(e["check"] == "video" for e in errors(root))
 
 
+def through_v21(source: Path, tmp_path: Path) -> Path:
+    """`source` converted to v2.1 and back to v3.0, each step `--verify`ed; the v3.0 copy."""
+    v21, v30 = tmp_path / "v21", tmp_path / "v30"
+    for origin, target, version in [(source, v21, "2.1"), (v21, v30, "3.0")]:
+        done = subprocess.run(
+            [BIN, "convert", str(origin), "--to", "lerobot", "--lerobot-version", version, "--out", str(target), "--verify"],
+            capture_output=True, text=True,
+        )
+        assert done.returncode == 0, done.stderr
+        assert "verified" in done.stdout
+    return v30
+
+
 def test_lerobot_written_dataset_converts_through_v21_unchanged(images, tmp_path):
     """Another robot's features (14-D state, efforts, a camera) pass through `convert`: v3.0 ->
     v2.1 -> v3.0, verified by surgvla, loaded by lerobot with the same values, and the camera's
     PNG bytes unchanged (no re-encoding)."""
     import torch
 
-    v21, v30 = tmp_path / "v21", tmp_path / "v30"
-    for source, target, version in [(images, v21, "2.1"), (v21, v30, "3.0")]:
-        done = subprocess.run(
-            [BIN, "convert", str(source), "--to", "lerobot", "--lerobot-version", version, "--out", str(target), "--verify"],
-            capture_output=True, text=True,
-        )
-        assert done.returncode == 0, done.stderr
-        assert "verified" in done.stdout
+    v30 = through_v21(images, tmp_path)
     code, report, err = validate(v30)
     assert code == 0, (report, err)
     original = LeRobotDataset("someone/aloha-like", root=images)
@@ -232,14 +238,7 @@ def test_lerobot_written_video_converts_and_merges_without_reencoding(videos, tm
     summaries (counts summed)."""
     import torch
 
-    v21, v30, merged = tmp_path / "v21", tmp_path / "v30", tmp_path / "merged"
-    for source, target, version in [(videos, v21, "2.1"), (v21, v30, "3.0")]:
-        done = subprocess.run(
-            [BIN, "convert", str(source), "--to", "lerobot", "--lerobot-version", version, "--out", str(target), "--verify"],
-            capture_output=True, text=True,
-        )
-        assert done.returncode == 0, done.stderr
-        assert "verified" in done.stdout
+    v30, merged = through_v21(videos, tmp_path), tmp_path / "merged"
     done = subprocess.run([BIN, "merge", str(videos), str(v30), "--out", str(merged)], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     for root in [v30, merged]:
