@@ -116,6 +116,18 @@ pub enum ImageEncoding {
     Video(VideoCodec),
 }
 
+impl ImageEncoding {
+    /// How surgvla stores a frame of an image feature of `kind`: depth as a float TIFF, the
+    /// rest as PNG.
+    pub fn of_kind(kind: FeatureKind) -> Self {
+        if kind == FeatureKind::Depth {
+            ImageEncoding::Tiff
+        } else {
+            ImageEncoding::Png
+        }
+    }
+}
+
 /// Statistics of a feature's pixels that its source computed (carried with video frames,
 /// whose pixels nothing here decodes).
 #[derive(Clone, Debug, PartialEq)]
@@ -533,11 +545,16 @@ impl Episode {
             .find(|e| e.feature == feature && e.encoding == encoding)
     }
 
-    /// The PNG bytes of `feature`, one per step, if the source kept them.
-    pub fn stored_png(&self, feature: &str) -> Option<&[EncodedFrame]> {
-        self.encoded_as(feature, ImageEncoding::Png)
+    /// The frames of `feature` in `encoding`, one per step, if the source kept them.
+    pub fn stored_frames(&self, feature: &str, encoding: ImageEncoding) -> Option<&[EncodedFrame]> {
+        self.encoded_as(feature, encoding)
             .filter(|e| e.frames.len() == self.steps.len())
             .map(|e| e.frames.as_slice())
+    }
+
+    /// The PNG bytes of `feature`, one per step, if the source kept them.
+    pub fn stored_png(&self, feature: &str) -> Option<&[EncodedFrame]> {
+        self.stored_frames(feature, ImageEncoding::Png)
     }
 
     /// The video frames of `feature`, if it arrived as video.

@@ -254,6 +254,9 @@ pub fn verify(
             );
             continue;
         }
+        if video_differs(&a, &b) {
+            note(&mut result, format!("episode {index}: video differs"));
+        }
         for (frame, (x, y)) in a.steps.iter().zip(&b.steps).enumerate() {
             let what = if both(FeatureKind::Rgb) && x.rgb != y.rgb {
                 Some("RGB")
@@ -277,8 +280,6 @@ pub fn verify(
                 Some("object poses")
             } else if named(&a_others, &x.other) != named(&b_others, &y.other) {
                 Some("another feature")
-            } else if frame == 0 && video_differs(&a, &b) {
-                Some("video")
             } else {
                 None
             };

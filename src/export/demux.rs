@@ -10,7 +10,7 @@
 
 use crate::episode::{EncodedFrame, VideoCodec};
 use crate::export::ExportError;
-use crate::export::video::strip_temporal_delimiters;
+use crate::export::video::{obus, strip_temporal_delimiters};
 use re_mp4::{Mp4, StsdBoxContent};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
@@ -238,33 +238,9 @@ impl VideoReader {
     }
 }
 
-/// Whether an AV1 temporal unit starts with (or holds) a sequence header OBU (type 1).
+/// Whether an AV1 temporal unit holds a sequence header OBU (type 1).
 fn has_av1_sequence_header(data: &[u8]) -> bool {
-    let mut i = 0;
-    while i < data.len() {
-        let header = data[i];
-        if (header >> 3) & 0x0f == 1 {
-            return true;
-        }
-        let mut j = i + 1 + usize::from(header & 0x04 != 0);
-        if header & 0x02 == 0 {
-            return false;
-        }
-        let (mut size, mut shift) = (0usize, 0);
-        loop {
-            let Some(byte) = data.get(j) else {
-                return false;
-            };
-            size |= usize::from(byte & 0x7f) << shift;
-            j += 1;
-            shift += 7;
-            if byte & 0x80 == 0 || shift > 56 {
-                break;
-            }
-        }
-        i = j.saturating_add(size);
-    }
-    false
+    obus(data).is_some_and(|spans| spans.iter().any(|(kind, _)| *kind == 1))
 }
 
 /// Length-prefixed NAL units (`length_size` bytes each) as Annex B (4-byte start codes).

@@ -20,6 +20,19 @@ fn png_error(source: png::EncodingError) -> ExportError {
     }
 }
 
+/// Frame `i`'s stored bytes when the source kept them (`stored`, one per step), else `encode()`:
+/// stored PNG bytes are copied rather than encoded again (lossless: the same pixels).
+pub fn stored_or(
+    stored: Option<&[crate::episode::EncodedFrame]>,
+    i: usize,
+    encode: impl FnOnce() -> Result<Vec<u8>, ExportError>,
+) -> Result<Vec<u8>, ExportError> {
+    match stored.and_then(|frames| frames.get(i)) {
+        Some(frame) => Ok(frame.data.clone()),
+        None => encode(),
+    }
+}
+
 /// Encodes row-major 8-bit pixels with `channels` (1 = grey, 3 = RGB) as PNG.
 pub fn encode_png(
     width: usize,

@@ -417,7 +417,8 @@ pub struct SummaryStats {
     image: bool,
 }
 
-fn flat(value: &Value) -> Vec<f64> {
+/// Every number of a (nested) JSON list, in order.
+pub(crate) fn flat(value: &Value) -> Vec<f64> {
     match value {
         Value::Array(items) => items.iter().flat_map(flat).collect(),
         other => other.as_f64().into_iter().collect(),

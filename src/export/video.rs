@@ -60,9 +60,10 @@ pub fn rgb_to_yuv420(rgb: &[u8], width: usize, height: usize) -> (Vec<u8>, Vec<u
     (y, u, v)
 }
 
-/// Removes temporal-delimiter OBUs (type 2) from an AV1 packet: MP4 samples must not carry them.
-pub fn strip_temporal_delimiters(data: &[u8]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(data.len());
+/// The OBUs of an AV1 temporal unit: (OBU type, its bytes' range, header included); None when a
+/// size field runs past the end. An OBU without a size field runs to the end.
+pub fn obus(data: &[u8]) -> Option<Vec<(u8, std::ops::Range<usize>)>> {
+    let mut spans = Vec::new();
     let mut i = 0;
     while i < data.len() {
         let header = data[i];
@@ -73,9 +74,7 @@ pub fn strip_temporal_delimiters(data: &[u8]) -> Vec<u8> {
         let payload = if has_size {
             let (mut value, mut shift) = (0usize, 0);
             loop {
-                let Some(byte) = data.get(j) else {
-                    return data.to_vec();
-                };
+                let byte = data.get(j)?;
                 value |= usize::from(byte & 0x7f) << shift;
                 j += 1;
                 shift += 7;
@@ -87,11 +86,22 @@ pub fn strip_temporal_delimiters(data: &[u8]) -> Vec<u8> {
         } else {
             data.len().saturating_sub(j)
         };
-        let end = (j + payload).min(data.len());
-        if obu_type != 2 {
-            out.extend_from_slice(&data[i..end]);
-        }
+        let end = j.saturating_add(payload).min(data.len());
+        spans.push((obu_type, i..end));
         i = end;
+    }
+    Some(spans)
+}
+
+/// Removes temporal-delimiter OBUs (type 2) from an AV1 packet: MP4 samples must not carry them.
+/// A packet that does not parse is returned as it is.
+pub fn strip_temporal_delimiters(data: &[u8]) -> Vec<u8> {
+    let Some(spans) = obus(data) else {
+        return data.to_vec();
+    };
+    let mut out = Vec::with_capacity(data.len());
+    for (_, range) in spans.into_iter().filter(|(kind, _)| *kind != 2) {
+        out.extend_from_slice(&data[range]);
     }
     out
 }

@@ -784,7 +784,9 @@ impl EpisodeSource for LeRobotSource {
 
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
         let mut steps = Vec::new();
-        let stored_keys: Vec<String> = stored_images(&self.info).map(|f| f.name.clone()).collect();
+        let stored_keys: Vec<(String, FeatureKind)> = stored_images(&self.info)
+            .map(|f| (f.name.clone(), f.kind))
+            .collect();
         let mut stored: Vec<Vec<EncodedFrame>> = vec![Vec::new(); stored_keys.len()];
         let mut current: Option<(i64, i64)> = None;
         loop {
@@ -816,19 +818,11 @@ impl EpisodeSource for LeRobotSource {
             .get(index as usize)
             .cloned()
             .unwrap_or_default();
-        let depth_key = self
-            .info
-            .feature(FeatureKind::Depth)
-            .map(|f| f.name.clone());
         let mut encoded: Vec<EncodedFeature> = stored_keys
             .into_iter()
             .zip(stored)
-            .map(|(feature, frames)| EncodedFeature {
-                encoding: if depth_key.as_ref() == Some(&feature) {
-                    ImageEncoding::Tiff
-                } else {
-                    ImageEncoding::Png
-                },
+            .map(|((feature, kind), frames)| EncodedFeature {
+                encoding: ImageEncoding::of_kind(kind),
                 feature,
                 frames,
                 pixel_stats: None,

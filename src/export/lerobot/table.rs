@@ -3,6 +3,7 @@
 
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
 use crate::export::ExportError;
+use crate::export::stats::flat;
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{
     ArrayRef, BinaryArray, BooleanArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch,
@@ -318,19 +319,12 @@ fn json_depth(value: &Value) -> usize {
     }
 }
 
-fn numbers(value: &Value) -> Vec<f64> {
-    match value {
-        Value::Array(items) => items.iter().flat_map(numbers).collect(),
-        other => other.as_f64().into_iter().collect(),
-    }
-}
-
 /// A column of nested lists of f64 (depth 1 or 3) or of i64 counts, one entry per episode.
 fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
     if name.ends_with("/count") {
         let mut builder = ListBuilder::new(Int64Builder::new());
         for v in values {
-            for x in numbers(v) {
+            for x in flat(v) {
                 builder.values().append_value(x as i64);
             }
             builder.append(true);
@@ -343,7 +337,7 @@ fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
         for v in values {
             for channel in v.as_array().into_iter().flatten() {
                 for row in channel.as_array().into_iter().flatten() {
-                    for x in numbers(row) {
+                    for x in flat(row) {
                         builder.values().values().values().append_value(x);
                     }
                     builder.values().values().append(true);
@@ -356,7 +350,7 @@ fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
     }
     let mut builder = ListBuilder::new(Float64Builder::new());
     for v in values {
-        for x in numbers(v) {
+        for x in flat(v) {
             builder.values().append_value(x);
         }
         builder.append(true);

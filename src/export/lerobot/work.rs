@@ -82,16 +82,9 @@ impl EpisodeWork<'_> {
             let kind = feature.kind;
             // Bytes the source stored in this encoding are copied (PNG and TIFF are lossless: the
             // pixels are the same whatever compression made them).
-            let encoding = if kind == FeatureKind::Depth {
-                ImageEncoding::Tiff
-            } else {
-                ImageEncoding::Png
-            };
-            if let Some(stored) = episode
-                .encoded_as(&feature.name, encoding)
-                .filter(|e| e.frames.len() == episode.steps.len())
+            if let Some(stored) = episode.stored_frames(&feature.name, ImageEncoding::of_kind(kind))
             {
-                let bytes = stored.frames.iter().map(|f| f.data.clone()).collect();
+                let bytes = stored.iter().map(|f| f.data.clone()).collect();
                 images.insert(feature.name.clone(), bytes);
                 continue;
             }

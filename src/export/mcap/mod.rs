@@ -19,7 +19,7 @@ pub mod messages;
 
 use crate::episode::{Episode, FeatureKind, SceneMesh};
 use crate::export::dir::{DatasetDir, RunOptions};
-use crate::export::image::{PngLevel, encode_png};
+use crate::export::image::{PngLevel, encode_png, stored_or};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
 use crate::export::{
@@ -202,11 +202,9 @@ pub fn record_episode(
         .enumerate()
         .map(|(t, step)| -> Result<Vec<(u16, Vec<u8>)>, ExportError> {
             let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
-            // PNG bytes the source stored are copied (lossless: the same pixels).
-            let png = match stored_rgb {
-                Some(frames) => frames[t].data.clone(),
-                None => encode_png(width, height, 3, &step.rgb, PngLevel::Fast)?,
-            };
+            let png = stored_or(stored_rgb, t, || {
+                encode_png(width, height, 3, &step.rgb, PngLevel::Fast)
+            })?;
             let mut out = vec![(rgb, encoded(&messages::compressed_image(ns, png))?)];
             if let Some(channel) = depth {
                 out.push((

@@ -7,7 +7,9 @@ use crate::episode::{
     Dtype, Episode, EpisodeMeta, FeatureKind, FeatureValue, MAX_OBJECTS, POSE_VALUES, Step,
 };
 use crate::export::ExportError;
-use crate::export::image::{PngLevel, decode_png, decode_png16, encode_png, encode_png16};
+use crate::export::image::{
+    PngLevel, decode_png, decode_png16, encode_png, encode_png16, stored_or,
+};
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::RldsKeys;
 use crate::export::rlds::example::{Feature, decode_example, encode_example};
@@ -167,21 +169,13 @@ pub fn encode_episode(
         .png_features
         .clone()
         .map(|name| name.and_then(|n| episode.stored_png(&n)));
-    let copy_or = |stored: Option<&[crate::episode::EncodedFrame]>,
-                   i: usize,
-                   encode: &dyn Fn() -> Result<Vec<u8>, ExportError>| {
-        match stored {
-            Some(frames) => Ok(frames[i].data.clone()),
-            None => encode(),
-        }
-    };
     let images: Vec<StepImages> = episode
         .steps
         .par_iter()
         .enumerate()
         .map(|(i, step)| {
             Ok(StepImages {
-                rgb: copy_or(stored_rgb, i, &|| encode_png(w, h, 3, &step.rgb, png))?,
+                rgb: stored_or(stored_rgb, i, || encode_png(w, h, 3, &step.rgb, png))?,
                 depth: if layout.depth {
                     let mm: Vec<u16> = step.depth_m.iter().map(|&d| depth_to_mm(d)).collect();
                     Some(encode_png16(w, h, &mm, png)?)
@@ -189,7 +183,7 @@ pub fn encode_episode(
                     None
                 },
                 mask: if layout.mask {
-                    Some(copy_or(stored_mask, i, &|| {
+                    Some(stored_or(stored_mask, i, || {
                         encode_png(w, h, 1, &step.mask, png)
                     })?)
                 } else {
