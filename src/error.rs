@@ -22,3 +22,33 @@ impl ErrorKind {
         }
     }
 }
+
+/// A library error the command line can classify: its [`ErrorKind`] (the exit code) and
+/// whether it is a full disk (the command line then says how to go on). Every library error
+/// type implements it, and the command line converts any of them the same way.
+pub trait HasKind: std::error::Error + Send + Sync + 'static {
+    /// Whose mistake it is.
+    fn kind(&self) -> ErrorKind;
+    /// Whether the disk (or quota) is full.
+    fn is_disk_full(&self) -> bool {
+        false
+    }
+}
+
+/// JSON the command line serialises itself (a report) cannot fail on the user's input.
+impl HasKind for serde_json::Error {
+    fn kind(&self) -> ErrorKind {
+        ErrorKind::Failed
+    }
+}
+
+/// A bare I/O error (the command line writing its own output): the work failed.
+impl HasKind for std::io::Error {
+    fn kind(&self) -> ErrorKind {
+        ErrorKind::Failed
+    }
+
+    fn is_disk_full(&self) -> bool {
+        self.kind() == std::io::ErrorKind::StorageFull
+    }
+}

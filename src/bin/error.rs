@@ -1,7 +1,8 @@
 //! The command line's error: a library error (or a usage mistake found after parsing) with its
 //! [`ErrorKind`], which decides the exit code, and the chain printed once.
 
-use surgvla::error::ErrorKind;
+use surgvla::error::{ErrorKind, HasKind};
+use surgvla::export::ExportError;
 
 /// An error on its way to `main`: what happened, whose mistake it is, and a hint for the user.
 #[derive(Debug)]
@@ -19,6 +20,11 @@ const DISK_FULL: &str = "the disk is full: free space and run the command again"
 /// The hint after a failure that left a resumable dataset.
 const RESUME: &str = "the dataset is incomplete: run the same command with --resume to \
      continue it from its last checkpoint";
+/// The hint when the output folder holds an interrupted dataset.
+const INTERRUPTED: &str = "add --resume (with the options it was started with) to continue it, \
+     or choose an empty or new directory";
+/// The hint for an RLDS dataset another tool wrote.
+const NO_FRAME_RATE: &str = "give its frame rate with --fps";
 /// The same after a full disk.
 const DISK_FULL_RESUME: &str = "the disk is full: free space, then run the same command with \
      --resume to continue the dataset from its last checkpoint";
@@ -74,98 +80,50 @@ impl CliError {
     }
 }
 
-impl From<surgvla::export::ExportError> for CliError {
-    fn from(error: surgvla::export::ExportError) -> Self {
-        let full = error.is_disk_full();
+/// Every library error, the same way: its kind decides the exit code, and a full disk or a
+/// dataset the user can continue gets a hint saying what to do.
+impl<E: HasKind> From<E> for CliError {
+    fn from(error: E) -> Self {
+        // A bare I/O error reaching the CLI is a failed write of its output (`say!`, the
+        // tables): the library's file errors carry their path in their own types.
+        if let Some(io) = (&error as &dyn std::error::Error).downcast_ref::<std::io::Error>() {
+            let quiet = io.kind() == std::io::ErrorKind::BrokenPipe;
+            let mut cli =
+                CliError::new(ErrorKind::Failed, error).context("writing to standard output");
+            cli.quiet = quiet;
+            return cli;
+        }
+        let hint = if error.is_disk_full() {
+            Some(DISK_FULL)
+        } else {
+            hint_for(&error)
+        };
         let mut cli = CliError::new(error.kind(), error);
-        cli.hint = full.then_some(DISK_FULL);
+        cli.hint = hint;
         cli
     }
 }
 
-impl From<surgvla::collect::run::CollectError> for CliError {
-    fn from(error: surgvla::collect::run::CollectError) -> Self {
-        let full = error.is_disk_full();
-        let mut cli = CliError::new(error.kind(), error);
-        cli.hint = full.then_some(DISK_FULL);
-        cli
+/// The hint for what the library's error says in data: an interrupted dataset in the way, an
+/// RLDS dataset without a frame rate.
+fn hint_for(error: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
+    let mut next = Some(error);
+    while let Some(error) = next {
+        match error.downcast_ref::<ExportError>() {
+            Some(ExportError::NotEmpty {
+                interrupted: true, ..
+            }) => return Some(INTERRUPTED),
+            Some(ExportError::NoFrameRate { .. }) => return Some(NO_FRAME_RATE),
+            _ => next = error.source(),
+        }
     }
-}
-
-impl From<surgvla::eval::EvalError> for CliError {
-    fn from(error: surgvla::eval::EvalError) -> Self {
-        let full = error.is_disk_full();
-        let mut cli = CliError::new(error.kind(), error);
-        cli.hint = full.then_some(DISK_FULL);
-        cli
-    }
-}
-
-impl From<surgvla::collect::replay::ReplayError> for CliError {
-    fn from(error: surgvla::collect::replay::ReplayError) -> Self {
-        CliError::new(error.kind(), error)
-    }
-}
-
-impl From<surgvla::export::merge::MergeError> for CliError {
-    fn from(error: surgvla::export::merge::MergeError) -> Self {
-        let full =
-            matches!(&error, surgvla::export::merge::MergeError::Convert(e) if e.is_disk_full());
-        let mut cli = CliError::new(error.kind(), error);
-        cli.hint = full.then_some(DISK_FULL);
-        cli
-    }
-}
-
-impl From<surgvla::export::convert::ConvertError> for CliError {
-    fn from(error: surgvla::export::convert::ConvertError) -> Self {
-        let full = error.is_disk_full();
-        let mut cli = CliError::new(error.kind(), error);
-        cli.hint = full.then_some(DISK_FULL);
-        cli
-    }
-}
-
-impl From<surgvla::policy::PlanError> for CliError {
-    fn from(error: surgvla::policy::PlanError) -> Self {
-        CliError::new(error.kind(), error)
-    }
-}
-
-impl From<surgvla::render::image::ImageError> for CliError {
-    fn from(error: surgvla::render::image::ImageError) -> Self {
-        CliError::new(error.kind(), error)
-    }
-}
-
-impl From<surgvla::task::SpawnError> for CliError {
-    fn from(error: surgvla::task::SpawnError) -> Self {
-        CliError::new(ErrorKind::Failed, error)
-    }
-}
-
-impl From<serde_json::Error> for CliError {
-    fn from(error: serde_json::Error) -> Self {
-        CliError::new(ErrorKind::Failed, error)
-    }
-}
-
-/// A bare I/O error reaching the CLI is a failed write of its output (`say!`, the tables): the
-/// library's file errors carry their path in their own types.
-impl From<std::io::Error> for CliError {
-    fn from(error: std::io::Error) -> Self {
-        let quiet = error.kind() == std::io::ErrorKind::BrokenPipe;
-        let mut cli = CliError::new(ErrorKind::Failed, error).context("writing to standard output");
-        cli.quiet = quiet;
-        cli
-    }
+    None
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::io::{Error, ErrorKind as Io};
-    use surgvla::export::ExportError;
 
     #[test]
     fn a_full_disk_names_the_file_once_and_says_what_to_do() {
@@ -202,6 +160,11 @@ mod tests {
             interrupted: true,
         });
         assert_eq!(not_empty.kind.exit_code(), 2);
+        assert!(
+            not_empty.message().contains("add --resume"),
+            "{}",
+            not_empty.message()
+        );
         assert!(CliError::from(Error::from(Io::BrokenPipe)).quiet);
     }
 }

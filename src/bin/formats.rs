@@ -6,6 +6,7 @@ use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surgvla::episode::FeatureKind;
 use surgvla::export::convert::ConvertError;
+use surgvla::export::format::MergeRequest;
 use surgvla::export::image::PngLevel;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
 use surgvla::export::mcap::McapOptions;
@@ -369,58 +370,8 @@ fn converted_source(
 
 /// `--verify`: what the output holds against the input.
 fn verify(args: &ConvertArgs, summary: &surgvla::export::Summary) -> Result<(), CliError> {
-    let differences = match args.to {
-        Format::Lerobot | Format::Rlds => {
-            let mut source = converted_source(args)?;
-            // The output states what the input did; an RLDS output of another tool's dataset
-            // has no frame rate of its own, so it is read with the input's.
-            let options = surgvla::export::SourceOptions {
-                fps: Some(source.info().fps),
-                robot_type: Some(source.info().robot_type.clone()),
-            };
-            let mut target = surgvla::export::open_source_with(&args.out, &options)
-                .map_err(ConvertError::Write)?;
-            let verification = surgvla::export::convert::verify(source.as_mut(), target.as_mut())?;
-            verification.differences
-        }
-        Format::Zarr | Format::Mcap => {
-            let report = surgvla::export::validate::validate(
-                &args.out,
-                &surgvla::export::validate::ValidateOptions::default(),
-            )?;
-            let mut differences: Vec<String> =
-                report.errors.iter().map(ToString::to_string).collect();
-            if (report.episodes, report.frames) != (summary.episodes, summary.frames) {
-                differences.push(format!(
-                    "the output holds {} episodes and {} frames, {} and {} were converted",
-                    report.episodes, report.frames, summary.episodes, summary.frames
-                ));
-            }
-            differences
-        }
-        Format::Ply | Format::Pcd => {
-            let extension = if args.to == Format::Ply { "ply" } else { "pcd" };
-            let mut episodes = 0u64;
-            let mut frames = 0u64;
-            for entry in std::fs::read_dir(&args.out)?.flatten() {
-                if entry.path().is_dir() {
-                    episodes += 1;
-                    frames += std::fs::read_dir(entry.path())?
-                        .flatten()
-                        .filter(|f| f.path().extension().is_some_and(|e| e == extension))
-                        .count() as u64;
-                }
-            }
-            if (episodes, frames) == (summary.episodes, summary.frames) {
-                Vec::new()
-            } else {
-                vec![format!(
-                    "the output holds {episodes} episode folders and {frames} {extension} files, {} and {} were converted",
-                    summary.episodes, summary.frames
-                )]
-            }
-        }
-    };
+    let mut source = converted_source(args)?;
+    let differences = surgvla::export::verify::verify_output(source.as_mut(), &args.out, summary)?;
     if differences.is_empty() {
         say!("verified: the output holds what was read");
         return Ok(());
@@ -496,9 +447,14 @@ pub struct MergeArgs {
 pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     let bar = crate::progress::episode_bar(0, "merging");
     let threads = args.threads.unwrap_or(0) as usize;
-    let summary = surgvla::export::merge::merge(&args.inputs, &args.out, threads, &mut |done| {
-        bar.set_length(done);
-        bar.set_position(done)
+    let summary = surgvla::export::merge(&mut MergeRequest {
+        inputs: &args.inputs,
+        out: &args.out,
+        threads,
+        progress: &mut |done| {
+            bar.set_length(done);
+            bar.set_position(done)
+        },
     })?;
     bar.finish_and_clear();
     say!(

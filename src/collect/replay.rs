@@ -27,8 +27,8 @@ pub enum ReplayError {
     Export(#[from] ExportError),
 }
 
-impl ReplayError {
-    pub fn kind(&self) -> crate::error::ErrorKind {
+impl crate::error::HasKind for ReplayError {
+    fn kind(&self) -> crate::error::ErrorKind {
         match self {
             ReplayError::NotReplayable { .. } => crate::error::ErrorKind::Usage,
             ReplayError::Export(error) => error.kind(),

@@ -54,9 +54,9 @@ pub enum CollectError {
     },
 }
 
-impl CollectError {
+impl crate::error::HasKind for CollectError {
     /// Whose mistake it is (see [`crate::error::ErrorKind`]).
-    pub fn kind(&self) -> crate::error::ErrorKind {
+    fn kind(&self) -> crate::error::ErrorKind {
         match self {
             CollectError::Plan(e) => e.kind(),
             CollectError::Export(e) => e.kind(),
@@ -66,7 +66,7 @@ impl CollectError {
     }
 
     /// Whether the disk filled up while writing.
-    pub fn is_disk_full(&self) -> bool {
+    fn is_disk_full(&self) -> bool {
         matches!(self, CollectError::Export(e) if e.is_disk_full())
     }
 }

@@ -149,10 +149,10 @@ pub enum EvalError {
     },
 }
 
-impl EvalError {
+impl crate::error::HasKind for EvalError {
     /// Exit 2 for what the user gave (an unreachable server at start, an unusable dataset or
     /// option), 1 when writing the results failed.
-    pub fn kind(&self) -> ErrorKind {
+    fn kind(&self) -> ErrorKind {
         match self {
             EvalError::Write { source, .. } => source.kind(),
             EvalError::Plan(e) => e.kind(),
@@ -162,7 +162,7 @@ impl EvalError {
     }
 
     /// Writing the results failed because the disk is full.
-    pub fn is_disk_full(&self) -> bool {
+    fn is_disk_full(&self) -> bool {
         matches!(self, EvalError::Write { source, .. } if source.is_disk_full())
     }
 }

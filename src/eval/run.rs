@@ -192,7 +192,7 @@ pub fn evaluate(
     }
     if options.out.is_file() {
         return Err(EvalError::Options(format!(
-            "{} is a file; --out needs a folder",
+            "{} is a file; the output must be a folder",
             options.out.display()
         )));
     }

@@ -19,15 +19,15 @@ pub enum ConvertError {
     Write(#[source] ExportError),
 }
 
-impl ConvertError {
-    pub fn kind(&self) -> ErrorKind {
+impl crate::error::HasKind for ConvertError {
+    fn kind(&self) -> ErrorKind {
         match self {
             ConvertError::Read(error) | ConvertError::Write(error) => error.kind(),
         }
     }
 
     /// Whether the output's disk (or quota) is full.
-    pub fn is_disk_full(&self) -> bool {
+    fn is_disk_full(&self) -> bool {
         matches!(self, ConvertError::Write(error) if error.is_disk_full())
     }
 }

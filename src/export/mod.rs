@@ -23,25 +23,31 @@
 pub mod convert;
 pub mod demux;
 pub mod dir;
+pub mod findings;
+pub mod format;
 pub mod image;
 pub mod info;
 pub mod lerobot;
 pub mod mcap;
-pub mod merge;
 pub mod pointcloud;
+pub mod registry;
 pub mod rlds;
 pub mod schema;
 pub mod stats;
 pub mod tiff;
 pub mod validate;
+pub mod verify;
 pub mod video;
+pub(crate) mod writer;
 pub mod zarr;
 
 pub use dir::{
     DatasetDir, FileRecord, INCOMPLETE_MARKER, MANIFEST, OptionChange, RunOptions, temporary_name,
     write_atomically,
 };
+pub use format::{DatasetFormat, MergeError};
 pub use info::DatasetInfo;
+pub use registry::{BUILTIN_FORMATS, merge};
 
 use crate::episode::Episode;
 use crate::error::ErrorKind;
@@ -90,6 +96,20 @@ pub enum ExportError {
     /// An input path that holds nothing surgvla recognises.
     #[error("{path} {problem}")]
     Unrecognised { path: PathBuf, problem: String },
+    /// A dataset of a format surgvla recognises (and validates) but does not read.
+    #[error("{path}: surgvla does not read {format} datasets (it reads LeRobot and RLDS)")]
+    NotReadable { path: PathBuf, format: &'static str },
+    /// A dataset of a format the operation does not handle.
+    #[error("{path}: {operation} does not handle {format} datasets (it handles {handled})")]
+    NotHandled {
+        path: PathBuf,
+        format: &'static str,
+        operation: &'static str,
+        handled: &'static str,
+    },
+    /// An RLDS dataset another tool wrote: RLDS stores no frame rate, so the reader needs one.
+    #[error("{path} is an RLDS dataset another tool wrote, and RLDS stores no frame rate")]
+    NoFrameRate { path: PathBuf },
     #[error("{}", not_empty(path, *interrupted))]
     NotEmpty { path: PathBuf, interrupted: bool },
     /// Another run holds the folder's lock.
@@ -162,9 +182,11 @@ impl ExportError {
             },
         }
     }
+}
 
+impl crate::error::HasKind for ExportError {
     /// Whether the disk (or quota) is full.
-    pub fn is_disk_full(&self) -> bool {
+    fn is_disk_full(&self) -> bool {
         match self {
             ExportError::Io { source, .. } | ExportError::Output { source, .. } => {
                 source.kind() == std::io::ErrorKind::StorageFull
@@ -175,7 +197,7 @@ impl ExportError {
 
     /// Whose mistake it is: the user's (a folder that cannot be used, a dataset that cannot be
     /// resumed) or the work's (I/O during writing, a full disk, invalid data).
-    pub fn kind(&self) -> ErrorKind {
+    fn kind(&self) -> ErrorKind {
         match self {
             ExportError::Output { .. }
             | ExportError::NotEmpty { .. }
@@ -185,6 +207,9 @@ impl ExportError {
             | ExportError::NotFound { .. }
             | ExportError::Unreadable { .. }
             | ExportError::Unrecognised { .. }
+            | ExportError::NotReadable { .. }
+            | ExportError::NotHandled { .. }
+            | ExportError::NoFrameRate { .. }
             | ExportError::NotResumable { .. } => ErrorKind::Usage,
             _ => ErrorKind::Failed,
         }
@@ -202,10 +227,7 @@ pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, ExportError> {
 
 fn not_empty(path: &Path, interrupted: bool) -> String {
     if interrupted {
-        format!(
-            "{} holds an interrupted surgvla dataset: add --resume (with the options it was started with) to continue it, or choose an empty or new directory",
-            path.display()
-        )
+        format!("{} holds an interrupted surgvla dataset", path.display())
     } else {
         format!(
             "{} already holds a dataset or other files; choose an empty or new directory",
@@ -298,38 +320,6 @@ pub(crate) fn check_batch(
         .try_for_each(|(index, episode)| check_episode(info, finished, episode, index))
 }
 
-/// The end every format's finish shares, after its own files: the manifest `manifest`, the
-/// sidecar, and only then the marker goes (see [`DatasetDir::complete`]).
-pub(crate) fn seal(
-    dir: &mut DatasetDir,
-    manifest: &str,
-    mut summary: Summary,
-    sidecar: Option<Sidecar<'_>>,
-) -> Result<Summary, ExportError> {
-    summary.bytes += dir.write_manifest(manifest)?;
-    summary.files += 1;
-    if let Some(make) = sidecar {
-        let (relative, bytes) = make(&summary)?;
-        dir.write_unlisted(&relative, &bytes)?;
-    }
-    dir.complete()?;
-    Ok(summary)
-}
-
-/// [`EpisodeSink::finish_with`]'s "safe twice" for every format: runs `finish` the first time
-/// and remembers its summary in `finished`; later calls return that summary and do nothing.
-pub(crate) fn finish_once(
-    finished: &mut Option<Summary>,
-    finish: impl FnOnce() -> Result<Summary, ExportError>,
-) -> Result<Summary, ExportError> {
-    if let Some(summary) = finished {
-        return Ok(summary.clone());
-    }
-    let summary = finish()?;
-    *finished = Some(summary.clone());
-    Ok(summary)
-}
-
 /// Makes a file to write beside a finished dataset from its summary: (relative path, bytes).
 pub type Sidecar<'a> = &'a mut dyn FnMut(&Summary) -> Result<(String, Vec<u8>), ExportError>;
 
@@ -388,67 +378,39 @@ pub fn resumes(root: &Path, resume: bool) -> bool {
 
 /// Starts a dataset of `info` in `root` (which must not exist or be empty), or, when
 /// [`resumes`], continues it from its last checkpoint ([`EpisodeSink::next_episode_index`] says
-/// where).
+/// where), in the format whose `options` these are.
 pub fn open_sink(
     root: &Path,
     info: &DatasetInfo,
     options: &SinkOptions,
     resume: bool,
 ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-    let resuming = resumes(root, resume);
+    let format = registry::writer_of(options)?;
+    let holds = format.holds();
+    let videos: Vec<String> = info
+        .features
+        .iter()
+        .filter_map(|f| Some(format!("{} ({})", f.name, f.video?.name())))
+        .collect();
+    if !videos.is_empty() && !holds.video {
+        return Err(ExportError::InvalidOptions(format!(
+            "the input stores {} as video, and surgvla copies video without decoding it: it can write them to LeRobot (either layout) but not to a format that needs their pixels",
+            videos.join(", ")
+        )));
+    }
     let others: Vec<&str> = info
         .features
         .iter()
         .filter(|f| f.kind == crate::episode::FeatureKind::Other)
         .map(|f| f.name.as_str())
         .collect();
-    let videos: Vec<String> = info
-        .features
-        .iter()
-        .filter_map(|f| Some(format!("{} ({})", f.name, f.video?.name())))
-        .collect();
-    if !videos.is_empty() && !matches!(options, SinkOptions::LeRobot(_)) {
-        return Err(ExportError::InvalidOptions(format!(
-            "the input stores {} as video, and surgvla copies video without decoding it: it can write them to LeRobot (either layout) but not to a format that needs their pixels",
-            videos.join(", ")
-        )));
-    }
-    if !others.is_empty() && !matches!(options, SinkOptions::LeRobot(_) | SinkOptions::Rlds(_)) {
+    if !others.is_empty() && !holds.other_features {
         return Err(ExportError::InvalidOptions(format!(
             "the features {} have no place in this format yet (point clouds, zarr and MCAP hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to LeRobot or RLDS",
             others.join(", ")
         )));
     }
-    Ok(match options {
-        SinkOptions::LeRobot(options) => Box::new(if resuming {
-            lerobot::LeRobotWriter::resume(root, info, options.clone())?
-        } else {
-            lerobot::LeRobotWriter::create(root, info, options.clone())?
-        }),
-        SinkOptions::Rlds(options) => Box::new(if resuming {
-            rlds::RldsWriter::resume(root, info, options.clone())?
-        } else {
-            rlds::RldsWriter::create(root, info, options.clone())?
-        }),
-        SinkOptions::CloudFiles(format, settings) => {
-            use pointcloud::files::CloudFilesWriter;
-            Box::new(if resuming {
-                CloudFilesWriter::resume(root, info, *format, *settings)?
-            } else {
-                CloudFilesWriter::create(root, info, *format, *settings)?
-            })
-        }
-        SinkOptions::Zarr(options) => Box::new(if resuming {
-            zarr::ZarrWriter::resume(root, info, *options)?
-        } else {
-            zarr::ZarrWriter::create(root, info, *options)?
-        }),
-        SinkOptions::Mcap(options) => Box::new(if resuming {
-            mcap::McapWriter::resume(root, info, *options)?
-        } else {
-            mcap::McapWriter::create(root, info, *options)?
-        }),
-    })
+    format.open_sink(root, info, options, resumes(root, resume))
 }
 
 /// What a reader needs to know that a dataset may not say.
@@ -460,8 +422,9 @@ pub struct SourceOptions {
     pub robot_type: Option<String>,
 }
 
-/// Opens a dataset for reading, detecting its format: RLDS (a TFDS version folder or the data
-/// directory above it), else LeRobot.
+/// Opens a dataset for reading, detecting its format through the registry (LeRobot, or RLDS:
+/// a TFDS version folder or the data directory above it). A path holding nothing recognised,
+/// or a format surgvla does not read, is the user's error.
 pub fn open_source(root: &Path) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
     open_source_with(root, &SourceOptions::default())
 }
@@ -473,26 +436,11 @@ pub fn open_source_with(
     root: &Path,
     options: &SourceOptions,
 ) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
-    if !root.exists() {
-        return Err(ExportError::NotFound {
-            path: root.to_path_buf(),
-        });
-    }
-    if rlds::read::is_rlds(root) {
-        let folder = rlds::read::version_dir(root)?;
-        if folder.join(rlds::SURGVLA_JSON).is_file() {
-            return Ok(Box::new(rlds::read::RldsSource::open(root)?));
-        }
-        let fps = options.fps.ok_or_else(|| {
-            ExportError::InvalidOptions(format!(
-                "{} is an RLDS dataset another tool wrote, and RLDS stores no frame rate: give --fps",
-                folder.display()
-            ))
-        })?;
-        let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
-        return Ok(Box::new(rlds::foreign::ForeignRldsSource::open(
-            root, fps, robot_type,
-        )?));
-    }
-    Ok(Box::new(lerobot::read::LeRobotSource::open(root)?))
+    let (format, found) = registry::detect_readable(root)?;
+    format.open_source(&found, options).unwrap_or_else(|| {
+        Err(ExportError::NotReadable {
+            path: found.root.clone(),
+            format: format.name(),
+        })
+    })
 }

@@ -184,10 +184,10 @@ pub enum PlanError {
     },
 }
 
-impl PlanError {
+impl crate::error::HasKind for PlanError {
     /// A plan that cannot be read or used is the user's to fix (a custom plan folder), except a
     /// built-in plan the program lacks.
-    pub fn kind(&self) -> crate::error::ErrorKind {
+    fn kind(&self) -> crate::error::ErrorKind {
         match self {
             PlanError::Missing(_) => crate::error::ErrorKind::Failed,
             _ => crate::error::ErrorKind::Usage,

@@ -24,9 +24,9 @@ pub enum ImageError {
     },
 }
 
-impl ImageError {
+impl crate::error::HasKind for ImageError {
     /// An output path in a missing or forbidden place is the user's to fix.
-    pub fn kind(&self) -> crate::error::ErrorKind {
+    fn kind(&self) -> crate::error::ErrorKind {
         use std::io::ErrorKind as Io;
         match self {
             ImageError::Io { source, .. }

@@ -29,6 +29,13 @@ pub struct SpawnError {
     pub problem: String,
 }
 
+/// A spawn that cannot be drawn fails the work (the ranges are the program's or a plan's).
+impl crate::error::HasKind for SpawnError {
+    fn kind(&self) -> crate::error::ErrorKind {
+        crate::error::ErrorKind::Failed
+    }
+}
+
 /// Most whole-scene redraws before the spawn is declared impossible.
 pub const MAX_LAYOUTS: usize = 50;
 

@@ -8,6 +8,7 @@ use std::net::TcpListener;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use surgvla::error::HasKind as _;
 use surgvla::eval::{EvalOptions, PolicyChoice, evaluate, trial_seed};
 use surgvla::task::TaskId;
 

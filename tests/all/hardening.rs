@@ -8,6 +8,7 @@ use std::path::Path;
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::collect::run::{CollectOptions, dataset_info};
 use surgvla::episode::{Episode, FeatureSet};
+use surgvla::error::HasKind as _;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
 use surgvla::export::{EpisodeSink, ExportError, INCOMPLETE_MARKER, MANIFEST};
 use surgvla::policy::ExpertLibrary;

@@ -7,6 +7,7 @@ use nalgebra::{Point3, Vector3};
 use surgvla::assets::{Appearance, SceneAssets};
 use surgvla::collect::rollout;
 use surgvla::episode::{Aabb, MAX_OBJECTS, POSE_VALUES, Step};
+use surgvla::error::HasKind as _;
 use surgvla::export::pointcloud::{CloudOptions, frame_cloud};
 use surgvla::policy::ExpertLibrary;
 use surgvla::render::{Camera, RenderOptions, Renderer};

@@ -17,11 +17,14 @@
 //! whole state is checkpointed, and [`LeRobotWriter::resume`] continues from there.
 
 pub mod check;
+mod format;
 mod layout;
+pub mod merge;
 pub mod read;
 mod table;
-mod work;
+pub mod work;
 
+pub use format::LeRobotFormat;
 pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
 
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
@@ -31,18 +34,15 @@ use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
 pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile};
-use crate::export::{
-    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_episode, finish_once, seal,
-};
+use crate::export::writer::{FormatWriter, Writer};
+use crate::export::{ExportError, Summary};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
-use rayon::prelude::*;
 use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::fs::File;
-use std::path::Path;
 use table::{EpisodeRow, KeyedSpan, VideoSpan, frame_batch};
 use work::{EpisodeStats, EpisodeWork, fresh_stats};
 
@@ -156,7 +156,7 @@ const EPISODES_JOURNAL: &str = "meta/.surgvla-episodes.jsonl";
 /// far is complete. Its size does not grow with the number of episodes (only with distinct
 /// instructions).
 #[derive(Clone, serde::Serialize, serde::Deserialize)]
-struct State {
+pub struct State {
     data_files: FileCounter,
     video_files: FileCounter,
     tasks: Vec<String>,
@@ -168,7 +168,10 @@ struct State {
 }
 
 /// Streams episodes into a LeRobot dataset.
-pub struct LeRobotWriter {
+pub type LeRobotWriter = Writer<LeRobotFiles>;
+
+/// LeRobot's part of [`LeRobotWriter`].
+pub struct LeRobotFiles {
     dir: DatasetDir,
     info: DatasetInfo,
     options: LeRobotOptions,
@@ -183,42 +186,35 @@ pub struct LeRobotWriter {
     videos: Vec<VideoFile>,
     state: State,
     task_lookup: HashMap<String, u64>,
-    timing: SinkTiming,
-    /// Set by the first successful `finish`.
-    finished: Option<Summary>,
 }
 
-impl LeRobotWriter {
-    /// Starts a dataset of `info` in `root`, which must not exist or be empty.
-    pub fn create(
-        root: &Path,
+impl FormatWriter for LeRobotFiles {
+    type Options = LeRobotOptions;
+    type State = State;
+    /// The episode's video features' frames (encoded, or copied as they arrived).
+    type Encoded = Vec<Vec<EncodedFrame>>;
+    type Encoder<'a> = EpisodeWork<'a>;
+    const MANIFEST: &'static str = crate::export::MANIFEST;
+
+    fn run_options(
         info: &DatasetInfo,
-        options: LeRobotOptions,
-    ) -> Result<Self, ExportError> {
-        let run = LeRobotWriter::check(info, &options)?;
-        Ok(LeRobotWriter::fresh(
-            DatasetDir::create(root, &run)?,
-            info,
-            options,
-        ))
+        options: &LeRobotOptions,
+    ) -> Result<RunOptions, ExportError> {
+        LeRobotFiles::check(info, options)
     }
 
-    /// Continues an interrupted dataset in `root` (one with the incomplete marker): refuses
-    /// other info or options than it was started with, and files its checkpoint lists that are
-    /// missing or changed; restores the state of the last checkpoint and deletes whatever was
-    /// written after it; the next episode to write is [`EpisodeSink::next_episode_index`]. With
-    /// the same info, options and episodes, the finished dataset is byte-identical to an
-    /// uninterrupted run.
-    pub fn resume(
-        root: &Path,
+    fn owned_folders(_: &LeRobotOptions) -> Vec<String> {
+        ["data", "videos", "meta"].map(String::from).to_vec()
+    }
+
+    fn new(
+        dir: DatasetDir,
         info: &DatasetInfo,
         options: LeRobotOptions,
+        state: Option<State>,
     ) -> Result<Self, ExportError> {
-        let run = LeRobotWriter::check(info, &options)?;
-        let (dir, checkpoint) =
-            DatasetDir::resume::<State>(root, &run, &["data", "videos", "meta"])?;
-        let mut writer = LeRobotWriter::fresh(dir, info, options);
-        if let Some(state) = checkpoint {
+        let mut writer = LeRobotFiles::fresh(dir, info, options);
+        if let Some(state) = state {
             writer.task_lookup = state
                 .tasks
                 .iter()
@@ -230,6 +226,35 @@ impl LeRobotWriter {
         Ok(writer)
     }
 
+    fn episodes(&self) -> u64 {
+        self.state.episodes
+    }
+
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    /// Video encoders run one per episode, so a batch encodes its episodes' videos in
+    /// parallel.
+    fn encoder(&self) -> EpisodeWork<'_> {
+        self.work()
+    }
+
+    fn append(
+        &mut self,
+        episode: &Episode,
+        video: Vec<Vec<EncodedFrame>>,
+    ) -> Result<f64, ExportError> {
+        self.write_with_video(episode, video)
+    }
+
+    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
+        let summary = self.finish_dataset()?;
+        Ok((summary, &mut self.dir))
+    }
+}
+
+impl LeRobotFiles {
     /// Refuses options the dataset cannot have; returns what its bytes depend on.
     fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<RunOptions, ExportError> {
         let arrives_as_video = info.features.iter().any(|f| !f.in_steps());
@@ -278,7 +303,7 @@ impl LeRobotWriter {
             .cloned()
             .collect();
         let counter = FileCounter::new(options.chunks_size);
-        LeRobotWriter {
+        LeRobotFiles {
             dir,
             schema: frame_schema(&parquet_features),
             parquet_features,
@@ -297,8 +322,6 @@ impl LeRobotWriter {
             info: info.clone(),
             options,
             task_lookup: HashMap::new(),
-            timing: SinkTiming::default(),
-            finished: None,
         }
     }
 
@@ -484,38 +507,23 @@ impl LeRobotWriter {
         i
     }
 
-    /// Writes one episode; `video` holds its video features' frames when the caller made them.
+    /// Writes one episode whose video features' frames are `video`; returns the seconds spent
+    /// encoding its images and statistics.
     fn write_with_video(
         &mut self,
         episode: &Episode,
-        video: Option<Vec<Vec<EncodedFrame>>>,
-    ) -> Result<(), ExportError> {
-        check_episode(
-            &self.info,
-            self.finished.is_some(),
-            episode,
-            self.state.episodes,
-        )?;
+        video_frames: Vec<Vec<EncodedFrame>>,
+    ) -> Result<f64, ExportError> {
         let task_index = self.task_index(&episode.meta.instruction);
         let first_index = self.state.total_frames;
         let encode_started = std::time::Instant::now();
         let work = self.work();
-        let ((images, video_frames), episode_stats) = rayon::join(
-            || {
-                rayon::join(
-                    || work.encode_images(episode),
-                    || match video {
-                        Some(encoded) => Ok(encoded),
-                        None => work.video_frames(episode),
-                    },
-                )
-            },
+        let (images, episode_stats) = rayon::join(
+            || work.encode_images(episode),
             || work.episode_stats(episode, task_index, first_index),
         );
         let images = images?;
-        let write_started = std::time::Instant::now();
-        self.timing.encode_secs += (write_started - encode_started).as_secs_f64();
-        let video_frames = video_frames?;
+        let encode_secs = encode_started.elapsed().as_secs_f64();
         let videos = if self.video_features.is_empty() {
             Vec::new()
         } else {
@@ -596,8 +604,7 @@ impl LeRobotWriter {
                 self.dir.save_checkpoint(&self.state)?;
             }
         }
-        self.timing.write_secs += write_started.elapsed().as_secs_f64();
-        Ok(())
+        Ok(encode_secs)
     }
 
     /// The per-episode work's view of this writer.
@@ -613,7 +620,7 @@ impl LeRobotWriter {
     /// Finishing, in an order that an interruption at any point can resume: close the files and
     /// checkpoint (every episode is durable), write the metadata and the manifest, the sidecar
     /// (the run's report), and only then remove the marker.
-    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+    fn finish_dataset(&mut self) -> Result<Summary, ExportError> {
         self.close_file()?;
         self.close_videos()?;
         self.dir.save_checkpoint(&self.state)?;
@@ -653,7 +660,7 @@ impl LeRobotWriter {
             .write_metadata(&mut self.dir, &metadata, rows)?;
         summary.files += files;
         summary.bytes += bytes;
-        seal(&mut self.dir, crate::export::MANIFEST, summary, sidecar)
+        Ok(summary)
     }
 }
 
@@ -683,38 +690,4 @@ pub fn features_json(feature_specs: &[FeatureSpec]) -> Value {
         );
     }
     Value::Object(features)
-}
-
-impl EpisodeSink for LeRobotWriter {
-    /// Video encoders run one per episode: a batch encodes its episodes' videos in parallel
-    /// first, then writes the episodes in order.
-    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        if self.video_features.is_empty() || episodes.len() < 2 {
-            return episodes
-                .iter()
-                .try_for_each(|e| self.write_with_video(e, None));
-        }
-        let work = self.work();
-        let videos: Vec<Result<Vec<Vec<EncodedFrame>>, ExportError>> =
-            episodes.par_iter().map(|e| work.video_frames(e)).collect();
-        for (episode, video) in episodes.iter().zip(videos) {
-            self.write_with_video(episode, Some(video?))?;
-        }
-        Ok(())
-    }
-
-    fn next_episode_index(&self) -> u64 {
-        self.state.episodes
-    }
-
-    fn timing(&self) -> SinkTiming {
-        self.timing
-    }
-
-    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        let mut finished = self.finished.take();
-        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
-        self.finished = finished;
-        result
-    }
 }

@@ -32,7 +32,7 @@ pub(super) fn fresh_stats(features: &[FeatureSpec]) -> EpisodeStats {
     stats
 }
 
-pub(super) struct EpisodeWork<'a> {
+pub struct EpisodeWork<'a> {
     pub info: &'a DatasetInfo,
     /// The features stored in the parquet (all but the video ones).
     pub parquet_features: &'a [FeatureSpec],
@@ -204,5 +204,12 @@ impl EpisodeWork<'_> {
             }
         }
         total
+    }
+}
+
+/// A batch's episodes encode their video features in parallel (one encoder per episode).
+impl crate::export::writer::EpisodeEncoder<Vec<Vec<EncodedFrame>>> for EpisodeWork<'_> {
+    fn encode(&self, episode: &Episode) -> Result<Vec<Vec<EncodedFrame>>, ExportError> {
+        self.video_frames(episode)
     }
 }

@@ -15,6 +15,9 @@
 //! before any channel (writing it later leaves an empty chunk), and zstd runs on one thread.
 
 pub mod check;
+mod format;
+
+pub use format::McapFormat;
 pub mod messages;
 
 use crate::episode::{Episode, FeatureKind, SceneMesh};
@@ -22,15 +25,13 @@ use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::image::{PngLevel, encode_png, stored_or};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
-use crate::export::{
-    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch, finish_once, seal,
-};
+use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
+use crate::export::{ExportError, Summary};
 use foxglove::Encode;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
-use std::path::Path;
 
 /// The recordings' time origin: 2024-01-01T00:00:00Z in nanoseconds.
 pub const T0_NS: u64 = 1_704_067_200_000_000_000;
@@ -64,19 +65,17 @@ fn mcap_error(what: &str) -> impl FnOnce(mcap::McapError) -> ExportError + '_ {
 
 /// What a checkpoint records besides the files.
 #[derive(Clone, Default, Serialize, Deserialize)]
-struct State {
+pub struct State {
     episodes: u64,
     summary: Summary,
 }
 
-/// Writes one MCAP file per episode.
-pub struct McapWriter {
+/// MCAP's part of [`McapWriter`].
+pub struct McapFiles {
     dir: DatasetDir,
     info: DatasetInfo,
     options: McapOptions,
     state: State,
-    timing: SinkTiming,
-    finished: Option<Summary>,
 }
 
 /// A message type's schema added to a writer.
@@ -273,7 +272,16 @@ pub fn record_episode(
     Ok(writer.into_inner().into_inner())
 }
 
-impl McapWriter {
+/// Writes one MCAP file per episode.
+pub type McapWriter = Writer<McapFiles>;
+
+impl FormatWriter for McapFiles {
+    type Options = McapOptions;
+    type State = State;
+    type Encoded = Vec<u8>;
+    type Encoder<'a> = &'a Self;
+    const MANIFEST: &'static str = MANIFEST;
+
     fn run_options(info: &DatasetInfo, options: &McapOptions) -> Result<RunOptions, ExportError> {
         if info.has(FeatureKind::Depth) {
             options.cloud.options(info)?;
@@ -283,109 +291,75 @@ impl McapWriter {
         Ok(run)
     }
 
-    /// Starts the folder `root`, which must not exist or be empty.
-    pub fn create(
-        root: &Path,
-        info: &DatasetInfo,
-        options: McapOptions,
-    ) -> Result<Self, ExportError> {
-        let run = Self::run_options(info, &options)?;
-        Ok(McapWriter {
-            dir: DatasetDir::create(root, &run)?,
-            info: info.clone(),
-            options,
-            state: State::default(),
-            timing: SinkTiming::default(),
-            finished: None,
-        })
+    fn owned_folders(_: &McapOptions) -> Vec<String> {
+        vec![String::new()]
     }
 
-    /// Continues an interrupted folder from its last checkpoint.
-    pub fn resume(
-        root: &Path,
+    fn new(
+        dir: DatasetDir,
         info: &DatasetInfo,
         options: McapOptions,
+        state: Option<State>,
     ) -> Result<Self, ExportError> {
-        let run = Self::run_options(info, &options)?;
-        let (dir, state) = DatasetDir::resume::<State>(root, &run, &[""])?;
-        Ok(McapWriter {
+        Ok(McapFiles {
             dir,
             info: info.clone(),
             options,
             state: state.unwrap_or_default(),
-            timing: SinkTiming::default(),
-            finished: None,
         })
     }
 
-    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+    fn episodes(&self) -> u64 {
+        self.state.episodes
+    }
+
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn encoder(&self) -> &Self {
+        self
+    }
+
+    fn append(&mut self, episode: &Episode, bytes: Vec<u8>) -> Result<f64, ExportError> {
+        let index = episode.meta.index;
+        let file = format!("episode_{index:06}.mcap");
+        self.state.summary.bytes += self.dir.write_atomically(&file, &bytes)?;
+        self.state.summary.files += 1;
+        let meta = &episode.meta;
+        let line = json!({
+            "episode_index": index,
+            "file": file,
+            "frames": episode.steps.len(),
+            "task_id": meta.task_code,
+            "level": meta.level,
+            "seed": meta.seed,
+            "success": meta.success,
+            "instruction": meta.instruction,
+        });
+        self.dir
+            .append(EPISODES_JOURNAL, line.to_string().as_bytes())?;
+        self.state.episodes += 1;
+        self.state.summary.episodes += 1;
+        self.state.summary.frames += episode.steps.len() as u64;
+        if self.state.episodes.is_multiple_of(CHECKPOINT_EPISODES) {
+            self.dir.save_checkpoint(&self.state)?;
+        }
+        Ok(0.0)
+    }
+
+    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
         self.dir.save_checkpoint(&self.state)?;
         let mut summary = self.state.summary.clone();
         let episodes = self.dir.journal_bytes(EPISODES_JOURNAL)?;
         summary.bytes += self.dir.write_atomically("episodes.jsonl", &episodes)?;
         summary.files += 1;
-        seal(&mut self.dir, MANIFEST, summary, sidecar)
+        Ok((summary, &mut self.dir))
     }
 }
 
-impl EpisodeSink for McapWriter {
-    /// A batch's episodes are recorded in parallel, then written in order.
-    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        check_batch(
-            &self.info,
-            self.finished.is_some(),
-            episodes,
-            self.state.episodes,
-        )?;
-        let started = std::time::Instant::now();
-        let (info, options) = (&self.info, &self.options);
-        let files: Vec<Vec<u8>> = episodes
-            .par_iter()
-            .map(|episode| record_episode(info, options, episode, None))
-            .collect::<Result<_, _>>()?;
-        let written = std::time::Instant::now();
-        self.timing.encode_secs += (written - started).as_secs_f64();
-        for (episode, bytes) in episodes.iter().zip(files) {
-            let index = episode.meta.index;
-            let file = format!("episode_{index:06}.mcap");
-            self.state.summary.bytes += self.dir.write_atomically(&file, &bytes)?;
-            self.state.summary.files += 1;
-            let meta = &episode.meta;
-            let line = json!({
-                "episode_index": index,
-                "file": file,
-                "frames": episode.steps.len(),
-                "task_id": meta.task_code,
-                "level": meta.level,
-                "seed": meta.seed,
-                "success": meta.success,
-                "instruction": meta.instruction,
-            });
-            self.dir
-                .append(EPISODES_JOURNAL, line.to_string().as_bytes())?;
-            self.state.episodes += 1;
-            self.state.summary.episodes += 1;
-            self.state.summary.frames += episode.steps.len() as u64;
-            if self.state.episodes.is_multiple_of(CHECKPOINT_EPISODES) {
-                self.dir.save_checkpoint(&self.state)?;
-            }
-        }
-        self.timing.write_secs += written.elapsed().as_secs_f64();
-        Ok(())
-    }
-
-    fn next_episode_index(&self) -> u64 {
-        self.state.episodes
-    }
-
-    fn timing(&self) -> SinkTiming {
-        self.timing
-    }
-
-    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        let mut finished = self.finished.take();
-        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
-        self.finished = finished;
-        result
+impl EpisodeEncoder<Vec<u8>> for &McapFiles {
+    fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
+        record_episode(&self.info, &self.options, episode, None)
     }
 }

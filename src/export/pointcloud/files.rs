@@ -12,17 +12,19 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud, pcd, ply};
-use crate::export::{
-    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_episode, finish_once, seal,
-};
+use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
+use crate::export::{ExportError, Summary};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::path::Path;
 
 /// Episodes between checkpoints (each lists every file so far).
 pub const CHECKPOINT_EPISODES: u64 = 16;
 const EPISODES_JOURNAL: &str = ".surgvla-episodes.jsonl";
+/// One line per episode: index, frames, task id, level, seed, success, instruction.
+pub const EPISODES: &str = "episodes.jsonl";
+/// surgvla's metadata with the cloud settings and the file format.
+pub const SURGVLA_JSON: &str = "surgvla.json";
 /// Every file with its size and CRC-32C.
 pub const MANIFEST: &str = "surgvla_manifest.json";
 
@@ -47,27 +49,34 @@ impl CloudFileFormat {
 
 /// What a checkpoint records besides the files.
 #[derive(Clone, Default, Serialize, Deserialize)]
-struct State {
+pub struct State {
     episodes: u64,
     summary: Summary,
 }
 
 /// Writes each frame's cloud as a file.
-pub struct CloudFilesWriter {
+pub type CloudFilesWriter = Writer<CloudFiles>;
+
+/// The point-cloud files' part of [`CloudFilesWriter`].
+pub struct CloudFiles {
     dir: DatasetDir,
     info: DatasetInfo,
     format: CloudFileFormat,
     settings: CloudSettings,
     state: State,
-    timing: SinkTiming,
-    finished: Option<Summary>,
 }
 
-impl CloudFilesWriter {
+impl FormatWriter for CloudFiles {
+    type Options = (CloudFileFormat, CloudSettings);
+    type State = State;
+    /// Each frame's file.
+    type Encoded = Vec<Vec<u8>>;
+    type Encoder<'a> = &'a Self;
+    const MANIFEST: &'static str = MANIFEST;
+
     fn run_options(
         info: &DatasetInfo,
-        format: CloudFileFormat,
-        settings: &CloudSettings,
+        (format, settings): &Self::Options,
     ) -> Result<RunOptions, ExportError> {
         settings.options(info)?;
         let mut run = info.run_options();
@@ -76,86 +85,42 @@ impl CloudFilesWriter {
         Ok(run)
     }
 
-    /// Starts the folder `root`, which must not exist or be empty.
-    pub fn create(
-        root: &Path,
-        info: &DatasetInfo,
-        format: CloudFileFormat,
-        settings: CloudSettings,
-    ) -> Result<Self, ExportError> {
-        let run = Self::run_options(info, format, &settings)?;
-        Ok(Self::fresh(
-            DatasetDir::create(root, &run)?,
-            info,
-            format,
-            settings,
-            State::default(),
-        ))
+    fn owned_folders(_: &Self::Options) -> Vec<String> {
+        vec![String::new()]
     }
 
-    /// Continues an interrupted folder from its last checkpoint.
-    pub fn resume(
-        root: &Path,
-        info: &DatasetInfo,
-        format: CloudFileFormat,
-        settings: CloudSettings,
-    ) -> Result<Self, ExportError> {
-        let run = Self::run_options(info, format, &settings)?;
-        let (dir, state) = DatasetDir::resume::<State>(root, &run, &[""])?;
-        Ok(Self::fresh(
-            dir,
-            info,
-            format,
-            settings,
-            state.unwrap_or_default(),
-        ))
-    }
-
-    fn fresh(
+    fn new(
         dir: DatasetDir,
         info: &DatasetInfo,
-        format: CloudFileFormat,
-        settings: CloudSettings,
-        state: State,
-    ) -> Self {
-        CloudFilesWriter {
+        (format, settings): Self::Options,
+        state: Option<State>,
+    ) -> Result<Self, ExportError> {
+        Ok(CloudFiles {
             dir,
             info: info.clone(),
             format,
             settings,
-            state,
-            timing: SinkTiming::default(),
-            finished: None,
-        }
+            state: state.unwrap_or_default(),
+        })
     }
 
-    fn write_one(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        check_episode(
-            &self.info,
-            self.finished.is_some(),
-            episode,
-            self.state.episodes,
-        )?;
-        let started = std::time::Instant::now();
-        let options = self.settings.options(&self.info)?;
-        let camera = self.info.camera;
-        let format = self.format;
-        let files: Vec<Vec<u8>> = episode
-            .steps
-            .par_iter()
-            .map(|step| {
-                let cloud = frame_cloud(&camera, step, &options);
-                match format {
-                    CloudFileFormat::Ply => ply::encode_ply(&cloud),
-                    CloudFileFormat::Pcd => pcd::encode_pcd(&cloud),
-                }
-            })
-            .collect();
-        let written = std::time::Instant::now();
-        self.timing.encode_secs += (written - started).as_secs_f64();
+    fn episodes(&self) -> u64 {
+        self.state.episodes
+    }
+
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn encoder(&self) -> &Self {
+        self
+    }
+
+    fn append(&mut self, episode: &Episode, files: Vec<Vec<u8>>) -> Result<f64, ExportError> {
         let index = episode.meta.index;
+        let extension = self.format.extension();
         for (frame, bytes) in files.iter().enumerate() {
-            let relative = format!("episode_{index:06}/frame_{frame:06}.{}", format.extension());
+            let relative = format!("episode_{index:06}/frame_{frame:06}.{extension}");
             self.state.summary.bytes += self.dir.write_atomically(&relative, bytes)?;
             self.state.summary.files += 1;
         }
@@ -177,11 +142,10 @@ impl CloudFilesWriter {
         if self.state.episodes.is_multiple_of(CHECKPOINT_EPISODES) {
             self.dir.save_checkpoint(&self.state)?;
         }
-        self.timing.write_secs += written.elapsed().as_secs_f64();
-        Ok(())
+        Ok(0.0)
     }
 
-    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
         self.dir.save_checkpoint(&self.state)?;
         let mut summary = self.state.summary.clone();
         let episodes = self.dir.journal_bytes(EPISODES_JOURNAL)?;
@@ -190,34 +154,32 @@ impl CloudFilesWriter {
         surgvla["point_cloud"] = self.settings.describe(&self.info)?;
         surgvla["point_cloud"]["file_format"] = json!(self.format);
         let surgvla = serde_json::to_vec_pretty(&surgvla).map_err(|source| ExportError::Json {
-            path: self.dir.path("surgvla.json"),
+            path: self.dir.path(SURGVLA_JSON),
             source,
         })?;
-        for (relative, bytes) in [("episodes.jsonl", episodes), ("surgvla.json", surgvla)] {
+        for (relative, bytes) in [(EPISODES, episodes), (SURGVLA_JSON, surgvla)] {
             summary.bytes += self.dir.write_atomically(relative, &bytes)?;
             summary.files += 1;
         }
-        seal(&mut self.dir, MANIFEST, summary, sidecar)
+        Ok((summary, &mut self.dir))
     }
 }
 
-impl EpisodeSink for CloudFilesWriter {
-    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        episodes.iter().try_for_each(|e| self.write_one(e))
-    }
-
-    fn next_episode_index(&self) -> u64 {
-        self.state.episodes
-    }
-
-    fn timing(&self) -> SinkTiming {
-        self.timing
-    }
-
-    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        let mut finished = self.finished.take();
-        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
-        self.finished = finished;
-        result
+impl EpisodeEncoder<Vec<Vec<u8>>> for &CloudFiles {
+    fn encode(&self, episode: &Episode) -> Result<Vec<Vec<u8>>, ExportError> {
+        let options = self.settings.options(&self.info)?;
+        let camera = self.info.camera;
+        let format = self.format;
+        Ok(episode
+            .steps
+            .par_iter()
+            .map(|step| {
+                let cloud = frame_cloud(&camera, step, &options);
+                match format {
+                    CloudFileFormat::Ply => ply::encode_ply(&cloud),
+                    CloudFileFormat::Pcd => pcd::encode_pcd(&cloud),
+                }
+            })
+            .collect())
     }
 }

@@ -14,7 +14,9 @@
 //!
 //! [`ply`] and [`pcd`] encode one cloud as a file for inspection tools.
 
+pub mod check;
 pub mod files;
+mod format;
 pub mod pcd;
 pub mod ply;
 
@@ -23,6 +25,7 @@ use crate::episode::{CameraInfo, Step};
 use crate::export::ExportError;
 use crate::export::dir::RunOptions;
 use crate::export::info::DatasetInfo;
+pub use format::CloudFilesFormat;
 use serde_json::{Value, json};
 
 /// How clouds are made.
@@ -89,7 +92,7 @@ impl CloudSettings {
             (None, Some(workspace)) => workspace.grown(self.margin_m),
             (None, None) => {
                 return Err(ExportError::InvalidOptions(
-                    "the dataset does not record the robot's workspace: give the crop box (--crop)"
+                    "the dataset does not record the robot's workspace: a crop box must be given"
                         .into(),
                 ));
             }

@@ -21,27 +21,26 @@ pub mod check;
 pub mod example;
 pub mod features;
 pub mod foreign;
+mod format;
 pub mod generic;
 mod openvla;
 pub mod read;
 pub mod record;
 pub mod tfrecord;
 
+pub use format::RldsFormat;
 pub use openvla::openvla_md;
 
 use crate::episode::{Episode, FeatureKind};
 use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
 use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
-use crate::export::{
-    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch, finish_once, seal,
-};
-use rayon::prelude::*;
+use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
+use crate::export::{ExportError, Summary};
 use record::{StepLayout, encode_episode, encode_foreign_episode};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::io::{BufWriter, Write};
-use std::path::Path;
 
 /// Every file with its size and CRC-32C, at the top of the output folder.
 pub const MANIFEST: &str = "surgvla_manifest.json";
@@ -193,7 +192,7 @@ impl RldsOptions {
 
 /// The writer's state at a checkpoint (every shard closed): what the metadata needs.
 #[derive(Clone, Default, Serialize, Deserialize)]
-struct State {
+pub struct State {
     /// Episodes in each closed shard.
     shard_lengths: Vec<u64>,
     episodes: u64,
@@ -211,53 +210,27 @@ struct OpenShard {
 }
 
 /// Streams episodes into an RLDS dataset: one Example per episode, rolled into shards.
-pub struct RldsWriter {
+pub type RldsWriter = Writer<RldsShards>;
+
+/// RLDS's part of [`RldsWriter`].
+pub struct RldsShards {
     dir: DatasetDir,
     info: DatasetInfo,
     options: RldsOptions,
     layout: StepLayout,
     open: Option<OpenShard>,
     state: State,
-    timing: SinkTiming,
-    finished: Option<Summary>,
 }
 
-impl RldsWriter {
-    /// Starts a dataset of `info` in `root` (TFDS's data_dir), which must not exist or be
-    /// empty.
-    pub fn create(
-        root: &Path,
-        info: &DatasetInfo,
-        options: RldsOptions,
-    ) -> Result<Self, ExportError> {
-        let run = RldsWriter::check(info, &options)?;
-        Ok(RldsWriter::fresh(
-            DatasetDir::create(root, &run)?,
-            info,
-            options,
-            State::default(),
-        ))
-    }
+impl FormatWriter for RldsShards {
+    type Options = RldsOptions;
+    type State = State;
+    /// The episode's serialized `tf.train.Example`.
+    type Encoded = Vec<u8>;
+    type Encoder<'a> = &'a Self;
+    const MANIFEST: &'static str = MANIFEST;
 
-    /// Continues an interrupted dataset in `root` from its last checkpoint (see
-    /// `LeRobotWriter::resume`); with the same info, options and episodes the result is
-    /// byte-identical to an uninterrupted run.
-    pub fn resume(
-        root: &Path,
-        info: &DatasetInfo,
-        options: RldsOptions,
-    ) -> Result<Self, ExportError> {
-        let run = RldsWriter::check(info, &options)?;
-        let (dir, state) = DatasetDir::resume::<State>(root, &run, &[options.name.as_str()])?;
-        Ok(RldsWriter::fresh(
-            dir,
-            info,
-            options,
-            state.unwrap_or_default(),
-        ))
-    }
-
-    fn check(info: &DatasetInfo, options: &RldsOptions) -> Result<RunOptions, ExportError> {
+    fn run_options(info: &DatasetInfo, options: &RldsOptions) -> Result<RunOptions, ExportError> {
         options.check()?;
         let shapes_fit = info
             .features
@@ -279,22 +252,53 @@ impl RldsWriter {
         Ok(run)
     }
 
-    fn fresh(dir: DatasetDir, info: &DatasetInfo, options: RldsOptions, state: State) -> Self {
-        RldsWriter {
+    fn owned_folders(options: &RldsOptions) -> Vec<String> {
+        vec![options.name.clone()]
+    }
+
+    fn new(
+        dir: DatasetDir,
+        info: &DatasetInfo,
+        options: RldsOptions,
+        state: Option<State>,
+    ) -> Result<Self, ExportError> {
+        Ok(RldsShards {
             dir,
             layout: StepLayout::of(info, &options.keys),
             info: info.clone(),
             options,
             open: None,
-            state,
-            timing: SinkTiming::default(),
-            finished: None,
-        }
+            state: state.unwrap_or_default(),
+        })
     }
 
+    fn episodes(&self) -> u64 {
+        self.state.episodes
+    }
+
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn encoder(&self) -> &Self {
+        self
+    }
+
+    fn append(&mut self, episode: &Episode, example: Vec<u8>) -> Result<f64, ExportError> {
+        self.append_example(&example, episode.steps.len() as u64)?;
+        Ok(0.0)
+    }
+
+    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
+        let summary = self.finish_dataset()?;
+        Ok((summary, &mut self.dir))
+    }
+}
+
+impl RldsShards {
     /// Appends one serialized episode to the open shard (opening one), closing the shard and
     /// checkpointing once it is full.
-    fn append(&mut self, example: &[u8], steps: u64) -> Result<(), ExportError> {
+    fn append_example(&mut self, example: &[u8], steps: u64) -> Result<(), ExportError> {
         if self.open.is_none() {
             let index = self.state.shard_lengths.len();
             let (file, pending) = self
@@ -366,7 +370,7 @@ impl RldsWriter {
     /// Finishing, in an order an interruption at any point can resume: close the shard and
     /// checkpoint, give the shards their final names, write the metadata, the guide, the
     /// manifest and the sidecar, and only then remove the marker.
-    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+    fn finish_dataset(&mut self) -> Result<Summary, ExportError> {
         self.close_shard()?;
         self.dir.save_checkpoint(&self.state)?;
         let count = self.state.shard_lengths.len();
@@ -415,53 +419,7 @@ impl RldsWriter {
             let guide = openvla_md(&self.info, &self.options);
             self.write_file(&mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
         }
-        seal(&mut self.dir, MANIFEST, summary, sidecar)
-    }
-}
-
-impl EpisodeSink for RldsWriter {
-    /// A batch's episodes are encoded in parallel, then appended in order.
-    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        check_batch(
-            &self.info,
-            self.finished.is_some(),
-            episodes,
-            self.state.episodes,
-        )?;
-        let started = std::time::Instant::now();
-        let (layout, png) = (&self.layout, self.options.png);
-        let examples: Vec<Vec<u8>> = episodes
-            .par_iter()
-            .map(|episode| {
-                if self.info.is_ours() {
-                    encode_episode(layout, episode, png)
-                } else {
-                    encode_foreign_episode(&self.info, episode)
-                }
-            })
-            .collect::<Result<_, _>>()?;
-        let written = std::time::Instant::now();
-        self.timing.encode_secs += (written - started).as_secs_f64();
-        for (episode, example) in episodes.iter().zip(examples) {
-            self.append(&example, episode.steps.len() as u64)?;
-        }
-        self.timing.write_secs += written.elapsed().as_secs_f64();
-        Ok(())
-    }
-
-    fn next_episode_index(&self) -> u64 {
-        self.state.episodes
-    }
-
-    fn timing(&self) -> SinkTiming {
-        self.timing
-    }
-
-    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        let mut finished = self.finished.take();
-        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
-        self.finished = finished;
-        result
+        Ok(summary)
     }
 }
 
@@ -497,5 +455,15 @@ mod tests {
             options.shard_path(3, Some(12)),
             "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00003-of-00012"
         );
+    }
+}
+
+impl EpisodeEncoder<Vec<u8>> for &RldsShards {
+    fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
+        if self.info.is_ours() {
+            encode_episode(&self.layout, episode, self.options.png)
+        } else {
+            encode_foreign_episode(&self.info, episode)
+        }
     }
 }

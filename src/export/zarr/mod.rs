@@ -14,19 +14,20 @@
 
 pub mod array;
 pub mod check;
+mod format;
+
+pub use format::ZarrFormat;
 
 use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
-use crate::export::{
-    EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_episode, finish_once, seal,
-};
+use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
+use crate::export::{ExportError, Summary};
 use array::{ArrayMark, ArrayWriter};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::path::Path;
 
 /// Episodes between checkpoints.
 pub const CHECKPOINT_EPISODES: u64 = 16;
@@ -56,37 +57,26 @@ impl ZarrOptions {
 
 /// What a checkpoint records besides the files.
 #[derive(Clone, Default, Serialize, Deserialize)]
-struct State {
+pub struct State {
     episode_ends: Vec<i64>,
     arrays: Vec<ArrayMark>,
     summary: Summary,
 }
 
 /// Streams episodes into a DP3 zarr store.
-pub struct ZarrWriter {
+pub type ZarrWriter = Writer<ZarrStore>;
+
+/// The zarr store's part of [`ZarrWriter`].
+pub struct ZarrStore {
     dir: DatasetDir,
     info: DatasetInfo,
     options: ZarrOptions,
     /// point_cloud, state, action, then img and depth with images.
     arrays: Vec<ArrayWriter>,
     state: State,
-    timing: SinkTiming,
-    finished: Option<Summary>,
 }
 
-impl ZarrWriter {
-    fn check(info: &DatasetInfo, options: &ZarrOptions) -> Result<RunOptions, ExportError> {
-        options.cloud.options(info)?;
-        if options.mask_channel && !info.has(crate::episode::FeatureKind::Mask) {
-            return Err(ExportError::InvalidOptions(
-                "the mask channel needs a dataset with the mask (collect --with-mask)".into(),
-            ));
-        }
-        let mut run = info.run_options();
-        run.merge(options.run_options());
-        Ok(run)
-    }
-
+impl ZarrStore {
     fn arrays(info: &DatasetInfo, options: &ZarrOptions) -> Vec<ArrayWriter> {
         let channels = if options.mask_channel { 7 } else { 6 };
         let mut arrays = vec![
@@ -107,33 +97,46 @@ impl ZarrWriter {
         arrays
     }
 
-    /// Starts a store in `root`, which must not exist or be empty.
-    pub fn create(
-        root: &Path,
-        info: &DatasetInfo,
-        options: ZarrOptions,
-    ) -> Result<Self, ExportError> {
-        let run = Self::check(info, &options)?;
-        let dir = DatasetDir::create(root, &run)?;
-        Ok(ZarrWriter {
-            dir,
-            arrays: Self::arrays(info, &options),
-            info: info.clone(),
-            options,
-            state: State::default(),
-            timing: SinkTiming::default(),
-            finished: None,
-        })
+    /// Writes the partial chunks and records the state.
+    fn checkpoint(&mut self) -> Result<(), ExportError> {
+        for array in &self.arrays {
+            array.flush(&mut self.dir)?;
+        }
+        self.state.arrays = self.arrays.iter().map(ArrayWriter::mark).collect();
+        self.dir.save_checkpoint(&self.state)
+    }
+}
+
+impl FormatWriter for ZarrStore {
+    type Options = ZarrOptions;
+    type State = State;
+    /// Each frame's cloud as little-endian float32 points.
+    type Encoded = Vec<Vec<u8>>;
+    type Encoder<'a> = &'a Self;
+    const MANIFEST: &'static str = MANIFEST;
+
+    fn run_options(info: &DatasetInfo, options: &ZarrOptions) -> Result<RunOptions, ExportError> {
+        options.cloud.options(info)?;
+        if options.mask_channel && !info.has(crate::episode::FeatureKind::Mask) {
+            return Err(ExportError::InvalidOptions(
+                "the mask channel needs a dataset with the mask feature".into(),
+            ));
+        }
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
     }
 
-    /// Continues an interrupted store from its last checkpoint.
-    pub fn resume(
-        root: &Path,
+    fn owned_folders(_: &ZarrOptions) -> Vec<String> {
+        vec!["data".into(), "meta".into()]
+    }
+
+    fn new(
+        dir: DatasetDir,
         info: &DatasetInfo,
         options: ZarrOptions,
+        state: Option<State>,
     ) -> Result<Self, ExportError> {
-        let run = Self::check(info, &options)?;
-        let (dir, state) = DatasetDir::resume::<State>(root, &run, &["data", "meta"])?;
         let state = state.unwrap_or_default();
         let mut arrays = Self::arrays(info, &options);
         if !state.arrays.is_empty() {
@@ -143,56 +146,28 @@ impl ZarrWriter {
                 .map(|(array, mark)| array.resume(&dir, mark))
                 .collect::<Result<_, _>>()?;
         }
-        Ok(ZarrWriter {
+        Ok(ZarrStore {
             dir,
             arrays,
             info: info.clone(),
             options,
             state,
-            timing: SinkTiming::default(),
-            finished: None,
         })
     }
 
-    /// Writes the partial chunks and records the state.
-    fn checkpoint(&mut self) -> Result<(), ExportError> {
-        for array in &self.arrays {
-            array.flush(&mut self.dir)?;
-        }
-        self.state.arrays = self.arrays.iter().map(ArrayWriter::mark).collect();
-        self.dir.save_checkpoint(&self.state)
+    fn episodes(&self) -> u64 {
+        self.state.episode_ends.len() as u64
     }
 
-    fn write_one(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        check_episode(
-            &self.info,
-            self.finished.is_some(),
-            episode,
-            self.state.episode_ends.len() as u64,
-        )?;
-        let started = std::time::Instant::now();
-        let cloud_options = self.options.cloud.options(&self.info)?;
-        let camera = self.info.camera;
-        let mask_channel = self.options.mask_channel;
-        let clouds: Vec<Vec<u8>> = episode
-            .steps
-            .par_iter()
-            .map(|step| {
-                let cloud = frame_cloud(&camera, step, &cloud_options);
-                let mut bytes = Vec::with_capacity(cloud.xyz_m.len() * 28);
-                for i in 0..cloud.xyz_m.len() {
-                    let rgb = cloud.rgb[i].map(f32::from);
-                    let mut point: Vec<f32> = cloud.xyz_m[i].into_iter().chain(rgb).collect();
-                    if mask_channel {
-                        point.push(cloud.mask.get(i).map_or(0.0, |&id| f32::from(id)));
-                    }
-                    bytes.extend(point.iter().flat_map(|v| v.to_le_bytes()));
-                }
-                bytes
-            })
-            .collect();
-        let written = std::time::Instant::now();
-        self.timing.encode_secs += (written - started).as_secs_f64();
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn encoder(&self) -> &Self {
+        self
+    }
+
+    fn append(&mut self, episode: &Episode, clouds: Vec<Vec<u8>>) -> Result<f64, ExportError> {
         let floats = |values: &mut dyn Iterator<Item = f32>| -> Vec<u8> {
             values.flat_map(f32::to_le_bytes).collect()
         };
@@ -218,11 +193,10 @@ impl ZarrWriter {
         if (self.state.episode_ends.len() as u64).is_multiple_of(CHECKPOINT_EPISODES) {
             self.checkpoint()?;
         }
-        self.timing.write_secs += written.elapsed().as_secs_f64();
-        Ok(())
+        Ok(0.0)
     }
 
-    fn finish_dataset(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
         self.checkpoint()?;
         let mut summary = self.state.summary.clone();
         let mut ends = ArrayWriter::new("meta/episode_ends", "<i8", 8, &[]);
@@ -262,27 +236,31 @@ impl ZarrWriter {
         // Partial chunks are rewritten as they fill: count the files as they stand.
         summary.files = self.dir.files().len() as u64;
         summary.bytes = self.dir.files().iter().map(|f| f.bytes).sum();
-        seal(&mut self.dir, MANIFEST, summary, sidecar)
+        Ok((summary, &mut self.dir))
     }
 }
 
-impl EpisodeSink for ZarrWriter {
-    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        episodes.iter().try_for_each(|e| self.write_one(e))
-    }
-
-    fn next_episode_index(&self) -> u64 {
-        self.state.episode_ends.len() as u64
-    }
-
-    fn timing(&self) -> SinkTiming {
-        self.timing
-    }
-
-    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
-        let mut finished = self.finished.take();
-        let result = finish_once(&mut finished, || self.finish_dataset(sidecar));
-        self.finished = finished;
-        result
+impl EpisodeEncoder<Vec<Vec<u8>>> for &ZarrStore {
+    fn encode(&self, episode: &Episode) -> Result<Vec<Vec<u8>>, ExportError> {
+        let cloud_options = self.options.cloud.options(&self.info)?;
+        let camera = self.info.camera;
+        let mask_channel = self.options.mask_channel;
+        Ok(episode
+            .steps
+            .par_iter()
+            .map(|step| {
+                let cloud = frame_cloud(&camera, step, &cloud_options);
+                let mut bytes = Vec::with_capacity(cloud.xyz_m.len() * 28);
+                for i in 0..cloud.xyz_m.len() {
+                    let rgb = cloud.rgb[i].map(f32::from);
+                    let mut point: Vec<f32> = cloud.xyz_m[i].into_iter().chain(rgb).collect();
+                    if mask_channel {
+                        point.push(cloud.mask.get(i).map_or(0.0, |&id| f32::from(id)));
+                    }
+                    bytes.extend(point.iter().flat_map(|v| v.to_le_bytes()));
+                }
+                bytes
+            })
+            .collect())
     }
 }

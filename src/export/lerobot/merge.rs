@@ -10,8 +10,8 @@
 //! the single-machine run byte for byte. Their collect reports, when every input has one, are
 //! merged into the output's (counts summed, failures concatenated).
 
-use crate::error::ErrorKind;
 use crate::export::convert::ConvertError;
+use crate::export::format::MergeError;
 use crate::export::lerobot::read::LeRobotSource;
 use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
 use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
@@ -20,37 +20,6 @@ use std::path::{Path, PathBuf};
 
 /// The report file `collect` leaves in a dataset, merged when every input has one.
 pub const REPORT: &str = "collect_report.json";
-
-/// Why a merge could not start or failed.
-#[derive(Debug, thiserror::Error)]
-pub enum MergeError {
-    /// Inputs that cannot make one dataset.
-    #[error("{path} cannot be merged with {first}: {reasons}")]
-    Incompatible {
-        path: PathBuf,
-        first: PathBuf,
-        reasons: String,
-    },
-    /// An input of a kind merge does not handle.
-    #[error("{path}: {problem}")]
-    Unsupported { path: PathBuf, problem: String },
-    #[error("give at least one input dataset")]
-    NoInput,
-    /// Reading an input or writing the output failed.
-    #[error(transparent)]
-    Convert(#[from] ConvertError),
-}
-
-impl MergeError {
-    pub fn kind(&self) -> ErrorKind {
-        match self {
-            MergeError::Incompatible { .. }
-            | MergeError::Unsupported { .. }
-            | MergeError::NoInput => ErrorKind::Usage,
-            MergeError::Convert(error) => error.kind(),
-        }
-    }
-}
 
 /// One input: its source, its LeRobot layout, and its shard ("I/N") if it says.
 struct Input {

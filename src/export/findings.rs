@@ -1,0 +1,457 @@
+//! What every format's checks report into: [`Findings`] (kept per check, counted past
+//! [`FINDINGS_PER_CHECK`]), each naming file, episode, frame and check; the [`Report`] they
+//! become; the [`Facts`] `info` prints; and the checks every format shares: the manifest
+//! ([`check_manifest`]) and the semantics of our own datasets ([`check_semantics`]). The
+//! formats and the dispatcher (`validate`) import this module; it imports no format.
+
+use crate::episode::{Aabb, Episode, GripperEncoding};
+use crate::export::read_json;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+/// Findings kept per check before the rest are only counted (a defect repeated on 40,000 frames
+/// is one problem).
+pub const FINDINGS_PER_CHECK: usize = 20;
+
+/// A dataset format [`detect`] recognises.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Format {
+    #[serde(rename = "lerobot-v3.0")]
+    LeRobotV30,
+    #[serde(rename = "lerobot-v2.1")]
+    LeRobotV21,
+    #[serde(rename = "rlds")]
+    Rlds,
+    #[serde(rename = "zarr")]
+    Zarr,
+    #[serde(rename = "mcap")]
+    Mcap,
+    #[serde(rename = "ply")]
+    Ply,
+    #[serde(rename = "pcd")]
+    Pcd,
+}
+
+impl Format {
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::LeRobotV30 => "lerobot-v3.0",
+            Format::LeRobotV21 => "lerobot-v2.1",
+            Format::Rlds => "rlds",
+            Format::Zarr => "zarr",
+            Format::Mcap => "mcap",
+            Format::Ply => "ply",
+            Format::Pcd => "pcd",
+        }
+    }
+}
+
+/// One defect (or, as a warning, one oddity): where it is and what is wrong.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Finding {
+    /// The file, relative to the dataset's root where it is inside it.
+    pub file: Option<String>,
+    pub episode: Option<u64>,
+    pub frame: Option<u64>,
+    /// The check that found it, e.g. "timestamps", "image", "crc".
+    pub check: String,
+    pub message: String,
+}
+
+impl std::fmt::Display for Finding {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut place = Vec::new();
+        if let Some(file) = &self.file {
+            place.push(file.clone());
+        }
+        if let Some(episode) = self.episode {
+            place.push(format!("episode {episode}"));
+        }
+        if let Some(frame) = self.frame {
+            place.push(format!("frame {frame}"));
+        }
+        if place.is_empty() {
+            write!(f, "[{}] {}", self.check, self.message)
+        } else {
+            write!(f, "{}: [{}] {}", place.join(", "), self.check, self.message)
+        }
+    }
+}
+
+/// What [`validate`] found.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Report {
+    pub valid: bool,
+    pub format: Format,
+    /// The folder or file that was checked (an RLDS version folder when given its data dir).
+    pub path: PathBuf,
+    pub episodes: u64,
+    pub frames: u64,
+    /// Bytes on disk of every file under the path.
+    pub bytes: u64,
+    /// What the dataset is, as far as the checks learned it (for `info`).
+    pub facts: Facts,
+    pub errors: Vec<Finding>,
+    pub warnings: Vec<Finding>,
+}
+
+impl Report {
+    /// Adds errors found by another check (e.g. `validate --replay`).
+    pub fn add_errors(&mut self, errors: Vec<Finding>) {
+        self.valid &= errors.is_empty();
+        self.errors.extend(errors);
+    }
+}
+
+/// What a dataset is: what `surgvla info` prints besides the counts.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Facts {
+    pub fps: Option<f64>,
+    pub robot_type: Option<String>,
+    /// Features (or arrays, or topics) with dtype and shape.
+    pub features: Vec<FeatureFact>,
+    /// Episodes per task (language instruction), when known.
+    pub tasks: BTreeMap<String, u64>,
+    /// The program that wrote it, when it says.
+    pub generator: Option<String>,
+    /// How surgvla collected it (seed, tasks, options); null when not ours.
+    pub collection: serde_json::Value,
+}
+
+/// One feature as declared.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FeatureFact {
+    pub name: String,
+    pub dtype: String,
+    pub shape: Vec<usize>,
+}
+
+/// How thoroughly to check.
+#[derive(Clone, Debug, Default)]
+pub struct ValidateOptions {
+    /// Metadata and one frame per episode instead of every frame.
+    pub quick: bool,
+    /// Step limit per task id (e.g. "T1-1" -> 100) for the semantic checks of our datasets;
+    /// empty: not checked.
+    pub step_limits: BTreeMap<String, usize>,
+    /// Worker threads for the full pass (0: one per core).
+    pub threads: usize,
+}
+
+/// Collects findings from checks that may run in parallel, keeping [`FINDINGS_PER_CHECK`] of
+/// each check and counting the rest.
+#[derive(Debug)]
+pub struct Findings {
+    root: PathBuf,
+    inner: Mutex<Collected>,
+    facts: Mutex<Facts>,
+}
+
+#[derive(Debug, Default)]
+struct Collected {
+    errors: Vec<Finding>,
+    warnings: Vec<Finding>,
+    /// (check, is_error) -> findings seen.
+    counts: BTreeMap<(String, bool), usize>,
+}
+
+/// Where a finding is: file, episode, frame.
+#[derive(Clone, Debug, Default)]
+pub struct At {
+    pub file: Option<String>,
+    pub episode: Option<u64>,
+    pub frame: Option<u64>,
+}
+
+impl At {
+    pub fn file(file: impl Into<String>) -> Self {
+        At {
+            file: Some(file.into()),
+            ..At::default()
+        }
+    }
+
+    pub fn episode(mut self, episode: u64) -> Self {
+        self.episode = Some(episode);
+        self
+    }
+
+    pub fn frame(mut self, frame: u64) -> Self {
+        self.frame = Some(frame);
+        self
+    }
+}
+
+impl Findings {
+    pub fn new(root: &Path) -> Self {
+        Findings {
+            root: root.to_path_buf(),
+            inner: Mutex::new(Collected::default()),
+            facts: Mutex::new(Facts::default()),
+        }
+    }
+
+    /// Records what the checks learned about the dataset.
+    pub fn learn(&self, update: impl FnOnce(&mut Facts)) {
+        update(&mut self.facts.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+
+    /// `path` relative to the dataset's root where it is inside it.
+    pub fn relative(&self, path: &Path) -> String {
+        path.strip_prefix(&self.root)
+            .unwrap_or(path)
+            .to_string_lossy()
+            .into_owned()
+    }
+
+    pub fn error(&self, at: At, check: &str, message: impl Into<String>) {
+        self.add(true, at, check, message.into());
+    }
+
+    pub fn warning(&self, at: At, check: &str, message: impl Into<String>) {
+        self.add(false, at, check, message.into());
+    }
+
+    /// An error about the file at `path`.
+    pub fn file_error(&self, path: &Path, check: &str, message: impl Into<String>) {
+        self.error(At::file(self.relative(path)), check, message);
+    }
+
+    fn add(&self, is_error: bool, at: At, check: &str, message: String) {
+        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        let count = inner
+            .counts
+            .entry((check.to_string(), is_error))
+            .or_default();
+        *count += 1;
+        if *count > FINDINGS_PER_CHECK {
+            return;
+        }
+        let finding = Finding {
+            file: at.file,
+            episode: at.episode,
+            frame: at.frame,
+            check: check.into(),
+            message,
+        };
+        if is_error {
+            inner.errors.push(finding);
+        } else {
+            inner.warnings.push(finding);
+        }
+    }
+
+    pub fn has_errors(&self) -> bool {
+        let inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        !inner.errors.is_empty()
+    }
+
+    /// The report, with one more finding per check that had more than it kept.
+    pub fn into_report(self, format: Format, episodes: u64, frames: u64) -> Report {
+        let mut inner = self.inner.into_inner().unwrap_or_else(|e| e.into_inner());
+        for ((check, is_error), count) in std::mem::take(&mut inner.counts) {
+            if count > FINDINGS_PER_CHECK {
+                let finding = Finding {
+                    file: None,
+                    episode: None,
+                    frame: None,
+                    check: check.clone(),
+                    message: format!(
+                        "{} more like the above not listed ({count} in all)",
+                        count - FINDINGS_PER_CHECK
+                    ),
+                };
+                if is_error {
+                    inner.errors.push(finding);
+                } else {
+                    inner.warnings.push(finding);
+                }
+            }
+        }
+        let bytes = disk_bytes(&self.root);
+        Report {
+            valid: inner.errors.is_empty(),
+            format,
+            episodes,
+            frames,
+            bytes,
+            facts: self.facts.into_inner().unwrap_or_else(|e| e.into_inner()),
+            path: self.root,
+            errors: inner.errors,
+            warnings: inner.warnings,
+        }
+    }
+}
+
+/// Bytes of every file under `path` (the file's size for a file).
+fn disk_bytes(path: &Path) -> u64 {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.is_dir() => std::fs::read_dir(path)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| disk_bytes(&e.path()))
+            .sum(),
+        Ok(m) => m.len(),
+        Err(_) => 0,
+    }
+}
+
+/// Verifies the manifest `relative` when the dataset has one: every listed file present with
+/// its recorded size and CRC-32C, and no listed path outside the root.
+pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
+    let path = root.join(relative);
+    if !path.is_file() {
+        return;
+    }
+    let manifest = match read_json(&path) {
+        Ok(manifest) => manifest,
+        Err(_) => {
+            findings.file_error(&path, "manifest", "is not valid JSON");
+            return;
+        }
+    };
+    let Some(files) = manifest["files"].as_array() else {
+        findings.file_error(&path, "manifest", "has no files list");
+        return;
+    };
+    for file in files {
+        let record: crate::export::FileRecord = match serde_json::from_value(file.clone()) {
+            Ok(record) => record,
+            Err(_) => {
+                findings.file_error(&path, "manifest", format!("has a malformed entry {file}"));
+                continue;
+            }
+        };
+        if record.path.contains("..") || record.path.starts_with('/') {
+            findings.file_error(
+                &path,
+                "manifest",
+                format!("lists {} outside the dataset", record.path),
+            );
+            continue;
+        }
+        match record.problem(&root.join(&record.path)) {
+            Ok(None) => {}
+            Ok(Some(problem)) => findings.error(
+                At::file(record.path.clone()),
+                "checksum",
+                format!("{problem} (per {relative})"),
+            ),
+            Err(_) => findings.error(At::file(record.path.clone()), "readable", "cannot be read"),
+        }
+    }
+}
+
+/// What our own datasets promise beyond their format, from their surgvla metadata.
+#[derive(Clone, Debug, Default)]
+pub struct Semantics {
+    /// How `action[6]` is encoded; None: not ours, gripper not checked.
+    pub gripper: Option<GripperEncoding>,
+    /// The tool tip's box; states must stay inside it (with a millimetre of slack).
+    pub tip_workspace: Option<Aabb>,
+    /// Step limit per task id.
+    pub step_limits: BTreeMap<String, usize>,
+}
+
+impl Semantics {
+    /// The semantics of a dataset whose surgvla metadata is `surgvla` (`Null`: none).
+    pub fn of(surgvla: &serde_json::Value, options: &ValidateOptions) -> Option<Self> {
+        if surgvla.is_null() {
+            return None;
+        }
+        let gripper = match surgvla["collection"]["gripper_encoding"].as_str() {
+            Some("pulse") => Some(GripperEncoding::Pulse),
+            Some(_) => Some(GripperEncoding::Continuous),
+            None => None,
+        };
+        let tip_workspace = serde_json::from_value::<Aabb>(serde_json::json!({
+            "min_m": surgvla["tip_workspace_m"]["min"],
+            "max_m": surgvla["tip_workspace_m"]["max"],
+        }))
+        .ok();
+        Some(Semantics {
+            gripper,
+            tip_workspace,
+            step_limits: options.step_limits.clone(),
+        })
+    }
+}
+
+/// Slack on the workspace box: states are measured, the box bounds commands.
+const WORKSPACE_SLACK_M: f64 = 0.002;
+
+/// What our own datasets promise beyond their format, per decoded episode: the gripper
+/// encoding, states inside the workspace, the task's step limit and provenance. (Steps present,
+/// finite numbers and a non-empty instruction are each format's own content checks.)
+pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findings: &Findings) {
+    let index = episode.meta.index;
+    let here = || at.clone().episode(index);
+    if let Some(encoding) = semantics.gripper {
+        let allowed: &[f32] = match encoding {
+            GripperEncoding::Continuous => &[0.0, 1.0],
+            GripperEncoding::Pulse => &[-1.0, 0.0, 1.0],
+        };
+        for (frame, step) in episode.steps.iter().enumerate() {
+            if !allowed.contains(&step.action[6]) {
+                findings.error(
+                    here().frame(frame as u64),
+                    "gripper",
+                    format!(
+                        "action gripper value {} is not one of {allowed:?} ({encoding:?} encoding)",
+                        step.action[6]
+                    ),
+                );
+            }
+        }
+    }
+    if let Some(workspace) = semantics.tip_workspace {
+        let grown = workspace.grown(WORKSPACE_SLACK_M);
+        for (frame, step) in episode.steps.iter().enumerate() {
+            let tip = [0, 1, 2].map(|i| f64::from(step.state[i]));
+            if !grown.contains(tip) {
+                findings.error(
+                    here().frame(frame as u64),
+                    "workspace",
+                    format!(
+                        "the tool tip {tip:?} m is outside the workspace {:?}..{:?}",
+                        workspace.min_m, workspace.max_m
+                    ),
+                );
+            }
+        }
+    }
+    if episode.meta.task_code.is_empty() {
+        findings.error(
+            here(),
+            "provenance",
+            "no task id (surgvla/task_id) recorded for the episode",
+        );
+    } else if let Some(&limit) = semantics.step_limits.get(&episode.meta.task_code) {
+        if episode.steps.len() > limit {
+            findings.error(
+                here(),
+                "step_limit",
+                format!(
+                    "{} steps, more than {}'s limit of {limit}",
+                    episode.steps.len(),
+                    episode.meta.task_code
+                ),
+            );
+        }
+    } else if !semantics.step_limits.is_empty() {
+        findings.error(
+            here(),
+            "provenance",
+            format!("unknown task id {}", episode.meta.task_code),
+        );
+    }
+    if episode.meta.attempts == 0 {
+        findings.error(
+            here(),
+            "provenance",
+            "no attempt count (surgvla/attempts) recorded for the episode",
+        );
+    }
+}

@@ -1,0 +1,73 @@
+//! Point-cloud files in the format registry: a folder whose `surgvla.json` states a
+//! `point_cloud.file_format` (PLY or PCD). Validated and written; surgvla does not read clouds
+//! back as episodes.
+
+use super::files::{CloudFileFormat, SURGVLA_JSON};
+use crate::export::findings::{Findings, Format, ValidateOptions};
+use crate::export::format::{DatasetFormat, Found, Probe, Sniff};
+use crate::export::info::DatasetInfo;
+use crate::export::{EpisodeSink, ExportError, SinkOptions, read_json};
+use std::path::Path;
+
+/// One PLY or PCD file per frame.
+pub struct CloudFilesFormat;
+
+impl DatasetFormat for CloudFilesFormat {
+    fn name(&self) -> &'static str {
+        "point-cloud files"
+    }
+
+    fn sniff(&self, probe: &Probe) -> Sniff {
+        if probe.is_file || !probe.has(SURGVLA_JSON) || !probe.has(super::files::EPISODES) {
+            return Sniff::No;
+        }
+        let format =
+            read_json(&probe.path.join(SURGVLA_JSON))
+                .ok()
+                .and_then(
+                    |surgvla| match surgvla["point_cloud"]["file_format"].as_str()? {
+                        "ply" => Some(Format::Ply),
+                        "pcd" => Some(Format::Pcd),
+                        _ => None,
+                    },
+                );
+        match format {
+            Some(format) => Sniff::Yes(Found {
+                format,
+                root: probe.path.clone(),
+            }),
+            None => Sniff::No,
+        }
+    }
+
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
+        let extension = match found.format {
+            Format::Pcd => CloudFileFormat::Pcd,
+            _ => CloudFileFormat::Ply,
+        }
+        .extension();
+        super::check::check(&found.root, extension, options, findings)
+    }
+
+    fn writes(&self, options: &SinkOptions) -> bool {
+        matches!(options, SinkOptions::CloudFiles(..))
+    }
+
+    fn open_sink(
+        &self,
+        root: &Path,
+        info: &DatasetInfo,
+        options: &SinkOptions,
+        resuming: bool,
+    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
+        let SinkOptions::CloudFiles(format, settings) = options else {
+            return Err(ExportError::Internal("not point-cloud options".into()));
+        };
+        Ok(Box::new(super::files::CloudFilesWriter::open(
+            root,
+            info,
+            (*format, *settings),
+            resuming,
+        )?))
+    }
+}

@@ -1,0 +1,89 @@
+//! The built-in formats, one list ([`BUILTIN_FORMATS`]), and the walks every command makes over
+//! it: which format a path holds ([`detect`]), which format writes a [`SinkOptions`]
+//! ([`writer_of`]), and merging ([`merge`]). Adding a format is one folder implementing
+//! [`DatasetFormat`] plus one line here.
+
+use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
+use crate::export::{ExportError, SinkOptions, Summary, lerobot, mcap, pointcloud, rlds, zarr};
+use std::path::Path;
+
+/// Every format, in the order [`detect`] asks them (the first that recognises a path has it).
+pub static BUILTIN_FORMATS: &[&dyn DatasetFormat] = &[
+    &zarr::ZarrFormat,
+    &lerobot::LeRobotFormat,
+    &rlds::RldsFormat,
+    &mcap::McapFormat,
+    &pointcloud::CloudFilesFormat,
+];
+
+/// The format of the dataset at `path` and what it found there. A path that does not exist,
+/// cannot be read or holds nothing a format recognises is an error (the user's: exit 2). A
+/// dataset that looks like a format but is broken is returned with its problem: `validate`
+/// reports its defects, readers refuse it.
+pub fn detect(path: &Path) -> Result<(&'static dyn DatasetFormat, Sniff), ExportError> {
+    let probe = Probe::of(path)?;
+    for format in BUILTIN_FORMATS {
+        match format.sniff(&probe) {
+            Sniff::No => {}
+            sniff => return Ok((*format, sniff)),
+        }
+    }
+    let problem = if probe.is_file {
+        "is a file that is not MCAP; give a dataset folder or an .mcap file"
+    } else {
+        "holds nothing surgvla recognises (LeRobot, RLDS, zarr, MCAP or point-cloud files)"
+    };
+    Err(ExportError::Unrecognised {
+        path: path.to_path_buf(),
+        problem: problem.into(),
+    })
+}
+
+/// [`detect`] for a reader: a broken dataset is an error (the data's: exit 1).
+pub fn detect_readable(path: &Path) -> Result<(&'static dyn DatasetFormat, Found), ExportError> {
+    match detect(path)? {
+        (format, Sniff::Yes(found)) => Ok((format, found)),
+        (_, Sniff::Broken { found, problem }) => Err(ExportError::InvalidDataset {
+            path: found.root,
+            problem,
+        }),
+        (format, Sniff::No) => Err(ExportError::Internal(format!(
+            "{} detected without a verdict",
+            format.name()
+        ))),
+    }
+}
+
+/// The format whose options these are.
+pub fn writer_of(options: &SinkOptions) -> Result<&'static dyn DatasetFormat, ExportError> {
+    BUILTIN_FORMATS
+        .iter()
+        .find(|f| f.writes(options))
+        .copied()
+        .ok_or_else(|| ExportError::Internal(format!("no format writes {options:?}")))
+}
+
+/// Merges `request.inputs` (datasets of one format that merges) into `request.out`.
+pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
+    let read = |e| MergeError::Convert(crate::export::convert::ConvertError::Read(e));
+    let first = request.inputs.first().ok_or(MergeError::NoInput)?.clone();
+    let (format, _) = detect_readable(&first).map_err(read)?;
+    for input in &request.inputs[1..] {
+        let (other, _) = detect_readable(input).map_err(read)?;
+        if other.name() != format.name() {
+            return Err(MergeError::Incompatible {
+                path: input.clone(),
+                first,
+                reasons: format!("it is {}, the first is {}", other.name(), format.name()),
+            });
+        }
+    }
+    format.merge(request).unwrap_or_else(|| {
+        Err(read(ExportError::NotHandled {
+            path: first,
+            format: format.name(),
+            operation: "merge",
+            handled: "LeRobot datasets",
+        }))
+    })
+}

@@ -1,0 +1,97 @@
+//! RLDS in the format registry: a TFDS version folder (`dataset_info.json`, `features.json`,
+//! TFRecord shards) or the data directory above one. Datasets with `surgvla.json` beside
+//! `dataset_info.json` are ours ([`super::read::RldsSource`]); others are read through their
+//! own `features.json` ([`super::foreign::ForeignRldsSource`]) and need a frame rate.
+
+use crate::export::findings::{Findings, Format, ValidateOptions};
+use crate::export::format::{DatasetFormat, Found, Holds, Probe, Sniff};
+use crate::export::info::DatasetInfo;
+use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions};
+use std::path::Path;
+
+/// RLDS in the TFDS layout.
+pub struct RldsFormat;
+
+impl DatasetFormat for RldsFormat {
+    fn name(&self) -> &'static str {
+        "rlds"
+    }
+
+    fn sniff(&self, probe: &Probe) -> Sniff {
+        if probe.is_file {
+            return Sniff::No;
+        }
+        let found = |root: &Path| Found {
+            format: Format::Rlds,
+            root: root.to_path_buf(),
+        };
+        let loose = probe.has("dataset_info.json")
+            || probe.has("features.json")
+            || probe.entries.iter().any(|e| e.contains(".tfrecord-"));
+        match super::read::version_dir(&probe.path) {
+            Ok(folder) => Sniff::Yes(found(&folder)),
+            Err(error) if loose => Sniff::Broken {
+                found: found(&probe.path),
+                problem: error.to_string(),
+            },
+            Err(_) => Sniff::No,
+        }
+    }
+
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
+        super::check::check(&found.root, options, findings)
+    }
+
+    fn writes(&self, options: &SinkOptions) -> bool {
+        matches!(options, SinkOptions::Rlds(_))
+    }
+
+    fn holds(&self) -> Holds {
+        Holds {
+            video: false,
+            other_features: true,
+        }
+    }
+
+    fn open_sink(
+        &self,
+        root: &Path,
+        info: &DatasetInfo,
+        options: &SinkOptions,
+        resuming: bool,
+    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
+        let SinkOptions::Rlds(options) = options else {
+            return Err(ExportError::Internal("not RLDS options".into()));
+        };
+        Ok(Box::new(super::RldsWriter::open(
+            root,
+            info,
+            options.clone(),
+            resuming,
+        )?))
+    }
+
+    fn open_source(
+        &self,
+        found: &Found,
+        options: &SourceOptions,
+    ) -> Option<Result<Box<dyn EpisodeSource + Send>, ExportError>> {
+        Some(open_source(&found.root, options))
+    }
+}
+
+fn open_source(
+    folder: &Path,
+    options: &SourceOptions,
+) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
+    if folder.join(super::SURGVLA_JSON).is_file() {
+        return Ok(Box::new(super::read::RldsSource::open(folder)?));
+    }
+    let fps = options.fps.ok_or_else(|| ExportError::NoFrameRate {
+        path: folder.to_path_buf(),
+    })?;
+    let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
+    Ok(Box::new(super::foreign::ForeignRldsSource::open(
+        folder, fps, robot_type,
+    )?))
+}

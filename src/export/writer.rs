@@ -1,0 +1,194 @@
+//! The writer core: what every format's sink shares, written once. [`Writer`] implements
+//! [`EpisodeSink`] for any [`FormatWriter`]: it creates or resumes the dataset folder
+//! ([`DatasetDir`]) with the format's byte-changing options, checks each batch (order,
+//! features, not finished), encodes a batch's episodes in parallel and appends them in index
+//! order (so the bytes equal one-by-one writing), keeps the timing and the "finished once"
+//! summary, and seals the dataset (manifest, sidecar, marker). A format says only how an
+//! episode is encoded, appended and finished.
+
+use crate::episode::Episode;
+use crate::export::dir::{DatasetDir, RunOptions};
+use crate::export::info::DatasetInfo;
+use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch};
+use rayon::prelude::*;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+use std::path::Path;
+use std::time::Instant;
+
+/// One format's part of a sink: the rest is [`Writer`]'s.
+pub trait FormatWriter: Send + Sized {
+    /// The format's own options.
+    type Options;
+    /// What a checkpoint records besides the files.
+    type State: Serialize + DeserializeOwned;
+    /// One episode made ready to append; made for a batch's episodes in parallel.
+    type Encoded: Send;
+    /// What encodes episodes, shared by a batch's threads (a view of the writer).
+    type Encoder<'a>: EpisodeEncoder<Self::Encoded>
+    where
+        Self: 'a;
+    /// The manifest's path in the folder.
+    const MANIFEST: &'static str;
+
+    /// Refuses options the dataset cannot have; returns what its bytes depend on (a resume
+    /// with other values is refused).
+    fn run_options(info: &DatasetInfo, options: &Self::Options) -> Result<RunOptions, ExportError>;
+
+    /// The folders (relative; "" for the root) a resume prunes back to its checkpoint.
+    fn owned_folders(options: &Self::Options) -> Vec<String>;
+
+    /// The format's writer in `dir`, fresh (`state` None) or at a checkpoint's state.
+    fn new(
+        dir: DatasetDir,
+        info: &DatasetInfo,
+        options: Self::Options,
+        state: Option<Self::State>,
+    ) -> Result<Self, ExportError>;
+
+    /// Episodes written so far: the index of the next one.
+    fn episodes(&self) -> u64;
+
+    /// The dataset being written.
+    fn info(&self) -> &DatasetInfo;
+
+    /// The writer's encoder (no file is touched; it runs in parallel across a batch).
+    fn encoder(&self) -> Self::Encoder<'_>;
+
+    /// Appends an encoded episode (in index order); returns the seconds of it spent encoding
+    /// what [`FormatWriter::encode`] left (counted as encoding, not writing).
+    fn append(&mut self, episode: &Episode, encoded: Self::Encoded) -> Result<f64, ExportError>;
+
+    /// Checkpoints and writes the format's own last files; returns the summary so far and the
+    /// folder, which [`Writer`] then seals.
+    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError>;
+}
+
+/// Encodes one episode for appending; called from several threads at once.
+pub trait EpisodeEncoder<T>: Sync {
+    fn encode(&self, episode: &Episode) -> Result<T, ExportError>;
+}
+
+/// A sink of any format: see the module overview.
+pub struct Writer<F: FormatWriter> {
+    format: F,
+    timing: SinkTiming,
+    /// Set by the first successful finish.
+    finished: Option<Summary>,
+}
+
+impl<F: FormatWriter> Writer<F> {
+    /// Starts a dataset of `info` in `root`, which must not exist or be empty.
+    pub fn create(
+        root: &Path,
+        info: &DatasetInfo,
+        options: F::Options,
+    ) -> Result<Self, ExportError> {
+        Self::open(root, info, options, false)
+    }
+
+    /// Continues an interrupted dataset in `root` (one with the incomplete marker): refuses
+    /// other info or options than it was started with, and files its checkpoint lists that are
+    /// missing or changed; restores the state of the last checkpoint and deletes whatever was
+    /// written after it in the format's folders; the next episode to write is
+    /// [`EpisodeSink::next_episode_index`]. With the same info, options and episodes, the
+    /// finished dataset is byte-identical to an uninterrupted run.
+    pub fn resume(
+        root: &Path,
+        info: &DatasetInfo,
+        options: F::Options,
+    ) -> Result<Self, ExportError> {
+        Self::open(root, info, options, true)
+    }
+
+    /// [`Writer::resume`] when `resuming`, else [`Writer::create`].
+    pub fn open(
+        root: &Path,
+        info: &DatasetInfo,
+        options: F::Options,
+        resuming: bool,
+    ) -> Result<Self, ExportError> {
+        let run = F::run_options(info, &options)?;
+        let (dir, state) = if resuming {
+            let owned = F::owned_folders(&options);
+            let owned: Vec<&str> = owned.iter().map(String::as_str).collect();
+            DatasetDir::resume::<F::State>(root, &run, &owned)?
+        } else {
+            (DatasetDir::create(root, &run)?, None)
+        };
+        Ok(Writer {
+            format: F::new(dir, info, options, state)?,
+            timing: SinkTiming::default(),
+            finished: None,
+        })
+    }
+
+    /// The format's part (for its own inspection methods).
+    pub fn format(&self) -> &F {
+        &self.format
+    }
+}
+
+impl<F: FormatWriter> EpisodeSink for Writer<F> {
+    /// A batch's episodes are encoded in parallel, then appended in order.
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
+        let format = &self.format;
+        check_batch(
+            format.info(),
+            self.finished.is_some(),
+            episodes,
+            format.episodes(),
+        )?;
+        let started = Instant::now();
+        let encoded: Vec<F::Encoded> = {
+            let encoder = format.encoder();
+            if episodes.len() < 2 {
+                episodes
+                    .iter()
+                    .map(|e| encoder.encode(e))
+                    .collect::<Result<_, _>>()?
+            } else {
+                episodes
+                    .par_iter()
+                    .map(|e| encoder.encode(e))
+                    .collect::<Result<_, _>>()?
+            }
+        };
+        let appending = Instant::now();
+        self.timing.encode_secs += (appending - started).as_secs_f64();
+        let mut encoding_secs = 0.0;
+        for (episode, encoded) in episodes.iter().zip(encoded) {
+            encoding_secs += self.format.append(episode, encoded)?;
+        }
+        self.timing.encode_secs += encoding_secs;
+        self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
+        Ok(())
+    }
+
+    fn next_episode_index(&self) -> u64 {
+        self.format.episodes()
+    }
+
+    fn timing(&self) -> SinkTiming {
+        self.timing
+    }
+
+    /// Finishing, in an order that an interruption at any point can resume: the format's
+    /// checkpoint and last files, the manifest, the sidecar (the run's report), and only then
+    /// the marker goes (see [`DatasetDir::complete`]). A second call returns the same summary.
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError> {
+        if let Some(summary) = &self.finished {
+            return Ok(summary.clone());
+        }
+        let (mut summary, dir) = self.format.finish()?;
+        summary.bytes += dir.write_manifest(F::MANIFEST)?;
+        summary.files += 1;
+        if let Some(make) = sidecar {
+            let (relative, bytes) = make(&summary)?;
+            dir.write_unlisted(&relative, &bytes)?;
+        }
+        dir.complete()?;
+        self.finished = Some(summary.clone());
+        Ok(summary)
+    }
+}
