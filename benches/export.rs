@@ -15,6 +15,9 @@
 //! and of two threads. Throughput is in frames. The episodes are recorded once beforehand, so
 //! simulation and rendering are not measured.
 
+// Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::collect::run::{CollectOptions, dataset_info};

@@ -4,6 +4,9 @@
 //! drape, tray, kidney with its bleeding spot, gauze, needle, block and the instrument.
 //! `render/endoscope_224_ss2`: the same with 2x2 supersampled RGB.
 
+// Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use surgvla::assets::{Appearance, SceneAssets};

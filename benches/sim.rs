@@ -5,6 +5,9 @@
 //! `sim/step_carrying`: the same with the gauze bound to the jaws (a kinematic body moving
 //! among the others). `sim/ik`: one inverse-kinematics solve.
 
+// Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Isometry3;
 use std::hint::black_box;

@@ -25,6 +25,8 @@ const INTERRUPTED: &str = "add --resume (with the options it was started with) t
      or choose an empty or new directory";
 /// The hint for an RLDS dataset another tool wrote.
 const NO_FRAME_RATE: &str = "give its frame rate with --fps";
+/// The hint for clouds of a dataset without a workspace.
+const NO_CROP_BOX: &str = "give the crop box with --crop";
 /// The same after a full disk.
 const DISK_FULL_RESUME: &str = "the disk is full: free space, then run the same command with \
      --resume to continue the dataset from its last checkpoint";
@@ -114,6 +116,7 @@ fn hint_for(error: &(dyn std::error::Error + 'static)) -> Option<&'static str> {
                 interrupted: true, ..
             }) => return Some(INTERRUPTED),
             Some(ExportError::NoFrameRate { .. }) => return Some(NO_FRAME_RATE),
+            Some(ExportError::NoCropBox) => return Some(NO_CROP_BOX),
             _ => next = error.source(),
         }
     }

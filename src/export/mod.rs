@@ -107,6 +107,9 @@ pub enum ExportError {
         operation: &'static str,
         handled: &'static str,
     },
+    /// Point clouds of a dataset that records no workspace to crop them to.
+    #[error("the dataset does not record the robot's workspace, so the clouds need a crop box")]
+    NoCropBox,
     /// An RLDS dataset another tool wrote: RLDS stores no frame rate, so the reader needs one.
     #[error("{path} is an RLDS dataset another tool wrote, and RLDS stores no frame rate")]
     NoFrameRate { path: PathBuf },
@@ -210,6 +213,7 @@ impl crate::error::HasKind for ExportError {
             | ExportError::NotReadable { .. }
             | ExportError::NotHandled { .. }
             | ExportError::NoFrameRate { .. }
+            | ExportError::NoCropBox
             | ExportError::NotResumable { .. } => ErrorKind::Usage,
             _ => ErrorKind::Failed,
         }

@@ -160,7 +160,7 @@ fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
     let error = open_sink(&out, &info, &zarr, false)
         .err()
         .expect("no workspace");
-    assert!(error.to_string().contains("--crop"), "{error}");
+    assert!(error.to_string().contains("crop box"), "{error}");
     let given = SinkOptions::Zarr(ZarrOptions {
         cloud: CloudSettings {
             crop: Some(Aabb {

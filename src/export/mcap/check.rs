@@ -4,8 +4,8 @@
 //! satisfies the channel's JSON Schema, and message counts matching the summary. An episode is a
 //! file; a frame is an `/endoscope/rgb` message.
 
+use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
-use crate::export::validate::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use mcap::read::{MessageStream, Options, Summary};
 use rayon::prelude::*;
 use std::collections::BTreeMap;

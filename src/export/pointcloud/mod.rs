@@ -91,10 +91,7 @@ impl CloudSettings {
             (Some(crop), _) => crop,
             (None, Some(workspace)) => workspace.grown(self.margin_m),
             (None, None) => {
-                return Err(ExportError::InvalidOptions(
-                    "the dataset does not record the robot's workspace: a crop box must be given"
-                        .into(),
-                ));
+                return Err(ExportError::NoCropBox);
             }
         };
         Ok(CloudOptions {

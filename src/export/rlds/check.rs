@@ -5,13 +5,13 @@
 //! PNGs, depth and mask sizes) with the shared semantic checks. `quick` checks the framing and
 //! the first episode of each shard only.
 
+use crate::export::findings::{
+    At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest, check_semantics,
+};
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, check_record, leaves};
 use crate::export::rlds::read::RldsSource;
 use crate::export::rlds::tfrecord::{RecordError, RecordReader};
-use crate::export::validate::{
-    At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest, check_semantics,
-};
 use crate::export::{EpisodeSource, ExportError, read_json, schema};
 use rayon::prelude::*;
 use serde_json::Value;

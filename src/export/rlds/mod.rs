@@ -423,6 +423,16 @@ impl RldsShards {
     }
 }
 
+impl EpisodeEncoder<Vec<u8>> for &RldsShards {
+    fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
+        if self.info.is_ours() {
+            encode_episode(&self.layout, episode, self.options.png)
+        } else {
+            encode_foreign_episode(&self.info, episode)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -455,15 +465,5 @@ mod tests {
             options.shard_path(3, Some(12)),
             "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00003-of-00012"
         );
-    }
-}
-
-impl EpisodeEncoder<Vec<u8>> for &RldsShards {
-    fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
-        if self.info.is_ours() {
-            encode_episode(&self.layout, episode, self.options.png)
-        } else {
-            encode_foreign_episode(&self.info, episode)
-        }
     }
 }

@@ -4,7 +4,7 @@
 //! length of every `data/` array, point clouds shaped (T, N, 6 or 7), and no NaN or Inf in float
 //! arrays (every chunk; `quick` reads the metadata and the first chunk of each array).
 
-use crate::export::validate::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
+use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::{read_json, schema};
 use rayon::prelude::*;
 use serde_json::Value;

@@ -3,8 +3,8 @@
 //! video files' spans.
 
 use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
+use crate::export::findings::{At, Findings};
 use crate::export::read_json;
-use crate::export::validate::{At, Findings};
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
 use serde_json::Value;
 use std::collections::BTreeMap;

@@ -10,11 +10,11 @@
 //! `mod.rs` runs the checks and stitches row groups together; [`meta`] checks the metadata
 //! files (tasks, episodes, stats, videos); [`rows`] checks the rows of one row group.
 
-use crate::export::read_json;
-use crate::export::schema;
-use crate::export::validate::{
+use crate::export::findings::{
     At, FeatureFact, Findings, Format, Semantics, ValidateOptions, check_manifest,
 };
+use crate::export::read_json;
+use crate::export::schema;
 use arrow_array::RecordBatch;
 use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
 use rayon::prelude::*;

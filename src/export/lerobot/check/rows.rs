@@ -4,9 +4,9 @@
 
 use super::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
+use crate::export::findings::{At, Semantics, check_semantics};
 use crate::export::image::decode_png;
 use crate::export::tiff::decode_f32_tiff;
-use crate::export::validate::{At, Semantics, check_semantics};
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
     LargeBinaryArray, RecordBatch, StructArray,
