@@ -18,6 +18,7 @@ pub mod episode;
 pub mod error;
 pub mod eval;
 pub mod export;
+pub mod files;
 pub mod noise;
 pub mod policy;
 pub mod render;

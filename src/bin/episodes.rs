@@ -148,7 +148,7 @@ pub struct CollectArgs {
     /// Output folder (must not exist or be empty).
     #[arg(long, default_value = "data")]
     out: PathBuf,
-    /// Output format: lerobot or rlds.
+    /// Output format (each has its own options below).
     #[arg(long, value_enum, default_value = "lerobot")]
     format: Format,
     /// Also store the segmentation mask as an image feature (another 1-channel image).

@@ -289,7 +289,7 @@ impl FormatArgs {
 
 #[derive(Args, Debug)]
 pub struct ConvertArgs {
-    /// The dataset to read: LeRobot (v3.0 or v2.1, image mode) or RLDS (a TFDS data directory
+    /// The dataset to read: LeRobot (v3.0 or v2.1, image or video mode) or RLDS (a TFDS data directory
     /// or its <name>/<version> folder).
     input: PathBuf,
     /// The format to write.

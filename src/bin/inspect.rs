@@ -61,7 +61,10 @@ pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
     let mut report = validate(&args.path, &options)?;
     if args.replay {
         use surgvla::export::validate::Format;
-        if matches!(report.format, Format::Zarr | Format::Mcap) {
+        if !matches!(
+            report.format,
+            Format::LeRobotV30 | Format::LeRobotV21 | Format::Rlds
+        ) {
             return Err(CliError::usage(format!(
                 "--replay reads LeRobot or RLDS datasets; {} is {}",
                 place(&report.path),

@@ -52,7 +52,7 @@ enum Command {
     Render(RenderArgs),
     /// Render the start frame of all eight tasks into one PNG grid (RGB, depth and mask rows).
     ContactSheet(ContactSheetArgs),
-    /// Record verified expert episodes of the tasks and write a dataset, LeRobot or RLDS
+    /// Record verified expert episodes of the tasks and write a dataset in any output format
     /// (defaults: all eight tasks, 100 episodes each, LeRobot v3.0 into ./data).
     Collect(episodes::CollectArgs),
     /// Convert a dataset into another format: `convert INPUT --to rlds --out DIR`.

@@ -38,24 +38,18 @@ pub const INCOMPLETE_MARKER: &str = ".surgvla-incomplete";
 /// Every file of a finished dataset with its size and CRC-32C.
 pub const MANIFEST: &str = "meta/surgvla_manifest.json";
 
-/// The temporary name of `path` while it is being written (`.name.partial`).
-pub fn temporary_name(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.partial"))
-}
+pub use crate::files::temporary_name;
 
-/// Writes `bytes` to `path` through a temporary name and a rename; returns the size.
+/// Writes `bytes` to `path` through a temporary name and a rename, making its folder first;
+/// returns the size.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<u64, ExportError> {
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
     }
-    let temporary = temporary_name(path);
-    std::fs::write(&temporary, bytes).map_err(ExportError::io(&temporary))?;
-    std::fs::rename(&temporary, path).map_err(ExportError::io(path))?;
-    Ok(bytes.len() as u64)
+    crate::files::write_atomically(path, bytes).map_err(|e| ExportError::Io {
+        path: e.path,
+        source: e.source,
+    })
 }
 
 /// A finished file: its path relative to the root, size and CRC-32C (8 hex digits).

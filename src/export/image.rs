@@ -4,14 +4,8 @@
 
 use crate::export::ExportError;
 
-/// PNG compression for encoded images.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum PngLevel {
-    #[default]
-    Fast,
-    Default,
-    Best,
-}
+pub use crate::files::PngLevel;
+use crate::files::PngPixels;
 
 fn png_error(source: png::EncodingError) -> ExportError {
     ExportError::Encode {
@@ -41,40 +35,17 @@ pub fn encode_png(
     pixels: &[u8],
     level: PngLevel,
 ) -> Result<Vec<u8>, ExportError> {
-    let colour = match channels {
-        1 => png::ColorType::Grayscale,
-        3 => png::ColorType::Rgb,
-        4 => png::ColorType::Rgba,
+    let layout = match channels {
+        1 => PngPixels::Grey8,
+        3 => PngPixels::Rgb8,
+        4 => PngPixels::Rgba8,
         other => {
             return Err(ExportError::InvalidEpisode(format!(
                 "an image with {other} channels cannot be stored as PNG"
             )));
         }
     };
-    encode_png_raw(width, height, colour, png::BitDepth::Eight, pixels, level)
-}
-
-fn encode_png_raw(
-    width: usize,
-    height: usize,
-    colour: png::ColorType,
-    depth: png::BitDepth,
-    bytes: &[u8],
-    level: PngLevel,
-) -> Result<Vec<u8>, ExportError> {
-    let mut out = Vec::with_capacity(bytes.len() / 2);
-    let mut encoder = png::Encoder::new(&mut out, width as u32, height as u32);
-    encoder.set_color(colour);
-    encoder.set_depth(depth);
-    encoder.set_compression(match level {
-        PngLevel::Fast => png::Compression::Fast,
-        PngLevel::Default => png::Compression::Balanced,
-        PngLevel::Best => png::Compression::High,
-    });
-    let mut writer = encoder.write_header().map_err(png_error)?;
-    writer.write_image_data(bytes).map_err(png_error)?;
-    writer.finish().map_err(png_error)?;
-    Ok(out)
+    crate::files::encode_png(width, height, layout, pixels, level).map_err(png_error)
 }
 
 /// Encodes row-major 16-bit grey values as PNG (big-endian samples, as PNG stores them).
@@ -85,14 +56,7 @@ pub fn encode_png16(
     level: PngLevel,
 ) -> Result<Vec<u8>, ExportError> {
     let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
-    encode_png_raw(
-        width,
-        height,
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &bytes,
-        level,
-    )
+    crate::files::encode_png(width, height, PngPixels::Grey16, &bytes, level).map_err(png_error)
 }
 
 /// Decodes any PNG into its frame info and its samples as stored (16-bit ones big-endian).

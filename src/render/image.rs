@@ -1,6 +1,7 @@
 //! PNG encoding of frames and their visualisations: the RGB image, depth colour-mapped (near
 //! bright yellow to far dark purple, background black) and the mask colour-coded by id.
 
+use crate::files::{PngLevel, PngPixels, encode_png as encode};
 use crate::render::raster::Frame;
 use std::io::Write;
 
@@ -48,7 +49,7 @@ pub fn encode_png(
     height: u32,
     channels: u32,
     pixels: &[u8],
-    out: impl Write,
+    mut out: impl Write,
 ) -> Result<(), ImageError> {
     if pixels.len() != (width * height * channels) as usize || !matches!(channels, 1 | 3) {
         return Err(ImageError::Size {
@@ -58,22 +59,24 @@ pub fn encode_png(
             bytes: pixels.len(),
         });
     }
-    let mut encoder = png::Encoder::new(out, width, height);
-    encoder.set_color(if channels == 3 {
-        png::ColorType::Rgb
+    let layout = if channels == 3 {
+        PngPixels::Rgb8
     } else {
-        png::ColorType::Grayscale
-    });
-    encoder.set_depth(png::BitDepth::Eight);
-    encoder.set_compression(png::Compression::Fast);
-    let mut writer = encoder.write_header()?;
-    writer.write_image_data(pixels)?;
-    writer.finish()?;
-    Ok(())
+        PngPixels::Grey8
+    };
+    let bytes = encode(
+        width as usize,
+        height as usize,
+        layout,
+        pixels,
+        PngLevel::Fast,
+    )?;
+    out.write_all(&bytes)
+        .map_err(|e| ImageError::Png(png::EncodingError::IoError(e)))
 }
 
-/// Writes a PNG file atomically: to a temporary name beside it, renamed when complete, so a
-/// crash never leaves a truncated image under the final name.
+/// Writes a PNG file atomically (see [`crate::files::write_atomically`]): a crash never leaves
+/// a truncated image under the final name.
 pub fn write_png_file(
     path: &std::path::Path,
     width: u32,
@@ -81,22 +84,13 @@ pub fn write_png_file(
     channels: u32,
     pixels: &[u8],
 ) -> Result<(), ImageError> {
-    let io = |source| ImageError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let file_name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let temporary = path.with_file_name(format!(".{file_name}.partial"));
     let mut bytes = Vec::new();
     encode_png(width, height, channels, pixels, &mut bytes)?;
-    std::fs::write(&temporary, &bytes).map_err(io)?;
-    std::fs::rename(&temporary, path).map_err(|e| {
-        let _ = std::fs::remove_file(&temporary);
-        io(e)
-    })
+    crate::files::write_atomically(path, &bytes).map_err(|e| ImageError::Io {
+        path: e.path,
+        source: e.source,
+    })?;
+    Ok(())
 }
 
 /// A perceptual colour map (approximating "plasma") at t in [0, 1].

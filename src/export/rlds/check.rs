@@ -93,7 +93,7 @@ fn scan_shard(
                 return None;
             }
             Err(error) => {
-                findings.error(at(count), "crc", format!("record {count}: {error}"));
+                findings.error(at(count), "crc", error.to_string());
                 return None;
             }
         }

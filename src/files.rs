@@ -1,0 +1,139 @@
+//! The lowest level of bytes on disk, shared by the renderer and the formats: PNG encoding
+//! ([`encode_png`], every colour type surgvla writes) and atomic file writes
+//! ([`write_atomically`]: a temporary `.name.partial` beside the file, renamed when complete,
+//! so a crash never leaves a truncated file under its final name). Imports nothing of the
+//! crate.
+
+use std::path::{Path, PathBuf};
+
+/// PNG compression for encoded images.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum PngLevel {
+    #[default]
+    Fast,
+    Default,
+    Best,
+}
+
+/// The pixel layouts surgvla stores as PNG.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PngPixels {
+    /// 8-bit grey (masks).
+    Grey8,
+    /// 8-bit RGB.
+    Rgb8,
+    /// 8-bit RGBA (another tool's images).
+    Rgba8,
+    /// 16-bit grey, big-endian samples as PNG stores them (RLDS depth in millimetres).
+    Grey16,
+}
+
+impl PngPixels {
+    /// Bytes per pixel.
+    pub fn bytes(self) -> usize {
+        match self {
+            PngPixels::Grey8 => 1,
+            PngPixels::Rgb8 => 3,
+            PngPixels::Rgba8 => 4,
+            PngPixels::Grey16 => 2,
+        }
+    }
+}
+
+/// Encodes row-major `pixels` of `layout` as PNG; the sample count must fit the size.
+pub fn encode_png(
+    width: usize,
+    height: usize,
+    layout: PngPixels,
+    pixels: &[u8],
+    level: PngLevel,
+) -> Result<Vec<u8>, png::EncodingError> {
+    let (colour, depth) = match layout {
+        PngPixels::Grey8 => (png::ColorType::Grayscale, png::BitDepth::Eight),
+        PngPixels::Rgb8 => (png::ColorType::Rgb, png::BitDepth::Eight),
+        PngPixels::Rgba8 => (png::ColorType::Rgba, png::BitDepth::Eight),
+        PngPixels::Grey16 => (png::ColorType::Grayscale, png::BitDepth::Sixteen),
+    };
+    let mut out = Vec::with_capacity(pixels.len() / 2);
+    let mut encoder = png::Encoder::new(&mut out, width as u32, height as u32);
+    encoder.set_color(colour);
+    encoder.set_depth(depth);
+    encoder.set_compression(match level {
+        PngLevel::Fast => png::Compression::Fast,
+        PngLevel::Default => png::Compression::Balanced,
+        PngLevel::Best => png::Compression::High,
+    });
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(pixels)?;
+    writer.finish()?;
+    Ok(out)
+}
+
+/// The temporary name of `path` while it is being written (`.name.partial`).
+pub fn temporary_name(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.partial"))
+}
+
+/// A file write that failed, naming the file (not its temporary name).
+#[derive(Debug, thiserror::Error)]
+#[error("writing {path}")]
+pub struct WriteError {
+    pub path: PathBuf,
+    #[source]
+    pub source: std::io::Error,
+}
+
+/// Writes `bytes` to `path` through a temporary name and a rename, in a folder that exists;
+/// returns the size. On failure the temporary file is removed.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<u64, WriteError> {
+    let temporary = temporary_name(path);
+    std::fs::write(&temporary, bytes)
+        .and_then(|()| std::fs::rename(&temporary, path))
+        .map_err(|source| {
+            let _ = std::fs::remove_file(&temporary);
+            WriteError {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
+    Ok(bytes.len() as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_writes_leave_the_file_or_nothing() {
+        let root = std::env::temp_dir().join(format!("surgvla-files-{}", std::process::id()));
+        let path = root.join("a/b.bin");
+        assert!(write_atomically(&path, b"abc").is_err(), "no folder a");
+        std::fs::create_dir_all(root.join("a")).unwrap();
+        assert_eq!(write_atomically(&path, b"abc").unwrap(), 3);
+        assert_eq!(std::fs::read(&path).unwrap(), b"abc");
+        assert!(!temporary_name(&path).exists());
+        let blocked = root.join("a/b.bin/c.bin");
+        let error = write_atomically(&blocked, b"x").unwrap_err();
+        assert_eq!(error.path, blocked);
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn png_layouts_round_trip_their_size() {
+        for (layout, bytes) in [
+            (PngPixels::Grey8, 6),
+            (PngPixels::Rgb8, 18),
+            (PngPixels::Rgba8, 24),
+            (PngPixels::Grey16, 12),
+        ] {
+            assert_eq!(layout.bytes() * 6, bytes);
+            let png = encode_png(3, 2, layout, &vec![7; bytes], PngLevel::Fast).unwrap();
+            assert_eq!(&png[1..4], b"PNG");
+        }
+        assert!(encode_png(3, 2, PngPixels::Rgb8, &[0; 5], PngLevel::Fast).is_err());
+    }
+}
