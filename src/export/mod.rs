@@ -444,7 +444,7 @@ pub fn open_source_with(
     format.open_source(&found, options).unwrap_or_else(|| {
         Err(ExportError::NotReadable {
             path: found.root.clone(),
-            format: format.name(),
+            format: found.format.name(),
         })
     })
 }

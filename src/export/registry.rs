@@ -67,7 +67,7 @@ pub fn writer_of(options: &SinkOptions) -> Result<&'static dyn DatasetFormat, Ex
 pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let read = |e| MergeError::Convert(crate::export::convert::ConvertError::Read(e));
     let first = request.inputs.first().ok_or(MergeError::NoInput)?.clone();
-    let (format, _) = detect_readable(&first).map_err(read)?;
+    let (format, found) = detect_readable(&first).map_err(read)?;
     for input in &request.inputs[1..] {
         let (other, _) = detect_readable(input).map_err(read)?;
         if other.name() != format.name() {
@@ -81,7 +81,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     format.merge(request).unwrap_or_else(|| {
         Err(read(ExportError::NotHandled {
             path: first,
-            format: format.name(),
+            format: found.format.name(),
             operation: "merge",
             handled: "LeRobot datasets",
         }))

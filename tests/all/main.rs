@@ -19,6 +19,7 @@ mod merge;
 mod passthrough;
 mod physics;
 mod pointcloud;
+mod registry;
 mod render;
 mod rlds;
 mod tasks;
