@@ -13,6 +13,7 @@ make() { # BINARY OUT
     "${bin}" collect "${small[@]}" --with-mask --out "${out}/lerobot" >/dev/null
     "${bin}" collect "${small[@]}" --lerobot-version 2.1 --out "${out}/lerobot-v21" >/dev/null
     "${bin}" collect "${small[@]}" --video h264 --out "${out}/lerobot-h264" >/dev/null
+    "${bin}" collect "${small[@]}" --video h264 --lerobot-version 2.1 --out "${out}/lerobot-h264-v21" >/dev/null
     "${bin}" collect "${small[@]}" --format rlds --rlds-shard-mb 1 --out "${out}/rlds" >/dev/null
     "${bin}" collect "${small[@]}" --format zarr --out "${out}/zarr" >/dev/null
     "${bin}" collect "${small[@]}" --format mcap --out "${out}/mcap" >/dev/null

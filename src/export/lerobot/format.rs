@@ -5,9 +5,7 @@
 use crate::export::findings::{Findings, Format, ValidateOptions};
 use crate::export::format::{DatasetFormat, Found, Holds, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::info::DatasetInfo;
-use crate::export::{
-    EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions, Summary, read_json,
-};
+use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions, Summary};
 use std::path::Path;
 
 /// LeRobot v3.0 and v2.1.
@@ -110,8 +108,8 @@ fn has_parquet(data: &Path) -> bool {
 /// v2.1 when info.json says so or, without a readable info.json, when the metadata is JSON
 /// lines; else v3.0.
 fn version(root: &Path) -> Format {
-    if let Ok(info) = read_json(&root.join("meta/info.json")) {
-        return if info["codebase_version"] == "v2.1" {
+    if let Ok(info) = super::read::read_info(&root.join("meta/info.json")) {
+        return if info.is_v21() {
             Format::LeRobotV21
         } else {
             Format::LeRobotV30

@@ -31,14 +31,14 @@ pub(super) struct Metadata<'a> {
     pub stats: Value,
     /// surgvla.json's object.
     pub surgvla: Value,
-    /// info.json's object as v3.0 has it.
-    pub info: Value,
+    /// info.json as v3.0 has it.
+    pub info: super::InfoJson,
     pub chunks_size: u64,
     /// The video features' keys.
     pub video_keys: &'a [String],
 }
 
-fn pretty(name: &str, value: &Value) -> Result<Vec<u8>, ExportError> {
+fn pretty(name: &str, value: &impl serde::Serialize) -> Result<Vec<u8>, ExportError> {
     serde_json::to_vec_pretty(value).map_err(|source| ExportError::Json {
         path: PathBuf::from("meta").join(name),
         source,
@@ -141,20 +141,20 @@ impl LeRobotVersion {
                     ),
                 ));
                 let chunks = m.episodes.div_ceil(m.chunks_size.max(1));
-                info["codebase_version"] = json!("v2.1");
-                info["total_chunks"] = json!(chunks);
-                info["total_videos"] = json!(m.episodes * m.video_keys.len() as u64);
-                info["data_path"] =
-                    json!("data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet");
+                info.codebase_version = Some("v2.1".into());
+                info.total_chunks = Some(chunks);
+                info.total_videos = Some(m.episodes * m.video_keys.len() as u64);
+                info.data_path = Some(
+                    "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet".into(),
+                );
                 if !m.video_keys.is_empty() {
-                    info["video_path"] = json!(
+                    info.video_path = Some(
                         "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
+                            .into(),
                     );
                 }
-                if let Some(object) = info.as_object_mut() {
-                    object.remove("data_files_size_in_mb");
-                    object.remove("video_files_size_in_mb");
-                }
+                info.data_files_size_in_mb = None;
+                info.video_files_size_in_mb = None;
             }
         }
         files.push(("meta/stats.json".into(), pretty("stats.json", &m.stats)?));

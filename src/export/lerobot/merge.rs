@@ -21,11 +21,29 @@ use std::path::{Path, PathBuf};
 /// The report file `collect` leaves in a dataset, merged when every input has one.
 pub const REPORT: &str = "collect_report.json";
 
+/// What of an input's info.json shapes the merged files: all inputs must agree on it.
+#[derive(Debug, PartialEq, serde::Serialize)]
+struct Layout {
+    codebase_version: Option<String>,
+    data_files_size_in_mb: Option<u64>,
+    video_files_size_in_mb: Option<u64>,
+    chunks_size: Option<u64>,
+}
+
+impl std::fmt::Display for Layout {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match serde_json::to_string(self) {
+            Ok(text) => f.write_str(&text),
+            Err(_) => write!(f, "{self:?}"),
+        }
+    }
+}
+
 /// One input: its source, its LeRobot layout, and its shard ("I/N") if it says.
 struct Input {
     path: PathBuf,
     source: LeRobotSource,
-    layout: Value,
+    layout: Layout,
     shard: Option<(u64, u64)>,
 }
 
@@ -42,14 +60,14 @@ fn open(path: &Path) -> Result<Input, MergeError> {
         }));
     }
     let info_path = path.join("meta/info.json");
-    let info = read_json(&info_path).map_err(read)?;
+    let info = super::read::read_info(&info_path).map_err(read)?;
     let source = LeRobotSource::open(path).map_err(read)?;
-    let layout = json!({
-        "codebase_version": info["codebase_version"],
-        "data_files_size_in_mb": info["data_files_size_in_mb"],
-        "video_files_size_in_mb": info["video_files_size_in_mb"],
-        "chunks_size": info["chunks_size"],
-    });
+    let layout = Layout {
+        codebase_version: info.codebase_version,
+        data_files_size_in_mb: info.data_files_size_in_mb,
+        video_files_size_in_mb: info.video_files_size_in_mb,
+        chunks_size: info.chunks_size,
+    };
     let shard = shard_of(&source.info().collection);
     Ok(Input {
         path: path.to_path_buf(),
@@ -191,19 +209,19 @@ pub fn merge(
         .map(|codec| VideoOptions {
             codec,
             quality: 0,
-            file_size_mb: layout["video_files_size_in_mb"]
-                .as_u64()
+            file_size_mb: layout
+                .video_files_size_in_mb
                 .unwrap_or(VideoOptions::default().file_size_mb),
         });
     let options = LeRobotOptions {
         video,
-        version: if layout["codebase_version"] == "v2.1" {
+        version: if layout.codebase_version.as_deref() == Some("v2.1") {
             LeRobotVersion::V21
         } else {
             LeRobotVersion::V30
         },
-        data_file_size_mb: layout["data_files_size_in_mb"].as_u64().unwrap_or(100),
-        chunks_size: layout["chunks_size"].as_u64().unwrap_or(1000),
+        data_file_size_mb: layout.data_files_size_in_mb.unwrap_or(100),
+        chunks_size: layout.chunks_size.unwrap_or(1000),
         ..LeRobotOptions::default()
     };
     let reports: Option<Vec<Value>> = opened

@@ -20,11 +20,13 @@ pub mod check;
 mod format;
 mod layout;
 pub mod merge;
+pub mod meta;
 pub mod read;
 mod table;
 pub mod work;
 
 pub use format::LeRobotFormat;
+pub use meta::{FeatureJson, InfoJson};
 pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
 
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
@@ -386,8 +388,8 @@ impl LeRobotFiles {
     }
 
     /// info.json as v3.0 has it.
-    fn info_json(&self) -> Value {
-        let mut features = features_json(&self.info.features);
+    fn info_json(&self) -> InfoJson {
+        let mut features = feature_map(&self.info.features);
         for (key, codec) in &self.video_features {
             let shape = self
                 .info
@@ -397,8 +399,9 @@ impl LeRobotFiles {
                 .map(|f| f.shape.clone())
                 .unwrap_or_default();
             let dimension = |i: usize| shape.get(i).copied().unwrap_or(0);
-            features[key]["dtype"] = json!("video");
-            features[key]["info"] = json!({
+            let entry = features.entry(key.clone()).or_insert_with(|| json!({}));
+            entry["dtype"] = json!("video");
+            entry["info"] = json!({
                 "video.height": dimension(0),
                 "video.width": dimension(1),
                 "video.codec": codec.name(),
@@ -410,25 +413,24 @@ impl LeRobotFiles {
             });
         }
         let episodes = self.state.episodes;
-        json!({
-            "codebase_version": CODEBASE_VERSION,
-            "robot_type": self.info.robot_type,
-            "total_episodes": episodes,
-            "total_frames": self.state.total_frames,
-            "total_tasks": self.state.tasks.len(),
-            "chunks_size": self.options.chunks_size,
-            "data_files_size_in_mb": self.options.data_file_size_mb,
-            "video_files_size_in_mb": self.video_file_size_mb(),
-            "fps": self.info.fps,
-            "splits": {"train": format!("0:{episodes}")},
-            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-            "video_path": if !self.video_features.is_empty() {
-                json!("videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4")
-            } else {
-                Value::Null
-            },
-            "features": features,
-        })
+        InfoJson {
+            codebase_version: Some(CODEBASE_VERSION.into()),
+            robot_type: Some(self.info.robot_type.clone()),
+            total_episodes: Some(episodes),
+            total_frames: Some(self.state.total_frames),
+            total_tasks: Some(self.state.tasks.len() as u64),
+            chunks_size: Some(self.options.chunks_size),
+            data_files_size_in_mb: Some(self.options.data_file_size_mb),
+            video_files_size_in_mb: Some(self.video_file_size_mb()),
+            fps: Some(self.info.fps.into()),
+            splits: Some([("train".to_string(), format!("0:{episodes}"))].into()),
+            data_path: Some("data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet".into()),
+            video_path: (!self.video_features.is_empty()).then(|| {
+                "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into()
+            }),
+            features: Some(features),
+            ..InfoJson::default()
+        }
     }
 
     /// Appends an episode's frames, one list per video feature, to the open video files
@@ -667,6 +669,11 @@ impl LeRobotFiles {
 /// The `features` object of info.json for these features (defaults appended): what
 /// `schemas/lerobot_features.json` records.
 pub fn features_json(feature_specs: &[FeatureSpec]) -> Value {
+    Value::Object(feature_map(feature_specs))
+}
+
+/// [`features_json`]'s entries, in order.
+fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> {
     let mut features = serde_json::Map::new();
     for f in feature_specs {
         let mut entry = json!({
@@ -689,5 +696,5 @@ pub fn features_json(feature_specs: &[FeatureSpec]) -> Value {
             json!({"dtype": "int64", "shape": [1], "names": null}),
         );
     }
-    Value::Object(features)
+    features
 }

@@ -175,36 +175,39 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
     }
 }
 
+/// `meta/info.json`, typed (leniently: see [`super::meta`]).
+pub(crate) fn read_info(path: &Path) -> Result<super::InfoJson, ExportError> {
+    let bytes = std::fs::read(path).map_err(ExportError::io(path))?;
+    super::InfoJson::parse(&bytes).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// The features of info.json as surgvla's model knows them (defaults left out). Our roles
 /// (RGB camera, depth, mask, 7-D state and action, object poses) go to the features our
 /// metadata (`surgvla`, Null for another tool's dataset) names; every other float32, int64 or
 /// image feature is [`FeatureKind::Other`] and travels unchanged.
 fn features_of(
-    info: &Value,
+    info: &super::InfoJson,
     surgvla: &Value,
     path: &Path,
 ) -> Result<Vec<FeatureSpec>, ExportError> {
-    let features = info["features"]
-        .as_object()
-        .ok_or_else(|| invalid(path, "no features object"))?;
+    if info.features.is_none() {
+        return Err(invalid(path, "no features object"));
+    }
+    let features = info.feature_list();
     let ours = !surgvla.is_null();
     let camera_key = surgvla["camera"]["key"].as_str();
     let depth_key = surgvla["depth"]["key"].as_str();
     let mut specs = Vec::new();
-    for (name, f) in features {
+    for (name, f) in &features {
         if super::DEFAULT_COLUMNS.contains(&name.as_str()) {
             continue;
         }
-        let shape: Vec<usize> = f["shape"]
-            .as_array()
-            .map(|s| {
-                s.iter()
-                    .filter_map(|v| v.as_u64())
-                    .map(|v| v as usize)
-                    .collect()
-            })
-            .unwrap_or_default();
-        let names: Vec<String> = f["names"]
+        let shape: Vec<usize> = f.shape().to_vec();
+        let names: Vec<String> = f
+            .names
             .as_array()
             .map(|n| {
                 n.iter()
@@ -212,12 +215,12 @@ fn features_of(
                     .collect()
             })
             .unwrap_or_default();
-        let mut dtype = f["dtype"].as_str().unwrap_or_default();
+        let mut dtype = f.dtype();
         let named = |key: Option<&str>| ours && key == Some(name.as_str());
         // Video passes through as its encoded frames: the feature is an image feature whose
         // pixels are not in the steps.
         let video = if dtype == "video" {
-            let codec_name = f["info"]["video.codec"].as_str().unwrap_or_default();
+            let codec_name = f.video_codec().unwrap_or_default();
             let codec = VideoCodec::from_name(codec_name).ok_or_else(|| {
                 invalid(
                     path,
@@ -498,8 +501,8 @@ impl LeRobotSource {
                 "no meta/info.json: not a LeRobot dataset, or an incomplete one",
             ));
         }
-        let info_json = read_json(&info_path)?;
-        let v21 = info_json["codebase_version"] == "v2.1";
+        let info_json = read_info(&info_path)?;
+        let v21 = info_json.is_v21();
         let surgvla_path = root.join("meta/surgvla.json");
         let surgvla = if surgvla_path.exists() {
             read_json(&surgvla_path)?
@@ -525,18 +528,19 @@ impl LeRobotSource {
         };
         let info = DatasetInfo::from_surgvla_json(
             &surgvla,
-            info_json["fps"].as_u64().unwrap_or(0) as u32,
-            info_json["robot_type"].as_str().unwrap_or_default(),
+            info_json.fps.as_ref().and_then(|f| f.as_u64()).unwrap_or(0) as u32,
+            info_json.robot_type.as_deref().unwrap_or_default(),
             features,
         );
         Ok(LeRobotSource {
             root: root.to_path_buf(),
-            total_episodes: info_json["total_episodes"].as_u64().unwrap_or(0),
+            total_episodes: info_json.total_episodes.unwrap_or(0),
             episodes: episode_rows(root, v21)?,
             v21,
-            chunks_size: info_json["chunks_size"].as_u64().unwrap_or(1000).max(1),
-            video_path: info_json["video_path"]
-                .as_str()
+            chunks_size: info_json.chunks_size.unwrap_or(1000).max(1),
+            video_path: info_json
+                .video_path
+                .as_deref()
                 .unwrap_or(if v21 {
                     "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
                 } else {

@@ -378,13 +378,15 @@ pub(super) fn check_stats(
 pub(super) fn check_videos(
     root: &Path,
     v21: bool,
-    info: &Value,
+    info: &crate::export::lerobot::InfoJson,
     features: &[Declared],
     entries: &[EpisodeEntry],
     findings: &Findings,
 ) {
     use crate::export::demux::VideoReader;
-    let chunks_size = info["chunks_size"].as_u64().unwrap_or(1000).max(1) as i64;
+    let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
+    let declared: BTreeMap<String, crate::export::lerobot::FeatureJson> =
+        info.feature_list().into_iter().collect();
     let mut readers: BTreeMap<PathBuf, Result<VideoReader, String>> = BTreeMap::new();
     for feature in features.iter().filter(|f| f.dtype == "video") {
         let key = &feature.name;
@@ -395,9 +397,8 @@ pub(super) fn check_videos(
                 "the frames of video feature {key} are not decoded (surgvla has no video decoder): its files, sample tables, codec, frame size and each episode's frame count and first keyframe are checked, its pixels are not"
             ),
         );
-        let declared_codec = info["features"][key]["info"]["video.codec"]
-            .as_str()
-            .and_then(crate::episode::VideoCodec::from_name);
+        let declared_name = declared.get(key).and_then(|f| f.video_codec());
+        let declared_codec = declared_name.and_then(crate::episode::VideoCodec::from_name);
         for (i, entry) in entries.iter().enumerate() {
             let (relative, span) = if v21 {
                 let i = i as i64;
@@ -445,9 +446,9 @@ pub(super) fn check_videos(
                         at(),
                         "video",
                         format!(
-                            "holds {} video where info.json declares {}",
+                            "holds {} video where info.json declares {:?}",
                             reader.codec.name(),
-                            info["features"][key]["info"]["video.codec"]
+                            declared_name.unwrap_or_default()
                         ),
                     );
                 }

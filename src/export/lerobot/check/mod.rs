@@ -13,6 +13,7 @@
 use crate::export::findings::{
     At, FeatureFact, Findings, Format, Semantics, ValidateOptions, check_manifest,
 };
+use crate::export::lerobot::InfoJson;
 use crate::export::read_json;
 use crate::export::schema;
 use arrow_array::RecordBatch;
@@ -51,25 +52,15 @@ impl Declared {
     }
 }
 
-fn declared_features(info: &Value) -> Vec<Declared> {
-    info["features"]
-        .as_object()
-        .map(|features| {
-            features
-                .iter()
-                .map(|(name, f)| Declared {
-                    name: name.clone(),
-                    dtype: f["dtype"].as_str().unwrap_or_default().to_string(),
-                    shape: f["shape"]
-                        .as_array()
-                        .map(|s| s.iter().filter_map(Value::as_u64).map(|v| v as usize))
-                        .into_iter()
-                        .flatten()
-                        .collect(),
-                })
-                .collect()
+fn declared_features(info: &InfoJson) -> Vec<Declared> {
+    info.feature_list()
+        .into_iter()
+        .map(|(name, f)| Declared {
+            dtype: f.dtype().to_string(),
+            shape: f.shape().to_vec(),
+            name,
         })
-        .unwrap_or_default()
+        .collect()
 }
 
 /// One episode as the episodes metadata describes it.
@@ -137,11 +128,15 @@ pub fn check(
         );
         Value::Null
     };
+    let info_known = !info.is_null();
+    // The typed view, lenient: a field of the wrong type reads as absent (the schema check
+    // above has named it).
+    let info: InfoJson = serde_json::from_value(info).unwrap_or_default();
     let features = declared_features(&info);
-    let fps = info["fps"].as_f64().filter(|f| *f > 0.0);
+    let fps = info.fps_hz();
     findings.learn(|facts| {
         facts.fps = fps;
-        facts.robot_type = info["robot_type"].as_str().map(String::from);
+        facts.robot_type = info.robot_type.clone();
         facts.features = features
             .iter()
             .map(|f| FeatureFact {
@@ -216,7 +211,7 @@ pub fn check(
         task_names: &tasks,
         semantics: semantics.as_ref(),
         findings,
-        info_known: !info.is_null(),
+        info_known,
     };
     // Every row group of every file, in order, checked in parallel.
     // Each file's footer is read once and shared by its row groups.
@@ -328,7 +323,7 @@ fn stitch(
     files: &[PathBuf],
     groups: &[(usize, usize)],
     parts: &[Part],
-    info: &Value,
+    info: &InfoJson,
     v21: bool,
     // Quick: the rows the files hold (only one per row group was read).
     quick_rows: Option<u64>,
@@ -470,7 +465,7 @@ fn stitch(
             }
         }
         if v21 && i >= episodes.len() {
-            let chunks_size = info["chunks_size"].as_u64().unwrap_or(1000).max(1) as usize;
+            let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as usize;
             let path = context.root.join(format!(
                 "data/chunk-{:03}/episode_{i:06}.parquet",
                 i / chunks_size
@@ -491,8 +486,7 @@ fn stitch(
             );
         }
     }
-    let total = |key: &str| info[key].as_u64();
-    if let Some(total) = total("total_episodes")
+    if let Some(total) = info.total_episodes
         && total != episodes.len() as u64
     {
         findings.error(
@@ -504,7 +498,7 @@ fn stitch(
             ),
         );
     }
-    if let Some(total) = total("total_frames")
+    if let Some(total) = info.total_frames
         && total != frames
     {
         findings.error(
@@ -513,7 +507,7 @@ fn stitch(
             format!("total_frames is {total}, the data holds {frames}"),
         );
     }
-    if let Some(total) = total("total_tasks")
+    if let Some(total) = info.total_tasks
         && total != context.tasks as u64
     {
         findings.error(
