@@ -123,6 +123,19 @@ impl<F: FormatWriter> Writer<F> {
         })
     }
 
+    /// [`Writer::open`] as a sink (what a format's `open_sink` returns).
+    pub fn boxed(
+        root: &Path,
+        info: &DatasetInfo,
+        options: F::Options,
+        resuming: bool,
+    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError>
+    where
+        F: 'static,
+    {
+        Ok(Box::new(Self::open(root, info, options, resuming)?))
+    }
+
     /// The format's part (for its own inspection methods).
     pub fn format(&self) -> &F {
         &self.format
@@ -189,6 +202,86 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         }
         dir.complete()?;
         self.finished = Some(summary.clone());
+        Ok(summary)
+    }
+}
+
+/// What formats that write files per episode (MCAP: one per episode; point clouds: one per
+/// frame) keep: counts, a journal of episode lines that becomes `episodes.jsonl`, and a
+/// checkpoint every so many episodes. It is their checkpoint state.
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
+pub struct EpisodeFiles {
+    episodes: u64,
+    summary: Summary,
+}
+
+/// The hidden journal of episode lines.
+const EPISODE_LINES: &str = ".surgvla-episodes.jsonl";
+
+impl EpisodeFiles {
+    /// Episodes written.
+    pub fn episodes(&self) -> u64 {
+        self.episodes
+    }
+
+    /// Writes one file of the episode being appended and counts it.
+    pub fn write_file(
+        &mut self,
+        dir: &mut DatasetDir,
+        relative: &str,
+        bytes: &[u8],
+    ) -> Result<(), ExportError> {
+        self.summary.bytes += dir.write_atomically(relative, bytes)?;
+        self.summary.files += 1;
+        Ok(())
+    }
+
+    /// Records an appended episode: its line (index, its `file` where one file holds it,
+    /// frames, provenance), the counts, and a checkpoint every `checkpoint_every` episodes.
+    pub fn episode_done(
+        &mut self,
+        dir: &mut DatasetDir,
+        episode: &Episode,
+        file: Option<&str>,
+        checkpoint_every: u64,
+    ) -> Result<(), ExportError> {
+        let meta = &episode.meta;
+        let mut line = serde_json::Map::new();
+        line.insert("episode_index".into(), meta.index.into());
+        if let Some(file) = file {
+            line.insert("file".into(), file.into());
+        }
+        let frames = episode.steps.len() as u64;
+        line.insert("frames".into(), frames.into());
+        line.insert("task_id".into(), meta.task_code.clone().into());
+        line.insert("level".into(), meta.level.into());
+        line.insert("seed".into(), meta.seed.into());
+        line.insert("success".into(), meta.success.into());
+        line.insert("instruction".into(), meta.instruction.clone().into());
+        dir.append(
+            EPISODE_LINES,
+            serde_json::Value::Object(line).to_string().as_bytes(),
+        )?;
+        self.episodes += 1;
+        self.summary.episodes += 1;
+        self.summary.frames += frames;
+        if self.episodes.is_multiple_of(checkpoint_every) {
+            dir.save_checkpoint(self)?;
+        }
+        Ok(())
+    }
+
+    /// Checkpoints and writes `episodes_jsonl` from the journal; returns the summary so far.
+    pub fn finish(
+        &self,
+        dir: &mut DatasetDir,
+        episodes_jsonl: &str,
+    ) -> Result<Summary, ExportError> {
+        dir.save_checkpoint(self)?;
+        let mut summary = self.summary.clone();
+        let lines = dir.journal_bytes(EPISODE_LINES)?;
+        summary.bytes += dir.write_atomically(episodes_jsonl, &lines)?;
+        summary.files += 1;
         Ok(summary)
     }
 }

@@ -23,20 +23,20 @@ fn validated_format(input: &Path) -> Option<String> {
     Some(report["format"].as_str().expect("a format").to_string())
 }
 
+/// One T1-1 episode collected into `out` (with `extra` options).
+fn collect_one(out: &Path, extra: &[&str]) {
+    let mut args = vec!["collect", "--tasks", "T1-1", "--episodes-per-task", "1"];
+    args.extend(extra);
+    args.extend(["--out", path(out)]);
+    let (code, _, stderr) = surgvla(&args);
+    assert_eq!(code, 0, "{stderr}");
+}
+
 #[test]
 fn validate_and_convert_agree_on_every_input() {
     let root = temp_root("registry");
     let lerobot = root.join("lerobot");
-    let (code, _, stderr) = surgvla(&[
-        "collect",
-        "--tasks",
-        "T1-1",
-        "--episodes-per-task",
-        "1",
-        "--out",
-        path(&lerobot),
-    ]);
-    assert_eq!(code, 0, "{stderr}");
+    collect_one(&lerobot, &[]);
     let mut inputs = vec![(lerobot.clone(), Some("lerobot-v3.0"))];
     for (to, format) in [
         ("rlds", "rlds"),
@@ -113,16 +113,7 @@ fn validate_and_convert_agree_on_every_input() {
 fn a_broken_dataset_is_a_finding_for_validate_and_a_failure_for_convert() {
     let root = temp_root("registry-broken");
     let lerobot = root.join("lerobot");
-    let (code, _, stderr) = surgvla(&[
-        "collect",
-        "--tasks",
-        "T1-1",
-        "--episodes-per-task",
-        "1",
-        "--out",
-        path(&lerobot),
-    ]);
-    assert_eq!(code, 0, "{stderr}");
+    collect_one(&lerobot, &[]);
     std::fs::remove_file(lerobot.join("meta/info.json")).expect("remove info.json");
     let (code, stdout, _) = surgvla(&["validate", path(&lerobot)]);
     assert_eq!(code, 1, "{stdout}");
@@ -142,18 +133,7 @@ fn a_broken_dataset_is_a_finding_for_validate_and_a_failure_for_convert() {
 fn point_cloud_folders_are_validated_and_their_defects_named() {
     let root = temp_root("registry-ply");
     let ply = root.join("ply");
-    let (code, _, stderr) = surgvla(&[
-        "collect",
-        "--tasks",
-        "T1-1",
-        "--episodes-per-task",
-        "1",
-        "--format",
-        "ply",
-        "--out",
-        path(&ply),
-    ]);
-    assert_eq!(code, 0, "{stderr}");
+    collect_one(&ply, &["--format", "ply"]);
     let (code, stdout, stderr) = surgvla(&["validate", path(&ply), "--json"]);
     assert_eq!(code, 0, "{stdout}{stderr}");
     let report: serde_json::Value = serde_json::from_str(&stdout).expect("JSON");

@@ -62,12 +62,7 @@ impl DatasetFormat for LeRobotFormat {
         let SinkOptions::LeRobot(options) = options else {
             return Err(ExportError::Internal("not LeRobot options".into()));
         };
-        Ok(Box::new(super::LeRobotWriter::open(
-            root,
-            info,
-            options.clone(),
-            resuming,
-        )?))
+        super::LeRobotWriter::boxed(root, info, options.clone(), resuming)
     }
 
     fn open_source(

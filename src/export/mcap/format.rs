@@ -52,8 +52,6 @@ impl DatasetFormat for McapFormat {
         let SinkOptions::Mcap(options) = options else {
             return Err(ExportError::Internal("not MCAP options".into()));
         };
-        Ok(Box::new(super::McapWriter::open(
-            root, info, *options, resuming,
-        )?))
+        super::McapWriter::boxed(root, info, *options, resuming)
     }
 }

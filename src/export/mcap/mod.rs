@@ -25,11 +25,11 @@ use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::image::{PngLevel, encode_png, stored_or};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
-use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
+use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
 use crate::export::{ExportError, Summary};
 use foxglove::Encode;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 
@@ -39,7 +39,6 @@ pub const T0_NS: u64 = 1_704_067_200_000_000_000;
 pub const CHECKPOINT_EPISODES: u64 = 16;
 /// Every file with its size and CRC-32C.
 pub const MANIFEST: &str = "surgvla_manifest.json";
-const EPISODES_JOURNAL: &str = ".surgvla-episodes.jsonl";
 
 /// Options of the MCAP recordings.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -63,19 +62,12 @@ fn mcap_error(what: &str) -> impl FnOnce(mcap::McapError) -> ExportError + '_ {
     }
 }
 
-/// What a checkpoint records besides the files.
-#[derive(Clone, Default, Serialize, Deserialize)]
-pub struct State {
-    episodes: u64,
-    summary: Summary,
-}
-
 /// MCAP's part of [`McapWriter`].
 pub struct McapFiles {
     dir: DatasetDir,
     info: DatasetInfo,
     options: McapOptions,
-    state: State,
+    state: EpisodeFiles,
 }
 
 /// A message type's schema added to a writer.
@@ -277,7 +269,7 @@ pub type McapWriter = Writer<McapFiles>;
 
 impl FormatWriter for McapFiles {
     type Options = McapOptions;
-    type State = State;
+    type State = EpisodeFiles;
     type Encoded = Vec<u8>;
     type Encoder<'a> = &'a Self;
     const MANIFEST: &'static str = MANIFEST;
@@ -299,7 +291,7 @@ impl FormatWriter for McapFiles {
         dir: DatasetDir,
         info: &DatasetInfo,
         options: McapOptions,
-        state: Option<State>,
+        state: Option<EpisodeFiles>,
     ) -> Result<Self, ExportError> {
         Ok(McapFiles {
             dir,
@@ -310,7 +302,7 @@ impl FormatWriter for McapFiles {
     }
 
     fn episodes(&self) -> u64 {
-        self.state.episodes
+        self.state.episodes()
     }
 
     fn info(&self) -> &DatasetInfo {
@@ -322,38 +314,15 @@ impl FormatWriter for McapFiles {
     }
 
     fn append(&mut self, episode: &Episode, bytes: Vec<u8>) -> Result<f64, ExportError> {
-        let index = episode.meta.index;
-        let file = format!("episode_{index:06}.mcap");
-        self.state.summary.bytes += self.dir.write_atomically(&file, &bytes)?;
-        self.state.summary.files += 1;
-        let meta = &episode.meta;
-        let line = json!({
-            "episode_index": index,
-            "file": file,
-            "frames": episode.steps.len(),
-            "task_id": meta.task_code,
-            "level": meta.level,
-            "seed": meta.seed,
-            "success": meta.success,
-            "instruction": meta.instruction,
-        });
-        self.dir
-            .append(EPISODES_JOURNAL, line.to_string().as_bytes())?;
-        self.state.episodes += 1;
-        self.state.summary.episodes += 1;
-        self.state.summary.frames += episode.steps.len() as u64;
-        if self.state.episodes.is_multiple_of(CHECKPOINT_EPISODES) {
-            self.dir.save_checkpoint(&self.state)?;
-        }
+        let file = format!("episode_{:06}.mcap", episode.meta.index);
+        self.state.write_file(&mut self.dir, &file, &bytes)?;
+        self.state
+            .episode_done(&mut self.dir, episode, Some(&file), CHECKPOINT_EPISODES)?;
         Ok(0.0)
     }
 
     fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        self.dir.save_checkpoint(&self.state)?;
-        let mut summary = self.state.summary.clone();
-        let episodes = self.dir.journal_bytes(EPISODES_JOURNAL)?;
-        summary.bytes += self.dir.write_atomically("episodes.jsonl", &episodes)?;
-        summary.files += 1;
+        let summary = self.state.finish(&mut self.dir, "episodes.jsonl")?;
         Ok((summary, &mut self.dir))
     }
 }

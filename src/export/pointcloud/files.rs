@@ -12,7 +12,7 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud, pcd, ply};
-use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
+use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
 use crate::export::{ExportError, Summary};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -20,7 +20,6 @@ use serde_json::json;
 
 /// Episodes between checkpoints (each lists every file so far).
 pub const CHECKPOINT_EPISODES: u64 = 16;
-const EPISODES_JOURNAL: &str = ".surgvla-episodes.jsonl";
 /// One line per episode: index, frames, task id, level, seed, success, instruction.
 pub const EPISODES: &str = "episodes.jsonl";
 /// surgvla's metadata with the cloud settings and the file format.
@@ -47,13 +46,6 @@ impl CloudFileFormat {
     }
 }
 
-/// What a checkpoint records besides the files.
-#[derive(Clone, Default, Serialize, Deserialize)]
-pub struct State {
-    episodes: u64,
-    summary: Summary,
-}
-
 /// Writes each frame's cloud as a file.
 pub type CloudFilesWriter = Writer<CloudFiles>;
 
@@ -63,12 +55,12 @@ pub struct CloudFiles {
     info: DatasetInfo,
     format: CloudFileFormat,
     settings: CloudSettings,
-    state: State,
+    state: EpisodeFiles,
 }
 
 impl FormatWriter for CloudFiles {
     type Options = (CloudFileFormat, CloudSettings);
-    type State = State;
+    type State = EpisodeFiles;
     /// Each frame's file.
     type Encoded = Vec<Vec<u8>>;
     type Encoder<'a> = &'a Self;
@@ -93,7 +85,7 @@ impl FormatWriter for CloudFiles {
         dir: DatasetDir,
         info: &DatasetInfo,
         (format, settings): Self::Options,
-        state: Option<State>,
+        state: Option<EpisodeFiles>,
     ) -> Result<Self, ExportError> {
         Ok(CloudFiles {
             dir,
@@ -105,7 +97,7 @@ impl FormatWriter for CloudFiles {
     }
 
     fn episodes(&self) -> u64 {
-        self.state.episodes
+        self.state.episodes()
     }
 
     fn info(&self) -> &DatasetInfo {
@@ -121,34 +113,15 @@ impl FormatWriter for CloudFiles {
         let extension = self.format.extension();
         for (frame, bytes) in files.iter().enumerate() {
             let relative = format!("episode_{index:06}/frame_{frame:06}.{extension}");
-            self.state.summary.bytes += self.dir.write_atomically(&relative, bytes)?;
-            self.state.summary.files += 1;
+            self.state.write_file(&mut self.dir, &relative, bytes)?;
         }
-        let meta = &episode.meta;
-        let line = json!({
-            "episode_index": index,
-            "frames": episode.steps.len(),
-            "task_id": meta.task_code,
-            "level": meta.level,
-            "seed": meta.seed,
-            "success": meta.success,
-            "instruction": meta.instruction,
-        });
-        self.dir
-            .append(EPISODES_JOURNAL, line.to_string().as_bytes())?;
-        self.state.episodes += 1;
-        self.state.summary.episodes += 1;
-        self.state.summary.frames += episode.steps.len() as u64;
-        if self.state.episodes.is_multiple_of(CHECKPOINT_EPISODES) {
-            self.dir.save_checkpoint(&self.state)?;
-        }
+        self.state
+            .episode_done(&mut self.dir, episode, None, CHECKPOINT_EPISODES)?;
         Ok(0.0)
     }
 
     fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        self.dir.save_checkpoint(&self.state)?;
-        let mut summary = self.state.summary.clone();
-        let episodes = self.dir.journal_bytes(EPISODES_JOURNAL)?;
+        let mut summary = self.state.finish(&mut self.dir, EPISODES)?;
         let mut surgvla = self.info.surgvla_json();
         surgvla["fps"] = json!(self.info.fps);
         surgvla["point_cloud"] = self.settings.describe(&self.info)?;
@@ -157,10 +130,8 @@ impl FormatWriter for CloudFiles {
             path: self.dir.path(SURGVLA_JSON),
             source,
         })?;
-        for (relative, bytes) in [(EPISODES, episodes), (SURGVLA_JSON, surgvla)] {
-            summary.bytes += self.dir.write_atomically(relative, &bytes)?;
-            summary.files += 1;
-        }
+        summary.bytes += self.dir.write_atomically(SURGVLA_JSON, &surgvla)?;
+        summary.files += 1;
         Ok((summary, &mut self.dir))
     }
 }

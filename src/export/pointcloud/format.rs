@@ -63,11 +63,6 @@ impl DatasetFormat for CloudFilesFormat {
         let SinkOptions::CloudFiles(format, settings) = options else {
             return Err(ExportError::Internal("not point-cloud options".into()));
         };
-        Ok(Box::new(super::files::CloudFilesWriter::open(
-            root,
-            info,
-            (*format, *settings),
-            resuming,
-        )?))
+        super::files::CloudFilesWriter::boxed(root, info, (*format, *settings), resuming)
     }
 }

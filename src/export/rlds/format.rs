@@ -63,12 +63,7 @@ impl DatasetFormat for RldsFormat {
         let SinkOptions::Rlds(options) = options else {
             return Err(ExportError::Internal("not RLDS options".into()));
         };
-        Ok(Box::new(super::RldsWriter::open(
-            root,
-            info,
-            options.clone(),
-            resuming,
-        )?))
+        super::RldsWriter::boxed(root, info, options.clone(), resuming)
     }
 
     fn open_source(

@@ -44,8 +44,6 @@ impl DatasetFormat for ZarrFormat {
         let SinkOptions::Zarr(options) = options else {
             return Err(ExportError::Internal("not zarr options".into()));
         };
-        Ok(Box::new(super::ZarrWriter::open(
-            root, info, *options, resuming,
-        )?))
+        super::ZarrWriter::boxed(root, info, *options, resuming)
     }
 }
