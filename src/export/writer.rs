@@ -1,6 +1,7 @@
 //! The writer core: what every format's sink shares, written once. [`Writer`] implements
-//! [`EpisodeSink`] for any [`FormatWriter`]: it creates or resumes the dataset folder
-//! ([`DatasetDir`]) with the format's byte-changing options, checks each batch (order,
+//! [`EpisodeSink`] for any [`FormatWriter`]: it owns the dataset folder ([`DatasetDir`],
+//! created or resumed with the format's byte-changing options) and the [`DatasetInfo`] (lent
+//! to the format's encoder, append and finish), checks each batch (order,
 //! features, not finished), encodes a batch's episodes in parallel and appends them in index
 //! order (so the bytes equal one-by-one writing), keeps the timing and the "finished once"
 //! summary, and seals the dataset (manifest, sidecar, marker). A format says only how an
@@ -38,9 +39,10 @@ pub trait FormatWriter: Send + Sized {
     /// The folders (relative; "" for the root) a resume prunes back to its checkpoint.
     fn owned_folders(options: &Self::Options) -> Vec<String>;
 
-    /// The format's writer in `dir`, fresh (`state` None) or at a checkpoint's state.
+    /// The format's writer for a dataset of `info` in `dir`, fresh (`state` None) or at a
+    /// checkpoint's state.
     fn new(
-        dir: DatasetDir,
+        dir: &DatasetDir,
         info: &DatasetInfo,
         options: Self::Options,
         state: Option<Self::State>,
@@ -49,19 +51,22 @@ pub trait FormatWriter: Send + Sized {
     /// Episodes written so far: the index of the next one.
     fn episodes(&self) -> u64;
 
-    /// The dataset being written.
-    fn info(&self) -> &DatasetInfo;
-
     /// The writer's encoder (no file is touched; it runs in parallel across a batch).
-    fn encoder(&self) -> Self::Encoder<'_>;
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> Self::Encoder<'a>;
 
-    /// Appends an encoded episode (in index order); returns the seconds of it spent encoding
-    /// what [`FormatWriter::encode`] left (counted as encoding, not writing).
-    fn append(&mut self, episode: &Episode, encoded: Self::Encoded) -> Result<f64, ExportError>;
+    /// Appends an encoded episode to the folder (in index order); returns the seconds of it
+    /// spent encoding what the encoder left (counted as encoding, not writing).
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+        episode: &Episode,
+        encoded: Self::Encoded,
+    ) -> Result<f64, ExportError>;
 
-    /// Checkpoints and writes the format's own last files; returns the summary so far and the
-    /// folder, which [`Writer`] then seals.
-    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError>;
+    /// Checkpoints and writes the format's own last files; returns the summary so far, which
+    /// [`Writer`] completes when it seals the folder.
+    fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError>;
 }
 
 /// Encodes one episode for appending; called from several threads at once.
@@ -71,6 +76,10 @@ pub trait EpisodeEncoder<T>: Sync {
 
 /// A sink of any format: see the module overview.
 pub struct Writer<F: FormatWriter> {
+    /// The one owner of the folder.
+    dir: DatasetDir,
+    /// The dataset, stated once.
+    info: DatasetInfo,
     format: F,
     timing: SinkTiming,
     /// Set by the first successful finish.
@@ -117,7 +126,9 @@ impl<F: FormatWriter> Writer<F> {
             (DatasetDir::create(root, &run)?, None)
         };
         Ok(Writer {
-            format: F::new(dir, info, options, state)?,
+            format: F::new(&dir, info, options, state)?,
+            dir,
+            info: info.clone(),
             timing: SinkTiming::default(),
             finished: None,
         })
@@ -136,25 +147,20 @@ impl<F: FormatWriter> Writer<F> {
         Ok(Box::new(Self::open(root, info, options, resuming)?))
     }
 
-    /// The format's part (for its own inspection methods).
-    pub fn format(&self) -> &F {
-        &self.format
-    }
 }
 
 impl<F: FormatWriter> EpisodeSink for Writer<F> {
     /// A batch's episodes are encoded in parallel, then appended in order.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
-        let format = &self.format;
         check_batch(
-            format.info(),
+            &self.info,
             self.finished.is_some(),
             episodes,
-            format.episodes(),
+            self.format.episodes(),
         )?;
         let started = Instant::now();
         let encoded: Vec<F::Encoded> = {
-            let encoder = format.encoder();
+            let encoder = self.format.encoder(&self.info);
             if episodes.len() < 2 {
                 episodes
                     .iter()
@@ -171,7 +177,9 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         self.timing.encode_secs += (appending - started).as_secs_f64();
         let mut encoding_secs = 0.0;
         for (episode, encoded) in episodes.iter().zip(encoded) {
-            encoding_secs += self.format.append(episode, encoded)?;
+            encoding_secs += self
+                .format
+                .append(&mut self.dir, &self.info, episode, encoded)?;
         }
         self.timing.encode_secs += encoding_secs;
         self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
@@ -193,14 +201,14 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         if let Some(summary) = &self.finished {
             return Ok(summary.clone());
         }
-        let (mut summary, dir) = self.format.finish()?;
-        summary.bytes += dir.write_manifest(F::MANIFEST)?;
+        let mut summary = self.format.finish(&mut self.dir, &self.info)?;
+        summary.bytes += self.dir.write_manifest(F::MANIFEST)?;
         summary.files += 1;
         if let Some(make) = sidecar {
             let (relative, bytes) = make(&summary)?;
-            dir.write_unlisted(&relative, &bytes)?;
+            self.dir.write_unlisted(&relative, &bytes)?;
         }
-        dir.complete()?;
+        self.dir.complete()?;
         self.finished = Some(summary.clone());
         Ok(summary)
     }

@@ -174,8 +174,6 @@ pub type LeRobotWriter = Writer<LeRobotFiles>;
 
 /// LeRobot's part of [`LeRobotWriter`].
 pub struct LeRobotFiles {
-    dir: DatasetDir,
-    info: DatasetInfo,
     options: LeRobotOptions,
     /// The features stored in the parquet (all but the video ones).
     parquet_features: Vec<FeatureSpec>,
@@ -210,12 +208,12 @@ impl FormatWriter for LeRobotFiles {
     }
 
     fn new(
-        dir: DatasetDir,
+        _: &DatasetDir,
         info: &DatasetInfo,
         options: LeRobotOptions,
         state: Option<State>,
     ) -> Result<Self, ExportError> {
-        let mut writer = LeRobotFiles::fresh(dir, info, options);
+        let mut writer = LeRobotFiles::fresh(info, options);
         if let Some(state) = state {
             writer.task_lookup = state
                 .tasks
@@ -232,27 +230,24 @@ impl FormatWriter for LeRobotFiles {
         self.state.episodes
     }
 
-    fn info(&self) -> &DatasetInfo {
-        &self.info
-    }
-
     /// Video encoders run one per episode, so a batch encodes its episodes' videos in
     /// parallel.
-    fn encoder(&self) -> EpisodeWork<'_> {
-        self.work()
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
+        self.work(info)
     }
 
     fn append(
         &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
         episode: &Episode,
         video: Vec<Vec<EncodedFrame>>,
     ) -> Result<f64, ExportError> {
-        self.write_with_video(episode, video)
+        self.write_with_video(dir, info, episode, video)
     }
 
-    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        let summary = self.finish_dataset()?;
-        Ok((summary, &mut self.dir))
+    fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
+        self.finish_dataset(dir, info)
     }
 }
 
@@ -286,7 +281,7 @@ impl LeRobotFiles {
     }
 
     /// A writer with empty state.
-    fn fresh(dir: DatasetDir, info: &DatasetInfo, options: LeRobotOptions) -> Self {
+    fn fresh(info: &DatasetInfo, options: LeRobotOptions) -> Self {
         let video_features: Vec<(String, VideoCodec)> = info
             .features
             .iter()
@@ -306,7 +301,6 @@ impl LeRobotFiles {
             .collect();
         let counter = FileCounter::new(options.chunks_size);
         LeRobotFiles {
-            dir,
             schema: frame_schema(&parquet_features),
             parquet_features,
             video_features,
@@ -321,7 +315,6 @@ impl LeRobotFiles {
                 stats: fresh_stats(&info.features),
                 summary: Summary::default(),
             },
-            info: info.clone(),
             options,
             task_lookup: HashMap::new(),
         }
@@ -348,12 +341,12 @@ impl LeRobotFiles {
         builder.build()
     }
 
-    fn open_file(&mut self) -> Result<&mut OpenFile, ExportError> {
+    fn open_file(&mut self, dir: &mut DatasetDir) -> Result<&mut OpenFile, ExportError> {
         if self.open.is_none() {
             let episode = self.state.episodes;
             let version = self.options.version;
             let (chunk, file) = version.next_location(&mut self.state.data_files, episode);
-            let (handle, pending) = self.dir.create_file(&version.data_path(chunk, file))?;
+            let (handle, pending) = dir.create_file(&version.data_path(chunk, file))?;
             let writer =
                 ArrowWriter::try_new(handle, self.schema.clone(), Some(self.writer_properties()))
                     .map_err(ExportError::parquet(&pending.path))?;
@@ -369,11 +362,11 @@ impl LeRobotFiles {
             .ok_or_else(|| ExportError::Internal("no open data file".into()))
     }
 
-    fn close_file(&mut self) -> Result<(), ExportError> {
+    fn close_file(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         if let Some(open) = self.open.take() {
             let path = open.pending.path.clone();
             open.writer.close().map_err(ExportError::parquet(&path))?;
-            let bytes = self.dir.commit(open.pending)?;
+            let bytes = dir.commit(open.pending)?;
             self.state.summary.files += 1;
             self.state.summary.bytes += bytes;
         }
@@ -388,11 +381,10 @@ impl LeRobotFiles {
     }
 
     /// info.json as v3.0 has it.
-    fn info_json(&self) -> InfoJson {
-        let mut features = feature_map(&self.info.features);
+    fn info_json(&self, info: &DatasetInfo) -> InfoJson {
+        let mut features = feature_map(&info.features);
         for (key, codec) in &self.video_features {
-            let shape = self
-                .info
+            let shape = info
                 .features
                 .iter()
                 .find(|f| f.name == *key)
@@ -407,7 +399,7 @@ impl LeRobotFiles {
                 "video.codec": codec.name(),
                 "video.pix_fmt": "yuv420p",
                 "video.is_depth_map": false,
-                "video.fps": self.info.fps,
+                "video.fps": info.fps,
                 "video.channels": dimension(2),
                 "has_audio": false,
             });
@@ -415,14 +407,14 @@ impl LeRobotFiles {
         let episodes = self.state.episodes;
         InfoJson {
             codebase_version: Some(CODEBASE_VERSION.into()),
-            robot_type: Some(self.info.robot_type.clone()),
+            robot_type: Some(info.robot_type.clone()),
             total_episodes: Some(episodes),
             total_frames: Some(self.state.total_frames),
             total_tasks: Some(self.state.tasks.len() as u64),
             chunks_size: Some(self.options.chunks_size),
             data_files_size_in_mb: Some(self.options.data_file_size_mb),
             video_files_size_in_mb: Some(self.video_file_size_mb()),
-            fps: Some(self.info.fps.into()),
+            fps: Some(info.fps.into()),
             splits: Some([("train".to_string(), format!("0:{episodes}"))].into()),
             data_path: Some("data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet".into()),
             video_path: (!self.video_features.is_empty()).then(|| {
@@ -437,6 +429,8 @@ impl LeRobotFiles {
     /// (opening them, or rolling them all when one is full).
     fn append_videos(
         &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
         frames: &[Vec<EncodedFrame>],
     ) -> Result<Vec<KeyedSpan>, ExportError> {
         let version = self.options.version;
@@ -446,28 +440,29 @@ impl LeRobotFiles {
             .iter()
             .any(|v| version.file_is_full(v.bytes(), limit))
         {
-            self.close_videos()?;
+            self.close_videos(dir)?;
         }
         if self.videos.is_empty() {
             let episode = self.state.episodes;
             let location = version.next_location(&mut self.state.video_files, episode);
             for (key, codec) in self.video_features.clone() {
-                let size = self.info.features.iter().find(|f| f.name == key).map_or(
-                    self.info.image_size(),
-                    |f| {
-                        (
-                            f.shape.get(1).copied().unwrap_or(0),
-                            f.shape.first().copied().unwrap_or(0),
-                        )
-                    },
-                );
+                let size =
+                    info.features
+                        .iter()
+                        .find(|f| f.name == key)
+                        .map_or(info.image_size(), |f| {
+                            (
+                                f.shape.get(1).copied().unwrap_or(0),
+                                f.shape.first().copied().unwrap_or(0),
+                            )
+                        });
                 let relative = version.video_path(&key, location.0, location.1);
                 self.videos.push(VideoFile::create(
-                    self.dir.create_file(&relative)?,
+                    dir.create_file(&relative)?,
                     codec,
                     location,
                     size,
-                    self.info.fps,
+                    info.fps,
                 )?);
             }
         }
@@ -491,9 +486,9 @@ impl LeRobotFiles {
         Ok(spans)
     }
 
-    fn close_videos(&mut self) -> Result<(), ExportError> {
+    fn close_videos(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         for video in std::mem::take(&mut self.videos) {
-            self.state.summary.bytes += self.dir.commit(video.finish()?)?;
+            self.state.summary.bytes += dir.commit(video.finish()?)?;
             self.state.summary.files += 1;
         }
         Ok(())
@@ -513,13 +508,15 @@ impl LeRobotFiles {
     /// encoding its images and statistics.
     fn write_with_video(
         &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
         episode: &Episode,
         video_frames: Vec<Vec<EncodedFrame>>,
     ) -> Result<f64, ExportError> {
         let task_index = self.task_index(&episode.meta.instruction);
         let first_index = self.state.total_frames;
         let encode_started = std::time::Instant::now();
-        let work = self.work();
+        let work = self.work(info);
         let (images, episode_stats) = rayon::join(
             || work.encode_images(episode),
             || work.episode_stats(episode, task_index, first_index),
@@ -529,7 +526,7 @@ impl LeRobotFiles {
         let videos = if self.video_features.is_empty() {
             Vec::new()
         } else {
-            self.append_videos(&video_frames)?
+            self.append_videos(dir, info, &video_frames)?
         };
         let batch = frame_batch(
             &self.schema,
@@ -538,11 +535,11 @@ impl LeRobotFiles {
             &images,
             first_index,
             task_index,
-            self.info.fps,
+            info.fps,
         )?;
         let limit = self.options.data_file_size_mb * 1024 * 1024;
         let version = self.options.version;
-        let open = self.open_file()?;
+        let open = self.open_file(dir)?;
         let (chunk, file, path) = (open.chunk, open.file, open.pending.path.clone());
         let parquet_error = ExportError::parquet(&path);
         open.writer.write(&batch).map_err(&parquet_error)?;
@@ -555,7 +552,7 @@ impl LeRobotFiles {
         // statistics.
         let mut pixel_stats = Vec::new();
         for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
-            if self.info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
+            if info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
                 let exact = match &this {
                     crate::export::stats::FeatureStats::Image(s) => {
                         serde_json::to_value(s).unwrap_or(Value::Null)
@@ -589,10 +586,10 @@ impl LeRobotFiles {
             },
         };
         let line = serde_json::to_vec(&row).map_err(|source| ExportError::Json {
-            path: self.dir.path(EPISODES_JOURNAL),
+            path: dir.path(EPISODES_JOURNAL),
             source,
         })?;
-        self.dir.append(EPISODES_JOURNAL, &line)?;
+        dir.append(EPISODES_JOURNAL, &line)?;
         self.state.episodes += 1;
         self.state.total_frames += length;
         self.state.summary.episodes += 1;
@@ -600,19 +597,19 @@ impl LeRobotFiles {
         if full {
             // Close the video file at the same moment, so that everything written so far is
             // complete, and record the state.
-            self.close_file()?;
-            self.close_videos()?;
+            self.close_file(dir)?;
+            self.close_videos(dir)?;
             if version.checkpoint_due(self.state.episodes) {
-                self.dir.save_checkpoint(&self.state)?;
+                dir.save_checkpoint(&self.state)?;
             }
         }
         Ok(encode_secs)
     }
 
     /// The per-episode work's view of this writer.
-    fn work(&self) -> EpisodeWork<'_> {
+    fn work<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
         EpisodeWork {
-            info: &self.info,
+            info,
             parquet_features: &self.parquet_features,
             video_features: &self.video_features,
             options: &self.options,
@@ -622,10 +619,14 @@ impl LeRobotFiles {
     /// Finishing, in an order that an interruption at any point can resume: close the files and
     /// checkpoint (every episode is durable), write the metadata and the manifest, the sidecar
     /// (the run's report), and only then remove the marker.
-    fn finish_dataset(&mut self) -> Result<Summary, ExportError> {
-        self.close_file()?;
-        self.close_videos()?;
-        self.dir.save_checkpoint(&self.state)?;
+    fn finish_dataset(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+    ) -> Result<Summary, ExportError> {
+        self.close_file(dir)?;
+        self.close_videos(dir)?;
+        dir.save_checkpoint(&self.state)?;
         let stats: serde_json::Map<String, Value> = self
             .state
             .stats
@@ -639,27 +640,24 @@ impl LeRobotFiles {
             stats: Value::Object(stats),
             // A dataset surgvla did not make (converted from another tool's) gets no surgvla
             // metadata: it has no camera intrinsics or collection to state.
-            surgvla: if self.info.is_ours() {
-                self.info.surgvla_json()
+            surgvla: if info.is_ours() {
+                info.surgvla_json()
             } else {
                 Value::Null
             },
-            info: self.info_json(),
+            info: self.info_json(info),
             chunks_size: self.options.chunks_size,
             video_keys: &video_keys,
         };
         let mut summary = self.state.summary.clone();
-        let rows = self.dir.journal_lines(EPISODES_JOURNAL)?.map(|line| {
+        let rows = dir.journal_lines(EPISODES_JOURNAL)?.map(|line| {
             let line = line?;
             serde_json::from_str::<EpisodeRow>(&line).map_err(|source| ExportError::Json {
                 path: EPISODES_JOURNAL.into(),
                 source,
             })
         });
-        let (files, bytes) = self
-            .options
-            .version
-            .write_metadata(&mut self.dir, &metadata, rows)?;
+        let (files, bytes) = self.options.version.write_metadata(dir, &metadata, rows)?;
         summary.files += files;
         summary.bytes += bytes;
         Ok(summary)

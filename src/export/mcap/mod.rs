@@ -64,8 +64,6 @@ fn mcap_error(what: &str) -> impl FnOnce(mcap::McapError) -> ExportError + '_ {
 
 /// MCAP's part of [`McapWriter`].
 pub struct McapFiles {
-    dir: DatasetDir,
-    info: DatasetInfo,
     options: McapOptions,
     state: EpisodeFiles,
 }
@@ -271,7 +269,7 @@ impl FormatWriter for McapFiles {
     type Options = McapOptions;
     type State = EpisodeFiles;
     type Encoded = Vec<u8>;
-    type Encoder<'a> = &'a Self;
+    type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
     fn run_options(info: &DatasetInfo, options: &McapOptions) -> Result<RunOptions, ExportError> {
@@ -288,14 +286,12 @@ impl FormatWriter for McapFiles {
     }
 
     fn new(
-        dir: DatasetDir,
-        info: &DatasetInfo,
+        _: &DatasetDir,
+        _: &DatasetInfo,
         options: McapOptions,
         state: Option<EpisodeFiles>,
     ) -> Result<Self, ExportError> {
         Ok(McapFiles {
-            dir,
-            info: info.clone(),
             options,
             state: state.unwrap_or_default(),
         })
@@ -305,30 +301,32 @@ impl FormatWriter for McapFiles {
         self.state.episodes()
     }
 
-    fn info(&self) -> &DatasetInfo {
-        &self.info
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
+        (self, info)
     }
 
-    fn encoder(&self) -> &Self {
-        self
-    }
-
-    fn append(&mut self, episode: &Episode, bytes: Vec<u8>) -> Result<f64, ExportError> {
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        _: &DatasetInfo,
+        episode: &Episode,
+        bytes: Vec<u8>,
+    ) -> Result<f64, ExportError> {
         let file = format!("episode_{:06}.mcap", episode.meta.index);
-        self.state.write_file(&mut self.dir, &file, &bytes)?;
+        self.state.write_file(dir, &file, &bytes)?;
         self.state
-            .episode_done(&mut self.dir, episode, Some(&file), CHECKPOINT_EPISODES)?;
+            .episode_done(dir, episode, Some(&file), CHECKPOINT_EPISODES)?;
         Ok(0.0)
     }
 
-    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        let summary = self.state.finish(&mut self.dir, "episodes.jsonl")?;
-        Ok((summary, &mut self.dir))
+    fn finish(&mut self, dir: &mut DatasetDir, _: &DatasetInfo) -> Result<Summary, ExportError> {
+        self.state.finish(dir, "episodes.jsonl")
     }
 }
 
-impl EpisodeEncoder<Vec<u8>> for &McapFiles {
+impl EpisodeEncoder<Vec<u8>> for (&McapFiles, &DatasetInfo) {
     fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
-        record_episode(&self.info, &self.options, episode, None)
+        let (format, info) = *self;
+        record_episode(info, &format.options, episode, None)
     }
 }

@@ -51,8 +51,6 @@ pub type CloudFilesWriter = Writer<CloudFiles>;
 
 /// The point-cloud files' part of [`CloudFilesWriter`].
 pub struct CloudFiles {
-    dir: DatasetDir,
-    info: DatasetInfo,
     format: CloudFileFormat,
     settings: CloudSettings,
     state: EpisodeFiles,
@@ -63,7 +61,7 @@ impl FormatWriter for CloudFiles {
     type State = EpisodeFiles;
     /// Each frame's file.
     type Encoded = Vec<Vec<u8>>;
-    type Encoder<'a> = &'a Self;
+    type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
     fn run_options(
@@ -82,14 +80,12 @@ impl FormatWriter for CloudFiles {
     }
 
     fn new(
-        dir: DatasetDir,
-        info: &DatasetInfo,
+        _: &DatasetDir,
+        _: &DatasetInfo,
         (format, settings): Self::Options,
         state: Option<EpisodeFiles>,
     ) -> Result<Self, ExportError> {
         Ok(CloudFiles {
-            dir,
-            info: info.clone(),
             format,
             settings,
             state: state.unwrap_or_default(),
@@ -100,47 +96,50 @@ impl FormatWriter for CloudFiles {
         self.state.episodes()
     }
 
-    fn info(&self) -> &DatasetInfo {
-        &self.info
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
+        (self, info)
     }
 
-    fn encoder(&self) -> &Self {
-        self
-    }
-
-    fn append(&mut self, episode: &Episode, files: Vec<Vec<u8>>) -> Result<f64, ExportError> {
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        _: &DatasetInfo,
+        episode: &Episode,
+        files: Vec<Vec<u8>>,
+    ) -> Result<f64, ExportError> {
         let index = episode.meta.index;
         let extension = self.format.extension();
         for (frame, bytes) in files.iter().enumerate() {
             let relative = format!("episode_{index:06}/frame_{frame:06}.{extension}");
-            self.state.write_file(&mut self.dir, &relative, bytes)?;
+            self.state.write_file(dir, &relative, bytes)?;
         }
         self.state
-            .episode_done(&mut self.dir, episode, None, CHECKPOINT_EPISODES)?;
+            .episode_done(dir, episode, None, CHECKPOINT_EPISODES)?;
         Ok(0.0)
     }
 
-    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        let mut summary = self.state.finish(&mut self.dir, EPISODES)?;
-        let mut surgvla = self.info.surgvla_json();
-        surgvla["fps"] = json!(self.info.fps);
-        surgvla["point_cloud"] = self.settings.describe(&self.info)?;
+    fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
+        let mut summary = self.state.finish(dir, EPISODES)?;
+        let mut surgvla = info.surgvla_json();
+        surgvla["fps"] = json!(info.fps);
+        surgvla["point_cloud"] = self.settings.describe(info)?;
         surgvla["point_cloud"]["file_format"] = json!(self.format);
         let surgvla = serde_json::to_vec_pretty(&surgvla).map_err(|source| ExportError::Json {
-            path: self.dir.path(SURGVLA_JSON),
+            path: dir.path(SURGVLA_JSON),
             source,
         })?;
-        summary.bytes += self.dir.write_atomically(SURGVLA_JSON, &surgvla)?;
+        summary.bytes += dir.write_atomically(SURGVLA_JSON, &surgvla)?;
         summary.files += 1;
-        Ok((summary, &mut self.dir))
+        Ok(summary)
     }
 }
 
-impl EpisodeEncoder<Vec<Vec<u8>>> for &CloudFiles {
+impl EpisodeEncoder<Vec<Vec<u8>>> for (&CloudFiles, &DatasetInfo) {
     fn encode(&self, episode: &Episode) -> Result<Vec<Vec<u8>>, ExportError> {
-        let options = self.settings.options(&self.info)?;
-        let camera = self.info.camera;
-        let format = self.format;
+        let (files, info) = *self;
+        let options = files.settings.options(info)?;
+        let camera = info.camera;
+        let format = files.format;
         Ok(episode
             .steps
             .par_iter()

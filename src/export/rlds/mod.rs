@@ -214,8 +214,6 @@ pub type RldsWriter = Writer<RldsShards>;
 
 /// RLDS's part of [`RldsWriter`].
 pub struct RldsShards {
-    dir: DatasetDir,
-    info: DatasetInfo,
     options: RldsOptions,
     layout: StepLayout,
     open: Option<OpenShard>,
@@ -227,7 +225,7 @@ impl FormatWriter for RldsShards {
     type State = State;
     /// The episode's serialized `tf.train.Example`.
     type Encoded = Vec<u8>;
-    type Encoder<'a> = &'a Self;
+    type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
     fn run_options(info: &DatasetInfo, options: &RldsOptions) -> Result<RunOptions, ExportError> {
@@ -257,15 +255,13 @@ impl FormatWriter for RldsShards {
     }
 
     fn new(
-        dir: DatasetDir,
+        _: &DatasetDir,
         info: &DatasetInfo,
         options: RldsOptions,
         state: Option<State>,
     ) -> Result<Self, ExportError> {
         Ok(RldsShards {
-            dir,
             layout: StepLayout::of(info, &options.keys),
-            info: info.clone(),
             options,
             open: None,
             state: state.unwrap_or_default(),
@@ -276,34 +272,38 @@ impl FormatWriter for RldsShards {
         self.state.episodes
     }
 
-    fn info(&self) -> &DatasetInfo {
-        &self.info
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
+        (self, info)
     }
 
-    fn encoder(&self) -> &Self {
-        self
-    }
-
-    fn append(&mut self, episode: &Episode, example: Vec<u8>) -> Result<f64, ExportError> {
-        self.append_example(&example, episode.steps.len() as u64)?;
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        _: &DatasetInfo,
+        episode: &Episode,
+        example: Vec<u8>,
+    ) -> Result<f64, ExportError> {
+        self.append_example(dir, &example, episode.steps.len() as u64)?;
         Ok(0.0)
     }
 
-    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        let summary = self.finish_dataset()?;
-        Ok((summary, &mut self.dir))
+    fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
+        self.finish_dataset(dir, info)
     }
 }
 
 impl RldsShards {
     /// Appends one serialized episode to the open shard (opening one), closing the shard and
     /// checkpointing once it is full.
-    fn append_example(&mut self, example: &[u8], steps: u64) -> Result<(), ExportError> {
+    fn append_example(
+        &mut self,
+        dir: &mut DatasetDir,
+        example: &[u8],
+        steps: u64,
+    ) -> Result<(), ExportError> {
         if self.open.is_none() {
             let index = self.state.shard_lengths.len();
-            let (file, pending) = self
-                .dir
-                .create_file(&self.options.shard_path(index, None))?;
+            let (file, pending) = dir.create_file(&self.options.shard_path(index, None))?;
             self.open = Some(OpenShard {
                 writer: BufWriter::with_capacity(1 << 20, file),
                 pending,
@@ -325,18 +325,18 @@ impl RldsShards {
         self.state.summary.episodes += 1;
         self.state.summary.frames += steps;
         if full {
-            self.close_shard()?;
-            self.dir.save_checkpoint(&self.state)?;
+            self.close_shard(dir)?;
+            dir.save_checkpoint(&self.state)?;
         }
         Ok(())
     }
 
-    fn close_shard(&mut self) -> Result<(), ExportError> {
+    fn close_shard(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         if let Some(mut shard) = self.open.take() {
             let path = shard.pending.path.clone();
             shard.writer.flush().map_err(ExportError::io(&path))?;
             drop(shard.writer);
-            let bytes = self.dir.commit(shard.pending)?;
+            let bytes = dir.commit(shard.pending)?;
             self.state.shard_lengths.push(shard.episodes);
             self.state.summary.files += 1;
             self.state.summary.bytes += bytes;
@@ -346,23 +346,23 @@ impl RldsShards {
 
     /// Writes a metadata file and counts it.
     fn write_file(
-        &mut self,
+        dir: &mut DatasetDir,
         summary: &mut Summary,
         relative: &str,
         bytes: &[u8],
     ) -> Result<(), ExportError> {
-        summary.bytes += self.dir.write_atomically(relative, bytes)?;
+        summary.bytes += dir.write_atomically(relative, bytes)?;
         summary.files += 1;
         Ok(())
     }
 
     fn json_bytes(
-        &self,
+        dir: &DatasetDir,
         relative: &str,
         value: &serde_json::Value,
     ) -> Result<Vec<u8>, ExportError> {
         serde_json::to_vec_pretty(value).map_err(|source| ExportError::Json {
-            path: self.dir.path(relative),
+            path: dir.path(relative),
             source,
         })
     }
@@ -370,9 +370,13 @@ impl RldsShards {
     /// Finishing, in an order an interruption at any point can resume: close the shard and
     /// checkpoint, give the shards their final names, write the metadata, the guide, the
     /// manifest and the sidecar, and only then remove the marker.
-    fn finish_dataset(&mut self) -> Result<Summary, ExportError> {
-        self.close_shard()?;
-        self.dir.save_checkpoint(&self.state)?;
+    fn finish_dataset(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+    ) -> Result<Summary, ExportError> {
+        self.close_shard(dir)?;
+        dir.save_checkpoint(&self.state)?;
         let count = self.state.shard_lengths.len();
         let renames: Vec<(String, String)> = (0..count)
             .map(|i| {
@@ -382,24 +386,24 @@ impl RldsShards {
                 )
             })
             .collect();
-        self.dir.rename_files(&renames, &self.state)?;
+        dir.rename_files(&renames, &self.state)?;
         let mut summary = self.state.summary.clone();
         let version_dir = self.options.version_dir();
-        let ours = self.info.is_ours();
+        let ours = info.is_ours();
         let features = if ours {
-            features::features_json(&self.info, &self.options)
+            features::features_json(info, &self.options)
         } else {
-            features::foreign_features_json(&self.info)
+            features::foreign_features_json(info)
         };
         let dataset_info = features::dataset_info_json(
-            &self.info,
+            info,
             &self.options,
             &self.state.shard_lengths,
             self.state.example_bytes,
         );
-        let mut surgvla = self.info.surgvla_json();
-        surgvla["fps"] = json!(self.info.fps);
-        surgvla["robot_type"] = json!(self.info.robot_type);
+        let mut surgvla = info.surgvla_json();
+        surgvla["fps"] = json!(info.fps);
+        surgvla["robot_type"] = json!(info.robot_type);
         surgvla["rlds"] = json!({"keys": self.options.keys, "depth_unit": "mm"});
         // A dataset another tool made gets no surgvla metadata (readers then take its
         // features from features.json) and no OpenVLA guide (its keys are not ours).
@@ -412,23 +416,24 @@ impl RldsShards {
                 continue;
             }
             let relative = format!("{version_dir}/{file}");
-            let bytes = self.json_bytes(&relative, &value)?;
-            self.write_file(&mut summary, &relative, &bytes)?;
+            let bytes = Self::json_bytes(dir, &relative, &value)?;
+            Self::write_file(dir, &mut summary, &relative, &bytes)?;
         }
         if ours {
-            let guide = openvla_md(&self.info, &self.options);
-            self.write_file(&mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
+            let guide = openvla_md(info, &self.options);
+            Self::write_file(dir, &mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
         }
         Ok(summary)
     }
 }
 
-impl EpisodeEncoder<Vec<u8>> for &RldsShards {
+impl EpisodeEncoder<Vec<u8>> for (&RldsShards, &DatasetInfo) {
     fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
-        if self.info.is_ours() {
-            encode_episode(&self.layout, episode, self.options.png)
+        let (shards, info) = *self;
+        if info.is_ours() {
+            encode_episode(&shards.layout, episode, shards.options.png)
         } else {
-            encode_foreign_episode(&self.info, episode)
+            encode_foreign_episode(info, episode)
         }
     }
 }

@@ -68,8 +68,6 @@ pub type ZarrWriter = Writer<ZarrStore>;
 
 /// The zarr store's part of [`ZarrWriter`].
 pub struct ZarrStore {
-    dir: DatasetDir,
-    info: DatasetInfo,
     options: ZarrOptions,
     /// point_cloud, state, action, then img and depth with images.
     arrays: Vec<ArrayWriter>,
@@ -98,12 +96,12 @@ impl ZarrStore {
     }
 
     /// Writes the partial chunks and records the state.
-    fn checkpoint(&mut self) -> Result<(), ExportError> {
+    fn checkpoint(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         for array in &self.arrays {
-            array.flush(&mut self.dir)?;
+            array.flush(dir)?;
         }
         self.state.arrays = self.arrays.iter().map(ArrayWriter::mark).collect();
-        self.dir.save_checkpoint(&self.state)
+        dir.save_checkpoint(&self.state)
     }
 }
 
@@ -112,7 +110,7 @@ impl FormatWriter for ZarrStore {
     type State = State;
     /// Each frame's cloud as little-endian float32 points.
     type Encoded = Vec<Vec<u8>>;
-    type Encoder<'a> = &'a Self;
+    type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
     fn run_options(info: &DatasetInfo, options: &ZarrOptions) -> Result<RunOptions, ExportError> {
@@ -132,7 +130,7 @@ impl FormatWriter for ZarrStore {
     }
 
     fn new(
-        dir: DatasetDir,
+        dir: &DatasetDir,
         info: &DatasetInfo,
         options: ZarrOptions,
         state: Option<State>,
@@ -143,13 +141,11 @@ impl FormatWriter for ZarrStore {
             arrays = arrays
                 .into_iter()
                 .zip(&state.arrays)
-                .map(|(array, mark)| array.resume(&dir, mark))
+                .map(|(array, mark)| array.resume(dir, mark))
                 .collect::<Result<_, _>>()?;
         }
         Ok(ZarrStore {
-            dir,
             arrays,
-            info: info.clone(),
             options,
             state,
         })
@@ -159,15 +155,17 @@ impl FormatWriter for ZarrStore {
         self.state.episode_ends.len() as u64
     }
 
-    fn info(&self) -> &DatasetInfo {
-        &self.info
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
+        (self, info)
     }
 
-    fn encoder(&self) -> &Self {
-        self
-    }
-
-    fn append(&mut self, episode: &Episode, clouds: Vec<Vec<u8>>) -> Result<f64, ExportError> {
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        _: &DatasetInfo,
+        episode: &Episode,
+        clouds: Vec<Vec<u8>>,
+    ) -> Result<f64, ExportError> {
         let floats = |values: &mut dyn Iterator<Item = f32>| -> Vec<u8> {
             values.flat_map(f32::to_le_bytes).collect()
         };
@@ -184,20 +182,20 @@ impl FormatWriter for ZarrStore {
             ));
         }
         for (array, bytes) in self.arrays.iter_mut().zip(&columns) {
-            array.push(&mut self.dir, bytes)?;
+            array.push(dir, bytes)?;
         }
         let end = self.state.episode_ends.last().copied().unwrap_or(0) + steps.len() as i64;
         self.state.episode_ends.push(end);
         self.state.summary.episodes += 1;
         self.state.summary.frames += steps.len() as u64;
         if (self.state.episode_ends.len() as u64).is_multiple_of(CHECKPOINT_EPISODES) {
-            self.checkpoint()?;
+            self.checkpoint(dir)?;
         }
         Ok(0.0)
     }
 
-    fn finish(&mut self) -> Result<(Summary, &mut DatasetDir), ExportError> {
-        self.checkpoint()?;
+    fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
+        self.checkpoint(dir)?;
         let mut summary = self.state.summary.clone();
         let mut ends = ArrayWriter::new("meta/episode_ends", "<i8", 8, &[]);
         let end_bytes: Vec<u8> = self
@@ -206,11 +204,11 @@ impl FormatWriter for ZarrStore {
             .iter()
             .flat_map(|e| e.to_le_bytes())
             .collect();
-        ends.push(&mut self.dir, &end_bytes)?;
-        ends.flush(&mut self.dir)?;
-        let mut attributes = self.info.surgvla_json();
-        attributes["fps"] = json!(self.info.fps);
-        attributes["point_cloud"] = self.options.cloud.describe(&self.info)?;
+        ends.push(dir, &end_bytes)?;
+        ends.flush(dir)?;
+        let mut attributes = info.surgvla_json();
+        attributes["fps"] = json!(info.fps);
+        attributes["point_cloud"] = self.options.cloud.describe(info)?;
         attributes["point_cloud"]["channels"] = if self.options.mask_channel {
             json!(["x", "y", "z", "r", "g", "b", "mask_id"])
         } else {
@@ -224,27 +222,28 @@ impl FormatWriter for ZarrStore {
             (".zattrs", json!({"surgvla": attributes})),
         ];
         for array in self.arrays.iter().chain([&ends]) {
-            array.write_metadata(&mut self.dir)?;
+            array.write_metadata(dir)?;
         }
         for (relative, value) in files {
             let bytes = serde_json::to_vec_pretty(&value).map_err(|source| ExportError::Json {
-                path: self.dir.path(relative),
+                path: dir.path(relative),
                 source,
             })?;
-            self.dir.write_atomically(relative, &bytes)?;
+            dir.write_atomically(relative, &bytes)?;
         }
         // Partial chunks are rewritten as they fill: count the files as they stand.
-        summary.files = self.dir.files().len() as u64;
-        summary.bytes = self.dir.files().iter().map(|f| f.bytes).sum();
-        Ok((summary, &mut self.dir))
+        summary.files = dir.files().len() as u64;
+        summary.bytes = dir.files().iter().map(|f| f.bytes).sum();
+        Ok(summary)
     }
 }
 
-impl EpisodeEncoder<Vec<Vec<u8>>> for &ZarrStore {
+impl EpisodeEncoder<Vec<Vec<u8>>> for (&ZarrStore, &DatasetInfo) {
     fn encode(&self, episode: &Episode) -> Result<Vec<Vec<u8>>, ExportError> {
-        let cloud_options = self.options.cloud.options(&self.info)?;
-        let camera = self.info.camera;
-        let mask_channel = self.options.mask_channel;
+        let (store, info) = *self;
+        let cloud_options = store.options.cloud.options(info)?;
+        let camera = info.camera;
+        let mask_channel = store.options.mask_channel;
         Ok(episode
             .steps
             .par_iter()
