@@ -146,7 +146,6 @@ impl<F: FormatWriter> Writer<F> {
     {
         Ok(Box::new(Self::open(root, info, options, resuming)?))
     }
-
 }
 
 impl<F: FormatWriter> EpisodeSink for Writer<F> {

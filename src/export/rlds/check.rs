@@ -130,6 +130,58 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         }
     }
     // Shards: the ones dataset_info.json names, and any other tfrecord file here.
+    let (expected, lengths) = listed_shards(root, &dataset_info, findings);
+    let count = expected.len();
+    let counts: Vec<Option<(u64, u64)>> = expected
+        .par_iter()
+        .map(|path| {
+            if !path.is_file() {
+                findings.file_error(
+                    path,
+                    "present",
+                    format!("is missing (dataset_info.json lists {count} shards)"),
+                );
+                return None;
+            }
+            scan_shard(path, leaves.as_ref(), options.quick, findings)
+        })
+        .collect();
+    for ((path, counted), listed) in expected.iter().zip(&counts).zip(&lengths) {
+        match (counted, listed) {
+            (Some((counted, _)), Some(listed)) if counted != listed => findings.file_error(
+                path,
+                "shard_lengths",
+                format!(
+                    "holds {counted} episodes where dataset_info.json's shardLengths gives {listed}"
+                ),
+            ),
+            (_, None) => findings.file_error(
+                path,
+                "shard_lengths",
+                "dataset_info.json gives no count for it",
+            ),
+            _ => {}
+        }
+    }
+    let (records, steps) = counts
+        .iter()
+        .flatten()
+        .fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1));
+    learn_facts(leaves.as_ref(), &surgvla, findings);
+    // Ours: the episodes through our own reader, for the semantic checks.
+    if !(surgvla.is_null() || options.quick || findings.has_errors()) {
+        check_our_episodes(root, &surgvla, options, findings);
+    }
+    (records, steps)
+}
+
+/// The shards `dataset_info.json`'s train split lists (with their episode counts, as listed),
+/// any other TFRecord file in the folder and a split without shards being findings.
+fn listed_shards(
+    root: &Path,
+    dataset_info: &Value,
+    findings: &Findings,
+) -> (Vec<PathBuf>, Vec<Option<u64>>) {
     let name = dataset_info["name"].as_str().unwrap_or_default();
     let lengths: Vec<Option<u64>> = dataset_info["splits"]
         .as_array()
@@ -175,44 +227,14 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             "the train split lists no shards",
         );
     }
-    let counts: Vec<Option<(u64, u64)>> = expected
-        .par_iter()
-        .map(|path| {
-            if !path.is_file() {
-                findings.file_error(
-                    path,
-                    "present",
-                    format!("is missing (dataset_info.json lists {count} shards)"),
-                );
-                return None;
-            }
-            scan_shard(path, leaves.as_ref(), options.quick, findings)
-        })
-        .collect();
-    for ((path, counted), listed) in expected.iter().zip(&counts).zip(&lengths) {
-        match (counted, listed) {
-            (Some((counted, _)), Some(listed)) if counted != listed => findings.file_error(
-                path,
-                "shard_lengths",
-                format!(
-                    "holds {counted} episodes where dataset_info.json's shardLengths gives {listed}"
-                ),
-            ),
-            (_, None) => findings.file_error(
-                path,
-                "shard_lengths",
-                "dataset_info.json gives no count for it",
-            ),
-            _ => {}
-        }
-    }
-    let (records, steps) = counts
-        .iter()
-        .flatten()
-        .fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1));
+    (expected, lengths)
+}
+
+/// What `info` prints: the features as `features.json` declares them, and our metadata.
+fn learn_facts(leaves: Option<&BTreeMap<String, Leaf>>, surgvla: &Value, findings: &Findings) {
     findings.learn(|facts| {
         facts.features = leaves
-            .iter()
+            .into_iter()
             .flatten()
             .map(|(key, leaf)| match leaf {
                 Leaf::Tensor { dtype, elements } => FeatureFact {
@@ -237,19 +259,24 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         facts.generator = surgvla["generator"].as_str().map(String::from);
         facts.collection = surgvla["collection"].clone();
     });
-    // Ours: the episodes through our own reader, for the semantic checks.
-    if surgvla.is_null() || options.quick || findings.has_errors() {
-        return (records, steps);
-    }
+}
+
+/// Our datasets' episodes read through our own reader, for the semantic checks.
+fn check_our_episodes(
+    root: &Path,
+    surgvla: &Value,
+    options: &ValidateOptions,
+    findings: &Findings,
+) {
     let mut source = match RldsSource::open(root) {
         Ok(source) => source,
         Err(error) => {
             findings.error(At::default(), "open", error_text(&error));
-            return (records, steps);
+            return;
         }
     };
-    let Some(semantics) = Semantics::of(&surgvla, options) else {
-        return (records, steps);
+    let Some(semantics) = Semantics::of(surgvla, options) else {
+        return;
     };
     let mut episode_index = 0u64;
     while let Some(episode) = source.next_episode() {
@@ -274,7 +301,6 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             }
         }
     }
-    (records, steps)
 }
 
 /// An error's message with its causes.

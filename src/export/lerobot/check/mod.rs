@@ -106,32 +106,7 @@ pub fn check(
     findings: &Findings,
 ) -> (u64, u64) {
     let v21 = format == Format::LeRobotV21;
-    let info_path = root.join("meta/info.json");
-    let info = if info_path.is_file() {
-        match read_json(&info_path) {
-            Ok(info) => {
-                for (pointer, problem) in schema::check_text(&info, schema::LEROBOT_INFO) {
-                    findings.file_error(&info_path, "schema", format!("{pointer} {problem}"));
-                }
-                info
-            }
-            Err(_) => {
-                findings.file_error(&info_path, "readable", "is not valid JSON");
-                Value::Null
-            }
-        }
-    } else {
-        findings.file_error(
-            &info_path,
-            "present",
-            "is missing: the loader cannot open the dataset",
-        );
-        Value::Null
-    };
-    let info_known = !info.is_null();
-    // The typed view, lenient: a field of the wrong type reads as absent (the schema check
-    // above has named it).
-    let info: InfoJson = serde_json::from_value(info).unwrap_or_default();
+    let (info, info_known) = read_info(root, findings);
     let features = declared_features(&info);
     let fps = info.fps_hz();
     findings.learn(|facts| {
@@ -146,53 +121,15 @@ pub fn check(
             })
             .collect();
     });
-    let surgvla = read_optional_json(root, "meta/surgvla.json", findings);
-    if !surgvla.is_null() {
-        let path = root.join("meta/surgvla.json");
-        for (pointer, problem) in schema::check_text(&surgvla, schema::SURGVLA_META) {
-            findings.file_error(&path, "schema", format!("{pointer} {problem}"));
-        }
-    }
-    let report = read_optional_json(root, "collect_report.json", findings);
-    if !report.is_null() {
-        let path = root.join("collect_report.json");
-        for (pointer, problem) in schema::check_text(&report, schema::COLLECT_REPORT) {
-            findings.file_error(&path, "schema", format!("{pointer} {problem}"));
-        }
-    }
+    let surgvla = check_our_metadata(root, findings);
     let semantics = Semantics::of(&surgvla, options);
-    findings.learn(|facts| {
-        facts.generator = surgvla["generator"].as_str().map(String::from);
-        facts.collection = surgvla["collection"].clone();
-    });
     check_manifest(root, crate::export::MANIFEST, findings);
-
     let tasks = read_tasks(root, v21, findings);
     let entries = read_episodes(root, v21, &features, findings);
-    findings.learn(|facts| {
-        for task in &tasks {
-            facts.tasks.insert(task.clone(), 0);
-        }
-        for entry in &entries {
-            if let Some(task) = entry.tasks.first() {
-                *facts.tasks.entry(task.clone()).or_default() += 1;
-            }
-        }
-    });
+    learn_tasks(&tasks, &entries, findings);
     if !surgvla.is_null() {
-        for (i, entry) in entries.iter().enumerate() {
-            for key in super::Provenance::KEYS {
-                if !entry.provenance.contains_key(key) {
-                    findings.error(
-                        At::file(episodes_file(v21)).episode(i as u64),
-                        "provenance",
-                        format!("the episodes table has no {key}"),
-                    );
-                }
-            }
-        }
+        check_provenance(&entries, v21, findings);
     }
-
     let files = super::read::data_files(root).unwrap_or_default();
     if files.is_empty() {
         findings.error(
@@ -248,6 +185,83 @@ pub fn check(
     check_stats(root, &features, &parts, !options.quick, findings);
     check_videos(root, v21, &info, &features, &entries, findings);
     (episodes, frames)
+}
+
+/// `meta/info.json` checked against its schema and read leniently (a field of the wrong type
+/// reads as absent: the schema check has named it); whether it could be read at all.
+fn read_info(root: &Path, findings: &Findings) -> (InfoJson, bool) {
+    let info_path = root.join("meta/info.json");
+    if !info_path.is_file() {
+        findings.file_error(
+            &info_path,
+            "present",
+            "is missing: the loader cannot open the dataset",
+        );
+        return (InfoJson::default(), false);
+    }
+    match read_json(&info_path) {
+        Ok(info) => {
+            for (pointer, problem) in schema::check_text(&info, schema::LEROBOT_INFO) {
+                findings.file_error(&info_path, "schema", format!("{pointer} {problem}"));
+            }
+            (serde_json::from_value(info).unwrap_or_default(), true)
+        }
+        Err(_) => {
+            findings.file_error(&info_path, "readable", "is not valid JSON");
+            (InfoJson::default(), false)
+        }
+    }
+}
+
+/// Our own metadata (`meta/surgvla.json`) and collect report checked against their schemas when
+/// present; returns the metadata (`Null` when absent: another tool's dataset).
+fn check_our_metadata(root: &Path, findings: &Findings) -> Value {
+    let checked = |relative: &str, schema: &str| {
+        let value = read_optional_json(root, relative, findings);
+        if !value.is_null() {
+            let path = root.join(relative);
+            for (pointer, problem) in schema::check_text(&value, schema) {
+                findings.file_error(&path, "schema", format!("{pointer} {problem}"));
+            }
+        }
+        value
+    };
+    let surgvla = checked("meta/surgvla.json", schema::SURGVLA_META);
+    checked("collect_report.json", schema::COLLECT_REPORT);
+    findings.learn(|facts| {
+        facts.generator = surgvla["generator"].as_str().map(String::from);
+        facts.collection = surgvla["collection"].clone();
+    });
+    surgvla
+}
+
+/// The tasks and how many episodes each has (for `info`).
+fn learn_tasks(tasks: &[String], entries: &[EpisodeEntry], findings: &Findings) {
+    findings.learn(|facts| {
+        for task in tasks {
+            facts.tasks.insert(task.clone(), 0);
+        }
+        for entry in entries {
+            if let Some(task) = entry.tasks.first() {
+                *facts.tasks.entry(task.clone()).or_default() += 1;
+            }
+        }
+    });
+}
+
+/// Our datasets record each episode's provenance in the episodes table.
+fn check_provenance(entries: &[EpisodeEntry], v21: bool, findings: &Findings) {
+    for (i, entry) in entries.iter().enumerate() {
+        for key in super::Provenance::KEYS {
+            if !entry.provenance.contains_key(key) {
+                findings.error(
+                    At::file(episodes_file(v21)).episode(i as u64),
+                    "provenance",
+                    format!("the episodes table has no {key}"),
+                );
+            }
+        }
+    }
 }
 
 pub(super) fn episodes_file(v21: bool) -> &'static str {
@@ -316,6 +330,9 @@ pub(super) struct Context<'a> {
     pub(super) info_known: bool,
 }
 
+/// One whole episode as the rows hold it: (episode, first index, last index, rows, file).
+type EpisodeSpan = (i64, i64, i64, u64, usize);
+
 /// The cross-row-group checks: indices contiguous across groups and files, episodes contiguous,
 /// the episodes table and the totals against the data. Returns (episodes, frames).
 fn stitch(
@@ -329,9 +346,28 @@ fn stitch(
     quick_rows: Option<u64>,
 ) -> (u64, u64) {
     let full = quick_rows.is_none();
+    let (episodes, mut frames) = assemble_episodes(context, files, groups, parts, full);
+    if let Some(rows) = quick_rows {
+        frames = rows;
+    }
+    check_episodes_table(context, files, &episodes, v21, full);
+    check_table_files(context, &episodes, info, v21);
+    check_totals(context, info, episodes.len() as u64, frames);
+    (episodes.len() as u64, frames)
+}
+
+/// The row groups' runs joined into whole episodes, in row order: indices contiguous, episodes
+/// in order, each starting at frame 0. Returns the episodes and the rows read.
+fn assemble_episodes(
+    context: &Context<'_>,
+    files: &[PathBuf],
+    groups: &[(usize, usize)],
+    parts: &[Part],
+    full: bool,
+) -> (Vec<EpisodeSpan>, u64) {
     let findings = context.findings;
     // Whole episodes: (episode, first_index, last_index, rows, file).
-    let mut episodes: Vec<(i64, i64, i64, u64, usize)> = Vec::new();
+    let mut episodes: Vec<EpisodeSpan> = Vec::new();
     let mut frames = 0u64;
     for (&(file, _), part) in groups.iter().zip(parts) {
         frames += part.rows;
@@ -387,9 +423,19 @@ fn stitch(
             }
         }
     }
-    if let Some(rows) = quick_rows {
-        frames = rows;
-    }
+    (episodes, frames)
+}
+
+/// The episodes table against the data: its row count, each episode's length, span, data
+/// file and tasks.
+fn check_episodes_table(
+    context: &Context<'_>,
+    files: &[PathBuf],
+    episodes: &[EpisodeSpan],
+    v21: bool,
+    full: bool,
+) {
+    let findings = context.findings;
     let entries = context.entries;
     let episodes_file = episodes_file(v21);
     if entries.len() != episodes.len() && (full || entries.len() < episodes.len()) {
@@ -403,7 +449,7 @@ fn stitch(
             ),
         );
     }
-    for &(episode, first, last, rows, file) in &episodes {
+    for &(episode, first, last, rows, file) in episodes {
         let Some(entry) = entries.get(episode.max(0) as usize) else {
             continue;
         };
@@ -449,6 +495,14 @@ fn stitch(
             }
         }
     }
+}
+
+/// Every data file the episodes table names is present (v2.1: one per episode), and no episode
+/// has zero frames.
+fn check_table_files(context: &Context<'_>, episodes: &[EpisodeSpan], info: &InfoJson, v21: bool) {
+    let findings = context.findings;
+    let entries = context.entries;
+    let episodes_file = episodes_file(v21);
     for (i, entry) in entries.iter().enumerate() {
         if let Some((chunk, file)) = entry.data_file
             && !v21
@@ -486,16 +540,18 @@ fn stitch(
             );
         }
     }
+}
+
+/// info.json's totals against the data and the tasks table.
+fn check_totals(context: &Context<'_>, info: &InfoJson, episodes: u64, frames: u64) {
+    let findings = context.findings;
     if let Some(total) = info.total_episodes
-        && total != episodes.len() as u64
+        && total != episodes
     {
         findings.error(
             At::file("meta/info.json"),
             "totals",
-            format!(
-                "total_episodes is {total}, the data holds {}",
-                episodes.len()
-            ),
+            format!("total_episodes is {total}, the data holds {episodes}"),
         );
     }
     if let Some(total) = info.total_frames
@@ -519,5 +575,4 @@ fn stitch(
             ),
         );
     }
-    (episodes.len() as u64, frames)
 }
