@@ -18,7 +18,80 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
         findings.error(at(), "readable", "cannot be read");
         return 0;
     };
-    let summary = match Summary::read(&bytes) {
+    let summary = check_summary(&bytes, &at, episode, findings);
+    if quick {
+        return summary.as_ref().map_or(0, rgb_frames);
+    }
+    let stream = match MessageStream::new_with_options(&bytes, Options::ValidateChunkCrcs.into()) {
+        Ok(stream) => stream,
+        Err(error) => {
+            findings.error(at(), "magic", format!("is not an MCAP file: {error}"));
+            return 0;
+        }
+    };
+    let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
+    let mut json_schemas: BTreeMap<u16, Option<serde_json::Value>> = BTreeMap::new();
+    let mut frames = 0u64;
+    for message in stream {
+        let message = match message {
+            Ok(message) => message,
+            Err(error) => {
+                findings.error(
+                    at(),
+                    "crc",
+                    format!(
+                        "reading stops after {} messages: {error}",
+                        counts.values().sum::<u64>()
+                    ),
+                );
+                return frames;
+            }
+        };
+        let channel = &message.channel;
+        *counts.entry(channel.id).or_default() += 1;
+        if channel.topic == "/endoscope/rgb" {
+            frames += 1;
+        }
+        if channel.message_encoding == "json" {
+            check_json_message(&message, &mut json_schemas, || at().frame(frames), findings);
+        } else if channel.message_encoding == "protobuf"
+            && channel
+                .schema
+                .as_ref()
+                .is_some_and(|s| !s.name.starts_with("foxglove."))
+        {
+            findings.error(
+                at(),
+                "schema_name",
+                format!("{} uses a schema not named foxglove.<Name>", channel.topic),
+            );
+        }
+    }
+    if let Some(stats) = summary.as_ref().and_then(|s| s.stats.as_ref()) {
+        let total: u64 = counts.values().sum();
+        if stats.message_count != total {
+            findings.error(
+                at(),
+                "summary",
+                format!(
+                    "the statistics count {} messages, the file holds {total}",
+                    stats.message_count
+                ),
+            );
+        }
+    }
+    frames
+}
+
+/// The summary section read and checked (statistics, chunk indexes, Foxglove schema names);
+/// the first episode's channels are what `info` prints.
+fn check_summary(
+    bytes: &[u8],
+    at: &dyn Fn() -> At,
+    episode: u64,
+    findings: &Findings,
+) -> Option<Summary> {
+    let summary = match Summary::read(bytes) {
         Ok(Some(summary)) => Some(summary),
         Ok(None) => {
             findings.error(
@@ -76,116 +149,74 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
             }
         }
     }
-    if quick {
-        return summary
-            .as_ref()
-            .and_then(|s| {
-                let id = s
-                    .channels
-                    .values()
-                    .find(|c| c.topic == "/endoscope/rgb")?
-                    .id;
-                s.stats.as_ref()?.channel_message_counts.get(&id).copied()
-            })
-            .unwrap_or(0);
-    }
-    let stream = match MessageStream::new_with_options(&bytes, Options::ValidateChunkCrcs.into()) {
-        Ok(stream) => stream,
-        Err(error) => {
-            findings.error(at(), "magic", format!("is not an MCAP file: {error}"));
-            return 0;
+    summary
+}
+
+/// The frames the statistics count on `/endoscope/rgb` (quick mode reads no message).
+fn rgb_frames(summary: &Summary) -> u64 {
+    summary
+        .channels
+        .values()
+        .find(|c| c.topic == "/endoscope/rgb")
+        .and_then(|c| {
+            summary
+                .stats
+                .as_ref()?
+                .channel_message_counts
+                .get(&c.id)
+                .copied()
+        })
+        .unwrap_or(0)
+}
+
+/// A JSON message: valid JSON, and valid against its schema (our channels against
+/// `schemas/mcap_json_channels.json`, others against their own channel's JSON Schema, compiled
+/// once per channel in `schemas`).
+fn check_json_message(
+    message: &mcap::Message<'_>,
+    schemas: &mut BTreeMap<u16, Option<serde_json::Value>>,
+    at: impl Fn() -> At,
+    findings: &Findings,
+) {
+    let channel = &message.channel;
+    let value: serde_json::Value = match serde_json::from_slice(&message.data) {
+        Ok(value) => value,
+        Err(_) => {
+            findings.error(
+                at(),
+                "json",
+                format!("a {} message is not JSON", channel.topic),
+            );
+            return;
         }
     };
-    let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
-    let mut json_schemas: BTreeMap<u16, Option<serde_json::Value>> = BTreeMap::new();
-    let mut frames = 0u64;
-    for message in stream {
-        let message = match message {
-            Ok(message) => message,
-            Err(error) => {
-                findings.error(
-                    at(),
-                    "crc",
-                    format!(
-                        "reading stops after {} messages: {error}",
-                        counts.values().sum::<u64>()
-                    ),
-                );
-                return frames;
-            }
-        };
-        let channel = &message.channel;
-        *counts.entry(channel.id).or_default() += 1;
-        if channel.topic == "/endoscope/rgb" {
-            frames += 1;
-        }
-        if channel.message_encoding == "json" {
-            let value: serde_json::Value = match serde_json::from_slice(&message.data) {
-                Ok(value) => value,
-                Err(_) => {
-                    findings.error(
-                        at().frame(frames),
-                        "json",
-                        format!("a {} message is not JSON", channel.topic),
-                    );
-                    continue;
-                }
-            };
-            // Our channels against schemas/, others against their own channel's schema.
-            let schema = json_schemas.entry(channel.id).or_insert_with(|| {
-                let ours = channel
-                    .schema
-                    .as_ref()
-                    .is_some_and(|s| s.name.starts_with("surgvla."));
-                let built_in =
-                    serde_json::from_str::<serde_json::Value>(schema::MCAP_JSON_CHANNELS)
-                        .ok()
-                        .and_then(|all| all.get(&channel.topic).cloned())
-                        .filter(|_| ours);
-                built_in.or_else(|| {
-                    channel
-                        .schema
-                        .as_ref()
-                        .filter(|s| s.encoding == "jsonschema")
-                        .and_then(|s| serde_json::from_slice(&s.data).ok())
-                })
-            });
-            if let Some(schema) = schema {
-                for (pointer, problem) in schema::check(&value, schema) {
-                    findings.error(
-                        at().frame(frames),
-                        "json_schema",
-                        format!("{} message {pointer} {problem}", channel.topic),
-                    );
-                }
-            }
-        } else if channel.message_encoding == "protobuf"
-            && channel
+    // Our channels against schemas/, others against their own channel's schema.
+    let schema = schemas.entry(channel.id).or_insert_with(|| {
+        let ours = channel
+            .schema
+            .as_ref()
+            .is_some_and(|s| s.name.starts_with("surgvla."));
+        let built_in = serde_json::from_str::<serde_json::Value>(schema::MCAP_JSON_CHANNELS)
+            .ok()
+            .and_then(|all| all.get(&channel.topic).cloned())
+            .filter(|_| ours);
+        built_in.or_else(|| {
+            channel
                 .schema
                 .as_ref()
-                .is_some_and(|s| !s.name.starts_with("foxglove."))
-        {
+                .filter(|s| s.encoding == "jsonschema")
+                .and_then(|s| serde_json::from_slice(&s.data).ok())
+        })
+    });
+    if let Some(schema) = schema {
+        for (pointer, problem) in schema::check(&value, schema) {
             findings.error(
                 at(),
-                "schema_name",
-                format!("{} uses a schema not named foxglove.<Name>", channel.topic),
+                "json_schema",
+                format!("{} message {pointer} {problem}", channel.topic),
             );
         }
     }
-    if let Some(stats) = summary.as_ref().and_then(|s| s.stats.as_ref()) {
-        let total: u64 = counts.values().sum();
-        if stats.message_count != total {
-            findings.error(
-                at(),
-                "summary",
-                format!(
-                    "the statistics count {} messages, the file holds {total}",
-                    stats.message_count
-                ),
-            );
-        }
-    }
-    frames
 }
 
 /// Checks the MCAP file or folder at `root`; returns (episodes, frames).
