@@ -45,11 +45,20 @@ fn pretty(name: &str, value: &impl serde::Serialize) -> Result<Vec<u8>, ExportEr
     })
 }
 
-fn json_lines(values: impl Iterator<Item = Value>) -> Vec<u8> {
-    values
-        .map(|v| format!("{v}\n"))
-        .collect::<String>()
-        .into_bytes()
+/// One compact JSON line per value.
+fn json_lines<T: serde::Serialize>(
+    name: &str,
+    values: impl Iterator<Item = T>,
+) -> Result<Vec<u8>, ExportError> {
+    let mut out = Vec::new();
+    for value in values {
+        serde_json::to_writer(&mut out, &value).map_err(|source| ExportError::Json {
+            path: PathBuf::from("meta").join(name),
+            source,
+        })?;
+        out.push(b'\n');
+    }
+    Ok(out)
 }
 
 /// How the metadata tables are written: snappy, the parquet defaults otherwise.
@@ -134,11 +143,15 @@ impl LeRobotVersion {
                 files.push((
                     "meta/tasks.jsonl".into(),
                     json_lines(
+                        "tasks.jsonl",
                         m.tasks
                             .iter()
                             .enumerate()
-                            .map(|(i, t)| json!({"task_index": i, "task": t})),
-                    ),
+                            .map(|(i, t)| super::meta::TaskLine {
+                                task_index: Some(i as i64),
+                                task: Some(t.clone()),
+                            }),
+                    )?,
                 ));
                 let chunks = m.episodes.div_ceil(m.chunks_size.max(1));
                 info.codebase_version = Some("v2.1".into());

@@ -1,5 +1,6 @@
-//! LeRobot's `meta/info.json`, typed ([`InfoJson`], each feature a [`FeatureJson`]), for the
-//! writer, the reader, the checks, detection and merge alike.
+//! LeRobot's `meta/info.json`, typed ([`InfoJson`], each feature a [`FeatureJson`]), and v2.1's
+//! task lines ([`TaskLine`]), for the writer, the reader, the checks, detection and merge alike
+//! (episode rows are [`super::table::EpisodeRow`]).
 //!
 //! Read leniently, since the datasets are often another tool's: every field is optional, a
 //! value of the wrong type reads as absent (the checks report it through the JSON Schema and
@@ -126,6 +127,23 @@ impl FeatureJson {
     /// A video feature's codec as info.json names it.
     pub fn video_codec(&self) -> Option<&str> {
         self.info.as_ref()?.get("video.codec")?.as_str()
+    }
+}
+
+/// One line of v2.1's `meta/tasks.jsonl` (v3.0 keeps the same columns in
+/// `meta/tasks.parquet`), read leniently.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TaskLine {
+    #[serde(default, deserialize_with = "lenient")]
+    pub task_index: Option<i64>,
+    #[serde(default, deserialize_with = "lenient")]
+    pub task: Option<String>,
+}
+
+impl TaskLine {
+    /// The line `text` holds (every field absent when it is not a JSON object).
+    pub fn of(text: &str) -> TaskLine {
+        serde_json::from_str(text).unwrap_or_default()
     }
 }
 

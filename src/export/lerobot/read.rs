@@ -514,8 +514,7 @@ impl LeRobotSource {
             let path = root.join("meta/tasks.jsonl");
             let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
             text.lines()
-                .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-                .filter_map(|v| v["task"].as_str().map(String::from))
+                .filter_map(|l| super::meta::TaskLine::of(l).task)
                 .collect()
         } else {
             let path = root.join("meta/tasks.parquet");

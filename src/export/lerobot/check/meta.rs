@@ -33,9 +33,11 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
             .enumerate()
             .filter(|(_, l)| !l.trim().is_empty())
         {
-            let value: Value = serde_json::from_str(line).unwrap_or(Value::Null);
-            match (value["task_index"].as_i64(), value["task"].as_str()) {
-                (Some(index), Some(task)) => tasks.push((index, task.to_string())),
+            match crate::export::lerobot::meta::TaskLine::of(line) {
+                crate::export::lerobot::meta::TaskLine {
+                    task_index: Some(index),
+                    task: Some(task),
+                } => tasks.push((index, task)),
                 _ => findings.file_error(
                     &path,
                     "tasks",
