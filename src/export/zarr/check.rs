@@ -252,8 +252,16 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             })
             .collect();
     });
-    for array in &arrays {
-        check_chunks(root, array, options.quick, findings);
+    let frames = check_arrays(root, &arrays, options.quick, findings);
+    let episodes = ends_meta.map_or(0, |meta| check_episode_ends(root, &meta, frames, findings));
+    (episodes, frames)
+}
+
+/// Every data array's chunks and shape (point clouds (T, N, 6 or 7), state and action (T, D)),
+/// all with the same number of rows; returns that number (the frames).
+fn check_arrays(root: &Path, arrays: &[ArrayMeta], quick: bool, findings: &Findings) -> u64 {
+    for array in arrays {
+        check_chunks(root, array, quick, findings);
         if array.name == "data/point_cloud"
             && (array.shape.len() != 3 || !matches!(array.shape[2], 6 | 7))
         {
@@ -276,7 +284,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         .and_then(|a| a.shape.first())
         .copied()
         .unwrap_or(0) as u64;
-    for array in &arrays {
+    for array in arrays {
         if array.shape.first().copied().unwrap_or(0) as u64 != frames {
             findings.error(
                 At::file(format!("{}/.zarray", array.name)),
@@ -288,16 +296,18 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             );
         }
     }
-    let Some(ends_meta) = ends_meta else {
-        return (0, frames);
-    };
-    let Some(ends) = read_ints(root, &ends_meta) else {
+    frames
+}
+
+/// `meta/episode_ends` strictly increasing and ending at `frames`; returns the episodes.
+fn check_episode_ends(root: &Path, meta: &ArrayMeta, frames: u64, findings: &Findings) -> u64 {
+    let Some(ends) = read_ints(root, meta) else {
         findings.error(
             At::file("meta/episode_ends"),
             "chunk",
             "cannot be read whole",
         );
-        return (0, frames);
+        return 0;
     };
     let mut previous = 0i64;
     for (episode, &end) in ends.iter().enumerate() {
@@ -316,5 +326,5 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             ),
         );
     }
-    (ends.len() as u64, frames)
+    ends.len() as u64
 }
