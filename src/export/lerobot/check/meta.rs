@@ -111,61 +111,75 @@ pub(super) fn read_episodes(
     features: &[Declared],
     findings: &Findings,
 ) -> Vec<EpisodeEntry> {
-    let mut entries = Vec::new();
     if v21 {
-        let path = root.join("meta/episodes.jsonl");
-        let Ok(text) = std::fs::read_to_string(&path) else {
-            findings.file_error(&path, "present", "is missing or unreadable");
-            return entries;
+        read_episodes_v21(root, findings)
+    } else {
+        read_episodes_v30(root, features, findings)
+    }
+}
+
+/// v2.1's `meta/episodes.jsonl` (lines in episode order) and `episodes_stats.jsonl` (a line per
+/// episode).
+fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
+    let mut entries = Vec::new();
+    let path = root.join("meta/episodes.jsonl");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        findings.file_error(&path, "present", "is missing or unreadable");
+        return entries;
+    };
+    for (row, line) in text.lines().filter(|l| !l.trim().is_empty()).enumerate() {
+        let value: Value = serde_json::from_str(line).unwrap_or(Value::Null);
+        if value["episode_index"].as_i64() != Some(row as i64) {
+            findings.error(
+                At::file("meta/episodes.jsonl").episode(row as u64),
+                "episodes",
+                format!(
+                    "line {} has episode_index {}; lines must be in episode order",
+                    row + 1,
+                    value["episode_index"]
+                ),
+            );
+        }
+        let mut entry = EpisodeEntry {
+            length: value["length"].as_i64(),
+            tasks: value["tasks"]
+                .as_array()
+                .map(|t| {
+                    t.iter()
+                        .filter_map(|v| v.as_str().map(String::from))
+                        .collect()
+                })
+                .unwrap_or_default(),
+            ..EpisodeEntry::default()
         };
-        for (row, line) in text.lines().filter(|l| !l.trim().is_empty()).enumerate() {
-            let value: Value = serde_json::from_str(line).unwrap_or(Value::Null);
-            if value["episode_index"].as_i64() != Some(row as i64) {
-                findings.error(
-                    At::file("meta/episodes.jsonl").episode(row as u64),
-                    "episodes",
-                    format!(
-                        "line {} has episode_index {}; lines must be in episode order",
-                        row + 1,
-                        value["episode_index"]
-                    ),
+        if let Some(object) = value.as_object() {
+            for (key, v) in object.iter().filter(|(k, _)| k.starts_with("surgvla/")) {
+                entry.provenance.insert(key.clone(), v.clone());
+            }
+        }
+        entries.push(entry);
+    }
+    let stats_path = root.join("meta/episodes_stats.jsonl");
+    match std::fs::read_to_string(&stats_path) {
+        Ok(text) => {
+            let lines = text.lines().filter(|l| !l.trim().is_empty()).count();
+            if lines != entries.len() {
+                findings.file_error(
+                    &stats_path,
+                    "stats",
+                    format!("has {lines} lines for {} episodes", entries.len()),
                 );
             }
-            let mut entry = EpisodeEntry {
-                length: value["length"].as_i64(),
-                tasks: value["tasks"]
-                    .as_array()
-                    .map(|t| {
-                        t.iter()
-                            .filter_map(|v| v.as_str().map(String::from))
-                            .collect()
-                    })
-                    .unwrap_or_default(),
-                ..EpisodeEntry::default()
-            };
-            if let Some(object) = value.as_object() {
-                for (key, v) in object.iter().filter(|(k, _)| k.starts_with("surgvla/")) {
-                    entry.provenance.insert(key.clone(), v.clone());
-                }
-            }
-            entries.push(entry);
         }
-        let stats_path = root.join("meta/episodes_stats.jsonl");
-        match std::fs::read_to_string(&stats_path) {
-            Ok(text) => {
-                let lines = text.lines().filter(|l| !l.trim().is_empty()).count();
-                if lines != entries.len() {
-                    findings.file_error(
-                        &stats_path,
-                        "stats",
-                        format!("has {lines} lines for {} episodes", entries.len()),
-                    );
-                }
-            }
-            Err(_) => findings.file_error(&stats_path, "stats", "is missing"),
-        }
-        return entries;
+        Err(_) => findings.file_error(&stats_path, "stats", "is missing"),
     }
+    entries
+}
+
+/// v3.0's episodes table (`meta/episodes/chunk-*/file-*.parquet`): rows in episode order, with
+/// their spans, data and video files, tasks and provenance.
+fn read_episodes_v30(root: &Path, features: &[Declared], findings: &Findings) -> Vec<EpisodeEntry> {
+    let mut entries = Vec::new();
     let folder = root.join("meta/episodes");
     let files = crate::export::lerobot::read::parquet_files(&folder).unwrap_or_default();
     if files.is_empty() {
@@ -187,33 +201,7 @@ pub(super) fn read_episodes(
                     .column_by_name(name)
                     .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
             };
-            for required in [
-                "episode_index",
-                "length",
-                "dataset_from_index",
-                "dataset_to_index",
-                "data/chunk_index",
-                "data/file_index",
-            ] {
-                if ints(required).is_none() {
-                    findings.file_error(
-                        &path,
-                        "episodes",
-                        format!("lacks the int64 column {required}"),
-                    );
-                }
-            }
-            if batch.column_by_name("tasks").is_none() {
-                findings.file_error(&path, "episodes", "lacks the tasks column");
-            }
-            for feature in features.iter().filter(|f| !is_index_column(&f.name)) {
-                for stat in STATS_KEYS {
-                    let name = format!("stats/{}/{stat}", feature.name);
-                    if batch.column_by_name(&name).is_none() {
-                        findings.file_error(&path, "stats", format!("lacks the column {name}"));
-                    }
-                }
-            }
+            check_episode_columns(&batch, &path, features, findings);
             let tasks = batch
                 .column_by_name("tasks")
                 .and_then(|c| c.as_any().downcast_ref::<ListArray>());
@@ -280,6 +268,48 @@ pub(super) fn read_episodes(
         }
     }
     entries
+}
+
+/// The columns an episodes table needs: indices and spans, tasks, and every statistic of every
+/// feature.
+fn check_episode_columns(
+    batch: &arrow_array::RecordBatch,
+    path: &Path,
+    features: &[Declared],
+    findings: &Findings,
+) {
+    let ints = |name: &str| {
+        batch
+            .column_by_name(name)
+            .and_then(|c| c.as_any().downcast_ref::<Int64Array>())
+    };
+    for required in [
+        "episode_index",
+        "length",
+        "dataset_from_index",
+        "dataset_to_index",
+        "data/chunk_index",
+        "data/file_index",
+    ] {
+        if ints(required).is_none() {
+            findings.file_error(
+                path,
+                "episodes",
+                format!("lacks the int64 column {required}"),
+            );
+        }
+    }
+    if batch.column_by_name("tasks").is_none() {
+        findings.file_error(path, "episodes", "lacks the tasks column");
+    }
+    for feature in features.iter().filter(|f| !is_index_column(&f.name)) {
+        for stat in STATS_KEYS {
+            let name = format!("stats/{}/{stat}", feature.name);
+            if batch.column_by_name(&name).is_none() {
+                findings.file_error(path, "stats", format!("lacks the column {name}"));
+            }
+        }
+    }
 }
 
 /// `meta/stats.json`: every feature with every statistic, vectors of the right length, and for
