@@ -160,67 +160,14 @@ impl Context<'_> {
                         .map(|a| a.values().to_vec())
                 })
         });
-        for row in 0..batch.num_rows() {
-            let at = || {
-                At::file(file)
-                    .episode(episode[row].max(0) as u64)
-                    .frame(frame[row].max(0) as u64)
-            };
-            match part.runs.last_mut() {
-                Some(run) if run.episode == episode[row] => {
-                    if !self.quick && index[row] != run.last_index + 1 {
-                        findings.error(
-                            at(),
-                            "index",
-                            format!("index {} follows {}", index[row], run.last_index),
-                        );
-                    }
-                    if !self.quick && frame[row] != run.last_frame + 1 {
-                        findings.error(
-                            at(),
-                            "frame_index",
-                            format!("frame_index {} follows {}", frame[row], run.last_frame),
-                        );
-                    }
-                    run.last_index = index[row];
-                    run.last_frame = frame[row];
-                    run.rows += 1;
-                }
-                _ => part.runs.push(Run {
-                    episode: episode[row],
-                    first_index: index[row],
-                    last_index: index[row],
-                    first_frame: frame[row],
-                    last_frame: frame[row],
-                    rows: 1,
-                }),
-            }
-            if let (Some(timestamps), Some(fps)) = (&timestamp, self.fps) {
-                let expected = frame[row] as f64 / fps;
-                if (timestamps[row] - expected).abs() > TIMESTAMP_TOLERANCE_SECS {
-                    findings.error(
-                        at(),
-                        "timestamps",
-                        format!(
-                            "timestamp {} s where frame_index / fps = {expected:.6} s",
-                            timestamps[row]
-                        ),
-                    );
-                }
-            }
-            if let Some(task) = &task
-                && (task[row] < 0 || task[row] as usize >= self.tasks)
-            {
-                findings.error(
-                    at(),
-                    "task_index",
-                    format!(
-                        "task_index {} is not in the tasks table ({} tasks)",
-                        task[row], self.tasks
-                    ),
-                );
-            }
-        }
+        let columns = IndexColumns {
+            index: &index,
+            episode: &episode,
+            frame: &frame,
+            task: task.as_deref(),
+            timestamp: timestamp.as_deref(),
+        };
+        self.check_row_order(&columns, file, part);
         part.rows += batch.num_rows() as u64;
         let judged = self.semantics.is_some() && !self.quick;
         let mut steps: Vec<Step> = if judged {
@@ -234,48 +181,135 @@ impl Context<'_> {
             };
             match feature.dtype.as_str() {
                 "float32" | "float64" => {
-                    let Some(values) = float_values(column.as_ref(), feature.elements()) else {
-                        continue;
-                    };
-                    let n = feature.elements();
-                    let moments = part
-                        .moments
-                        .entry(feature.name.clone())
-                        .or_insert_with(|| vec![(f64::INFINITY, f64::NEG_INFINITY, 0.0, 0); n]);
-                    for (row, chunk) in values.chunks_exact(n).enumerate() {
-                        if let Some(bad) = chunk.iter().find(|v| !v.is_finite()) {
-                            let at = At::file(file)
-                                .episode(episode[row].max(0) as u64)
-                                .frame(frame[row].max(0) as u64);
-                            findings.error(at, "finite", format!("{} holds {bad}", feature.name));
-                            continue;
-                        }
-                        for (m, &v) in moments.iter_mut().zip(chunk) {
-                            *m = (m.0.min(v), m.1.max(v), m.2 + v, m.3 + 1);
-                        }
-                        let Some(step) = steps.get_mut(row) else {
-                            continue;
-                        };
-                        let target: Option<&mut [f32]> = match feature.name.as_str() {
-                            "observation.state" if n == 7 => Some(&mut step.state),
-                            "action" if n == 7 => Some(&mut step.action),
-                            "observation.environment_state" if n == MAX_OBJECTS * POSE_VALUES => {
-                                Some(&mut step.environment_state)
-                            }
-                            _ => None,
-                        };
-                        if let Some(target) = target {
-                            for (t, v) in target.iter_mut().zip(chunk) {
-                                *t = *v as f32;
-                            }
-                        }
-                    }
+                    self.float_feature(feature, column.as_ref(), &columns, file, part, &mut steps);
                 }
                 "image" => self.check_images(feature, column.as_ref(), &episode, &frame, file),
                 _ => {}
             }
         }
         semantic_rows.extend(episode.iter().copied().zip(steps));
+    }
+
+    /// Within the row group: indices and frame indices contiguous per episode (gathered into
+    /// runs for the cross-group checks), timestamps at frame_index / fps, task indices in the
+    /// tasks table.
+    fn check_row_order(&self, columns: &IndexColumns<'_>, file: &str, part: &mut Part) {
+        let findings = self.findings;
+        for row in 0..columns.index.len() {
+            let at = || {
+                At::file(file)
+                    .episode(columns.episode[row].max(0) as u64)
+                    .frame(columns.frame[row].max(0) as u64)
+            };
+            match part.runs.last_mut() {
+                Some(run) if run.episode == columns.episode[row] => {
+                    if !self.quick && columns.index[row] != run.last_index + 1 {
+                        findings.error(
+                            at(),
+                            "index",
+                            format!("index {} follows {}", columns.index[row], run.last_index),
+                        );
+                    }
+                    if !self.quick && columns.frame[row] != run.last_frame + 1 {
+                        findings.error(
+                            at(),
+                            "frame_index",
+                            format!(
+                                "frame_index {} follows {}",
+                                columns.frame[row], run.last_frame
+                            ),
+                        );
+                    }
+                    run.last_index = columns.index[row];
+                    run.last_frame = columns.frame[row];
+                    run.rows += 1;
+                }
+                _ => part.runs.push(Run {
+                    episode: columns.episode[row],
+                    first_index: columns.index[row],
+                    last_index: columns.index[row],
+                    first_frame: columns.frame[row],
+                    last_frame: columns.frame[row],
+                    rows: 1,
+                }),
+            }
+            if let (Some(timestamps), Some(fps)) = (columns.timestamp, self.fps) {
+                let expected = columns.frame[row] as f64 / fps;
+                if (timestamps[row] - expected).abs() > TIMESTAMP_TOLERANCE_SECS {
+                    findings.error(
+                        at(),
+                        "timestamps",
+                        format!(
+                            "timestamp {} s where frame_index / fps = {expected:.6} s",
+                            timestamps[row]
+                        ),
+                    );
+                }
+            }
+            if let Some(task) = columns.task
+                && (task[row] < 0 || task[row] as usize >= self.tasks)
+            {
+                findings.error(
+                    at(),
+                    "task_index",
+                    format!(
+                        "task_index {} is not in the tasks table ({} tasks)",
+                        task[row], self.tasks
+                    ),
+                );
+            }
+        }
+    }
+
+    /// A float feature's values: finite (else a finding), gathered into the statistics'
+    /// moments, and, for our 7-D state and action and the object poses, into the steps the
+    /// semantic checks judge.
+    fn float_feature(
+        &self,
+        feature: &Declared,
+        column: &dyn arrow_array::Array,
+        columns: &IndexColumns<'_>,
+        file: &str,
+        part: &mut Part,
+        steps: &mut [Step],
+    ) {
+        let findings = self.findings;
+        let Some(values) = float_values(column, feature.elements()) else {
+            return;
+        };
+        let n = feature.elements();
+        let moments = part
+            .moments
+            .entry(feature.name.clone())
+            .or_insert_with(|| vec![(f64::INFINITY, f64::NEG_INFINITY, 0.0, 0); n]);
+        for (row, chunk) in values.chunks_exact(n).enumerate() {
+            if let Some(bad) = chunk.iter().find(|v| !v.is_finite()) {
+                let at = At::file(file)
+                    .episode(columns.episode[row].max(0) as u64)
+                    .frame(columns.frame[row].max(0) as u64);
+                findings.error(at, "finite", format!("{} holds {bad}", feature.name));
+                continue;
+            }
+            for (m, &v) in moments.iter_mut().zip(chunk) {
+                *m = (m.0.min(v), m.1.max(v), m.2 + v, m.3 + 1);
+            }
+            let Some(step) = steps.get_mut(row) else {
+                continue;
+            };
+            let target: Option<&mut [f32]> = match feature.name.as_str() {
+                "observation.state" if n == 7 => Some(&mut step.state),
+                "action" if n == 7 => Some(&mut step.action),
+                "observation.environment_state" if n == MAX_OBJECTS * POSE_VALUES => {
+                    Some(&mut step.environment_state)
+                }
+                _ => None,
+            };
+            if let Some(target) = target {
+                for (t, v) in target.iter_mut().zip(chunk) {
+                    *t = *v as f32;
+                }
+            }
+        }
     }
 
     fn check_images(
@@ -487,4 +521,13 @@ fn type_problem(feature: &Declared, data_type: &DataType) -> Option<String> {
         },
         _ => None,
     }
+}
+
+/// A row group's index columns, as the row checks read them.
+struct IndexColumns<'a> {
+    index: &'a [i64],
+    episode: &'a [i64],
+    frame: &'a [i64],
+    task: Option<&'a [i64]>,
+    timestamp: Option<&'a [f64]>,
 }
