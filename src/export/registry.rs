@@ -1,7 +1,8 @@
 //! The built-in formats, one list ([`BUILTIN_FORMATS`]), and the walks every command makes over
 //! it: which format a path holds ([`detect`]), which format writes a [`SinkOptions`]
 //! ([`writer_of`]), and merging ([`merge`]). Adding a format is one folder implementing
-//! [`DatasetFormat`] plus one line here.
+//! [`DatasetFormat`] plus one line here (and its `SinkOptions` variant, its report name and
+//! its `--to` value: ARCHITECTURE.md's "How to add a format").
 
 use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::{ExportError, SinkOptions, Summary, lerobot, mcap, pointcloud, rlds, zarr};
