@@ -17,17 +17,29 @@ pub static BUILTIN_FORMATS: &[&dyn DatasetFormat] = &[
     &pointcloud::CloudFilesFormat,
 ];
 
+/// What [`detect`] found: the format, its dataset, and, when it only looks like one, why it
+/// cannot be read (`validate` still checks it, readers refuse it).
+pub struct Detected {
+    pub format: &'static dyn DatasetFormat,
+    pub found: Found,
+    pub broken: Option<String>,
+}
+
 /// The format of the dataset at `path` and what it found there. A path that does not exist,
-/// cannot be read or holds nothing a format recognises is an error (the user's: exit 2). A
-/// dataset that looks like a format but is broken is returned with its problem: `validate`
-/// reports its defects, readers refuse it.
-pub fn detect(path: &Path) -> Result<(&'static dyn DatasetFormat, Sniff), ExportError> {
+/// cannot be read or holds nothing a format recognises is an error (the user's: exit 2).
+pub fn detect(path: &Path) -> Result<Detected, ExportError> {
     let probe = Probe::of(path)?;
     for format in BUILTIN_FORMATS {
-        match format.sniff(&probe) {
-            Sniff::No => {}
-            sniff => return Ok((*format, sniff)),
-        }
+        let (found, broken) = match format.sniff(&probe) {
+            Sniff::No => continue,
+            Sniff::Yes(found) => (found, None),
+            Sniff::Broken { found, problem } => (found, Some(problem)),
+        };
+        return Ok(Detected {
+            format: *format,
+            found,
+            broken,
+        });
     }
     let problem = if probe.is_file {
         "is a file that is not MCAP; give a dataset folder or an .mcap file"
@@ -42,16 +54,13 @@ pub fn detect(path: &Path) -> Result<(&'static dyn DatasetFormat, Sniff), Export
 
 /// [`detect`] for a reader: a broken dataset is an error (the data's: exit 1).
 pub fn detect_readable(path: &Path) -> Result<(&'static dyn DatasetFormat, Found), ExportError> {
-    match detect(path)? {
-        (format, Sniff::Yes(found)) => Ok((format, found)),
-        (_, Sniff::Broken { found, problem }) => Err(ExportError::InvalidDataset {
-            path: found.root,
+    let detected = detect(path)?;
+    match detected.broken {
+        None => Ok((detected.format, detected.found)),
+        Some(problem) => Err(ExportError::InvalidDataset {
+            path: detected.found.root,
             problem,
         }),
-        (format, Sniff::No) => Err(ExportError::Internal(format!(
-            "{} detected without a verdict",
-            format.name()
-        ))),
     }
 }
 

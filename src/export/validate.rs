@@ -16,7 +16,7 @@ pub use crate::export::findings::{
     At, FINDINGS_PER_CHECK, Facts, FeatureFact, Finding, Findings, Format, Report, Semantics,
     ValidateOptions, check_manifest, check_semantics,
 };
-use crate::export::format::Sniff;
+use crate::export::registry::Detected;
 use std::path::{Path, PathBuf};
 
 /// The format of the dataset at `path` and the folder (or file) to check: a LeRobot folder (any
@@ -24,19 +24,13 @@ use std::path::{Path, PathBuf};
 /// directory above it, a zarr store (`.zgroup`, `.zarray`), an MCAP file or a folder of them,
 /// a folder of point-cloud files.
 pub fn detect(path: &Path) -> Result<(Format, PathBuf), ExportError> {
-    match crate::export::registry::detect(path)?.1 {
-        Sniff::Yes(found) | Sniff::Broken { found, .. } => Ok((found.format, found.root)),
-        Sniff::No => Err(ExportError::Internal("a format without a verdict".into())),
-    }
+    let found = crate::export::registry::detect(path)?.found;
+    Ok((found.format, found.root))
 }
 
 /// Validates the dataset at `path` (see the module overview).
 pub fn validate(path: &Path, options: &ValidateOptions) -> Result<Report, ExportError> {
-    let (format, sniff) = crate::export::registry::detect(path)?;
-    let found = match sniff {
-        Sniff::Yes(found) | Sniff::Broken { found, .. } => found,
-        Sniff::No => return Err(ExportError::Internal("a format without a verdict".into())),
-    };
+    let Detected { format, found, .. } = crate::export::registry::detect(path)?;
     let findings = Findings::new(&found.root);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(options.threads)

@@ -178,3 +178,24 @@ fn every_format_is_listed_once_and_writes_its_own_options() {
         assert!(registry::writer_of(options).is_ok());
     }
 }
+
+#[test]
+fn sniffing_reads_no_oversized_metadata() {
+    // A point-cloud folder's surgvla.json over 1 MiB is not read to recognise it.
+    let root = temp_root("registry-big");
+    std::fs::create_dir_all(&*root).expect("root");
+    let padding = " ".repeat(2 << 20);
+    std::fs::write(
+        root.join("surgvla.json"),
+        format!(r#"{{"point_cloud": {{"file_format": "ply"}}}}{padding}"#),
+    )
+    .expect("surgvla.json");
+    std::fs::write(root.join("episodes.jsonl"), "").expect("episodes");
+    assert_eq!(validated_format(&root), None);
+    std::fs::write(
+        root.join("surgvla.json"),
+        r#"{"point_cloud": {"file_format": "ply"}}"#,
+    )
+    .expect("surgvla.json");
+    assert_eq!(validated_format(&root).as_deref(), Some("ply"));
+}

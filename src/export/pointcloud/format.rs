@@ -9,6 +9,9 @@ use crate::export::info::DatasetInfo;
 use crate::export::{EpisodeSink, ExportError, SinkOptions, read_json};
 use std::path::Path;
 
+/// The largest `surgvla.json` sniffing reads (ours are a few kilobytes).
+const MAX_METADATA_BYTES: u64 = 1 << 20;
+
 /// One PLY or PCD file per frame.
 pub struct CloudFilesFormat;
 
@@ -21,16 +24,18 @@ impl DatasetFormat for CloudFilesFormat {
         if probe.is_file || !probe.has(SURGVLA_JSON) || !probe.has(super::files::EPISODES) {
             return Sniff::No;
         }
-        let format =
-            read_json(&probe.path.join(SURGVLA_JSON))
-                .ok()
-                .and_then(
-                    |surgvla| match surgvla["point_cloud"]["file_format"].as_str()? {
-                        "ply" => Some(Format::Ply),
-                        "pcd" => Some(Format::Pcd),
-                        _ => None,
-                    },
-                );
+        // A sniff reads small metadata only: anything larger is not our surgvla.json.
+        let path = probe.path.join(SURGVLA_JSON);
+        if std::fs::metadata(&path).map_or(true, |m| m.len() > MAX_METADATA_BYTES) {
+            return Sniff::No;
+        }
+        let format = read_json(&path).ok().and_then(|surgvla| {
+            match surgvla["point_cloud"]["file_format"].as_str()? {
+                "ply" => Some(Format::Ply),
+                "pcd" => Some(Format::Pcd),
+                _ => None,
+            }
+        });
         match format {
             Some(format) => Sniff::Yes(Found {
                 format,
