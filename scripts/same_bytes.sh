@@ -24,6 +24,9 @@ make() { # BINARY OUT
     "${bin}" convert "${out}/lerobot" --to zarr --zarr-images --zarr-mask-channel --out "${out}/convert-zarr" >/dev/null
     "${bin}" convert "${out}/lerobot" --to lerobot --lerobot-version 2.1 --out "${out}/convert-v21" >/dev/null
     "${bin}" convert "${out}/rlds" --to lerobot --out "${out}/convert-from-rlds" >/dev/null
+    # Video datasets copied (their spans and pixel statistics read back from the episodes table).
+    "${bin}" convert "${out}/lerobot-h264" --to lerobot --video h264 --lerobot-version 2.1 --out "${out}/convert-h264-v21" >/dev/null
+    "${bin}" convert "${out}/lerobot-h264-v21" --to lerobot --video h264 --out "${out}/convert-h264-v30" >/dev/null
     for i in 0 1; do
         "${bin}" collect "${small[@]}" --shard "${i}/2" --out "${out}/shard-${i}" >/dev/null
     done

@@ -11,6 +11,7 @@
 //! ```
 
 use super::LeRobotVersion;
+use super::meta::StatsJson;
 use super::table::{EpisodeRow, episodes_batch, tasks_batch};
 use crate::export::ExportError;
 use crate::export::dir::{DatasetDir, FileCounter};
@@ -28,7 +29,7 @@ pub(super) struct Metadata<'a> {
     /// How many episodes the dataset holds.
     pub episodes: u64,
     /// stats.json's object.
-    pub stats: Value,
+    pub stats: StatsJson,
     /// surgvla.json's object.
     pub surgvla: Value,
     /// info.json as v3.0 has it.

@@ -1,6 +1,7 @@
-//! LeRobot's `meta/info.json`, typed ([`InfoJson`], each feature a [`FeatureJson`]), and v2.1's
-//! task lines ([`TaskLine`]), for the writer, the reader, the checks, detection and merge alike
-//! (episode rows are [`super::table::EpisodeRow`]).
+//! LeRobot's `meta/info.json`, typed ([`InfoJson`], each feature a [`FeatureJson`]), its
+//! statistics (`meta/stats.json` and each episode's, [`StatsJson`]), and v2.1's task lines
+//! ([`TaskLine`]), for the writer, the reader, the checks, detection and merge alike (episode
+//! rows are [`super::table::EpisodeRow`] when written, [`super::table::EpisodeMeta`] when read).
 //!
 //! Read leniently, since the datasets are often another tool's: every field is optional, a
 //! value of the wrong type reads as absent (the checks report it through the JSON Schema and
@@ -147,6 +148,207 @@ impl TaskLine {
     }
 }
 
+/// Statistics by feature name, in order: `meta/stats.json`, an episode's `stats` in v2.1's
+/// `episodes_stats.jsonl`, and (flattened to `stats/<feature>/<stat>` columns) v3.0's episodes
+/// table.
+pub type StatsJson = indexmap::IndexMap<String, FeatureStatsJson>;
+
+/// One statistic's numbers, nested as lerobot writes them: a list per element for vectors
+/// (`[d]`), (C, 1, 1) lists for images, `[n]` for the count. Numbers keep their JSON spelling
+/// (an integer count stays an integer); a non-finite value is written as null.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum StatValue {
+    Null,
+    Number(Number),
+    List(Vec<StatValue>),
+}
+
+impl StatValue {
+    /// A list of numbers.
+    pub fn list(values: impl IntoIterator<Item = f64>) -> StatValue {
+        StatValue::List(values.into_iter().map(StatValue::number).collect())
+    }
+
+    /// One number (null when not finite, as `serde_json::json!` writes it).
+    pub fn number(value: f64) -> StatValue {
+        Number::from_f64(value).map_or(StatValue::Null, StatValue::Number)
+    }
+
+    /// Depth of nesting: 0 for a number, 1 for `[d]`, 3 for (C, 1, 1).
+    pub fn depth(&self) -> usize {
+        match self {
+            StatValue::List(items) => 1 + items.first().map_or(0, StatValue::depth),
+            _ => 0,
+        }
+    }
+
+    /// The numbers in order, at any depth (null and non-numbers skipped).
+    pub fn flat(&self) -> Vec<f64> {
+        let mut out = Vec::new();
+        self.flatten_into(&mut out);
+        out
+    }
+
+    fn flatten_into(&self, out: &mut Vec<f64>) {
+        match self {
+            StatValue::Null => {}
+            StatValue::Number(n) => out.extend(n.as_f64()),
+            StatValue::List(items) => items.iter().for_each(|i| i.flatten_into(out)),
+        }
+    }
+
+    /// The outer list's items (none for a number).
+    pub fn items(&self) -> &[StatValue] {
+        match self {
+            StatValue::List(items) => items,
+            _ => &[],
+        }
+    }
+
+    /// The outer list's length, or None when this is not a list.
+    pub fn len(&self) -> Option<usize> {
+        match self {
+            StatValue::List(items) => Some(items.len()),
+            _ => None,
+        }
+    }
+
+    /// Element `i` of a list of numbers (None when absent or not a number).
+    pub fn element(&self, i: usize) -> Option<f64> {
+        match self.items().get(i)? {
+            StatValue::Number(n) => n.as_f64(),
+            _ => None,
+        }
+    }
+}
+
+/// One feature's statistics, in lerobot's order (min, max, mean, std, count, q01..q99), each
+/// read leniently; other statistics are kept after them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FeatureStatsJson {
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub min: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub max: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub mean: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub std: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub count: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub q01: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub q10: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub q50: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub q90: Option<StatValue>,
+    #[serde(
+        default,
+        deserialize_with = "lenient",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub q99: Option<StatValue>,
+    /// Statistics this model does not name, kept as they were.
+    #[serde(flatten)]
+    pub other: Map<String, Value>,
+}
+
+impl FeatureStatsJson {
+    /// The statistics `value` holds, leniently (nothing when it is not an object).
+    pub fn from_value(value: Value) -> FeatureStatsJson {
+        serde_json::from_value(value).unwrap_or_default()
+    }
+
+    /// The named statistics present, in order (the unknown ones are not listed).
+    pub fn named(&self) -> Vec<(&'static str, &StatValue)> {
+        let all = [
+            ("min", &self.min),
+            ("max", &self.max),
+            ("mean", &self.mean),
+            ("std", &self.std),
+            ("count", &self.count),
+            ("q01", &self.q01),
+            ("q10", &self.q10),
+            ("q50", &self.q50),
+            ("q90", &self.q90),
+            ("q99", &self.q99),
+        ];
+        all.into_iter()
+            .filter_map(|(name, value)| Some((name, value.as_ref()?)))
+            .collect()
+    }
+
+    /// The statistic called `name`, if named here and present.
+    pub fn get(&self, name: &str) -> Option<&StatValue> {
+        self.named()
+            .into_iter()
+            .find_map(|(n, v)| (n == name).then_some(v))
+    }
+
+    /// Sets the statistic `name` (an unknown name goes to `other`).
+    pub fn set(&mut self, name: &str, value: StatValue) {
+        let slot = match name {
+            "min" => &mut self.min,
+            "max" => &mut self.max,
+            "mean" => &mut self.mean,
+            "std" => &mut self.std,
+            "count" => &mut self.count,
+            "q01" => &mut self.q01,
+            "q10" => &mut self.q10,
+            "q50" => &mut self.q50,
+            "q90" => &mut self.q90,
+            "q99" => &mut self.q99,
+            _ => {
+                self.other.insert(
+                    name.to_string(),
+                    serde_json::to_value(&value).unwrap_or(Value::Null),
+                );
+                return;
+            }
+        };
+        *slot = Some(value);
+    }
+}
+
 impl InfoJson {
     /// Reads `meta/info.json`'s text leniently: only text that is not a JSON object fails.
     pub fn parse(bytes: &[u8]) -> Result<InfoJson, serde_json::Error> {
@@ -194,6 +396,41 @@ mod tests {
         );
         assert_eq!(feature.other["extra"], 1);
         assert!(InfoJson::parse(b"[1, 2]").is_err());
+    }
+
+    #[test]
+    fn statistics_read_and_write_back_the_same_text() {
+        // Integer counts stay integers, floats keep their spelling, (C, 1, 1) nesting stays,
+        // unknown statistics follow the named ones.
+        let text = r#"{"a":{"min":[0.5,1.0],"max":[1.0,2.0],"mean":[0.75,1.5],"std":[0.0,null],"count":[12],"q01":[[[0.1]]],"extra":"kept"},"b":{"count":[3]}}"#;
+        let stats: StatsJson = serde_json::from_str(text).unwrap();
+        assert_eq!(serde_json::to_string(&stats).unwrap(), text);
+        let a = &stats["a"];
+        assert_eq!(a.get("count").unwrap().flat(), [12.0]);
+        assert_eq!(a.get("q01").unwrap().depth(), 3);
+        assert_eq!(a.get("mean").unwrap().element(1), Some(1.5));
+        assert_eq!(a.get("std").unwrap().element(1), None);
+        assert_eq!(a.get("q99"), None);
+        let names: Vec<&str> = a.named().into_iter().map(|(n, _)| n).collect();
+        assert_eq!(names, ["min", "max", "mean", "std", "count", "q01"]);
+    }
+
+    #[test]
+    fn a_statistic_of_the_wrong_type_reads_as_absent() {
+        let stats = FeatureStatsJson::from_value(serde_json::json!({"min": "low", "max": [1.5]}));
+        assert_eq!(stats.min, None);
+        assert_eq!(stats.max, Some(StatValue::list([1.5])));
+        assert_eq!(
+            FeatureStatsJson::from_value(serde_json::json!([1])),
+            FeatureStatsJson::default()
+        );
+        let mut set = FeatureStatsJson::default();
+        set.set("q50", StatValue::number(f64::NAN));
+        set.set("q42", StatValue::list([2.0]));
+        assert_eq!(
+            serde_json::to_string(&set).unwrap(),
+            r#"{"q50":null,"q42":[2.0]}"#
+        );
     }
 
     #[test]

@@ -38,6 +38,7 @@ pub use crate::export::video::Codec;
 use crate::export::video::{EncodedFrame, VideoFile};
 use crate::export::writer::{FormatWriter, Writer};
 use crate::export::{ExportError, Summary};
+use meta::{FeatureStatsJson, StatsJson};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
@@ -546,7 +547,7 @@ impl LeRobotFiles {
         open.writer.flush().map_err(&parquet_error)?;
         let full = version.file_is_full(open.writer.bytes_written() as u64, limit);
 
-        let mut stats_json = serde_json::Map::new();
+        let mut stats_json = StatsJson::new();
         // A video feature's exact statistics travel with the episode (surgvla's datasets), so
         // that merging or converting it later, without decoding the video, gives the same
         // statistics.
@@ -561,7 +562,7 @@ impl LeRobotFiles {
                 };
                 pixel_stats.push((name.clone(), exact));
             }
-            stats_json.insert(name.clone(), this.to_json());
+            stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
             total.merge(&this);
         }
         let length = episode.steps.len() as u64;
@@ -574,7 +575,7 @@ impl LeRobotFiles {
             data_file: file,
             from_index: first_index,
             to_index: first_index + length,
-            stats: Value::Object(stats_json),
+            stats: stats_json,
             videos,
             pixel_stats,
             provenance: Provenance {
@@ -627,17 +628,17 @@ impl LeRobotFiles {
         self.close_file(dir)?;
         self.close_videos(dir)?;
         dir.save_checkpoint(&self.state)?;
-        let stats: serde_json::Map<String, Value> = self
+        let stats: StatsJson = self
             .state
             .stats
             .iter()
-            .map(|(name, s)| (name.clone(), s.to_json()))
+            .map(|(name, s)| (name.clone(), FeatureStatsJson::from_value(s.to_json())))
             .collect();
         let video_keys: Vec<String> = self.video_features.iter().map(|(k, _)| k.clone()).collect();
         let metadata = layout::Metadata {
             tasks: &self.state.tasks,
             episodes: self.state.episodes,
-            stats: Value::Object(stats),
+            stats,
             // A dataset surgvla did not make (converted from another tool's) gets no surgvla
             // metadata: it has no camera intrinsics or collection to state.
             surgvla: if info.is_ours() {

@@ -2,6 +2,8 @@
 //! datasets in image mode) and the low-level helpers the round-trip tests use. Interop is proven
 //! with the real lerobot loader in `tests/interop/`.
 
+use super::meta::StatsJson;
+use super::table::StoredEpisode;
 use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
     FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
@@ -380,56 +382,59 @@ fn cell(column: &dyn Array, row: usize) -> Value {
     }
 }
 
-/// Per episode, in order, its row of the episodes metadata as a JSON object keyed the v3.0
-/// way (`surgvla/seed`, `videos/<key>/from_timestamp`, `stats/<key>/<stat>`, ...); v2.1's
-/// `episodes.jsonl` and `episodes_stats.jsonl` are read into the same keys.
-fn episode_rows(root: &Path, v21: bool) -> Result<Vec<Value>, ExportError> {
+/// Per episode, in order, its row of the episodes metadata; v2.1's `episodes.jsonl` and
+/// `episodes_stats.jsonl` are read into the same shape.
+fn episode_rows(root: &Path, v21: bool) -> Result<Vec<StoredEpisode>, ExportError> {
     if v21 {
-        let lines = |name: &str| -> Result<Vec<Value>, ExportError> {
-            let path = root.join(name);
-            if !path.exists() && name.ends_with("stats.jsonl") {
-                return Ok(Vec::new());
-            }
-            let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
-            text.lines()
-                .filter(|l| !l.trim().is_empty())
-                .map(|l| {
-                    serde_json::from_str(l).map_err(|source| ExportError::Json {
-                        path: path.clone(),
-                        source,
-                    })
-                })
-                .collect()
-        };
-        let mut rows = lines("meta/episodes.jsonl")?;
-        for line in lines("meta/episodes_stats.jsonl")? {
-            let index = line["episode_index"].as_u64().unwrap_or(u64::MAX) as usize;
-            let (Some(row), Some(stats)) = (
-                rows.get_mut(index).and_then(Value::as_object_mut),
-                line["stats"].as_object(),
-            ) else {
-                continue;
-            };
-            for (feature, values) in stats {
-                for (stat, value) in values.as_object().into_iter().flatten() {
-                    row.insert(format!("stats/{feature}/{stat}"), value.clone());
-                }
-            }
-        }
-        return Ok(rows);
+        return episode_rows_v21(root);
     }
     let mut rows = Vec::new();
     for path in parquet_files(&root.join("meta/episodes"))? {
         for batch in read_parquet(&path)? {
             let schema = batch.schema();
             for row in 0..batch.num_rows() {
-                let values: serde_json::Map<String, Value> = schema
+                let columns = schema
                     .fields()
                     .iter()
                     .zip(batch.columns())
-                    .map(|(field, column)| (field.name().clone(), cell(column.as_ref(), row)))
-                    .collect();
-                rows.push(Value::Object(values));
+                    .map(|(field, column)| (field.name().as_str(), cell(column.as_ref(), row)));
+                rows.push(StoredEpisode::from_columns(columns));
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// v2.1's episodes: `episodes.jsonl` in order, each joined with its `episodes_stats.jsonl` line
+/// (by `episode_index`; the file may be absent).
+fn episode_rows_v21(root: &Path) -> Result<Vec<StoredEpisode>, ExportError> {
+    #[derive(serde::Deserialize)]
+    struct StatsLine {
+        episode_index: usize,
+        stats: StatsJson,
+    }
+    fn lines<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>, ExportError> {
+        let text = std::fs::read_to_string(path).map_err(ExportError::io(path))?;
+        text.lines()
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| {
+                serde_json::from_str(l).map_err(|source| ExportError::Json {
+                    path: path.to_path_buf(),
+                    source,
+                })
+            })
+            .collect()
+    }
+    let episodes: Vec<serde_json::Map<String, Value>> = lines(&root.join("meta/episodes.jsonl"))?;
+    let mut rows: Vec<StoredEpisode> = episodes
+        .into_iter()
+        .map(|line| StoredEpisode::from_columns(line.iter().map(|(k, v)| (k.as_str(), v.clone()))))
+        .collect();
+    let stats_path = root.join("meta/episodes_stats.jsonl");
+    if stats_path.exists() {
+        for line in lines::<StatsLine>(&stats_path)? {
+            if let Some(row) = rows.get_mut(line.episode_index) {
+                row.stats = line.stats;
             }
         }
     }
@@ -475,7 +480,7 @@ pub struct LeRobotSource {
     total_episodes: u64,
     tasks: Vec<String>,
     /// Each episode's row of the episodes metadata (see [`episode_rows`]).
-    episodes: Vec<Value>,
+    episodes: Vec<StoredEpisode>,
     v21: bool,
     chunks_size: u64,
     /// info.json's `video_path` template.
@@ -569,7 +574,6 @@ impl LeRobotSource {
             .get(index as usize)
             .cloned()
             .unwrap_or_default();
-        let number = |name: &str| row[format!("videos/{key}/{name}")].as_f64();
         let (relative, span) = if self.v21 {
             let fields = [
                 ("video_key", key.to_string()),
@@ -578,12 +582,7 @@ impl LeRobotSource {
             ];
             (fill_template(&self.video_path, &fields), None)
         } else {
-            let (Some(chunk), Some(file), Some(from), Some(to)) = (
-                number("chunk_index"),
-                number("file_index"),
-                number("from_timestamp"),
-                number("to_timestamp"),
-            ) else {
+            let Some(span) = row.videos.get(key) else {
                 return Err(invalid(
                     &self.root.join("meta/episodes"),
                     format!("episode {index} lacks its videos/{key}/... columns"),
@@ -591,10 +590,13 @@ impl LeRobotSource {
             };
             let fields = [
                 ("video_key", key.to_string()),
-                ("chunk_index", (chunk as u64).to_string()),
-                ("file_index", (file as u64).to_string()),
+                ("chunk_index", span.chunk.to_string()),
+                ("file_index", span.file.to_string()),
             ];
-            (fill_template(&self.video_path, &fields), Some((from, to)))
+            (
+                fill_template(&self.video_path, &fields),
+                Some((span.from_secs, span.to_secs)),
+            )
         };
         let path = self.root.join(relative);
         if self.video.as_ref().is_none_or(|(open, _)| *open != path) {
@@ -626,23 +628,10 @@ impl LeRobotSource {
                 ),
             ));
         }
-        let exact = &row[format!("{}{key}", super::table::PIXEL_STATS)];
-        let exact = match exact {
-            Value::String(text) => serde_json::from_str::<Value>(text).ok(),
-            Value::Object(_) => Some(exact.clone()),
-            _ => None,
-        };
-        let prefix = format!("stats/{key}/");
-        let summary: serde_json::Map<String, Value> = row
-            .as_object()
-            .into_iter()
-            .flatten()
-            .filter_map(|(k, v)| Some((k.strip_prefix(&prefix)?.to_string(), v.clone())))
-            .collect();
-        let pixel_stats = match exact {
-            Some(exact) => Some(PixelStats::Exact(exact)),
-            None if !summary.is_empty() => Some(PixelStats::Summary(Value::Object(summary))),
-            None => None,
+        let pixel_stats = match (row.pixel_stats.get(key), row.stats.get(key)) {
+            (Some(exact), _) => Some(PixelStats::Exact(exact.clone())),
+            (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
+            (None, None) => None,
         };
         Ok(EncodedFeature {
             feature: key.to_string(),
@@ -819,7 +808,7 @@ impl EpisodeSource for LeRobotSource {
         let provenance = self
             .episodes
             .get(index as usize)
-            .cloned()
+            .map(|e| e.provenance.clone())
             .unwrap_or_default();
         let mut encoded: Vec<EncodedFeature> = stored_keys
             .into_iter()
@@ -855,16 +844,13 @@ impl EpisodeSource for LeRobotSource {
             encoded,
             meta: EpisodeMeta {
                 index: index as u64,
-                task_code: provenance["surgvla/task_id"]
-                    .as_str()
-                    .unwrap_or_default()
-                    .into(),
+                task_code: provenance.task_id,
                 task_name: String::new(),
-                level: provenance["surgvla/level"].as_u64().unwrap_or(0) as u8,
+                level: provenance.level,
                 instruction,
-                seed: provenance["surgvla/seed"].as_i64().unwrap_or(0) as u64,
-                attempts: provenance["surgvla/attempts"].as_u64().unwrap_or(0) as u32,
-                success: provenance["surgvla/success"].as_bool().unwrap_or(false),
+                seed: provenance.seed,
+                attempts: provenance.attempts,
+                success: provenance.success,
             },
             steps,
         }))

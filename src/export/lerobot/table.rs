@@ -1,9 +1,9 @@
 //! Arrow tables of a LeRobot dataset: the frame table (one row per step, one row group per
 //! episode), `tasks.parquet` with its pandas index metadata, and the episodes table.
 
+use super::meta::{StatValue, StatsJson};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
 use crate::export::ExportError;
-use crate::export::stats::flat;
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{
     ArrayRef, BinaryArray, BooleanArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch,
@@ -249,7 +249,7 @@ pub struct EpisodeRow {
     pub to_index: u64,
     /// Per feature, its statistics object (min, max, ... q99), as in stats.json and v2.1's
     /// episodes_stats.jsonl; the episodes table flattens it to `stats/<feature>/<stat>` columns.
-    pub stats: Value,
+    pub stats: StatsJson,
     /// Where each video feature's frames are.
     pub videos: Vec<KeyedSpan>,
     /// Per video feature of a surgvla dataset, the exact statistics accumulator of its pixels
@@ -257,6 +257,85 @@ pub struct EpisodeRow {
     #[serde(default)]
     pub pixel_stats: Vec<(String, Value)>,
     pub provenance: Provenance,
+}
+
+/// One episode's row of the episodes metadata as a reader sees it (v3.0's parquet row, or v2.1's
+/// `episodes.jsonl` line with its `episodes_stats.jsonl` line), read leniently: a column of the
+/// wrong type reads as absent.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StoredEpisode {
+    /// Per video feature, where its frames are (v3.0: the four `videos/<key>/...` columns).
+    pub videos: std::collections::BTreeMap<String, VideoSpan>,
+    /// Per feature, its statistics (v3.0: the `stats/<feature>/<stat>` columns).
+    pub stats: StatsJson,
+    /// Per video feature of a surgvla dataset, the exact statistics accumulator of its pixels
+    /// (the `surgvla/pixel_stats/<feature>` column, JSON text or an object).
+    pub pixel_stats: std::collections::BTreeMap<String, Value>,
+    /// The `surgvla/...` columns (each absent one reads as zero, empty or false).
+    pub provenance: Provenance,
+}
+
+impl StoredEpisode {
+    /// The episode whose columns, keyed the v3.0 way, are `columns`.
+    pub fn from_columns<'a>(columns: impl IntoIterator<Item = (&'a str, Value)>) -> Self {
+        let mut episode = StoredEpisode::default();
+        let mut spans: std::collections::BTreeMap<String, [Option<f64>; 4]> = Default::default();
+        for (name, value) in columns {
+            let p = &mut episode.provenance;
+            match name {
+                "surgvla/seed" => p.seed = value.as_i64().unwrap_or(0) as u64,
+                "surgvla/task_id" => p.task_id = value.as_str().unwrap_or_default().into(),
+                "surgvla/level" => p.level = value.as_u64().unwrap_or(0) as u8,
+                "surgvla/attempts" => p.attempts = value.as_u64().unwrap_or(0) as u32,
+                "surgvla/success" => p.success = value.as_bool().unwrap_or(false),
+                _ => {}
+            }
+            if let Some(key) = name.strip_prefix(PIXEL_STATS) {
+                let exact = match value {
+                    Value::String(text) => serde_json::from_str::<Value>(&text).ok(),
+                    Value::Object(_) => Some(value),
+                    _ => None,
+                };
+                if let Some(exact) = exact {
+                    episode.pixel_stats.insert(key.to_string(), exact);
+                }
+            } else if let Some((feature, stat)) =
+                name.strip_prefix("stats/").and_then(|n| n.rsplit_once('/'))
+            {
+                if let Ok(value) = serde_json::from_value::<StatValue>(value) {
+                    let entry = episode.stats.entry(feature.to_string()).or_default();
+                    entry.set(stat, value);
+                }
+            } else if let Some((key, part)) = name
+                .strip_prefix("videos/")
+                .and_then(|n| n.rsplit_once('/'))
+            {
+                let slot = [
+                    "chunk_index",
+                    "file_index",
+                    "from_timestamp",
+                    "to_timestamp",
+                ]
+                .iter()
+                .position(|p| *p == part);
+                if let Some(slot) = slot {
+                    spans.entry(key.to_string()).or_default()[slot] = value.as_f64();
+                }
+            }
+        }
+        for (key, parts) in spans {
+            if let [Some(chunk), Some(file), Some(from_secs), Some(to_secs)] = parts {
+                let span = VideoSpan {
+                    chunk: chunk as u64,
+                    file: file as u64,
+                    from_secs,
+                    to_secs,
+                };
+                episode.videos.insert(key, span);
+            }
+        }
+        episode
+    }
 }
 
 /// A video feature's span.
@@ -271,7 +350,7 @@ pub const PIXEL_STATS: &str = "surgvla/pixel_stats/";
 
 /// Where an episode came from: what it takes to re-run or audit it. Stored as the `surgvla/...`
 /// columns of the episodes table (v3.0) or keys of `episodes.jsonl` (v2.1).
-#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, Default, PartialEq)]
 pub struct Provenance {
     pub seed: u64,
     pub task_id: String,
@@ -312,15 +391,10 @@ pub struct VideoSpan {
     pub to_secs: f64,
 }
 
-fn json_depth(value: &Value) -> usize {
-    match value {
-        Value::Array(items) => 1 + items.first().map_or(0, json_depth),
-        _ => 0,
-    }
-}
-
-/// A column of nested lists of f64 (depth 1 or 3) or of i64 counts, one entry per episode.
-fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
+/// A column of nested lists of f64 (depth 1 or 3) or of i64 counts, one entry per episode (an
+/// absent statistic is an empty list).
+fn stats_column(values: &[Option<&StatValue>], name: &str) -> ArrayRef {
+    let flat = |v: &Option<&StatValue>| v.map(|v| v.flat()).unwrap_or_default();
     if name.ends_with("/count") {
         let mut builder = ListBuilder::new(Int64Builder::new());
         for v in values {
@@ -331,13 +405,13 @@ fn stats_column(values: &[&Value], name: &str) -> ArrayRef {
         }
         return Arc::new(builder.finish());
     }
-    if values.first().map_or(1, |v| json_depth(v)) == 3 {
+    if values.first().map_or(1, |v| v.map_or(0, StatValue::depth)) == 3 {
         let mut builder =
             ListBuilder::new(ListBuilder::new(ListBuilder::new(Float64Builder::new())));
         for v in values {
-            for channel in v.as_array().into_iter().flatten() {
-                for row in channel.as_array().into_iter().flatten() {
-                    for x in flat(row) {
+            for channel in v.map(StatValue::items).unwrap_or_default() {
+                for row in channel.items() {
+                    for x in row.flat() {
                         builder.values().values().values().append_value(x);
                     }
                     builder.values().values().append(true);
@@ -411,11 +485,14 @@ pub fn episodes_batch(
             )),
         ));
     }
-    if let Some(features) = rows.first().and_then(|r| r.stats.as_object()) {
-        for (feature, stats) in features {
-            for stat in stats.as_object().map(|o| o.keys()).into_iter().flatten() {
+    if let Some(first) = rows.first() {
+        for (feature, stats) in &first.stats {
+            for (stat, _) in stats.named() {
                 let name = format!("stats/{feature}/{stat}");
-                let values: Vec<&Value> = rows.iter().map(|r| &r.stats[feature][stat]).collect();
+                let values: Vec<Option<&StatValue>> = rows
+                    .iter()
+                    .map(|r| r.stats.get(feature).and_then(|s| s.get(stat)))
+                    .collect();
                 columns.push((name.clone(), stats_column(&values, &name)));
             }
         }
@@ -463,4 +540,82 @@ pub fn episodes_batch(
         .collect();
     let arrays = columns.into_iter().map(|(_, a)| a).collect();
     Ok(RecordBatch::try_new(Arc::new(Schema::new(fields)), arrays)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn a_stored_episode_reads_its_columns_leniently() {
+        let columns = [
+            ("episode_index", json!(3)),
+            ("videos/observation.images.rgb/chunk_index", json!(0)),
+            ("videos/observation.images.rgb/file_index", json!(2)),
+            ("videos/observation.images.rgb/from_timestamp", json!(1.5)),
+            ("videos/observation.images.rgb/to_timestamp", json!(2.0)),
+            // A span lacking a column is no span.
+            ("videos/cam/chunk_index", json!(0)),
+            ("stats/observation.state/min", json!([0.0, 1.0])),
+            ("stats/observation.state/count", json!([7])),
+            ("stats/observation.state/max", json!("wrong")),
+            (
+                "surgvla/pixel_stats/observation.images.rgb",
+                json!("{\"frames\": 4}"),
+            ),
+            ("surgvla/pixel_stats/cam", json!("not json")),
+            ("surgvla/seed", json!(-1)),
+            ("surgvla/task_id", json!("T1-1")),
+            ("surgvla/level", json!("one")),
+            ("surgvla/success", json!(true)),
+        ];
+        let episode = StoredEpisode::from_columns(columns);
+        assert_eq!(
+            episode.videos.get("observation.images.rgb"),
+            Some(&VideoSpan {
+                chunk: 0,
+                file: 2,
+                from_secs: 1.5,
+                to_secs: 2.0
+            })
+        );
+        assert!(!episode.videos.contains_key("cam"));
+        let state = &episode.stats["observation.state"];
+        assert_eq!(state.min, Some(StatValue::list([0.0, 1.0])));
+        assert_eq!(state.count.as_ref().map(StatValue::flat), Some(vec![7.0]));
+        assert_eq!(state.max, None);
+        assert_eq!(
+            episode.pixel_stats["observation.images.rgb"],
+            json!({"frames": 4})
+        );
+        assert!(!episode.pixel_stats.contains_key("cam"));
+        let p = &episode.provenance;
+        assert_eq!(
+            (p.seed, p.task_id.as_str(), p.level, p.success),
+            (u64::MAX, "T1-1", 0, true)
+        );
+    }
+
+    #[test]
+    fn episode_stats_flatten_to_columns_by_depth() {
+        let vector = StatValue::list([1.0, 2.0]);
+        let image = StatValue::List(vec![StatValue::List(vec![StatValue::list([0.5])])]);
+        let count = StatValue::list([4.0]);
+        let column = stats_column(&[Some(&vector), None], "stats/a/min");
+        assert_eq!(column.len(), 2);
+        assert_eq!(
+            column.data_type(),
+            &DataType::List(Arc::new(Field::new_list_field(DataType::Float64, true)))
+        );
+        let nested = stats_column(&[Some(&image)], "stats/b/min");
+        assert!(
+            matches!(nested.data_type(), DataType::List(f) if matches!(f.data_type(), DataType::List(_)))
+        );
+        let counts = stats_column(&[Some(&count)], "stats/a/count");
+        assert_eq!(
+            counts.data_type(),
+            &DataType::List(Arc::new(Field::new_list_field(DataType::Int64, true)))
+        );
+    }
 }

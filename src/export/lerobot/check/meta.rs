@@ -4,6 +4,7 @@
 
 use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
 use crate::export::findings::{At, Findings};
+use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
 use crate::export::read_json;
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
 use serde_json::Value;
@@ -330,6 +331,46 @@ pub(super) fn check_stats(
         findings.file_error(&path, "stats", "is not valid JSON");
         return;
     };
+    // Leniently typed: a feature whose entry is not an object has no statistics.
+    let stats: StatsJson = stats
+        .as_object()
+        .into_iter()
+        .flatten()
+        .filter(|(_, entry)| entry.is_object())
+        .map(|(name, entry)| (name.clone(), FeatureStatsJson::from_value(entry.clone())))
+        .collect();
+    let data = data_moments(parts);
+    for feature in features
+        .iter()
+        .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
+    {
+        let Some(entry) = stats.get(&feature.name) else {
+            findings.file_error(
+                &path,
+                "stats",
+                format!("has no statistics for {}", feature.name),
+            );
+            continue;
+        };
+        // A statistic that is not numbers (or nested lists of them) counts as missing.
+        for key in STATS_KEYS {
+            if entry.get(key).is_none() {
+                findings.file_error(&path, "stats", format!("{} lacks {key}", feature.name));
+            }
+        }
+        let numeric = matches!(feature.dtype.as_str(), "float32" | "float64");
+        if !numeric {
+            continue;
+        }
+        check_stat_lengths(&path, feature, entry, findings);
+        if let Some(moments) = data.get(feature.name.as_str()).filter(|_| full) {
+            check_stats_against_data(&path, feature, entry, moments, findings);
+        }
+    }
+}
+
+/// Per feature, the data's moments over every part.
+fn data_moments(parts: &[Part]) -> BTreeMap<&str, Moments> {
     let mut data: BTreeMap<&str, Moments> = BTreeMap::new();
     for part in parts {
         for (name, moments) in &part.moments {
@@ -341,63 +382,57 @@ pub(super) fn check_stats(
             }
         }
     }
-    for feature in features
-        .iter()
-        .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
-    {
-        let entry = &stats[&feature.name];
-        if !entry.is_object() {
+    data
+}
+
+/// A numeric feature's statistics hold one value per element.
+fn check_stat_lengths(
+    path: &Path,
+    feature: &Declared,
+    entry: &FeatureStatsJson,
+    findings: &Findings,
+) {
+    let n = feature.elements();
+    for key in ["min", "max", "mean", "std", "q01", "q50", "q99"] {
+        if let Some(len) = entry.get(key).and_then(StatValue::len)
+            && len != n
+        {
             findings.file_error(
-                &path,
+                path,
                 "stats",
-                format!("has no statistics for {}", feature.name),
+                format!(
+                    "{}.{key} has {len} values for shape {:?}",
+                    feature.name, feature.shape
+                ),
             );
-            continue;
         }
-        for key in STATS_KEYS {
-            if entry.get(key).is_none() {
-                findings.file_error(&path, "stats", format!("{} lacks {key}", feature.name));
-            }
-        }
-        let numeric = matches!(feature.dtype.as_str(), "float32" | "float64");
-        if numeric {
-            let n = feature.elements();
-            for key in ["min", "max", "mean", "std", "q01", "q50", "q99"] {
-                if let Some(values) = entry[key].as_array()
-                    && values.len() != n
-                {
-                    findings.file_error(
-                        &path,
-                        "stats",
-                        format!(
-                            "{}.{key} has {} values for shape {:?}",
-                            feature.name,
-                            values.len(),
-                            feature.shape
-                        ),
-                    );
-                }
-            }
-        }
-        let Some(moments) = data.get(feature.name.as_str()).filter(|_| full && numeric) else {
-            continue;
-        };
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-4 * (1.0 + a.abs().max(b.abs()));
-        for (i, &(min, max, sum, count)) in moments.iter().enumerate() {
-            let stat = |key: &str| entry[key][i].as_f64();
-            let mean = sum / count.max(1) as f64;
-            for (key, value) in [("min", min), ("max", max), ("mean", mean)] {
-                if stat(key).is_some_and(|s| !close(s, value)) {
-                    findings.file_error(
-                        &path,
-                        "stats",
-                        format!(
-                            "{}.{key}[{i}] is {}, the data gives {value}",
-                            feature.name,
-                            stat(key).unwrap_or_default()
-                        ),
-                    );
-                }
+    }
+}
+
+/// A numeric feature's min, max and mean agree with the data's.
+fn check_stats_against_data(
+    path: &Path,
+    feature: &Declared,
+    entry: &FeatureStatsJson,
+    moments: &Moments,
+    findings: &Findings,
+) {
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-4 * (1.0 + a.abs().max(b.abs()));
+    for (i, &(min, max, sum, count)) in moments.iter().enumerate() {
+        let mean = sum / count.max(1) as f64;
+        for (key, value) in [("min", min), ("max", max), ("mean", mean)] {
+            let Some(stat) = entry.get(key).and_then(|s| s.element(i)) else {
+                continue;
+            };
+            if !close(stat, value) {
+                findings.file_error(
+                    path,
+                    "stats",
+                    format!(
+                        "{}.{key}[{i}] is {stat}, the data gives {value}",
+                        feature.name
+                    ),
+                );
             }
         }
     }
