@@ -207,7 +207,7 @@ impl StatValue {
     }
 
     /// The outer list's length, or None when this is not a list.
-    pub fn len(&self) -> Option<usize> {
+    pub fn list_len(&self) -> Option<usize> {
         match self {
             StatValue::List(items) => Some(items.len()),
             _ => None,

@@ -394,7 +394,7 @@ fn check_stat_lengths(
 ) {
     let n = feature.elements();
     for key in ["min", "max", "mean", "std", "q01", "q50", "q99"] {
-        if let Some(len) = entry.get(key).and_then(StatValue::len)
+        if let Some(len) = entry.get(key).and_then(StatValue::list_len)
             && len != n
         {
             findings.file_error(
