@@ -56,29 +56,63 @@ fn is_type(value: &Value, wanted: &str) -> bool {
         || wanted == "integer" && value.as_f64().is_some_and(|v| v.fract() == 0.0)
 }
 
-fn walk(value: &Value, schema: &Value, pointer: &str, problems: &mut Vec<(String, String)>) {
+/// Problems found: (JSON pointer, what is wrong).
+type Problems = Vec<(String, String)>;
+
+fn walk(value: &Value, schema: &Value, pointer: &str, problems: &mut Problems) {
     let Some(schema) = schema.as_object() else {
         if schema == &Value::Bool(false) {
             problems.push((pointer.into(), "is not allowed here".into()));
         }
         return;
     };
-    let mut problem = |message: String| problems_push(problems, pointer, message);
-    if let Some(wanted) = schema.get("type") {
-        let types: Vec<&str> = match wanted {
-            Value::String(t) => vec![t.as_str()],
-            Value::Array(ts) => ts.iter().filter_map(Value::as_str).collect(),
-            _ => Vec::new(),
-        };
-        if !types.is_empty() && !types.iter().any(|t| is_type(value, t)) {
-            problem(format!(
-                "is {} where {} is required",
-                type_name(value),
-                types.join(" or ")
-            ));
-            return;
-        }
+    if !check_type(value, schema, pointer, problems) {
+        return;
     }
+    check_value(value, schema, pointer, problems);
+    if let Some(items) = value.as_array() {
+        check_items(items, schema, pointer, problems);
+    }
+    if let Some(object) = value.as_object() {
+        check_object(object, schema, pointer, problems);
+    }
+}
+
+/// `type`: whether the value has one of the types allowed (if not, nothing else is checked).
+fn check_type(
+    value: &Value,
+    schema: &serde_json::Map<String, Value>,
+    pointer: &str,
+    problems: &mut Problems,
+) -> bool {
+    let Some(wanted) = schema.get("type") else {
+        return true;
+    };
+    let types: Vec<&str> = match wanted {
+        Value::String(t) => vec![t.as_str()],
+        Value::Array(ts) => ts.iter().filter_map(Value::as_str).collect(),
+        _ => Vec::new(),
+    };
+    if !types.is_empty() && !types.iter().any(|t| is_type(value, t)) {
+        let message = format!(
+            "is {} where {} is required",
+            type_name(value),
+            types.join(" or ")
+        );
+        problems_push(problems, pointer, message);
+        return false;
+    }
+    true
+}
+
+/// `enum`, `const`, numeric bounds and `minLength`.
+fn check_value(
+    value: &Value,
+    schema: &serde_json::Map<String, Value>,
+    pointer: &str,
+    problems: &mut Problems,
+) {
+    let mut problem = |message: String| problems_push(problems, pointer, message);
     if let Some(Value::Array(options)) = schema.get("enum")
         && !options.contains(value)
     {
@@ -117,56 +151,72 @@ fn walk(value: &Value, schema: &Value, pointer: &str, problems: &mut Vec<(String
     {
         problem(format!("is shorter than {min} characters"));
     }
-    if let Some(items) = value.as_array() {
-        let count = |key: &str| schema.get(key).and_then(Value::as_u64);
-        if let Some(min) = count("minItems")
-            && (items.len() as u64) < min
-        {
-            problem(format!("has {} items, fewer than {min}", items.len()));
-        }
-        if let Some(max) = count("maxItems")
-            && (items.len() as u64) > max
-        {
-            problem(format!("has {} items, more than {max}", items.len()));
-        }
-        if let Some(item_schema) = schema.get("items") {
-            for (i, item) in items.iter().enumerate() {
-                walk(item, item_schema, &format!("{pointer}/{i}"), problems);
-            }
-        }
+}
+
+/// `minItems`, `maxItems` and each item against `items`.
+fn check_items(
+    items: &[Value],
+    schema: &serde_json::Map<String, Value>,
+    pointer: &str,
+    problems: &mut Problems,
+) {
+    let count = |key: &str| schema.get(key).and_then(Value::as_u64);
+    if let Some(min) = count("minItems")
+        && (items.len() as u64) < min
+    {
+        let message = format!("has {} items, fewer than {min}", items.len());
+        problems_push(problems, pointer, message);
     }
-    if let Some(object) = value.as_object() {
-        if let Some(Value::Array(required)) = schema.get("required") {
-            for key in required.iter().filter_map(Value::as_str) {
-                if !object.contains_key(key) {
-                    problems_push(
-                        problems,
-                        pointer,
-                        format!("lacks the required key \"{key}\""),
-                    );
-                }
-            }
-        }
-        let properties = schema.get("properties").and_then(Value::as_object);
-        for (key, item) in object {
-            let child = format!("{pointer}/{key}");
-            match properties.and_then(|p| p.get(key)) {
-                Some(property) => walk(item, property, &child, problems),
-                None => match schema.get("additionalProperties") {
-                    Some(Value::Bool(false)) => problems_push(
-                        problems,
-                        pointer,
-                        format!("has an unexpected key \"{key}\""),
-                    ),
-                    Some(extra @ Value::Object(_)) => walk(item, extra, &child, problems),
-                    _ => {}
-                },
-            }
+    if let Some(max) = count("maxItems")
+        && (items.len() as u64) > max
+    {
+        let message = format!("has {} items, more than {max}", items.len());
+        problems_push(problems, pointer, message);
+    }
+    if let Some(item_schema) = schema.get("items") {
+        for (i, item) in items.iter().enumerate() {
+            walk(item, item_schema, &format!("{pointer}/{i}"), problems);
         }
     }
 }
 
-fn problems_push(problems: &mut Vec<(String, String)>, pointer: &str, message: String) {
+/// `required`, each key against its `properties` entry or `additionalProperties`.
+fn check_object(
+    object: &serde_json::Map<String, Value>,
+    schema: &serde_json::Map<String, Value>,
+    pointer: &str,
+    problems: &mut Problems,
+) {
+    if let Some(Value::Array(required)) = schema.get("required") {
+        for key in required.iter().filter_map(Value::as_str) {
+            if !object.contains_key(key) {
+                problems_push(
+                    problems,
+                    pointer,
+                    format!("lacks the required key \"{key}\""),
+                );
+            }
+        }
+    }
+    let properties = schema.get("properties").and_then(Value::as_object);
+    for (key, item) in object {
+        let child = format!("{pointer}/{key}");
+        match properties.and_then(|p| p.get(key)) {
+            Some(property) => walk(item, property, &child, problems),
+            None => match schema.get("additionalProperties") {
+                Some(Value::Bool(false)) => problems_push(
+                    problems,
+                    pointer,
+                    format!("has an unexpected key \"{key}\""),
+                ),
+                Some(extra @ Value::Object(_)) => walk(item, extra, &child, problems),
+                _ => {}
+            },
+        }
+    }
+}
+
+fn problems_push(problems: &mut Problems, pointer: &str, message: String) {
     problems.push((pointer.to_string(), message));
 }
 

@@ -100,7 +100,7 @@ pub fn check_record(
     leaves: &BTreeMap<String, Leaf>,
     record: &BTreeMap<String, Feature>,
     decode_images: bool,
-) -> Vec<(Option<u64>, &'static str, String)> {
+) -> Problems {
     let mut problems = Vec::new();
     for key in record.keys() {
         if !leaves.contains_key(key) {
@@ -111,79 +111,109 @@ pub fn check_record(
             ));
         }
     }
-    let steps = match record.get("steps/is_first").or_else(|| {
-        leaves
-            .keys()
-            .find(|k| k.starts_with("steps/"))
-            .and_then(|k| record.get(k))
-    }) {
-        Some(Feature::Int64(v)) => v.len(),
-        Some(Feature::Float(v)) => v.len(),
-        Some(Feature::Bytes(v)) => v.len(),
-        None => 0,
-    };
+    let steps = step_count(leaves, record);
     if steps == 0 {
         problems.push((None, "steps", "the episode has zero steps".into()));
         return problems;
     }
     for (key, leaf) in leaves {
-        let per_step = key.starts_with("steps/");
-        let count = if per_step { steps } else { 1 };
-        let Some(value) = record.get(key) else {
-            problems.push((
-                None,
-                "features",
-                format!("{key} is declared in features.json but missing"),
-            ));
-            continue;
-        };
-        let (len, kind) = match value {
-            Feature::Int64(v) => (v.len(), "int64"),
-            Feature::Float(v) => (v.len(), "float"),
-            Feature::Bytes(v) => (v.len(), "bytes"),
-        };
-        let expected = match leaf {
-            Leaf::Tensor { elements, .. } => count * elements,
-            _ => count,
-        };
-        if len != expected {
-            problems.push((
-                None,
-                "step_counts",
-                format!("{key} holds {len} {kind} values where {count} steps need {expected}"),
-            ));
-            continue;
-        }
-        match (leaf, value) {
-            (_, Feature::Float(values)) => {
-                if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-                    let step = per_step.then_some((i / (len / count).max(1)) as u64);
-                    problems.push((step, "finite", format!("{key} holds {}", values[i])));
-                }
-            }
-            (Leaf::Text, Feature::Bytes(texts)) if key.ends_with("language_instruction") => {
-                if let Some(i) = texts
-                    .iter()
-                    .position(|t| t.iter().all(u8::is_ascii_whitespace))
-                {
-                    problems.push((Some(i as u64), "instruction", format!("{key} is empty")));
-                }
-            }
-            (Leaf::Image { shape, dtype }, Feature::Bytes(images)) if decode_images => {
-                for (i, bytes) in images.iter().enumerate() {
-                    if let Some(problem) = image_problem(bytes, *shape, dtype) {
-                        problems.push((
-                            per_step.then_some(i as u64),
-                            "image",
-                            format!("{key} {problem}"),
-                        ));
-                        break;
-                    }
-                }
-            }
-            _ => {}
-        }
+        check_leaf(key, leaf, record, steps, decode_images, &mut problems);
     }
+    check_flags(record, steps, &mut problems);
+    problems
+}
+
+/// A record's problems: (step, check, what).
+type Problems = Vec<(Option<u64>, &'static str, String)>;
+
+/// The episode's steps: the length of `steps/is_first`, or of the first per-step feature.
+fn step_count(leaves: &BTreeMap<String, Leaf>, record: &BTreeMap<String, Feature>) -> usize {
+    let first = record.get("steps/is_first").or_else(|| {
+        leaves
+            .keys()
+            .find(|k| k.starts_with("steps/"))
+            .and_then(|k| record.get(k))
+    });
+    match first {
+        Some(Feature::Int64(v)) => v.len(),
+        Some(Feature::Float(v)) => v.len(),
+        Some(Feature::Bytes(v)) => v.len(),
+        None => 0,
+    }
+}
+
+/// One declared feature: present, holding a value per step (times its elements), finite,
+/// instructions not blank, images decoding to their declared shape.
+fn check_leaf(
+    key: &str,
+    leaf: &Leaf,
+    record: &BTreeMap<String, Feature>,
+    steps: usize,
+    decode_images: bool,
+    problems: &mut Problems,
+) {
+    let per_step = key.starts_with("steps/");
+    let count = if per_step { steps } else { 1 };
+    let Some(value) = record.get(key) else {
+        problems.push((
+            None,
+            "features",
+            format!("{key} is declared in features.json but missing"),
+        ));
+        return;
+    };
+    let (len, kind) = match value {
+        Feature::Int64(v) => (v.len(), "int64"),
+        Feature::Float(v) => (v.len(), "float"),
+        Feature::Bytes(v) => (v.len(), "bytes"),
+    };
+    let expected = match leaf {
+        Leaf::Tensor { elements, .. } => count * elements,
+        _ => count,
+    };
+    if len != expected {
+        problems.push((
+            None,
+            "step_counts",
+            format!("{key} holds {len} {kind} values where {count} steps need {expected}"),
+        ));
+        return;
+    }
+    match (leaf, value) {
+        (_, Feature::Float(values)) => {
+            if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+                let step = per_step.then_some((i / (len / count).max(1)) as u64);
+                problems.push((step, "finite", format!("{key} holds {}", values[i])));
+            }
+        }
+        (Leaf::Text, Feature::Bytes(texts)) if key.ends_with("language_instruction") => {
+            if let Some(i) = texts
+                .iter()
+                .position(|t| t.iter().all(u8::is_ascii_whitespace))
+            {
+                problems.push((Some(i as u64), "instruction", format!("{key} is empty")));
+            }
+        }
+        (Leaf::Image { shape, dtype }, Feature::Bytes(images)) if decode_images => {
+            let first_bad = images
+                .iter()
+                .enumerate()
+                .find_map(|(i, bytes)| Some((i, image_problem(bytes, *shape, dtype)?)));
+            if let Some((i, problem)) = first_bad {
+                problems.push((
+                    per_step.then_some(i as u64),
+                    "image",
+                    format!("{key} {problem}"),
+                ));
+            }
+        }
+        _ => {}
+    }
+}
+
+/// `is_first` true on the first step only, `is_last` on the last only, `is_terminal` (optional)
+/// nowhere but the last; all 0/1.
+fn check_flags(record: &BTreeMap<String, Feature>, steps: usize, problems: &mut Problems) {
     for (name, first_last) in [
         ("is_first", true),
         ("is_last", false),
@@ -223,7 +253,6 @@ pub fn check_record(
             ));
         }
     }
-    problems
 }
 
 /// What is wrong with one encoded image, if anything.

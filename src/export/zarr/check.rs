@@ -99,82 +99,98 @@ fn check_chunks(root: &Path, array: &ArrayMeta, quick: bool, findings: &Findings
         .map(|(s, c)| s.div_ceil(*c))
         .collect();
     let count: usize = grid.iter().product();
-    let chunk_bytes = array.chunks.iter().product::<usize>() * array.item_bytes;
-    let float = array.dtype.ends_with("f4") || array.dtype.ends_with("f8");
-    let rows_per_chunk = array.chunks.first().copied().unwrap_or(1);
     let limit = if quick { count.min(1) } else { count };
-    (0..limit).into_par_iter().for_each(|linear| {
-        let mut rest = linear;
-        let mut key = vec![0usize; grid.len()];
-        for (axis, size) in grid.iter().enumerate().rev() {
-            key[axis] = rest % size;
-            rest /= size;
-        }
-        let name = key
-            .iter()
-            .map(usize::to_string)
-            .collect::<Vec<_>>()
-            .join(".");
-        let name = if name.is_empty() {
-            "0".to_string()
-        } else {
-            name
-        };
-        let path = root.join(&array.name).join(&name);
-        let at = || At::file(findings.relative(&path));
-        let Ok(stored) = std::fs::read(&path) else {
-            findings.error(at(), "present", "chunk is missing");
-            return;
-        };
-        let bytes = if array.zstd {
-            match zstd::stream::decode_all(stored.as_slice()) {
-                Ok(bytes) => bytes,
-                Err(_) => {
-                    findings.error(at(), "chunk", "is not a zstd frame");
-                    return;
-                }
-            }
-        } else {
-            stored
-        };
-        if bytes.len() != chunk_bytes {
-            findings.error(
-                at(),
-                "chunk",
-                format!(
-                    "decodes to {} bytes, a chunk of {:?} {} is {chunk_bytes}",
-                    bytes.len(),
-                    array.chunks,
-                    array.dtype
-                ),
-            );
-            return;
-        }
-        if float {
-            let row_bytes = chunk_bytes / rows_per_chunk.max(1);
-            let valid_rows = array.shape.first().map_or(0, |t| {
-                t.saturating_sub(key[0] * rows_per_chunk)
-                    .min(rows_per_chunk)
-            });
-            let bad = if array.dtype.ends_with("f4") {
-                bytes[..valid_rows * row_bytes]
-                    .chunks_exact(4)
-                    .position(|b| !f32::from_le_bytes([b[0], b[1], b[2], b[3]]).is_finite())
-            } else {
-                bytes[..valid_rows * row_bytes]
-                    .chunks_exact(8)
-                    .position(|b| !f64::from_le_bytes(b.try_into().unwrap_or([0; 8])).is_finite())
-            };
-            if let Some(position) = bad {
-                let row = key[0] * rows_per_chunk + position * array.item_bytes / row_bytes.max(1);
-                findings.error(
-                    at().frame(row as u64),
-                    "finite",
-                    format!("{} holds NaN or Inf at row {row}", array.name),
-                );
+    (0..limit)
+        .into_par_iter()
+        .for_each(|linear| check_chunk(root, array, &chunk_key(linear, &grid), findings));
+}
+
+/// The key (index per axis) of the chunk at row-major position `linear` of `grid`.
+fn chunk_key(linear: usize, grid: &[usize]) -> Vec<usize> {
+    let mut rest = linear;
+    let mut key = vec![0usize; grid.len()];
+    for (axis, size) in grid.iter().enumerate().rev() {
+        key[axis] = rest % size;
+        rest /= size;
+    }
+    key
+}
+
+/// One chunk: present, decoding to a whole chunk's bytes, its floats finite (in the rows the
+/// array's shape covers).
+fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Findings) {
+    let name = key
+        .iter()
+        .map(usize::to_string)
+        .collect::<Vec<_>>()
+        .join(".");
+    let name = if name.is_empty() {
+        "0".to_string()
+    } else {
+        name
+    };
+    let path = root.join(&array.name).join(&name);
+    let at = || At::file(findings.relative(&path));
+    let chunk_bytes = array.chunks.iter().product::<usize>() * array.item_bytes;
+    let Ok(stored) = std::fs::read(&path) else {
+        findings.error(at(), "present", "chunk is missing");
+        return;
+    };
+    let bytes = if array.zstd {
+        match zstd::stream::decode_all(stored.as_slice()) {
+            Ok(bytes) => bytes,
+            Err(_) => {
+                findings.error(at(), "chunk", "is not a zstd frame");
+                return;
             }
         }
+    } else {
+        stored
+    };
+    if bytes.len() != chunk_bytes {
+        findings.error(
+            at(),
+            "chunk",
+            format!(
+                "decodes to {} bytes, a chunk of {:?} {} is {chunk_bytes}",
+                bytes.len(),
+                array.chunks,
+                array.dtype
+            ),
+        );
+        return;
+    }
+    let rows_per_chunk = array.chunks.first().copied().unwrap_or(1);
+    let row_bytes = chunk_bytes / rows_per_chunk.max(1);
+    let valid_rows = array.shape.first().map_or(0, |t| {
+        t.saturating_sub(key.first().copied().unwrap_or(0) * rows_per_chunk)
+            .min(rows_per_chunk)
     });
+    if let Some(position) = first_non_finite(&bytes[..valid_rows * row_bytes], &array.dtype) {
+        let row = key.first().copied().unwrap_or(0) * rows_per_chunk
+            + position * array.item_bytes / row_bytes.max(1);
+        findings.error(
+            at().frame(row as u64),
+            "finite",
+            format!("{} holds NaN or Inf at row {row}", array.name),
+        );
+    }
+}
+
+/// The position of the first NaN or infinity among little-endian floats of `dtype` (`<f4` or
+/// `<f8`; None for any other dtype).
+fn first_non_finite(bytes: &[u8], dtype: &str) -> Option<usize> {
+    if dtype.ends_with("f4") {
+        bytes
+            .chunks_exact(4)
+            .position(|b| !f32::from_le_bytes([b[0], b[1], b[2], b[3]]).is_finite())
+    } else if dtype.ends_with("f8") {
+        bytes
+            .chunks_exact(8)
+            .position(|b| !f64::from_le_bytes(b.try_into().unwrap_or([0; 8])).is_finite())
+    } else {
+        None
+    }
 }
 
 /// Reads an int64 1-D array whole.

@@ -3,6 +3,7 @@
 //! video files' spans.
 
 use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
+use crate::export::demux::VideoReader;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
 use crate::export::read_json;
@@ -23,67 +24,11 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
         findings.file_error(&path, "present", "is missing");
         return Vec::new();
     }
-    let mut tasks: Vec<(i64, String)> = Vec::new();
-    if v21 {
-        let Ok(text) = std::fs::read_to_string(&path) else {
-            findings.file_error(&path, "readable", "cannot be read");
-            return Vec::new();
-        };
-        for (line_number, line) in text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim().is_empty())
-        {
-            match crate::export::lerobot::meta::TaskLine::of(line) {
-                crate::export::lerobot::meta::TaskLine {
-                    task_index: Some(index),
-                    task: Some(task),
-                } => tasks.push((index, task)),
-                _ => findings.file_error(
-                    &path,
-                    "tasks",
-                    format!("line {} lacks task_index or task", line_number + 1),
-                ),
-            }
-        }
+    let tasks = if v21 {
+        read_tasks_v21(&path, findings)
     } else {
-        match crate::export::lerobot::read::schema_metadata(&path, "pandas") {
-            Ok(Some(pandas)) => {
-                let pandas: Value = serde_json::from_str(&pandas).unwrap_or(Value::Null);
-                if pandas["index_columns"] != serde_json::json!(["task"]) {
-                    findings.file_error(
-                        &path,
-                        "tasks",
-                        "the pandas metadata does not index by \"task\" (lerobot then returns task indices as the task)",
-                    );
-                }
-            }
-            _ => findings.file_error(
-                &path,
-                "tasks",
-                "has no pandas schema metadata with index_columns [\"task\"] (lerobot then returns task indices as the task)",
-            ),
-        }
-        for batch in read_table(&path, findings).unwrap_or_default() {
-            let index = batch
-                .column_by_name("task_index")
-                .and_then(|c| c.as_any().downcast_ref::<Int64Array>());
-            let task = batch
-                .column_by_name("task")
-                .and_then(|c| c.as_any().downcast_ref::<StringArray>());
-            let (Some(index), Some(task)) = (index, task) else {
-                findings.file_error(
-                    &path,
-                    "tasks",
-                    "lacks an int64 task_index or a string task column",
-                );
-                break;
-            };
-            for row in 0..batch.num_rows() {
-                tasks.push((index.value(row), task.value(row).to_string()));
-            }
-        }
-    }
+        read_tasks_v30(&path, findings)
+    };
     for (position, (index, task)) in tasks.iter().enumerate() {
         if *index != position as i64 {
             findings.file_error(
@@ -103,6 +48,77 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
         }
     }
     tasks.into_iter().map(|(_, t)| t).collect()
+}
+
+/// v2.1's `meta/tasks.jsonl`: (task_index, task) per line.
+fn read_tasks_v21(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
+    use crate::export::lerobot::meta::TaskLine;
+    let Ok(text) = std::fs::read_to_string(path) else {
+        findings.file_error(path, "readable", "cannot be read");
+        return Vec::new();
+    };
+    let mut tasks = Vec::new();
+    for (line_number, line) in text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
+        match TaskLine::of(line) {
+            TaskLine {
+                task_index: Some(index),
+                task: Some(task),
+            } => tasks.push((index, task)),
+            _ => findings.file_error(
+                path,
+                "tasks",
+                format!("line {} lacks task_index or task", line_number + 1),
+            ),
+        }
+    }
+    tasks
+}
+
+/// v3.0's `meta/tasks.parquet`: (task_index, task) per row, and the pandas metadata that makes
+/// lerobot index the table by task.
+fn read_tasks_v30(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
+    match crate::export::lerobot::read::schema_metadata(path, "pandas") {
+        Ok(Some(pandas)) => {
+            let pandas: Value = serde_json::from_str(&pandas).unwrap_or(Value::Null);
+            if pandas["index_columns"] != serde_json::json!(["task"]) {
+                findings.file_error(
+                    path,
+                    "tasks",
+                    "the pandas metadata does not index by \"task\" (lerobot then returns task indices as the task)",
+                );
+            }
+        }
+        _ => findings.file_error(
+            path,
+            "tasks",
+            "has no pandas schema metadata with index_columns [\"task\"] (lerobot then returns task indices as the task)",
+        ),
+    }
+    let mut tasks = Vec::new();
+    for batch in read_table(path, findings).unwrap_or_default() {
+        let index = batch
+            .column_by_name("task_index")
+            .and_then(|c| c.as_any().downcast_ref::<Int64Array>());
+        let task = batch
+            .column_by_name("task")
+            .and_then(|c| c.as_any().downcast_ref::<StringArray>());
+        let (Some(index), Some(task)) = (index, task) else {
+            findings.file_error(
+                path,
+                "tasks",
+                "lacks an int64 task_index or a string task column",
+            );
+            break;
+        };
+        for row in 0..batch.num_rows() {
+            tasks.push((index.value(row), task.value(row).to_string()));
+        }
+    }
+    tasks
 }
 
 /// The episodes metadata, in row order.
@@ -192,83 +208,92 @@ fn read_episodes_v30(root: &Path, features: &[Declared], findings: &Findings) ->
     }
     for path in files {
         for batch in read_table(&path, findings).unwrap_or_default() {
-            let ints = |name: &str| {
-                batch
-                    .column_by_name(name)
-                    .and_then(|c| c.as_any().downcast_ref::<Int64Array>())
-            };
-            let floats = |name: &str| {
-                batch
-                    .column_by_name(name)
-                    .and_then(|c| c.as_any().downcast_ref::<Float64Array>())
-            };
             check_episode_columns(&batch, &path, features, findings);
-            let tasks = batch
-                .column_by_name("tasks")
-                .and_then(|c| c.as_any().downcast_ref::<ListArray>());
             for row in 0..batch.num_rows() {
-                let position = entries.len() as i64;
-                let get = |name: &str| ints(name).map(|c| c.value(row));
-                if let Some(index) = get("episode_index")
-                    && index != position
-                {
-                    findings.error(
-                        At::file(findings.relative(&path)).episode(position as u64),
-                        "episodes",
-                        format!("row {position} has episode_index {index}; lerobot looks episodes up by row"),
-                    );
-                }
-                let mut entry = EpisodeEntry {
-                    length: get("length"),
-                    from: get("dataset_from_index"),
-                    to: get("dataset_to_index"),
-                    data_file: get("data/chunk_index").zip(get("data/file_index")),
-                    ..EpisodeEntry::default()
-                };
-                if let Some(tasks) = tasks {
-                    let list = tasks.value(row);
-                    if let Some(strings) = list.as_any().downcast_ref::<StringArray>() {
-                        entry.tasks = strings.iter().flatten().map(String::from).collect();
-                    }
-                }
-                for feature in features.iter().filter(|f| f.dtype == "video") {
-                    let key = &feature.name;
-                    let chunk = get(&format!("videos/{key}/chunk_index"));
-                    let file = get(&format!("videos/{key}/file_index"));
-                    let from =
-                        floats(&format!("videos/{key}/from_timestamp")).map(|c| c.value(row));
-                    let to = floats(&format!("videos/{key}/to_timestamp")).map(|c| c.value(row));
-                    match (chunk, file, from, to) {
-                        (Some(c), Some(f), Some(from), Some(to)) => {
-                            entry.videos.insert(key.clone(), (c, f, from, to));
-                        }
-                        _ => findings.error(
-                            At::file(findings.relative(&path)).episode(position as u64),
-                            "videos",
-                            format!("lacks the videos/{key}/... columns of the video feature"),
-                        ),
-                    }
-                }
-                for key in crate::export::lerobot::Provenance::KEYS {
-                    if let Some(column) = batch.column_by_name(key) {
-                        let any = column.as_any();
-                        let value = if let Some(a) = any.downcast_ref::<Int64Array>() {
-                            Value::from(a.value(row))
-                        } else if let Some(a) = any.downcast_ref::<StringArray>() {
-                            Value::from(a.value(row))
-                        } else if let Some(a) = any.downcast_ref::<BooleanArray>() {
-                            Value::from(a.value(row))
-                        } else {
-                            Value::Null
-                        };
-                        entry.provenance.insert(key.to_string(), value);
-                    }
-                }
-                entries.push(entry);
+                let at = At::file(findings.relative(&path)).episode(entries.len() as u64);
+                entries.push(episode_entry(&batch, row, at, features, findings));
             }
         }
     }
     entries
+}
+
+/// Row `row` of an episodes table, which must be the episode `at` names.
+fn episode_entry(
+    batch: &arrow_array::RecordBatch,
+    row: usize,
+    at: At,
+    features: &[Declared],
+    findings: &Findings,
+) -> EpisodeEntry {
+    let column = |name: &str| batch.column_by_name(name).map(|c| c.as_any());
+    let get = |name: &str| {
+        column(name)
+            .and_then(|c| c.downcast_ref::<Int64Array>())
+            .map(|c| c.value(row))
+    };
+    let float = |name: &str| {
+        column(name)
+            .and_then(|c| c.downcast_ref::<Float64Array>())
+            .map(|c| c.value(row))
+    };
+    let position = at.episode.unwrap_or_default() as i64;
+    if let Some(index) = get("episode_index")
+        && index != position
+    {
+        findings.error(
+            at.clone(),
+            "episodes",
+            format!("row {position} has episode_index {index}; lerobot looks episodes up by row"),
+        );
+    }
+    let mut entry = EpisodeEntry {
+        length: get("length"),
+        from: get("dataset_from_index"),
+        to: get("dataset_to_index"),
+        data_file: get("data/chunk_index").zip(get("data/file_index")),
+        ..EpisodeEntry::default()
+    };
+    let tasks = column("tasks").and_then(|c| c.downcast_ref::<ListArray>());
+    if let Some(tasks) = tasks {
+        let list = tasks.value(row);
+        if let Some(strings) = list.as_any().downcast_ref::<StringArray>() {
+            entry.tasks = strings.iter().flatten().map(String::from).collect();
+        }
+    }
+    for feature in features.iter().filter(|f| f.dtype == "video") {
+        let key = &feature.name;
+        let chunk = get(&format!("videos/{key}/chunk_index"));
+        let file = get(&format!("videos/{key}/file_index"));
+        let from = float(&format!("videos/{key}/from_timestamp"));
+        let to = float(&format!("videos/{key}/to_timestamp"));
+        match (chunk, file, from, to) {
+            (Some(c), Some(f), Some(from), Some(to)) => {
+                entry.videos.insert(key.clone(), (c, f, from, to));
+            }
+            _ => findings.error(
+                at.clone(),
+                "videos",
+                format!("lacks the videos/{key}/... columns of the video feature"),
+            ),
+        }
+    }
+    for key in crate::export::lerobot::Provenance::KEYS {
+        let Some(any) = column(key) else {
+            continue;
+        };
+        let value = if let Some(a) = any.downcast_ref::<Int64Array>() {
+            Value::from(a.value(row))
+        } else if let Some(a) = any.downcast_ref::<StringArray>() {
+            Value::from(a.value(row))
+        } else if let Some(a) = any.downcast_ref::<BooleanArray>() {
+            Value::from(a.value(row))
+        } else {
+            Value::Null
+        };
+        entry.provenance.insert(key.to_string(), value);
+    }
+    entry
 }
 
 /// The columns an episodes table needs: indices and spans, tasks, and every statistic of every
@@ -450,7 +475,6 @@ pub(super) fn check_videos(
     entries: &[EpisodeEntry],
     findings: &Findings,
 ) {
-    use crate::export::demux::VideoReader;
     let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
     let declared: BTreeMap<String, crate::export::lerobot::FeatureJson> =
         info.feature_list().into_iter().collect();
@@ -465,30 +489,23 @@ pub(super) fn check_videos(
             ),
         );
         let declared_name = declared.get(key).and_then(|f| f.video_codec());
-        let declared_codec = declared_name.and_then(crate::episode::VideoCodec::from_name);
         for (i, entry) in entries.iter().enumerate() {
             let (relative, span) = if v21 {
                 let i = i as i64;
-                (
-                    format!(
-                        "videos/chunk-{:03}/{key}/episode_{i:06}.mp4",
-                        i / chunks_size
-                    ),
-                    None,
-                )
+                let chunk = i / chunks_size;
+                let relative = format!("videos/chunk-{chunk:03}/{key}/episode_{i:06}.mp4");
+                (relative, None)
             } else {
                 let Some(&(chunk, file, from, to)) = entry.videos.get(key) else {
                     continue;
                 };
-                (
-                    crate::export::video::video_path(key, chunk as u64, file as u64),
-                    Some((from, to)),
-                )
+                let relative = crate::export::video::video_path(key, chunk as u64, file as u64);
+                (relative, Some((from, to)))
             };
             let path = root.join(&relative);
-            let at = || At::file(relative.clone()).episode(i as u64);
+            let at = At::file(relative).episode(i as u64);
             if !path.is_file() {
-                findings.error(at(), "present", "is missing");
+                findings.error(at, "present", "is missing");
                 continue;
             }
             let fresh = !readers.contains_key(&path);
@@ -498,63 +515,84 @@ pub(super) fn check_videos(
                     other => other.to_string(),
                 })
             });
-            let reader = match reader {
-                Ok(reader) => reader,
-                Err(problem) => {
+            match reader {
+                Ok(reader) => {
                     if fresh {
-                        findings.error(at(), "video", problem.clone());
+                        check_video_file(&at, reader, feature, declared_name, findings);
                     }
-                    continue;
+                    check_episode_span(&at, reader, span, entry.length, findings);
                 }
-            };
-            if fresh {
-                if declared_codec.is_some_and(|c| c != reader.codec) {
-                    findings.error(
-                        at(),
-                        "video",
-                        format!(
-                            "holds {} video where info.json declares {:?}",
-                            reader.codec.name(),
-                            declared_name.unwrap_or_default()
-                        ),
-                    );
-                }
-                let size = [reader.height_px as usize, reader.width_px as usize];
-                if feature.shape.len() == 3 && feature.shape[..2] != size {
-                    findings.error(
-                        at(),
-                        "video",
-                        format!(
-                            "holds {}x{} frames where {key} is declared {:?}",
-                            size[1], size[0], feature.shape
-                        ),
-                    );
-                }
-            }
-            let (frames, keyframe_first) = match span {
-                Some((from, to)) => reader.count_span(from, to),
-                None => reader.count_span(f64::NEG_INFINITY, f64::INFINITY),
-            };
-            let Some(length) = entry.length else {
-                continue;
-            };
-            if frames as i64 != length {
-                let place = match span {
-                    Some((from, to)) => format!("the span {from}..{to} s holds"),
-                    None => "holds".into(),
-                };
-                findings.error(
-                    at(),
-                    "video",
-                    format!("{place} {frames} frames; the episode has {length}"),
-                );
-            } else if !keyframe_first {
-                findings.error(
-                    at(),
-                    "video",
-                    "the episode's first frame is not a keyframe: it cannot be decoded or copied on its own",
-                );
+                Err(problem) if fresh => findings.error(at, "video", problem.clone()),
+                Err(_) => {}
             }
         }
+    }
+}
+
+/// A video file, once: in the declared codec and of the declared frame size.
+fn check_video_file(
+    at: &At,
+    reader: &VideoReader,
+    feature: &Declared,
+    declared_name: Option<&str>,
+    findings: &Findings,
+) {
+    let declared_codec = declared_name.and_then(crate::episode::VideoCodec::from_name);
+    if declared_codec.is_some_and(|c| c != reader.codec) {
+        findings.error(
+            at.clone(),
+            "video",
+            format!(
+                "holds {} video where info.json declares {:?}",
+                reader.codec.name(),
+                declared_name.unwrap_or_default()
+            ),
+        );
+    }
+    let size = [reader.height_px as usize, reader.width_px as usize];
+    if feature.shape.len() == 3 && feature.shape[..2] != size {
+        findings.error(
+            at.clone(),
+            "video",
+            format!(
+                "holds {}x{} frames where {} is declared {:?}",
+                size[1], size[0], feature.name, feature.shape
+            ),
+        );
+    }
+}
+
+/// An episode's span of a video file (v2.1: the whole file) holds exactly its frames and starts
+/// on a keyframe.
+fn check_episode_span(
+    at: &At,
+    reader: &VideoReader,
+    span: Option<(f64, f64)>,
+    length: Option<i64>,
+    findings: &Findings,
+) {
+    let (frames, keyframe_first) = match span {
+        Some((from, to)) => reader.count_span(from, to),
+        None => reader.count_span(f64::NEG_INFINITY, f64::INFINITY),
+    };
+    let Some(length) = length else {
+        return;
+    };
+    if frames as i64 != length {
+        let place = match span {
+            Some((from, to)) => format!("the span {from}..{to} s holds"),
+            None => "holds".into(),
+        };
+        findings.error(
+            at.clone(),
+            "video",
+            format!("{place} {frames} frames; the episode has {length}"),
+        );
+    } else if !keyframe_first {
+        findings.error(
+            at.clone(),
+            "video",
+            "the episode's first frame is not a keyframe: it cannot be decoded or copied on its own",
+        );
     }
 }

@@ -150,11 +150,24 @@ pub fn check(
         findings,
         info_known,
     };
-    // Every row group of every file, in order, checked in parallel.
-    // Each file's footer is read once and shared by its row groups.
+    let (episodes, frames, parts) = check_data_files(&context, &files, &info, v21);
+    check_stats(root, &features, &parts, !options.quick, findings);
+    check_videos(root, v21, &info, &features, &entries, findings);
+    (episodes, frames)
+}
+
+/// Every row group of every data file, in order, checked in parallel (each file's footer read
+/// once and shared by its row groups), then stitched into episodes: (episodes, frames, what each
+/// row group held).
+fn check_data_files(
+    context: &Context<'_>,
+    files: &[PathBuf],
+    info: &InfoJson,
+    v21: bool,
+) -> (u64, u64, Vec<Part>) {
     let metadata: Vec<Option<ArrowReaderMetadata>> = files
         .par_iter()
-        .map(|path| open_metadata(path, findings))
+        .map(|path| open_metadata(path, context.findings))
         .collect();
     let groups: Vec<(usize, usize)> = metadata
         .iter()
@@ -174,17 +187,15 @@ pub fn check(
         .map(|m| m.metadata().file_metadata().num_rows() as u64)
         .sum();
     let (episodes, frames) = stitch(
-        &context,
-        &files,
+        context,
+        files,
         &groups,
         &parts,
-        &info,
+        info,
         v21,
-        options.quick.then_some(rows_in_files),
+        context.quick.then_some(rows_in_files),
     );
-    check_stats(root, &features, &parts, !options.quick, findings);
-    check_videos(root, v21, &info, &features, &entries, findings);
-    (episodes, frames)
+    (episodes, frames, parts)
 }
 
 /// `meta/info.json` checked against its schema and read leniently (a field of the wrong type

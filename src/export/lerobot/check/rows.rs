@@ -353,52 +353,39 @@ impl Context<'_> {
                 );
                 continue;
             };
-            if encoded.starts_with(&[0xff, 0xd8]) {
-                continue; // JPEG: not decoded here.
-            }
-            let decoded = if encoded.starts_with(b"II*\0") || encoded.starts_with(b"MM\0*") {
-                decode_f32_tiff(encoded)
-                    .map(|(w, h, _)| (w as usize, h as usize, 1))
-                    .ok_or_else(|| "a TIFF that is not a float32 depth image".to_string())
-            } else {
-                decode_png(encoded)
-                    .map(|(w, h, c, _)| (w as usize, h as usize, c))
-                    .or_else(|e| {
-                        crate::export::image::decode_png16(encoded)
-                            .map(|(w, h, _)| (w as usize, h as usize, 1))
-                            .map_err(|_| e)
-                    })
-            };
-            match decoded {
-                Ok((w, h, c)) => {
-                    if (w, h) != (width, height) {
-                        findings.error(
-                            at(),
-                            "image",
-                            format!("{} is {w}x{h}, declared {width}x{height}", feature.name),
-                        );
-                    }
-                    if c != channels {
-                        let what = if c == 4 {
-                            " (RGBA: lerobot and OpenVLA expect RGB)"
-                        } else {
-                            ""
-                        };
-                        findings.error(
-                            at(),
-                            "image",
-                            format!(
-                                "{} has {c} channels, declared {channels}{what}",
-                                feature.name
-                            ),
-                        );
-                    }
+            let (w, h, c) = match decoded_size(encoded) {
+                Ok(Some(size)) => size,
+                Ok(None) => continue,
+                Err(problem) => {
+                    findings.error(
+                        at(),
+                        "image",
+                        format!("{} does not decode: {problem}", feature.name),
+                    );
+                    continue;
                 }
-                Err(problem) => findings.error(
+            };
+            if (w, h) != (width, height) {
+                findings.error(
                     at(),
                     "image",
-                    format!("{} does not decode: {problem}", feature.name),
-                ),
+                    format!("{} is {w}x{h}, declared {width}x{height}", feature.name),
+                );
+            }
+            if c != channels {
+                let what = if c == 4 {
+                    " (RGBA: lerobot and OpenVLA expect RGB)"
+                } else {
+                    ""
+                };
+                findings.error(
+                    at(),
+                    "image",
+                    format!(
+                        "{} has {c} channels, declared {channels}{what}",
+                        feature.name
+                    ),
+                );
             }
         }
     }
@@ -530,4 +517,24 @@ struct IndexColumns<'a> {
     frame: &'a [i64],
     task: Option<&'a [i64]>,
     timestamp: Option<&'a [f64]>,
+}
+
+/// An encoded image's (width, height, channels) once decoded: PNG (8 or 16 bit) or a float32
+/// TIFF; None for a JPEG, which is not decoded here.
+fn decoded_size(encoded: &[u8]) -> Result<Option<(usize, usize, usize)>, String> {
+    if encoded.starts_with(&[0xff, 0xd8]) {
+        return Ok(None);
+    }
+    if encoded.starts_with(b"II*\0") || encoded.starts_with(b"MM\0*") {
+        return decode_f32_tiff(encoded)
+            .map(|(w, h, _)| Some((w as usize, h as usize, 1)))
+            .ok_or_else(|| "a TIFF that is not a float32 depth image".to_string());
+    }
+    decode_png(encoded)
+        .map(|(w, h, c, _)| Some((w as usize, h as usize, c)))
+        .or_else(|e| {
+            crate::export::image::decode_png16(encoded)
+                .map(|(w, h, _)| Some((w as usize, h as usize, 1)))
+                .map_err(|_| e)
+        })
 }
