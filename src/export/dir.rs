@@ -24,7 +24,7 @@
 //!   number of episodes; a checkpoint records their length and checksum, resume cuts them back.
 //! - **Rolling.** [`FileCounter`] numbers rolled files `chunk/file` the LeRobot way.
 
-use crate::export::ExportError;
+use crate::export::{ExportError, paths};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -353,6 +353,9 @@ impl DatasetDir {
                 changes,
             });
         }
+        if let Some(link) = first_link(root) {
+            return Err(holds_link(root, &link));
+        }
         let lock = lock(root)?;
         let marker: Marker<Value> = read_marker(root)?;
         let mut dir = DatasetDir::locked(root, lock, options);
@@ -401,6 +404,19 @@ impl DatasetDir {
         self.root.join(relative)
     }
 
+    /// The path of `relative` inside the dataset, for writing: refused when its text could
+    /// lead outside (a file name made from another dataset's metadata; see [`paths`]).
+    fn checked(&self, relative: &str) -> Result<PathBuf, ExportError> {
+        paths::relative(relative)
+            .map(|r| self.root.join(r))
+            .map_err(|problem| ExportError::UnsafeName {
+                path: self.root.clone(),
+                what: "file name",
+                name: relative.to_string(),
+                problem,
+            })
+    }
+
     /// `path` relative to the root, with `/` separators.
     pub fn relative(&self, path: &Path) -> String {
         path.strip_prefix(&self.root)
@@ -426,7 +442,7 @@ impl DatasetDir {
     /// Writes a whole file of the dataset under a temporary name, renames it and records it;
     /// returns its size.
     pub fn write_atomically(&mut self, relative: &str, bytes: &[u8]) -> Result<u64, ExportError> {
-        let size = write_atomically(&self.path(relative), bytes)?;
+        let size = write_atomically(&self.checked(relative)?, bytes)?;
         self.record(FileRecord::new(
             relative.to_string(),
             size,
@@ -438,17 +454,25 @@ impl DatasetDir {
     /// Writes a file that rides along with the dataset but is not part of it (a run report
     /// whose timings differ between runs): not in the manifest.
     pub fn write_unlisted(&self, relative: &str, bytes: &[u8]) -> Result<u64, ExportError> {
-        write_atomically(&self.path(relative), bytes)
+        write_atomically(&self.checked(relative)?, bytes)
     }
 
     /// Opens `relative` for writing under its temporary name (folders created).
     pub fn create_file(&self, relative: &str) -> Result<(File, PendingFile), ExportError> {
-        let path = self.path(relative);
+        let path = self.checked(relative)?;
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent).map_err(ExportError::io(parent))?;
         }
         let temporary = temporary_name(&path);
-        let file = File::create(&temporary).map_err(ExportError::io(&temporary))?;
+        // Never through a link: a leftover temporary file (or link) is replaced, not followed.
+        if std::fs::symlink_metadata(&temporary).is_ok() {
+            std::fs::remove_file(&temporary).map_err(ExportError::io(&temporary))?;
+        }
+        let file = File::options()
+            .write(true)
+            .create_new(true)
+            .open(&temporary)
+            .map_err(ExportError::io(&temporary))?;
         Ok((file, PendingFile { path, temporary }))
     }
 
@@ -658,12 +682,14 @@ impl DatasetDir {
 
     /// Deletes every file under `folders` (`""`: the whole folder) whose relative path is not
     /// in `keep` (what was written after the last checkpoint, including temporary files); never
-    /// the marker.
+    /// the marker. Refuses, before deleting anything, when the folders hold a symbolic link:
+    /// surgvla never makes one, and following it would delete files outside the dataset.
     fn remove_files_except(
         &self,
         folders: &[&str],
         keep: &HashSet<String>,
     ) -> Result<(), ExportError> {
+        let mut doomed = Vec::new();
         for folder in folders {
             let mut pending = vec![self.path(folder)];
             while let Some(dir) = pending.pop() {
@@ -671,18 +697,26 @@ impl DatasetDir {
                     continue;
                 };
                 for entry in entries {
-                    let path = entry.map_err(ExportError::io(&dir))?.path();
+                    let entry = entry.map_err(ExportError::io(&dir))?;
+                    let path = entry.path();
+                    let kind = entry.file_type().map_err(ExportError::io(&path))?;
                     let relative = self.relative(&path);
+                    if kind.is_symlink() {
+                        return Err(holds_link(&self.root, &relative));
+                    }
                     // The marker is never pruned, even when a format owns the whole folder.
                     let marker = relative == INCOMPLETE_MARKER
                         || relative == format!(".{INCOMPLETE_MARKER}.partial");
-                    if path.is_dir() {
+                    if kind.is_dir() {
                         pending.push(path);
                     } else if !marker && !keep.contains(&relative) {
-                        std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
+                        doomed.push(path);
                     }
                 }
             }
+        }
+        for path in doomed {
+            std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
         }
         Ok(())
     }
@@ -724,6 +758,40 @@ impl DatasetDir {
     }
 }
 
+/// The first symbolic link inside `root` (relative, `/`-separated), in name order.
+fn first_link(root: &Path) -> Option<String> {
+    let mut pending = vec![root.to_path_buf()];
+    while let Some(dir) = pending.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        let mut entries: Vec<_> = entries.flatten().collect();
+        entries.sort_by_key(|e| e.file_name());
+        for entry in entries {
+            match entry.file_type() {
+                Ok(kind) if kind.is_symlink() => {
+                    let path = entry.path();
+                    let relative = path.strip_prefix(root).unwrap_or(&path);
+                    return Some(relative.to_string_lossy().replace('\\', "/"));
+                }
+                Ok(kind) if kind.is_dir() => pending.push(entry.path()),
+                _ => {}
+            }
+        }
+    }
+    None
+}
+
+/// Resuming refused: the dataset holds a link, which surgvla never makes.
+fn holds_link(root: &Path, link: &str) -> ExportError {
+    ExportError::NotResumable {
+        path: root.to_path_buf(),
+        reason: format!(
+            "it holds the symbolic link {link}, which surgvla never makes (resuming would write or delete through it); delete the folder and run again"
+        ),
+    }
+}
+
 /// Locks `root` (an advisory `flock` on the folder itself, so no lock file is left behind).
 fn lock(root: &Path) -> Result<File, ExportError> {
     let file = File::open(root).map_err(|source| ExportError::Output {
@@ -755,15 +823,12 @@ fn read_marker<T: DeserializeOwned>(root: &Path) -> Result<Marker<T>, ExportErro
         path: root.to_path_buf(),
         reason,
     };
-    let bytes = match std::fs::read(&path) {
-        Ok(bytes) => bytes,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            return Err(not_resumable(format!(
-                "it is not an interrupted surgvla dataset (no {INCOMPLETE_MARKER} marker)"
-            )));
-        }
-        Err(source) => return Err(ExportError::Io { path, source }),
-    };
+    if !path.exists() {
+        return Err(not_resumable(format!(
+            "it is not an interrupted surgvla dataset (no {INCOMPLETE_MARKER} marker)"
+        )));
+    }
+    let bytes = crate::export::bounded::read_metadata(&path)?;
     serde_json::from_slice(&bytes).map_err(|e| {
         not_resumable(format!(
             "its marker {} is unreadable ({e}); it was started by another surgvla version or damaged",

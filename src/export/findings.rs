@@ -324,15 +324,21 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
                 continue;
             }
         };
-        if record.path.contains("..") || record.path.starts_with('/') {
-            findings.file_error(
-                &path,
-                "manifest",
-                format!("lists {} outside the dataset", record.path),
-            );
-            continue;
-        }
-        match record.problem(&root.join(&record.path)) {
+        let listed = match crate::export::paths::relative(&record.path) {
+            Ok(listed) => listed,
+            Err(problem) => {
+                findings.file_error(
+                    &path,
+                    "manifest",
+                    format!(
+                        "lists {:?}, which cannot be a path inside the dataset: it {problem}",
+                        record.path
+                    ),
+                );
+                continue;
+            }
+        };
+        match record.problem(&root.join(listed)) {
             Ok(None) => {}
             Ok(Some(problem)) => findings.error(
                 At::file(record.path.clone()),

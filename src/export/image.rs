@@ -59,10 +59,39 @@ pub fn encode_png16(
     crate::files::encode_png(width, height, PngPixels::Grey16, &bytes, level).map_err(png_error)
 }
 
-/// Decodes any PNG into its frame info and its samples as stored (16-bit ones big-endian).
-fn decode_png_raw(bytes: &[u8]) -> Result<(png::OutputInfo, Vec<u8>), String> {
+/// The widest and tallest image decoded: a header claiming more is refused before any pixel
+/// memory is allocated (a 74-byte PNG can claim 100000 x 100000).
+pub const MAX_IMAGE_SIDE: u32 = 8192;
+
+/// A PNG's (width, height) from its header, without decoding (None: not a readable PNG).
+pub fn png_size(bytes: &[u8]) -> Option<(usize, usize)> {
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    let reader = decoder.read_info().ok()?;
+    Some((reader.info().width as usize, reader.info().height as usize))
+}
+
+/// Decodes any PNG into its frame info and its samples as stored (16-bit ones big-endian). The
+/// header is checked first: against `expected` (width, height) when given, and against
+/// [`MAX_IMAGE_SIDE`] always, so that no claimed size is allocated before it is known to fit.
+fn decode_png_raw(
+    bytes: &[u8],
+    expected: Option<(usize, usize)>,
+) -> Result<(png::OutputInfo, Vec<u8>), String> {
     let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
+    let (width, height) = (reader.info().width, reader.info().height);
+    if let Some((w, h)) = expected
+        && (width as usize, height as usize) != (w, h)
+    {
+        return Err(format!(
+            "a {width}x{height} image where {w}x{h} was declared (not decoded)"
+        ));
+    }
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(format!(
+            "a {width}x{height} image, larger than surgvla decodes ({MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE})"
+        ));
+    }
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| "the PNG is too large".to_string())?;
@@ -74,7 +103,16 @@ fn decode_png_raw(bytes: &[u8]) -> Result<(png::OutputInfo, Vec<u8>), String> {
 
 /// Decodes a 16-bit grey PNG: (width, height, row-major values).
 pub fn decode_png16(bytes: &[u8]) -> Result<(u32, u32, Vec<u16>), String> {
-    let (info, buffer) = decode_png_raw(bytes)?;
+    decode_png16_sized(bytes, None)
+}
+
+/// [`decode_png16`] of an image declared `expected` (width, height): another size is refused
+/// from the header, before decoding.
+pub fn decode_png16_sized(
+    bytes: &[u8],
+    expected: Option<(usize, usize)>,
+) -> Result<(u32, u32, Vec<u16>), String> {
+    let (info, buffer) = decode_png_raw(bytes, expected)?;
     if info.bit_depth != png::BitDepth::Sixteen || info.color_type != png::ColorType::Grayscale {
         return Err(format!(
             "a {:?}-bit {:?} PNG where 16-bit grey was expected",
@@ -93,7 +131,13 @@ pub type DecodedPng = (u32, u32, usize, Vec<u8>);
 
 /// Decodes an 8-bit grey, RGB or RGBA PNG.
 pub fn decode_png(bytes: &[u8]) -> Result<DecodedPng, String> {
-    let (info, buffer) = decode_png_raw(bytes)?;
+    decode_png_sized(bytes, None)
+}
+
+/// [`decode_png`] of an image declared `expected` (width, height): another size is refused from
+/// the header, before decoding.
+pub fn decode_png_sized(bytes: &[u8], expected: Option<(usize, usize)>) -> Result<DecodedPng, String> {
+    let (info, buffer) = decode_png_raw(bytes, expected)?;
     if info.bit_depth != png::BitDepth::Eight {
         return Err(format!(
             "a {:?}-bit PNG where 8 bits were expected",

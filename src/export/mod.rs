@@ -20,6 +20,7 @@
 //!
 //! [`convert`] copies any source into any sink.
 
+pub mod bounded;
 pub mod convert;
 pub mod demux;
 pub mod dir;
@@ -29,6 +30,7 @@ pub mod image;
 pub mod info;
 pub mod lerobot;
 pub mod mcap;
+pub mod paths;
 pub mod pointcloud;
 pub mod registry;
 pub mod rlds;
@@ -142,6 +144,16 @@ pub enum ExportError {
     /// refuse).
     #[error("{0}")]
     InvalidOptions(String),
+    /// A name or template in a dataset's metadata (or a file name made from one) that cannot
+    /// be a path inside the dataset ([`paths`]).
+    #[error("{path}: the {what} {name:?} cannot be a path inside the dataset")]
+    UnsafeName {
+        path: PathBuf,
+        what: &'static str,
+        name: String,
+        #[source]
+        problem: paths::UnsafeName,
+    },
     /// A dataset being read is not what its format requires.
     #[error("{path}: {problem}")]
     InvalidDataset { path: PathBuf, problem: String },
@@ -222,7 +234,7 @@ impl crate::error::HasKind for ExportError {
 
 /// Reads a JSON file, naming it in the error.
 pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, ExportError> {
-    let bytes = std::fs::read(path).map_err(ExportError::io(path))?;
+    let bytes = bounded::read_metadata(path)?;
     serde_json::from_slice(&bytes).map_err(|source| ExportError::Json {
         path: path.to_path_buf(),
         source,

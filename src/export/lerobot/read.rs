@@ -9,9 +9,10 @@ use crate::episode::{
     FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
 };
 use crate::export::demux::VideoReader;
-use crate::export::image::decode_png;
+use crate::export::image::decode_png_sized;
 use crate::export::info::DatasetInfo;
 use crate::export::tiff::decode_f32_tiff;
+use crate::export::paths::{self, Field};
 use crate::export::{EpisodeSource, ExportError, read_json};
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
@@ -179,7 +180,7 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
 
 /// `meta/info.json`, typed (leniently: see [`super::meta`]).
 pub(crate) fn read_info(path: &Path) -> Result<super::InfoJson, ExportError> {
-    let bytes = std::fs::read(path).map_err(ExportError::io(path))?;
+    let bytes = crate::export::bounded::read_metadata(path)?;
     super::InfoJson::parse(&bytes).map_err(|source| ExportError::Json {
         path: path.to_path_buf(),
         source,
@@ -414,11 +415,10 @@ fn episode_rows_v21(root: &Path) -> Result<Vec<StoredEpisode>, ExportError> {
         stats: StatsJson,
     }
     fn lines<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>, ExportError> {
-        let text = std::fs::read_to_string(path).map_err(ExportError::io(path))?;
-        text.lines()
-            .filter(|l| !l.trim().is_empty())
-            .map(|l| {
-                serde_json::from_str(l).map_err(|source| ExportError::Json {
+        crate::export::bounded::lines(path)?
+            .map(|line| {
+                let (_, text) = line?;
+                serde_json::from_str(&text).map_err(|source| ExportError::Json {
                     path: path.to_path_buf(),
                     source,
                 })
@@ -439,28 +439,6 @@ fn episode_rows_v21(root: &Path) -> Result<Vec<StoredEpisode>, ExportError> {
         }
     }
     Ok(rows)
-}
-
-/// Fills a LeRobot path template (`{video_key}`, `{chunk_index:03d}`, ...) with `fields`.
-fn fill_template(template: &str, fields: &[(&str, String)]) -> String {
-    let mut out = template.to_string();
-    for (name, value) in fields {
-        out = out.replace(&format!("{{{name}}}"), value);
-        while let Some(start) = out.find(&format!("{{{name}:")) {
-            let Some(end) = out[start..].find('}').map(|e| start + e) else {
-                break;
-            };
-            let spec = &out[start + name.len() + 2..end];
-            let width: usize = spec
-                .trim_start_matches('0')
-                .trim_end_matches('d')
-                .parse()
-                .unwrap_or(0);
-            let padded = format!("{value:0>width$}");
-            out.replace_range(start..=end, &padded);
-        }
-    }
-    out
 }
 
 /// A decoded frame row.
@@ -515,12 +493,22 @@ impl LeRobotSource {
             Value::Null
         };
         let features = features_of(&info_json, &surgvla, &info_path)?;
+        // Video keys name folders: refused here, before any path is made of them.
+        for feature in features.iter().filter(|f| f.video.is_some()) {
+            paths::component(&feature.name).map_err(|problem| ExportError::UnsafeName {
+                path: info_path.clone(),
+                what: "video feature",
+                name: feature.name.clone(),
+                problem,
+            })?;
+        }
         let tasks = if v21 {
             let path = root.join("meta/tasks.jsonl");
-            let text = std::fs::read_to_string(&path).map_err(ExportError::io(&path))?;
-            text.lines()
-                .filter_map(|l| super::meta::TaskLine::of(l).task)
-                .collect()
+            let mut tasks = Vec::new();
+            for line in crate::export::bounded::lines(&path)? {
+                tasks.extend(super::meta::TaskLine::of(&line?.1).task);
+            }
+            tasks
         } else {
             let path = root.join("meta/tasks.parquet");
             let mut tasks = Vec::new();
@@ -574,13 +562,13 @@ impl LeRobotSource {
             .get(index as usize)
             .cloned()
             .unwrap_or_default();
-        let (relative, span) = if self.v21 {
+        let (fields, span) = if self.v21 {
             let fields = [
-                ("video_key", key.to_string()),
-                ("episode_chunk", (index / self.chunks_size).to_string()),
-                ("episode_index", index.to_string()),
+                ("video_key", Field::Name(key)),
+                ("episode_chunk", Field::Index(index / self.chunks_size)),
+                ("episode_index", Field::Index(index)),
             ];
-            (fill_template(&self.video_path, &fields), None)
+            (fields, None)
         } else {
             let Some(span) = row.videos.get(key) else {
                 return Err(invalid(
@@ -589,15 +577,20 @@ impl LeRobotSource {
                 ));
             };
             let fields = [
-                ("video_key", key.to_string()),
-                ("chunk_index", span.chunk.to_string()),
-                ("file_index", span.file.to_string()),
+                ("video_key", Field::Name(key)),
+                ("chunk_index", Field::Index(span.chunk)),
+                ("file_index", Field::Index(span.file)),
             ];
-            (
-                fill_template(&self.video_path, &fields),
-                Some((span.from_secs, span.to_secs)),
-            )
+            (fields, Some((span.from_secs, span.to_secs)))
         };
+        let relative = paths::fill(&self.video_path, &fields).map_err(|problem| {
+            ExportError::UnsafeName {
+                path: self.root.join("meta/info.json"),
+                what: "video_path template",
+                name: self.video_path.clone(),
+                problem,
+            }
+        })?;
         let path = self.root.join(relative);
         if self.video.as_ref().is_none_or(|(open, _)| *open != path) {
             self.video = Some((path.clone(), VideoReader::open(&path)?));
@@ -722,7 +715,8 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
                             step.depth_m = depth;
                         }
                         kind => {
-                            let (w, h, channels, pixels) = decode_png(encoded).map_err(bad)?;
+                            let (w, h, channels, pixels) =
+                                decode_png_sized(encoded, Some((width, height))).map_err(bad)?;
                             let wanted = if kind == FeatureKind::Rgb { 3 } else { 1 };
                             if (w as usize, h as usize, channels) != (width, height, wanted) {
                                 return Err(bad(format!(

@@ -14,7 +14,8 @@ use std::path::{Path, PathBuf};
 /// Checks one recording; returns its `/endoscope/rgb` message count.
 fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u64 {
     let at = || At::file(findings.relative(path)).episode(episode);
-    let Ok(bytes) = std::fs::read(path) else {
+    // A recording is one episode: far below 4 GiB.
+    let Ok(bytes) = crate::export::bounded::read_capped(path, 4 << 30) else {
         findings.error(at(), "readable", "cannot be read");
         return 0;
     };

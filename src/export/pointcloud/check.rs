@@ -42,7 +42,8 @@ pub fn check(
         ),
     }
     check_manifest(root, super::files::MANIFEST, findings);
-    let stated = match std::fs::read_to_string(root.join(super::files::EPISODES)) {
+    let episodes = crate::export::bounded::read_metadata(&root.join(super::files::EPISODES));
+    let stated = match episodes.map(|bytes| String::from_utf8_lossy(&bytes).into_owned()) {
         Ok(text) => text,
         Err(_) => {
             findings.error(At::file(super::files::EPISODES), "present", "is missing");

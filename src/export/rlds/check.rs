@@ -8,6 +8,7 @@
 use crate::export::findings::{
     At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest, check_semantics,
 };
+use crate::export::paths;
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, check_record, leaves};
 use crate::export::rlds::read::RldsSource;
@@ -177,12 +178,23 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
 
 /// The shards `dataset_info.json`'s train split lists (with their episode counts, as listed),
 /// any other TFRecord file in the folder and a split without shards being findings.
+/// The most shards a split may list (TFDS numbers them with five digits).
+const MAX_SHARDS: usize = 100_000;
+
 fn listed_shards(
     root: &Path,
     dataset_info: &Value,
     findings: &Findings,
 ) -> (Vec<PathBuf>, Vec<Option<u64>>) {
     let name = dataset_info["name"].as_str().unwrap_or_default();
+    if let Err(problem) = paths::component(name) {
+        findings.file_error(
+            &root.join("dataset_info.json"),
+            "paths",
+            format!("its name {name:?} cannot begin a shard's file name: it {problem}"),
+        );
+        return (Vec::new(), Vec::new());
+    }
     let lengths: Vec<Option<u64>> = dataset_info["splits"]
         .as_array()
         .and_then(|s| s.iter().find(|s| s["name"] == "train"))
@@ -198,6 +210,14 @@ fn listed_shards(
         })
         .unwrap_or_default();
     let count = lengths.len();
+    if count > MAX_SHARDS {
+        findings.file_error(
+            &root.join("dataset_info.json"),
+            "shards",
+            format!("lists {count} shards, more than the {MAX_SHARDS} a split may have"),
+        );
+        return (Vec::new(), Vec::new());
+    }
     let expected: Vec<PathBuf> = (0..count)
         .map(|i| root.join(format!("{name}-train.tfrecord-{i:05}-of-{count:05}")))
         .collect();

@@ -6,7 +6,7 @@
 //! floats, `is_first` / `is_last` / `is_terminal` as 0/1 on the right steps, and a non-empty
 //! language instruction.
 
-use crate::export::image::{decode_png, decode_png16};
+use crate::export::image::{decode_png, decode_png16, png_size};
 use crate::export::rlds::example::Feature;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -259,6 +259,16 @@ fn check_flags(record: &BTreeMap<String, Feature>, steps: usize, problems: &mut 
 fn image_problem(bytes: &[u8], shape: [Option<usize>; 3], dtype: &str) -> Option<String> {
     if bytes.starts_with(&[0xff, 0xd8]) {
         return None; // JPEG: not decoded here.
+    }
+    // A size other than the declared one is known from the header: nothing is decoded.
+    let declared = shape[1].zip(shape[0]);
+    if let (Some(declared), Some((w, h))) = (declared, png_size(bytes))
+        && declared != (w, h)
+    {
+        return Some(format!(
+            "is {w}x{h}, declared {:?}x{:?}",
+            shape[1], shape[0]
+        ));
     }
     let (w, h, c) = if dtype == "uint16" {
         match decode_png16(bytes) {

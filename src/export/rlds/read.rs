@@ -135,6 +135,12 @@ impl ShardRecords {
         let name = dataset_info["name"]
             .as_str()
             .ok_or_else(|| invalid(&info_path, "has no name"))?;
+        crate::export::paths::component(name).map_err(|problem| ExportError::UnsafeName {
+            path: info_path.clone(),
+            what: "dataset name",
+            name: name.to_string(),
+            problem,
+        })?;
         let split = dataset_info["splits"]
             .as_array()
             .and_then(|splits| splits.iter().find(|s| s["name"] == "train"))
@@ -151,6 +157,12 @@ impl ShardRecords {
             })
             .collect::<Result<_, _>>()?;
         let count = lengths.len();
+        if count > 100_000 {
+            return Err(invalid(
+                &info_path,
+                format!("lists {count} shards (TFDS numbers at most 100000)"),
+            ));
+        }
         let shards: Vec<Shard> = lengths
             .iter()
             .enumerate()

@@ -8,7 +8,7 @@ use crate::episode::{
 };
 use crate::export::ExportError;
 use crate::export::image::{
-    PngLevel, decode_png, decode_png16, encode_png, encode_png16, stored_or,
+    PngLevel, decode_png_sized, decode_png16_sized, encode_png, encode_png16, stored_or,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::RldsKeys;
@@ -401,7 +401,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
         .into_par_iter()
         .map(|i| {
             let (rw, rh, channels, pixels) =
-                decode_png(&rgb[i]).map_err(|e| bad_image(&image_key, i, e))?;
+                decode_png_sized(&rgb[i], Some((w, h))).map_err(|e| bad_image(&image_key, i, e))?;
             if (rw as usize, rh as usize, channels) != (w, h, 3) {
                 return Err(bad_image(
                     &image_key,
@@ -417,7 +417,8 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
             };
             if layout.depth {
                 let (dw, dh, mm) =
-                    decode_png16(&depth[i]).map_err(|e| bad_image(&depth_key, i, e))?;
+                    decode_png16_sized(&depth[i], Some((w, h)))
+                        .map_err(|e| bad_image(&depth_key, i, e))?;
                 if (dw as usize, dh as usize) != (w, h) {
                     return Err(bad_image(&depth_key, i, format!("a {dw}x{dh} depth image")));
                 }
@@ -425,7 +426,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
             }
             if layout.mask {
                 let (mw, mh, channels, ids) =
-                    decode_png(&mask[i]).map_err(|e| bad_image(&mask_key, i, e))?;
+                    decode_png_sized(&mask[i], Some((w, h))).map_err(|e| bad_image(&mask_key, i, e))?;
                 if (mw as usize, mh as usize, channels) != (w, h, 1) {
                     return Err(bad_image(
                         &mask_key,

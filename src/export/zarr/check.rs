@@ -20,6 +20,15 @@ struct ArrayMeta {
     zstd: bool,
 }
 
+/// The largest chunk decoded, in bytes (ours are a few MB).
+const MAX_CHUNK_BYTES: usize = 256 << 20;
+
+/// Bytes per item of `.zarray`'s dtype (`<f4` -> 4; 0 when not a numpy type string).
+fn item_bytes_of(meta: &Value) -> usize {
+    let dtype = meta["dtype"].as_str().unwrap_or_default();
+    dtype.get(2..).and_then(|n| n.parse().ok()).unwrap_or(0)
+}
+
 fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta> {
     let path = root.join(name).join(".zarray");
     let Ok(meta) = read_json(&path) else {
@@ -52,11 +61,40 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         );
         return None;
     }
+    // Sizes the metadata claims are checked before anything is allocated or counted from them.
+    let chunk_bytes = chunks
+        .iter()
+        .chain([&item_bytes_of(&meta)])
+        .try_fold(1usize, |total, n| total.checked_mul(*n));
+    if chunk_bytes.is_none_or(|b| b > MAX_CHUNK_BYTES) {
+        findings.file_error(
+            &path,
+            "schema",
+            format!("chunks {chunks:?} are larger than the {} MiB surgvla reads", MAX_CHUNK_BYTES >> 20),
+        );
+        return None;
+    }
+    let grid = shape.iter().zip(&chunks).map(|(s, c)| s.div_ceil(*c));
+    let claimed = grid.clone().try_fold(1usize, |total, n| total.checked_mul(n));
+    let present = std::fs::read_dir(root.join(name)).map_or(0, |entries| entries.count());
+    // A few missing chunks are reported one by one below; a shape claiming far more chunks
+    // than there are files is reported once (counting them would not end).
+    if claimed.is_none_or(|n| n > 2 * present + 64) {
+        findings.file_error(
+            &path,
+            "chunk",
+            format!(
+                "shape {shape:?} in chunks of {chunks:?} needs {} chunks; the folder holds {present} files",
+                claimed.map_or("more than 2^64".to_string(), |n| n.to_string())
+            ),
+        );
+        return None;
+    }
     if meta["order"] != "C" {
         findings.file_error(&path, "schema", "order is not C");
     }
     let dtype = meta["dtype"].as_str().unwrap_or_default().to_string();
-    let item_bytes = dtype.get(2..).and_then(|n| n.parse().ok()).unwrap_or(0);
+    let item_bytes = item_bytes_of(&meta);
     if item_bytes == 0 {
         findings.file_error(
             &path,
@@ -132,12 +170,13 @@ fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Finding
     let path = root.join(&array.name).join(&name);
     let at = || At::file(findings.relative(&path));
     let chunk_bytes = array.chunks.iter().product::<usize>() * array.item_bytes;
-    let Ok(stored) = std::fs::read(&path) else {
+    let Ok(stored) = crate::export::bounded::read_capped(&path, MAX_CHUNK_BYTES as u64 * 2) else {
         findings.error(at(), "present", "chunk is missing");
         return;
     };
     let bytes = if array.zstd {
-        match zstd::stream::decode_all(stored.as_slice()) {
+        // Decoded into at most one chunk's bytes (a larger frame is an error, not an allocation).
+        match zstd::bulk::decompress(&stored, chunk_bytes + 1) {
             Ok(bytes) => bytes,
             Err(_) => {
                 findings.error(at(), "chunk", "is not a zstd frame");
@@ -199,9 +238,11 @@ fn read_ints(root: &Path, array: &ArrayMeta) -> Option<Vec<i64>> {
     let rows = *array.shape.first()?;
     let per_chunk = *array.chunks.first()?;
     for chunk in 0..rows.div_ceil(per_chunk) {
-        let stored = std::fs::read(root.join(&array.name).join(chunk.to_string())).ok()?;
+        let path = root.join(&array.name).join(chunk.to_string());
+        let stored = crate::export::bounded::read_capped(&path, MAX_CHUNK_BYTES as u64 * 2).ok()?;
+        let chunk_bytes = array.chunks.iter().product::<usize>() * array.item_bytes;
         let bytes = if array.zstd {
-            zstd::stream::decode_all(stored.as_slice()).ok()?
+            zstd::bulk::decompress(&stored, chunk_bytes + 1).ok()?
         } else {
             stored
         };

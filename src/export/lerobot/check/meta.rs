@@ -6,6 +6,7 @@ use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, 
 use crate::export::demux::VideoReader;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
+use crate::export::paths::{self, Field};
 use crate::export::read_json;
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
 use serde_json::Value;
@@ -50,20 +51,45 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
     tasks.into_iter().map(|(_, t)| t).collect()
 }
 
+/// The non-blank lines of a JSON-lines file, read one bounded line at a time
+/// ([`crate::export::bounded::lines`]); what stops the reading is a finding of `check`.
+fn bounded_lines(
+    path: &Path,
+    check: &'static str,
+    findings: &Findings,
+) -> impl Iterator<Item = (usize, String)> {
+    let lines = match crate::export::bounded::lines(path) {
+        Ok(lines) => Some(lines),
+        Err(error) => {
+            findings.file_error(path, check, format!("cannot be read: {}", error_text(&error)));
+            None
+        }
+    };
+    lines.into_iter().flatten().map_while(move |line| match line {
+        Ok(line) => Some(line),
+        Err(error) => {
+            findings.file_error(path, check, error_text(&error));
+            None
+        }
+    })
+}
+
+/// An error's own problem, without the path a finding already names.
+fn error_text(error: &crate::export::ExportError) -> String {
+    match error {
+        crate::export::ExportError::InvalidDataset { problem, .. } => problem.clone(),
+        crate::export::ExportError::Io { source, .. } => source.to_string(),
+        other => other.to_string(),
+    }
+}
+
 /// v2.1's `meta/tasks.jsonl`: (task_index, task) per line.
 fn read_tasks_v21(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
     use crate::export::lerobot::meta::TaskLine;
-    let Ok(text) = std::fs::read_to_string(path) else {
-        findings.file_error(path, "readable", "cannot be read");
-        return Vec::new();
-    };
     let mut tasks = Vec::new();
-    for (line_number, line) in text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-    {
-        match TaskLine::of(line) {
+    for line in bounded_lines(path, "readable", findings) {
+        let (line_number, line) = line;
+        match TaskLine::of(&line) {
             TaskLine {
                 task_index: Some(index),
                 task: Some(task),
@@ -71,7 +97,7 @@ fn read_tasks_v21(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
             _ => findings.file_error(
                 path,
                 "tasks",
-                format!("line {} lacks task_index or task", line_number + 1),
+                format!("line {line_number} lacks task_index or task"),
             ),
         }
     }
@@ -140,12 +166,12 @@ pub(super) fn read_episodes(
 fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
     let mut entries = Vec::new();
     let path = root.join("meta/episodes.jsonl");
-    let Ok(text) = std::fs::read_to_string(&path) else {
+    if !path.is_file() {
         findings.file_error(&path, "present", "is missing or unreadable");
         return entries;
-    };
-    for (row, line) in text.lines().filter(|l| !l.trim().is_empty()).enumerate() {
-        let value: Value = serde_json::from_str(line).unwrap_or(Value::Null);
+    }
+    for (row, (_, line)) in bounded_lines(&path, "episodes", findings).enumerate() {
+        let value: Value = serde_json::from_str(&line).unwrap_or(Value::Null);
         if value["episode_index"].as_i64() != Some(row as i64) {
             findings.error(
                 At::file("meta/episodes.jsonl").episode(row as u64),
@@ -177,9 +203,9 @@ fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
         entries.push(entry);
     }
     let stats_path = root.join("meta/episodes_stats.jsonl");
-    match std::fs::read_to_string(&stats_path) {
-        Ok(text) => {
-            let lines = text.lines().filter(|l| !l.trim().is_empty()).count();
+    match stats_path.is_file() {
+        true => {
+            let lines = bounded_lines(&stats_path, "stats", findings).count();
             if lines != entries.len() {
                 findings.file_error(
                     &stats_path,
@@ -188,7 +214,7 @@ fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
                 );
             }
         }
-        Err(_) => findings.file_error(&stats_path, "stats", "is missing"),
+        false => findings.file_error(&stats_path, "stats", "is missing"),
     }
     entries
 }
@@ -479,8 +505,17 @@ pub(super) fn check_videos(
     let declared: BTreeMap<String, crate::export::lerobot::FeatureJson> =
         info.feature_list().into_iter().collect();
     let mut readers: BTreeMap<PathBuf, Result<VideoReader, String>> = BTreeMap::new();
+    check_templates(info, v21, findings);
     for feature in features.iter().filter(|f| f.dtype == "video") {
         let key = &feature.name;
+        if let Err(problem) = paths::component(key) {
+            findings.error(
+                At::file("meta/info.json"),
+                "paths",
+                format!("the video feature {key:?} cannot name a folder: it {problem}"),
+            );
+            continue;
+        }
         findings.warning(
             At::file("meta/info.json"),
             "video-decode",
@@ -525,6 +560,33 @@ pub(super) fn check_videos(
                 Err(problem) if fresh => findings.error(at, "video", problem.clone()),
                 Err(_) => {}
             }
+        }
+    }
+}
+
+/// info.json's `data_path` and `video_path` templates: only the placeholders of their version,
+/// integer widths within bounds, and nothing that leads outside the dataset.
+fn check_templates(info: &crate::export::lerobot::InfoJson, v21: bool, findings: &Findings) {
+    let (chunk, file) = if v21 {
+        ("episode_chunk", "episode_index")
+    } else {
+        ("chunk_index", "file_index")
+    };
+    let fields = [
+        (chunk, Field::Index(0)),
+        (file, Field::Index(0)),
+        ("video_key", Field::Name("key")),
+    ];
+    for (name, template) in [("data_path", &info.data_path), ("video_path", &info.video_path)] {
+        let Some(template) = template else {
+            continue;
+        };
+        if let Err(problem) = paths::fill(template, &fields) {
+            findings.error(
+                At::file("meta/info.json"),
+                "paths",
+                format!("{name} {template:?} cannot be a path inside the dataset: it {problem}"),
+            );
         }
     }
 }

@@ -5,7 +5,7 @@
 use super::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
 use crate::export::findings::{At, Semantics, check_semantics};
-use crate::export::image::decode_png;
+use crate::export::image::{decode_png, png_size};
 use crate::export::tiff::decode_f32_tiff;
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
@@ -353,7 +353,13 @@ impl Context<'_> {
                 );
                 continue;
             };
-            let (w, h, c) = match decoded_size(encoded) {
+            // A size other than the declared one is known from the header: nothing is decoded.
+            let header = png_size(encoded).filter(|size| *size != (width, height));
+            let decoded = match header {
+                Some((w, h)) => Ok(Some((w, h, channels))),
+                None => decoded_size(encoded),
+            };
+            let (w, h, c) = match decoded {
                 Ok(Some(size)) => size,
                 Ok(None) => continue,
                 Err(problem) => {
