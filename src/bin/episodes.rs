@@ -81,8 +81,8 @@ pub struct JobArgs {
     /// Collection seed: every episode's seed derives from it.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads (default and 0: one per core; at most 8 per core).
+    #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
     /// Distractors in the level-2 pick tasks (T2-1, T2-2).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]

@@ -89,8 +89,9 @@ pub struct EvalArgs {
     /// Seconds to wait for the server to connect and for each reply.
     #[arg(long, default_value_t = 30.0)]
     timeout_secs: f64,
-    /// Worker threads for the built-in policies (default: all cores).
-    #[arg(long)]
+    /// Worker threads for the built-in policies (default and 0: one per core; at most 8 per
+    /// core).
+    #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
     /// Failed trials per task to record as MCAP under OUT/failures/.
     #[arg(long, default_value_t = 3)]
@@ -132,9 +133,10 @@ impl EvalArgs {
                 "--spawn-scale must be a number >= 0, not {scale}"
             )));
         }
-        let threads = self.threads.unwrap_or_else(|| {
-            std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
-        });
+        let threads = match self.threads {
+            None | Some(0) => surgvla::collect::slot::cores(),
+            Some(n) => n,
+        };
         Ok(EvalOptions {
             tasks: self.tasks.0.clone(),
             trials: self.trials,

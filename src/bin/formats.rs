@@ -301,9 +301,9 @@ pub struct ConvertArgs {
     /// Continue an interrupted conversion into --out (same input and options).
     #[arg(long)]
     resume: bool,
-    /// Worker threads encoding episodes (default: all cores).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
-    threads: Option<u64>,
+    /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
+    #[arg(long, value_parser = crate::threads_arg)]
+    threads: Option<usize>,
     /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     fps: Option<u32>,
@@ -402,7 +402,7 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         );
     }
     let bar = crate::progress::episode_bar(source.len(), "converting");
-    let threads = args.threads.unwrap_or(0) as usize;
+    let threads = args.threads.unwrap_or(0);
     let summary =
         surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), threads, &mut |done| {
             bar.set_position(done)
@@ -438,15 +438,15 @@ pub struct MergeArgs {
     /// Output folder (must not exist or be empty).
     #[arg(long)]
     out: PathBuf,
-    /// Worker threads encoding episodes (default: all cores).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
-    threads: Option<u64>,
+    /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
+    #[arg(long, value_parser = crate::threads_arg)]
+    threads: Option<usize>,
 }
 
 /// `surgvla merge INPUT... --out DIR`.
 pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     let bar = crate::progress::episode_bar(0, "merging");
-    let threads = args.threads.unwrap_or(0) as usize;
+    let threads = args.threads.unwrap_or(0);
     let summary = surgvla::export::merge(&mut MergeRequest {
         inputs: &args.inputs,
         out: &args.out,

@@ -27,8 +27,8 @@ pub struct ValidateArgs {
     /// success and the recorded frames (datasets surgvla collected; LeRobot image mode or RLDS).
     #[arg(long)]
     pub replay: bool,
-    /// Worker threads for the full pass (0: one per core).
-    #[arg(long, default_value_t = 0)]
+    /// Worker threads for the full pass (0: one per core; at most 8 per core).
+    #[arg(long, default_value_t = 0, value_parser = crate::threads_arg)]
     pub threads: usize,
 }
 

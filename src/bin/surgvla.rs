@@ -379,6 +379,22 @@ fn run_sim(args: &SimArgs) -> Result<(), CliError> {
     Ok(())
 }
 
+/// `--threads N` of every command, checked in this one place: 0 means one per core, and at most
+/// [`surgvla::collect::slot::MAX_THREADS_PER_CORE`] per core (a bad value exits 2).
+pub(crate) fn threads_arg(text: &str) -> Result<usize, String> {
+    use surgvla::collect::slot::{MAX_THREADS_PER_CORE, cores};
+    let threads: usize = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of threads"))?;
+    let max = MAX_THREADS_PER_CORE * cores();
+    if threads > max {
+        return Err(format!(
+            "at most {max} threads on this machine ({MAX_THREADS_PER_CORE} per core; 0: one per core)"
+        ));
+    }
+    Ok(threads)
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,

@@ -38,14 +38,56 @@ pub struct StoredFrame {
     pub images: Vec<(String, Vec<u8>)>,
 }
 
+/// Rows a parquet file may claim per byte of its size. Real files hold far fewer (an episode's
+/// row carries a few hundred bytes); a delta-encoded constant column compresses to about a bit
+/// per row. A footer claiming more rows, or column chunks beyond the end of the file, is refused
+/// before any of it is allocated.
+const MAX_ROWS_PER_BYTE: u64 = 64;
+
+/// What is wrong with a parquet footer given the file's size, if anything: row counts that the
+/// file cannot hold, column chunks outside it.
+pub fn footer_problem(
+    metadata: &parquet::file::metadata::ParquetMetaData,
+    file_bytes: u64,
+) -> Option<String> {
+    let mut rows: u64 = 0;
+    for (g, group) in metadata.row_groups().iter().enumerate() {
+        let Ok(group_rows) = u64::try_from(group.num_rows()) else {
+            return Some(format!("row group {g} claims {} rows", group.num_rows()));
+        };
+        rows = rows.saturating_add(group_rows);
+        for column in group.columns() {
+            let (start, length) = column.byte_range();
+            if start.checked_add(length).is_none_or(|end| end > file_bytes) {
+                return Some(format!(
+                    "row group {g} places column {} at bytes {start}..+{length}, beyond the file's {file_bytes}",
+                    column.column_path()
+                ));
+            }
+        }
+    }
+    (rows > file_bytes.saturating_mul(MAX_ROWS_PER_BYTE))
+        .then(|| format!("its footer claims {rows} rows in a file of {file_bytes} bytes"))
+}
+
+/// A parquet file's reader builder, its footer checked ([`footer_problem`]) first.
+pub fn open_parquet(
+    path: &Path,
+) -> Result<ParquetRecordBatchReaderBuilder<File>, ExportError> {
+    let file = crate::export::bounded::open_regular(path)?;
+    let file_bytes = file.metadata().map_err(ExportError::io(path))?.len();
+    let builder =
+        ParquetRecordBatchReaderBuilder::try_new(file).map_err(ExportError::parquet(path))?;
+    if let Some(problem) = footer_problem(builder.metadata(), file_bytes) {
+        return Err(invalid(path, problem));
+    }
+    Ok(builder)
+}
+
 /// Reads every record batch of a parquet file.
 pub fn read_parquet(path: &Path) -> Result<Vec<RecordBatch>, ExportError> {
-    let file = File::open(path).map_err(ExportError::io(path))?;
     let parquet_error = ExportError::parquet(path);
-    let reader = ParquetRecordBatchReaderBuilder::try_new(file)
-        .map_err(&parquet_error)?
-        .build()
-        .map_err(&parquet_error)?;
+    let reader = open_parquet(path)?.build().map_err(&parquet_error)?;
     reader
         .map(|batch| batch.map_err(ExportError::Arrow))
         .collect()
@@ -53,9 +95,7 @@ pub fn read_parquet(path: &Path) -> Result<Vec<RecordBatch>, ExportError> {
 
 /// The value of a schema metadata key of a parquet file (e.g. "pandas").
 pub fn schema_metadata(path: &Path, key: &str) -> Result<Option<String>, ExportError> {
-    let file = File::open(path).map_err(ExportError::io(path))?;
-    let builder =
-        ParquetRecordBatchReaderBuilder::try_new(file).map_err(ExportError::parquet(path))?;
+    let builder = open_parquet(path)?;
     if let Some(value) = builder.schema().metadata().get(key) {
         return Ok(Some(value.clone()));
     }
@@ -641,10 +681,8 @@ impl LeRobotSource {
                 let Some(path) = self.files.next() else {
                     return Ok(None);
                 };
-                let file = File::open(&path).map_err(ExportError::io(&path))?;
                 let parquet_error = ExportError::parquet(&path);
-                let reader = ParquetRecordBatchReaderBuilder::try_new(file)
-                    .map_err(&parquet_error)?
+                let reader = open_parquet(&path)?
                     .with_batch_size(64)
                     .build()
                     .map_err(&parquet_error)?;

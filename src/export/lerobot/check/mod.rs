@@ -297,7 +297,13 @@ fn read_optional_json(root: &Path, relative: &str, findings: &Findings) -> Value
 /// A data file's parquet metadata (its footer), or a finding naming the file.
 fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata> {
     let opened = File::open(path).map_err(|e| e.to_string()).and_then(|f| {
-        ArrowReaderMetadata::load(&f, ArrowReaderOptions::default()).map_err(|e| e.to_string())
+        let file_bytes = f.metadata().map_err(|e| e.to_string())?.len();
+        let metadata = ArrowReaderMetadata::load(&f, ArrowReaderOptions::default())
+            .map_err(|e| e.to_string())?;
+        match super::read::footer_problem(metadata.metadata(), file_bytes) {
+            Some(problem) => Err(problem),
+            None => Ok(metadata),
+        }
     });
     match opened {
         Ok(metadata) => Some(metadata),
