@@ -143,7 +143,7 @@ pub fn run_info(args: &InfoArgs) -> Result<(), CliError> {
             "quick_check_errors": report.errors.len(),
         });
         say!("{}", serde_json::to_string_pretty(&json)?);
-        return Ok(());
+        return quick_check_result(&report, &args.path, true);
     }
     say!("path       {}", place(&report.path));
     say!("format     {}", report.format.name());
@@ -177,12 +177,26 @@ pub fn run_info(args: &InfoArgs) -> Result<(), CliError> {
             say!("  {episodes:>6}  {task}");
         }
     }
-    if !report.valid {
-        say!(
-            "the quick check found {} problem(s): run `surgvla validate {}`",
-            report.errors.len(),
-            place(&args.path)
-        );
+    quick_check_result(&report, &args.path, false)
+}
+
+/// `info` exits 1 when its quick check found errors (the dataset is invalid, or parts of it
+/// cannot be read), after printing what it could read.
+/// (`--json` prints no findings: its count is in the JSON.)
+fn quick_check_result(report: &Report, path: &std::path::Path, json: bool) -> Result<(), CliError> {
+    if report.errors.is_empty() {
+        return Ok(());
     }
-    Ok(())
+    for finding in report
+        .errors
+        .iter()
+        .take(if json { 0 } else { PRINTED_FINDINGS })
+    {
+        say!("error: {finding}");
+    }
+    Err(CliError::invalid(format!(
+        "the quick check found {} problem(s): run `surgvla validate {}`",
+        report.errors.len(),
+        place(path)
+    )))
 }

@@ -94,7 +94,11 @@ impl Iterator for Lines {
                     return None;
                 }
                 Ok(_) if buffer.len() as u64 > MAX_LINE_BYTES => {
-                    format!("line {} is longer than {} MiB", self.number, MAX_LINE_BYTES >> 20)
+                    format!(
+                        "line {} is longer than {} MiB",
+                        self.number,
+                        MAX_LINE_BYTES >> 20
+                    )
                 }
                 Ok(_) => match String::from_utf8(std::mem::take(&mut buffer)) {
                     Ok(text) if text.trim().is_empty() => continue,
@@ -130,14 +134,22 @@ mod tests {
         let path = root.join("a.json");
         std::fs::write(&path, b"0123456789").unwrap();
         assert_eq!(read_capped(&path, 10).unwrap(), b"0123456789");
-        assert!(read_capped(&path, 9).unwrap_err().to_string().contains("larger than"));
+        assert!(
+            read_capped(&path, 9)
+                .unwrap_err()
+                .to_string()
+                .contains("larger than")
+        );
         // A character device reports no length and never ends: refused before reading.
         let error = read_capped(Path::new("/dev/zero"), 10).unwrap_err();
         assert!(error.to_string().contains("not a regular file"), "{error}");
         assert!(read_capped(&root, 10).is_err());
         std::fs::write(&path, b"{\"a\": 1}\n\n  \n{\"b\": 2}\r\n").unwrap();
         let read: Vec<(usize, String)> = lines(&path).unwrap().map(Result::unwrap).collect();
-        assert_eq!(read, [(1, "{\"a\": 1}".to_string()), (4, "{\"b\": 2}".to_string())]);
+        assert_eq!(
+            read,
+            [(1, "{\"a\": 1}".to_string()), (4, "{\"b\": 2}".to_string())]
+        );
         std::fs::write(&path, [b'a', 0xff, b'\n']).unwrap();
         assert!(lines(&path).unwrap().next().unwrap().is_err());
         std::fs::remove_dir_all(&root).unwrap();

@@ -83,7 +83,19 @@ impl FileRecord {
                 });
             }
         };
-        let (bytes, crc) = checksum(file, path)?;
+        let metadata = file.metadata().map_err(ExportError::io(path))?;
+        if !metadata.is_file() {
+            return Ok(Some("is not a regular file".into()));
+        }
+        if metadata.len() != self.bytes {
+            let size = metadata.len();
+            return Ok(Some(format!(
+                "is {size} bytes, {} were recorded",
+                self.bytes
+            )));
+        }
+        // Read no further than one byte past the recorded size (a file may still be growing).
+        let (bytes, crc) = checksum(file.take(self.bytes.saturating_add(1)), path)?;
         Ok(if bytes != self.bytes {
             Some(format!("is {bytes} bytes, {} were recorded", self.bytes))
         } else if format!("{crc:08x}") != self.crc32c {
@@ -98,7 +110,7 @@ impl FileRecord {
 }
 
 /// The size and CRC-32C of a whole file.
-fn checksum(mut file: File, path: &Path) -> Result<(u64, u32), ExportError> {
+fn checksum(mut file: impl Read, path: &Path) -> Result<(u64, u32), ExportError> {
     let mut buffer = vec![0u8; 1 << 20];
     let (mut bytes, mut crc) = (0u64, 0u32);
     loop {
@@ -345,6 +357,10 @@ impl DatasetDir {
         options: &RunOptions,
         folders: &[&str],
     ) -> Result<(Self, Option<T>), ExportError> {
+        // Links first: nothing of the folder is trusted before it is known to hold none.
+        if let Some(link) = first_link(root) {
+            return Err(holds_link(root, &link));
+        }
         let recorded: Marker<serde::de::IgnoredAny> = read_marker(root)?;
         let changes = recorded.options.changes(options);
         if !changes.is_empty() {
@@ -352,9 +368,6 @@ impl DatasetDir {
                 path: root.to_path_buf(),
                 changes,
             });
-        }
-        if let Some(link) = first_link(root) {
-            return Err(holds_link(root, &link));
         }
         let lock = lock(root)?;
         let marker: Marker<Value> = read_marker(root)?;

@@ -136,7 +136,10 @@ pub fn decode_png(bytes: &[u8]) -> Result<DecodedPng, String> {
 
 /// [`decode_png`] of an image declared `expected` (width, height): another size is refused from
 /// the header, before decoding.
-pub fn decode_png_sized(bytes: &[u8], expected: Option<(usize, usize)>) -> Result<DecodedPng, String> {
+pub fn decode_png_sized(
+    bytes: &[u8],
+    expected: Option<(usize, usize)>,
+) -> Result<DecodedPng, String> {
     let (info, buffer) = decode_png_raw(bytes, expected)?;
     if info.bit_depth != png::BitDepth::Eight {
         return Err(format!(
@@ -151,6 +154,42 @@ pub fn decode_png_sized(bytes: &[u8], expected: Option<(usize, usize)>) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A valid PNG whose header claims `width` x `height` (the CRC fixed, the data not).
+    fn forged(width: u32, height: u32) -> Vec<u8> {
+        let mut png = encode_png(1, 1, 3, &[1, 2, 3], PngLevel::Fast).expect("encode");
+        png[16..20].copy_from_slice(&width.to_be_bytes());
+        png[20..24].copy_from_slice(&height.to_be_bytes());
+        // CRC-32 (IEEE) of the IHDR chunk's type and data.
+        let crc = !png[12..29].iter().fold(!0u32, |mut crc, &byte| {
+            crc ^= u32::from(byte);
+            for _ in 0..8 {
+                crc = if crc & 1 == 1 {
+                    (crc >> 1) ^ 0xedb8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+            crc
+        });
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        png
+    }
+
+    #[test]
+    fn a_header_claiming_a_huge_image_is_refused_before_allocating() {
+        let bomb = forged(100_000, 100_000);
+        assert!(bomb.len() < 100);
+        assert_eq!(png_size(&bomb), Some((100_000, 100_000)));
+        let error = decode_png(&bomb).unwrap_err();
+        assert!(error.contains("larger than surgvla decodes"), "{error}");
+        let error = decode_png_sized(&forged(300, 200), Some((224, 224))).unwrap_err();
+        assert!(
+            error.contains("300x200 image where 224x224 was declared"),
+            "{error}"
+        );
+        assert!(decode_png16_sized(&forged(9000, 1), None).is_err());
+    }
 
     #[test]
     fn png_round_trips_grey_and_rgb() {

@@ -323,7 +323,7 @@ fn mistakes_in_what_the_user_gives_exit_2_before_anything_is_written() {
         (
             vec!["--threads".into(), "100000".into()],
             None,
-            vec!["100000 threads: at most"],
+            vec!["100000", "at most"],
         ),
         (
             vec![

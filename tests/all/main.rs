@@ -12,6 +12,7 @@ mod eval;
 mod fidelity;
 mod grasping;
 mod hardening;
+mod hostile;
 mod kinematics;
 mod layers;
 mod lerobot;

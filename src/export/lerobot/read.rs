@@ -11,8 +11,8 @@ use crate::episode::{
 use crate::export::demux::VideoReader;
 use crate::export::image::decode_png_sized;
 use crate::export::info::DatasetInfo;
-use crate::export::tiff::decode_f32_tiff;
 use crate::export::paths::{self, Field};
+use crate::export::tiff::decode_f32_tiff;
 use crate::export::{EpisodeSource, ExportError, read_json};
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
@@ -71,9 +71,7 @@ pub fn footer_problem(
 }
 
 /// A parquet file's reader builder, its footer checked ([`footer_problem`]) first.
-pub fn open_parquet(
-    path: &Path,
-) -> Result<ParquetRecordBatchReaderBuilder<File>, ExportError> {
+pub fn open_parquet(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>, ExportError> {
     let file = crate::export::bounded::open_regular(path)?;
     let file_bytes = file.metadata().map_err(ExportError::io(path))?.len();
     let builder =
@@ -623,14 +621,13 @@ impl LeRobotSource {
             ];
             (fields, Some((span.from_secs, span.to_secs)))
         };
-        let relative = paths::fill(&self.video_path, &fields).map_err(|problem| {
-            ExportError::UnsafeName {
+        let relative =
+            paths::fill(&self.video_path, &fields).map_err(|problem| ExportError::UnsafeName {
                 path: self.root.join("meta/info.json"),
                 what: "video_path template",
                 name: self.video_path.clone(),
                 problem,
-            }
-        })?;
+            })?;
         let path = self.root.join(relative);
         if self.video.as_ref().is_none_or(|(open, _)| *open != path) {
             self.video = Some((path.clone(), VideoReader::open(&path)?));

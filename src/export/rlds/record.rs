@@ -416,17 +416,16 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
                 ..Step::empty()
             };
             if layout.depth {
-                let (dw, dh, mm) =
-                    decode_png16_sized(&depth[i], Some((w, h)))
-                        .map_err(|e| bad_image(&depth_key, i, e))?;
+                let (dw, dh, mm) = decode_png16_sized(&depth[i], Some((w, h)))
+                    .map_err(|e| bad_image(&depth_key, i, e))?;
                 if (dw as usize, dh as usize) != (w, h) {
                     return Err(bad_image(&depth_key, i, format!("a {dw}x{dh} depth image")));
                 }
                 step.depth_m = mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
             }
             if layout.mask {
-                let (mw, mh, channels, ids) =
-                    decode_png_sized(&mask[i], Some((w, h))).map_err(|e| bad_image(&mask_key, i, e))?;
+                let (mw, mh, channels, ids) = decode_png_sized(&mask[i], Some((w, h)))
+                    .map_err(|e| bad_image(&mask_key, i, e))?;
                 if (mw as usize, mh as usize, channels) != (w, h, 1) {
                     return Err(bad_image(
                         &mask_key,

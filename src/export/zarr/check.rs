@@ -70,12 +70,17 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         findings.file_error(
             &path,
             "schema",
-            format!("chunks {chunks:?} are larger than the {} MiB surgvla reads", MAX_CHUNK_BYTES >> 20),
+            format!(
+                "chunks {chunks:?} are larger than the {} MiB surgvla reads",
+                MAX_CHUNK_BYTES >> 20
+            ),
         );
         return None;
     }
     let grid = shape.iter().zip(&chunks).map(|(s, c)| s.div_ceil(*c));
-    let claimed = grid.clone().try_fold(1usize, |total, n| total.checked_mul(n));
+    let claimed = grid
+        .clone()
+        .try_fold(1usize, |total, n| total.checked_mul(n));
     let present = std::fs::read_dir(root.join(name)).map_or(0, |entries| entries.count());
     // A few missing chunks are reported one by one below; a shape claiming far more chunks
     // than there are files is reported once (counting them would not end).

@@ -61,17 +61,24 @@ fn bounded_lines(
     let lines = match crate::export::bounded::lines(path) {
         Ok(lines) => Some(lines),
         Err(error) => {
-            findings.file_error(path, check, format!("cannot be read: {}", error_text(&error)));
+            findings.file_error(
+                path,
+                check,
+                format!("cannot be read: {}", error_text(&error)),
+            );
             None
         }
     };
-    lines.into_iter().flatten().map_while(move |line| match line {
-        Ok(line) => Some(line),
-        Err(error) => {
-            findings.file_error(path, check, error_text(&error));
-            None
-        }
-    })
+    lines
+        .into_iter()
+        .flatten()
+        .map_while(move |line| match line {
+            Ok(line) => Some(line),
+            Err(error) => {
+                findings.file_error(path, check, error_text(&error));
+                None
+            }
+        })
 }
 
 /// An error's own problem, without the path a finding already names.
@@ -577,7 +584,10 @@ fn check_templates(info: &crate::export::lerobot::InfoJson, v21: bool, findings:
         (file, Field::Index(0)),
         ("video_key", Field::Name("key")),
     ];
-    for (name, template) in [("data_path", &info.data_path), ("video_path", &info.video_path)] {
+    for (name, template) in [
+        ("data_path", &info.data_path),
+        ("video_path", &info.video_path),
+    ] {
         let Some(template) = template else {
             continue;
         };

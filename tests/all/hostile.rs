@@ -1,0 +1,337 @@
+//! Other people's datasets as an attacker or an unlucky operator would make them: names and
+//! templates in the metadata that point outside the dataset, metadata files that never end,
+//! links inside an interrupted dataset, absurd thread counts. Every command ends (within a time
+//! limit) with exit 1 or 2, never a panic or an abort, and a sentinel folder beside the dataset
+//! and the output is byte-identical afterwards.
+
+use crate::util::{temp_root, tree};
+use serde_json::Value;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// Runs the binary with a deadline: (exit code, stderr then stdout). A run past the deadline is
+/// killed and fails the test (a hang).
+fn run(args: &[&str], limit: Duration) -> (i32, String) {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn surgvla");
+    let started = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            let mut text = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut text)
+                .expect("stderr");
+            std::io::Read::read_to_string(&mut child.stdout.take().expect("stdout"), &mut text)
+                .expect("stdout");
+            return (status.code().unwrap_or(-1), text);
+        }
+        if started.elapsed() > limit {
+            child.kill().ok();
+            panic!("surgvla {args:?} hung (killed after {limit:?})");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+const LIMIT: Duration = Duration::from_secs(60);
+
+/// A folder beside the datasets with a file in it: must be byte-identical after every command.
+fn sentinel(parent: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    let folder = parent.join("outside");
+    std::fs::create_dir_all(&folder).expect("sentinel");
+    std::fs::write(folder.join("keep.txt"), b"not yours").expect("sentinel");
+    tree(&folder)
+}
+
+/// A change to a metadata document.
+type Edit = Box<dyn Fn(&mut Value)>;
+
+fn edit_json(path: &Path, edit: impl FnOnce(&mut Value)) {
+    let mut value: Value =
+        serde_json::from_slice(&std::fs::read(path).expect("read")).expect("json");
+    edit(&mut value);
+    std::fs::write(path, serde_json::to_vec_pretty(&value).expect("json")).expect("write");
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    for (relative, bytes) in tree(from) {
+        let path = to.join(relative);
+        std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+        std::fs::write(path, bytes).expect("copy");
+    }
+}
+
+/// Runs `args` (with `{in}` and `{out}` replaced) and checks the run ended with `expected`,
+/// never a panic, and touched nothing in the sentinel folder.
+fn expect_exit(parent: &Path, args: &[&str], expected: i32, what: &str) -> String {
+    let before = tree(&parent.join("outside"));
+    let (code, stderr) = run(args, LIMIT);
+    assert_eq!(code, expected, "{what}: surgvla {args:?}: {stderr}");
+    assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+    assert_eq!(
+        tree(&parent.join("outside")),
+        before,
+        "{what}: the sentinel changed"
+    );
+    stderr
+}
+
+#[test]
+fn lerobot_names_and_templates_that_leave_the_dataset_are_refused() {
+    let parent = temp_root("hostile-lerobot");
+    sentinel(&parent);
+    // Two shards, so that merge has two inputs to join.
+    let shard = |i: usize| parent.join(format!("base-{i}"));
+    for i in 0..2 {
+        let out = shard(i);
+        let (code, _) = run(
+            &[
+                "collect",
+                "--tasks",
+                "T1-1",
+                "--episodes-per-task",
+                "2",
+                "--video",
+                "h264",
+                "--shard",
+                &format!("{i}/2"),
+                "--out",
+                out.to_str().expect("utf-8"),
+            ],
+            LIMIT,
+        );
+        assert_eq!(code, 0);
+    }
+    let base = shard(0);
+    let key = "observation.images.endoscope";
+    // A video in the sentinel folder, which a path pointing outside would read and copy.
+    let outside_video = parent.join("outside/videos/x/chunk-000/file-000.mp4");
+    std::fs::create_dir_all(outside_video.parent().expect("parent")).expect("mkdir");
+    std::fs::copy(
+        base.join(format!("videos/{key}/chunk-000/file-000.mp4")),
+        &outside_video,
+    )
+    .expect("copy");
+    let absolute = format!(
+        "{}/outside/videos/{{video_key}}/chunk-000/file-000.mp4",
+        parent.display()
+    );
+    let cases: Vec<(&str, Edit)> = vec![
+        (
+            "a video key with ../",
+            Box::new(move |info: &mut Value| {
+                let features = info["features"].as_object_mut().expect("features");
+                let feature = features.shift_remove(key).expect("rgb");
+                features.insert("../../../x".into(), feature);
+            }),
+        ),
+        (
+            "a video_path template with ../",
+            Box::new(|info: &mut Value| {
+                info["video_path"] =
+                    "../outside/videos/x/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into();
+            }),
+        ),
+        (
+            "an absolute video_path",
+            Box::new(move |info: &mut Value| {
+                info["video_path"] = absolute.clone().into();
+            }),
+        ),
+        (
+            "a video key holding its own placeholder",
+            Box::new(move |info: &mut Value| {
+                let features = info["features"].as_object_mut().expect("features");
+                let feature = features.shift_remove(key).expect("rgb");
+                features.insert("{video_key:1d}".into(), feature);
+                info["video_path"] =
+                    "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into();
+            }),
+        ),
+        (
+            "a padding width over 65535",
+            Box::new(|info: &mut Value| {
+                info["video_path"] =
+                    "videos/{video_key}/chunk-{chunk_index:070000d}/file-{file_index:03d}.mp4"
+                        .into();
+            }),
+        ),
+    ];
+    for (i, (what, edit)) in cases.iter().enumerate() {
+        let second = parent.join(format!("case-{i}-1"));
+        copy_tree(&shard(1), &second);
+        edit_json(&second.join("meta/info.json"), edit);
+        let second = second.to_str().expect("utf-8");
+        let dataset = parent.join(format!("case-{i}"));
+        copy_tree(&base, &dataset);
+        edit_json(&dataset.join("meta/info.json"), edit);
+        let dataset = dataset.to_str().expect("utf-8");
+        let out = parent.join(format!("out-{i}"));
+        let out = out.to_str().expect("utf-8");
+        // A key holding its own placeholder is a name, not an escape: it must only end.
+        let escapes = !what.contains("placeholder");
+        let stderr = expect_exit(&parent, &["validate", dataset], 1, what);
+        assert!(!escapes || stderr.contains("[paths]"), "{what}: {stderr}");
+        let stderr = expect_exit(
+            &parent,
+            &[
+                "convert", dataset, "--to", "lerobot", "--video", "h264", "--out", out,
+            ],
+            1,
+            what,
+        );
+        assert!(
+            !escapes || stderr.contains("cannot be a path inside the dataset"),
+            "{what}: {stderr}"
+        );
+        expect_exit(
+            &parent,
+            &["merge", dataset, second, "--out", &format!("{out}-m")],
+            1,
+            what,
+        );
+        expect_exit(&parent, &["info", dataset], 1, what);
+    }
+}
+
+#[test]
+fn an_rlds_name_that_leaves_the_dataset_is_refused() {
+    let parent = temp_root("hostile-rlds");
+    sentinel(&parent);
+    let dataset = parent.join("rlds");
+    let text = dataset.to_str().expect("utf-8");
+    let (code, _) = run(
+        &[
+            "collect",
+            "--tasks",
+            "T1-1",
+            "--episodes-per-task",
+            "1",
+            "--format",
+            "rlds",
+            "--out",
+            text,
+        ],
+        LIMIT,
+    );
+    assert_eq!(code, 0);
+    let info = std::fs::read_dir(&dataset)
+        .expect("read")
+        .flatten()
+        .map(|e| e.path())
+        .find_map(|name| {
+            let version = std::fs::read_dir(name).ok()?.flatten().next()?.path();
+            let info = version.join("dataset_info.json");
+            info.exists().then_some(info)
+        })
+        .expect("dataset_info.json");
+    edit_json(&info, |value| value["name"] = "../../outside/x".into());
+    let stderr = expect_exit(&parent, &["validate", text], 1, "validate");
+    assert!(stderr.contains("paths"), "{stderr}");
+    let out = parent.join("out");
+    let stderr = expect_exit(
+        &parent,
+        &[
+            "convert",
+            text,
+            "--to",
+            "lerobot",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ],
+        1,
+        "convert",
+    );
+    assert!(
+        stderr.contains("cannot be a path inside the dataset"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn metadata_that_never_ends_is_not_read() {
+    let parent = temp_root("hostile-zero");
+    sentinel(&parent);
+    let dataset = parent.join("lerobot");
+    let text = dataset.to_str().expect("utf-8");
+    let (code, _) = run(
+        &[
+            "collect",
+            "--tasks",
+            "T1-1",
+            "--episodes-per-task",
+            "1",
+            "--out",
+            text,
+        ],
+        LIMIT,
+    );
+    assert_eq!(code, 0);
+    for file in ["meta/stats.json", "meta/info.json"] {
+        let path = dataset.join(file);
+        std::fs::remove_file(&path).expect("remove");
+        std::os::unix::fs::symlink("/dev/zero", &path).expect("link");
+    }
+    let stderr = expect_exit(&parent, &["validate", text], 1, "validate");
+    assert!(stderr.contains("not a regular file"), "{stderr}");
+    let out = parent.join("out");
+    let out = out.to_str().expect("utf-8");
+    expect_exit(
+        &parent,
+        &["convert", text, "--to", "rlds", "--out", out],
+        1,
+        "convert",
+    );
+    expect_exit(&parent, &["info", text], 1, "info");
+}
+
+#[test]
+fn resume_never_writes_or_deletes_through_a_link() {
+    let parent = temp_root("hostile-resume");
+    sentinel(&parent);
+    let dataset = parent.join("mcap");
+    let text = dataset.to_str().expect("utf-8");
+    let args = [
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "1",
+        "--format",
+        "mcap",
+        "--out",
+        text,
+    ];
+    assert_eq!(run(&args, LIMIT).0, 0);
+    // An interrupted dataset (the marker back in place) holding a link to the sentinel folder.
+    std::fs::write(dataset.join(surgvla::export::INCOMPLETE_MARKER), b"{}").expect("marker");
+    std::os::unix::fs::symlink(parent.join("outside"), dataset.join("linked")).expect("link");
+    let mut resume = args.to_vec();
+    resume.push("--resume");
+    let stderr = expect_exit(&parent, &resume, 2, "resume");
+    assert!(stderr.contains("symbolic link linked"), "{stderr}");
+}
+
+#[test]
+fn every_command_takes_the_same_thread_rule() {
+    let parent = temp_root("hostile-threads");
+    let out = parent.join("out");
+    let out = out.to_str().expect("utf-8");
+    let too_many = (8 * surgvla::collect::slot::cores() + 1).to_string();
+    for args in [
+        vec!["collect", "--tasks", "T1-1", "--out", out],
+        vec!["convert", out, "--to", "rlds", "--out", out],
+        vec!["merge", out, out, "--out", out],
+        vec!["validate", out],
+        vec!["eval", "--out", out],
+    ] {
+        let mut args = args.clone();
+        args.extend(["--threads", too_many.as_str()]);
+        let (code, stderr) = run(&args, LIMIT);
+        assert_eq!(code, 2, "{args:?}: {stderr}");
+        assert!(stderr.contains("per core"), "{args:?}: {stderr}");
+    }
+}
