@@ -254,6 +254,11 @@ struct Checkpoint<T> {
     state: T,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     renames: Vec<(String, String)>,
+    /// Files the run may rewrite after this checkpoint (a zarr chunk written partly filled,
+    /// rewritten whole when it fills): a resume checks only that they are there, and the format
+    /// checks their content against its state.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    rewritable: Vec<String>,
 }
 
 /// A journal's length and the CRC-32C of its bytes up to there.
@@ -285,6 +290,9 @@ pub struct DatasetDir {
     journals: BTreeMap<String, Journal>,
     /// Renames being made ([`DatasetDir::rename_files`]), recorded with the next checkpoint.
     renames: Vec<(String, String)>,
+    /// Files the checkpoint being saved lets the run rewrite
+    /// ([`DatasetDir::save_checkpoint_rewritable`]).
+    rewritable: Vec<String>,
 }
 
 fn sync_dir(path: &Path) -> Result<(), ExportError> {
@@ -340,6 +348,7 @@ impl DatasetDir {
             synced: 0,
             journals: BTreeMap::new(),
             renames: Vec::new(),
+            rewritable: Vec::new(),
         }
     }
 
@@ -390,7 +399,12 @@ impl DatasetDir {
         }
         for record in &checkpoint.files {
             let path = dir.path(&record.path);
-            if let Some(problem) = record.problem(&path)? {
+            let problem = if checkpoint.rewritable.contains(&record.path) {
+                (!path.is_file()).then(|| "is missing".to_string())
+            } else {
+                record.problem(&path)?
+            };
+            if let Some(problem) = problem {
                 return Err(ExportError::Damaged { path, problem });
             }
         }
@@ -640,6 +654,7 @@ impl DatasetDir {
                     .collect(),
                 state,
                 renames: self.renames.clone(),
+                rewritable: self.rewritable.clone(),
             }),
         };
         let path = self.path(INCOMPLETE_MARKER);
@@ -661,6 +676,20 @@ impl DatasetDir {
     pub fn save_checkpoint<T: Serialize>(&mut self, state: &T) -> Result<(), ExportError> {
         self.sync()?;
         self.write_marker(Some(state))
+    }
+
+    /// [`DatasetDir::save_checkpoint`], where the files `rewritable` (relative paths) may be
+    /// rewritten before the next checkpoint: a resume from this one then checks only that they
+    /// exist, and the format checks what it reads back of them (see [`Checkpoint`]).
+    pub fn save_checkpoint_rewritable<T: Serialize>(
+        &mut self,
+        state: &T,
+        rewritable: Vec<String>,
+    ) -> Result<(), ExportError> {
+        self.rewritable = rewritable;
+        let saved = self.save_checkpoint(state);
+        self.rewritable.clear();
+        saved
     }
 
     /// Gives finished files new names (`(from, to)` relative paths; e.g. shards whose count is

@@ -246,3 +246,67 @@ fn a_source_refuses_an_incomplete_dataset_by_name() {
         "{message}"
     );
 }
+
+/// zarr's partial chunks are rewritten when they fill, after the checkpoint that recorded them:
+/// a kill right after the first checkpoint, in the middle of the next chunk, and while
+/// finishing each resumes to the uninterrupted bytes.
+#[test]
+fn zarr_resumes_after_a_kill_at_each_point() {
+    use surgvla::export::zarr::CHECKPOINT_EPISODES;
+    let info = info(true);
+    let options = SinkOptions::Zarr(ZarrOptions {
+        images: true,
+        ..ZarrOptions::default()
+    });
+    // Short episodes (25 steps): 16 of them end a checkpoint mid-chunk (400 rows: chunk 4 is
+    // empty, so one more row group of 25 makes a partial chunk rewritten by the next episodes).
+    let one = episodes(1).remove(0);
+    let count = CHECKPOINT_EPISODES as usize + 6;
+    let recorded: Vec<Episode> = (0..count)
+        .map(|i| {
+            let mut episode = one.clone();
+            episode.meta.index = i as u64;
+            episode.steps.truncate(21 + i % 4);
+            episode
+        })
+        .collect();
+    let reference = temp_root("zarr-reference");
+    write_all(&reference, &info, &options, &recorded);
+    let expected = tree(&reference);
+    let checkpoint = CHECKPOINT_EPISODES as usize;
+    // (episodes written before the kill, whether the kill came during finish)
+    for (written, finishing) in [
+        (checkpoint, false),
+        (checkpoint + 3, false),
+        (checkpoint + 5, false),
+        (count, true),
+    ] {
+        let root = temp_root("zarr-killed");
+        {
+            let mut sink = open_sink(&root, &info, &options, false).expect("open");
+            for episode in &recorded[..written] {
+                sink.write_batch(std::slice::from_ref(episode)).expect("write");
+            }
+            if finishing {
+                // Killed just before the marker goes: the finish's files are written, the
+                // marker (with its checkpoint) is still there.
+                let marker = root.join(surgvla::export::INCOMPLETE_MARKER);
+                let saved = std::fs::read(&marker).expect("marker");
+                sink.finish().expect("finish");
+                std::fs::write(&marker, saved).expect("marker back");
+            }
+        }
+        let mut sink = open_sink(&root, &info, &options, true)
+            .unwrap_or_else(|e| panic!("resume after {written} episodes: {e}"));
+        let next = sink.next_episode_index() as usize;
+        assert!(next <= written, "{written}: resumes at {next}");
+        for episode in &recorded[next..] {
+            sink.write_batch(std::slice::from_ref(episode)).expect("write rest");
+        }
+        sink.finish().expect("finish");
+        assert!(
+            tree(&root) == expected,
+            "killed after {written} episodes (finishing: {finishing}): resumed differs"
+        );
+    }
+}

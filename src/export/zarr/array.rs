@@ -14,10 +14,14 @@ use serde_json::json;
 pub const CHUNK_ROWS: usize = 100;
 const ZSTD_LEVEL: i32 = 3;
 
-/// Where an array stands at a checkpoint: its rows so far (the partial chunk is on disk too).
+/// Where an array stands at a checkpoint: its rows so far, and the CRC-32C of the rows of its
+/// partial chunk. That chunk is on disk too, and may have been rewritten (filled further) after
+/// the checkpoint: its first rows are the same bytes, which a resume reads back and checks.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ArrayMark {
     pub rows: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub partial_crc32c: Option<u32>,
 }
 
 /// An array being written.
@@ -68,13 +72,35 @@ impl ArrayWriter {
                     problem: format!("is not a zstd chunk ({source})"),
                 },
             )?;
-            self.buffer = bytes[..pending * self.row_bytes].to_vec();
+            let rows = bytes.get(..pending * self.row_bytes).unwrap_or_default();
+            if rows.len() != pending * self.row_bytes
+                || mark
+                    .partial_crc32c
+                    .is_some_and(|crc| crc != crc32c::crc32c(rows))
+            {
+                return Err(ExportError::Damaged {
+                    path,
+                    problem: format!(
+                        "does not hold the {pending} rows the checkpoint recorded (their CRC-32C differs)"
+                    ),
+                });
+            }
+            self.buffer = rows.to_vec();
         }
         Ok(self)
     }
 
     pub fn mark(&self) -> ArrayMark {
-        ArrayMark { rows: self.rows }
+        ArrayMark {
+            rows: self.rows,
+            partial_crc32c: (!self.buffer.is_empty()).then(|| crc32c::crc32c(&self.buffer)),
+        }
+    }
+
+    /// The partial chunk's path, if the array has one (a checkpoint writes it, and the chunk is
+    /// rewritten when it fills).
+    pub fn partial_chunk(&self) -> Option<String> {
+        (!self.buffer.is_empty()).then(|| self.chunk_path(self.rows / CHUNK_ROWS as u64))
     }
 
     fn chunk_path(&self, chunk: u64) -> String {

@@ -101,7 +101,8 @@ impl ZarrStore {
             array.flush(dir)?;
         }
         self.state.arrays = self.arrays.iter().map(ArrayWriter::mark).collect();
-        dir.save_checkpoint(&self.state)
+        let partial = self.arrays.iter().filter_map(ArrayWriter::partial_chunk);
+        dir.save_checkpoint_rewritable(&self.state, partial.collect())
     }
 }
 
