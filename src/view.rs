@@ -242,5 +242,6 @@ pub fn dataset_info(
             min_m: workspace.min_m,
             max_m: workspace.max_m,
         }),
+        input: None,
     }
 }

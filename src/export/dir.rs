@@ -172,6 +172,10 @@ impl std::fmt::Display for OptionChange {
 }
 
 impl RunOptions {
+    /// The option naming the dataset a conversion reads ([`crate::export::identity`]): a
+    /// resume must read the same one; it is not part of the [`RunOptions::digest`].
+    pub const INPUT: &'static str = "input";
+
     /// Records `option` (a later value replaces an earlier one).
     pub fn set(&mut self, option: impl Into<String>, value: Value) {
         self.0.insert(option.into(), value);
@@ -191,7 +195,10 @@ impl RunOptions {
 
     /// CRC-32C of the options' canonical JSON (keys sorted), 8 hex digits.
     pub fn digest(&self) -> String {
-        let text = serde_json::to_string(&self.0).unwrap_or_default();
+        // The input's identity decides what may be resumed, not the bytes written.
+        let mut shaping = self.0.clone();
+        shaping.remove(Self::INPUT);
+        let text = serde_json::to_string(&shaping).unwrap_or_default();
         format!("{:08x}", crc32c::crc32c(text.as_bytes()))
     }
 

@@ -27,6 +27,10 @@ pub struct DatasetInfo {
     /// The box the robot's tool tip moves in, world frame (the default point-cloud crop, with
     /// margins); None when unknown.
     pub tip_workspace: Option<Aabb>,
+    /// The identity of the dataset this one is read from ([`crate::export::identity`]), which
+    /// a conversion records and its resume compares; None for a collection. Never written into
+    /// a dataset, and not part of its options digest.
+    pub input: Option<String>,
 }
 
 impl DatasetInfo {
@@ -83,6 +87,9 @@ impl DatasetInfo {
             options.set("tip_workspace_m", workspace_json(workspace));
         }
         options.extend_from(&self.collection);
+        if let Some(input) = &self.input {
+            options.set(RunOptions::INPUT, json!(input));
+        }
         options
     }
 
@@ -112,6 +119,7 @@ impl DatasetInfo {
             collection: surgvla["collection"].clone(),
             generator: surgvla["generator"].as_str().unwrap_or_default().into(),
             tip_workspace: workspace_of(&surgvla["tip_workspace_m"]),
+            input: None,
         }
     }
 

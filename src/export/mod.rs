@@ -26,6 +26,7 @@ pub mod demux;
 pub mod dir;
 pub mod findings;
 pub mod format;
+pub mod identity;
 pub mod image;
 pub mod info;
 pub mod lerobot;
@@ -453,10 +454,11 @@ pub fn open_source_with(
     options: &SourceOptions,
 ) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
     let (format, found) = registry::detect_readable(root)?;
-    format.open_source(&found, options).unwrap_or_else(|| {
+    let source = format.open_source(&found, options).unwrap_or_else(|| {
         Err(ExportError::NotReadable {
             path: found.root.clone(),
             format: found.format.name(),
         })
-    })
+    })?;
+    Ok(Box::new(identity::Identified::new(source, &found.root)?))
 }

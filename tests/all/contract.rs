@@ -285,7 +285,8 @@ fn zarr_resumes_after_a_kill_at_each_point() {
         {
             let mut sink = open_sink(&root, &info, &options, false).expect("open");
             for episode in &recorded[..written] {
-                sink.write_batch(std::slice::from_ref(episode)).expect("write");
+                sink.write_batch(std::slice::from_ref(episode))
+                    .expect("write");
             }
             if finishing {
                 // Killed just before the marker goes: the finish's files are written, the
@@ -301,7 +302,8 @@ fn zarr_resumes_after_a_kill_at_each_point() {
         let next = sink.next_episode_index() as usize;
         assert!(next <= written, "{written}: resumes at {next}");
         for episode in &recorded[next..] {
-            sink.write_batch(std::slice::from_ref(episode)).expect("write rest");
+            sink.write_batch(std::slice::from_ref(episode))
+                .expect("write rest");
         }
         sink.finish().expect("finish");
         assert!(

@@ -335,3 +335,79 @@ fn every_command_takes_the_same_thread_rule() {
         assert!(stderr.contains("per core"), "{args:?}: {stderr}");
     }
 }
+
+#[test]
+fn a_conversion_resumes_only_from_the_input_it_started_with() {
+    use surgvla::export::rlds::RldsOptions;
+    use surgvla::export::{SinkOptions, SourceOptions, open_sink, open_source_with};
+    let parent = temp_root("hostile-input");
+    let input = |seed: &str| {
+        let path = parent.join(format!("input-{seed}"));
+        let (code, _) = run(
+            &[
+                "collect",
+                "--tasks",
+                "T1-1",
+                "--episodes-per-task",
+                "2",
+                "--seed",
+                seed,
+                "--out",
+                path.to_str().expect("utf-8"),
+            ],
+            LIMIT,
+        );
+        assert_eq!(code, 0);
+        path
+    };
+    let (a, b) = (input("1"), input("2"));
+    let out = parent.join("out");
+    {
+        // A conversion of A killed after its first episode.
+        let mut source = open_source_with(&a, &SourceOptions::default()).expect("source");
+        let info = source.info().clone();
+        assert!(info.input.is_some());
+        let options = SinkOptions::Rlds(RldsOptions::default());
+        let mut sink = open_sink(&out, &info, &options, false).expect("sink");
+        let first = source.next_episode().expect("one").expect("read");
+        sink.write_batch(&[first]).expect("write");
+    }
+    let out_text = out.to_str().expect("utf-8");
+    let convert = |input: &Path| {
+        let input = input.to_str().expect("utf-8").to_string();
+        run(
+            &[
+                "convert", &input, "--to", "rlds", "--out", out_text, "--resume",
+            ],
+            LIMIT,
+        )
+    };
+    let (code, stderr) = convert(&b);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("input"), "{stderr}");
+    let (code, stderr) = convert(&a);
+    assert_eq!(code, 0, "{stderr}");
+    // The same bytes as an uninterrupted conversion (the input's identity is not in them).
+    let fresh = parent.join("fresh");
+    let (code, _) = run(
+        &[
+            "convert",
+            a.to_str().expect("utf-8"),
+            "--to",
+            "rlds",
+            "--out",
+            fresh.to_str().expect("utf-8"),
+        ],
+        LIMIT,
+    );
+    assert_eq!(code, 0);
+    let without_report = |root: &Path| {
+        let mut files = tree(root);
+        files.retain(|name, _| !name.ends_with("report.json"));
+        files
+    };
+    assert!(
+        without_report(&out) == without_report(&fresh),
+        "resumed differs"
+    );
+}

@@ -341,6 +341,7 @@ mod tests {
             collection: Value::Null,
             generator: "surgvla test".into(),
             tip_workspace: None,
+            input: None,
         }
     }
 
