@@ -441,6 +441,9 @@ pub struct MergeArgs {
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
+    /// Continue an interrupted merge into --out (the same inputs).
+    #[arg(long)]
+    resume: bool,
 }
 
 /// `surgvla merge INPUT... --out DIR`.
@@ -451,10 +454,20 @@ pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
         inputs: &args.inputs,
         out: &args.out,
         threads,
+        resume: args.resume,
         progress: &mut |done| {
             bar.set_length(done);
             bar.set_position(done)
         },
+    })
+    .map_err(|e| {
+        // Resuming helps after a failed write (a full disk), not after a damaged input.
+        let write = matches!(
+            e,
+            surgvla::export::MergeError::Convert(ConvertError::Write(_))
+        );
+        let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
+        CliError::from(e).resumable(resumable)
     })?;
     bar.finish_and_clear();
     say!(

@@ -156,6 +156,8 @@ pub struct MergeRequest<'a> {
     pub inputs: &'a [PathBuf],
     pub out: &'a Path,
     pub threads: usize,
+    /// Continue the interrupted merge in `out` (the same inputs, checked by their identity).
+    pub resume: bool,
     pub progress: &'a mut (dyn FnMut(u64) + Send),
 }
 

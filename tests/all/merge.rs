@@ -90,3 +90,67 @@ fn incompatible_inputs_are_refused() {
     let (code, _, err) = surgvla(&["merge", path(&a), "/nonexistent/x", "--out", path(&out)]);
     assert_eq!(code, 2, "{err}");
 }
+
+/// A killed merge is not a dead end: the re-run says to add `--resume`, which continues it to
+/// the bytes of an uninterrupted merge; other inputs are refused.
+#[test]
+fn a_killed_merge_resumes_to_the_uninterrupted_dataset() {
+    let parent = temp_root("merge-killed");
+    let shard = |i: usize| parent.join(format!("shard-{i}"));
+    for i in 0..2 {
+        let out = shard(i);
+        let (code, _, stderr) = surgvla(&[
+            "collect",
+            "--tasks",
+            "T1-1",
+            "--episodes-per-task",
+            "8",
+            "--shard",
+            &format!("{i}/2"),
+            "--data-file-mb",
+            "1",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ]);
+        assert_eq!(code, 0, "{stderr}");
+    }
+    let (a, b) = (shard(0), shard(1));
+    let (a, b) = (a.to_str().expect("utf-8"), b.to_str().expect("utf-8"));
+    let reference = parent.join("reference");
+    let (code, _, stderr) = surgvla(&["merge", a, b, "--out", reference.to_str().expect("utf-8")]);
+    assert_eq!(code, 0, "{stderr}");
+
+    let killed = parent.join("killed");
+    let killed_text = killed.to_str().expect("utf-8");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(["merge", a, b, "--out", killed_text, "--threads", "1"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn");
+    let marker = killed.join(surgvla::export::INCOMPLETE_MARKER);
+    let checkpointed =
+        || std::fs::read_to_string(&marker).is_ok_and(|text| text.contains("\"checkpoint\":{"));
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !checkpointed() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().expect("kill");
+    child.wait().expect("wait");
+    assert!(checkpointed(), "no checkpoint within the deadline");
+
+    let (code, _, stderr) = surgvla(&["merge", a, b, "--out", killed_text]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("--resume"), "{stderr}");
+    let (code, _, stderr) = surgvla(&["merge", b, a, "--out", killed_text, "--resume"]);
+    assert_eq!(
+        code, 0,
+        "shards are put in shard order whatever the order given: {stderr}"
+    );
+    let files = |root: &Path| {
+        let mut files = tree(root);
+        files.remove("collect_report.json");
+        files
+    };
+    assert!(files(&killed) == files(&reference), "resumed merge differs");
+}

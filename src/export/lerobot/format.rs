@@ -77,12 +77,7 @@ impl DatasetFormat for LeRobotFormat {
     }
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
-        Some(super::merge::merge(
-            request.inputs,
-            request.out,
-            request.threads,
-            request.progress,
-        ))
+        Some(super::merge::merge(request))
     }
 }
 

@@ -11,7 +11,7 @@
 //! merged into the output's (counts summed, failures concatenated).
 
 use crate::export::convert::ConvertError;
-use crate::export::format::MergeError;
+use crate::export::format::{MergeError, MergeRequest};
 use crate::export::lerobot::read::LeRobotSource;
 use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
 use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
@@ -139,15 +139,16 @@ fn differences(a: &Input, b: &Input) -> Vec<String> {
     differ
 }
 
-/// Merges `inputs` into a new LeRobot dataset at `out` (see the module overview), on `threads`
-/// worker threads (0: one per core); `progress` hears the episodes done so far.
-pub fn merge(
-    inputs: &[PathBuf],
-    out: &Path,
-    threads: usize,
-    progress: &mut (dyn FnMut(u64) + Send),
-) -> Result<Summary, MergeError> {
-    let mut opened: Vec<Input> = inputs.iter().map(|p| open(p)).collect::<Result<_, _>>()?;
+/// Merges the request's inputs into a new LeRobot dataset at its `out` (see the module
+/// overview), on `threads` worker threads (0: one per core), or continues an interrupted merge
+/// of the same inputs (`resume`); `progress` hears the episodes done so far.
+pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
+    let (out, threads) = (request.out, request.threads);
+    let mut opened: Vec<Input> = request
+        .inputs
+        .iter()
+        .map(|p| open(p))
+        .collect::<Result<_, _>>()?;
     let Some(first) = opened.first() else {
         return Err(MergeError::NoInput);
     };
@@ -178,6 +179,13 @@ pub fn merge(
         }
     }
     let mut info = opened[0].source.info().clone();
+    // What a resume must find again: every input, in order.
+    let identities: Vec<String> = opened
+        .iter()
+        .map(|i| crate::export::identity::of(&i.path))
+        .collect::<Result<_, _>>()
+        .map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
+    info.input = Some(identities.join("; "));
     let shards: Vec<Option<(u64, u64)>> = opened.iter().map(|i| i.shard).collect();
     let complete = shards
         .iter()
@@ -229,7 +237,11 @@ pub fn merge(
         .map(|i| read_json(&i.path.join(REPORT)).ok())
         .collect();
     let write = |e| MergeError::Convert(ConvertError::Write(e));
-    let mut sink = LeRobotWriter::create(out, &info, options).map_err(write)?;
+    let resuming = crate::export::resumes(out, request.resume);
+    let mut sink = LeRobotWriter::open(out, &info, options, resuming).map_err(write)?;
+    // A resumed merge skips the episodes already written.
+    let mut skip = sink.next_episode_index();
+    let progress = &mut *request.progress;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -242,6 +254,11 @@ pub fn merge(
             while let Some(episode) = input.source.next_episode() {
                 let mut episode =
                     episode.map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
+                if skip > 0 {
+                    skip -= 1;
+                    next += 1;
+                    continue;
+                }
                 episode.meta.index = next;
                 next += 1;
                 batch.push(episode);
