@@ -70,7 +70,7 @@ pub enum ReplyError {
     NotAnArray(String),
     #[error("\"actions\" has dtype {0}; expected float32 (\"<f4\") or float64 (\"<f8\")")]
     Dtype(String),
-    #[error("\"actions\" has shape {0:?}; expected (7,) or (H, 7) with H >= 1")]
+    #[error("\"actions\" has shape {0:?}; expected (7,) or (H, 7) with 1 <= H <= {MAX_ACTION_ROWS}")]
     Shape(Vec<u64>),
     #[error("\"actions\" holds {got} bytes; shape and dtype need {expected}")]
     Length { got: usize, expected: usize },
@@ -126,6 +126,9 @@ fn type_name(value: &Value) -> String {
 }
 
 /// The action chunk of a reply: one or more 7-D actions.
+/// The longest action chunk accepted (openpi's models send 10 to 50 actions).
+pub const MAX_ACTION_ROWS: u64 = 10_000;
+
 pub fn decode_actions(bytes: &[u8]) -> Result<Vec<[f32; 7]>, ReplyError> {
     let value = parse(bytes)?;
     let Value::Map(map) = &value else {
@@ -163,7 +166,8 @@ pub fn decode_actions(bytes: &[u8]) -> Result<Vec<[f32; 7]>, ReplyError> {
     };
     let rows = match shape.as_slice() {
         [7] => 1,
-        [h, 7] if *h >= 1 => *h as usize,
+        // Checked before anything is sized from it: a reply may claim any shape.
+        [h, 7] if (1..=MAX_ACTION_ROWS).contains(h) => *h as usize,
         _ => return Err(ReplyError::Shape(shape)),
     };
     let Value::Binary(data) = field("data")? else {
@@ -288,6 +292,7 @@ mod tests {
         let cases: Vec<(Vec<u8>, &str)> = vec![
             (reply("<f4", &[6], f32_bytes(&[0.0; 6])), "shape [6]"),
             (reply("<f4", &[0, 7], Vec::new()), "shape [0, 7]"),
+            (reply("<f4", &[1 << 62, 7], Vec::new()), "shape [4611686018427387904, 7]"),
             (reply("<i4", &[7], seven.clone()), "dtype \"<i4\""),
             (reply("<f4", &[2, 7], seven.clone()), "holds 28 bytes"),
             (

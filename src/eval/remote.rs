@@ -3,13 +3,14 @@
 //! request (a binary msgpack message, see [`super::numpy`]) gets one binary reply. A text reply
 //! is the server's error (openpi sends its traceback, then closes).
 //!
-//! Every read waits at most the time-out. After any failure (time-out, error text, closed
+//! Each request with its whole reply (pings and partial frames included) takes at most the
+//! time-out ([`DeadlineStream`]). After any failure (time-out, error text, closed
 //! connection, malformed reply) the connection is dropped, since a late reply would answer the
 //! wrong request, and the next request reconnects ([`RECONNECT_ATTEMPTS`] tries).
 
 use std::io::ErrorKind as IoKind;
 use std::net::{TcpStream, ToSocketAddrs};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tungstenite::{Message, WebSocket};
 
 /// Connection attempts before a request fails (the first connection at start is tried once).
@@ -46,12 +47,51 @@ pub enum RemoteError {
     },
 }
 
+/// A TCP stream whose every read and write ends by one deadline (set per request, so the time-out
+/// covers the whole reply, whatever the server sends meanwhile: pings, or a reply trickled a few
+/// bytes at a time).
+struct DeadlineStream {
+    stream: TcpStream,
+    deadline: Instant,
+}
+
+impl DeadlineStream {
+    /// The time left, or a time-out error once the deadline has passed.
+    fn remaining(&self) -> std::io::Result<Duration> {
+        let left = self.deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::from(IoKind::TimedOut));
+        }
+        Ok(left)
+    }
+}
+
+impl std::io::Read for DeadlineStream {
+    fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        let left = self.remaining()?;
+        self.stream.set_read_timeout(Some(left))?;
+        self.stream.read(buffer)
+    }
+}
+
+impl std::io::Write for DeadlineStream {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        let left = self.remaining()?;
+        self.stream.set_write_timeout(Some(left))?;
+        self.stream.write(bytes)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
 /// A connection to one policy server.
 pub struct RemotePolicy {
     url: String,
     host_port: String,
     timeout: Duration,
-    socket: Option<WebSocket<TcpStream>>,
+    socket: Option<WebSocket<DeadlineStream>>,
     /// The metadata message of the latest connection (msgpack bytes).
     pub metadata: Vec<u8>,
 }
@@ -130,6 +170,10 @@ impl RemotePolicy {
             .and_then(|()| stream.set_write_timeout(Some(self.timeout)))
             .and_then(|()| stream.set_nodelay(true));
         configure.map_err(connect_error)?;
+        let stream = DeadlineStream {
+            stream,
+            deadline: Instant::now() + self.timeout,
+        };
         let (socket, _) = tungstenite::client(self.url.as_str(), stream).map_err(|e| match e {
             tungstenite::HandshakeError::Failure(e) => RemoteError::Handshake {
                 url: self.url.clone(),
@@ -168,6 +212,8 @@ impl RemotePolicy {
     fn exchange(&mut self, request: Vec<u8>) -> Result<Vec<u8>, RemoteError> {
         let url = self.url.clone();
         let socket = self.socket.as_mut().ok_or(RemoteError::Closed { url })?;
+        // One deadline for the request and its whole reply.
+        socket.get_mut().deadline = Instant::now() + self.timeout;
         socket
             .send(Message::Binary(request.into()))
             .map_err(|e| self.failure(e))?;

@@ -23,6 +23,9 @@ enum Reply {
     Close,
     /// Answers only after this long.
     Stall(Duration),
+    /// Sends a ping every 100 ms for this long, then answers (the time-out covers the whole
+    /// reply, pings included).
+    Pings(Duration),
     /// Sends an error text, as openpi's server does with its traceback.
     ErrorText,
     /// A chunk of 50 absurdly large (finite) actions: clipped by the workspace, never a panic.
@@ -147,6 +150,17 @@ fn serve(script: Vec<Reply>) -> (String, Arc<Mutex<Vec<Seen>>>) {
                             std::thread::sleep(pause);
                             actions(1, |_| 0.0)
                         }
+                        Reply::Pings(pause) => {
+                            let started = std::time::Instant::now();
+                            while started.elapsed() < pause {
+                                let ping = tungstenite::Message::Ping(Vec::new().into());
+                                if socket.send(ping).is_err() {
+                                    return;
+                                }
+                                std::thread::sleep(Duration::from_millis(100));
+                            }
+                            actions(1, |_| 0.0)
+                        }
                         Reply::ErrorText => {
                             let text = "Traceback: ValueError: bad observation".to_string();
                             let _ = socket.send(tungstenite::Message::Text(text.into()));
@@ -223,11 +237,12 @@ fn malformed_replies_fail_their_trial_with_the_reason_and_the_run_goes_on() {
         Reply::Nan,
         Reply::Close,
         Reply::Stall(Duration::from_millis(1500)),
+        Reply::Pings(Duration::from_millis(3000)),
         Reply::ErrorText,
         Reply::Huge,
         Reply::Chunk(50),
     ]);
-    let mut options = options(&out, &[TaskId::NeedlePick], 6);
+    let mut options = options(&out, &[TaskId::NeedlePick], 7);
     options.timeout = Duration::from_millis(500);
     let report = evaluate(&PolicyChoice::Remote { url }, &options, &|_, _| {}).expect("eval");
     let reasons: Vec<&str> = report.trials.iter().map(|t| t.reason.as_str()).collect();
@@ -235,6 +250,7 @@ fn malformed_replies_fail_their_trial_with_the_reason_and_the_run_goes_on() {
         "shape [6]",
         "[0, 2] is NaN",
         "closed the connection",
+        "no reply from",
         "no reply from",
         "reported an error: Traceback: ValueError: bad observation",
         "step limit 100 reached",
@@ -244,9 +260,9 @@ fn malformed_replies_fail_their_trial_with_the_reason_and_the_run_goes_on() {
             reason.contains(expected),
             "trial {i}: {reason} lacks {expected}"
         );
-        assert_eq!(report.trials[i].policy_error, i < 5, "trial {i}");
+        assert_eq!(report.trials[i].policy_error, i < 6, "trial {i}");
     }
-    assert_eq!(report.tasks[0].policy_errors, 5);
+    assert_eq!(report.tasks[0].policy_errors, 6);
     // The first failure is recorded, with the seed that reproduces it in its name.
     let recording = report.trials[0].recording.as_deref().expect("a recording");
     assert!(
@@ -257,7 +273,7 @@ fn malformed_replies_fail_their_trial_with_the_reason_and_the_run_goes_on() {
     let written: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("results.json")).expect("results"))
             .expect("json");
-    assert_eq!(written["tasks"][0]["policy_errors"], 5);
+    assert_eq!(written["tasks"][0]["policy_errors"], 6);
 }
 
 #[test]
