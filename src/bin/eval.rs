@@ -96,9 +96,12 @@ pub struct EvalArgs {
     /// Failed trials per task to record as MCAP under OUT/failures/.
     #[arg(long, default_value_t = 3)]
     record_failures: usize,
-    /// The results folder (results.json, results.csv, results.md, failures/).
+    /// The results folder (results.json, results.csv, results.md, failures/): new or empty.
     #[arg(long, default_value = "eval")]
     out: PathBuf,
+    /// Replace an earlier run's results in --out (never other files).
+    #[arg(long)]
+    replace: bool,
 }
 
 impl EvalArgs {
@@ -153,6 +156,7 @@ impl EvalArgs {
             threads: threads.max(1),
             recordings_per_task: self.record_failures,
             out: self.out.clone(),
+            replace: self.replace,
             ..EvalOptions::default()
         })
     }
@@ -182,6 +186,20 @@ pub fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
             "{errors} trials failed because the policy did not answer properly; first: {}",
             first.map_or("", |t| t.reason.as_str())
         );
+    }
+    // A task whose every trial failed on the policy measured nothing: the run failed (exit 1),
+    // so that a CI gate sees it; the table and the results files are written all the same.
+    let unmeasured: Vec<&str> = report
+        .tasks
+        .iter()
+        .filter(|t| t.trials > 0 && t.policy_errors == t.trials)
+        .map(|t| t.task_id.as_str())
+        .collect();
+    if !unmeasured.is_empty() {
+        return Err(CliError::invalid(format!(
+            "every trial of {} failed on policy errors: the policy was not evaluated there",
+            unmeasured.join(", ")
+        )));
     }
     Ok(())
 }

@@ -77,8 +77,10 @@ pub struct EvalOptions {
     pub threads: usize,
     /// Failed trials per task recorded as MCAP in `out/failures/`.
     pub recordings_per_task: usize,
-    /// The results folder.
+    /// The results folder: new or empty, or holding an earlier run's results when `replace`.
     pub out: PathBuf,
+    /// Replace an earlier run's results in `out` (never other files).
+    pub replace: bool,
     pub camera: Camera,
 }
 
@@ -97,6 +99,7 @@ impl Default for EvalOptions {
             threads: 1,
             recordings_per_task: 3,
             out: PathBuf::from("eval"),
+            replace: false,
             camera: Camera::endoscope(),
         }
     }

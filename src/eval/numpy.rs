@@ -70,7 +70,9 @@ pub enum ReplyError {
     NotAnArray(String),
     #[error("\"actions\" has dtype {0}; expected float32 (\"<f4\") or float64 (\"<f8\")")]
     Dtype(String),
-    #[error("\"actions\" has shape {0:?}; expected (7,) or (H, 7) with 1 <= H <= {MAX_ACTION_ROWS}")]
+    #[error(
+        "\"actions\" has shape {0:?}; expected (7,) or (H, 7) with 1 <= H <= {MAX_ACTION_ROWS}"
+    )]
     Shape(Vec<u64>),
     #[error("\"actions\" holds {got} bytes; shape and dtype need {expected}")]
     Length { got: usize, expected: usize },
@@ -292,7 +294,10 @@ mod tests {
         let cases: Vec<(Vec<u8>, &str)> = vec![
             (reply("<f4", &[6], f32_bytes(&[0.0; 6])), "shape [6]"),
             (reply("<f4", &[0, 7], Vec::new()), "shape [0, 7]"),
-            (reply("<f4", &[1 << 62, 7], Vec::new()), "shape [4611686018427387904, 7]"),
+            (
+                reply("<f4", &[1 << 62, 7], Vec::new()),
+                "shape [4611686018427387904, 7]",
+            ),
             (reply("<i4", &[7], seven.clone()), "dtype \"<i4\""),
             (reply("<f4", &[2, 7], seven.clone()), "holds 28 bytes"),
             (

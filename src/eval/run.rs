@@ -197,6 +197,8 @@ pub fn evaluate(
         )));
     }
     let mut prepared = prepare(choice, options)?;
+    // Held until the results are written: no other run writes into the folder meanwhile.
+    let _lock = claim_out(options)?;
     let mut rows = Vec::new();
     let mut trials = Vec::new();
     for &task in &options.tasks {
@@ -234,6 +236,72 @@ pub fn evaluate(
         write(options, name, text.as_bytes())?;
     }
     Ok(report)
+}
+
+/// The results' files in `out` (a run writes nothing else).
+const RESULT_FILES: [&str; 3] = ["results.json", "results.csv", "results.md"];
+const FAILURES: &str = "failures";
+
+/// Takes `options.out` for this run: created if needed and locked; refused when it holds files
+/// that are not results, or an earlier run's results unless `replace` (then those are removed:
+/// the results files and the failure recordings, nothing else, never through a link).
+fn claim_out(options: &EvalOptions) -> Result<std::fs::File, EvalError> {
+    let out = &options.out;
+    let write = |source| EvalError::Write {
+        path: out.clone(),
+        source,
+    };
+    std::fs::create_dir_all(out).map_err(|e| write(crate::export::ExportError::io(out)(e)))?;
+    let lock = crate::export::dir::lock(out).map_err(write)?;
+    let entries =
+        std::fs::read_dir(out).map_err(|e| write(crate::export::ExportError::io(out)(e)))?;
+    let mut ours = Vec::new();
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let kind = entry.file_type().ok();
+        let file = kind.is_some_and(|k| k.is_file()) && RESULT_FILES.contains(&name.as_str());
+        let failures = kind.is_some_and(|k| k.is_dir()) && name == FAILURES;
+        if !(file || failures) {
+            return Err(EvalError::Options(format!(
+                "{} holds {name}, which is not an evaluation's result; choose an empty or new folder",
+                out.display()
+            )));
+        }
+        ours.push(entry.path());
+    }
+    if ours.is_empty() {
+        return Ok(lock);
+    }
+    if !options.replace {
+        return Err(EvalError::Options(format!(
+            "{} holds the results of another run; give --replace to replace them, or choose an empty or new folder",
+            out.display()
+        )));
+    }
+    for path in ours {
+        if path.ends_with(FAILURES) {
+            remove_recordings(&path).map_err(write)?;
+        } else {
+            std::fs::remove_file(&path)
+                .map_err(|e| write(crate::export::ExportError::io(&path)(e)))?;
+        }
+    }
+    Ok(lock)
+}
+
+/// Removes the failure recordings (`*.mcap` files) of an earlier run, then the folder if empty.
+fn remove_recordings(folder: &std::path::Path) -> Result<(), crate::export::ExportError> {
+    let entries = std::fs::read_dir(folder).map_err(crate::export::ExportError::io(folder))?;
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let recording = entry.file_type().is_ok_and(|k| k.is_file())
+            && path.extension().is_some_and(|e| e == "mcap");
+        if recording {
+            std::fs::remove_file(&path).map_err(crate::export::ExportError::io(&path))?;
+        }
+    }
+    let _ = std::fs::remove_dir(folder);
+    Ok(())
 }
 
 fn write(options: &EvalOptions, relative: &str, bytes: &[u8]) -> Result<(), EvalError> {

@@ -842,7 +842,7 @@ fn holds_link(root: &Path, link: &str) -> ExportError {
 }
 
 /// Locks `root` (an advisory `flock` on the folder itself, so no lock file is left behind).
-fn lock(root: &Path) -> Result<File, ExportError> {
+pub fn lock(root: &Path) -> Result<File, ExportError> {
     let file = File::open(root).map_err(|source| ExportError::Output {
         path: root.to_path_buf(),
         source,

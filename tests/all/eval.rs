@@ -517,3 +517,65 @@ fn the_command_prints_the_eight_task_table_and_refuses_bad_policies() {
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("Cargo.toml is a file"), "{stderr}");
 }
+
+/// The results folder belongs to one run: locked while it lasts, never mixed with another
+/// run's results (replaced only with `--replace`) or with other files.
+#[test]
+fn the_results_folder_is_not_shared() {
+    let root = temp_root("eval-out");
+    let out = root.join("results");
+    let dir = out.display().to_string();
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "eval", "--policy", "noop", "--tasks", "T1-1", "--trials", "1", "--out", &dir,
+        ];
+        args.extend(extra);
+        surgvla(&args)
+    };
+    assert_eq!(run(&[]).0, 0);
+    let (code, _, stderr) = run(&[]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("--replace"), "{stderr}");
+    let (code, _, stderr) = run(&["--replace"]);
+    assert_eq!(code, 0, "{stderr}");
+    // Held by another process: refused while the lock lasts.
+    let held = std::fs::File::open(&out).expect("open");
+    held.try_lock().expect("lock");
+    let (code, _, stderr) = run(&["--replace"]);
+    assert_eq!(code, 2, "{stderr}");
+    drop(held);
+    std::fs::write(out.join("notes.txt"), b"mine").expect("write");
+    let (code, _, stderr) = run(&["--replace"]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("notes.txt"), "{stderr}");
+    assert_eq!(std::fs::read(out.join("notes.txt")).expect("kept"), b"mine");
+}
+
+/// A task whose every trial failed on the policy exits 1 (a CI gate sees it), with the table and
+/// the results written.
+#[test]
+fn a_policy_that_never_answers_fails_the_run() {
+    let root = temp_root("eval-errors");
+    let (url, _) = serve(vec![Reply::WrongShape]);
+    let dir = root.join("results").display().to_string();
+    let (code, stdout, stderr) = surgvla(&[
+        "eval",
+        "--policy",
+        &url,
+        "--tasks",
+        "T1-1",
+        "--trials",
+        "2",
+        "--out",
+        &dir,
+        "--timeout-secs",
+        "2",
+    ]);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("every trial of T1-1 failed on policy errors"),
+        "{stderr}"
+    );
+    assert!(stdout.contains("| T1-1"), "{stdout}");
+    assert!(root.join("results/results.json").is_file());
+}
