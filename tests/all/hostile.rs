@@ -411,3 +411,61 @@ fn a_conversion_resumes_only_from_the_input_it_started_with() {
         "resumed differs"
     );
 }
+
+#[test]
+fn totals_that_disagree_with_the_data_fail_the_conversion() {
+    let parent = temp_root("hostile-totals");
+    sentinel(&parent);
+    let base = parent.join("base");
+    let (code, _) = run(
+        &[
+            "collect",
+            "--tasks",
+            "T1-1",
+            "--episodes-per-task",
+            "2",
+            "--out",
+            base.to_str().expect("utf-8"),
+        ],
+        LIMIT,
+    );
+    assert_eq!(code, 0);
+    // info.json claiming 10^12 episodes; the only data file deleted.
+    let claimed = parent.join("claimed");
+    copy_tree(&base, &claimed);
+    edit_json(&claimed.join("meta/info.json"), |info| {
+        info["total_episodes"] = 1_000_000_000_000u64.into();
+    });
+    let emptied = parent.join("emptied");
+    copy_tree(&base, &emptied);
+    std::fs::remove_file(emptied.join("data/chunk-000/file-000.parquet")).expect("remove");
+    for (dataset, said) in [
+        (&claimed, "says the dataset holds 1000000000000 episodes"),
+        (
+            &emptied,
+            "says the dataset holds 2 episodes; its data files hold 0",
+        ),
+    ] {
+        let out = parent.join("out");
+        let stderr = expect_exit(
+            &parent,
+            &[
+                "convert",
+                dataset.to_str().expect("utf-8"),
+                "--to",
+                "rlds",
+                "--out",
+                out.to_str().expect("utf-8"),
+            ],
+            1,
+            said,
+        );
+        assert!(stderr.contains(said), "{stderr}");
+        assert!(
+            !out.join("surgvla_benchmark").exists()
+                || surgvla::export::DatasetDir::is_interrupted(&out),
+            "a half-written output must not look complete"
+        );
+        std::fs::remove_dir_all(&out).ok();
+    }
+}

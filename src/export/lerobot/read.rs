@@ -511,6 +511,10 @@ pub struct LeRobotSource {
     )>,
     /// Steps read past the end of the episode being assembled.
     pending: std::collections::VecDeque<Row>,
+    /// Episodes returned so far.
+    returned: u64,
+    /// Whether the end (or a count that disagrees with info.json) was reported.
+    ended: bool,
 }
 
 impl LeRobotSource {
@@ -582,6 +586,8 @@ impl LeRobotSource {
             files: data_files(root)?.into_iter(),
             batches: None,
             pending: Default::default(),
+            returned: 0,
+            ended: false,
             info,
         })
     }
@@ -794,6 +800,24 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
     Ok(steps)
 }
 
+impl LeRobotSource {
+    /// After the last row: None, once the episodes read agree with info.json's total.
+    fn end(&mut self) -> Option<Result<Episode, ExportError>> {
+        if self.ended || self.returned == self.total_episodes {
+            self.ended = true;
+            return None;
+        }
+        self.ended = true;
+        Some(Err(invalid(
+            &self.root.join("meta/info.json"),
+            format!(
+                "says the dataset holds {} episodes; its data files hold {}",
+                self.total_episodes, self.returned
+            ),
+        )))
+    }
+}
+
 impl EpisodeSource for LeRobotSource {
     fn info(&self) -> &DatasetInfo {
         &self.info
@@ -804,6 +828,9 @@ impl EpisodeSource for LeRobotSource {
     }
 
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        if self.ended {
+            return None;
+        }
         let mut steps = Vec::new();
         let stored_keys: Vec<(String, FeatureKind)> = stored_images(&self.info)
             .map(|f| (f.name.clone(), f.kind))
@@ -833,7 +860,20 @@ impl EpisodeSource for LeRobotSource {
                 Err(error) => return Some(Err(error)),
             }
         }
-        let (index, task) = current?;
+        let Some((index, task)) = current else {
+            return self.end();
+        };
+        if index < 0 || index as u64 != self.returned {
+            self.ended = true;
+            return Some(Err(invalid(
+                &self.root.join("data"),
+                format!(
+                    "the data files hold episode {index} where episode {} comes next (a data file missing or out of order?)",
+                    self.returned
+                ),
+            )));
+        }
+        self.returned += 1;
         let provenance = self
             .episodes
             .get(index as usize)
