@@ -47,8 +47,9 @@ impl Format {
     }
 }
 
-/// One defect (or, as a warning, one oddity): where it is and what is wrong.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// One defect (or, as a warning, one oddity): where it is and what is wrong. Ordered by place
+/// (file, episode, frame), then check and message: the order of a report.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 pub struct Finding {
     /// The file, relative to the dataset's root where it is inside it.
     pub file: Option<String>,
@@ -148,10 +149,12 @@ pub struct Findings {
     facts: Mutex<Facts>,
 }
 
+/// Findings as the checks report them (in parallel, in any order): per (check, is_error), the
+/// [`FINDINGS_PER_CHECK`] first in place order (file, episode, frame, message) and the count of
+/// all, so that the report is the same whatever order the threads ran in.
 #[derive(Debug, Default)]
 struct Collected {
-    errors: Vec<Finding>,
-    warnings: Vec<Finding>,
+    kept: BTreeMap<(String, bool), std::collections::BTreeSet<Finding>>,
     /// (check, is_error) -> findings seen.
     counts: BTreeMap<(String, bool), usize>,
 }
@@ -225,9 +228,6 @@ impl Findings {
             .entry((check.to_string(), is_error))
             .or_default();
         *count += 1;
-        if *count > FINDINGS_PER_CHECK {
-            return;
-        }
         let finding = Finding {
             file: at.file,
             episode: at.episode,
@@ -235,23 +235,37 @@ impl Findings {
             check: check.into(),
             message,
         };
-        if is_error {
-            inner.errors.push(finding);
-        } else {
-            inner.warnings.push(finding);
+        let kept = inner.kept.entry((check.to_string(), is_error)).or_default();
+        kept.insert(finding);
+        if kept.len() > FINDINGS_PER_CHECK {
+            kept.pop_last();
         }
     }
 
     pub fn has_errors(&self) -> bool {
         let inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
-        !inner.errors.is_empty()
+        inner.kept.keys().any(|(_, is_error)| *is_error)
     }
 
     /// The report, with one more finding per check that had more than it kept.
     pub fn into_report(self, format: Format, episodes: u64, frames: u64) -> Report {
         let mut inner = self.inner.into_inner().unwrap_or_else(|e| e.into_inner());
+        let (mut errors, mut warnings) = (Vec::new(), Vec::new());
+        let listed: BTreeMap<(String, bool), usize> =
+            inner.kept.iter().map(|(key, kept)| (key.clone(), kept.len())).collect();
+        for ((_, is_error), kept) in std::mem::take(&mut inner.kept) {
+            if is_error {
+                errors.extend(kept);
+            } else {
+                warnings.extend(kept);
+            }
+        }
+        errors.sort();
+        warnings.sort();
         for ((check, is_error), count) in std::mem::take(&mut inner.counts) {
-            if count > FINDINGS_PER_CHECK {
+            // Identical findings are listed once; the rest of a check's are counted.
+            let shown = listed.get(&(check.clone(), is_error)).copied().unwrap_or(0);
+            if count > shown {
                 let finding = Finding {
                     file: None,
                     episode: None,
@@ -259,27 +273,27 @@ impl Findings {
                     check: check.clone(),
                     message: format!(
                         "{} more like the above not listed ({count} in all)",
-                        count - FINDINGS_PER_CHECK
+                        count - shown
                     ),
                 };
                 if is_error {
-                    inner.errors.push(finding);
+                    errors.push(finding);
                 } else {
-                    inner.warnings.push(finding);
+                    warnings.push(finding);
                 }
             }
         }
         let bytes = disk_bytes(&self.root);
         Report {
-            valid: inner.errors.is_empty(),
+            valid: errors.is_empty(),
             format,
             episodes,
             frames,
             bytes,
             facts: self.facts.into_inner().unwrap_or_else(|e| e.into_inner()),
             path: self.root,
-            errors: inner.errors,
-            warnings: inner.warnings,
+            errors,
+            warnings,
         }
     }
 }
@@ -459,5 +473,35 @@ pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findin
             "provenance",
             "no attempt count (surgvla/attempts) recorded for the episode",
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_report_is_the_same_whatever_order_the_checks_ran_in() {
+        let report = |order: &[u64]| {
+            let findings = Findings::new(Path::new("/nowhere"));
+            for &i in order {
+                let at = At::file(format!("data/file-{:03}.parquet", i % 7)).episode(i);
+                findings.error(at, "timestamps", format!("frame {i} is late"));
+                findings.warning(At::file("meta/info.json"), "video-decode", "not decoded");
+            }
+            let report = findings.into_report(Format::LeRobotV30, 0, 0);
+            serde_json::to_string(&(report.errors, report.warnings)).unwrap()
+        };
+        let forward: Vec<u64> = (0..100).collect();
+        let mut shuffled = forward.clone();
+        let mut rng = crate::rng::SplitMix64::new(7);
+        for i in (1..shuffled.len()).rev() {
+            shuffled.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
+        }
+        assert_eq!(report(&forward), report(&shuffled));
+        let text = report(&forward);
+        // 20 kept, then the count of the rest.
+        assert!(text.contains("80 more like the above not listed (100 in all)"), "{text}");
+        assert!(text.contains("99 more like the above"), "{text}");
     }
 }
