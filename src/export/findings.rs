@@ -251,8 +251,11 @@ impl Findings {
     pub fn into_report(self, format: Format, episodes: u64, frames: u64) -> Report {
         let mut inner = self.inner.into_inner().unwrap_or_else(|e| e.into_inner());
         let (mut errors, mut warnings) = (Vec::new(), Vec::new());
-        let listed: BTreeMap<(String, bool), usize> =
-            inner.kept.iter().map(|(key, kept)| (key.clone(), kept.len())).collect();
+        let listed: BTreeMap<(String, bool), usize> = inner
+            .kept
+            .iter()
+            .map(|(key, kept)| (key.clone(), kept.len()))
+            .collect();
         for ((_, is_error), kept) in std::mem::take(&mut inner.kept) {
             if is_error {
                 errors.extend(kept);
@@ -501,7 +504,10 @@ mod tests {
         assert_eq!(report(&forward), report(&shuffled));
         let text = report(&forward);
         // 20 kept, then the count of the rest.
-        assert!(text.contains("80 more like the above not listed (100 in all)"), "{text}");
+        assert!(
+            text.contains("80 more like the above not listed (100 in all)"),
+            "{text}"
+        );
         assert!(text.contains("99 more like the above"), "{text}");
     }
 }

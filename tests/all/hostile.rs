@@ -469,3 +469,127 @@ fn totals_that_disagree_with_the_data_fail_the_conversion() {
         std::fs::remove_dir_all(&out).ok();
     }
 }
+
+/// Every JSON metadata file under `root` (relative paths, sorted).
+fn json_files(root: &Path) -> Vec<String> {
+    let mut files: Vec<String> = tree(root)
+        .into_keys()
+        .filter(|name| name.ends_with(".json") || name.ends_with(".zarray"))
+        .collect();
+    files.sort();
+    files
+}
+
+/// Replaces one value, chosen by `pick`, somewhere in `value` (depth first).
+fn mutate(value: &mut Value, pick: &mut dyn FnMut(usize) -> usize, hostile: &Value) {
+    let children: usize = match value {
+        Value::Object(map) => map.len(),
+        Value::Array(items) => items.len().min(8),
+        _ => 0,
+    };
+    // Stop here a third of the time, or at a leaf.
+    if children == 0 || pick(3) == 0 {
+        *value = hostile.clone();
+        return;
+    }
+    let child = pick(children);
+    match value {
+        Value::Object(map) => {
+            if let Some((_, v)) = map.iter_mut().nth(child) {
+                mutate(v, pick, hostile);
+            }
+        }
+        Value::Array(items) => mutate(&mut items[child], pick, hostile),
+        _ => {}
+    }
+}
+
+/// Seeded mutations of every format's metadata (paths, templates, shapes, totals, sizes): every
+/// command ends within the time limit with exit 0, 1 or 2 (never a panic or an abort), and
+/// nothing beside the dataset or the output changes.
+#[test]
+fn mutated_metadata_never_panics_hangs_or_escapes() {
+    let parent = temp_root("hostile-fuzz");
+    sentinel(&parent);
+    let hostile = [
+        serde_json::json!("../../outside/keep.txt"),
+        serde_json::json!("/etc/passwd"),
+        serde_json::json!("videos/{video_key:1d}/{chunk_index:099999d}"),
+        serde_json::json!(1_000_000_000_000_000_000u64),
+        serde_json::json!(-1),
+        serde_json::json!(1e308),
+        serde_json::json!([]),
+        serde_json::json!({}),
+        serde_json::json!(""),
+        serde_json::json!(null),
+        serde_json::json!([4_000_000_000u64, 4_000_000_000u64, 3]),
+    ];
+    let formats: [(&str, &[&str]); 4] = [
+        ("lerobot", &["--video", "h264"]),
+        ("rlds", &["--format", "rlds"]),
+        ("zarr", &["--format", "zarr"]),
+        ("mcap", &["--format", "mcap"]),
+    ];
+    let mut rng = surgvla::rng::SplitMix64::new(24);
+    for (name, extra) in formats {
+        let base = parent.join(format!("base-{name}"));
+        let mut args = vec![
+            "collect",
+            "--tasks",
+            "T1-1",
+            "--episodes-per-task",
+            "1",
+            "--out",
+        ];
+        let base_text = base.to_str().expect("utf-8").to_string();
+        args.push(&base_text);
+        args.extend(extra);
+        assert_eq!(run(&args, LIMIT).0, 0, "{name}");
+        let files = json_files(&base);
+        assert!(!files.is_empty(), "{name}");
+        for round in 0..16 {
+            let dataset = parent.join(format!("{name}-{round}"));
+            copy_tree(&base, &dataset);
+            let file = &files[(rng.next_u64() % files.len() as u64) as usize];
+            let value = &hostile[(rng.next_u64() % hostile.len() as u64) as usize];
+            let mut pick = |n: usize| (rng.next_u64() % n as u64) as usize;
+            let path = dataset.join(file);
+            let mut json: Value = match serde_json::from_slice(&std::fs::read(&path).expect("read"))
+            {
+                Ok(json) => json,
+                Err(_) => continue,
+            };
+            mutate(&mut json, &mut pick, value);
+            std::fs::write(&path, serde_json::to_vec(&json).expect("json")).expect("write");
+            let text = dataset.to_str().expect("utf-8").to_string();
+            let out = parent.join(format!("out-{name}-{round}"));
+            let out = out.to_str().expect("utf-8").to_string();
+            let what = format!("{name} round {round}: {file} <- {value}");
+            for command in [
+                vec!["validate", text.as_str()],
+                vec!["info", text.as_str()],
+                vec![
+                    "convert",
+                    text.as_str(),
+                    "--to",
+                    "rlds",
+                    "--out",
+                    out.as_str(),
+                ],
+            ] {
+                let before = tree(&parent.join("outside"));
+                let (code, stderr) = run(&command, LIMIT);
+                assert!(
+                    (0..=2).contains(&code),
+                    "{what}: {command:?} exit {code}: {stderr}"
+                );
+                assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+                assert_eq!(
+                    tree(&parent.join("outside")),
+                    before,
+                    "{what}: the sentinel changed"
+                );
+            }
+        }
+    }
+}
