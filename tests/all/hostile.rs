@@ -439,7 +439,16 @@ fn totals_that_disagree_with_the_data_fail_the_conversion() {
     let emptied = parent.join("emptied");
     copy_tree(&base, &emptied);
     std::fs::remove_file(emptied.join("data/chunk-000/file-000.parquet")).expect("remove");
+    // A stray data file (a copy of the first) in the input: the input's fault, not the output's.
+    let stray = parent.join("stray");
+    copy_tree(&base, &stray);
+    std::fs::copy(
+        stray.join("data/chunk-000/file-000.parquet"),
+        stray.join("data/chunk-000/file-001.parquet"),
+    )
+    .expect("copy");
     for (dataset, said) in [
+        (&stray, "reading the input dataset"),
         (&claimed, "says the dataset holds 1000000000000 episodes"),
         (
             &emptied,
@@ -461,6 +470,7 @@ fn totals_that_disagree_with_the_data_fail_the_conversion() {
             said,
         );
         assert!(stderr.contains(said), "{stderr}");
+        assert!(!stderr.contains("--resume"), "{stderr}");
         assert!(
             !out.join("surgvla_benchmark").exists()
                 || surgvla::export::DatasetDir::is_interrupted(&out),
@@ -592,4 +602,23 @@ fn mutated_metadata_never_panics_hangs_or_escapes() {
             }
         }
     }
+}
+
+#[test]
+fn video_mode_without_a_camera_is_the_users_mistake() {
+    use surgvla::error::HasKind as _;
+    use surgvla::export::lerobot::{LeRobotOptions, VideoOptions};
+    use surgvla::export::{SinkOptions, open_sink};
+    let parent = temp_root("hostile-video");
+    let (info, _) = crate::util::foreign_dataset();
+    let options = SinkOptions::LeRobot(LeRobotOptions {
+        video: Some(VideoOptions::default()),
+        ..LeRobotOptions::default()
+    });
+    let error = open_sink(&parent.join("out"), &info, &options, false)
+        .err()
+        .expect("refused");
+    assert_eq!(error.kind(), surgvla::error::ErrorKind::Usage, "{error}");
+    assert!(error.to_string().contains("needs an RGB camera"), "{error}");
+    assert!(!parent.join("out").exists(), "nothing written");
 }

@@ -257,8 +257,10 @@ impl LeRobotFiles {
     fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<RunOptions, ExportError> {
         let arrives_as_video = info.features.iter().any(|f| !f.in_steps());
         if options.video.is_some() && !info.has(FeatureKind::Rgb) && !arrives_as_video {
-            return Err(ExportError::InvalidEpisode(
-                "video mode needs an RGB camera feature".into(),
+            // What the user asked for, not a defect of the data: exit 2.
+            return Err(ExportError::InvalidOptions(
+                "video mode needs an RGB camera feature, and this dataset has none: leave --video out"
+                    .into(),
             ));
         }
         if let Some(video) = options.video {
