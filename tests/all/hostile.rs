@@ -622,3 +622,27 @@ fn video_mode_without_a_camera_is_the_users_mistake() {
     assert!(error.to_string().contains("needs an RGB camera"), "{error}");
     assert!(!parent.join("out").exists(), "nothing written");
 }
+
+#[test]
+fn a_foreign_float_image_is_not_made_rlds_depth() {
+    use surgvla::episode::FeatureValue;
+    use surgvla::error::HasKind as _;
+    use surgvla::export::rlds::RldsOptions;
+    use surgvla::export::{SinkOptions, open_sink};
+    let parent = temp_root("hostile-tiff");
+    let (info, mut episodes) = crate::util::foreign_dataset();
+    let tiff = surgvla::export::tiff::encode_f32_tiff(10, 8, &[0.5; 80]);
+    for step in &mut episodes[0].steps {
+        step.other[2] = FeatureValue::Image(tiff.clone());
+    }
+    let options = SinkOptions::Rlds(RldsOptions::default());
+    let mut sink = open_sink(&parent.join("out"), &info, &options, false).expect("open");
+    let error = sink.write_batch(&episodes[..1]).err().expect("refused");
+    assert_eq!(error.kind(), surgvla::error::ErrorKind::Usage, "{error}");
+    assert!(
+        error
+            .to_string()
+            .contains("observation.images.wrist holds float TIFF"),
+        "{error}"
+    );
+}

@@ -110,6 +110,16 @@ pub fn encode_foreign_episode(
                 steps
                     .iter()
                     .map(|s| match s.other.get(position) {
+                        // features.json declares PNG (or JPEG); a float TIFF of another tool's
+                        // is not necessarily depth in metres, so it is not turned into one.
+                        Some(FeatureValue::Image(bytes))
+                            if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") =>
+                        {
+                            Err(ExportError::InvalidOptions(format!(
+                                "{} holds float TIFF images, which RLDS has no image type for (a float image of another tool's is not necessarily depth in metres, so it is not made one): convert it to LeRobot instead",
+                                feature.name
+                            )))
+                        }
                         Some(FeatureValue::Image(bytes)) => Ok(bytes.clone()),
                         _ => Err(wrong()),
                     })
