@@ -637,7 +637,7 @@ fn a_foreign_float_image_is_not_made_rlds_depth() {
     }
     let options = SinkOptions::Rlds(RldsOptions::default());
     let mut sink = open_sink(&parent.join("out"), &info, &options, false).expect("open");
-    let error = sink.write_batch(&episodes[..1]).err().expect("refused");
+    let error = sink.write_batch(&episodes[..1]).expect_err("refused");
     assert_eq!(error.kind(), surgvla::error::ErrorKind::Usage, "{error}");
     assert!(
         error
