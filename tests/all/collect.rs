@@ -171,23 +171,9 @@ fn a_killed_collect_resumes_to_the_uninterrupted_dataset() {
 
     // Kill a second run once it has checkpointed at least one data file.
     let killed = temp_root("killed");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
-        .args(args(&killed))
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("spawn");
-    // The marker holds the last checkpoint once one was saved.
-    let marker = killed.join(surgvla::export::INCOMPLETE_MARKER);
-    let checkpointed =
-        || std::fs::read_to_string(&marker).is_ok_and(|text| text.contains("\"checkpoint\":{"));
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
-    while !checkpointed() && std::time::Instant::now() < deadline {
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().expect("kill");
-    child.wait().expect("wait");
-    assert!(checkpointed(), "no checkpoint within the deadline");
+    let killed_args = args(&killed);
+    let killed_args: Vec<&str> = killed_args.iter().map(String::as_str).collect();
+    crate::util::kill_after_checkpoint(&killed_args, &killed);
     assert!(
         !killed.join("meta/info.json").exists(),
         "a killed run must not look complete"

@@ -38,6 +38,21 @@ fn run(args: &[&str], limit: Duration) -> (i32, String) {
 
 const LIMIT: Duration = Duration::from_secs(60);
 
+/// `collect --tasks T1-1 --episodes-per-task EPISODES EXTRA... --out OUT`, which must succeed.
+fn collect(out: &str, episodes: &str, extra: &[&str]) {
+    let mut args = vec![
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        episodes,
+    ];
+    args.extend(extra);
+    args.extend(["--out", out]);
+    let (code, stderr) = run(&args, LIMIT);
+    assert_eq!(code, 0, "{args:?}: {stderr}");
+}
+
 /// A folder beside the datasets with a file in it: must be byte-identical after every command.
 fn sentinel(parent: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
     let folder = parent.join("outside");
@@ -87,23 +102,11 @@ fn lerobot_names_and_templates_that_leave_the_dataset_are_refused() {
     let shard = |i: usize| parent.join(format!("base-{i}"));
     for i in 0..2 {
         let out = shard(i);
-        let (code, _) = run(
-            &[
-                "collect",
-                "--tasks",
-                "T1-1",
-                "--episodes-per-task",
-                "2",
-                "--video",
-                "h264",
-                "--shard",
-                &format!("{i}/2"),
-                "--out",
-                out.to_str().expect("utf-8"),
-            ],
-            LIMIT,
+        collect(
+            out.to_str().expect("utf-8"),
+            "2",
+            &["--video", "h264", "--shard", &format!("{i}/2")],
         );
-        assert_eq!(code, 0);
     }
     let base = shard(0);
     let key = "observation.images.endoscope";
@@ -203,21 +206,7 @@ fn an_rlds_name_that_leaves_the_dataset_is_refused() {
     sentinel(&parent);
     let dataset = parent.join("rlds");
     let text = dataset.to_str().expect("utf-8");
-    let (code, _) = run(
-        &[
-            "collect",
-            "--tasks",
-            "T1-1",
-            "--episodes-per-task",
-            "1",
-            "--format",
-            "rlds",
-            "--out",
-            text,
-        ],
-        LIMIT,
-    );
-    assert_eq!(code, 0);
+    collect(text, "1", &["--format", "rlds"]);
     let info = std::fs::read_dir(&dataset)
         .expect("read")
         .flatten()
@@ -257,19 +246,7 @@ fn metadata_that_never_ends_is_not_read() {
     sentinel(&parent);
     let dataset = parent.join("lerobot");
     let text = dataset.to_str().expect("utf-8");
-    let (code, _) = run(
-        &[
-            "collect",
-            "--tasks",
-            "T1-1",
-            "--episodes-per-task",
-            "1",
-            "--out",
-            text,
-        ],
-        LIMIT,
-    );
-    assert_eq!(code, 0);
+    collect(text, "1", &[]);
     for file in ["meta/stats.json", "meta/info.json"] {
         let path = dataset.join(file);
         std::fs::remove_file(&path).expect("remove");
@@ -343,21 +320,7 @@ fn a_conversion_resumes_only_from_the_input_it_started_with() {
     let parent = temp_root("hostile-input");
     let input = |seed: &str| {
         let path = parent.join(format!("input-{seed}"));
-        let (code, _) = run(
-            &[
-                "collect",
-                "--tasks",
-                "T1-1",
-                "--episodes-per-task",
-                "2",
-                "--seed",
-                seed,
-                "--out",
-                path.to_str().expect("utf-8"),
-            ],
-            LIMIT,
-        );
-        assert_eq!(code, 0);
+        collect(path.to_str().expect("utf-8"), "2", &["--seed", seed]);
         path
     };
     let (a, b) = (input("1"), input("2"));
@@ -417,19 +380,7 @@ fn totals_that_disagree_with_the_data_fail_the_conversion() {
     let parent = temp_root("hostile-totals");
     sentinel(&parent);
     let base = parent.join("base");
-    let (code, _) = run(
-        &[
-            "collect",
-            "--tasks",
-            "T1-1",
-            "--episodes-per-task",
-            "2",
-            "--out",
-            base.to_str().expect("utf-8"),
-        ],
-        LIMIT,
-    );
-    assert_eq!(code, 0);
+    collect(base.to_str().expect("utf-8"), "2", &[]);
     // info.json claiming 10^12 episodes; the only data file deleted.
     let claimed = parent.join("claimed");
     copy_tree(&base, &claimed);

@@ -2,7 +2,7 @@
 //! byte (all but the report's timings), for N = 1, 2, 3 and in any argument order; the merged
 //! dataset validates; incompatible inputs and the same shard twice are refused with exit 2.
 
-use crate::util::{surgvla, temp_root, tree};
+use crate::util::{kill_after_checkpoint, surgvla, temp_root, tree};
 use std::path::Path;
 
 const SMALL: [&str; 4] = ["--tasks", "T1-1,T3-1", "--episodes-per-task", "2"];
@@ -122,22 +122,10 @@ fn a_killed_merge_resumes_to_the_uninterrupted_dataset() {
 
     let killed = parent.join("killed");
     let killed_text = killed.to_str().expect("utf-8");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
-        .args(["merge", a, b, "--out", killed_text, "--threads", "1"])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("spawn");
-    let marker = killed.join(surgvla::export::INCOMPLETE_MARKER);
-    let checkpointed =
-        || std::fs::read_to_string(&marker).is_ok_and(|text| text.contains("\"checkpoint\":{"));
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
-    while !checkpointed() && std::time::Instant::now() < deadline {
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
-    child.kill().expect("kill");
-    child.wait().expect("wait");
-    assert!(checkpointed(), "no checkpoint within the deadline");
+    kill_after_checkpoint(
+        &["merge", a, b, "--out", killed_text, "--threads", "1"],
+        &killed,
+    );
 
     let (code, _, stderr) = surgvla(&["merge", a, b, "--out", killed_text]);
     assert_eq!(code, 2, "{stderr}");

@@ -154,3 +154,25 @@ pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode:
         .collect();
     (dataset, episodes)
 }
+
+/// Runs the binary with `args`, writing into `root`, and kills it once its marker holds a
+/// checkpoint (fails the test if none comes within two minutes).
+pub fn kill_after_checkpoint(args: &[&str], root: &Path) {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn");
+    // The marker holds the last checkpoint once one was saved.
+    let marker = root.join(surgvla::export::INCOMPLETE_MARKER);
+    let checkpointed =
+        || std::fs::read_to_string(&marker).is_ok_and(|text| text.contains("\"checkpoint\":{"));
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !checkpointed() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().expect("kill");
+    child.wait().expect("wait");
+    assert!(checkpointed(), "no checkpoint within the deadline");
+}
