@@ -665,15 +665,29 @@ impl DatasetDir {
             }),
         };
         let path = self.path(INCOMPLETE_MARKER);
-        let text = serde_json::to_vec(&marker).map_err(|source| ExportError::Json {
-            path: path.clone(),
-            source,
-        })?;
         let temporary = temporary_name(&path);
-        let mut file = File::create(&temporary).map_err(ExportError::io(&temporary))?;
-        file.write_all(&text)
-            .and_then(|()| file.sync_all())
-            .map_err(ExportError::io(&temporary))?;
+        let file = File::create(&temporary).map_err(ExportError::io(&temporary))?;
+        // Streamed: the checkpoint's state (statistics reservoirs) is never held as text.
+        let mut writer = BufWriter::new(file);
+        serde_json::to_writer(&mut writer, &marker).map_err(|source| {
+            if source.is_io() {
+                // A full disk stays a full disk (its hint says to free space and resume).
+                ExportError::Io {
+                    path: temporary.clone(),
+                    source: source.into(),
+                }
+            } else {
+                ExportError::Json {
+                    path: path.clone(),
+                    source,
+                }
+            }
+        })?;
+        let file = writer.into_inner().map_err(|e| ExportError::Io {
+            path: temporary.clone(),
+            source: e.into_error(),
+        })?;
+        file.sync_all().map_err(ExportError::io(&temporary))?;
         std::fs::rename(&temporary, &path).map_err(ExportError::io(&path))?;
         sync_dir(&self.root)
     }
@@ -866,6 +880,9 @@ pub fn lock(root: &Path) -> Result<File, ExportError> {
     }
 }
 
+/// The largest marker read back (its checkpoint's state included).
+const MAX_MARKER_BYTES: u64 = 1 << 30;
+
 fn read_marker<T: DeserializeOwned>(root: &Path) -> Result<Marker<T>, ExportError> {
     let path = root.join(INCOMPLETE_MARKER);
     let not_resumable = |reason: String| ExportError::NotResumable {
@@ -877,7 +894,9 @@ fn read_marker<T: DeserializeOwned>(root: &Path) -> Result<Marker<T>, ExportErro
             "it is not an interrupted surgvla dataset (no {INCOMPLETE_MARKER} marker)"
         )));
     }
-    let bytes = crate::export::bounded::read_metadata(&path)?;
+    // A checkpoint holds the format's state, statistics reservoirs included (tens of MB for
+    // a large collection): a larger cap than other metadata's.
+    let bytes = crate::export::bounded::read_capped(&path, MAX_MARKER_BYTES)?;
     serde_json::from_slice(&bytes).map_err(|e| {
         not_resumable(format!(
             "its marker {} is unreadable ({e}); it was started by another surgvla version or damaged",
