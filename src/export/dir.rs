@@ -967,6 +967,21 @@ mod tests {
     }
 
     #[test]
+    fn a_checkpoint_larger_than_other_metadata_resumes() {
+        // A large collection's checkpoint (statistics reservoirs) is over the 32 MiB cap of
+        // other metadata documents; the marker has its own cap.
+        let root = scratch("big-checkpoint");
+        let state = "x".repeat((crate::export::bounded::MAX_METADATA_BYTES + 1024) as usize);
+        {
+            let mut dir = DatasetDir::create(&root, &options(1)).expect("create");
+            dir.save_checkpoint(&state).expect("checkpoint");
+        }
+        let (_, resumed) = DatasetDir::resume::<String>(&root, &options(1), &[]).expect("resume");
+        assert_eq!(resumed.map(|s| s.len()), Some(state.len()));
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
     fn a_folder_is_incomplete_until_completed_and_refused_when_not_empty() {
         let root = scratch("marker");
         let mut dir = DatasetDir::create(&root, &options(1)).expect("create");
