@@ -110,7 +110,7 @@ impl FileRecord {
 }
 
 /// The size and CRC-32C of a whole file.
-fn checksum(mut file: impl Read, path: &Path) -> Result<(u64, u32), ExportError> {
+pub(crate) fn checksum(mut file: impl Read, path: &Path) -> Result<(u64, u32), ExportError> {
     let mut buffer = vec![0u8; 1 << 20];
     let (mut bytes, mut crc) = (0u64, 0u32);
     loop {

@@ -601,11 +601,17 @@ impl LeRobotSource {
         steps: usize,
     ) -> Result<EncodedFeature, ExportError> {
         let key = feature.name.as_str();
-        let row = self
-            .episodes
-            .get(index as usize)
-            .cloned()
-            .unwrap_or_default();
+        // What this feature needs of the episode's row (the row itself is not copied).
+        let row = self.episodes.get(index as usize);
+        let stored_span = row.and_then(|r| r.videos.get(key)).copied();
+        let pixel_stats = match (
+            row.and_then(|r| r.pixel_stats.get(key)),
+            row.and_then(|r| r.stats.get(key)),
+        ) {
+            (Some(exact), _) => Some(PixelStats::Exact(exact.clone())),
+            (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
+            (None, None) => None,
+        };
         let (fields, span) = if self.v21 {
             let fields = [
                 ("video_key", Field::Name(key)),
@@ -614,7 +620,7 @@ impl LeRobotSource {
             ];
             (fields, None)
         } else {
-            let Some(span) = row.videos.get(key) else {
+            let Some(span) = stored_span else {
                 return Err(invalid(
                     &self.root.join("meta/episodes"),
                     format!("episode {index} lacks its videos/{key}/... columns"),
@@ -664,11 +670,6 @@ impl LeRobotSource {
                 ),
             ));
         }
-        let pixel_stats = match (row.pixel_stats.get(key), row.stats.get(key)) {
-            (Some(exact), _) => Some(PixelStats::Exact(exact.clone())),
-            (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
-            (None, None) => None,
-        };
         Ok(EncodedFeature {
             feature: key.to_string(),
             encoding: ImageEncoding::Video(reader.codec),
