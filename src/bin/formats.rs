@@ -393,6 +393,7 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let mut source = converted_source(args)?;
     let info = source.info().clone();
     let resuming = resumes(&args.out, args.resume);
+    let created = !args.out.exists();
     let mut sink = open_sink(&args.out, &info, &options, args.resume)?;
     if resuming {
         eprintln!(
@@ -410,6 +411,12 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         .map_err(|e| {
             // Resuming helps after a failed write, not after a damaged input.
             let write = matches!(e, ConvertError::Write(_));
+            // A usage error found in the first episode (a feature the target cannot hold)
+            // leaves no output behind: nothing was written but the marker.
+            let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
+            if usage && !resuming {
+                surgvla::export::DatasetDir::discard_unstarted(&args.out, created);
+            }
             let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
             CliError::from(e).resumable(resumable)
         })?;

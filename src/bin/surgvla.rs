@@ -16,6 +16,7 @@ mod error;
 mod eval;
 mod formats;
 mod inspect;
+mod memory;
 mod progress;
 
 use error::CliError;
@@ -396,6 +397,7 @@ pub(crate) fn threads_arg(text: &str) -> Result<usize, String> {
 }
 
 fn main() -> ExitCode {
+    memory::one_arena();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(error) => {

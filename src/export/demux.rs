@@ -55,10 +55,16 @@ impl VideoReader {
     pub fn open(path: &Path) -> Result<Self, ExportError> {
         let mut file = File::open(path).map_err(ExportError::io(path))?;
         let size = file.metadata().map_err(ExportError::io(path))?.len();
-        // re_mp4 indexes its tables without bounds checks in places: a damaged file must be an
-        // error naming it, never a crash.
-        let parsed =
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| Mp4::read(&mut file, size)));
+        // re_mp4 trusts stsz's sample count and indexes its tables without bounds checks in
+        // places: a damaged file must be an error naming it, never a crash or an abort.
+        if let Some(problem) =
+            crate::export::mp4scan::check_tables(&mut file, size).map_err(ExportError::io(path))?
+        {
+            return Err(invalid(path, format!("not a readable MP4: {problem}")));
+        }
+        file.seek(SeekFrom::Start(0))
+            .map_err(ExportError::io(path))?;
+        let parsed = crate::export::mp4scan::quietly(|| Mp4::read(&mut file, size));
         let mp4 = match parsed {
             Ok(Ok(mp4)) => mp4,
             Ok(Err(e)) => return Err(invalid(path, format!("not a readable MP4: {e}"))),

@@ -364,6 +364,29 @@ impl DatasetDir {
         root.join(INCOMPLETE_MARKER).exists()
     }
 
+    /// Removes what a run that stopped before writing anything left in `root`: the marker, when
+    /// it is the folder's only entry, and then the folder itself when the run `created` it.
+    /// Anything else in the folder leaves it untouched. Returns whether it removed the marker.
+    pub fn discard_unstarted(root: &Path, created: bool) -> bool {
+        let Ok(entries) = std::fs::read_dir(root) else {
+            return false;
+        };
+        let names: Vec<std::ffi::OsString> = entries
+            .take(2)
+            .filter_map(|entry| entry.ok().map(|entry| entry.file_name()))
+            .collect();
+        if names.len() != 1 || names[0] != INCOMPLETE_MARKER {
+            return false;
+        }
+        if std::fs::remove_file(root.join(INCOMPLETE_MARKER)).is_err() {
+            return false;
+        }
+        if created {
+            std::fs::remove_dir(root).ok();
+        }
+        true
+    }
+
     /// Reopens the interrupted dataset in `root`. Refuses, before changing anything, when it
     /// has no marker or was started with other `options`; then takes the lock, verifies every
     /// file of the last checkpoint, deletes every other file under `folders` (what was written

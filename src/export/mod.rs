@@ -31,6 +31,7 @@ pub mod image;
 pub mod info;
 pub mod lerobot;
 pub mod mcap;
+pub(crate) mod mp4scan;
 pub mod paths;
 pub mod pointcloud;
 pub mod registry;

@@ -9,8 +9,10 @@
 use crate::rng::SplitMix64;
 use serde_json::{Value, json};
 
-/// Values kept per vector element for quantiles.
-pub const RESERVOIR: usize = 100_000;
+/// Values kept per vector element for quantiles: full after a few hundred episodes, so peak
+/// memory (and a checkpoint's size) stays flat in episodes; q01's rank error from such a sample
+/// is about 0.1 %.
+pub const RESERVOIR: usize = 10_000;
 /// Histogram bins for depth quantiles and their range, metres.
 pub const DEPTH_BINS: usize = 8192;
 pub const DEPTH_RANGE_M: f64 = 0.5;

@@ -433,10 +433,28 @@ fn totals_that_disagree_with_the_data_fail_the_conversion() {
 
 /// Every JSON metadata file under `root` (relative paths, sorted).
 fn json_files(root: &Path) -> Vec<String> {
-    let mut files: Vec<String> = tree(root)
-        .into_keys()
-        .filter(|name| name.ends_with(".json") || name.ends_with(".zarray"))
-        .collect();
+    files_where(root, |name| {
+        name.ends_with(".json") || name.ends_with(".zarray")
+    })
+}
+
+/// Every binary file under `root` that carries structure a reader trusts: parquet footers,
+/// TFRecord lengths, MCAP records and index, zarr chunks (relative paths, sorted).
+fn binary_files(root: &Path) -> Vec<String> {
+    files_where(root, |name| {
+        [".parquet", ".mcap", ".mp4", ".png", ".tiff"]
+            .iter()
+            .any(|ending| name.ends_with(ending))
+            || name.contains(".tfrecord-")
+            || name
+                .rsplit('/')
+                .next()
+                .is_some_and(|last| last.split('.').all(|part| part.parse::<u64>().is_ok()))
+    })
+}
+
+fn files_where(root: &Path, keep: impl Fn(&str) -> bool) -> Vec<String> {
+    let mut files: Vec<String> = tree(root).into_keys().filter(|name| keep(name)).collect();
     files.sort();
     files
 }
@@ -465,14 +483,9 @@ fn mutate(value: &mut Value, pick: &mut dyn FnMut(usize) -> usize, hostile: &Val
     }
 }
 
-/// Seeded mutations of every format's metadata (paths, templates, shapes, totals, sizes): every
-/// command ends within the time limit with exit 0, 1 or 2 (never a panic or an abort), and
-/// nothing beside the dataset or the output changes.
-#[test]
-fn mutated_metadata_never_panics_hangs_or_escapes() {
-    let parent = temp_root("hostile-fuzz");
-    sentinel(&parent);
-    let hostile = [
+/// Values that break metadata: paths out, hanging templates, absurd totals and shapes.
+fn hostile_values() -> Vec<Value> {
+    vec![
         serde_json::json!("../../outside/keep.txt"),
         serde_json::json!("/etc/passwd"),
         serde_json::json!("videos/{video_key:1d}/{chunk_index:099999d}"),
@@ -484,58 +497,118 @@ fn mutated_metadata_never_panics_hangs_or_escapes() {
         serde_json::json!(""),
         serde_json::json!(null),
         serde_json::json!([4_000_000_000u64, 4_000_000_000u64, 3]),
-    ];
+    ]
+}
+
+/// Changes a JSON document: one value somewhere replaced by a hostile one.
+fn mutate_json(bytes: &[u8], rng: &mut surgvla::rng::SplitMix64) -> Option<(Vec<u8>, String)> {
+    let hostile = hostile_values();
+    let mut json: Value = serde_json::from_slice(bytes).ok()?;
+    let value = &hostile[(rng.next_u64() % hostile.len() as u64) as usize];
+    let mut pick = |n: usize| (rng.next_u64() % n as u64) as usize;
+    mutate(&mut json, &mut pick, value);
+    Some((serde_json::to_vec(&json).expect("json"), value.to_string()))
+}
+
+/// Changes a binary file as a lying writer or a bad disk would: a length or count field made
+/// huge (0xff bytes), bytes zeroed, or the file cut short; within the last 64 bytes (footers,
+/// indexes) half of the time.
+fn mutate_bytes(bytes: &[u8], rng: &mut surgvla::rng::SplitMix64) -> Option<(Vec<u8>, String)> {
+    if bytes.is_empty() {
+        return None;
+    }
+    let len = bytes.len() as u64;
+    let at = if rng.next_u64().is_multiple_of(2) {
+        len.saturating_sub(1 + rng.next_u64() % 64.min(len))
+    } else {
+        rng.next_u64() % len
+    } as usize;
+    let mut out = bytes.to_vec();
+    let how = match rng.next_u64() % 3 {
+        0 => {
+            let end = (at + 4).min(out.len());
+            out[at..end].fill(0xff);
+            "0xff"
+        }
+        1 => {
+            let end = (at + 8).min(out.len());
+            out[at..end].fill(0);
+            "zeros"
+        }
+        _ => {
+            out.truncate(at);
+            "cut"
+        }
+    };
+    Some((out, format!("{how} at byte {at} of {len}")))
+}
+
+/// What a mutator makes of a file: the new bytes and a description, or None to skip the file.
+type Mutator = fn(&[u8], &mut surgvla::rng::SplitMix64) -> Option<(Vec<u8>, String)>;
+
+/// Collects one small dataset per format, then, for `rounds` seeded mutations of one of its
+/// files (chosen among `files`), runs every command that reads a dataset on it (validate, info,
+/// convert, merge with the unmutated dataset, eval replaying it): each ends within the time
+/// limit with exit 0, 1 or 2 (never a panic or an abort), and nothing beside the dataset or
+/// the outputs changes.
+fn every_command_survives(
+    label: &str,
+    seed: u64,
+    rounds: usize,
+    files: fn(&Path) -> Vec<String>,
+    mutator: Mutator,
+) {
+    let parent = temp_root(label);
+    sentinel(&parent);
     let formats: [(&str, &[&str]); 4] = [
         ("lerobot", &["--video", "h264"]),
         ("rlds", &["--format", "rlds"]),
         ("zarr", &["--format", "zarr"]),
         ("mcap", &["--format", "mcap"]),
     ];
-    let mut rng = surgvla::rng::SplitMix64::new(24);
+    let mut rng = surgvla::rng::SplitMix64::new(seed);
     for (name, extra) in formats {
         let base = parent.join(format!("base-{name}"));
-        let mut args = vec![
-            "collect",
-            "--tasks",
-            "T1-1",
-            "--episodes-per-task",
-            "1",
-            "--out",
-        ];
         let base_text = base.to_str().expect("utf-8").to_string();
-        args.push(&base_text);
-        args.extend(extra);
-        assert_eq!(run(&args, LIMIT).0, 0, "{name}");
-        let files = json_files(&base);
+        collect(&base_text, "1", extra);
+        let files = files(&base);
         assert!(!files.is_empty(), "{name}");
-        for round in 0..16 {
+        let mut mutated = 0;
+        for round in 0..rounds {
             let dataset = parent.join(format!("{name}-{round}"));
             copy_tree(&base, &dataset);
             let file = &files[(rng.next_u64() % files.len() as u64) as usize];
-            let value = &hostile[(rng.next_u64() % hostile.len() as u64) as usize];
-            let mut pick = |n: usize| (rng.next_u64() % n as u64) as usize;
             let path = dataset.join(file);
-            let mut json: Value = match serde_json::from_slice(&std::fs::read(&path).expect("read"))
-            {
-                Ok(json) => json,
-                Err(_) => continue,
+            let Some((bytes, how)) = mutator(&std::fs::read(&path).expect("read"), &mut rng) else {
+                continue;
             };
-            mutate(&mut json, &mut pick, value);
-            std::fs::write(&path, serde_json::to_vec(&json).expect("json")).expect("write");
+            std::fs::write(&path, bytes).expect("write");
+            mutated += 1;
             let text = dataset.to_str().expect("utf-8").to_string();
             let out = parent.join(format!("out-{name}-{round}"));
             let out = out.to_str().expect("utf-8").to_string();
-            let what = format!("{name} round {round}: {file} <- {value}");
+            let what = format!("{name} round {round}: {file} <- {how}");
+            let merged = format!("{out}-merged");
+            let eval = format!("{out}-eval");
             for command in [
                 vec!["validate", text.as_str()],
                 vec!["info", text.as_str()],
+                vec!["convert", &text, "--to", "rlds", "--out", &out],
+                vec!["merge", &base_text, &text, "--out", &merged],
                 vec![
-                    "convert",
-                    text.as_str(),
-                    "--to",
-                    "rlds",
+                    "eval",
+                    "--policy",
+                    "replay",
+                    "--dataset",
+                    &text,
+                    "--tasks",
+                    "T1-1",
+                    "--trials",
+                    "1",
+                    "--record-failures",
+                    "0",
                     "--out",
-                    out.as_str(),
+                    &eval,
                 ],
             ] {
                 let before = tree(&parent.join("outside"));
@@ -552,7 +625,21 @@ fn mutated_metadata_never_panics_hangs_or_escapes() {
                 );
             }
         }
+        assert!(mutated > 0, "{name}: nothing was mutated");
     }
+}
+
+/// Seeded mutations of every format's JSON metadata (paths, templates, shapes, totals, sizes).
+#[test]
+fn mutated_metadata_never_panics_hangs_or_escapes() {
+    every_command_survives("hostile-fuzz", 24, 24, json_files, mutate_json);
+}
+
+/// Seeded mutations of every format's binary files (parquet footers and row groups, TFRecord
+/// lengths, MCAP records and summary, zarr chunks, PNG and TIFF headers).
+#[test]
+fn mutated_binary_files_never_panic_hang_or_escape() {
+    every_command_survives("hostile-bytes", 2, 24, binary_files, mutate_bytes);
 }
 
 #[test]
@@ -596,4 +683,40 @@ fn a_foreign_float_image_is_not_made_rlds_depth() {
             .contains("observation.images.wrist holds float TIFF"),
         "{error}"
     );
+}
+
+/// The same through the CLI: a LeRobot dataset without our metadata (so its depth TIFF is
+/// another tool's float image) to RLDS exits 2 naming the feature and leaves no output folder.
+#[test]
+fn a_foreign_float_image_leaves_no_output_behind() {
+    let parent = temp_root("hostile-tiff-cli");
+    sentinel(&parent);
+    let dataset = parent.join("foreign");
+    let text = dataset.to_str().expect("utf-8");
+    collect(text, "1", &[]);
+    for ours in ["meta/surgvla.json", "meta/surgvla_manifest.json"] {
+        std::fs::remove_file(dataset.join(ours)).expect("remove");
+    }
+    let out = parent.join("out");
+    let out_text = out.to_str().expect("utf-8");
+    let stderr = expect_exit(
+        &parent,
+        &["convert", text, "--to", "rlds", "--out", out_text],
+        2,
+        "float TIFF to RLDS",
+    );
+    assert!(
+        stderr.contains("observation.images.depth holds float TIFF"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "no output folder is left");
+    // A folder the user made stays, empty.
+    std::fs::create_dir(&out).expect("mkdir");
+    expect_exit(
+        &parent,
+        &["convert", text, "--to", "rlds", "--out", out_text],
+        2,
+        "into an empty folder",
+    );
+    assert_eq!(std::fs::read_dir(&out).expect("read").count(), 0);
 }

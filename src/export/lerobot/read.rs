@@ -926,3 +926,66 @@ impl EpisodeSource for LeRobotSource {
         }))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    /// A real footer, and the size of its file.
+    fn footer() -> (parquet::file::metadata::ParquetMetaData, u64) {
+        let column: arrow_array::ArrayRef = Arc::new(arrow_array::Int64Array::from(vec![1, 2, 3]));
+        let batch = RecordBatch::try_from_iter([("index", column)]).expect("batch");
+        let mut bytes = Vec::new();
+        let mut writer =
+            parquet::arrow::ArrowWriter::try_new(&mut bytes, batch.schema(), None).expect("writer");
+        writer.write(&batch).expect("write");
+        writer.close().expect("close");
+        let size = bytes.len() as u64;
+        let path =
+            std::env::temp_dir().join(format!("surgvla-footer-{}.parquet", std::process::id()));
+        std::fs::write(&path, bytes).expect("write");
+        let builder = open_parquet(&path).expect("footer");
+        std::fs::remove_file(&path).ok();
+        (builder.metadata().as_ref().clone(), size)
+    }
+
+    #[test]
+    fn forged_footers_are_refused_before_reading() {
+        let (metadata, size) = footer();
+        assert_eq!(footer_problem(&metadata, size), None);
+        // Column chunks beyond the file's end (a footer from a larger file, or a cut one).
+        let beyond = footer_problem(&metadata, 10).expect("refused");
+        assert!(beyond.contains("beyond the file's 10"), "{beyond}");
+        // 10^12 rows in a few hundred bytes.
+        let group = metadata.row_group(0).clone();
+        let forged = group
+            .into_builder()
+            .set_num_rows(1_000_000_000_000)
+            .build()
+            .expect("row group");
+        let forged = metadata
+            .clone()
+            .into_builder()
+            .set_row_groups(vec![forged])
+            .build();
+        let claims = footer_problem(&forged, size).expect("refused");
+        assert!(claims.contains("claims 1000000000000 rows"), "{claims}");
+        let negative = metadata
+            .row_group(0)
+            .clone()
+            .into_builder()
+            .set_num_rows(-1)
+            .build()
+            .expect("row group");
+        let negative = metadata
+            .into_builder()
+            .set_row_groups(vec![negative])
+            .build();
+        assert!(
+            footer_problem(&negative, size)
+                .expect("refused")
+                .contains("claims -1 rows")
+        );
+    }
+}

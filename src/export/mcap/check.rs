@@ -23,6 +23,11 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
     if quick {
         return summary.as_ref().map_or(0, rgb_frames);
     }
+    // The mcap reader reserves each chunk's claimed uncompressed size before decompressing it.
+    if let Some(problem) = chunks_problem(&bytes) {
+        findings.error(at(), "chunk", problem);
+        return 0;
+    }
     let stream = match MessageStream::new_with_options(&bytes, Options::ValidateChunkCrcs.into()) {
         Ok(stream) => stream,
         Err(error) => {
@@ -82,6 +87,85 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
         }
     }
     frames
+}
+
+/// Largest uncompressed chunk accepted (the writer's chunks are about 1 MiB; other tools'
+/// rarely exceed tens of MiB).
+const MAX_CHUNK_BYTES: u64 = 256 << 20;
+
+/// A little-endian u64 at `at`, if the bytes hold one.
+fn u64_at(bytes: &[u8], at: usize) -> Option<u64> {
+    Some(u64::from_le_bytes(
+        bytes.get(at..at.checked_add(8)?)?.try_into().ok()?,
+    ))
+}
+
+/// The first record in `bytes` (from `at`) whose length runs past the end: its offset, opcode
+/// and claimed length. Stops at the footer.
+fn overlong_record(bytes: &[u8], mut at: usize) -> Option<(usize, u8, u64)> {
+    const FOOTER: u8 = 0x02;
+    while let Some(&opcode) = bytes.get(at) {
+        let length = u64_at(bytes, at + 1)?;
+        let end = usize::try_from(length)
+            .ok()
+            .and_then(|length| (at + 9).checked_add(length))
+            .filter(|end| *end <= bytes.len());
+        match end {
+            None => return Some((at, opcode, length)),
+            Some(_) if opcode == FOOTER => return None,
+            Some(end) => at = end,
+        }
+    }
+    None
+}
+
+/// What the mcap reader would allocate unchecked (it reserves a chunk's claimed uncompressed
+/// size, and each record's claimed length inside a chunk): a chunk claiming more than
+/// [`MAX_CHUNK_BYTES`], an uncompressed chunk whose size disagrees with its records, or a record
+/// inside a chunk running past the chunk's end. Top-level records cut short, and chunks that do
+/// not decompress, are left to the reader, which reports them.
+fn chunks_problem(bytes: &[u8]) -> Option<String> {
+    const MAGIC_LEN: usize = 8;
+    const CHUNK: u8 = 0x06;
+    let mut at = MAGIC_LEN;
+    while let (Some(&opcode), Some(length)) = (bytes.get(at), u64_at(bytes, at + 1)) {
+        let body = at + 9;
+        let end = usize::try_from(length).ok()?.checked_add(body)?;
+        let record = bytes.get(body..end)?;
+        if opcode == CHUNK {
+            let uncompressed = u64_at(record, 16)?;
+            if uncompressed > MAX_CHUNK_BYTES {
+                return Some(format!(
+                    "the chunk at byte {at} claims {uncompressed} bytes uncompressed, over the {MAX_CHUNK_BYTES} accepted"
+                ));
+            }
+            let name_len = u32::from_le_bytes(record.get(28..32)?.try_into().ok()?) as usize;
+            let compression = record.get(32..32 + name_len)?;
+            let records_len = usize::try_from(u64_at(record, 32 + name_len)?).ok()?;
+            let start = 40 + name_len;
+            let compressed = record.get(start..start.checked_add(records_len)?)?;
+            let inner = match compression {
+                b"" => std::borrow::Cow::Borrowed(compressed),
+                b"zstd" => std::borrow::Cow::Owned(
+                    zstd::bulk::decompress(compressed, uncompressed as usize).ok()?,
+                ),
+                _ => return None,
+            };
+            if inner.len() as u64 != uncompressed {
+                return Some(format!(
+                    "the chunk at byte {at} claims {uncompressed} bytes uncompressed and holds {}",
+                    inner.len()
+                ));
+            }
+            if let Some((offset, opcode, length)) = overlong_record(&inner, 0) {
+                return Some(format!(
+                    "a record (opcode {opcode:#04x}) at byte {offset} of the chunk at byte {at} claims {length} bytes, past the chunk's end"
+                ));
+            }
+        }
+        at = end;
+    }
+    None
 }
 
 /// The summary section read and checked (statistics, chunk indexes, Foxglove schema names);
@@ -242,4 +326,45 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         .map(|(i, path)| check_file(path, i as u64, options.quick, findings))
         .sum();
     (files.len() as u64, frames)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A record: opcode, u64 length, body.
+    fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+        let mut out = vec![opcode];
+        out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        out.extend_from_slice(body);
+        out
+    }
+
+    /// A file of one uncompressed chunk holding `inner`, claiming `uncompressed` bytes.
+    fn file(inner: &[u8], uncompressed: u64) -> Vec<u8> {
+        let mut chunk = vec![0u8; 16];
+        chunk.extend_from_slice(&uncompressed.to_le_bytes());
+        chunk.extend_from_slice(&[0u8; 4]); // CRC
+        chunk.extend_from_slice(&0u32.to_le_bytes()); // compression: none
+        chunk.extend_from_slice(&(inner.len() as u64).to_le_bytes());
+        chunk.extend_from_slice(inner);
+        let mut out = b"\x89MCAP0\r\n".to_vec();
+        out.extend(record(0x06, &chunk));
+        out.extend(record(0x02, &[0u8; 20]));
+        out
+    }
+
+    #[test]
+    fn chunks_the_reader_would_overallocate_for_are_refused() {
+        let inner = record(0x05, &[1, 2, 3]);
+        assert_eq!(chunks_problem(&file(&inner, inner.len() as u64)), None);
+        let huge = chunks_problem(&file(&inner, 1 << 50)).expect("refused");
+        assert!(huge.contains("over the"), "{huge}");
+        let disagree = chunks_problem(&file(&inner, 5)).expect("refused");
+        assert!(disagree.contains("holds"), "{disagree}");
+        let mut lying = record(0x05, &[1, 2, 3]);
+        lying[1..9].copy_from_slice(&(1u64 << 55).to_le_bytes());
+        let past = chunks_problem(&file(&lying, lying.len() as u64)).expect("refused");
+        assert!(past.contains("past the chunk's end"), "{past}");
+    }
 }
