@@ -22,6 +22,7 @@
 
 pub mod bounded;
 pub mod convert;
+pub mod decode;
 pub mod demux;
 pub mod dir;
 pub mod findings;
@@ -161,6 +162,13 @@ pub enum ExportError {
     InvalidDataset { path: PathBuf, problem: String },
     #[error("encoding {what}")]
     Encode {
+        what: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// A video stream that does not decode (damaged, or not what its container says).
+    #[error("decoding {what}")]
+    Decode {
         what: String,
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,

@@ -1,0 +1,230 @@
+//! Decoding video samples back to pixels: H.264 with OpenH264's decoder (the `openh264` crate,
+//! already built for encoding, from bundled source) into planar YUV 4:2:0, and YUV -> RGB in
+//! integer arithmetic (the same bytes on every machine).
+//!
+//! The first slice of issue 25: what decodes today is the H.264 surgvla writes (Constrained
+//! Baseline); another profile is refused by name before decoding, never turned into garbage
+//! frames. AV1 (rav1d) and the wiring into `convert` and `validate` come next.
+
+use crate::episode::EncodedFrame;
+use crate::export::ExportError;
+use openh264::OpenH264API;
+use openh264::decoder::{DecodedYUV, Decoder, DecoderConfig};
+use openh264::formats::YUVSource;
+
+/// One decoded picture: 8-bit planar YUV 4:2:0, planes without padding.
+#[derive(Clone, Debug, PartialEq)]
+pub struct YuvFrame {
+    pub width_px: u32,
+    pub height_px: u32,
+    /// Luma, `width_px` x `height_px`.
+    pub y: Vec<u8>,
+    /// Chroma, each `ceil(width_px / 2)` x `ceil(height_px / 2)`.
+    pub u: Vec<u8>,
+    pub v: Vec<u8>,
+}
+
+/// H.264 profiles (`profile_idc` of the sequence parameter set) the decoder is used for.
+const DECODED_PROFILES: [(u8, &str); 1] = [(66, "Baseline")];
+
+/// The name of an H.264 `profile_idc`.
+pub fn h264_profile_name(profile_idc: u8) -> &'static str {
+    match profile_idc {
+        66 => "Baseline",
+        77 => "Main",
+        88 => "Extended",
+        100 => "High",
+        110 => "High 10",
+        122 => "High 4:2:2",
+        244 => "High 4:4:4 Predictive",
+        _ => "unknown",
+    }
+}
+
+/// The `profile_idc` of the first sequence parameter set in Annex B bytes, if any.
+pub fn h264_profile(annex_b: &[u8]) -> Option<u8> {
+    let mut at = 0;
+    while at + 4 < annex_b.len() {
+        if annex_b[at..].starts_with(&[0, 0, 1]) {
+            let header = annex_b[at + 3];
+            if header & 0x1f == 7 {
+                return annex_b.get(at + 4).copied();
+            }
+            at += 3;
+        } else {
+            at += 1;
+        }
+    }
+    None
+}
+
+fn decode_error(what: &str) -> impl Fn(openh264::Error) -> ExportError + '_ {
+    move |e| ExportError::Decode {
+        what: what.to_string(),
+        source: Box::new(e),
+    }
+}
+
+/// Copies a decoded picture's planes (which carry stride padding) into a [`YuvFrame`].
+fn planes(picture: &DecodedYUV<'_>) -> YuvFrame {
+    let (width, height) = picture.dimensions();
+    let (y_stride, u_stride, v_stride) = picture.strides();
+    let (cw, ch) = (width.div_ceil(2), height.div_ceil(2));
+    let tight = |plane: &[u8], stride: usize, w: usize, h: usize| -> Vec<u8> {
+        plane
+            .chunks(stride)
+            .take(h)
+            .flat_map(|row| &row[..w.min(row.len())])
+            .copied()
+            .collect()
+    };
+    YuvFrame {
+        width_px: width as u32,
+        height_px: height as u32,
+        y: tight(picture.y(), y_stride, width, height),
+        u: tight(picture.u(), u_stride, cw, ch),
+        v: tight(picture.v(), v_stride, cw, ch),
+    }
+}
+
+/// Decodes an H.264 span (Annex B samples starting on a keyframe, in decode order, no
+/// reordering: what [`crate::export::demux::VideoReader::span`] returns) into one picture per
+/// sample. `what` names the stream in errors (file and feature). A profile the decoder is not
+/// used for is refused as a usage error naming it.
+pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>, ExportError> {
+    if let Some(profile) = samples.first().and_then(|s| h264_profile(&s.data))
+        && !DECODED_PROFILES.iter().any(|(idc, _)| *idc == profile)
+    {
+        return Err(ExportError::InvalidOptions(format!(
+            "{what} is H.264 {} profile (profile_idc {profile}); surgvla decodes H.264 {} only",
+            h264_profile_name(profile),
+            DECODED_PROFILES.map(|(_, name)| name).join(", ")
+        )));
+    }
+    let error = decode_error(what);
+    let mut decoder = Decoder::with_api_config(OpenH264API::from_source(), DecoderConfig::new())
+        .map_err(&error)?;
+    let mut out = Vec::with_capacity(samples.len());
+    for sample in samples {
+        if let Some(picture) = decoder.decode(&sample.data).map_err(&error)? {
+            out.push(planes(&picture));
+        }
+    }
+    for picture in decoder.flush_remaining().map_err(&error)? {
+        out.push(planes(&picture));
+    }
+    if out.len() != samples.len() {
+        return Err(ExportError::Decode {
+            what: what.to_string(),
+            source: format!("{} samples gave {} pictures", samples.len(), out.len()).into(),
+        });
+    }
+    Ok(out)
+}
+
+/// BT.601 limited-range YUV 4:2:0 to RGB (3 bytes a pixel), each chroma sample covering its
+/// 2 x 2 block, in 8-bit fixed point (the inverse of [`crate::export::video::rgb_to_yuv420`]'s
+/// matrix): FFmpeg's assumption for a stream that does not tag its matrix and range.
+pub fn rgb_from_yuv420(frame: &YuvFrame) -> Vec<u8> {
+    let (width, height) = (frame.width_px as usize, frame.height_px as usize);
+    let cw = width.div_ceil(2);
+    let mut rgb = Vec::with_capacity(width * height * 3);
+    let clip = |value: i32| (value >> 8).clamp(0, 255) as u8;
+    for row in 0..height {
+        for col in 0..width {
+            let c = 298 * (i32::from(frame.y[row * width + col]) - 16) + 128;
+            let chroma = (row / 2) * cw + col / 2;
+            let d = i32::from(frame.u[chroma]) - 128;
+            let e = i32::from(frame.v[chroma]) - 128;
+            rgb.extend_from_slice(&[
+                clip(c + 409 * e),
+                clip(c - 100 * d - 208 * e),
+                clip(c + 516 * d),
+            ]);
+        }
+    }
+    rgb
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::video::{encode_h264, rgb_to_yuv420};
+
+    /// A moving gradient, `frames` frames of `width` x `height` RGB.
+    fn clip(frames: usize, width: usize, height: usize) -> Vec<Vec<u8>> {
+        (0..frames)
+            .map(|t| {
+                (0..width * height)
+                    .flat_map(|i| {
+                        let (x, y) = (i % width, i / width);
+                        [(x * 4 + t * 3) as u8, (y * 5) as u8, ((x + y) * 2) as u8]
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn limited_range_extremes_and_grey_convert_exactly() {
+        let frame = |y: u8| YuvFrame {
+            width_px: 2,
+            height_px: 2,
+            y: vec![y; 4],
+            u: vec![128],
+            v: vec![128],
+        };
+        assert_eq!(rgb_from_yuv420(&frame(16)), vec![0; 12]);
+        assert_eq!(rgb_from_yuv420(&frame(235)), vec![255; 12]);
+        assert_eq!(rgb_from_yuv420(&frame(126)), vec![128; 12]);
+        // The encoder's matrix and ours are inverses up to rounding.
+        let rgb: Vec<u8> = (0..16).flat_map(|i| [i * 16, 200 - i * 8, 90]).collect();
+        let (y, u, v) = rgb_to_yuv420(&rgb, 4, 4);
+        let back = rgb_from_yuv420(&YuvFrame {
+            width_px: 4,
+            height_px: 4,
+            y,
+            u,
+            v,
+        });
+        let worst = rgb.iter().zip(&back).map(|(a, b)| a.abs_diff(*b)).max();
+        assert!(worst <= Some(40), "{worst:?}");
+    }
+
+    #[test]
+    fn our_h264_decodes_frame_for_frame_near_the_source() {
+        let (width, height) = (64, 48);
+        let frames = clip(12, width, height);
+        let slices: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+        let encoded = encode_h264(&slices, width, height, 10, 18).expect("encode");
+        assert_eq!(h264_profile(&encoded[0].data), Some(66));
+        let decoded = decode_h264(&encoded, "test.mp4").expect("decode");
+        assert_eq!(decoded.len(), frames.len());
+        for (source, picture) in frames.iter().zip(&decoded) {
+            assert_eq!((picture.width_px, picture.height_px), (64, 48));
+            let rgb = rgb_from_yuv420(picture);
+            let mean = source
+                .iter()
+                .zip(&rgb)
+                .map(|(a, b)| f64::from(a.abs_diff(*b)))
+                .sum::<f64>()
+                / rgb.len() as f64;
+            assert!(mean < 4.0, "mean difference {mean}");
+        }
+        // Decoding is deterministic: the same planes twice.
+        assert_eq!(decode_h264(&encoded, "test.mp4").expect("decode"), decoded);
+    }
+
+    #[test]
+    fn other_profiles_are_refused_by_name() {
+        use crate::error::HasKind as _;
+        // An SPS NAL of High profile (profile_idc 100) in front of a keyframe.
+        let sample = EncodedFrame {
+            data: vec![0, 0, 0, 1, 0x67, 100, 0, 30, 0xff],
+            keyframe: true,
+        };
+        let error = decode_h264(&[sample], "videos/cam/file-000.mp4").expect_err("refused");
+        assert_eq!(error.kind(), crate::error::ErrorKind::Usage);
+        assert!(error.to_string().contains("H.264 High profile"), "{error}");
+    }
+}
