@@ -524,39 +524,50 @@ fn other_features_round_trip_unchanged() {
     }
 }
 
-/// An H.264 video dataset's MP4 read back through the demuxer and decoded (issue 25's first
-/// slice): one picture per frame, at the dataset's size, near the frames that were encoded
-/// (the codec is lossy; decoding itself is exact, so the figure is stable).
+/// A video dataset's MP4 read back through the demuxer and decoded (issue 25's first slice),
+/// H.264 and AV1: one picture per frame, at the dataset's size, near the frames that were
+/// encoded (the codecs are lossy; decoding itself is exact, so the figure is stable).
 #[test]
-fn h264_video_decodes_to_the_recorded_frames() {
-    use surgvla::export::decode::{decode_h264, rgb_from_yuv420};
+fn video_decodes_to_the_recorded_frames() {
+    use surgvla::episode::VideoCodec;
+    use surgvla::export::decode::{decode_av1, decode_h264, rgb_from_yuv420};
     use surgvla::export::demux::VideoReader;
     use surgvla::export::lerobot::VideoOptions;
-    let root = temp_root("lerobot-decode");
     let recorded = episodes(2, 12);
-    let options = LeRobotOptions {
-        video: Some(VideoOptions::h264()),
-        ..LeRobotOptions::default()
-    };
-    write(&root, &recorded, options);
-    let path = root.join("videos/observation.images.endoscope/chunk-000/file-000.mp4");
-    let mut reader = VideoReader::open(&path).expect("mp4");
-    let samples = reader.all().expect("samples");
-    let pictures = decode_h264(&samples, "file-000.mp4").expect("decode");
-    let frames: Vec<&Vec<u8>> = recorded
-        .iter()
-        .flat_map(|e| e.steps.iter().map(|s| &s.rgb))
-        .collect();
-    assert_eq!(pictures.len(), frames.len());
-    for (i, (picture, rgb)) in pictures.iter().zip(frames).enumerate() {
-        assert_eq!((picture.width_px, picture.height_px), (224, 224));
-        let decoded = rgb_from_yuv420(picture);
-        let mean = rgb
+    for (codec, video) in [
+        (VideoCodec::H264, VideoOptions::h264()),
+        (VideoCodec::Av1, VideoOptions::default()),
+    ] {
+        let root = temp_root("lerobot-decode");
+        let options = LeRobotOptions {
+            video: Some(video),
+            ..LeRobotOptions::default()
+        };
+        write(&root, &recorded, options);
+        let path = root.join("videos/observation.images.endoscope/chunk-000/file-000.mp4");
+        let mut reader = VideoReader::open(&path).expect("mp4");
+        assert_eq!(reader.codec, codec);
+        let samples = reader.all().expect("samples");
+        let pictures = match codec {
+            VideoCodec::H264 => decode_h264(&samples, "file-000.mp4"),
+            VideoCodec::Av1 => decode_av1(&samples, "file-000.mp4", 8192),
+        }
+        .expect("decode");
+        let frames: Vec<&Vec<u8>> = recorded
             .iter()
-            .zip(&decoded)
-            .map(|(a, b)| f64::from(a.abs_diff(*b)))
-            .sum::<f64>()
-            / rgb.len() as f64;
-        assert!(mean < 3.0, "frame {i}: mean difference {mean}");
+            .flat_map(|e| e.steps.iter().map(|s| &s.rgb))
+            .collect();
+        assert_eq!(pictures.len(), frames.len(), "{codec:?}");
+        for (i, (picture, rgb)) in pictures.iter().zip(frames).enumerate() {
+            assert_eq!((picture.width_px, picture.height_px), (224, 224));
+            let decoded = rgb_from_yuv420(picture);
+            let mean = rgb
+                .iter()
+                .zip(&decoded)
+                .map(|(a, b)| f64::from(a.abs_diff(*b)))
+                .sum::<f64>()
+                / rgb.len() as f64;
+            assert!(mean < 3.0, "{codec:?} frame {i}: mean difference {mean}");
+        }
     }
 }

@@ -2,9 +2,16 @@
 //! already built for encoding, from bundled source) into planar YUV 4:2:0, and YUV -> RGB in
 //! integer arithmetic (the same bytes on every machine).
 //!
-//! The first slice of issue 25: H.264 Baseline, Main and High (8-bit 4:2:0) decode; another
-//! profile is refused by name before decoding, never turned into garbage frames. AV1 (rav1d)
-//! and the wiring into `convert` and `validate` come next.
+//! AV1 with rav1d ([`decode_av1`], in `av1.rs`, the library's only unsafe code: rav1d's public
+//! API is dav1d's C API).
+//!
+//! The first slice of issue 25: H.264 Baseline, Main and High (8-bit 4:2:0) and 8-bit 4:2:0 AV1
+//! decode; another profile is refused by name before decoding, never turned into garbage
+//! frames. The wiring into `convert` and `validate` comes next.
+
+mod av1;
+
+pub use av1::decode_av1;
 
 use crate::episode::EncodedFrame;
 use crate::export::ExportError;

@@ -1,0 +1,236 @@
+//! AV1 decoding with rav1d (the Rust port of dav1d), through its C API: the only unsafe code in
+//! the library, kept to this file. One decoder per span, one thread, no frame delay: pictures
+//! come out in order, one per temporal unit.
+
+#![allow(unsafe_code)]
+
+use super::YuvFrame;
+use crate::episode::EncodedFrame;
+use crate::export::ExportError;
+use rav1d::include::dav1d::data::Dav1dData;
+use rav1d::include::dav1d::dav1d::{Dav1dContext, Dav1dSettings};
+use rav1d::include::dav1d::headers::DAV1D_PIXEL_LAYOUT_I420;
+use rav1d::include::dav1d::picture::Dav1dPicture;
+use rav1d::src::lib::{
+    dav1d_close, dav1d_data_create, dav1d_data_unref, dav1d_default_settings, dav1d_get_picture,
+    dav1d_open, dav1d_picture_unref, dav1d_send_data,
+};
+use std::ptr::NonNull;
+
+/// dav1d's "try again" result: `-EAGAIN`.
+const AGAIN: i32 = -11;
+
+/// An open decoder, closed on drop.
+struct Decoder(Option<Dav1dContext>);
+
+impl Drop for Decoder {
+    fn drop(&mut self) {
+        // SAFETY: the context came from dav1d_open and is closed once (dav1d_close sets it to
+        // None).
+        unsafe { dav1d_close(Some(NonNull::from(&mut self.0))) }
+    }
+}
+
+impl Decoder {
+    /// A decoder refusing frames of more than `max_pixels` pixels.
+    fn open(max_pixels: u32) -> Result<Self, i32> {
+        let mut settings = std::mem::MaybeUninit::<Dav1dSettings>::uninit();
+        // SAFETY: dav1d_default_settings writes every field of the settings it is given.
+        let mut settings = unsafe {
+            dav1d_default_settings(NonNull::new_unchecked(settings.as_mut_ptr()));
+            settings.assume_init()
+        };
+        settings.n_threads = 1;
+        settings.max_frame_delay = 1;
+        settings.frame_size_limit = max_pixels;
+        // No logging: a damaged stream is reported once, as an error naming its file.
+        // SAFETY: dav1d's logger is a cookie and a callback, both nullable pointers (repr(C)
+        // Options of pointer types): all zeros is "no callback", which disables logging.
+        settings.logger = unsafe { std::mem::zeroed() };
+        let mut context = None;
+        // SAFETY: both pointers are to live locals; dav1d_open reads the settings and writes
+        // the context.
+        let result = unsafe {
+            dav1d_open(
+                Some(NonNull::from(&mut context)),
+                Some(NonNull::from(&mut settings)),
+            )
+        };
+        match (result.0, context) {
+            (0, Some(context)) => Ok(Decoder(Some(context))),
+            (code, _) => Err(code.min(-1)),
+        }
+    }
+
+    /// Hands one temporal unit to the decoder, collecting every picture it gives meanwhile.
+    fn send(&mut self, bytes: &[u8], out: &mut Vec<YuvFrame>) -> Result<(), i32> {
+        let mut data = Dav1dData::default();
+        // SAFETY: dav1d_data_create allocates `bytes.len()` bytes owned by `data` and returns
+        // them (null on failure); they are written in full before being sent.
+        unsafe {
+            let buffer = dav1d_data_create(Some(NonNull::from(&mut data)), bytes.len());
+            if buffer.is_null() {
+                return Err(-12);
+            }
+            std::ptr::copy_nonoverlapping(bytes.as_ptr(), buffer, bytes.len());
+        }
+        let result = loop {
+            // SAFETY: the context is open; `data` is a live Dav1dData from dav1d_data_create.
+            let sent = unsafe { dav1d_send_data(self.0, Some(NonNull::from(&mut data))) }.0;
+            if sent != 0 && sent != AGAIN {
+                break Err(sent);
+            }
+            if let Err(code) = self.drain(out) {
+                break Err(code);
+            }
+            if data.sz == 0 {
+                break Ok(());
+            }
+        };
+        if data.sz > 0 {
+            // SAFETY: `data` still holds (part of) its buffer, released once here.
+            unsafe { dav1d_data_unref(Some(NonNull::from(&mut data))) }
+        }
+        result
+    }
+
+    /// Takes every picture the decoder has ready.
+    fn drain(&mut self, out: &mut Vec<YuvFrame>) -> Result<(), i32> {
+        loop {
+            let mut picture = Dav1dPicture::default();
+            // SAFETY: the context is open; `picture` is a live local it writes to.
+            let got = unsafe { dav1d_get_picture(self.0, Some(NonNull::from(&mut picture))) }.0;
+            if got == AGAIN {
+                return Ok(());
+            }
+            if got != 0 {
+                return Err(got);
+            }
+            let frame = planes(&picture);
+            // SAFETY: the picture came from dav1d_get_picture and is released once.
+            unsafe { dav1d_picture_unref(Some(NonNull::from(&mut picture))) }
+            out.push(frame?);
+        }
+    }
+}
+
+/// Copies an 8-bit 4:2:0 picture's planes (with their strides) into a [`YuvFrame`].
+fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, i32> {
+    let parameters = &picture.p;
+    if parameters.bpc != 8 || parameters.layout != DAV1D_PIXEL_LAYOUT_I420 {
+        return Err(-95);
+    }
+    let (width, height) = (parameters.w.max(0) as usize, parameters.h.max(0) as usize);
+    let (cw, ch) = (width.div_ceil(2), height.div_ceil(2));
+    let copy = |plane: usize, stride: isize, w: usize, h: usize| -> Vec<u8> {
+        let Some(base) = picture.data[plane] else {
+            return Vec::new();
+        };
+        let mut out = Vec::with_capacity(w * h);
+        for row in 0..h {
+            // SAFETY: dav1d's plane `plane` holds `h` rows of at least `w` bytes, `stride`
+            // bytes apart, while the picture is referenced.
+            let line = unsafe {
+                std::slice::from_raw_parts(
+                    base.as_ptr().cast::<u8>().offset(row as isize * stride),
+                    w,
+                )
+            };
+            out.extend_from_slice(line);
+        }
+        out
+    };
+    Ok(YuvFrame {
+        width_px: width as u32,
+        height_px: height as u32,
+        y: copy(0, picture.stride[0], width, height),
+        u: copy(1, picture.stride[1], cw, ch),
+        v: copy(2, picture.stride[1], cw, ch),
+    })
+}
+
+/// Decodes an AV1 span (temporal units starting on a keyframe, as
+/// [`crate::export::demux::VideoReader::span`] returns them) into one picture per sample.
+/// `what` names the stream in errors. Frames over `max_side` x `max_side` are refused by the
+/// decoder before it allocates them; other than 8-bit 4:2:0 is refused as a usage error.
+pub fn decode_av1(
+    samples: &[EncodedFrame],
+    what: &str,
+    max_side: u32,
+) -> Result<Vec<YuvFrame>, ExportError> {
+    let failed = |code: i32| ExportError::Decode {
+        what: what.to_string(),
+        source: format!("rav1d error {code}").into(),
+    };
+    let mut decoder = Decoder::open(max_side.saturating_mul(max_side)).map_err(failed)?;
+    let mut out = Vec::with_capacity(samples.len());
+    for sample in samples {
+        match decoder.send(&sample.data, &mut out) {
+            Ok(()) => {}
+            Err(-95) => {
+                return Err(ExportError::InvalidOptions(format!(
+                    "{what} is AV1 of another bit depth or chroma layout than 8-bit 4:2:0, which surgvla does not decode"
+                )));
+            }
+            Err(code) => return Err(failed(code)),
+        }
+    }
+    decoder.drain(&mut out).map_err(failed)?;
+    if out.len() != samples.len() {
+        return Err(ExportError::Decode {
+            what: what.to_string(),
+            source: format!("{} samples gave {} pictures", samples.len(), out.len()).into(),
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::decode::rgb_from_yuv420;
+    use crate::export::video::encode_av1;
+
+    #[test]
+    fn our_av1_decodes_frame_for_frame_near_the_source() {
+        let (width, height) = (64, 48);
+        let frames: Vec<Vec<u8>> = (0..8)
+            .map(|t| {
+                (0..width * height)
+                    .flat_map(|i| {
+                        let (x, y) = (i % width, i / width);
+                        [(x * 4 + t * 3) as u8, (y * 5) as u8, 90]
+                    })
+                    .collect()
+            })
+            .collect();
+        let slices: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
+        let encoded = encode_av1(&slices, width, height, 10, 40).expect("encode");
+        let decoded = decode_av1(&encoded, "test.mp4", 8192).expect("decode");
+        assert_eq!(decoded.len(), frames.len());
+        for (source, picture) in frames.iter().zip(&decoded) {
+            assert_eq!((picture.width_px, picture.height_px), (64, 48));
+            let rgb = rgb_from_yuv420(picture);
+            let mean = source
+                .iter()
+                .zip(&rgb)
+                .map(|(a, b)| f64::from(a.abs_diff(*b)))
+                .sum::<f64>()
+                / rgb.len() as f64;
+            assert!(mean < 4.0, "mean difference {mean}");
+        }
+        assert_eq!(
+            decode_av1(&encoded, "test.mp4", 8192).expect("again"),
+            decoded
+        );
+        // A limit below the frame's size is refused, not decoded.
+        assert!(decode_av1(&encoded, "test.mp4", 32).is_err());
+        // Garbage is an error naming the stream, never a crash.
+        let garbage = [EncodedFrame {
+            data: vec![0x12, 0x00, 0x0a, 0xff, 0xff, 0xff],
+            keyframe: true,
+        }];
+        let error = decode_av1(&garbage, "bad.mp4", 8192).expect_err("refused");
+        assert!(error.to_string().contains("bad.mp4"), "{error}");
+    }
+}
