@@ -200,6 +200,13 @@ impl VideoReader {
         wanted.iter().map(|s| self.frame(s)).collect()
     }
 
+    /// The presentation times (seconds) of the frames [`Self::span`] returns, in its order.
+    pub fn span_times(&self, from_secs: f64, to_secs: f64) -> Vec<f64> {
+        self.in_span(from_secs, to_secs)
+            .map(|s| s.time_secs)
+            .collect()
+    }
+
     /// Every frame of the file.
     pub fn all(&mut self) -> Result<Vec<EncodedFrame>, ExportError> {
         self.span(f64::NEG_INFINITY, f64::INFINITY)

@@ -132,6 +132,57 @@ pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>
     Ok(out)
 }
 
+/// lerobot's tolerance between a row's timestamp and the frame it gets, seconds
+/// (`decode_video_frames(..., tolerance_s=1e-4)`).
+pub const FRAME_TOLERANCE_SECS: f64 = 1e-4;
+
+/// A query time no frame lies within the tolerance of.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameMiss {
+    /// Which query, and its time (seconds).
+    pub query: usize,
+    pub query_secs: f64,
+    /// How far the nearest frame is (infinite when there is none).
+    pub distance_secs: f64,
+}
+
+/// Frames as lerobot selects them: for each query time, the index of the frame whose
+/// presentation time is nearest (the earlier one on a tie, as `argmin` takes the first), which
+/// must lie strictly within `tolerance_secs`. `frame_secs` is in presentation order.
+pub fn nearest_frames(
+    frame_secs: &[f64],
+    query_secs: &[f64],
+    tolerance_secs: f64,
+) -> Result<Vec<usize>, FrameMiss> {
+    query_secs
+        .iter()
+        .enumerate()
+        .map(|(query, &q)| {
+            let after = frame_secs.partition_point(|t| *t < q);
+            let candidates = [
+                after.checked_sub(1),
+                (after < frame_secs.len()).then_some(after),
+            ];
+            let best = candidates
+                .into_iter()
+                .flatten()
+                .map(|i| (i, (frame_secs[i] - q).abs()))
+                .fold(None, |best: Option<(usize, f64)>, (i, d)| match best {
+                    Some((_, best_d)) if best_d <= d => best,
+                    _ => Some((i, d)),
+                });
+            match best {
+                Some((i, d)) if d < tolerance_secs => Ok(i),
+                other => Err(FrameMiss {
+                    query,
+                    query_secs: q,
+                    distance_secs: other.map_or(f64::INFINITY, |(_, d)| d),
+                }),
+            }
+        })
+        .collect()
+}
+
 /// BT.601 limited-range YUV 4:2:0 to RGB (3 bytes a pixel), each chroma sample covering its
 /// 2 x 2 block, in 8-bit fixed point (the inverse of [`crate::export::video::rgb_to_yuv420`]'s
 /// matrix): FFmpeg's assumption for a stream that does not tag its matrix and range.
@@ -223,6 +274,28 @@ mod tests {
         }
         // Decoding is deterministic: the same planes twice.
         assert_eq!(decode_h264(&encoded, "test.mp4").expect("decode"), decoded);
+    }
+
+    #[test]
+    fn frames_are_picked_by_nearest_presentation_time_within_the_tolerance() {
+        let times: Vec<f64> = (0..5).map(|i| f64::from(i) / 30.0).collect();
+        // Exact times, and times a float rounding away (v3.0 adds from_timestamp).
+        let queries = [0.0, 2.0 / 30.0 + 3e-5, 4.0 / 30.0 - 3e-5, 1.0 / 30.0];
+        assert_eq!(
+            nearest_frames(&times, &queries, FRAME_TOLERANCE_SECS),
+            Ok(vec![0, 2, 4, 1])
+        );
+        // Half-way between two frames is far outside 1e-4 s.
+        let miss = nearest_frames(&times, &[0.5 / 30.0], FRAME_TOLERANCE_SECS).expect_err("miss");
+        assert_eq!(miss.query, 0);
+        assert!((miss.distance_secs - 0.5 / 30.0).abs() < 1e-12);
+        // At exactly the tolerance it misses (lerobot requires min < tolerance_s).
+        assert!(nearest_frames(&[0.0], &[0.5], 0.5).is_err());
+        // On a tie the earlier frame wins; NaN and no frames miss.
+        assert_eq!(nearest_frames(&[0.0, 1.0], &[0.5], 1.0), Ok(vec![0]));
+        assert!(nearest_frames(&times, &[f64::NAN], 1.0).is_err());
+        let none = nearest_frames(&[], &[0.0], 1.0).expect_err("no frames");
+        assert_eq!(none.distance_secs, f64::INFINITY);
     }
 
     #[test]
