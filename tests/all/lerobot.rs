@@ -560,7 +560,7 @@ fn video_decodes_to_the_recorded_frames() {
         assert_eq!(pictures.len(), frames.len(), "{codec:?}");
         for (i, (picture, rgb)) in pictures.iter().zip(frames).enumerate() {
             assert_eq!((picture.width_px, picture.height_px), (224, 224));
-            let decoded = rgb_from_yuv420(picture);
+            let decoded = rgb_from_yuv420(picture).expect("planes");
             let mean = rgb
                 .iter()
                 .zip(&decoded)

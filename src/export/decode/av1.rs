@@ -19,6 +19,15 @@ use std::ptr::NonNull;
 
 /// dav1d's "try again" result: `-EAGAIN`.
 const AGAIN: i32 = -11;
+/// dav1d's "out of memory" result: `-ENOMEM`.
+const NO_MEMORY: i32 = -12;
+
+/// Why a stream did not decode: a dav1d error code, or a picture of another bit depth or
+/// chroma layout than 8-bit 4:2:0 (ours to refuse, not dav1d's).
+enum Failure {
+    Code(i32),
+    Layout,
+}
 
 /// An open decoder, closed on drop.
 struct Decoder(Option<Dav1dContext>);
@@ -63,14 +72,14 @@ impl Decoder {
     }
 
     /// Hands one temporal unit to the decoder, collecting every picture it gives meanwhile.
-    fn send(&mut self, bytes: &[u8], out: &mut Vec<YuvFrame>) -> Result<(), i32> {
+    fn send(&mut self, bytes: &[u8], out: &mut Vec<YuvFrame>) -> Result<(), Failure> {
         let mut data = Dav1dData::default();
         // SAFETY: dav1d_data_create allocates `bytes.len()` bytes owned by `data` and returns
         // them (null on failure); they are written in full before being sent.
         unsafe {
             let buffer = dav1d_data_create(Some(NonNull::from(&mut data)), bytes.len());
             if buffer.is_null() {
-                return Err(-12);
+                return Err(Failure::Code(NO_MEMORY));
             }
             std::ptr::copy_nonoverlapping(bytes.as_ptr(), buffer, bytes.len());
         }
@@ -78,7 +87,7 @@ impl Decoder {
             // SAFETY: the context is open; `data` is a live Dav1dData from dav1d_data_create.
             let sent = unsafe { dav1d_send_data(self.0, Some(NonNull::from(&mut data))) }.0;
             if sent != 0 && sent != AGAIN {
-                break Err(sent);
+                break Err(Failure::Code(sent));
             }
             if let Err(code) = self.drain(out) {
                 break Err(code);
@@ -95,7 +104,7 @@ impl Decoder {
     }
 
     /// Takes every picture the decoder has ready.
-    fn drain(&mut self, out: &mut Vec<YuvFrame>) -> Result<(), i32> {
+    fn drain(&mut self, out: &mut Vec<YuvFrame>) -> Result<(), Failure> {
         loop {
             let mut picture = Dav1dPicture::default();
             // SAFETY: the context is open; `picture` is a live local it writes to.
@@ -104,7 +113,7 @@ impl Decoder {
                 return Ok(());
             }
             if got != 0 {
-                return Err(got);
+                return Err(Failure::Code(got));
             }
             let frame = planes(&picture);
             // SAFETY: the picture came from dav1d_get_picture and is released once.
@@ -115,17 +124,16 @@ impl Decoder {
 }
 
 /// Copies an 8-bit 4:2:0 picture's planes (with their strides) into a [`YuvFrame`].
-fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, i32> {
+fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, Failure> {
     let parameters = &picture.p;
     if parameters.bpc != 8 || parameters.layout != DAV1D_PIXEL_LAYOUT_I420 {
-        return Err(-95);
+        return Err(Failure::Layout);
     }
     let (width, height) = (parameters.w.max(0) as usize, parameters.h.max(0) as usize);
     let (cw, ch) = (width.div_ceil(2), height.div_ceil(2));
-    let copy = |plane: usize, stride: isize, w: usize, h: usize| -> Vec<u8> {
-        let Some(base) = picture.data[plane] else {
-            return Vec::new();
-        };
+    let copy = |plane: usize, stride: isize, w: usize, h: usize| -> Result<Vec<u8>, Failure> {
+        // A 4:2:0 picture has all three planes.
+        let base = picture.data[plane].ok_or(Failure::Layout)?;
         let mut out = Vec::with_capacity(w * h);
         for row in 0..h {
             // SAFETY: dav1d's plane `plane` holds `h` rows of at least `w` bytes, `stride`
@@ -138,14 +146,14 @@ fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, i32> {
             };
             out.extend_from_slice(line);
         }
-        out
+        Ok(out)
     };
     Ok(YuvFrame {
         width_px: width as u32,
         height_px: height as u32,
-        y: copy(0, picture.stride[0], width, height),
-        u: copy(1, picture.stride[1], cw, ch),
-        v: copy(2, picture.stride[1], cw, ch),
+        y: copy(0, picture.stride[0], width, height)?,
+        u: copy(1, picture.stride[1], cw, ch)?,
+        v: copy(2, picture.stride[1], cw, ch)?,
     })
 }
 
@@ -158,22 +166,20 @@ pub fn decode_av1(
     what: &str,
     max_side: u32,
 ) -> Result<Vec<YuvFrame>, ExportError> {
-    let failed = |code: i32| ExportError::Decode {
-        what: what.to_string(),
-        source: format!("rav1d error {code}").into(),
+    let failed = |failure: Failure| match failure {
+        Failure::Code(code) => ExportError::Decode {
+            what: what.to_string(),
+            source: format!("rav1d error {code}").into(),
+        },
+        Failure::Layout => ExportError::InvalidOptions(format!(
+            "{what} is AV1 of another bit depth or chroma layout than 8-bit 4:2:0, which surgvla does not decode"
+        )),
     };
-    let mut decoder = Decoder::open(max_side.saturating_mul(max_side)).map_err(failed)?;
+    let mut decoder = Decoder::open(max_side.saturating_mul(max_side))
+        .map_err(|code| failed(Failure::Code(code)))?;
     let mut out = Vec::with_capacity(samples.len());
     for sample in samples {
-        match decoder.send(&sample.data, &mut out) {
-            Ok(()) => {}
-            Err(-95) => {
-                return Err(ExportError::InvalidOptions(format!(
-                    "{what} is AV1 of another bit depth or chroma layout than 8-bit 4:2:0, which surgvla does not decode"
-                )));
-            }
-            Err(code) => return Err(failed(code)),
-        }
+        decoder.send(&sample.data, &mut out).map_err(failed)?;
     }
     decoder.drain(&mut out).map_err(failed)?;
     if out.len() != samples.len() {
@@ -189,6 +195,7 @@ pub fn decode_av1(
 mod tests {
     use super::*;
     use crate::export::decode::rgb_from_yuv420;
+    use crate::export::decode::tests::mean_difference;
     use crate::export::video::encode_av1;
 
     #[test]
@@ -210,13 +217,8 @@ mod tests {
         assert_eq!(decoded.len(), frames.len());
         for (source, picture) in frames.iter().zip(&decoded) {
             assert_eq!((picture.width_px, picture.height_px), (64, 48));
-            let rgb = rgb_from_yuv420(picture);
-            let mean = source
-                .iter()
-                .zip(&rgb)
-                .map(|(a, b)| f64::from(a.abs_diff(*b)))
-                .sum::<f64>()
-                / rgb.len() as f64;
+            let rgb = rgb_from_yuv420(picture).expect("planes");
+            let mean = mean_difference(source, &rgb);
             assert!(mean < 4.0, "mean difference {mean}");
         }
         assert_eq!(

@@ -186,9 +186,13 @@ pub fn nearest_frames(
 /// BT.601 limited-range YUV 4:2:0 to RGB (3 bytes a pixel), each chroma sample covering its
 /// 2 x 2 block, in 8-bit fixed point (the inverse of [`crate::export::video::rgb_to_yuv420`]'s
 /// matrix): FFmpeg's assumption for a stream that does not tag its matrix and range.
-pub fn rgb_from_yuv420(frame: &YuvFrame) -> Vec<u8> {
+/// None when the planes' sizes disagree with the frame's dimensions.
+pub fn rgb_from_yuv420(frame: &YuvFrame) -> Option<Vec<u8>> {
     let (width, height) = (frame.width_px as usize, frame.height_px as usize);
-    let cw = width.div_ceil(2);
+    let (cw, ch) = (width.div_ceil(2), height.div_ceil(2));
+    if frame.y.len() != width * height || frame.u.len() != cw * ch || frame.v.len() != cw * ch {
+        return None;
+    }
     let mut rgb = Vec::with_capacity(width * height * 3);
     let clip = |value: i32| (value >> 8).clamp(0, 255) as u8;
     for row in 0..height {
@@ -204,13 +208,24 @@ pub fn rgb_from_yuv420(frame: &YuvFrame) -> Vec<u8> {
             ]);
         }
     }
-    rgb
+    Some(rgb)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::export::video::{encode_h264, rgb_to_yuv420};
+
+    /// The mean absolute difference of two images' bytes (what a lossy codec keeps close).
+    pub(super) fn mean_difference(source: &[u8], decoded: &[u8]) -> f64 {
+        assert_eq!(source.len(), decoded.len());
+        let sum: f64 = source
+            .iter()
+            .zip(decoded)
+            .map(|(a, b)| f64::from(a.abs_diff(*b)))
+            .sum();
+        sum / decoded.len() as f64
+    }
 
     /// A moving gradient, `frames` frames of `width` x `height` RGB.
     fn clip(frames: usize, width: usize, height: usize) -> Vec<Vec<u8>> {
@@ -235,9 +250,15 @@ mod tests {
             u: vec![128],
             v: vec![128],
         };
-        assert_eq!(rgb_from_yuv420(&frame(16)), vec![0; 12]);
-        assert_eq!(rgb_from_yuv420(&frame(235)), vec![255; 12]);
-        assert_eq!(rgb_from_yuv420(&frame(126)), vec![128; 12]);
+        assert_eq!(rgb_from_yuv420(&frame(16)), Some(vec![0; 12]));
+        assert_eq!(rgb_from_yuv420(&frame(235)), Some(vec![255; 12]));
+        assert_eq!(rgb_from_yuv420(&frame(126)), Some(vec![128; 12]));
+        // Planes that disagree with the dimensions are refused, never indexed past their end.
+        let short = YuvFrame {
+            u: Vec::new(),
+            ..frame(16)
+        };
+        assert_eq!(rgb_from_yuv420(&short), None);
         // The encoder's matrix and ours are inverses up to rounding.
         let rgb: Vec<u8> = (0..16).flat_map(|i| [i * 16, 200 - i * 8, 90]).collect();
         let (y, u, v) = rgb_to_yuv420(&rgb, 4, 4);
@@ -247,7 +268,8 @@ mod tests {
             y,
             u,
             v,
-        });
+        })
+        .expect("planes");
         let worst = rgb.iter().zip(&back).map(|(a, b)| a.abs_diff(*b)).max();
         assert!(worst <= Some(40), "{worst:?}");
     }
@@ -263,13 +285,8 @@ mod tests {
         assert_eq!(decoded.len(), frames.len());
         for (source, picture) in frames.iter().zip(&decoded) {
             assert_eq!((picture.width_px, picture.height_px), (64, 48));
-            let rgb = rgb_from_yuv420(picture);
-            let mean = source
-                .iter()
-                .zip(&rgb)
-                .map(|(a, b)| f64::from(a.abs_diff(*b)))
-                .sum::<f64>()
-                / rgb.len() as f64;
+            let rgb = rgb_from_yuv420(picture).expect("planes");
+            let mean = mean_difference(source, &rgb);
             assert!(mean < 4.0, "mean difference {mean}");
         }
         // Decoding is deterministic: the same planes twice.
