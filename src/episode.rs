@@ -148,10 +148,18 @@ pub struct EncodedFeature {
     /// The feature's key.
     pub feature: String,
     pub encoding: ImageEncoding,
-    /// One per step (video: in decode order, the first a keyframe).
+    /// One per step (video: in decode order, the first a keyframe), unless `shown` says
+    /// otherwise.
     pub frames: Vec<EncodedFrame>,
     /// The pixels' statistics, for video features.
     pub pixel_stats: Option<PixelStats>,
+    /// Video whose samples are not one per step in presentation order (B-frames, frames the
+    /// rows skip, a span reaching back to an earlier keyframe): each step's picture, as an
+    /// index into the pictures `frames` decode to, in presentation order. Such frames can be
+    /// decoded but not copied. None: frame i is step i's.
+    pub shown: Option<Vec<usize>>,
+    /// The file the frames were read from (for errors naming it), if any.
+    pub file: Option<std::path::PathBuf>,
 }
 
 fn names(items: &[&str]) -> Vec<String> {
@@ -474,6 +482,15 @@ impl Episode {
             .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
             .collect();
         for feature in features.iter().filter(|f| !f.in_steps()) {
+            if self
+                .encoded_video(&feature.name)
+                .is_some_and(|e| e.shown.is_some())
+            {
+                return Err(format!(
+                    "episode {}: {}'s video is not one frame per row in presentation order (B-frames, or frames the rows skip), so it cannot be copied: decode it (convert --decode, or --video to re-encode)",
+                    self.meta.index, feature.name
+                ));
+            }
             let frames = self
                 .encoded_video(&feature.name)
                 .map_or(0, |e| e.frames.len());

@@ -313,6 +313,11 @@ pub struct ConvertArgs {
     /// Leave optional features out, comma-separated: depth, mask, environment_state.
     #[arg(long, value_enum, value_delimiter = ',')]
     without: Vec<ConvertOmit>,
+    /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of
+    /// copying the video as it is. Implied for every other target, and for --video with
+    /// another codec than the input's (re-encoding).
+    #[arg(long)]
+    decode: bool,
     /// Afterwards read both sides and compare every frame (LeRobot and RLDS targets; for zarr
     /// and MCAP the output is validated and its episodes and frames counted, for PLY/PCD its
     /// files counted); a difference exits 1.
@@ -348,29 +353,38 @@ fn omitted(without: &[ConvertOmit]) -> Vec<FeatureKind> {
     without.iter().map(|w| w.kind()).collect()
 }
 
-/// The input as `convert` reads it: `--without` applied.
+/// The input as `convert` reads it into `options`: `--without` applied, video decoded when
+/// asked (`--decode`) or the target needs pixels.
 fn converted_source(
     args: &ConvertArgs,
+    options: &SinkOptions,
 ) -> Result<Box<dyn surgvla::export::EpisodeSource + Send>, CliError> {
-    let options = surgvla::export::SourceOptions {
+    let source_options = surgvla::export::SourceOptions {
         fps: args.fps,
         robot_type: args.robot_type.clone(),
     };
-    let source =
-        surgvla::export::open_source_with(&args.input, &options).map_err(ConvertError::Read)?;
-    Ok(if args.without.is_empty() {
-        source
-    } else {
-        Box::new(surgvla::export::convert::Without::new(
+    let mut source = surgvla::export::open_source_with(&args.input, &source_options)
+        .map_err(ConvertError::Read)?;
+    if !args.without.is_empty() {
+        source = Box::new(surgvla::export::convert::Without::new(
             source,
             &omitted(&args.without),
-        ))
-    })
+        ));
+    }
+    let needed = surgvla::export::decoding_needed(source.info(), options)?;
+    if needed || (args.decode && surgvla::export::decode::Decoded::needed(source.info())) {
+        source = Box::new(surgvla::export::decode::Decoded::new(source)?);
+    }
+    Ok(source)
 }
 
 /// `--verify`: what the output holds against the input.
-fn verify(args: &ConvertArgs, summary: &surgvla::export::Summary) -> Result<(), CliError> {
-    let mut source = converted_source(args)?;
+fn verify(
+    args: &ConvertArgs,
+    options: &SinkOptions,
+    summary: &surgvla::export::Summary,
+) -> Result<(), CliError> {
+    let mut source = converted_source(args, options)?;
     let differences = surgvla::export::verify::verify_output(source.as_mut(), &args.out, summary)?;
     if differences.is_empty() {
         say!("verified: the output holds what was read");
@@ -390,7 +404,7 @@ fn verify(args: &ConvertArgs, summary: &surgvla::export::Summary) -> Result<(), 
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
 pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
-    let mut source = converted_source(args)?;
+    let mut source = converted_source(args, &options)?;
     let info = source.info().clone();
     let resuming = resumes(&args.out, args.resume);
     let created = !args.out.exists();
@@ -431,7 +445,7 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         summary.bytes as f64 / 1e6
     );
     if args.verify {
-        verify(args, &summary)?;
+        verify(args, &options, &summary)?;
     }
     Ok(())
 }

@@ -157,6 +157,30 @@ fn video_differs(a: &Episode, b: &Episode) -> bool {
         })
 }
 
+/// Whether two steps' other features (by name) differ: images within `tolerance` (their
+/// decoded pixels' [`mean_abs_difference`]) when given, everything else exactly.
+fn others_differ(
+    a: &std::collections::BTreeMap<String, crate::episode::FeatureValue>,
+    b: &std::collections::BTreeMap<String, crate::episode::FeatureValue>,
+    tolerance: Option<f64>,
+) -> bool {
+    use crate::episode::FeatureValue;
+    let Some(tolerance) = tolerance else {
+        return a != b;
+    };
+    let pixels = |bytes: &[u8]| crate::export::image::decode_png(bytes).ok().map(|p| p.3);
+    a.len() != b.len()
+        || a.iter().any(|(name, x)| match (x, b.get(name)) {
+            (FeatureValue::Image(x), Some(FeatureValue::Image(y))) => {
+                match (pixels(x), pixels(y)) {
+                    (Some(p), Some(q)) => mean_abs_difference(&p, &q) > tolerance,
+                    _ => true,
+                }
+            }
+            (x, y) => Some(x) != y,
+        })
+}
+
 /// What `convert --verify` found: episodes and frames compared, and the first differences.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Verification {
@@ -175,6 +199,39 @@ pub fn verify(
     source: &mut dyn EpisodeSource,
     target: &mut dyn EpisodeSource,
 ) -> Result<Verification, ConvertError> {
+    verify_within(source, target, None)
+}
+
+/// The largest mean absolute difference, in 8-bit levels over a frame's bytes, between an RGB
+/// frame and its lossy re-encoding that `--verify` accepts (AV1 and H.264 at surgvla's
+/// settings stay near 1-2 levels on the benchmark's frames; a wrong or shifted frame is tens).
+pub const LOSSY_RGB_MEAN_TOLERANCE: f64 = 6.0;
+
+/// The mean absolute difference of two equally long byte images (infinite when their
+/// lengths differ).
+pub fn mean_abs_difference(a: &[u8], b: &[u8]) -> f64 {
+    if a.len() != b.len() {
+        return f64::INFINITY;
+    }
+    let sum: u64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| u64::from(x.abs_diff(*y)))
+        .sum();
+    sum as f64 / a.len().max(1) as f64
+}
+
+/// [`verify`], RGB compared within `rgb_mean_tolerance` ([`mean_abs_difference`] per frame)
+/// when the target stores it lossily, exactly when None.
+pub fn verify_within(
+    source: &mut dyn EpisodeSource,
+    target: &mut dyn EpisodeSource,
+    rgb_mean_tolerance: Option<f64>,
+) -> Result<Verification, ConvertError> {
+    let rgb_differs = |x: &[u8], y: &[u8]| match rgb_mean_tolerance {
+        None => x != y,
+        Some(tolerance) => mean_abs_difference(x, y) > tolerance,
+    };
     let mut result = Verification::default();
     let has = |info: &crate::export::DatasetInfo, kind| info.has(kind);
     let (a_info, b_info) = (source.info().clone(), target.info().clone());
@@ -258,7 +315,7 @@ pub fn verify(
             note(&mut result, format!("episode {index}: video differs"));
         }
         for (frame, (x, y)) in a.steps.iter().zip(&b.steps).enumerate() {
-            let what = if both(FeatureKind::Rgb) && x.rgb != y.rgb {
+            let what = if both(FeatureKind::Rgb) && rgb_differs(&x.rgb, &y.rgb) {
                 Some("RGB")
             } else if both(FeatureKind::Mask) && x.mask != y.mask {
                 Some("mask")
@@ -278,7 +335,11 @@ pub fn verify(
                 && x.environment_state.map(f32::to_bits) != y.environment_state.map(f32::to_bits)
             {
                 Some("object poses")
-            } else if named(&a_others, &x.other) != named(&b_others, &y.other) {
+            } else if others_differ(
+                &named(&a_others, &x.other),
+                &named(&b_others, &y.other),
+                rgb_mean_tolerance,
+            ) {
                 Some("another feature")
             } else {
                 None

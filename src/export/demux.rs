@@ -5,8 +5,9 @@
 //! A span must start on a keyframe (every episode does: LeRobot and surgvla encode episodes
 //! separately); a keyframe that leaves its parameters to the file's sample description (the
 //! AV1 sequence header, H.264's SPS and PPS) gets them in-band, so the span stands alone in a
-//! new file. Streams that reorder frames (B-frames) are refused: their samples cannot be
-//! appended by presentation time.
+//! new file. Streams that reorder frames (B-frames) cannot be copied (their samples cannot be
+//! appended by presentation time), only decoded: [`VideoReader::decodable`] gives a span's
+//! samples in decode order from the keyframe before it, with their presentation times.
 
 use crate::episode::{EncodedFrame, VideoCodec};
 use crate::export::ExportError;
@@ -22,6 +23,8 @@ const TIME_TOLERANCE_SECS: f64 = 1e-4;
 /// A sample's place in the file and its presentation time.
 #[derive(Clone, Copy, Debug)]
 struct SampleRef {
+    /// The sample's number in the file, in decode order.
+    index: usize,
     offset: u64,
     size: u64,
     time_secs: f64,
@@ -41,6 +44,16 @@ pub struct VideoReader {
     parameters: Vec<u8>,
     /// H.264: bytes of each NAL unit's length prefix.
     length_size: usize,
+    /// Whether presentation order differs from decode order (B-frames).
+    pub reorders: bool,
+}
+
+/// A span's samples as a decoder needs them: in decode order, from a keyframe, with the
+/// presentation times of the pictures they give, in presentation order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodableSpan {
+    pub samples: Vec<EncodedFrame>,
+    pub picture_secs: Vec<f64>,
 }
 
 fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
@@ -103,32 +116,27 @@ impl VideoReader {
                 )
             }
             other => {
-                return Err(invalid(
-                    path,
-                    format!(
-                        "holds {} video; surgvla copies AV1 and H.264",
-                        other.codec_string().unwrap_or_else(|| "unknown".into())
-                    ),
-                ));
+                // Not a defect of the file: a codec this build has no decoder for (exit 2).
+                return Err(ExportError::InvalidOptions(format!(
+                    "{} holds {} video; surgvla reads AV1 and H.264 (no HEVC or VP9 decoder is built in)",
+                    path.display(),
+                    other.codec_string().unwrap_or_else(|| "unknown".into())
+                )));
             }
         };
         if track.timescale == 0 {
             return Err(invalid(path, "has a video track with time scale 0"));
         }
-        if track
+        let reorders = track
             .samples
             .iter()
-            .any(|s| s.composition_timestamp != s.decode_timestamp)
-        {
-            return Err(invalid(
-                path,
-                "reorders frames (B-frames), which surgvla cannot copy between files",
-            ));
-        }
+            .any(|s| s.composition_timestamp != s.decode_timestamp);
         let samples = track
             .samples
             .iter()
-            .map(|s| SampleRef {
+            .enumerate()
+            .map(|(index, s)| SampleRef {
+                index,
                 offset: s.offset,
                 size: s.size,
                 time_secs: s.composition_timestamp as f64 / track.timescale as f64,
@@ -156,6 +164,7 @@ impl VideoReader {
             samples,
             parameters,
             length_size,
+            reorders,
         })
     }
 
@@ -188,6 +197,12 @@ impl VideoReader {
     /// The frames presented in `[from_secs, to_secs)`, ready to append to another file; the
     /// first must be a keyframe.
     pub fn span(&mut self, from_secs: f64, to_secs: f64) -> Result<Vec<EncodedFrame>, ExportError> {
+        if self.reorders {
+            return Err(invalid(
+                &self.path,
+                "reorders frames (B-frames), which surgvla cannot copy between files: decode them (convert --decode, or --video to re-encode)",
+            ));
+        }
         let wanted: Vec<SampleRef> = self.in_span(from_secs, to_secs).copied().collect();
         if wanted.first().is_some_and(|s| !s.keyframe) {
             return Err(invalid(
@@ -205,6 +220,47 @@ impl VideoReader {
         self.in_span(from_secs, to_secs)
             .map(|s| s.time_secs)
             .collect()
+    }
+
+    /// The samples a decoder needs for the pictures presented in `[from_secs, to_secs)`: in
+    /// decode order, from the keyframe at or before the first of them to the last of them, and
+    /// the presentation times of every picture they give (sorted). Empty when the span holds
+    /// no picture.
+    pub fn decodable(
+        &mut self,
+        from_secs: f64,
+        to_secs: f64,
+    ) -> Result<DecodableSpan, ExportError> {
+        let inside = |s: &SampleRef| {
+            s.time_secs >= from_secs - TIME_TOLERANCE_SECS
+                && s.time_secs < to_secs - TIME_TOLERANCE_SECS
+        };
+        let Some(first) = self.samples.iter().position(inside) else {
+            return Ok(DecodableSpan::default());
+        };
+        let last = self.samples.iter().rposition(inside).unwrap_or(first);
+        let Some(start) = self.samples[..=first].iter().rposition(|s| s.keyframe) else {
+            return Err(invalid(
+                &self.path,
+                format!("no keyframe precedes the span {from_secs:.4}..{to_secs:.4} s"),
+            ));
+        };
+        let wanted: Vec<SampleRef> = self.samples[start..=last].to_vec();
+        let mut picture_secs: Vec<f64> = wanted.iter().map(|s| s.time_secs).collect();
+        picture_secs.sort_by(f64::total_cmp);
+        let samples = wanted
+            .iter()
+            .map(|s| self.frame(s))
+            .collect::<Result<_, _>>()?;
+        Ok(DecodableSpan {
+            samples,
+            picture_secs,
+        })
+    }
+
+    /// The file's path.
+    pub fn path(&self) -> &Path {
+        &self.path
     }
 
     /// Every frame of the file.
@@ -232,8 +288,8 @@ impl VideoReader {
                     invalid(
                         &self.path,
                         format!(
-                            "the sample at byte {} is not length-prefixed H.264",
-                            sample.offset
+                            "sample {} (at byte {}) is not length-prefixed H.264: a NAL unit runs past its end",
+                            sample.index, sample.offset
                         ),
                     )
                 })?;

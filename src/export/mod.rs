@@ -396,6 +396,26 @@ impl SinkOptions {
     }
 }
 
+/// Whether a conversion of a dataset of `info` into `options` must decode its video (through
+/// [`decode::Decoded`]): the format does not store video, or LeRobot is asked for another
+/// codec than a video feature's.
+pub fn decoding_needed(info: &DatasetInfo, options: &SinkOptions) -> Result<bool, ExportError> {
+    if !decode::Decoded::needed(info) {
+        return Ok(false);
+    }
+    if !registry::writer_of(options)?.holds().video {
+        return Ok(true);
+    }
+    Ok(match options {
+        SinkOptions::LeRobot(lerobot) => lerobot.video.is_some_and(|video| {
+            info.features
+                .iter()
+                .any(|f| f.video.is_some_and(|codec| codec != video.codec))
+        }),
+        _ => false,
+    })
+}
+
 /// Whether [`open_sink`] with `resume` continues the dataset in `root` (it holds an interrupted
 /// one) rather than starting a new one.
 pub fn resumes(root: &Path, resume: bool) -> bool {
@@ -420,7 +440,7 @@ pub fn open_sink(
         .collect();
     if !videos.is_empty() && !holds.video {
         return Err(ExportError::InvalidOptions(format!(
-            "the input stores {} as video, and surgvla copies video without decoding it: it can write them to LeRobot (either layout) but not to a format that needs their pixels",
+            "the input stores {} as video, which this format needs decoded (read the input through decode::Decoded)",
             videos.join(", ")
         )));
     }

@@ -1,8 +1,10 @@
 //! `convert --verify`: what a conversion's output holds against its input. A format surgvla
 //! reads back is compared frame by frame ([`crate::export::convert::verify`]); any other is
-//! validated and its episodes and frames counted against what was converted.
+//! validated and its episodes and frames counted against what was converted. Video the
+//! conversion encoded (from pixels) is decoded and compared within a lossy tolerance.
 
-use crate::export::convert::{ConvertError, verify};
+use crate::export::convert::{ConvertError, verify, verify_within};
+use crate::export::decode::Decoded;
 use crate::export::validate::{ValidateOptions, validate};
 use crate::export::{EpisodeSource, SourceOptions, Summary, registry};
 use std::path::Path;
@@ -23,6 +25,18 @@ pub fn verify_output(
     };
     if let Some(target) = format.open_source(&found, &options) {
         let mut target = target.map_err(ConvertError::Write)?;
+        // Video the conversion encoded (the input held pixels): decoded, and compared within
+        // the lossy tolerance.
+        let encoded_here = Decoded::needed(target.info()) && !Decoded::needed(source.info());
+        if encoded_here {
+            let mut decoded = Decoded::new(target).map_err(ConvertError::Write)?;
+            return Ok(verify_within(
+                source,
+                &mut decoded,
+                Some(crate::export::convert::LOSSY_RGB_MEAN_TOLERANCE),
+            )?
+            .differences);
+        }
         return Ok(verify(source, target.as_mut())?.differences);
     }
     let report = validate(out, &ValidateOptions::default()).map_err(ConvertError::Write)?;

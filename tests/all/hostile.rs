@@ -648,7 +648,10 @@ fn video_mode_without_a_camera_is_the_users_mistake() {
     use surgvla::export::lerobot::{LeRobotOptions, VideoOptions};
     use surgvla::export::{SinkOptions, open_sink};
     let parent = temp_root("hostile-video");
-    let (info, _) = crate::util::foreign_dataset();
+    let (mut info, _) = crate::util::foreign_dataset();
+    // Without its 3-channel camera (which video mode would encode), nothing can be video.
+    info.features
+        .retain(|f| f.dtype != surgvla::episode::Dtype::Image);
     let options = SinkOptions::LeRobot(LeRobotOptions {
         video: Some(VideoOptions::default()),
         ..LeRobotOptions::default()

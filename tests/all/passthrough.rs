@@ -127,47 +127,63 @@ fn video_converts_between_layouts_and_merges_byte_for_byte() {
 }
 
 #[test]
-fn video_is_refused_where_pixels_are_needed_and_a_damaged_mp4_is_named() {
+fn video_is_decoded_where_pixels_are_needed_and_a_damaged_mp4_is_named() {
     let single = temp_root("pass-refuse");
     collect(&single, &[]);
+    // Every format that needs pixels gets them decoded; the frames read back are the ones
+    // decoded from the video (--verify compares every frame).
     for to in ["rlds", "zarr", "mcap", "ply"] {
-        let out = temp_root("pass-refused");
-        let (code, _, err) = surgvla(&["convert", path(&single), "--to", to, "--out", path(&out)]);
-        assert_eq!(code, 2, "{to}: {err}");
-        assert!(
-            err.contains("observation.images.endoscope (h264)"),
-            "{to}: {err}"
-        );
+        let out = temp_root("pass-decoded");
+        let (code, _, err) = surgvla(&[
+            "convert",
+            path(&single),
+            "--to",
+            to,
+            "--out",
+            path(&out),
+            "--verify",
+        ]);
+        assert_eq!(code, 0, "{to}: {err}");
     }
-    // Another codec than the video's: no re-encoding.
-    let out = temp_root("pass-codec");
-    let (code, _, err) = surgvla(&[
-        "convert",
-        path(&single),
-        "--to",
-        "lerobot",
-        "--video",
-        "av1",
-        "--out",
-        path(&out),
-    ]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("another codec"), "{err}");
+    // Another codec than the video's: decoded and encoded again, verified within the lossy
+    // tolerance; image mode on request.
+    for (args, codec) in [
+        (&["--video", "av1"][..], Some("av1")),
+        (&["--decode"][..], None),
+    ] {
+        let out = temp_root("pass-codec");
+        let mut command = vec![
+            "convert",
+            path(&single),
+            "--to",
+            "lerobot",
+            "--out",
+            path(&out),
+        ];
+        command.extend(args);
+        command.push("--verify");
+        let (code, _, err) = surgvla(&command);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        let info: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("meta/info.json")).expect("info"),
+        )
+        .expect("json");
+        let camera = &info["features"]["observation.images.endoscope"];
+        match codec {
+            Some(codec) => assert_eq!(camera["info"]["video.codec"], codec),
+            None => assert_eq!(camera["dtype"], "image"),
+        }
+    }
     // A truncated MP4: exit 1 naming it.
     let mp4 = single.join("videos/observation.images.endoscope/chunk-000/file-000.mp4");
     let bytes = std::fs::read(&mp4).expect("mp4");
     std::fs::write(&mp4, &bytes[..bytes.len() / 2]).expect("truncate");
-    let out = temp_root("pass-damaged");
-    let (code, _, err) = surgvla(&[
-        "convert",
-        path(&single),
-        "--to",
-        "lerobot",
-        "--out",
-        path(&out),
-    ]);
-    assert_eq!(code, 1, "{err}");
-    assert!(err.contains("file-000.mp4"), "{err}");
+    for to in ["lerobot", "rlds"] {
+        let out = temp_root("pass-damaged");
+        let (code, _, err) = surgvla(&["convert", path(&single), "--to", to, "--out", path(&out)]);
+        assert_eq!(code, 1, "{err}");
+        assert!(err.contains("file-000.mp4"), "{err}");
+    }
 }
 
 #[test]
@@ -207,6 +223,8 @@ fn stored_png_bytes_are_copied_not_encoded_again() {
             })
             .collect(),
         pixel_stats: None,
+        shown: None,
+        file: None,
     }];
     let root = temp_root("pass-png");
     let mut writer =

@@ -257,14 +257,14 @@ fn good_datasets_of_every_format_are_valid_and_described() {
         assert_eq!(quick.episodes, episodes, "{format} quick");
         assert_eq!(quick.frames, report.frames, "{format} quick");
     }
-    // A video-mode dataset is valid, with a warning that its pixels were not decoded.
+    // A video-mode dataset is valid, every frame decoded, without warnings.
     let video = temp_root("validate-video");
     let (code, _, err) = surgvla(&[
         "collect",
         "--tasks",
         "T1-1",
         "--episodes-per-task",
-        "1",
+        "2",
         "--video",
         "h264",
         "--out",
@@ -273,26 +273,10 @@ fn good_datasets_of_every_format_are_valid_and_described() {
     assert_eq!(code, 0, "{err}");
     let report = check(&video);
     assert!(report.valid, "{:#?}", report.errors);
-    assert_eq!(report.warnings.len(), 1, "{:#?}", report.warnings);
-    let warning = &report.warnings[0];
-    assert_eq!(warning.check, "video-decode");
-    assert!(
-        warning
-            .message
-            .contains("observation.images.endoscope are not decoded"),
-        "{}",
-        warning.message
-    );
+    assert!(report.warnings.is_empty(), "{:#?}", report.warnings);
     let (code, stdout, _) = surgvla(&["validate", path(&video), "--json"]);
     let json: serde_json::Value = serde_json::from_str(&stdout).expect("json");
-    assert_eq!(
-        (
-            code,
-            json["valid"].as_bool(),
-            json["warnings"][0]["check"].as_str()
-        ),
-        (0, Some(true), Some("video-decode"))
-    );
+    assert_eq!((code, json["valid"].as_bool()), (0, Some(true)));
     // Video defects, found through the MP4 sample tables: a span one frame short, another
     // codec declared than the file holds, a truncated file.
     const MP4: &str = "videos/observation.images.endoscope/chunk-000/file-000.mp4";
@@ -325,6 +309,44 @@ fn good_datasets_of_every_format_are_valid_and_described() {
         std::fs::write(root.join(MP4), &bytes[..bytes.len() * 2 / 3]).expect("write");
     });
     assert_found(&report, "video", MP4, "a truncated MP4");
+    // Damaged samples inside an intact sample table: only decoding finds them, with the
+    // episode and frame; converting the dataset fails naming the file (exit 1).
+    let (copy, report) = broken(&video, |root| {
+        let mut bytes = std::fs::read(root.join(MP4)).expect("mp4");
+        let mdat = bytes.windows(4).position(|w| w == b"mdat").expect("mdat");
+        let middle = mdat + (bytes.len() - mdat) * 3 / 4;
+        bytes[middle..middle + 64].fill(0xff);
+        std::fs::write(root.join(MP4), &bytes).expect("write");
+    });
+    assert_found(&report, "video-decode", MP4, "a damaged sample");
+    let damaged = report
+        .errors
+        .iter()
+        .find(|e| e.check == "video-decode")
+        .expect("finding");
+    assert_eq!(damaged.episode, Some(1), "{damaged:?}");
+    assert!(damaged.frame.is_some(), "{damaged:?}");
+    let out = temp_root("validate-video-convert");
+    let (code, _, err) = surgvla(&["convert", path(&copy), "--to", "rlds", "--out", path(&out)]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("file-000.mp4"), "{err}");
+    // A declared frame size the video does not have: the sample entry and the decoded frames
+    // disagree with it.
+    let (_copy, report) = broken(&video, |root| {
+        let info = root.join("meta/info.json");
+        let text = std::fs::read_to_string(&info).expect("info");
+        std::fs::write(
+            &info,
+            text.replace("224,\n        224,", "224,\n        112,"),
+        )
+        .expect("write");
+    });
+    assert_found(
+        &report,
+        "video-decode",
+        MP4,
+        "a declared size the frames lack",
+    );
     // A byte-for-byte copy and a byte-differently rewritten copy (no manifest) are valid.
     let (_copy, report) = broken(&c.lerobot, |_| {});
     assert!(report.valid, "{:#?}", report.errors);

@@ -158,14 +158,17 @@ fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, Failure> {
 }
 
 /// Decodes an AV1 span (temporal units starting on a keyframe, as
-/// [`crate::export::demux::VideoReader::span`] returns them) into one picture per sample.
-/// `what` names the stream in errors. Frames over `max_side` x `max_side` are refused by the
-/// decoder before it allocates them; other than 8-bit 4:2:0 is refused as a usage error.
-pub fn decode_av1(
+/// [`crate::export::demux::VideoReader::decodable`] returns them), handing each picture to
+/// `on_picture` as it comes out (so a long span never holds more than a few); returns how many
+/// there were. `what` names the stream in errors. Frames over `max_side` x `max_side` are
+/// refused by the decoder before it allocates them; other than 8-bit 4:2:0 is refused as a
+/// usage error.
+pub fn decode_av1_each(
     samples: &[EncodedFrame],
     what: &str,
     max_side: u32,
-) -> Result<Vec<YuvFrame>, ExportError> {
+    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), ExportError>,
+) -> Result<usize, ExportError> {
     let failed = |failure: Failure| match failure {
         Failure::Code(code) => ExportError::Decode {
             what: what.to_string(),
@@ -177,18 +180,42 @@ pub fn decode_av1(
     };
     let mut decoder = Decoder::open(max_side.saturating_mul(max_side))
         .map_err(|code| failed(Failure::Code(code)))?;
-    let mut out = Vec::with_capacity(samples.len());
+    let mut out = Vec::new();
+    let mut count = 0;
+    let mut hand_over = |out: &mut Vec<YuvFrame>| -> Result<(), ExportError> {
+        for picture in out.drain(..) {
+            count += 1;
+            on_picture(picture)?;
+        }
+        Ok(())
+    };
     for sample in samples {
         decoder.send(&sample.data, &mut out).map_err(failed)?;
+        hand_over(&mut out)?;
     }
     decoder.drain(&mut out).map_err(failed)?;
-    if out.len() != samples.len() {
+    hand_over(&mut out)?;
+    if count != samples.len() {
         return Err(ExportError::Decode {
             what: what.to_string(),
-            source: format!("{} samples gave {} pictures", samples.len(), out.len()).into(),
+            source: format!("{} samples gave {count} pictures", samples.len()).into(),
         });
     }
-    Ok(out)
+    Ok(count)
+}
+
+/// [`decode_av1_each`], the pictures collected.
+pub fn decode_av1(
+    samples: &[EncodedFrame],
+    what: &str,
+    max_side: u32,
+) -> Result<Vec<YuvFrame>, ExportError> {
+    let mut pictures = Vec::with_capacity(samples.len());
+    decode_av1_each(samples, what, max_side, &mut |p| {
+        pictures.push(p);
+        Ok(())
+    })?;
+    Ok(pictures)
 }
 
 #[cfg(test)]

@@ -10,13 +10,16 @@
 //! frames. The wiring into `convert` and `validate` comes next.
 
 mod av1;
+pub mod check;
+mod source;
 
-pub use av1::decode_av1;
+pub use av1::{decode_av1, decode_av1_each};
+pub use source::{Decoded, MAX_DECODED_SIDE_PX};
 
-use crate::episode::EncodedFrame;
+use crate::episode::{EncodedFrame, VideoCodec};
 use crate::export::ExportError;
 use openh264::OpenH264API;
-use openh264::decoder::{DecodedYUV, Decoder, DecoderConfig};
+use openh264::decoder::{DecodedYUV, Decoder, DecoderConfig, Flush};
 use openh264::formats::YUVSource;
 
 /// One decoded picture: 8-bit planar YUV 4:2:0, planes without padding.
@@ -97,11 +100,16 @@ fn planes(picture: &DecodedYUV<'_>) -> YuvFrame {
     }
 }
 
-/// Decodes an H.264 span (Annex B samples starting on a keyframe, in decode order, no
-/// reordering: what [`crate::export::demux::VideoReader::span`] returns) into one picture per
-/// sample. `what` names the stream in errors (file and feature). A profile the decoder is not
+/// Decodes an H.264 span (Annex B samples in decode order starting on a keyframe, as
+/// [`crate::export::demux::VideoReader::decodable`] returns them), handing each picture to
+/// `on_picture` in presentation order (OpenH264 reorders B-frames); returns how many there
+/// were. `what` names the stream in errors (file and feature). A profile the decoder is not
 /// used for is refused as a usage error naming it.
-pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>, ExportError> {
+pub fn decode_h264_each(
+    samples: &[EncodedFrame],
+    what: &str,
+    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), ExportError>,
+) -> Result<usize, ExportError> {
     if let Some(profile) = samples.first().and_then(|s| h264_profile(&s.data))
         && !DECODED_PROFILES.iter().any(|(idc, _)| *idc == profile)
     {
@@ -112,24 +120,83 @@ pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>
         )));
     }
     let error = decode_error(what);
-    let mut decoder = Decoder::with_api_config(OpenH264API::from_source(), DecoderConfig::new())
-        .map_err(&error)?;
-    let mut out = Vec::with_capacity(samples.len());
+    // Flushing after every sample (the crate's default) would hand out pictures before the
+    // B-frames that precede them in presentation order are decoded.
+    let config = DecoderConfig::new().flush_after_decode(Flush::NoFlush);
+    let mut decoder =
+        Decoder::with_api_config(OpenH264API::from_source(), config).map_err(&error)?;
+    let mut count = 0;
     for sample in samples {
         if let Some(picture) = decoder.decode(&sample.data).map_err(&error)? {
-            out.push(planes(&picture));
+            count += 1;
+            on_picture(planes(&picture))?;
         }
     }
     for picture in decoder.flush_remaining().map_err(&error)? {
-        out.push(planes(&picture));
+        count += 1;
+        on_picture(planes(&picture))?;
     }
-    if out.len() != samples.len() {
+    if count != samples.len() {
         return Err(ExportError::Decode {
             what: what.to_string(),
-            source: format!("{} samples gave {} pictures", samples.len(), out.len()).into(),
+            source: format!("{} samples gave {count} pictures", samples.len()).into(),
         });
     }
-    Ok(out)
+    Ok(count)
+}
+
+/// [`decode_h264_each`], the pictures collected.
+pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>, ExportError> {
+    let mut pictures = Vec::with_capacity(samples.len());
+    decode_h264_each(samples, what, &mut |p| {
+        pictures.push(p);
+        Ok(())
+    })?;
+    Ok(pictures)
+}
+
+/// Decodes a span of `codec` samples (decode order, from a keyframe), handing each picture to
+/// `on_picture` in presentation order; `what` names the stream in errors, frames beyond
+/// `max_side` on a side are refused. Returns the number of pictures.
+pub fn decode_span_each(
+    codec: VideoCodec,
+    samples: &[EncodedFrame],
+    what: &str,
+    max_side: u32,
+    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), ExportError>,
+) -> Result<usize, ExportError> {
+    let mut checked = |picture: YuvFrame| {
+        if picture.width_px > max_side || picture.height_px > max_side {
+            return Err(ExportError::Decode {
+                what: what.to_string(),
+                source: format!(
+                    "a {}x{} picture, larger than {max_side} a side",
+                    picture.width_px, picture.height_px
+                )
+                .into(),
+            });
+        }
+        on_picture(picture)
+    };
+    match codec {
+        VideoCodec::Av1 => decode_av1_each(samples, what, max_side, &mut checked),
+        VideoCodec::H264 => decode_h264_each(samples, what, &mut checked),
+    }
+}
+
+/// [`decode_span_each`], the pictures collected.
+pub fn decode_span(
+    codec: VideoCodec,
+    samples: &[EncodedFrame],
+    what: &str,
+    max_side: u32,
+) -> Result<Vec<YuvFrame>, ExportError> {
+    let mut pictures = Vec::with_capacity(samples.len());
+    decode_span_each(codec, samples, what, max_side, &mut |p| {
+        pictures.push(p);
+        Ok(())
+    })?;
+    Ok(pictures)
 }
 
 /// lerobot's tolerance between a row's timestamp and the frame it gets, seconds
@@ -313,6 +380,68 @@ mod tests {
         assert!(nearest_frames(&times, &[f64::NAN], 1.0).is_err());
         let none = nearest_frames(&[], &[0.0], 1.0).expect_err("no frames");
         assert_eq!(none.distance_secs, f64::INFINITY);
+    }
+
+    /// A fixture file's pictures as PyAV 15.1 decoded them: presentation time and the CRC-32C
+    /// of the Y, U and V planes (tight, in that order), from `<name>.planes`.
+    fn pyav_planes(name: &str) -> Vec<(f64, u32)> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/video")
+            .join(format!("{name}.planes"));
+        std::fs::read_to_string(path)
+            .expect("fixture")
+            .lines()
+            .map(|line| {
+                let (secs, crc) = line.split_once(' ').expect("two fields");
+                (
+                    secs.parse().expect("secs"),
+                    u32::from_str_radix(crc, 16).expect("crc"),
+                )
+            })
+            .collect()
+    }
+
+    /// Demuxes and decodes a fixture file written by PyAV 15.1 (its own FFmpeg encoders) and
+    /// compares every picture with PyAV's decoding of it, bit for bit, with its time.
+    fn decodes_like_pyav(name: &str, codec: VideoCodec, reorders: bool) {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/video")
+            .join(format!("{name}.mp4"));
+        let mut reader = crate::export::demux::VideoReader::open(&path).expect("open");
+        assert_eq!((reader.codec, reader.reorders), (codec, reorders));
+        let span = reader
+            .decodable(f64::NEG_INFINITY, f64::INFINITY)
+            .expect("span");
+        let pictures = decode_span(codec, &span.samples, name, 4096).expect("decode");
+        let ours: Vec<(f64, u32)> = span
+            .picture_secs
+            .iter()
+            .zip(&pictures)
+            .map(|(secs, p)| (*secs, crc32c::crc32c(&[&p.y[..], &p.u, &p.v].concat())))
+            .collect();
+        let theirs = pyav_planes(name);
+        assert_eq!(ours.len(), theirs.len());
+        for ((ours_secs, ours_crc), (their_secs, their_crc)) in ours.iter().zip(&theirs) {
+            assert!(
+                (ours_secs - their_secs).abs() < 1e-6,
+                "{ours_secs} {their_secs}"
+            );
+            assert_eq!(ours_crc, their_crc, "at {their_secs} s");
+        }
+        if reorders {
+            // Copying a stream that reorders frames is refused; decoding it is not.
+            assert!(reader.span(f64::NEG_INFINITY, f64::INFINITY).is_err());
+        }
+    }
+
+    #[test]
+    fn libx264_high_profile_with_b_frames_decodes_to_pyavs_planes() {
+        decodes_like_pyav("x264_high_bframes", VideoCodec::H264, true);
+    }
+
+    #[test]
+    fn libsvtav1_decodes_to_pyavs_planes() {
+        decodes_like_pyav("svtav1_g2", VideoCodec::Av1, false);
     }
 
     #[test]

@@ -252,11 +252,28 @@ impl FormatWriter for LeRobotFiles {
     }
 }
 
+/// Whether video mode stores `feature` as video: the RGB camera, and another dataset's
+/// 3-channel cameras (channels last, as LeRobot states them).
+pub(crate) fn encodes_as_video(feature: &FeatureSpec) -> bool {
+    match feature.kind {
+        FeatureKind::Rgb => true,
+        FeatureKind::Other => {
+            feature.dtype == crate::episode::Dtype::Image
+                && feature.shape.len() == 3
+                && feature.shape[2] == 3
+        }
+        _ => false,
+    }
+}
+
 impl LeRobotFiles {
     /// Refuses options the dataset cannot have; returns what its bytes depend on.
     fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<RunOptions, ExportError> {
         let arrives_as_video = info.features.iter().any(|f| !f.in_steps());
-        if options.video.is_some() && !info.has(FeatureKind::Rgb) && !arrives_as_video {
+        if options.video.is_some()
+            && !info.features.iter().any(encodes_as_video)
+            && !arrives_as_video
+        {
             // What the user asked for, not a defect of the data: exit 2.
             return Err(ExportError::InvalidOptions(
                 "video mode needs an RGB camera feature, and this dataset has none: leave --video out"
@@ -272,7 +289,7 @@ impl LeRobotFiles {
                 .collect();
             if !other.is_empty() {
                 return Err(ExportError::InvalidOptions(format!(
-                    "{} arrive as video in another codec than {}; surgvla copies video without decoding it, so it cannot re-encode them: leave the codec out (video is kept as it is) or give theirs",
+                    "{} arrive as video in another codec than {}: decode them first (convert does: it re-encodes them), or leave the codec out to copy them as they are",
                     other.join(", "),
                     video.codec.name()
                 )));
@@ -291,7 +308,7 @@ impl LeRobotFiles {
             .filter_map(|f| {
                 let codec = f.video.or(options
                     .video
-                    .filter(|_| f.kind == FeatureKind::Rgb)
+                    .filter(|_| encodes_as_video(f))
                     .map(|v| v.codec))?;
                 Some((f.name.clone(), codec))
             })

@@ -8,6 +8,7 @@ use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
     FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
 };
+use crate::export::decode;
 use crate::export::demux::VideoReader;
 use crate::export::image::decode_png_sized;
 use crate::export::info::DatasetInfo;
@@ -263,12 +264,11 @@ fn features_of(
         let video = if dtype == "video" {
             let codec_name = f.video_codec().unwrap_or_default();
             let codec = VideoCodec::from_name(codec_name).ok_or_else(|| {
-                invalid(
-                    path,
-                    format!(
-                        "{name} is video in codec {codec_name:?}; surgvla copies AV1 and H.264 video"
-                    ),
-                )
+                // A codec this build has no decoder for: the user's choice of input (exit 2).
+                ExportError::InvalidOptions(format!(
+                    "{}: {name} is video in codec {codec_name:?}; surgvla reads AV1 and H.264 video (no HEVC or VP9 decoder is built in: leave the feature out with another tool, or re-encode it)",
+                    path.display()
+                ))
             })?;
             dtype = "image";
             Some(codec)
@@ -484,6 +484,8 @@ struct Row {
     episode: i64,
     task: i64,
     step: Step,
+    /// The row's `timestamp` (seconds), if the data has the column.
+    timestamp_secs: Option<f64>,
     /// The encoded bytes of the RGB, mask and depth images, in the order of
     /// [`stored_images`].
     stored: Vec<Vec<u8>>,
@@ -592,15 +594,18 @@ impl LeRobotSource {
         })
     }
 
-    /// An episode's frames of the video feature `feature`, with the statistics its metadata
-    /// carries.
+    /// An episode's samples of the video feature `feature`, with the statistics its metadata
+    /// carries: for each row, the picture lerobot would give it (the nearest presentation time
+    /// to the row's `timestamp`, plus the episode's `from_timestamp` in v3.0, within 1e-4 s).
+    /// Samples that are one per row in order are marked copyable (`shown` None).
     fn video_frames(
         &mut self,
         feature: &FeatureSpec,
         index: u64,
-        steps: usize,
+        timestamps: &[Option<f64>],
     ) -> Result<EncodedFeature, ExportError> {
         let key = feature.name.as_str();
+        let steps = timestamps.len();
         // What this feature needs of the episode's row (the row itself is not copied).
         let row = self.episodes.get(index as usize);
         let stored_span = row.and_then(|r| r.videos.get(key)).copied();
@@ -657,24 +662,52 @@ impl LeRobotSource {
                 ),
             ));
         }
-        let frames: Vec<EncodedFrame> = match span {
-            Some((from, to)) => reader.span(from, to)?,
-            None => reader.all()?,
-        };
-        if frames.len() != steps {
-            return Err(invalid(
+        let (from, to) = span.unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
+        let decodable = reader.decodable(from, to)?;
+        let offset = span.map_or(0.0, |(from, _)| from);
+        let queries = timestamps
+            .iter()
+            .enumerate()
+            .map(|(row, t)| {
+                t.map(|t| t + offset).ok_or_else(|| {
+                    invalid(
+                        &self.root.join("data"),
+                        format!(
+                            "episode {index} row {row} has no timestamp to pick its {key} frame by"
+                        ),
+                    )
+                })
+            })
+            .collect::<Result<Vec<f64>, _>>()?;
+        let shown = decode::nearest_frames(
+            &decodable.picture_secs,
+            &queries,
+            decode::FRAME_TOLERANCE_SECS,
+        )
+        .map_err(|miss| {
+            invalid(
                 &path,
                 format!(
-                    "holds {} frames of episode {index}, whose data has {steps}",
-                    frames.len()
+                    "no frame of episode {index} lies within {} s of row {}'s time {:.6} s (the nearest is {:.6} s away; the span holds {} frames for {steps} rows)",
+                    decode::FRAME_TOLERANCE_SECS,
+                    miss.query,
+                    miss.query_secs,
+                    miss.distance_secs,
+                    decodable.picture_secs.len()
                 ),
-            ));
-        }
+            )
+        })?;
+        let copyable = !reader.reorders
+            && decodable.samples.len() == steps
+            && decodable.samples.first().is_some_and(|f| f.keyframe)
+            && shown.iter().enumerate().all(|(i, p)| i == *p);
         Ok(EncodedFeature {
             feature: key.to_string(),
             encoding: ImageEncoding::Video(reader.codec),
-            frames,
+            frames: decodable.samples,
             pixel_stats,
+            shown: (!copyable).then_some(shown),
+            file: Some(path),
         })
     }
 
@@ -718,10 +751,16 @@ fn stored_images(info: &DatasetInfo) -> impl Iterator<Item = &FeatureSpec> {
 fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<Row>, ExportError> {
     let episode = column::<Int64Array>(batch, "episode_index", path)?;
     let task = column::<Int64Array>(batch, "task_index", path)?;
+    let timestamp = batch
+        .column_by_name("timestamp")
+        .and_then(|c| c.as_any().downcast_ref::<Float32Array>());
     let mut steps: Vec<Row> = (0..batch.num_rows())
         .map(|row| Row {
             episode: episode.value(row),
             task: task.value(row),
+            timestamp_secs: timestamp
+                .filter(|t| t.is_valid(row))
+                .map(|t| f64::from(t.value(row))),
             step: Step::empty(),
             stored: Vec::new(),
         })
@@ -833,6 +872,7 @@ impl EpisodeSource for LeRobotSource {
             return None;
         }
         let mut steps = Vec::new();
+        let mut timestamps = Vec::new();
         let stored_keys: Vec<(String, FeatureKind)> = stored_images(&self.info)
             .map(|f| (f.name.clone(), f.kind))
             .collect();
@@ -846,6 +886,7 @@ impl EpisodeSource for LeRobotSource {
                 current = Some((*episode, *task));
                 if let Some(row) = self.pending.pop_front() {
                     steps.push(row.step);
+                    timestamps.push(row.timestamp_secs);
                     for (frames, data) in stored.iter_mut().zip(row.stored) {
                         frames.push(EncodedFrame {
                             data,
@@ -888,6 +929,8 @@ impl EpisodeSource for LeRobotSource {
                 feature,
                 frames,
                 pixel_stats: None,
+                shown: None,
+                file: None,
             })
             .collect();
         let videos: Vec<FeatureSpec> = self
@@ -898,7 +941,7 @@ impl EpisodeSource for LeRobotSource {
             .cloned()
             .collect();
         for feature in &videos {
-            match self.video_frames(feature, index as u64, steps.len()) {
+            match self.video_frames(feature, index as u64, &timestamps) {
                 Ok(frames) => encoded.push(frames),
                 Err(error) => return Some(Err(error)),
             }

@@ -60,9 +60,27 @@ impl EpisodeWork<'_> {
                     }
                     return Ok(stored.frames.clone());
                 }
+                let quality = self.options.video.map_or(0, |v| v.quality);
+                // Another dataset's camera: its PNGs decoded (they came from decoded video, or
+                // an image-mode dataset), then encoded.
+                let others = self
+                    .info
+                    .features
+                    .iter()
+                    .filter(|f| f.kind == FeatureKind::Other && f.in_steps());
+                if let Some((at, feature)) = others.enumerate().find(|(_, f)| f.name == *key) {
+                    let (height, width) = (feature.shape[0], feature.shape[1]);
+                    let pixels = episode
+                        .steps
+                        .iter()
+                        .enumerate()
+                        .map(|(i, step)| other_rgb(step, at, width, height, key, i))
+                        .collect::<Result<Vec<Vec<u8>>, ExportError>>()?;
+                    let frames: Vec<&[u8]> = pixels.iter().map(Vec::as_slice).collect();
+                    return encode(*codec, &frames, width, height, self.info.fps, quality);
+                }
                 let (width, height) = self.info.image_size();
                 let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
-                let quality = self.options.video.map_or(0, |v| v.quality);
                 encode(*codec, &frames, width, height, self.info.fps, quality)
             })
             .collect()
@@ -212,4 +230,28 @@ impl crate::export::writer::EpisodeEncoder<Vec<Vec<EncodedFrame>>> for EpisodeWo
     fn encode(&self, episode: &Episode) -> Result<Vec<Vec<EncodedFrame>>, ExportError> {
         self.video_frames(episode)
     }
+}
+
+/// Step `step`'s RGB pixels of the other feature at value `at` (a PNG of `width` x `height`).
+fn other_rgb(
+    step: &crate::episode::Step,
+    at: usize,
+    width: usize,
+    height: usize,
+    key: &str,
+    index: usize,
+) -> Result<Vec<u8>, ExportError> {
+    let bad =
+        |problem: String| ExportError::InvalidEpisode(format!("{key} step {index}: {problem}"));
+    let Some(crate::episode::FeatureValue::Image(bytes)) = step.other.get(at) else {
+        return Err(bad("holds no image".into()));
+    };
+    let (w, h, channels, pixels) =
+        crate::export::image::decode_png_sized(bytes, Some((width, height))).map_err(bad)?;
+    if (w as usize, h as usize, channels) != (width, height, 3) {
+        return Err(bad(format!(
+            "a {w}x{h} image with {channels} channels where {width}x{height} RGB was declared"
+        )));
+    }
+    Ok(pixels)
 }

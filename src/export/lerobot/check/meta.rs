@@ -3,6 +3,7 @@
 //! video files' spans.
 
 use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
+use crate::error::ErrorKind;
 use crate::export::demux::VideoReader;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
@@ -496,22 +497,26 @@ fn check_stats_against_data(
     }
 }
 
-/// Every video feature's files and episode spans, through the MP4 sample tables (frames are
-/// not decoded: nothing here decodes video): each file readable with its samples inside it, in
-/// the declared codec and frame size, and each episode's span holding exactly its frames and
-/// starting on a keyframe (v2.1: each episode's file holds its frames).
+/// Every video feature's files and episode spans: through the MP4 sample tables, each file
+/// readable with its samples inside it, in the declared codec and frame size, and each
+/// episode's span holding exactly its frames and starting on a keyframe (v2.1: each episode's
+/// file holds its frames); then each span decoded (its first frame only when `quick`), one
+/// episode per worker: every sample decodes, to the declared frame size. A codec or profile
+/// surgvla does not decode is a warning.
 pub(super) fn check_videos(
     root: &Path,
     v21: bool,
     info: &crate::export::lerobot::InfoJson,
     features: &[Declared],
     entries: &[EpisodeEntry],
+    quick: bool,
     findings: &Findings,
 ) {
     let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
     let declared: BTreeMap<String, crate::export::lerobot::FeatureJson> =
         info.feature_list().into_iter().collect();
-    let mut readers: BTreeMap<PathBuf, Result<VideoReader, String>> = BTreeMap::new();
+    let mut readers: BTreeMap<PathBuf, Result<VideoReader, (String, bool)>> = BTreeMap::new();
+    let mut spans: Vec<SpanToDecode> = Vec::new();
     check_templates(info, v21, findings);
     for feature in features.iter().filter(|f| f.dtype == "video") {
         let key = &feature.name;
@@ -523,13 +528,10 @@ pub(super) fn check_videos(
             );
             continue;
         }
-        findings.warning(
-            At::file("meta/info.json"),
-            "video-decode",
-            format!(
-                "the frames of video feature {key} are not decoded (surgvla has no video decoder): its files, sample tables, codec, frame size and each episode's frame count and first keyframe are checked, its pixels are not"
-            ),
-        );
+        let size_px = match feature.shape.as_slice() {
+            [h, w, _] => Some((*w, *h)),
+            _ => None,
+        };
         let declared_name = declared.get(key).and_then(|f| f.video_codec());
         for (i, entry) in entries.iter().enumerate() {
             let (relative, span) = if v21 {
@@ -552,9 +554,14 @@ pub(super) fn check_videos(
             }
             let fresh = !readers.contains_key(&path);
             let reader = readers.entry(path.clone()).or_insert_with(|| {
-                VideoReader::open(&path).map_err(|e| match e {
-                    crate::export::ExportError::InvalidDataset { problem, .. } => problem,
-                    other => other.to_string(),
+                VideoReader::open(&path).map_err(|e| {
+                    let unsupported = crate::error::HasKind::kind(&e) == ErrorKind::Usage;
+                    match e {
+                        crate::export::ExportError::InvalidDataset { problem, .. } => {
+                            (problem, unsupported)
+                        }
+                        other => (other.to_string(), unsupported),
+                    }
                 })
             });
             match reader {
@@ -563,12 +570,79 @@ pub(super) fn check_videos(
                         check_video_file(&at, reader, feature, declared_name, findings);
                     }
                     check_episode_span(&at, reader, span, entry.length, findings);
+                    if let Some(size_px) = size_px {
+                        spans.push(SpanToDecode {
+                            path,
+                            file: at.file.clone().unwrap_or_default(),
+                            episode: i as u64,
+                            span,
+                            size_px,
+                        });
+                    }
                 }
-                Err(problem) if fresh => findings.error(at, "video", problem.clone()),
+                Err((problem, true)) if fresh => findings.warning(
+                    at,
+                    "video-decode",
+                    format!("{key}: {problem}; its frames are not checked"),
+                ),
+                Err((problem, false)) if fresh => findings.error(at, "video", problem.clone()),
                 Err(_) => {}
             }
         }
     }
+    decode_spans(&spans, quick, findings);
+}
+
+/// An episode's span of a video file, for [`decode_spans`].
+struct SpanToDecode {
+    path: PathBuf,
+    /// The file as findings name it (relative to the dataset).
+    file: String,
+    episode: u64,
+    /// Seconds (None: the whole file, v2.1).
+    span: Option<(f64, f64)>,
+    /// The declared (width, height).
+    size_px: (usize, usize),
+}
+
+/// Decodes each episode's span (the first frame only when `quick`), in parallel: a sample that
+/// does not decode, or decodes to another size than declared, is a finding naming the file,
+/// episode and frame; what surgvla cannot decode (a profile) is a warning, once per file.
+fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
+    use rayon::prelude::*;
+    let warned = std::sync::Mutex::new(std::collections::BTreeSet::new());
+    spans.par_iter().for_each(|to_decode| {
+        let SpanToDecode {
+            path,
+            file,
+            episode,
+            span,
+            size_px,
+        } = to_decode;
+        {
+            for problem in crate::export::decode::check::check_span(path, *span, *size_px, quick) {
+                let mut at = At::file(file.clone()).episode(*episode);
+                if let Some(frame) = problem.frame {
+                    at = at.frame(frame);
+                }
+                if problem.unsupported {
+                    let first = warned
+                        .lock()
+                        .map(|mut w| w.insert(file.clone()))
+                        .unwrap_or(false);
+                    if first {
+                        findings.warning(
+                            At::file(file.clone()),
+                            "video-decode",
+                            format!("{}; its frames are not checked", problem.message),
+                        );
+                    }
+                } else {
+                    findings.error(at, "video-decode", problem.message);
+                }
+            }
+        }
+    });
 }
 
 /// info.json's `data_path` and `video_path` templates: only the placeholders of their version,

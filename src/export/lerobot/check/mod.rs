@@ -152,7 +152,15 @@ pub fn check(
     };
     let (episodes, frames, parts) = check_data_files(&context, &files, &info, v21);
     check_stats(root, &features, &parts, !options.quick, findings);
-    check_videos(root, v21, &info, &features, &entries, findings);
+    check_videos(
+        root,
+        v21,
+        &info,
+        &features,
+        &entries,
+        options.quick,
+        findings,
+    );
     (episodes, frames)
 }
 

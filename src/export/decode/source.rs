@@ -1,0 +1,270 @@
+//! A source whose video features arrive decoded: [`Decoded`] wraps any [`EpisodeSource`] and
+//! turns each video feature's samples into pixels, the picture lerobot would give each row
+//! (the reader picked them: [`crate::episode::EncodedFeature::shown`]). The camera of the RGB
+//! role lands in the steps' `rgb`; another camera becomes a PNG-encoded image feature of its
+//! own, so every format can write it.
+//!
+//! Episodes are decoded in batches of one per worker thread of the current rayon pool (one
+//! episode per worker), so memory holds a few episodes whatever the dataset's length, and each
+//! picture is converted to RGB as it leaves the decoder.
+
+use super::{YuvFrame, decode_span_each, rgb_from_yuv420};
+use crate::episode::{Dtype, EncodedFeature, Episode, FeatureKind, FeatureValue, ImageEncoding};
+use crate::export::image::{PngLevel, encode_png};
+use crate::export::{DatasetInfo, EpisodeSource, ExportError};
+use rayon::prelude::*;
+use std::collections::VecDeque;
+
+/// The largest frame side decoded, pixels (8K video; larger is refused before allocating).
+pub const MAX_DECODED_SIDE_PX: u32 = 8192;
+
+/// Where a video feature's decoded frames go.
+#[derive(Clone, Debug)]
+struct Target {
+    name: String,
+    /// The frame size info.json declares (width, height).
+    size_px: (usize, usize),
+    /// The RGB role (the steps' `rgb`), or the index into the steps' `other` values.
+    slot: Slot,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Slot {
+    Rgb,
+    Other(usize),
+}
+
+/// [`EpisodeSource`] with video decoded to pixels.
+pub struct Decoded {
+    inner: Box<dyn EpisodeSource + Send>,
+    info: DatasetInfo,
+    targets: Vec<Target>,
+    ready: VecDeque<Result<Episode, ExportError>>,
+    /// Whether the inner source ended (or failed).
+    drained: bool,
+}
+
+/// The (width, height) of an image feature's shape, channels last (LeRobot's
+/// `[height, width, channels]`) or first (`[channels, height, width]`, older datasets).
+fn frame_size(shape: &[usize]) -> Option<(usize, usize)> {
+    match shape {
+        [h, w, 3] => Some((*w, *h)),
+        [3, h, w] => Some((*w, *h)),
+        _ => None,
+    }
+}
+
+impl Decoded {
+    /// Wraps `inner`; its video features become image features. Depth or mask stored as
+    /// video, and frames of no RGB shape, are the user's error (nothing surgvla decodes).
+    pub fn new(inner: Box<dyn EpisodeSource + Send>) -> Result<Self, ExportError> {
+        let mut info = inner.info().clone();
+        let mut targets = Vec::new();
+        let mut others = 0;
+        for feature in &mut info.features {
+            let video = feature.video.take();
+            if video.is_some() {
+                let size_px = frame_size(&feature.shape).ok_or_else(|| {
+                    ExportError::InvalidOptions(format!(
+                        "{} is video of shape {:?}; surgvla decodes 3-channel video only",
+                        feature.name, feature.shape
+                    ))
+                })?;
+                let slot = match feature.kind {
+                    FeatureKind::Rgb => Slot::Rgb,
+                    FeatureKind::Other => Slot::Other(others),
+                    kind => {
+                        return Err(ExportError::InvalidOptions(format!(
+                            "{} ({kind:?}) is stored as video; surgvla decodes camera video only",
+                            feature.name
+                        )));
+                    }
+                };
+                feature.dtype = Dtype::Image;
+                targets.push(Target {
+                    name: feature.name.clone(),
+                    size_px,
+                    slot,
+                });
+            }
+            if feature.kind == FeatureKind::Other && feature.in_steps() {
+                others += 1;
+            }
+        }
+        Ok(Decoded {
+            inner,
+            info,
+            targets,
+            ready: VecDeque::new(),
+            drained: false,
+        })
+    }
+
+    /// Whether `info` has a feature stored as video.
+    pub fn needed(info: &DatasetInfo) -> bool {
+        info.features.iter().any(|f| f.video.is_some())
+    }
+
+    /// Reads the next batch of episodes and decodes them in parallel.
+    fn refill(&mut self) {
+        let wanted = rayon::current_num_threads().max(1);
+        let mut batch = Vec::with_capacity(wanted);
+        while batch.len() < wanted && !self.drained {
+            match self.inner.next_episode() {
+                Some(Ok(episode)) => batch.push(Ok(episode)),
+                Some(Err(error)) => {
+                    self.drained = true;
+                    batch.push(Err(error));
+                    break;
+                }
+                None => self.drained = true,
+            }
+        }
+        let targets = &self.targets;
+        let decoded: Vec<Result<Episode, ExportError>> = batch
+            .into_par_iter()
+            .map(|episode| episode.and_then(|e| decode_episode(e, targets)))
+            .collect();
+        self.ready.extend(decoded);
+    }
+}
+
+impl EpisodeSource for Decoded {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn len(&self) -> u64 {
+        self.inner.len()
+    }
+
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        if self.ready.is_empty() && !self.drained {
+            self.refill();
+        }
+        self.ready.pop_front()
+    }
+}
+
+/// Replaces `episode`'s video samples with decoded pixels, each step getting the picture the
+/// reader picked for it.
+fn decode_episode(mut episode: Episode, targets: &[Target]) -> Result<Episode, ExportError> {
+    let index = episode.meta.index;
+    let steps = episode.steps.len();
+    for target in targets {
+        let position = episode
+            .encoded
+            .iter()
+            .position(|e| e.feature == target.name && matches!(e.encoding, ImageEncoding::Video(_)))
+            .ok_or_else(|| {
+                ExportError::InvalidEpisode(format!(
+                    "episode {index} has no video frames of {}",
+                    target.name
+                ))
+            })?;
+        let encoded = episode.encoded.remove(position);
+        let rgb = decode_feature(&encoded, target, index, steps)?;
+        for (step, pixels) in episode.steps.iter_mut().zip(rgb) {
+            match target.slot {
+                Slot::Rgb => step.rgb = pixels,
+                Slot::Other(at) => {
+                    let (width, height) = target.size_px;
+                    let png = encode_png(width, height, 3, &pixels, PngLevel::Fast)?;
+                    if at > step.other.len() {
+                        return Err(ExportError::Internal(format!(
+                            "{} belongs at value {at} of {}",
+                            target.name,
+                            step.other.len()
+                        )));
+                    }
+                    step.other.insert(at, FeatureValue::Image(png));
+                }
+            }
+        }
+    }
+    Ok(episode)
+}
+
+/// One video feature's RGB frames, one per step.
+fn decode_feature(
+    encoded: &EncodedFeature,
+    target: &Target,
+    index: u64,
+    steps: usize,
+) -> Result<Vec<Vec<u8>>, ExportError> {
+    let ImageEncoding::Video(codec) = encoded.encoding else {
+        return Err(ExportError::Internal(format!(
+            "{} is not video",
+            target.name
+        )));
+    };
+    let file = encoded
+        .file
+        .as_ref()
+        .map_or_else(|| "the input".to_string(), |f| f.display().to_string());
+    let what = format!("{} of episode {index} in {file}", target.name);
+    let bad = |problem: String| match &encoded.file {
+        Some(path) => ExportError::InvalidDataset {
+            path: path.clone(),
+            problem,
+        },
+        None => ExportError::InvalidEpisode(problem),
+    };
+    let shown: Vec<usize> = match &encoded.shown {
+        Some(shown) => shown.clone(),
+        None => (0..encoded.frames.len()).collect(),
+    };
+    if shown.len() != steps {
+        return Err(bad(format!(
+            "{} frames of {} for episode {index}'s {steps} rows",
+            shown.len(),
+            target.name
+        )));
+    }
+    // The steps each picture (in presentation order) goes to.
+    let mut users: Vec<Vec<usize>> = vec![Vec::new(); encoded.frames.len()];
+    for (step, picture) in shown.iter().enumerate() {
+        users
+            .get_mut(*picture)
+            .ok_or_else(|| {
+                bad(format!(
+                    "row {step} of episode {index} wants picture {picture} of {}",
+                    encoded.frames.len()
+                ))
+            })?
+            .push(step);
+    }
+    let mut rgb: Vec<Vec<u8>> = vec![Vec::new(); steps];
+    let mut next = 0;
+    let mut place = |picture: YuvFrame| -> Result<(), ExportError> {
+        let at = next;
+        next += 1;
+        let Some(wanting) = users.get(at).filter(|u| !u.is_empty()) else {
+            return Ok(());
+        };
+        let (width, height) = target.size_px;
+        if (picture.width_px as usize, picture.height_px as usize) != (width, height) {
+            return Err(bad(format!(
+                "frame {at} of episode {index} ({}) decodes to {}x{} where info.json declares {width}x{height}",
+                target.name, picture.width_px, picture.height_px
+            )));
+        }
+        let pixels = rgb_from_yuv420(&picture).ok_or_else(|| {
+            bad(format!(
+                "frame {at} of episode {index} has misshapen planes"
+            ))
+        })?;
+        for step in wanting {
+            rgb[*step].clone_from(&pixels);
+        }
+        Ok(())
+    };
+    decode_span_each(
+        codec,
+        &encoded.frames,
+        &what,
+        MAX_DECODED_SIDE_PX,
+        &mut place,
+    )?;
+    Ok(rgb)
+}
