@@ -9,7 +9,7 @@ use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, SceneMesh, Step};
 use crate::export::pointcloud::Cloud;
 use foxglove::messages::{
     CameraCalibration, Color, CompressedImage, FrameTransform, FrameTransforms, PackedElementField,
-    Point3, PointCloud, Quaternion, RawImage, SceneEntity, SceneUpdate, Timestamp,
+    Point3, PointCloud, Pose, Quaternion, RawImage, SceneEntity, SceneUpdate, Timestamp,
     TriangleListPrimitive, Vector3, packed_element_field::NumericType,
 };
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
@@ -112,7 +112,21 @@ pub fn point_cloud(ns: u64, cloud: &Cloud) -> PointCloud {
     PointCloud {
         timestamp: Some(timestamp(ns)),
         frame_id: WORLD.into(),
-        pose: None,
+        // The points are in the world frame already: the identity pose, stated (converters such
+        // as rerun's MCAP import require it).
+        pose: Some(Pose {
+            position: Some(Vector3 {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+            }),
+            orientation: Some(Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                w: 1.0,
+            }),
+        }),
         point_stride: 16,
         fields: vec![
             field("x", 0, NumericType::Float32),

@@ -18,8 +18,11 @@ pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
     let depth = if info.has(FeatureKind::Depth) {
         format!(
             "\n`steps/observation/{}` holds depth as 1-channel uint16 PNG in millimetres along the optical \
-             axis (0 = nothing in range). OpenVLA does not use depth; to load it in Octo-style \
-             pipelines set `depth_obs_keys` to `{{\"primary\": \"{}\"}}` and divide by 1000 for metres.\n",
+             axis (0 = nothing in range). Read through `tfds` itself it arrives as those uint16 values: \
+             divide by 1000 for metres. OpenVLA does not use depth; Octo-style pipelines (set \
+             `depth_obs_keys` to `{{\"primary\": \"{}\"}}`) decode it with `decode_and_resize`, which \
+             scales a uint16 image to 0..1 (value / 65535): there multiply by 65.535 for metres \
+             (65535 / 1000).\n",
             keys.depth, keys.depth
         )
     } else {

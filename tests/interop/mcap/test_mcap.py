@@ -80,6 +80,10 @@ def test_every_message_decodes_with_crcs_checked(episode):
                 assert decoded.point_stride == 16 and decoded.frame_id == "world"
                 assert [f.name for f in decoded.fields] == ["x", "y", "z", "red", "green", "blue", "alpha"]
                 assert len(decoded.data) == 16 * 1024
+                # The identity pose, stated (rerun's MCAP import requires a pose).
+                assert decoded.HasField("pose")
+                p, q = decoded.pose.position, decoded.pose.orientation
+                assert (p.x, p.y, p.z, q.x, q.y, q.z, q.w) == (0, 0, 0, 0, 0, 0, 1)
             elif topic == "/tf":
                 children = {t.child_frame_id for t in decoded.transforms}
                 assert {"endoscope_optical", "tool_tip", "object_0"} <= children

@@ -150,6 +150,26 @@ def test_collect_and_convert_give_the_same_episodes(builder):
     assert count == builder.info.splits["train"].num_examples
 
 
+def test_depth_scale_through_tfds_and_octos_decode_and_resize(builder):
+    """OPENVLA.md's two factors: tfds returns millimetres (x 1/1000 for metres); Octo's
+    `decode_and_resize` (tf.image.convert_image_dtype to float) gives value / 65535, so
+    x 65.535 for metres. Both against the LeRobot dataset's float TIFF depth."""
+    text = (RLDS / "OPENVLA.md").read_text()
+    assert "divide by 1000" in text and "65.535" in text
+    (_, steps), (_, rows, _) = next(zip(tfds_episodes(RLDS), lerobot_episodes()))
+    depth_m = np.asarray(Image.open(io.BytesIO(rows[0]["observation.images.depth"]["bytes"])), dtype=np.float32)
+    millimetres = steps[0]["observation"]["depth"][..., 0]
+    np.testing.assert_allclose(millimetres / 1000.0, depth_m, atol=0.0005 + 1e-6)
+    # What Octo's decode_and_resize does with the stored bytes (octo/data/obs_transforms.py:
+    # tf.io.decode_image(depth, expand_animations=False, dtype=tf.float32)).
+    in_order = tfds.ReadConfig(interleave_cycle_length=1)
+    raw = builder.as_dataset(split="train", read_config=in_order, decoders={"steps": tfds.decode.SkipDecoding()})
+    encoded = next(iter(raw))["steps"]["observation"]["depth"][0]
+    unit = tf.io.decode_image(encoded, expand_animations=False, dtype=tf.float32).numpy()[..., 0]
+    assert unit.max() <= 1.0
+    np.testing.assert_allclose(unit * 65.535, depth_m, atol=0.0005 + 1e-5)
+
+
 def openvla_snippets():
     """The Python blocks of OPENVLA.md: the config entry and the standardize transform."""
     text = (RLDS / "OPENVLA.md").read_text()
