@@ -10,6 +10,9 @@
 //!
 //! `export/lerobot/video_{av1,h264}/{1,2}_threads`: the same with the RGB camera as AV1 or H.264
 //! MP4.
+//! `export/decode/{av1,h264}`: demuxing, decoding and converting to RGB every frame of the
+//! same episodes' 224 x 224 video, one thread (`scripts/bench_decode.sh` sets PyAV beside it).
+//!
 //! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
 //! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
 //! and of two threads. Throughput is in frames. The episodes are recorded once beforehand, so
@@ -140,5 +143,73 @@ fn bench_lerobot(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_lerobot, bench_rlds, bench_pointcloud);
+/// The MP4 files `export/decode` decodes: the eight episodes' RGB camera as LeRobot video
+/// (AV1 by rav1e, H.264 by openh264), kept in the bench's target folder so that
+/// `scripts/bench_decode.sh` times PyAV (and torchcodec) on the same files.
+fn decode_inputs() -> Vec<(&'static str, std::path::PathBuf, usize)> {
+    let (episodes, info) = episodes();
+    let frames: usize = episodes.iter().map(|e| e.steps.len()).sum();
+    let base = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("bench-video");
+    [
+        ("av1", VideoOptions::default()),
+        ("h264", VideoOptions::h264()),
+    ]
+    .into_iter()
+    .map(|(name, video)| {
+        let root = base.join(name);
+        std::fs::remove_dir_all(&root).ok();
+        let options = LeRobotOptions {
+            video: Some(video),
+            ..LeRobotOptions::default()
+        };
+        let mut writer = LeRobotWriter::create(&root, &info, options).expect("create");
+        writer.write_batch(&episodes).expect("write");
+        writer.finish().expect("finish");
+        let mp4 = root.join("videos/observation.images.endoscope/chunk-000/file-000.mp4");
+        (name, mp4, frames)
+    })
+    .collect()
+}
+
+/// `export/decode/{av1,h264}`: every frame of a 224 x 224 MP4 demuxed, decoded and converted
+/// to RGB, on one thread. Throughput is in frames.
+fn bench_decode(c: &mut Criterion) {
+    use surgvla::export::decode::{MAX_DECODED_SIDE_PX, decode_span_each, rgb_from_yuv420};
+    use surgvla::export::demux::VideoReader;
+    let mut group = c.benchmark_group("export/decode");
+    group.sample_size(10);
+    for (name, mp4, frames) in decode_inputs() {
+        group.throughput(Throughput::Elements(frames as u64));
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let mut reader = VideoReader::open(&mp4).expect("open");
+                let span = reader
+                    .decodable(f64::NEG_INFINITY, f64::INFINITY)
+                    .expect("span");
+                let mut bytes = 0usize;
+                let count = decode_span_each(
+                    reader.codec,
+                    &span.samples,
+                    "bench",
+                    MAX_DECODED_SIDE_PX,
+                    &mut |picture| {
+                        bytes += rgb_from_yuv420(&picture).expect("planes").len();
+                        Ok(())
+                    },
+                )
+                .expect("decode");
+                assert_eq!((count, bytes), (frames, frames * 224 * 224 * 3));
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_lerobot,
+    bench_rlds,
+    bench_pointcloud,
+    bench_decode
+);
 criterion_main!(benches);

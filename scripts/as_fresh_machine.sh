@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Runs a command as on a fresh machine, where neither the `nasm` assembler nor the test-only
-# system libraries `.ci/run` installs for the interop tests (libusb-1.0, which Open3D loads) are
-# present: in a private mount namespace, every `nasm` on PATH and every libusb-1.0 library file
-# the dynamic loader knows is covered by /dev/null, which can be neither executed nor loaded.
+# system libraries `.ci/run` installs for the interop tests (libusb-1.0, which Open3D loads, and
+# FFmpeg's, which torchcodec loads) are
+# present: in a private mount namespace, every `nasm` on PATH and every such library file the
+# dynamic loader knows is covered by /dev/null, which can be neither executed nor loaded.
 # Nothing outside this process sees the change and nothing stays mounted. CI builds and runs the
 # README's commands this way, so a build or run step that needs nasm (rav1e's `asm` feature,
 # opt-in) or a test-only library fails CI even on a machine where an earlier run installed it.
@@ -40,7 +41,7 @@ while read -r library; do
             hidden+=("${file}")
         fi
     done
-done < <(ldconfig -p | awk '/libusb-1\.0\.so/ {print $NF}')
+done < <(ldconfig -p | awk '/libusb-1\.0\.so|libav(codec|format|util|filter|device)\.so|libsw(scale|resample)\.so/ {print $NF}')
 for file in "${hidden[@]}"; do
     if [ -s "${file}" ]; then
         echo "error: $0 could not hide ${file}" >&2

@@ -112,6 +112,8 @@ pub enum ImageEncoding {
     Png,
     /// One float32 TIFF per frame (depth in metres).
     Tiff,
+    /// One baseline JPEG per frame (lossy: RLDS RGB, as Open X-Embodiment stores it).
+    Jpeg,
     /// A video stream: frames depend on earlier ones back to the last keyframe.
     Video(VideoCodec),
 }

@@ -124,6 +124,23 @@ pub struct RldsArgs {
     /// RLDS: the observation key of the depth image (default depth).
     #[arg(long)]
     rlds_depth_key: Option<String>,
+    /// RLDS: how the RGB image is stored: png (lossless, the default) or jpeg (what Open
+    /// X-Embodiment and OpenVLA's datasets use, a fraction of the size; lossy).
+    #[arg(long, value_enum)]
+    rlds_image_encoding: Option<RldsImageEncoding>,
+    /// RLDS: the JPEG quality, 1-100 (default 95, TensorFlow's encode_jpeg default); giving
+    /// it alone implies --rlds-image-encoding jpeg.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
+    rlds_jpeg_quality: Option<u8>,
+}
+
+/// How RLDS stores the RGB image.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RldsImageEncoding {
+    /// PNG, lossless.
+    Png,
+    /// Baseline JPEG (4:2:0), lossy.
+    Jpeg,
 }
 
 impl RldsArgs {
@@ -136,6 +153,8 @@ impl RldsArgs {
             self.rlds_image_key.as_ref().map(|_| "--rlds-image-key"),
             self.rlds_state_key.as_ref().map(|_| "--rlds-state-key"),
             self.rlds_depth_key.as_ref().map(|_| "--rlds-depth-key"),
+            self.rlds_image_encoding.map(|_| "--rlds-image-encoding"),
+            self.rlds_jpeg_quality.map(|_| "--rlds-jpeg-quality"),
         ]
         .into_iter()
         .flatten()
@@ -156,6 +175,11 @@ impl RldsArgs {
                 state: or(&self.rlds_state_key, keys.state),
                 depth: or(&self.rlds_depth_key, keys.depth),
                 ..keys
+            },
+            jpeg_quality: match (self.rlds_image_encoding, self.rlds_jpeg_quality) {
+                (Some(RldsImageEncoding::Png), _) => None,
+                (Some(RldsImageEncoding::Jpeg), quality) => Some(quality.unwrap_or(95)),
+                (None, quality) => quality,
             },
         }
     }

@@ -64,6 +64,7 @@ fn record_options(collection: &Value) -> RecordOptions {
 fn replay_episode(
     recorded: &Episode,
     options: &RecordOptions,
+    lossy: bool,
 ) -> Option<(Option<u64>, &'static str, String)> {
     let meta = &recorded.meta;
     let Ok(task) = meta.task_code.parse::<TaskId>() else {
@@ -95,6 +96,14 @@ fn replay_episode(
             ),
         ));
     }
+    // Lossy RGB (JPEG, or decoded video) is compared within the lossy tolerance.
+    let lossy = lossy
+        || recorded
+            .encoded
+            .iter()
+            .any(|e| e.encoding == crate::episode::ImageEncoding::Jpeg);
+    let min_psnr_db = lossy.then_some(crate::export::convert::LOSSY_RGB_MIN_PSNR_DB);
+    let rgb_differs = |x: &[u8], y: &[u8]| crate::export::convert::rgb_differs(x, y, min_psnr_db);
     for (frame, (a, b)) in recorded
         .steps
         .iter()
@@ -107,7 +116,7 @@ fn replay_episode(
             && a.environment_state != b.environment_state
         {
             Some("the object poses")
-        } else if !a.rgb.is_empty() && a.rgb != b.rgb {
+        } else if !a.rgb.is_empty() && rgb_differs(&a.rgb, &b.rgb) {
             Some("the RGB image")
         } else if !a.mask.is_empty() && a.mask != b.mask {
             Some("the mask")
@@ -145,10 +154,15 @@ fn replay_episode(
     None
 }
 
-/// Replays every episode of the dataset at `path` (LeRobot, or RLDS; video frames are not
-/// compared) on `threads` worker threads (0: one per core) and returns what failed.
+/// Replays every episode of the dataset at `path` (LeRobot, or RLDS; video decoded, lossy RGB
+/// compared within [`crate::export::convert::LOSSY_RGB_MIN_PSNR_DB`]) on `threads` worker threads (0: one per core) and returns what failed.
 pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, ReplayError> {
     let mut source = open_source(path)?;
+    // Video is decoded and compared within the lossy tolerance.
+    let lossy = crate::export::decode::Decoded::needed(source.info());
+    if lossy {
+        source = Box::new(crate::export::decode::Decoded::new(source)?);
+    }
     let collection = source.info().collection.clone();
     if collection.is_null() {
         return Err(ReplayError::NotReplayable {
@@ -189,7 +203,7 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, Repla
         let problems: Vec<_> = pool.install(|| {
             batch
                 .par_iter()
-                .map(|episode| (episode.meta.index, replay_episode(episode, &options)))
+                .map(|episode| (episode.meta.index, replay_episode(episode, &options, lossy)))
                 .collect()
         });
         for (episode, problem) in problems {

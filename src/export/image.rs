@@ -48,6 +48,74 @@ pub fn encode_png(
     crate::files::encode_png(width, height, layout, pixels, level).map_err(png_error)
 }
 
+/// Encodes row-major 8-bit RGB as a baseline JPEG (4:2:0, `quality` 1-100) with integer
+/// arithmetic only: the same bytes on every machine.
+pub fn encode_jpeg(
+    width: usize,
+    height: usize,
+    rgb: &[u8],
+    quality: u8,
+) -> Result<Vec<u8>, ExportError> {
+    let encode_error = |source: jpeg_encoder::EncodingError| ExportError::Encode {
+        what: "JPEG".into(),
+        source: Box::new(source),
+    };
+    let (Ok(w), Ok(h)) = (u16::try_from(width), u16::try_from(height)) else {
+        return Err(ExportError::InvalidEpisode(format!(
+            "a {width}x{height} image is too large for JPEG"
+        )));
+    };
+    if rgb.len() != width * height * 3 {
+        return Err(ExportError::InvalidEpisode(format!(
+            "{} bytes of RGB for a {width}x{height} image",
+            rgb.len()
+        )));
+    }
+    let mut out = Vec::new();
+    let mut encoder = jpeg_encoder::Encoder::new(&mut out, quality.clamp(1, 100));
+    encoder.set_sampling_factor(jpeg_encoder::SamplingFactor::F_2_2);
+    encoder
+        .encode(rgb, w, h, jpeg_encoder::ColorType::Rgb)
+        .map_err(encode_error)?;
+    Ok(out)
+}
+
+/// Whether `bytes` start like a JPEG (the SOI marker).
+pub fn is_jpeg(bytes: &[u8]) -> bool {
+    bytes.starts_with(&[0xff, 0xd8, 0xff])
+}
+
+/// Decodes a JPEG of `expected` (width, height) to 8-bit RGB or grey: (width, height,
+/// channels, pixels). A size other than expected is refused from the header, before decoding.
+pub fn decode_jpeg_sized(bytes: &[u8], expected: (usize, usize)) -> Result<DecodedPng, String> {
+    let mut decoder = jpeg_decoder::Decoder::new(bytes);
+    decoder
+        .read_info()
+        .map_err(|e| format!("not a readable JPEG: {e}"))?;
+    let info = decoder
+        .info()
+        .ok_or_else(|| "a JPEG without a frame header".to_string())?;
+    let (width, height) = (usize::from(info.width), usize::from(info.height));
+    if (width, height) != expected {
+        return Err(format!(
+            "a {width}x{height} JPEG where {}x{} was declared",
+            expected.0, expected.1
+        ));
+    }
+    let channels = match info.pixel_format {
+        jpeg_decoder::PixelFormat::RGB24 => 3,
+        jpeg_decoder::PixelFormat::L8 => 1,
+        other => return Err(format!("a JPEG of pixel format {other:?}")),
+    };
+    let pixels = decoder
+        .decode()
+        .map_err(|e| format!("not a readable JPEG: {e}"))?;
+    if pixels.len() != width * height * channels {
+        return Err("a JPEG that decodes to fewer pixels than its header says".into());
+    }
+    Ok((width as u32, height as u32, channels, pixels))
+}
+
 /// Encodes row-major 16-bit grey values as PNG (big-endian samples, as PNG stores them).
 pub fn encode_png16(
     width: usize,
@@ -154,6 +222,48 @@ pub fn decode_png_sized(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn jpeg_round_trips_near_the_pixels_with_the_same_bytes_everywhere() {
+        let (width, height) = (40, 24);
+        let rgb: Vec<u8> = (0..width * height)
+            .flat_map(|i| {
+                let (x, y) = (i % width, i / width);
+                [(x * 6) as u8, (y * 9) as u8, ((x + y) * 3) as u8]
+            })
+            .collect();
+        let jpeg = encode_jpeg(width, height, &rgb, 95).expect("encode");
+        assert!(
+            is_jpeg(&jpeg) && !is_jpeg(&encode_png(1, 1, 1, &[0], PngLevel::Fast).expect("png"))
+        );
+        // Integer arithmetic only: these bytes on every machine (a changed encoder or a SIMD
+        // path that rounds differently fails here).
+        assert_eq!(
+            (jpeg.len(), crc32c::crc32c(&jpeg)),
+            (SNAPSHOT_LEN, SNAPSHOT_CRC),
+            "JPEG bytes changed"
+        );
+        let (w, h, channels, pixels) = decode_jpeg_sized(&jpeg, (width, height)).expect("decode");
+        assert_eq!((w, h, channels), (40, 24, 3));
+        let mean = pixels
+            .iter()
+            .zip(&rgb)
+            .map(|(a, b)| f64::from(a.abs_diff(*b)))
+            .sum::<f64>()
+            / rgb.len() as f64;
+        assert!(mean < 2.0, "mean difference {mean}");
+        // Another size than declared is refused from the header; garbage is an error.
+        assert!(
+            decode_jpeg_sized(&jpeg, (24, 40))
+                .unwrap_err()
+                .contains("24x40")
+        );
+        assert!(decode_jpeg_sized(&jpeg[..jpeg.len() / 3], (40, 24)).is_err());
+        assert!(encode_jpeg(width, height, &rgb[1..], 95).is_err());
+    }
+
+    const SNAPSHOT_LEN: usize = 954;
+    const SNAPSHOT_CRC: u32 = 1_191_424_136;
 
     /// A valid PNG whose header claims `width` x `height` (the CRC fixed, the data not).
     fn forged(width: u32, height: u32) -> Vec<u8> {

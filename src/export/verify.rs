@@ -33,7 +33,7 @@ pub fn verify_output(
             return Ok(verify_within(
                 source,
                 &mut decoded,
-                Some(crate::export::convert::LOSSY_RGB_MEAN_TOLERANCE),
+                Some(crate::export::convert::LOSSY_RGB_MIN_PSNR_DB),
             )?
             .differences);
         }

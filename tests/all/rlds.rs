@@ -303,3 +303,87 @@ fn other_features_round_trip_through_rlds() {
     let report = surgvla::export::validate::validate(&root, &Default::default()).expect("runs");
     assert!(report.valid, "{:#?}", report.errors);
 }
+
+#[test]
+fn jpeg_rgb_is_verified_within_the_tolerance_and_copied_between_jpeg_datasets() {
+    let lerobot = temp_root("rlds-jpeg-src");
+    collect(&lerobot, &["--format", "lerobot"]);
+    let jpeg = temp_root("rlds-jpeg");
+    run_ok(&[
+        "convert",
+        path(&lerobot),
+        "--to",
+        "rlds",
+        "--rlds-image-encoding",
+        "jpeg",
+        "--rlds-jpeg-quality",
+        "90",
+        "--verify",
+        "--out",
+        path(&jpeg),
+    ]);
+    let features =
+        std::fs::read_to_string(jpeg.join("surgvla_benchmark/1.0.0/features.json")).expect("read");
+    assert!(
+        features.contains("\"encodingFormat\": \"jpeg\""),
+        "{features}"
+    );
+    assert!(features.contains("JPEG, quality 90"));
+    // JPEG read back is JPEG written again: the same bytes, not a second generation.
+    let again = temp_root("rlds-jpeg-again");
+    run_ok(&[
+        "convert",
+        path(&jpeg),
+        "--to",
+        "rlds",
+        "--rlds-image-encoding",
+        "jpeg",
+        "--verify",
+        "--out",
+        path(&again),
+    ]);
+    let shards = |root: &Path| {
+        dataset_files(root)
+            .into_iter()
+            .filter(|(name, _)| name.contains(".tfrecord"))
+            .map(|(_, bytes)| bytes)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(shards(&jpeg), shards(&again));
+    // Within the tolerance is not anything goes: each frame one step late differs.
+    struct Late(Box<dyn surgvla::export::EpisodeSource + Send>);
+    impl surgvla::export::EpisodeSource for Late {
+        fn info(&self) -> &surgvla::export::DatasetInfo {
+            self.0.info()
+        }
+        fn len(&self) -> u64 {
+            self.0.len()
+        }
+        fn next_episode(
+            &mut self,
+        ) -> Option<Result<surgvla::episode::Episode, surgvla::export::ExportError>> {
+            self.0.next_episode().map(|e| {
+                e.map(|mut episode| {
+                    let first = episode.steps[0].rgb.clone();
+                    for i in (1..episode.steps.len()).rev() {
+                        episode.steps[i].rgb = episode.steps[i - 1].rgb.clone();
+                    }
+                    episode.steps[0].rgb = first;
+                    episode.encoded.clear();
+                    episode
+                })
+            })
+        }
+    }
+    let mut late = Late(open_source(&lerobot).expect("open"));
+    let summary = surgvla::export::Summary::default();
+    let differences =
+        surgvla::export::verify::verify_output(&mut late, &jpeg, &summary).expect("verify");
+    assert!(
+        differences.iter().any(|d| d.contains("RGB differs")),
+        "{differences:?}"
+    );
+    // Replay compares the JPEG frames within the tolerance too.
+    let (code, _, err) = surgvla(&["validate", path(&jpeg), "--replay"]);
+    assert_eq!(code, 0, "{err}");
+}

@@ -54,6 +54,19 @@ fn image(shape: [usize; 3], dtype: &str, description: &str) -> Value {
     })
 }
 
+/// An 8-bit image feature stored in `format` ("png" or "jpeg").
+fn image_as(shape: [usize; 3], format: &str, description: &str) -> Value {
+    json!({
+        "pythonClassName": IMAGE,
+        "image": {
+            "dtype": "uint8",
+            "encodingFormat": format,
+            "shape": {"dimensions": shape.map(|d| d.to_string())},
+        },
+        "description": description,
+    })
+}
+
 fn text(description: &str) -> Value {
     json!({"pythonClassName": TEXT, "text": {}, "description": description})
 }
@@ -74,11 +87,18 @@ fn observation(info: &DatasetInfo, options: &RldsOptions) -> serde_json::Map<Str
         let (key, node) = match feature.kind {
             FeatureKind::Rgb => (
                 &keys.image,
-                image(
-                    [height, width, 3],
-                    "uint8",
-                    "Endoscope RGB image (3-channel PNG).",
-                ),
+                match options.jpeg_quality {
+                    None => image(
+                        [height, width, 3],
+                        "uint8",
+                        "Endoscope RGB image (3-channel PNG).",
+                    ),
+                    Some(quality) => image_as(
+                        [height, width, 3],
+                        "jpeg",
+                        &format!("Endoscope RGB image (JPEG, quality {quality})."),
+                    ),
+                },
             ),
             FeatureKind::Depth => (
                 &keys.depth,

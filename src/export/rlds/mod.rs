@@ -94,6 +94,9 @@ pub struct RldsOptions {
     pub shard_size_mb: u64,
     pub png: PngLevel,
     pub keys: RldsKeys,
+    /// The RGB camera as JPEG of this quality (1-100) instead of PNG: what Open X-Embodiment
+    /// and OpenVLA's datasets store, a fraction of the size, lossy.
+    pub jpeg_quality: Option<u8>,
 }
 
 impl Default for RldsOptions {
@@ -104,6 +107,7 @@ impl Default for RldsOptions {
             shard_size_mb: 64,
             png: PngLevel::Fast,
             keys: RldsKeys::default(),
+            jpeg_quality: None,
         }
     }
 }
@@ -168,6 +172,9 @@ impl RldsOptions {
         options.set("rlds_shard_mb", self.shard_size_mb.into());
         options.set("png", format!("{:?}", self.png).into());
         options.set("rlds_keys", json!(self.keys));
+        if let Some(quality) = self.jpeg_quality {
+            options.set("rlds_jpeg_quality", quality.into());
+        }
         options
     }
 
@@ -261,7 +268,10 @@ impl FormatWriter for RldsShards {
         state: Option<State>,
     ) -> Result<Self, ExportError> {
         Ok(RldsShards {
-            layout: StepLayout::of(info, &options.keys),
+            layout: StepLayout {
+                jpeg_quality: options.jpeg_quality,
+                ..StepLayout::of(info, &options.keys)
+            },
             options,
             open: None,
             state: state.unwrap_or_default(),

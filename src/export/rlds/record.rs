@@ -4,11 +4,13 @@
 //! 1-channel uint16 in millimetres, mask 1-channel uint8.
 
 use crate::episode::{
-    Dtype, Episode, EpisodeMeta, FeatureKind, FeatureValue, MAX_OBJECTS, POSE_VALUES, Step,
+    Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureValue,
+    ImageEncoding, MAX_OBJECTS, POSE_VALUES, Step,
 };
 use crate::export::ExportError;
 use crate::export::image::{
-    PngLevel, decode_png_sized, decode_png16_sized, encode_png, encode_png16, stored_or,
+    PngLevel, decode_jpeg_sized, decode_png_sized, decode_png16_sized, encode_jpeg, encode_png,
+    encode_png16, is_jpeg, stored_or,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::RldsKeys;
@@ -41,6 +43,9 @@ pub struct StepLayout {
     /// The dataset's RGB and mask feature names: PNG bytes an episode brings for them are
     /// copied rather than encoded again.
     pub png_features: [Option<String>; 2],
+    /// Writing: the RGB camera as JPEG of this quality instead of PNG (JPEG bytes an episode
+    /// brings are copied). Reading takes either.
+    pub jpeg_quality: Option<u8>,
 }
 
 impl StepLayout {
@@ -55,6 +60,7 @@ impl StepLayout {
             environment_state: info.has(FeatureKind::EnvironmentState),
             png_features: [FeatureKind::Rgb, FeatureKind::Mask]
                 .map(|kind| info.feature(kind).map(|f| f.name.clone())),
+            jpeg_quality: None,
         }
     }
 
@@ -179,13 +185,21 @@ pub fn encode_episode(
         .png_features
         .clone()
         .map(|name| name.and_then(|n| episode.stored_png(&n)));
+    let stored_jpeg = layout.png_features[0]
+        .as_ref()
+        .and_then(|n| episode.stored_frames(n, ImageEncoding::Jpeg));
     let images: Vec<StepImages> = episode
         .steps
         .par_iter()
         .enumerate()
         .map(|(i, step)| {
             Ok(StepImages {
-                rgb: stored_or(stored_rgb, i, || encode_png(w, h, 3, &step.rgb, png))?,
+                rgb: match layout.jpeg_quality {
+                    Some(quality) => {
+                        stored_or(stored_jpeg, i, || encode_jpeg(w, h, &step.rgb, quality))?
+                    }
+                    None => stored_or(stored_rgb, i, || encode_png(w, h, 3, &step.rgb, png))?,
+                },
                 depth: if layout.depth {
                     let mm: Vec<u16> = step.depth_m.iter().map(|&d| depth_to_mm(d)).collect();
                     Some(encode_png16(w, h, &mm, png)?)
@@ -410,8 +424,12 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     let steps = (0..count)
         .into_par_iter()
         .map(|i| {
-            let (rw, rh, channels, pixels) =
-                decode_png_sized(&rgb[i], Some((w, h))).map_err(|e| bad_image(&image_key, i, e))?;
+            let decoded = if is_jpeg(&rgb[i]) {
+                decode_jpeg_sized(&rgb[i], (w, h))
+            } else {
+                decode_png_sized(&rgb[i], Some((w, h)))
+            };
+            let (rw, rh, channels, pixels) = decoded.map_err(|e| bad_image(&image_key, i, e))?;
             if (rw as usize, rh as usize, channels) != (w, h, 3) {
                 return Err(bad_image(
                     &image_key,
@@ -467,10 +485,29 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
         attempts: fields.int("episode_metadata/attempts")? as u32,
         success: fields.int("episode_metadata/success")? == 1,
     };
+    // JPEG bytes are kept beside their pixels: copied when written as JPEG again, and the mark
+    // that the pixels are lossy (verify and replay compare them within a tolerance).
+    let encoded = match (&layout.png_features[0], rgb.first()) {
+        (Some(feature), Some(first)) if is_jpeg(first) => vec![EncodedFeature {
+            feature: feature.clone(),
+            encoding: ImageEncoding::Jpeg,
+            frames: rgb
+                .iter()
+                .map(|data| EncodedFrame {
+                    data: data.clone(),
+                    keyframe: true,
+                })
+                .collect(),
+            pixel_stats: None,
+            shown: None,
+            file: None,
+        }],
+        _ => Vec::new(),
+    };
     Ok(Episode {
         meta,
         steps,
-        encoded: Vec::new(),
+        encoded,
     })
 }
 
@@ -488,6 +525,7 @@ mod tests {
             mask: true,
             environment_state: true,
             png_features: [None, None],
+            jpeg_quality: None,
         }
     }
 

@@ -3,7 +3,8 @@
 .ci/run writes, from the same options and seed:
 - SURGVLA_LEROBOT_DATASET: a LeRobot dataset (`collect`, with the mask), the reference values;
 - SURGVLA_RLDS_DATASET: `collect --format rlds --rlds-shard-mb 1` (several shards);
-- SURGVLA_RLDS_CONVERTED: `convert <the LeRobot dataset> --to rlds`.
+- SURGVLA_RLDS_CONVERTED: `convert <the LeRobot dataset> --to rlds`;
+- SURGVLA_RLDS_JPEG: the same with `--rlds-image-encoding jpeg` (quality 95).
 
 Expected values are read independently of surgvla: the LeRobot parquet with pyarrow, its PNG
 with TensorFlow and its float TIFF depth with Pillow. The RLDS side is read only through
@@ -28,6 +29,7 @@ from PIL import Image  # noqa: E402
 LEROBOT = Path(os.environ.get("SURGVLA_LEROBOT_DATASET", "")).resolve()
 RLDS = Path(os.environ.get("SURGVLA_RLDS_DATASET", "")).resolve()
 CONVERTED = Path(os.environ.get("SURGVLA_RLDS_CONVERTED", "")).resolve()
+JPEG = Path(os.environ.get("SURGVLA_RLDS_JPEG", "")).resolve()
 NAME, VERSION = "surgvla_benchmark", "1.0.0"
 
 
@@ -168,6 +170,31 @@ def test_depth_scale_through_tfds_and_octos_decode_and_resize(builder):
     unit = tf.io.decode_image(encoded, expand_animations=False, dtype=tf.float32).numpy()[..., 0]
     assert unit.max() <= 1.0
     np.testing.assert_allclose(unit * 65.535, depth_m, atol=0.0005 + 1e-5)
+
+
+def test_jpeg_rgb_reads_through_tfds_near_the_png_frames():
+    builder = tfds.builder_from_directory(str(JPEG / NAME / VERSION))
+    image = builder.info.features["steps"]["observation"]["image"]
+    assert image.encoding_format == "jpeg" and image.shape == (224, 224, 3)
+    worst = 0.0
+    for (_, steps), (_, rows, _) in zip(tfds_episodes(JPEG), lerobot_episodes(), strict=True):
+        assert len(steps) == len(rows)
+        for step, row in zip(steps, rows):
+            png = tf.io.decode_png(row["observation.images.endoscope"]["bytes"]).numpy()
+            mean = np.abs(step["observation"]["image"].astype(int) - png.astype(int)).mean()
+            worst = max(worst, mean)
+            np.testing.assert_array_equal(step["action"], np.float32(row["action"]))
+    # surgvla's --verify tolerance (LOSSY_RGB_MEAN_TOLERANCE) is 6 levels; quality 95 keeps far
+    # closer.
+    assert worst < 3.0, worst
+    # OpenVLA reads the encoded bytes and decodes them with TensorFlow.
+    raw = builder.as_dataset(split="train", decoders={"steps": tfds.decode.SkipDecoding()})
+    encoded = next(iter(raw))["steps"]["observation"]["image"][0]
+    decoded = tf.io.decode_image(encoded, expand_animations=False, dtype=tf.uint8)
+    assert decoded.shape == (224, 224, 3)
+    # A fraction of the PNG dataset's size.
+    size = lambda root: sum(p.stat().st_size for p in (root / NAME / VERSION).glob("*.tfrecord*"))
+    assert size(JPEG) < size(CONVERTED)
 
 
 def openvla_snippets():
