@@ -4,7 +4,7 @@
 
 #![allow(unsafe_code)]
 
-use super::YuvFrame;
+use super::{ColorSpace, YuvFrame};
 use crate::episode::EncodedFrame;
 use crate::export::ExportError;
 use rav1d::include::dav1d::data::Dav1dData;
@@ -148,12 +148,20 @@ fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, Failure> {
         }
         Ok(out)
     };
+    // SAFETY: a picture from dav1d_get_picture references its sequence header while it is
+    // referenced itself.
+    let color = picture
+        .seq_hdr
+        .map(|header| unsafe { header.as_ref() })
+        .map(|header| ColorSpace::from_h273(header.mtrx, header.color_range != 0))
+        .unwrap_or_default();
     Ok(YuvFrame {
         width_px: width as u32,
         height_px: height as u32,
         y: copy(0, picture.stride[0], width, height)?,
         u: copy(1, picture.stride[1], cw, ch)?,
         v: copy(2, picture.stride[1], cw, ch)?,
+        color,
     })
 }
 

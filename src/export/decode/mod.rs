@@ -11,6 +11,7 @@
 
 mod av1;
 pub mod check;
+pub mod color;
 mod source;
 
 pub use av1::{decode_av1, decode_av1_each};
@@ -18,6 +19,7 @@ pub use source::{Decoded, MAX_DECODED_SIDE_PX};
 
 use crate::episode::{EncodedFrame, VideoCodec};
 use crate::export::ExportError;
+pub use color::ColorSpace;
 use openh264::OpenH264API;
 use openh264::decoder::{DecodedYUV, Decoder, DecoderConfig, Flush};
 use openh264::formats::YUVSource;
@@ -32,6 +34,8 @@ pub struct YuvFrame {
     /// Chroma, each `ceil(width_px / 2)` x `ceil(height_px / 2)`.
     pub u: Vec<u8>,
     pub v: Vec<u8>,
+    /// The matrix and range the stream signals.
+    pub color: ColorSpace,
 }
 
 /// H.264 profiles (`profile_idc` of the sequence parameter set) the decoder is used for: 8-bit
@@ -97,6 +101,7 @@ fn planes(picture: &DecodedYUV<'_>) -> YuvFrame {
         y: tight(picture.y(), y_stride, width, height),
         u: tight(picture.u(), u_stride, cw, ch),
         v: tight(picture.v(), v_stride, cw, ch),
+        color: ColorSpace::default(),
     }
 }
 
@@ -125,16 +130,25 @@ pub fn decode_h264_each(
     let config = DecoderConfig::new().flush_after_decode(Flush::NoFlush);
     let mut decoder =
         Decoder::with_api_config(OpenH264API::from_source(), config).map_err(&error)?;
+    // The span starts on a keyframe carrying its SPS, whose VUI signals the colour space.
+    let color = samples
+        .first()
+        .and_then(|s| color::h264_color_space(&s.data))
+        .unwrap_or_default();
+    let with_color = |picture: &DecodedYUV<'_>| YuvFrame {
+        color,
+        ..planes(picture)
+    };
     let mut count = 0;
     for sample in samples {
         if let Some(picture) = decoder.decode(&sample.data).map_err(&error)? {
             count += 1;
-            on_picture(planes(&picture))?;
+            on_picture(with_color(&picture))?;
         }
     }
     for picture in decoder.flush_remaining().map_err(&error)? {
         count += 1;
-        on_picture(planes(&picture))?;
+        on_picture(with_color(&picture))?;
     }
     if count != samples.len() {
         return Err(ExportError::Decode {
@@ -250,10 +264,10 @@ pub fn nearest_frames(
         .collect()
 }
 
-/// BT.601 limited-range YUV 4:2:0 to RGB (3 bytes a pixel), each chroma sample covering its
-/// 2 x 2 block, in 8-bit fixed point (the inverse of [`crate::export::video::rgb_to_yuv420`]'s
-/// matrix): FFmpeg's assumption for a stream that does not tag its matrix and range.
-/// None when the planes' sizes disagree with the frame's dimensions.
+/// YUV 4:2:0 to RGB (3 bytes a pixel) in the frame's colour space ([`ColorSpace`]: BT.601
+/// limited range unless the stream signals otherwise), each chroma sample covering its 2 x 2
+/// block, in 8-bit fixed point. None when the planes' sizes disagree with the frame's
+/// dimensions.
 pub fn rgb_from_yuv420(frame: &YuvFrame) -> Option<Vec<u8>> {
     let (width, height) = (frame.width_px as usize, frame.height_px as usize);
     let (cw, ch) = (width.div_ceil(2), height.div_ceil(2));
@@ -261,18 +275,14 @@ pub fn rgb_from_yuv420(frame: &YuvFrame) -> Option<Vec<u8>> {
         return None;
     }
     let mut rgb = Vec::with_capacity(width * height * 3);
-    let clip = |value: i32| (value >> 8).clamp(0, 255) as u8;
     for row in 0..height {
         for col in 0..width {
-            let c = 298 * (i32::from(frame.y[row * width + col]) - 16) + 128;
             let chroma = (row / 2) * cw + col / 2;
-            let d = i32::from(frame.u[chroma]) - 128;
-            let e = i32::from(frame.v[chroma]) - 128;
-            rgb.extend_from_slice(&[
-                clip(c + 409 * e),
-                clip(c - 100 * d - 208 * e),
-                clip(c + 516 * d),
-            ]);
+            rgb.extend_from_slice(&frame.color.rgb(
+                frame.y[row * width + col],
+                frame.u[chroma],
+                frame.v[chroma],
+            ));
         }
     }
     Some(rgb)
@@ -316,6 +326,7 @@ mod tests {
             y: vec![y; 4],
             u: vec![128],
             v: vec![128],
+            color: ColorSpace::default(),
         };
         assert_eq!(rgb_from_yuv420(&frame(16)), Some(vec![0; 12]));
         assert_eq!(rgb_from_yuv420(&frame(235)), Some(vec![255; 12]));
@@ -335,6 +346,7 @@ mod tests {
             y,
             u,
             v,
+            color: ColorSpace::default(),
         })
         .expect("planes");
         let worst = rgb.iter().zip(&back).map(|(a, b)| a.abs_diff(*b)).max();
