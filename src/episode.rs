@@ -484,15 +484,6 @@ impl Episode {
             .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
             .collect();
         for feature in features.iter().filter(|f| !f.in_steps()) {
-            if self
-                .encoded_video(&feature.name)
-                .is_some_and(|e| e.shown.is_some())
-            {
-                return Err(format!(
-                    "episode {}: {}'s video is not one frame per row in presentation order (B-frames, or frames the rows skip), so it cannot be copied: decode it (convert --decode, or --video to re-encode)",
-                    self.meta.index, feature.name
-                ));
-            }
             let frames = self
                 .encoded_video(&feature.name)
                 .map_or(0, |e| e.frames.len());

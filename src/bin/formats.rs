@@ -489,10 +489,16 @@ pub struct MergeArgs {
     /// Continue an interrupted merge into --out (the same inputs).
     #[arg(long)]
     resume: bool,
+    /// Recompute the pixel statistics of video features another tool wrote (whose metadata
+    /// holds per-episode summaries only) from every decoded frame; without it they are combined
+    /// by count, as lerobot does (a single input's statistics stay as they are).
+    #[arg(long)]
+    exact_stats: bool,
 }
 
 /// `surgvla merge INPUT... --out DIR`.
 pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
+    let created = !args.out.exists();
     let bar = crate::progress::episode_bar(0, "merging");
     let threads = args.threads.unwrap_or(0);
     let summary = surgvla::export::merge(&mut MergeRequest {
@@ -500,6 +506,7 @@ pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
         out: &args.out,
         threads,
         resume: args.resume,
+        exact_stats: args.exact_stats,
         progress: &mut |done| {
             bar.set_length(done);
             bar.set_position(done)
@@ -511,6 +518,12 @@ pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
             e,
             surgvla::export::MergeError::Convert(ConvertError::Write(_))
         );
+        // A usage error found in the first episodes (video that cannot be copied) leaves no
+        // output behind.
+        let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
+        if usage && !args.resume {
+            surgvla::export::DatasetDir::discard_unstarted(&args.out, created);
+        }
         let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
         CliError::from(e).resumable(resumable)
     })?;

@@ -158,6 +158,10 @@ pub struct MergeRequest<'a> {
     pub threads: usize,
     /// Continue the interrupted merge in `out` (the same inputs, checked by their identity).
     pub resume: bool,
+    /// Recompute the pixel statistics of video features that carry no surgvla accumulator
+    /// from every decoded frame (default: lerobot's combination of per-episode summaries by
+    /// count).
+    pub exact_stats: bool,
     pub progress: &'a mut (dyn FnMut(u64) + Send),
 }
 

@@ -328,6 +328,19 @@ pub(crate) fn check_episode(
             episode.meta.index
         )));
     }
+    // Video that cannot be copied (the user's choice to copy it, not a defect): exit 2.
+    if let Some(video) = episode.encoded.iter().find(|e| {
+        e.shown.is_some()
+            && info
+                .features
+                .iter()
+                .any(|f| f.name == e.feature && !f.in_steps())
+    }) {
+        return Err(ExportError::InvalidOptions(format!(
+            "episode {}: {}'s video is not one frame per row in presentation order (B-frames, or frames the rows skip), so it cannot be copied as it is: decode it (convert --decode, or --video to re-encode)",
+            episode.meta.index, video.feature
+        )));
+    }
     let (width, height) = info.image_size();
     episode
         .validate(width, height, &info.features)

@@ -15,7 +15,7 @@ pub mod color;
 mod source;
 
 pub use av1::{decode_av1, decode_av1_each};
-pub use source::{Decoded, MAX_DECODED_SIDE_PX};
+pub use source::{Decoded, MAX_DECODED_SIDE_PX, exact_video_stats};
 
 use crate::episode::{EncodedFrame, VideoCodec};
 use crate::export::ExportError;

@@ -9,8 +9,11 @@
 //! picture is converted to RGB as it leaves the decoder.
 
 use super::{YuvFrame, decode_span_each, rgb_from_yuv420};
-use crate::episode::{Dtype, EncodedFeature, Episode, FeatureKind, FeatureValue, ImageEncoding};
+use crate::episode::{
+    Dtype, EncodedFeature, Episode, FeatureKind, FeatureValue, ImageEncoding, PixelStats,
+};
 use crate::export::image::{PngLevel, encode_png};
+use crate::export::stats::ImageStats;
 use crate::export::{DatasetInfo, EpisodeSource, ExportError};
 use rayon::prelude::*;
 use std::collections::VecDeque;
@@ -183,6 +186,42 @@ fn decode_episode(mut episode: Episode, targets: &[Target]) -> Result<Episode, E
         }
     }
     Ok(episode)
+}
+
+/// Exact pixel statistics of every video feature `episode` brings without them (another tool's
+/// dataset: its metadata carries a summary only), from its decoded frames, one per step as
+/// lerobot selects them; features of no 3-channel shape in `info` are left alone.
+pub fn exact_video_stats(episode: &mut Episode, info: &DatasetInfo) -> Result<(), ExportError> {
+    let index = episode.meta.index;
+    let steps = episode.steps.len();
+    for encoded in episode.encoded.iter_mut() {
+        if !matches!(encoded.encoding, ImageEncoding::Video(_))
+            || matches!(encoded.pixel_stats, Some(PixelStats::Exact(_)))
+        {
+            continue;
+        }
+        let Some(size_px) = info
+            .features
+            .iter()
+            .find(|f| f.name == encoded.feature)
+            .and_then(|f| frame_size(&f.shape))
+        else {
+            continue;
+        };
+        let target = Target {
+            name: encoded.feature.clone(),
+            size_px,
+            slot: Slot::Rgb,
+        };
+        let mut stats = ImageStats::unit_scaled(3);
+        for rgb in decode_feature(encoded, &target, index, steps)? {
+            stats.push_u8(&rgb);
+        }
+        let value = serde_json::to_value(&stats)
+            .map_err(|e| ExportError::Internal(format!("statistics: {e}")))?;
+        encoded.pixel_stats = Some(PixelStats::Exact(value));
+    }
+    Ok(())
 }
 
 /// One video feature's RGB frames, one per step.

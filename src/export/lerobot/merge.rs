@@ -14,7 +14,7 @@ use crate::export::convert::ConvertError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::lerobot::read::LeRobotSource;
 use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
+use crate::export::{DatasetInfo, EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 
@@ -143,7 +143,7 @@ fn differences(a: &Input, b: &Input) -> Vec<String> {
 /// overview), on `threads` worker threads (0: one per core), or continues an interrupted merge
 /// of the same inputs (`resume`); `progress` hears the episodes done so far.
 pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
-    let (out, threads) = (request.out, request.threads);
+    let (out, threads, exact_stats) = (request.out, request.threads, request.exact_stats);
     let mut opened: Vec<Input> = request
         .inputs
         .iter()
@@ -263,6 +263,9 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
                 next += 1;
                 batch.push(episode);
                 if batch.len() == batch_size {
+                    if exact_stats {
+                        exact(&mut batch, &info)?;
+                    }
                     sink.write_batch(&batch).map_err(write)?;
                     batch.clear();
                     progress(next);
@@ -270,6 +273,9 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
             }
         }
         if !batch.is_empty() {
+            if exact_stats {
+                exact(&mut batch, &info)?;
+            }
             sink.write_batch(&batch).map_err(write)?;
         }
         progress(next);
@@ -293,6 +299,16 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     }
     .map_err(write)?;
     Ok(summary)
+}
+
+/// `merge --exact-stats`: each episode's video features get exact statistics from their
+/// decoded frames (episodes in parallel).
+fn exact(batch: &mut [crate::episode::Episode], info: &DatasetInfo) -> Result<(), MergeError> {
+    use rayon::prelude::*;
+    batch
+        .par_iter_mut()
+        .try_for_each(|episode| crate::export::decode::exact_video_stats(episode, info))
+        .map_err(|e| MergeError::Convert(ConvertError::Read(e)))
 }
 
 /// One collect report of several: counts summed per task (in order of first appearance),

@@ -164,3 +164,33 @@ def test_copying_keeps_av1_and_refuses_b_frames_by_name(written, tmp_path):
         for key in CAMERAS:
             mean = np.abs(theirs[key].astype(int) - ours[key].astype(int)).mean()
             assert mean < 6.0, (key, mean)
+
+
+def test_merge_exact_stats_come_from_every_decoded_frame(written, tmp_path):
+    name, _, root = written
+    out = tmp_path / "merged"
+    done = surgvla("merge", root, root, "--exact-stats", "--out", out)
+    if name == "h264":
+        # B-frames cannot be copied: the user's error, named, with nothing left behind.
+        assert done.returncode == 2 and "B-frames" in done.stderr, done.stderr
+        assert not out.exists()
+        return
+    assert done.returncode == 0, done.stderr
+    assert surgvla("validate", out).returncode == 0
+    stats = json.loads((out / "meta/stats.json").read_text())
+    # surgvla's own decoding of the frames (image mode), and lerobot's.
+    images = tmp_path / "images"
+    assert surgvla("convert", root, "--to", "lerobot", "--decode", "--out", images).returncode == 0
+    ours, theirs = frames(images, "pyav"), frames(root, "pyav")
+    for key in CAMERAS:
+        entry = stats[key]
+        assert entry["count"] == [2 * len(ours[key])], entry["count"]
+        mean, std = np.array(entry["mean"]).reshape(3), np.array(entry["std"]).reshape(3)
+        # Exact over every decoded frame.
+        pixels = ours[key].reshape(-1, 3) / 255.0
+        np.testing.assert_allclose(mean, pixels.mean(axis=0), atol=1e-6)
+        np.testing.assert_allclose(std, pixels.std(axis=0), atol=1e-6)
+        np.testing.assert_allclose(np.array(entry["min"]).reshape(3), pixels.min(axis=0), atol=1e-6)
+        np.testing.assert_allclose(np.array(entry["max"]).reshape(3), pixels.max(axis=0), atol=1e-6)
+        # Against lerobot's own decoding (swscale's conversion): the means within 0.01.
+        np.testing.assert_allclose(mean, (theirs[key].reshape(-1, 3) / 255.0).mean(axis=0), atol=0.01)
