@@ -347,6 +347,41 @@ fn good_datasets_of_every_format_are_valid_and_described() {
         MP4,
         "a declared size the frames lack",
     );
+    // Statistics that do not describe the video: the stored accumulator's sums halved.
+    let (_copy, report) = broken(&video, |root| {
+        let column = "surgvla/pixel_stats/observation.images.endoscope";
+        rewrite_parquet(
+            &root.join("meta/episodes/chunk-000/file-000.parquet"),
+            |batch| {
+                let index = batch.schema().index_of(column).expect("column");
+                let mut columns = batch.columns().to_vec();
+                let texts = columns[index]
+                    .as_any()
+                    .downcast_ref::<arrow_array::StringArray>()
+                    .expect("JSON text");
+                let halved: Vec<String> = texts
+                    .iter()
+                    .map(|text| {
+                        let mut stats: serde_json::Value =
+                            serde_json::from_str(text.expect("stats")).expect("json");
+                        for running in stats["running"].as_array_mut().expect("running") {
+                            let sum = running["sum"].as_f64().expect("sum");
+                            running["sum"] = serde_json::json!(sum / 2.0);
+                        }
+                        stats.to_string()
+                    })
+                    .collect();
+                columns[index] = Arc::new(arrow_array::StringArray::from(halved));
+                RecordBatch::try_new(batch.schema(), columns).expect("batch")
+            },
+        )
+    });
+    let stats = report
+        .errors
+        .iter()
+        .find(|e| e.check == "video-stats")
+        .unwrap_or_else(|| panic!("no video-stats finding in {:#?}", report.errors));
+    assert_eq!(stats.episode, Some(0), "{stats:?}");
     // A byte-for-byte copy and a byte-differently rewritten copy (no manifest) are valid.
     let (_copy, report) = broken(&c.lerobot, |_| {});
     assert!(report.valid, "{:#?}", report.errors);

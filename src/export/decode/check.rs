@@ -49,15 +49,29 @@ pub fn check_span(
     size_px: (usize, usize),
     quick: bool,
 ) -> Vec<DecodeProblem> {
+    check_span_means(path, span, size_px, quick, false).0
+}
+
+/// [`check_span`], and with `means` the decoded RGB frames' mean per channel (0..1) over the
+/// span, when every picture decoded.
+pub fn check_span_means(
+    path: &Path,
+    span: Option<(f64, f64)>,
+    size_px: (usize, usize),
+    quick: bool,
+    means: bool,
+) -> (Vec<DecodeProblem>, Option<[f64; 3]>) {
     let mut reader = match VideoReader::open(path) {
         Ok(reader) => reader,
-        Err(error) => return vec![problem(None, &error)],
+        Err(error) => return (vec![problem(None, &error)], None),
     };
     let (from, to) = span.unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
     let mut samples = match reader.decodable(from, to) {
         Ok(decodable) => decodable.samples,
-        Err(error) => return vec![problem(None, &error)],
+        Err(error) => return (vec![problem(None, &error)], None),
     };
+    let mut sums = [0u64; 3];
+    let mut pixels = 0u64;
     if quick {
         samples.truncate(1);
     }
@@ -81,6 +95,14 @@ pub fn check_span(
                     unsupported: false,
                 });
             }
+            if means && let Some(rgb) = super::rgb_from_yuv420(&picture) {
+                for pixel in rgb.chunks_exact(3) {
+                    for (sum, value) in sums.iter_mut().zip(pixel) {
+                        *sum += u64::from(*value);
+                    }
+                }
+                pixels += (rgb.len() / 3) as u64;
+            }
             frame += 1;
             Ok(())
         },
@@ -89,8 +111,10 @@ pub fn check_span(
         let mut found = problem(Some(frame), &error);
         found.message = format!("frame {frame} does not decode: {}", found.message);
         problems.push(found);
+        return (problems, None);
     }
-    problems
+    let mean = (means && pixels > 0).then(|| sums.map(|s| s as f64 / pixels as f64 / 255.0));
+    (problems, mean)
 }
 
 #[cfg(test)]

@@ -301,6 +301,16 @@ fn episode_entry(
         let file = get(&format!("videos/{key}/file_index"));
         let from = float(&format!("videos/{key}/from_timestamp"));
         let to = float(&format!("videos/{key}/to_timestamp"));
+        // surgvla's exact statistics accumulator of the episode's frames, if present.
+        let pixel_stats = format!("surgvla/pixel_stats/{key}");
+        if let Some(text) = column(&pixel_stats)
+            .and_then(|c| c.downcast_ref::<StringArray>())
+            .filter(|c| c.is_valid(row))
+        {
+            entry
+                .provenance
+                .insert(pixel_stats, Value::from(text.value(row)));
+        }
         match (chunk, file, from, to) {
             (Some(c), Some(f), Some(from), Some(to)) => {
                 entry.videos.insert(key.clone(), (c, f, from, to));
@@ -577,6 +587,10 @@ pub(super) fn check_videos(
                             episode: i as u64,
                             span,
                             size_px,
+                            stored_mean: entry
+                                .provenance
+                                .get(&format!("surgvla/pixel_stats/{key}"))
+                                .and_then(stored_mean),
                         });
                     }
                 }
@@ -603,6 +617,30 @@ struct SpanToDecode {
     span: Option<(f64, f64)>,
     /// The declared (width, height).
     size_px: (usize, usize),
+    /// The mean per channel of surgvla's exact statistics accumulator for this episode
+    /// (computed from the pixels before encoding), if the episodes table has one.
+    stored_mean: Option<[f64; 3]>,
+}
+
+/// How far (0..1) the decoded frames' mean per channel may lie from the statistics surgvla
+/// stored from the pixels before encoding them: lossy coding moves it by a level or less; a
+/// wrong video or wrong statistics move it by far more.
+pub(crate) const PIXEL_MEAN_TOLERANCE: f64 = 0.02;
+
+/// The per-channel mean of an exact statistics accumulator (`surgvla/pixel_stats/<key>`: JSON
+/// text, or an object).
+fn stored_mean(value: &serde_json::Value) -> Option<[f64; 3]> {
+    let parsed: crate::export::stats::ImageStats = match value {
+        serde_json::Value::String(text) => serde_json::from_str(text).ok()?,
+        other => serde_json::from_value(other.clone()).ok()?,
+    };
+    let json = parsed.to_json();
+    let means: Vec<f64> = json["mean"]
+        .as_array()?
+        .iter()
+        .filter_map(|c| c[0][0].as_f64())
+        .collect();
+    <[f64; 3]>::try_from(means).ok()
 }
 
 /// Decodes each episode's span (the first frame only when `quick`), in parallel: a sample that
@@ -618,9 +656,31 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
             episode,
             span,
             size_px,
+            stored_mean,
         } = to_decode;
         {
-            for problem in crate::export::decode::check::check_span(path, *span, *size_px, quick) {
+            let (problems, decoded_mean) = crate::export::decode::check::check_span_means(
+                path,
+                *span,
+                *size_px,
+                quick,
+                stored_mean.is_some() && !quick,
+            );
+            if let (Some(stored), Some(decoded)) = (stored_mean, decoded_mean)
+                && stored
+                    .iter()
+                    .zip(&decoded)
+                    .any(|(s, d)| (s - d).abs() > PIXEL_MEAN_TOLERANCE)
+            {
+                findings.error(
+                    At::file(file.clone()).episode(*episode),
+                    "video-stats",
+                    format!(
+                        "the decoded frames' mean RGB is {decoded:.4?}; the episode's stored statistics say {stored:.4?} (more than {PIXEL_MEAN_TOLERANCE} apart)"
+                    ),
+                );
+            }
+            for problem in problems {
                 let mut at = At::file(file.clone()).episode(*episode);
                 if let Some(frame) = problem.frame {
                     at = at.frame(frame);
