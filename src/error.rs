@@ -52,3 +52,16 @@ impl HasKind for std::io::Error {
         self.kind() == std::io::ErrorKind::StorageFull
     }
 }
+
+/// An error and its sources on one line, `: `-separated (for messages that embed an error,
+/// such as a validate finding or a policy's reply).
+pub fn chain(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut source = error.source();
+    while let Some(inner) = source {
+        text.push_str(": ");
+        text.push_str(&inner.to_string());
+        source = inner.source();
+    }
+    text
+}

@@ -262,7 +262,10 @@ impl Agent for RemoteAgent<'_> {
         if self.queue.is_empty() {
             let request = self.request(observation, prompt)?;
             self.requests += 1;
-            let reply = self.policy.infer(request).map_err(|e| error_chain(&e))?;
+            let reply = self
+                .policy
+                .infer(request)
+                .map_err(|e| crate::error::chain(&e))?;
             let chunk = decode_actions(&reply).map_err(|e| {
                 self.policy.disconnect();
                 format!("malformed reply from {}: {e}", self.policy.url())
@@ -278,16 +281,4 @@ impl Agent for RemoteAgent<'_> {
             .pop_front()
             .map(|a| Command::Physical(physical(&a))))
     }
-}
-
-/// An error and its causes on one line.
-fn error_chain(error: &dyn std::error::Error) -> String {
-    let mut text = error.to_string();
-    let mut source = error.source();
-    while let Some(cause) = source {
-        text.push_str(": ");
-        text.push_str(&cause.to_string());
-        source = cause.source();
-    }
-    text
 }

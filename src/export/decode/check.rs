@@ -20,22 +20,10 @@ pub struct DecodeProblem {
     pub unsupported: bool,
 }
 
-/// An error and its sources, one line.
-pub fn chain(error: &dyn std::error::Error) -> String {
-    let mut text = error.to_string();
-    let mut source = error.source();
-    while let Some(inner) = source {
-        text.push_str(": ");
-        text.push_str(&inner.to_string());
-        source = inner.source();
-    }
-    text
-}
-
 fn problem(frame: Option<u64>, error: &ExportError) -> DecodeProblem {
     DecodeProblem {
         frame,
-        message: chain(error),
+        message: crate::error::chain(error),
         unsupported: error.kind() == ErrorKind::Usage,
     }
 }

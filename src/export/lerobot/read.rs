@@ -568,10 +568,21 @@ impl LeRobotSource {
             info_json.robot_type.as_deref().unwrap_or_default(),
             features,
         );
+        // Every episode's row is held while reading: only what reading uses is kept (video
+        // spans, provenance, and the statistics of video features), so memory stays flat in
+        // episodes.
+        let mut episodes = episode_rows(root, v21)?;
+        for episode in &mut episodes {
+            episode.stats.retain(|key, _| {
+                info.features
+                    .iter()
+                    .any(|f| f.name == *key && !f.in_steps())
+            });
+        }
         Ok(LeRobotSource {
             root: root.to_path_buf(),
             total_episodes: info_json.total_episodes.unwrap_or(0),
-            episodes: episode_rows(root, v21)?,
+            episodes,
             v21,
             chunks_size: info_json.chunks_size.unwrap_or(1000).max(1),
             video_path: info_json
@@ -613,7 +624,7 @@ impl LeRobotSource {
             row.and_then(|r| r.pixel_stats.get(key)),
             row.and_then(|r| r.stats.get(key)),
         ) {
-            (Some(exact), _) => Some(PixelStats::Exact(exact.clone())),
+            (Some(exact), _) => serde_json::from_str(exact).ok().map(PixelStats::Exact),
             (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
             (None, None) => None,
         };

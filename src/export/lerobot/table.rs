@@ -269,8 +269,10 @@ pub struct StoredEpisode {
     /// Per feature, its statistics (v3.0: the `stats/<feature>/<stat>` columns).
     pub stats: StatsJson,
     /// Per video feature of a surgvla dataset, the exact statistics accumulator of its pixels
-    /// (the `surgvla/pixel_stats/<feature>` column, JSON text or an object).
-    pub pixel_stats: std::collections::BTreeMap<String, Value>,
+    /// (the `surgvla/pixel_stats/<feature>` column, JSON text or an object), kept as compact
+    /// JSON text: parsed, each is tens of kilobytes (histograms), and a reader holds every
+    /// episode's row; the episode being read parses its own.
+    pub pixel_stats: std::collections::BTreeMap<String, String>,
     /// The `surgvla/...` columns (each absent one reads as zero, empty or false).
     pub provenance: Provenance,
 }
@@ -292,8 +294,10 @@ impl StoredEpisode {
             }
             if let Some(key) = name.strip_prefix(PIXEL_STATS) {
                 let exact = match value {
-                    Value::String(text) => serde_json::from_str::<Value>(&text).ok(),
-                    Value::Object(_) => Some(value),
+                    Value::String(text) => serde_json::from_str::<serde::de::IgnoredAny>(&text)
+                        .is_ok()
+                        .then_some(text),
+                    Value::Object(_) => Some(value.to_string()),
                     _ => None,
                 };
                 if let Some(exact) = exact {
@@ -585,10 +589,9 @@ mod tests {
         assert_eq!(state.min, Some(StatValue::list([0.0, 1.0])));
         assert_eq!(state.count.as_ref().map(StatValue::flat), Some(vec![7.0]));
         assert_eq!(state.max, None);
-        assert_eq!(
-            episode.pixel_stats["observation.images.rgb"],
-            json!({"frames": 4})
-        );
+        let exact: Value =
+            serde_json::from_str(&episode.pixel_stats["observation.images.rgb"]).expect("json");
+        assert_eq!(exact, json!({"frames": 4}));
         assert!(!episode.pixel_stats.contains_key("cam"));
         let p = &episode.provenance;
         assert_eq!(
