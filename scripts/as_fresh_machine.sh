@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Runs a command as on a fresh machine, where neither the `nasm` assembler nor the test-only
-# system libraries `.ci/run` installs for the interop tests (libusb-1.0, which Open3D loads, and
-# FFmpeg's, which torchcodec loads) are
-# present: in a private mount namespace, every `nasm` on PATH and every such library file the
-# dynamic loader knows is covered by /dev/null, which can be neither executed nor loaded.
+# system packages `.ci/run` installs for the interop tests (libusb-1.0, which Open3D loads, and
+# FFmpeg, whose libraries torchcodec loads) are present: in a private mount namespace, every
+# `nasm`, `ffmpeg` and `ffprobe` on PATH and every such library file the dynamic loader knows is
+# covered by /dev/null, which can be neither executed nor loaded.
 # Nothing outside this process sees the change and nothing stays mounted. CI builds and runs the
 # README's commands this way, so a build or run step that needs nasm (rav1e's `asm` feature,
 # opt-in) or a test-only library fails CI even on a machine where an earlier run installed it.
@@ -23,14 +23,18 @@ fi
 
 IFS=: read -r -a path_dirs <<<"${PATH}"
 for dir in "${path_dirs[@]}"; do
-    if [ -e "${dir}/nasm" ]; then
-        mount --bind /dev/null "${dir}/nasm"
+    for tool in nasm ffmpeg ffprobe; do
+        if [ -e "${dir}/${tool}" ]; then
+            mount --bind /dev/null "${dir}/${tool}"
+        fi
+    done
+done
+for tool in nasm ffmpeg; do
+    if "${tool}" -version >/dev/null 2>&1 || "${tool}" -v >/dev/null 2>&1; then
+        echo "error: $0 could not hide ${tool} ($(command -v "${tool}"))" >&2
+        exit 1
     fi
 done
-if nasm -v >/dev/null 2>&1; then
-    echo "error: $0 could not hide nasm ($(command -v nasm))" >&2
-    exit 1
-fi
 
 # The test-only libraries: each file the loader's cache names, and what its links point to.
 hidden=()

@@ -16,6 +16,7 @@ use re_mp4::{Mp4, StsdBoxContent};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Slack when matching sample times to an episode's span, seconds (lerobot's own tolerance).
 const TIME_TOLERANCE_SECS: f64 = 1e-4;
@@ -38,10 +39,11 @@ pub struct VideoReader {
     pub codec: VideoCodec,
     pub width_px: u32,
     pub height_px: u32,
-    samples: Vec<SampleRef>,
+    /// Shared with readers [`VideoReader::reopen`] makes.
+    samples: Arc<Vec<SampleRef>>,
     /// What a keyframe lacking its parameters gets in front: the AV1 configuration OBUs, or
     /// H.264's SPS and PPS as Annex B.
-    parameters: Vec<u8>,
+    parameters: Arc<Vec<u8>>,
     /// H.264: bytes of each NAL unit's length prefix.
     length_size: usize,
     /// Whether presentation order differs from decode order (B-frames).
@@ -161,10 +163,27 @@ impl VideoReader {
             codec,
             width_px: u32::from(track.width),
             height_px: u32::from(track.height),
-            samples,
-            parameters,
+            samples: Arc::new(samples),
+            parameters: Arc::new(parameters),
             length_size,
             reorders,
+        })
+    }
+
+    /// Another reader of the same file with its own file handle, sharing the sample tables
+    /// this one read (for workers reading spans of one file in parallel: the tables are parsed
+    /// once).
+    pub fn reopen(&self) -> Result<Self, ExportError> {
+        Ok(VideoReader {
+            path: self.path.clone(),
+            file: File::open(&self.path).map_err(ExportError::io(&self.path))?,
+            codec: self.codec,
+            width_px: self.width_px,
+            height_px: self.height_px,
+            samples: Arc::clone(&self.samples),
+            parameters: Arc::clone(&self.parameters),
+            length_size: self.length_size,
+            reorders: self.reorders,
         })
     }
 

@@ -7,7 +7,6 @@ use super::{MAX_DECODED_SIDE_PX, decode_span_each};
 use crate::error::{ErrorKind, HasKind};
 use crate::export::ExportError;
 use crate::export::demux::VideoReader;
-use std::path::Path;
 
 /// What decoding a span found.
 #[derive(Clone, Debug, PartialEq)]
@@ -28,28 +27,19 @@ fn problem(frame: Option<u64>, error: &ExportError) -> DecodeProblem {
     }
 }
 
-/// Decodes the pictures of `path` presented in `span` (seconds; None: the whole file), or only
-/// the first when `quick`, and checks each is `size_px` (width, height). Returns the problems,
-/// the first failure ending the pass.
+/// Decodes the pictures of `video`'s file presented in `span` (seconds; None: the whole file),
+/// or only the first when `quick`, and checks each is `size_px` (width, height); with `means`,
+/// also returns the decoded RGB frames' mean per channel (0..1) when every picture decoded.
+/// `video` is a reader whose tables are shared ([`VideoReader::reopen`]): one per file, however
+/// many episodes it holds. The first failure ends the pass.
 pub fn check_span(
-    path: &Path,
-    span: Option<(f64, f64)>,
-    size_px: (usize, usize),
-    quick: bool,
-) -> Vec<DecodeProblem> {
-    check_span_means(path, span, size_px, quick, false).0
-}
-
-/// [`check_span`], and with `means` the decoded RGB frames' mean per channel (0..1) over the
-/// span, when every picture decoded.
-pub fn check_span_means(
-    path: &Path,
+    video: &VideoReader,
     span: Option<(f64, f64)>,
     size_px: (usize, usize),
     quick: bool,
     means: bool,
 ) -> (Vec<DecodeProblem>, Option<[f64; 3]>) {
-    let mut reader = match VideoReader::open(path) {
+    let mut reader = match video.reopen() {
         Ok(reader) => reader,
         Err(error) => return (vec![problem(None, &error)], None),
     };
@@ -65,7 +55,7 @@ pub fn check_span_means(
     }
     let mut problems = Vec::new();
     let mut frame = 0u64;
-    let what = path.display().to_string();
+    let what = reader.path().display().to_string();
     let decoded = decode_span_each(
         reader.codec,
         &samples,
@@ -109,18 +99,21 @@ pub fn check_span_means(
 mod tests {
     use super::*;
 
-    fn fixture(name: &str) -> std::path::PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
+    /// Checks a fixture file as a whole (no means): its problems.
+    fn check(name: &str, size_px: (usize, usize), quick: bool) -> Vec<DecodeProblem> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("tests/fixtures/video")
-            .join(name)
+            .join(name);
+        let video = VideoReader::open(&path).expect("open");
+        check_span(&video, None, size_px, quick, false).0
     }
 
     #[test]
     fn good_files_decode_and_damaged_ones_are_named_with_their_frame() {
         for name in ["svtav1_g2.mp4", "x264_high_bframes.mp4"] {
-            assert_eq!(check_span(&fixture(name), None, (64, 48), false), vec![]);
+            assert_eq!(check(name, (64, 48), false), vec![]);
             // The declared size is checked against the decoded one.
-            let wrong = check_span(&fixture(name), None, (32, 24), true);
+            let wrong = check(name, (32, 24), true);
             assert_eq!(wrong.len(), 1, "{wrong:?}");
             assert!(
                 wrong[0]
@@ -129,22 +122,19 @@ mod tests {
             );
         }
         // Corrupted bytes in the sixth sample: the first five decode.
-        let corrupt = check_span(&fixture("svtav1_corrupt_sample.mp4"), None, (64, 48), false);
+        let corrupt = check("svtav1_corrupt_sample.mp4", (64, 48), false);
         assert_eq!(corrupt.len(), 1, "{corrupt:?}");
         assert_eq!(corrupt[0].frame, Some(5));
         assert!(!corrupt[0].unsupported);
         assert!(corrupt[0].message.contains("svtav1_corrupt_sample.mp4"));
         // The quick pass decodes the first frame only, which is intact.
-        assert_eq!(
-            check_span(&fixture("svtav1_corrupt_sample.mp4"), None, (64, 48), true),
-            vec![]
-        );
+        assert_eq!(check("svtav1_corrupt_sample.mp4", (64, 48), true), vec![]);
         // A sample whose NAL unit claims more bytes than it holds.
-        let truncated = check_span(&fixture("x264_truncated_sample.mp4"), None, (64, 48), false);
+        let truncated = check("x264_truncated_sample.mp4", (64, 48), false);
         assert_eq!(truncated.len(), 1, "{truncated:?}");
         assert!(truncated[0].message.contains("sample 3"), "{truncated:?}");
         // Coded at 32x24 in a file that says 64x48.
-        let size = check_span(&fixture("svtav1_wrong_size.mp4"), None, (64, 48), false);
+        let size = check("svtav1_wrong_size.mp4", (64, 48), false);
         assert!(!size.is_empty(), "{size:?}");
         assert!(size[0].message.contains("32x24"), "{size:?}");
     }

@@ -293,8 +293,12 @@ fn decode_feature(
                 "frame {at} of episode {index} has misshapen planes"
             ))
         })?;
-        for step in wanting {
-            rgb[*step].clone_from(&pixels);
+        // Rows sharing a picture (a repeated timestamp) get copies; the last takes it.
+        if let Some((last, others)) = wanting.split_last() {
+            for step in others {
+                rgb[*step].clone_from(&pixels);
+            }
+            rgb[*last] = pixels;
         }
         Ok(())
     };

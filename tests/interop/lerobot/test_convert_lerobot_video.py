@@ -73,12 +73,16 @@ def surgvla(*args) -> subprocess.CompletedProcess:
 
 def backends() -> list[str]:
     """lerobot's video decoders here: PyAV, and torchcodec (its default) where it loads (it
-    needs the system's FFmpeg libraries, which .ci/run installs)."""
+    needs the system's FFmpeg libraries). .ci/run installs them and sets
+    SURGVLA_REQUIRE_TORCHCODEC=1, so there a torchcodec that does not load fails the test
+    instead of being left out."""
     try:
         import torchcodec.decoders  # noqa: F401
 
         return ["pyav", "torchcodec"]
     except Exception:
+        if os.environ.get("SURGVLA_REQUIRE_TORCHCODEC") == "1":
+            raise
         return ["pyav"]
 
 

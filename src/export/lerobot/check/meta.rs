@@ -13,6 +13,7 @@ use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, Stri
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// The tasks, by task_index.
 pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<String> {
@@ -525,7 +526,7 @@ pub(super) fn check_videos(
     let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
     let declared: BTreeMap<String, crate::export::lerobot::FeatureJson> =
         info.feature_list().into_iter().collect();
-    let mut readers: BTreeMap<PathBuf, Result<VideoReader, (String, bool)>> = BTreeMap::new();
+    let mut readers: BTreeMap<PathBuf, Result<Arc<VideoReader>, (String, bool)>> = BTreeMap::new();
     let mut spans: Vec<SpanToDecode> = Vec::new();
     check_templates(info, v21, findings);
     for feature in features.iter().filter(|f| f.dtype == "video") {
@@ -564,7 +565,7 @@ pub(super) fn check_videos(
             }
             let fresh = !readers.contains_key(&path);
             let reader = readers.entry(path.clone()).or_insert_with(|| {
-                VideoReader::open(&path).map_err(|e| {
+                VideoReader::open(&path).map(Arc::new).map_err(|e| {
                     let unsupported = crate::error::HasKind::kind(&e) == ErrorKind::Usage;
                     match e {
                         crate::export::ExportError::InvalidDataset { problem, .. } => {
@@ -582,7 +583,7 @@ pub(super) fn check_videos(
                     check_episode_span(&at, reader, span, entry.length, findings);
                     if let Some(size_px) = size_px {
                         spans.push(SpanToDecode {
-                            path,
+                            video: Arc::clone(reader),
                             file: at.file.clone().unwrap_or_default(),
                             episode: i as u64,
                             span,
@@ -609,7 +610,8 @@ pub(super) fn check_videos(
 
 /// An episode's span of a video file, for [`decode_spans`].
 struct SpanToDecode {
-    path: PathBuf,
+    /// The file's reader, its tables shared by every episode in it.
+    video: Arc<VideoReader>,
     /// The file as findings name it (relative to the dataset).
     file: String,
     episode: u64,
@@ -651,7 +653,7 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
     let warned = std::sync::Mutex::new(std::collections::BTreeSet::new());
     spans.par_iter().for_each(|to_decode| {
         let SpanToDecode {
-            path,
+            video,
             file,
             episode,
             span,
@@ -659,8 +661,8 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
             stored_mean,
         } = to_decode;
         {
-            let (problems, decoded_mean) = crate::export::decode::check::check_span_means(
-                path,
+            let (problems, decoded_mean) = crate::export::decode::check::check_span(
+                video,
                 *span,
                 *size_px,
                 quick,
