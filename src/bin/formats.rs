@@ -442,9 +442,11 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     }
     let bar = crate::progress::episode_bar(source.len(), "converting");
     let threads = args.threads.unwrap_or(0);
+    let mut trimmed = crate::memory::Trimmer::default();
     let summary =
         surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), threads, &mut |done| {
-            bar.set_position(done)
+            bar.set_position(done);
+            trimmed.after_episodes(done);
         })
         .map_err(|e| {
             // Resuming helps after a failed write, not after a damaged input.

@@ -56,8 +56,20 @@ fn copy(
 ) -> Result<Summary, ConvertError> {
     let skip = sink.next_episode_index();
     let batch_size = rayon::current_num_threads().max(1);
+    let unused: Vec<ImageEncoding> = [ImageEncoding::Png, ImageEncoding::Tiff, ImageEncoding::Jpeg]
+        .into_iter()
+        .filter(|e| !sink.reuses_stored(*e))
+        .collect();
+    source.drop_stored(&unused);
+    let read_batch = |source: &mut (dyn EpisodeSource + Send), done: &mut u64| {
+        let mut batch = read_batch(source, batch_size, skip, done)?;
+        for episode in &mut batch {
+            episode.encoded.retain(|e| !unused.contains(&e.encoding));
+        }
+        Ok(batch)
+    };
     let mut done = 0u64;
-    let mut next = read_batch(source, batch_size, skip, &mut done)?;
+    let mut next = read_batch(source, &mut done)?;
     // The next batch is read (and its video decoded) while this one is written: reading is
     // partly serial (parquet rows, image decoding), so the two overlap on the pool's threads.
     while !next.is_empty() {
@@ -65,7 +77,7 @@ fn copy(
         let read_so_far = done;
         let (written, read) = rayon::join(
             || sink.write_batch(&batch).map_err(ConvertError::Write),
-            || read_batch(source, batch_size, skip, &mut done),
+            || read_batch(source, &mut done),
         );
         written?;
         progress(read_so_far);
@@ -157,6 +169,10 @@ impl EpisodeSource for Without {
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
         let episode = self.inner.next_episode()?;
         Some(episode.map(|e| self.strip(e)))
+    }
+
+    fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
+        self.inner.drop_stored(unused);
     }
 }
 

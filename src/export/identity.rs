@@ -90,6 +90,10 @@ impl EpisodeSource for Identified {
     fn next_episode(&mut self) -> Option<Result<crate::episode::Episode, ExportError>> {
         self.inner.next_episode()
     }
+
+    fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
+        self.inner.drop_stored(unused);
+    }
 }
 
 #[cfg(test)]

@@ -292,6 +292,11 @@ pub trait EpisodeSink {
     }
     /// Index of the next episode the sink expects (after a resume: the first one to rewrite).
     fn next_episode_index(&self) -> u64;
+    /// Whether the sink copies a source's stored still images of `encoding` (PNG, TIFF, JPEG)
+    /// instead of encoding the pixels again (see [`writer::FormatWriter::reuses_stored`]).
+    fn reuses_stored(&self, _encoding: crate::episode::ImageEncoding) -> bool {
+        true
+    }
     /// Time spent so far.
     fn timing(&self) -> SinkTiming {
         SinkTiming::default()
@@ -373,6 +378,11 @@ pub trait EpisodeSource {
     }
     /// The next episode, or None after the last.
     fn next_episode(&mut self) -> Option<Result<Episode, ExportError>>;
+    /// Leaves the stored still images (PNG, TIFF, JPEG) of the `unused` encodings out of the
+    /// episodes' [`Episode::encoded`] from now on: a conversion whose target would encode them
+    /// again says so before reading, so that no episode in flight holds its frames twice.
+    /// Sources that keep none ignore it.
+    fn drop_stored(&mut self, _unused: &[crate::episode::ImageEncoding]) {}
 }
 
 /// A format and its own options.

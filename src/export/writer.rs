@@ -7,7 +7,7 @@
 //! summary, and seals the dataset (manifest, sidecar, marker). A format says only how an
 //! episode is encoded, appended and finished.
 
-use crate::episode::Episode;
+use crate::episode::{Episode, ImageEncoding};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch};
@@ -50,6 +50,13 @@ pub trait FormatWriter: Send + Sized {
 
     /// Episodes written so far: the index of the next one.
     fn episodes(&self) -> u64;
+
+    /// Whether the encoder copies a source's stored still images (PNG, TIFF, JPEG) of this
+    /// encoding instead of encoding pixels; a conversion drops the others as it reads them, so
+    /// a batch in flight does not hold every frame twice.
+    fn reuses_stored(&self, _encoding: ImageEncoding) -> bool {
+        true
+    }
 
     /// The writer's encoder (no file is touched; it runs in parallel across a batch).
     fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> Self::Encoder<'a>;
@@ -149,6 +156,10 @@ impl<F: FormatWriter> Writer<F> {
 }
 
 impl<F: FormatWriter> EpisodeSink for Writer<F> {
+    fn reuses_stored(&self, encoding: ImageEncoding) -> bool {
+        self.format.reuses_stored(encoding)
+    }
+
     /// A batch's episodes are encoded in parallel, then appended in order.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError> {
         check_batch(

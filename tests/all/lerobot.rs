@@ -571,3 +571,37 @@ fn video_decodes_to_the_recorded_frames() {
         }
     }
 }
+
+#[test]
+fn a_reader_takes_the_episodes_table_a_batch_at_a_time_and_keeps_each_row_with_its_episode() {
+    use surgvla::export::lerobot::{Codec, VideoOptions};
+    let root = temp_root("rows-in-batches");
+    // More episodes than one 64-row batch of the table; each row's seed and video span must
+    // reach its own episode across the batch boundary.
+    let recorded = episodes(70, 2);
+    let options = LeRobotOptions {
+        video: Some(VideoOptions {
+            codec: Codec::H264,
+            ..VideoOptions::default()
+        }),
+        ..LeRobotOptions::default()
+    };
+    write(&root, &recorded, options);
+    let mut source = surgvla::export::open_source(&root).expect("source");
+    for expected in &recorded {
+        let read = source
+            .next_episode()
+            .expect("an episode")
+            .expect("readable");
+        let meta = |e: &Episode| (e.meta.index, e.meta.seed, e.meta.attempts, e.meta.success);
+        assert_eq!(meta(&read), meta(expected));
+        let video = &read.encoded[0];
+        assert!(
+            video.shown.is_none(),
+            "episode {}: its own span",
+            read.meta.index
+        );
+        assert_eq!(video.frames.len(), expected.steps.len());
+    }
+    assert!(source.next_episode().is_none());
+}

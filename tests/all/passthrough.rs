@@ -244,3 +244,78 @@ fn stored_png_bytes_are_copied_not_encoded_again() {
         assert_eq!(bytes.value(row), expected.as_slice(), "frame {row}");
     }
 }
+
+/// A sink that only notes which stored encodings reach it.
+struct Noting {
+    copies_tiff: bool,
+    seen: Vec<ImageEncoding>,
+    next: u64,
+}
+
+impl EpisodeSink for Noting {
+    fn write_batch(
+        &mut self,
+        episodes: &[surgvla::episode::Episode],
+    ) -> Result<(), surgvla::export::ExportError> {
+        for episode in episodes {
+            self.seen.extend(episode.encoded.iter().map(|e| e.encoding));
+            self.next += 1;
+        }
+        Ok(())
+    }
+
+    fn next_episode_index(&self) -> u64 {
+        self.next
+    }
+
+    fn reuses_stored(&self, encoding: ImageEncoding) -> bool {
+        self.copies_tiff || encoding != ImageEncoding::Tiff
+    }
+
+    fn finish_with(
+        &mut self,
+        _: Option<surgvla::export::Sidecar<'_>>,
+    ) -> Result<surgvla::export::Summary, surgvla::export::ExportError> {
+        Ok(surgvla::export::Summary::default())
+    }
+}
+
+#[test]
+fn a_conversion_drops_the_stored_images_its_target_would_encode_again() {
+    let root = temp_root("pass-unused");
+    run(&[
+        "collect",
+        "--out",
+        path(&root),
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "2",
+    ]);
+    let seen = |copies_tiff: bool| {
+        let mut source = surgvla::export::open_source(&root).expect("source");
+        let mut sink = Noting {
+            copies_tiff,
+            seen: Vec::new(),
+            next: 0,
+        };
+        surgvla::export::convert::convert(source.as_mut(), &mut sink, 2, &mut |_| {})
+            .expect("convert");
+        assert_eq!(sink.next, 2);
+        sink.seen
+    };
+    // A LeRobot target copies the depth TIFFs, so they travel; RLDS stores millimetre PNGs,
+    // so they are dropped as read and a batch in flight holds the depth once, as pixels.
+    let all = seen(true);
+    assert!(
+        all.contains(&ImageEncoding::Tiff) && all.contains(&ImageEncoding::Png),
+        "{all:?}"
+    );
+    let without = seen(false);
+    assert!(!without.contains(&ImageEncoding::Tiff), "{without:?}");
+    assert_eq!(
+        without.len(),
+        all.len() - 2,
+        "one depth feature in each of 2 episodes"
+    );
+}

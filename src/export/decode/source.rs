@@ -147,6 +147,10 @@ impl EpisodeSource for Decoded {
         }
         self.ready.pop_front()
     }
+
+    fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
+        self.inner.drop_stored(unused);
+    }
 }
 
 /// Replaces `episode`'s video samples with decoded pixels, each step getting the picture the

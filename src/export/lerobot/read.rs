@@ -421,27 +421,84 @@ fn cell(column: &dyn Array, row: usize) -> Value {
     }
 }
 
-/// Per episode, in order, its row of the episodes metadata; v2.1's `episodes.jsonl` and
-/// `episodes_stats.jsonl` are read into the same shape.
-fn episode_rows(root: &Path, v21: bool) -> Result<Vec<StoredEpisode>, ExportError> {
-    if v21 {
-        return episode_rows_v21(root);
+/// The episodes metadata, one row at a time in index order, as the data reaches each episode:
+/// v3.0's parquet files are read 64 rows at a time, so a reader holds a few rows, not every
+/// episode's (memory flat in episodes); v2.1's jsonl files, whose stats lines may come in any
+/// order, are read whole into the same shape.
+enum EpisodeRows {
+    Loaded(std::vec::IntoIter<StoredEpisode>),
+    Parquet {
+        files: std::vec::IntoIter<PathBuf>,
+        reader: Option<parquet::arrow::arrow_reader::ParquetRecordBatchReader>,
+        ready: std::collections::VecDeque<StoredEpisode>,
+    },
+}
+
+impl EpisodeRows {
+    /// Opens the metadata; v3.0's files are checked to open as parquet now, so a damaged one
+    /// stops a command before it writes anything.
+    fn open(root: &Path, v21: bool) -> Result<Self, ExportError> {
+        if v21 {
+            return Ok(EpisodeRows::Loaded(episode_rows_v21(root)?.into_iter()));
+        }
+        let files = parquet_files(&root.join("meta/episodes"))?;
+        for path in &files {
+            open_parquet(path)?;
+        }
+        Ok(EpisodeRows::Parquet {
+            files: files.into_iter(),
+            reader: None,
+            ready: Default::default(),
+        })
     }
-    let mut rows = Vec::new();
-    for path in parquet_files(&root.join("meta/episodes"))? {
-        for batch in read_parquet(&path)? {
-            let schema = batch.schema();
-            for row in 0..batch.num_rows() {
-                let columns = schema
-                    .fields()
-                    .iter()
-                    .zip(batch.columns())
-                    .map(|(field, column)| (field.name().as_str(), cell(column.as_ref(), row)));
-                rows.push(StoredEpisode::from_columns(columns));
+
+    /// The next episode's row, or None after the last.
+    fn next_row(&mut self) -> Result<Option<StoredEpisode>, ExportError> {
+        let (files, reader, ready) = match self {
+            EpisodeRows::Loaded(rows) => return Ok(rows.next()),
+            EpisodeRows::Parquet {
+                files,
+                reader,
+                ready,
+            } => (files, reader, ready),
+        };
+        loop {
+            if let Some(row) = ready.pop_front() {
+                return Ok(Some(row));
+            }
+            let Some(open) = reader.as_mut() else {
+                let Some(path) = files.next() else {
+                    return Ok(None);
+                };
+                *reader = Some(
+                    open_parquet(&path)?
+                        .with_batch_size(64)
+                        .build()
+                        .map_err(ExportError::parquet(&path))?,
+                );
+                continue;
+            };
+            match open.next() {
+                Some(batch) => ready.extend(stored_episodes(&batch.map_err(ExportError::Arrow)?)),
+                None => *reader = None,
             }
         }
     }
-    Ok(rows)
+}
+
+/// The episodes of a batch of v3.0's episodes table.
+fn stored_episodes(batch: &RecordBatch) -> Vec<StoredEpisode> {
+    let schema = batch.schema();
+    (0..batch.num_rows())
+        .map(|row| {
+            let columns = schema
+                .fields()
+                .iter()
+                .zip(batch.columns())
+                .map(|(field, column)| (field.name().as_str(), cell(column.as_ref(), row)));
+            StoredEpisode::from_columns(columns)
+        })
+        .collect()
 }
 
 /// v2.1's episodes: `episodes.jsonl` in order, each joined with its `episodes_stats.jsonl` line
@@ -497,8 +554,8 @@ pub struct LeRobotSource {
     info: DatasetInfo,
     total_episodes: u64,
     tasks: Vec<String>,
-    /// Each episode's row of the episodes metadata (see [`episode_rows`]).
-    episodes: Vec<StoredEpisode>,
+    /// The episodes metadata, read in step with the data.
+    episodes: EpisodeRows,
     v21: bool,
     chunks_size: u64,
     /// info.json's `video_path` template.
@@ -513,6 +570,8 @@ pub struct LeRobotSource {
     )>,
     /// Steps read past the end of the episode being assembled.
     pending: std::collections::VecDeque<Row>,
+    /// Stored encodings a conversion will not copy (see [`EpisodeSource::drop_stored`]).
+    unused_stored: Vec<ImageEncoding>,
     /// Episodes returned so far.
     returned: u64,
     /// Whether the end (or a count that disagrees with info.json) was reported.
@@ -568,17 +627,7 @@ impl LeRobotSource {
             info_json.robot_type.as_deref().unwrap_or_default(),
             features,
         );
-        // Every episode's row is held while reading: only what reading uses is kept (video
-        // spans, provenance, and the statistics of video features), so memory stays flat in
-        // episodes.
-        let mut episodes = episode_rows(root, v21)?;
-        for episode in &mut episodes {
-            episode.stats.retain(|key, _| {
-                info.features
-                    .iter()
-                    .any(|f| f.name == *key && !f.in_steps())
-            });
-        }
+        let episodes = EpisodeRows::open(root, v21)?;
         Ok(LeRobotSource {
             root: root.to_path_buf(),
             total_episodes: info_json.total_episodes.unwrap_or(0),
@@ -599,6 +648,7 @@ impl LeRobotSource {
             files: data_files(root)?.into_iter(),
             batches: None,
             pending: Default::default(),
+            unused_stored: Vec::new(),
             returned: 0,
             ended: false,
             info,
@@ -613,12 +663,11 @@ impl LeRobotSource {
         &mut self,
         feature: &FeatureSpec,
         index: u64,
+        row: Option<&StoredEpisode>,
         timestamps: &[Option<f64>],
     ) -> Result<EncodedFeature, ExportError> {
         let key = feature.name.as_str();
         let steps = timestamps.len();
-        // What this feature needs of the episode's row (the row itself is not copied).
-        let row = self.episodes.get(index as usize);
         let stored_span = row.and_then(|r| r.videos.get(key)).copied();
         let pixel_stats = match (
             row.and_then(|r| r.pixel_stats.get(key)),
@@ -742,7 +791,7 @@ impl LeRobotSource {
             match reader.next() {
                 Some(batch) => {
                     let batch = batch.map_err(ExportError::Arrow)?;
-                    return rows_of(&batch, path, &self.info).map(Some);
+                    return rows_of(&batch, path, &self.info, &self.unused_stored).map(Some);
                 }
                 None => self.batches = None,
             }
@@ -750,16 +799,27 @@ impl LeRobotSource {
     }
 }
 
-/// The image features surgvla decodes into steps (RGB, mask, depth), whose encoded bytes a
-/// [`Row`] also keeps.
-fn stored_images(info: &DatasetInfo) -> impl Iterator<Item = &FeatureSpec> {
-    info.features
-        .iter()
-        .filter(|f| f.in_steps() && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+/// The image features surgvla decodes into steps (RGB, mask, depth) whose encoded bytes a
+/// [`Row`] also keeps (those not of an `unused` encoding).
+fn stored_images<'a>(
+    info: &'a DatasetInfo,
+    unused: &'a [ImageEncoding],
+) -> impl Iterator<Item = &'a FeatureSpec> {
+    info.features.iter().filter(|f| {
+        f.in_steps()
+            && f.dtype == Dtype::Image
+            && f.kind != FeatureKind::Other
+            && !unused.contains(&ImageEncoding::of_kind(f.kind))
+    })
 }
 
 /// Decodes a batch of frame rows into steps.
-fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<Row>, ExportError> {
+fn rows_of(
+    batch: &RecordBatch,
+    path: &Path,
+    info: &DatasetInfo,
+    unused: &[ImageEncoding],
+) -> Result<Vec<Row>, ExportError> {
     let episode = column::<Int64Array>(batch, "episode_index", path)?;
     let task = column::<Int64Array>(batch, "task_index", path)?;
     let timestamp = batch
@@ -793,9 +853,12 @@ fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<R
                     .column_by_name("bytes")
                     .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
                     .ok_or_else(|| invalid(path, format!("{name} has no image bytes")))?;
+                let keep = !unused.contains(&ImageEncoding::of_kind(feature.kind));
                 for (row, Row { step, stored, .. }) in steps.iter_mut().enumerate() {
                     let encoded = bytes.value(row);
-                    stored.push(encoded.to_vec());
+                    if keep {
+                        stored.push(encoded.to_vec());
+                    }
                     let bad = |e: String| invalid(path, format!("{name} row {row}: {e}"));
                     match feature.kind {
                         FeatureKind::Depth => {
@@ -874,6 +937,10 @@ impl EpisodeSource for LeRobotSource {
         &self.info
     }
 
+    fn drop_stored(&mut self, unused: &[ImageEncoding]) {
+        self.unused_stored = unused.to_vec();
+    }
+
     fn len(&self) -> u64 {
         self.total_episodes
     }
@@ -884,9 +951,10 @@ impl EpisodeSource for LeRobotSource {
         }
         let mut steps = Vec::new();
         let mut timestamps = Vec::new();
-        let stored_keys: Vec<(String, FeatureKind)> = stored_images(&self.info)
-            .map(|f| (f.name.clone(), f.kind))
-            .collect();
+        let stored_keys: Vec<(String, FeatureKind)> =
+            stored_images(&self.info, &self.unused_stored)
+                .map(|f| (f.name.clone(), f.kind))
+                .collect();
         let mut stored: Vec<Vec<EncodedFrame>> = vec![Vec::new(); stored_keys.len()];
         let mut current: Option<(i64, i64)> = None;
         loop {
@@ -927,9 +995,16 @@ impl EpisodeSource for LeRobotSource {
             )));
         }
         self.returned += 1;
-        let provenance = self
-            .episodes
-            .get(index as usize)
+        // The episodes table's rows come in the data's order: this episode's is the next.
+        let row = match self.episodes.next_row() {
+            Ok(row) => row,
+            Err(error) => {
+                self.ended = true;
+                return Some(Err(error));
+            }
+        };
+        let provenance = row
+            .as_ref()
             .map(|e| e.provenance.clone())
             .unwrap_or_default();
         let mut encoded: Vec<EncodedFeature> = stored_keys
@@ -952,7 +1027,7 @@ impl EpisodeSource for LeRobotSource {
             .cloned()
             .collect();
         for feature in &videos {
-            match self.video_frames(feature, index as u64, &timestamps) {
+            match self.video_frames(feature, index as u64, row.as_ref(), &timestamps) {
                 Ok(frames) => encoded.push(frames),
                 Err(error) => return Some(Err(error)),
             }

@@ -301,6 +301,11 @@ impl FormatWriter for McapFiles {
         self.state.episodes()
     }
 
+    /// Only the RGB camera's PNG bytes are copied into its messages.
+    fn reuses_stored(&self, encoding: crate::episode::ImageEncoding) -> bool {
+        encoding == crate::episode::ImageEncoding::Png
+    }
+
     fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
         (self, info)
     }

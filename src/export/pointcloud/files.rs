@@ -96,6 +96,11 @@ impl FormatWriter for CloudFiles {
         self.state.episodes()
     }
 
+    /// Clouds are made from depth and RGB pixels, never from encoded images.
+    fn reuses_stored(&self, _: crate::episode::ImageEncoding) -> bool {
+        false
+    }
+
     fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
         (self, info)
     }

@@ -25,56 +25,87 @@ fn varint(out: &mut Vec<u8>, mut value: u64) {
     out.push(value as u8);
 }
 
-/// A length-delimited field.
-fn field(out: &mut Vec<u8>, number: u64, payload: &[u8]) {
-    varint(out, (number << 3) | LEN);
-    varint(out, payload.len() as u64);
-    out.extend_from_slice(payload);
+/// Bytes `value` takes as a varint.
+fn varint_len(value: u64) -> usize {
+    (64 - (value | 1).leading_zeros() as usize).div_ceil(7)
 }
 
-fn encode_feature(feature: &Feature) -> Vec<u8> {
-    let mut list = Vec::new();
-    let number = match feature {
+/// The tag and length of a length-delimited field whose payload follows.
+fn field_header(out: &mut Vec<u8>, number: u64, payload_len: usize) {
+    varint(out, (number << 3) | LEN);
+    varint(out, payload_len as u64);
+}
+
+/// Bytes a length-delimited field of `payload_len` bytes takes.
+fn field_len(number: u64, payload_len: usize) -> usize {
+    varint_len((number << 3) | LEN) + varint_len(payload_len as u64) + payload_len
+}
+
+/// A feature's oneof field number and the length of its list message.
+fn list_len(feature: &Feature) -> (u64, usize) {
+    match feature {
+        Feature::Bytes(values) => (1, values.iter().map(|v| field_len(1, v.len())).sum()),
+        Feature::Float(values) if values.is_empty() => (2, 0),
+        Feature::Float(values) => (2, field_len(1, 4 * values.len())),
+        Feature::Int64(values) if values.is_empty() => (3, 0),
+        Feature::Int64(values) => (3, field_len(1, packed_int64_len(values))),
+    }
+}
+
+fn packed_int64_len(values: &[i64]) -> usize {
+    values.iter().map(|v| varint_len(*v as u64)).sum()
+}
+
+/// Writes a feature's list message (its values in field 1).
+fn write_list(out: &mut Vec<u8>, feature: &Feature) {
+    match feature {
         Feature::Bytes(values) => {
             for value in values {
-                field(&mut list, 1, value);
+                field_header(out, 1, value.len());
+                out.extend_from_slice(value);
             }
-            1
         }
-        Feature::Float(values) => {
-            if !values.is_empty() {
-                let packed: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-                field(&mut list, 1, &packed);
+        Feature::Float(values) if !values.is_empty() => {
+            field_header(out, 1, 4 * values.len());
+            for value in values {
+                out.extend_from_slice(&value.to_le_bytes());
             }
-            2
         }
-        Feature::Int64(values) => {
-            if !values.is_empty() {
-                let mut packed = Vec::new();
-                for value in values {
-                    varint(&mut packed, *value as u64);
-                }
-                field(&mut list, 1, &packed);
+        Feature::Int64(values) if !values.is_empty() => {
+            field_header(out, 1, packed_int64_len(values));
+            for value in values {
+                varint(out, *value as u64);
             }
-            3
         }
-    };
-    let mut out = Vec::with_capacity(list.len() + 8);
-    field(&mut out, number, &list);
-    out
+        // Empty numeric lists are empty messages.
+        Feature::Float(_) | Feature::Int64(_) => {}
+    }
 }
 
-/// The serialized Example of `features`.
+/// The serialized Example of `features`, written in one pass into a buffer of its exact size
+/// (an episode's Example holds all its images: megabytes, not copied from message to message).
 pub fn encode_example(features: &BTreeMap<String, Feature>) -> Vec<u8> {
-    let mut map = Vec::new();
-    for (key, feature) in features {
-        let mut entry = Vec::new();
-        field(&mut entry, 1, key.as_bytes());
-        field(&mut entry, 2, &encode_feature(feature));
-        field(&mut map, 1, &entry);
+    // (entry length, feature field length, oneof number, list length) per feature.
+    let sizes: Vec<(usize, usize, u64, usize)> = features
+        .iter()
+        .map(|(key, feature)| {
+            let (number, list) = list_len(feature);
+            let feature_len = field_len(number, list);
+            let entry = field_len(1, key.len()) + field_len(2, feature_len);
+            (entry, feature_len, number, list)
+        })
+        .collect();
+    let map_len: usize = sizes.iter().map(|(entry, ..)| field_len(1, *entry)).sum();
+    let mut out = Vec::with_capacity(field_len(1, map_len));
+    field_header(&mut out, 1, map_len);
+    for ((key, feature), (entry, feature_len, number, list)) in features.iter().zip(sizes) {
+        field_header(&mut out, 1, entry);
+        field_header(&mut out, 1, key.len());
+        out.extend_from_slice(key.as_bytes());
+        field_header(&mut out, 2, feature_len);
+        field_header(&mut out, number, list);
+        write_list(&mut out, feature);
     }
-    let mut out = Vec::with_capacity(map.len() + 8);
-    field(&mut out, 1, &map);
     out
 }
 
@@ -249,6 +280,80 @@ mod tests {
                 0x00, 0x80, 0x3f
             ]
         );
+    }
+
+    /// Protobuf's nesting written the plain way: each message built, then copied into its
+    /// parent's field.
+    fn nested_reference(features: &BTreeMap<String, Feature>) -> Vec<u8> {
+        fn field(out: &mut Vec<u8>, number: u64, payload: &[u8]) {
+            field_header(out, number, payload.len());
+            out.extend_from_slice(payload);
+        }
+        let mut map = Vec::new();
+        for (key, feature) in features {
+            let mut list = Vec::new();
+            let number = match feature {
+                Feature::Bytes(values) => {
+                    values.iter().for_each(|v| field(&mut list, 1, v));
+                    1
+                }
+                Feature::Float(values) => {
+                    if !values.is_empty() {
+                        let packed: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+                        field(&mut list, 1, &packed);
+                    }
+                    2
+                }
+                Feature::Int64(values) => {
+                    if !values.is_empty() {
+                        let mut packed = Vec::new();
+                        values.iter().for_each(|v| varint(&mut packed, *v as u64));
+                        field(&mut list, 1, &packed);
+                    }
+                    3
+                }
+            };
+            let mut value = Vec::new();
+            field(&mut value, number, &list);
+            let mut entry = Vec::new();
+            field(&mut entry, 1, key.as_bytes());
+            field(&mut entry, 2, &value);
+            field(&mut map, 1, &entry);
+        }
+        let mut out = Vec::new();
+        field(&mut out, 1, &map);
+        out
+    }
+
+    #[test]
+    fn the_one_pass_encoder_writes_the_nested_bytes_at_their_exact_size() {
+        let mut rng = crate::rng::SplitMix64::new(25);
+        for _ in 0..200 {
+            let mut features = BTreeMap::new();
+            for f in 0..rng.next_u64() % 6 {
+                // Lengths crossing the varint boundaries (127/128, 16383/16384).
+                let n = [0, 1, 127, 128, 16_383, 16_384][(rng.next_u64() % 6) as usize]
+                    / (1 + (rng.next_u64() % 3) as usize);
+                let feature = match rng.next_u64() % 3 {
+                    0 => Feature::Bytes(
+                        (0..rng.next_u64() % 4)
+                            .map(|_| vec![rng.next_u64() as u8; n])
+                            .collect(),
+                    ),
+                    1 => Feature::Float((0..n).map(|_| rng.next_f64() as f32).collect()),
+                    _ => Feature::Int64(
+                        (0..n)
+                            .map(|_| (rng.next_u64() >> (rng.next_u64() % 64)) as i64)
+                            .collect(),
+                    ),
+                };
+                features.insert(format!("k{f}/{}", "x".repeat(n % 200)), feature);
+            }
+            let bytes = encode_example(&features);
+            assert_eq!(bytes, nested_reference(&features));
+            assert_eq!(bytes.len(), bytes.capacity());
+            assert_eq!(decode_example(&bytes), Ok(features));
+        }
     }
 
     #[test]

@@ -31,7 +31,7 @@ pub mod tfrecord;
 pub use format::RldsFormat;
 pub use openvla::openvla_md;
 
-use crate::episode::{Episode, FeatureKind};
+use crate::episode::{Episode, FeatureKind, ImageEncoding};
 use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
 use crate::export::image::PngLevel;
 use crate::export::info::DatasetInfo;
@@ -280,6 +280,11 @@ impl FormatWriter for RldsShards {
 
     fn episodes(&self) -> u64 {
         self.state.episodes
+    }
+
+    /// Depth is stored in millimetres, never as the source's float TIFF.
+    fn reuses_stored(&self, encoding: ImageEncoding) -> bool {
+        encoding != ImageEncoding::Tiff
     }
 
     fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {

@@ -156,6 +156,11 @@ impl FormatWriter for ZarrStore {
         self.state.episode_ends.len() as u64
     }
 
+    /// Arrays hold pixels, never encoded images.
+    fn reuses_stored(&self, _: crate::episode::ImageEncoding) -> bool {
+        false
+    }
+
     fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
         (self, info)
     }
