@@ -83,11 +83,14 @@ pub struct EnvObservation {
 #[derive(Clone, Debug, PartialEq)]
 pub struct EnvStep {
     pub observation: EnvObservation,
-    /// The task succeeded or the step limit was reached.
+    /// The task succeeded, failed for good (a terminal failure: a distractor grasped), or the
+    /// step limit was reached.
     pub done: bool,
     /// The success predicate after the step.
     pub verdict: Verdict,
     pub report: StepReport,
+    /// The action was changed to fit the action space or the workspace.
+    pub clipped: bool,
 }
 
 /// Seconds an environment spent, summed over its episodes.
@@ -233,10 +236,16 @@ impl Env {
         self.sim.observation()
     }
 
-    /// Applies a physical action and observes the result.
+    /// Applies a physical action within the reference's action space (see
+    /// [`PhysicalAction::within_reference`]: at most 1 cm per axis, no roll or pitch, at most
+    /// 30 deg of yaw; the workspace box then clips the target) and observes the result.
+    /// `EnvStep::clipped` says whether the action had to be changed.
     pub fn step(&mut self, action: &PhysicalAction) -> EnvStep {
-        let report = self.apply(action);
-        self.observe_step(report)
+        let (action, clipped) = action.within_reference();
+        let report = self.apply(&action);
+        let mut step = self.observe_step(report);
+        step.clipped = clipped || step.report.clipped;
+        step
     }
 
     /// Applies a native command (a scripted expert's, a random baseline's) and observes the
@@ -251,9 +260,14 @@ impl Env {
         let mut observation = self.observe();
         (observation.extras.grasped, observation.extras.released) = self.events(&report);
         let verdict = self.verdict();
+        let terminal = self
+            .instance
+            .terminal_failure(&self.sim.observation())
+            .is_some();
         EnvStep {
-            done: verdict.success || self.steps >= self.max_steps(),
+            done: verdict.success || terminal || self.steps >= self.max_steps(),
             observation,
+            clipped: report.clipped,
             verdict,
             report,
         }
@@ -338,6 +352,40 @@ mod tests {
             assert!(a.observation.images.is_some() && b.observation.images.is_none());
         }
         assert!(seen.timing.render_secs > 0.0 && blind.timing.render_secs == 0.0);
+    }
+
+    /// A policy's oversized action is executed as the reference would: 1 cm, no tilt, 30 deg.
+    #[test]
+    fn an_oversized_action_is_clipped_to_the_action_space() {
+        let (mut env, first) =
+            Env::reset(TaskId::GauzePick, 1, &EnvOptions::headless()).expect("spawn");
+        let start = first.sim.state7();
+        let step = env.step(&PhysicalAction::from_array([
+            0.05, 0.0, -0.03, 0.0, 0.4, 1.5, 1.0,
+        ]));
+        assert!(step.clipped);
+        let after = env.sim_observation().state7();
+        assert!(
+            (after[0] - start[0] - 0.01).abs() < 1e-6,
+            "x moved {}",
+            after[0] - start[0]
+        );
+        assert!(
+            (after[2] - start[2] + 0.01).abs() < 1e-6,
+            "z moved {}",
+            after[2] - start[2]
+        );
+        assert!((after[3] - start[3]).abs() < 1e-9 && (after[4] - start[4]).abs() < 1e-9);
+        let yaw = crate::sim::psm::wrap_angle(after[5] - start[5]);
+        assert!(
+            (yaw - std::f64::consts::PI / 6.0).abs() < 1e-6,
+            "yaw turned {yaw}"
+        );
+        // Within the space: not clipped.
+        let small = env.step(&PhysicalAction::from_array([
+            0.004, 0.0, 0.0, 0.0, 0.0, 0.1, 1.0,
+        ]));
+        assert!(!small.clipped);
     }
 
     #[test]

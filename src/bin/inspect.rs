@@ -75,7 +75,8 @@ pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
             let bar = crate::progress::episode_bar(report.episodes, "replaying");
             let found = surgvla::collect::replay::replay_dataset(&report.path, args.threads)?;
             bar.finish_and_clear();
-            report.add_errors(found);
+            report.add_errors(found.errors);
+            report.warnings.extend(found.warnings);
         }
     }
     if args.json {

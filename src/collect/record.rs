@@ -18,6 +18,10 @@ use crate::sim::psm::wrap_angle;
 use crate::sim::{JawCommand, PhysicalAction};
 use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
 
+/// A roll or pitch change below this is the float noise of a tool that stays pointing down,
+/// radians: recorded as an exact zero.
+const STILL_ANGLE_RAD: f32 = 1e-9;
+
 /// How episodes are recorded.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RecordOptions {
@@ -95,6 +99,7 @@ pub fn run_expert(
     let mut policy = plan.expert(instance, &observation, instance.seed)?;
     let mut physical = Vec::with_capacity(max_steps as usize);
     let mut open = Vec::with_capacity(max_steps as usize);
+    let mut terminal = None;
     while !policy.is_done() && physical.len() < max_steps as usize {
         let command = policy.act(&observation);
         env.apply_native(&command);
@@ -105,11 +110,24 @@ pub fn run_expert(
             action[axis] = (after[axis] - before[axis]) as f32;
             action[axis + 3] = wrap_angle(after[axis + 3] - before[axis + 3]) as f32;
         }
+        // The tool stays pointing down: roll and pitch change by float noise (~1e-15 rad),
+        // written as exact zeros so a reader sees constant dimensions.
+        for delta in &mut action[3..5] {
+            if delta.abs() < STILL_ANGLE_RAD {
+                *delta = 0.0;
+            }
+        }
         physical.push(action);
         open.push(command.jaw_command() == JawCommand::Open);
         observation = next;
+        terminal = instance.terminal_failure(&observation);
+        if terminal.is_some() {
+            break;
+        }
     }
-    let verdict = if policy.is_done() {
+    let verdict = if let Some(failure) = terminal {
+        failure
+    } else if policy.is_done() {
         instance.success(&observation)
     } else {
         Verdict {

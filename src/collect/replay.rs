@@ -8,6 +8,7 @@ use crate::episode::{Episode, GripperEncoding};
 use crate::export::convert::DEPTH_TOLERANCE_M;
 use crate::export::validate::Finding;
 use crate::export::{ExportError, open_source};
+use crate::task::success::RULE_SET;
 use crate::task::{InstructionChoice, TaskConfig, TaskId};
 use rayon::prelude::*;
 use serde_json::Value;
@@ -61,10 +62,12 @@ fn record_options(collection: &Value) -> RecordOptions {
 }
 
 /// What is wrong with one recorded episode's replay, if anything: (frame, check, message).
+/// `judge`: whether the replay must also succeed (the dataset was judged by today's rules).
 fn replay_episode(
     recorded: &Episode,
     options: &RecordOptions,
     lossy: bool,
+    judge: bool,
 ) -> Option<(Option<u64>, &'static str, String)> {
     let meta = &recorded.meta;
     let Ok(task) = meta.task_code.parse::<TaskId>() else {
@@ -141,7 +144,7 @@ fn replay_episode(
             ));
         }
     }
-    if !replayed.verdict.success {
+    if judge && !replayed.verdict.success {
         return Some((
             None,
             "replay",
@@ -154,9 +157,20 @@ fn replay_episode(
     None
 }
 
+/// What a replay found.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Replayed {
+    pub errors: Vec<Finding>,
+    /// E.g. that success was not judged: the dataset records other success rules.
+    pub warnings: Vec<Finding>,
+}
+
 /// Replays every episode of the dataset at `path` (LeRobot, or RLDS; video decoded, lossy RGB
-/// compared within [`crate::export::convert::LOSSY_RGB_MIN_PSNR_DB`]) on `threads` worker threads (0: one per core) and returns what failed.
-pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, ReplayError> {
+/// compared within [`crate::export::convert::LOSSY_RGB_MIN_PSNR_DB`]) on `threads` worker
+/// threads (0: one per core) and returns what failed. Success is judged only for datasets that
+/// record today's success rules ([`RULE_SET`]); older ones have their frames and states checked,
+/// with a warning.
+pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayError> {
     let mut source = open_source(path)?;
     // Video is decoded and compared within the lossy tolerance.
     let lossy = crate::export::decode::Decoded::needed(source.info());
@@ -173,6 +187,20 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, Repla
         });
     }
     let options = record_options(&collection);
+    let judge = collection["success_rules"] == RULE_SET;
+    let mut warnings = Vec::new();
+    if !judge {
+        warnings.push(Finding {
+            file: None,
+            episode: None,
+            frame: None,
+            check: "replay".into(),
+            message: format!(
+                "the dataset records success rules {} where surgvla now judges by {RULE_SET}: frames and states were replayed, success was not judged",
+                collection["success_rules"].as_str().unwrap_or("from before they were named")
+            ),
+        });
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -192,18 +220,29 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Vec<Finding>, Repla
                         check: "replay".into(),
                         message: format!("reading stopped: {error}"),
                     });
-                    return Ok(findings);
+                    return Ok(Replayed {
+                        errors: findings,
+                        warnings,
+                    });
                 }
                 None => break,
             }
         }
         if batch.is_empty() {
-            return Ok(findings);
+            return Ok(Replayed {
+                errors: findings,
+                warnings,
+            });
         }
         let problems: Vec<_> = pool.install(|| {
             batch
                 .par_iter()
-                .map(|episode| (episode.meta.index, replay_episode(episode, &options, lossy)))
+                .map(|episode| {
+                    (
+                        episode.meta.index,
+                        replay_episode(episode, &options, lossy, judge),
+                    )
+                })
                 .collect()
         });
         for (episode, problem) in problems {

@@ -273,6 +273,7 @@ pub fn dataset_info(
         "spawn_scale": record.task.spawn_scale,
         "randomize_appearance": record.randomize_appearance,
         "policies": if library.is_custom() { "custom" } else { "builtin" },
+        "success_rules": crate::task::success::RULE_SET,
     });
     if library.is_custom() {
         collection["custom_plans"] = serde_json::json!(library.custom_plans());

@@ -55,6 +55,9 @@ pub struct TrialResult {
     pub reason: String,
     /// The policy failed to answer (time-out, malformed reply, closed connection).
     pub policy_error: bool,
+    /// Steps whose action had to be clipped to the action space (at most 1 cm per axis, no roll
+    /// or pitch, 30 deg of yaw) or to the workspace.
+    pub clipped_steps: u32,
     /// The replay baseline's training episode.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub replayed_episode: Option<u64>,
@@ -125,6 +128,8 @@ pub struct EvalReport {
     pub overall: TaskTotals,
     pub trials: Vec<TrialResult>,
     pub generator: String,
+    /// The success rules the trials were judged by.
+    pub success_rules: String,
 }
 
 /// Trials of all tasks pooled.
@@ -161,6 +166,7 @@ impl EvalReport {
             overall,
             trials,
             generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+            success_rules: crate::task::success::RULE_SET.into(),
         }
     }
 
@@ -318,6 +324,7 @@ mod tests {
             steps,
             reason: String::new(),
             policy_error: !success,
+            clipped_steps: 0,
             replayed_episode: None,
             recording: None,
         }

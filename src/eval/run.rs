@@ -91,7 +91,9 @@ fn run_trial(
     let mut verdict = env.verdict();
     let mut steps = Vec::new();
     let mut failure = None;
-    while env.steps() < limit && !verdict.success {
+    let mut clipped_steps = 0;
+    let mut done = verdict.success;
+    while env.steps() < limit && !done {
         let command = match agent.act(&observation, &instance.instruction) {
             Ok(Some(command)) => command,
             Ok(None) => break,
@@ -110,6 +112,8 @@ fn run_trial(
         if record {
             steps.push(dataset_step(&mut observation, &step.observation, open));
         }
+        clipped_steps += u32::from(step.clipped);
+        done = step.done;
         verdict = step.verdict;
         observation = step.observation;
     }
@@ -120,6 +124,7 @@ fn run_trial(
         (None, false) if taken >= limit => {
             format!("step limit {limit} reached: {}", verdict.reason)
         }
+        (None, false) if done => verdict.reason.clone(),
         (None, false) => format!("policy stopped after {taken} steps: {}", verdict.reason),
     };
     let task = instance.task;
@@ -132,6 +137,7 @@ fn run_trial(
         steps: taken,
         reason,
         policy_error: failure.is_some(),
+        clipped_steps,
         replayed_episode: None,
         recording: None,
     };

@@ -207,6 +207,55 @@ pub struct MarkSpec {
     pub line_direction: Option<Vector3<f64>>,
 }
 
+/// T2-3's clip band around a clip site: the tip at most this far from the vessel's axis across
+/// it, metres (inside the 2.5 mm radius: the jaws close around the vessel, not beside it) ...
+pub const CLIP_BAND_ACROSS_M: f64 = 0.0015;
+/// ... and at most this far from the site along it, metres.
+pub const CLIP_BAND_ALONG_M: f64 = 0.004;
+
+/// Where a tip is relative to a clip site on a vessel, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClipOffset {
+    /// Horizontal distance from the site along the vessel's axis.
+    pub along_m: f64,
+    /// Horizontal distance from the vessel's axis across it.
+    pub across_m: f64,
+    /// Height above the tissue the vessel lies on (the tray pad's top).
+    pub above_tissue_m: f64,
+    /// Height above the vessel's centre line.
+    pub above_centre_line_m: f64,
+}
+
+impl ClipOffset {
+    /// Whether the tip is in the clip band: between the tissue and the vessel's centre line
+    /// (open jaws there straddle the vessel), within [`CLIP_BAND_ACROSS_M`] of its axis and
+    /// [`CLIP_BAND_ALONG_M`] of the site.
+    pub fn in_band(&self) -> bool {
+        self.across_m <= CLIP_BAND_ACROSS_M
+            && self.along_m <= CLIP_BAND_ALONG_M
+            && self.above_tissue_m >= 0.0
+            && self.above_centre_line_m <= 0.0
+    }
+}
+
+impl MarkSpec {
+    /// Where `tip_m` is relative to this mark, if it is a clip site on a vessel (it has a
+    /// line direction; the site is on the vessel's top).
+    pub fn clip_offset(&self, tip_m: &Vector3<f64>) -> Option<ClipOffset> {
+        let line = self.line_direction?;
+        let axis = Vector3::new(line.x, line.y, 0.0).try_normalize(1e-9)?;
+        let offset = tip_m - self.position_m;
+        let along = offset.x * axis.x + offset.y * axis.y;
+        let across = (offset.x * axis.y - offset.y * axis.x).abs();
+        Some(ClipOffset {
+            along_m: along.abs(),
+            across_m: across,
+            above_tissue_m: tip_m.z - TRAY_TOP_Z_M,
+            above_centre_line_m: offset.z + VESSEL_RADIUS_M,
+        })
+    }
+}
+
 /// Pose of the instrument's visible parts, from the robot's kinematics.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InstrumentPose {

@@ -55,6 +55,21 @@ pub fn surface_point(spec: &OrganSpec, d: Vector3<f64>) -> Vector3<f64> {
     p
 }
 
+/// How far `point_m` (world) lies outside a kidney's or spleen's surface along the ray from the
+/// organ's centre (negative: inside it), metres. On the organ's upper side, where a tool touches
+/// it, the ray runs close to the surface normal; a mark placed on the surface is at 0.
+pub fn radial_gap_m(spec: &OrganSpec, point_m: &Vector3<f64>) -> f64 {
+    let local = spec
+        .world_from_organ
+        .inverse_transform_point(&nalgebra::Point3::from(*point_m))
+        .coords;
+    let direction = local.try_normalize(1e-12).unwrap_or(Vector3::z());
+    let surface = surface_point(spec, direction);
+    // The surface point lies on the ray except where the shape bends it (the spleen's crescent):
+    // measure along the ray to the surface point's projection on it.
+    local.norm() - surface.dot(&direction)
+}
+
 /// The vessel's centre line (organ frame) and tube radius: it runs along y, winding in x.
 pub fn vessel_path(spec: &OrganSpec, points: usize) -> (Vec<Vector3<f64>>, f64) {
     let [wiggle, half_length, radius] = spec.semi_axes_m;

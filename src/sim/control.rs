@@ -149,7 +149,49 @@ pub struct PhysicalAction {
     pub gripper: f64,
 }
 
+/// The reference's action space, per control step: at most this much translation along each
+/// world axis, metres (a native command of 1 is 1 cm) ...
+pub const MAX_STEP_TRANSLATION_M: f64 = 0.01;
+/// ... and at most this much yaw, radians (30 deg); roll and pitch never change (the tool keeps
+/// pointing down).
+pub const MAX_STEP_YAW_RAD: f64 = std::f64::consts::PI / 6.0;
+/// A roll or pitch change below this is float noise, not a command to tilt, radians.
+const TILT_NOISE_RAD: f64 = 1e-9;
+
 impl PhysicalAction {
+    /// This action within the reference's action space: each translation clipped to
+    /// [`MAX_STEP_TRANSLATION_M`], roll and pitch zero, yaw clipped to [`MAX_STEP_YAW_RAD`],
+    /// anything not finite no motion. Returns the action and whether it had to be changed
+    /// (beyond float noise in roll and pitch).
+    pub fn within_reference(&self) -> (PhysicalAction, bool) {
+        let mut clipped = false;
+        let mut limit = |v: f64, max: f64| {
+            let c = if v.is_finite() {
+                v.clamp(-max, max)
+            } else {
+                0.0
+            };
+            clipped |= c != v;
+            c
+        };
+        let delta_position_m = self
+            .delta_position_m
+            .map(|v| limit(v, MAX_STEP_TRANSLATION_M));
+        let [droll, dpitch, dyaw] = self.delta_euler_rad;
+        let dyaw = limit(dyaw, MAX_STEP_YAW_RAD);
+        let tilted = [droll, dpitch]
+            .iter()
+            .any(|v| !v.is_finite() || v.abs() > TILT_NOISE_RAD);
+        (
+            PhysicalAction {
+                delta_position_m,
+                delta_euler_rad: [0.0, 0.0, dyaw],
+                gripper: self.gripper,
+            },
+            clipped || tilted,
+        )
+    }
+
     /// Builds an action from the dataset layout `[dx, dy, dz, droll, dpitch, dyaw, gripper]`.
     pub fn from_array(values: [f64; 7]) -> Self {
         let [dx, dy, dz, droll, dpitch, dyaw, gripper] = values;
@@ -254,6 +296,28 @@ pub fn physical_target(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn actions_are_clipped_to_the_references_action_space() {
+        let clip = |values: [f64; 7]| {
+            let (action, clipped) = PhysicalAction::from_array(values).within_reference();
+            (action.to_array(), clipped)
+        };
+        // Within it: unchanged (float noise in roll and pitch becomes an exact zero).
+        let (a, clipped) = clip([0.01, -0.004, 0.0, 1e-15, -1e-15, 0.5, 1.0]);
+        assert_eq!(a, [0.01, -0.004, 0.0, 0.0, 0.0, 0.5, 1.0]);
+        assert!(!clipped);
+        // 5 cm in one step, a tilt, 90 deg of yaw, NaN: 1 cm, no tilt, 30 deg, no motion.
+        let (a, clipped) = clip([0.05, -0.02, f64::NAN, 0.3, 0.0, 1.6, 0.0]);
+        assert_eq!(a[..3], [0.01, -0.01, 0.0]);
+        assert_eq!(a[3..5], [0.0, 0.0]);
+        assert!((a[5] - MAX_STEP_YAW_RAD).abs() < 1e-12);
+        assert!(clipped);
+        assert!(
+            clip([0.0, 0.0, 0.0, 0.0, 0.2, 0.0, 1.0]).1,
+            "pitch alone is clipped"
+        );
+    }
 
     #[test]
     fn timing_defaults_are_5hz_over_240hz() {

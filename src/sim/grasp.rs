@@ -1,31 +1,37 @@
 //! The grasp binding rule that replaces contact grasping for small objects.
 //!
-//! Binding happens when the jaws start closing with the tip within `max_vertical_m` of an
-//! object's grasp point vertically and `max_horizontal_m` horizontally; a needle also needs the
-//! jaws to cross its wire: the wire's tangent at the grasp point must run along the reported tip
-//! frame's local z axis (the jaws close along local x) within `needle_yaw_tolerance_rad`.
-//! While bound the object follows the tip rigidly; opening the jaws releases it.
+//! Binding happens when the jaws start closing on the object itself: with the tip within
+//! `max_surface_gap_m` of the object's surface where they close. A gauze (or block) binds when
+//! the tip is over its footprint and within the gap of its top face (above it, or pressed into
+//! the soft pad); a needle binds when the tip is within the gap of the nearest point of its
+//! wire, anywhere along the arc, with the jaws across the wire's tangent at that point (the
+//! tangent along the reported tip frame's local z axis: the jaws close along local x) within
+//! `needle_yaw_tolerance_rad`. Jaws closing in the air above an object, or inside the needle's
+//! arc where no wire is, bind nothing. While bound the object follows the tip rigidly, keeping
+//! the point grasped; opening the jaws releases it.
 
-use crate::scene::ObjectKind;
-use nalgebra::{Isometry3, Vector3};
+use crate::scene::{
+    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, NEEDLE_ARC_RADIUS_M, NEEDLE_WIRE_RADIUS_M,
+    ObjectKind,
+};
+use nalgebra::{Isometry3, Point3, Vector3};
 use std::f64::consts::{FRAC_PI_2, PI};
 
 /// Thresholds of the binding rule.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GraspRule {
-    /// Largest vertical distance between the tip and the grasp point, metres (either side).
-    pub max_vertical_m: f64,
-    /// Largest horizontal distance between the tip and the grasp point, metres.
-    pub max_horizontal_m: f64,
-    /// Largest angle between the needle's tangent and the jaws' crossing axis, radians.
+    /// Largest distance between the tip and the object's surface where the jaws close, metres
+    /// (either side of it).
+    pub max_surface_gap_m: f64,
+    /// Largest angle between the needle's tangent at the grasped point and the jaws' crossing
+    /// axis, radians.
     pub needle_yaw_tolerance_rad: f64,
 }
 
 impl Default for GraspRule {
     fn default() -> Self {
         GraspRule {
-            max_vertical_m: 0.003,
-            max_horizontal_m: 0.009,
+            max_surface_gap_m: 0.001,
             needle_yaw_tolerance_rad: 20f64.to_radians(),
         }
     }
@@ -37,9 +43,71 @@ pub fn line_angle_difference(a_rad: f64, b_rad: f64) -> f64 {
     d.min(PI - d)
 }
 
+/// The point of the needle's wire centre line nearest to `point` (both in the grasp frame:
+/// the arc's centre at (0, -R, 0), the half circle on the side y >= -R) and the wire's unit
+/// tangent there.
+pub fn nearest_wire_point(point: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let r = NEEDLE_ARC_RADIUS_M;
+    let theta = (point.y + r).atan2(point.x).clamp(0.0, PI);
+    let (sin, cos) = theta.sin_cos();
+    (
+        Vector3::new(r * cos, r * sin - r, 0.0),
+        Vector3::new(-sin, cos, 0.0),
+    )
+}
+
 impl GraspRule {
-    /// Whether an object of `kind` whose grasp frame is `world_from_grasp` binds to a tip at
-    /// `tip_position_m` with yaw `tip_yaw_rad` (third Euler xyz angle of the reported tip frame).
+    /// How far the tip at `tip_position_m` is from the surface of an object of `kind` whose
+    /// grasp frame is `world_from_grasp`, where the jaws would close on it (metres, negative
+    /// inside), and, for the needle, the wire's tangent there (world). None when the tip is not
+    /// over a gauze's or block's footprint.
+    fn surface_gap(
+        tip_position_m: &Vector3<f64>,
+        kind: ObjectKind,
+        world_from_grasp: &Isometry3<f64>,
+    ) -> Option<(f64, Option<Vector3<f64>>)> {
+        let local = world_from_grasp
+            .inverse_transform_point(&Point3::from(*tip_position_m))
+            .coords;
+        let half = match kind {
+            ObjectKind::Needle => {
+                let (wire, tangent) = nearest_wire_point(&local);
+                let gap = (local - wire).norm() - NEEDLE_WIRE_RADIUS_M;
+                return Some((gap, Some(world_from_grasp.rotation * tangent)));
+            }
+            ObjectKind::Gauze => GAUZE_HALF_EXTENTS_M,
+            ObjectKind::Block => BLOCK_HALF_EXTENTS_M,
+        };
+        (local.x.abs() <= half[0] && local.y.abs() <= half[1]).then_some((local.z - half[2], None))
+    }
+
+    /// The tip's distance from the object's surface if the jaws closing now at
+    /// `tip_position_m` with yaw `tip_yaw_rad` (third Euler xyz angle of the reported tip frame)
+    /// would bind the object, else None.
+    pub fn binding_gap(
+        &self,
+        tip_position_m: &Vector3<f64>,
+        tip_yaw_rad: f64,
+        kind: ObjectKind,
+        world_from_grasp: &Isometry3<f64>,
+    ) -> Option<f64> {
+        let (gap, tangent) = Self::surface_gap(tip_position_m, kind, world_from_grasp)?;
+        if gap.abs() > self.max_surface_gap_m {
+            return None;
+        }
+        if let Some(tangent) = tangent {
+            if tangent.z.abs() > 0.9 {
+                return None;
+            }
+            let across = line_angle_difference(tangent.y.atan2(tangent.x), tip_yaw_rad + FRAC_PI_2);
+            if across > self.needle_yaw_tolerance_rad {
+                return None;
+            }
+        }
+        Some(gap.abs())
+    }
+
+    /// Whether the jaws closing now would bind the object (see [`GraspRule::binding_gap`]).
     pub fn binds(
         &self,
         tip_position_m: &Vector3<f64>,
@@ -47,23 +115,8 @@ impl GraspRule {
         kind: ObjectKind,
         world_from_grasp: &Isometry3<f64>,
     ) -> bool {
-        let offset = tip_position_m - world_from_grasp.translation.vector;
-        let horizontal = (offset.x * offset.x + offset.y * offset.y).sqrt();
-        if offset.z.abs() > self.max_vertical_m || horizontal > self.max_horizontal_m {
-            return false;
-        }
-        match kind {
-            ObjectKind::Needle => {
-                let tangent = world_from_grasp.rotation * Vector3::x();
-                if tangent.z.abs() > 0.9 {
-                    return false;
-                }
-                let tangent_angle = tangent.y.atan2(tangent.x);
-                line_angle_difference(tangent_angle, tip_yaw_rad + FRAC_PI_2)
-                    <= self.needle_yaw_tolerance_rad
-            }
-            ObjectKind::Gauze | ObjectKind::Block => true,
-        }
+        self.binding_gap(tip_position_m, tip_yaw_rad, kind, world_from_grasp)
+            .is_some()
     }
 }
 
@@ -79,34 +132,64 @@ mod tests {
         )
     }
 
+    /// A tip at the gauze's top face over its footprint binds it, pressed into the pad or
+    /// just above it; closing in the air above it, beside it, or at its bottom does not.
     #[test]
-    fn gauze_binds_inside_and_not_outside_the_box() {
+    fn gauze_binds_only_where_the_jaws_close_on_its_top_face() {
         let rule = GraspRule::default();
-        let object = at(0.55, 0.0, 0.68, 0.0);
-        let binds = |dx: f64, dz: f64| {
-            rule.binds(
-                &Vector3::new(0.55 + dx, 0.0, 0.68 + dz),
-                0.0,
-                ObjectKind::Gauze,
-                &object,
-            )
+        let object = at(0.55, 0.0, 0.68, 0.3);
+        let top = GAUZE_HALF_EXTENTS_M[2];
+        let binds = |x: f64, y: f64, z: f64| {
+            let tip = object * Point3::new(x, y, z);
+            rule.binds(&tip.coords, 0.0, ObjectKind::Gauze, &object)
         };
-        assert!(binds(0.0, 0.0029));
-        assert!(binds(0.0089, 0.0));
-        assert!(!binds(0.0, 0.004));
-        assert!(!binds(0.010, 0.0));
+        // Honest: on the face (the expert closes 0.8 mm into it), at a corner of the footprint.
+        assert!(binds(0.0, 0.0, top));
+        assert!(binds(0.0, 0.0, 0.0005));
+        assert!(binds(0.007, -0.012, top + 0.0009));
+        // Dishonest: 1.5 and 3 mm above the face, 1 mm beyond its edge, through the pad.
+        assert!(!binds(0.0, 0.0, top + 0.0015));
+        assert!(!binds(0.0, 0.0, top + 0.003));
+        assert!(!binds(0.0085, 0.0, top));
+        assert!(!binds(0.0, 0.0, -top));
     }
 
+    /// The needle binds where the tip closes on its wire, anywhere along the arc, with the jaws
+    /// across the tangent there; not above the wire, not inside the arc where no wire is, not
+    /// with the jaws along the wire.
     #[test]
-    fn needle_needs_the_jaws_across_the_wire() {
+    fn needle_binds_on_its_wire_anywhere_along_the_arc_with_the_jaws_across_it() {
         let rule = GraspRule::default();
-        // Needle tangent along world x: the jaws must close along y, i.e. tip yaw = +-pi/2.
-        let needle = at(0.55, 0.0, 0.68, 0.0);
-        let tip = Vector3::new(0.55, 0.0, 0.681);
-        assert!(rule.binds(&tip, FRAC_PI_2, ObjectKind::Needle, &needle));
-        assert!(rule.binds(&tip, -FRAC_PI_2 + 0.3, ObjectKind::Needle, &needle));
-        assert!(!rule.binds(&tip, 0.0, ObjectKind::Needle, &needle));
-        assert!(!rule.binds(&tip, FRAC_PI_2 + 0.4, ObjectKind::Needle, &needle));
+        let needle = at(0.55, 0.0, 0.68, 0.4);
+        let r = NEEDLE_ARC_RADIUS_M;
+        // A point theta along the arc (pi/2: the midpoint), lifted by `dz`, and the tip yaw
+        // whose jaws cross the tangent there (the tangent along the tip's local z).
+        let grasp = |theta: f64, inward_m: f64, dz: f64, yaw_off: f64| {
+            let radial = r - inward_m;
+            let local = Vector3::new(radial * theta.cos(), radial * theta.sin() - r, dz);
+            let tangent = needle.rotation * Vector3::new(-theta.sin(), theta.cos(), 0.0);
+            let yaw = tangent.y.atan2(tangent.x) - FRAC_PI_2 + yaw_off;
+            rule.binds(
+                &(needle * Point3::from(local)).coords,
+                yaw,
+                ObjectKind::Needle,
+                &needle,
+            )
+        };
+        let midpoint = FRAC_PI_2;
+        // 10 mm along the arc from the midpoint (a third along a 63 mm needle): 0.5 rad.
+        let third = FRAC_PI_2 - 0.010 / r;
+        assert!(grasp(midpoint, 0.0, 0.0, 0.0));
+        assert!(grasp(midpoint, 0.0, 0.0012, 0.3));
+        assert!(grasp(third, 0.0, 0.0005, 0.0));
+        assert!(grasp(third, 0.0, 0.0, -0.3));
+        // 2 and 3 mm above the wire; 8 mm inside the arc; jaws along the wire; at the third
+        // with the jaws set for the midpoint's tangent (29 deg off).
+        assert!(!grasp(midpoint, 0.0, 0.002, 0.0));
+        assert!(!grasp(midpoint, 0.0, 0.003, 0.0));
+        assert!(!grasp(midpoint, 0.008, 0.0, 0.0));
+        assert!(!grasp(third, 0.0, 0.0, FRAC_PI_2));
+        assert!(!grasp(third, 0.0, 0.0, midpoint - third));
     }
 
     #[test]

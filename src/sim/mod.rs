@@ -17,6 +17,4 @@ pub use control::{JawCommand, NativeCommand, PhysicalAction, Timing, Workspace};
 pub use grasp::GraspRule;
 pub use observation::{ObjectState, Observation};
 pub use psm::Psm;
-pub use simulator::{
-    HELD_PENETRATION_M, MARK_APPROACH_RADIUS_M, MOVED_THRESHOLD_M, SimConfig, Simulator, StepReport,
-};
+pub use simulator::{HELD_PENETRATION_M, MOVED_THRESHOLD_M, SimConfig, Simulator, StepReport};

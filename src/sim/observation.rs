@@ -17,6 +17,11 @@ pub struct ObjectState {
     pub world_from_object: Isometry3<f64>,
     /// Held by the jaws.
     pub bound: bool,
+    /// Held by the jaws at any time since the episode began.
+    pub ever_bound: bool,
+    /// The grasp frame's pose when the jaws last let the object go (None: never released, or
+    /// held now).
+    pub released_at: Option<Isometry3<f64>>,
     /// In contact with the tray pad.
     pub on_tray: bool,
     /// In contact with the block (never true for the block itself).
@@ -27,6 +32,8 @@ pub struct ObjectState {
     pub moved: bool,
     /// Asleep in the physics engine (settled).
     pub at_rest: bool,
+    /// Linear speed, metres per second.
+    pub speed_m_per_s: f64,
 }
 
 /// The simulator's observation after a control step.
@@ -43,9 +50,9 @@ pub struct Observation {
     pub bound_object: Option<usize>,
     /// What IK had to clamp on the last step.
     pub ik: IkReport,
-    /// Per scene mark: the jaw angle when the tip first came within
-    /// [`crate::sim::MARK_APPROACH_RADIUS_M`] of it (None: not yet).
-    pub mark_approach_jaw_rad: Vec<Option<f64>>,
+    /// Per scene mark that is a clip site: the jaw angle when the tip last entered its clip
+    /// band, while it stays inside (None: outside it).
+    pub clip_entry_jaw_rad: Vec<Option<f64>>,
     /// On the last step the held object met static geometry and the tip stopped above its
     /// target.
     pub descent_stopped: bool,

@@ -373,6 +373,14 @@ impl PhysicsScene {
             .and_then(|o| self.world.bodies.get(o.body))
             .is_some_and(|body| body.is_sleeping())
     }
+
+    /// How fast object `index` moves, metres per second (0 asleep or unknown).
+    pub fn object_speed_m_per_s(&self, index: usize) -> f64 {
+        self.objects
+            .get(index)
+            .and_then(|o| self.world.bodies.get(o.body))
+            .map_or(0.0, |body| f64::from(body.linvel().length()))
+    }
 }
 
 #[cfg(test)]

@@ -27,9 +27,6 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 pub const MOVED_THRESHOLD_M: f64 = 0.002;
 /// How deep a held object may reach into static geometry, metres.
 pub const HELD_PENETRATION_M: f64 = 0.0002;
-/// A tip closer than this to a mark has "approached" it: the simulator records the jaw angle of
-/// the first control step that brings the tip this close (a clip must arrive with open jaws).
-pub const MARK_APPROACH_RADIUS_M: f64 = 0.010;
 
 /// Everything that configures a simulator besides the scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -95,9 +92,13 @@ pub struct Simulator {
     binding: Option<Binding>,
     step_index: u64,
     last_report: StepReport,
-    /// Per scene mark: the jaw angle when the tip first came within
-    /// [`MARK_APPROACH_RADIUS_M`] of it.
-    mark_approach_jaw_rad: Vec<Option<f64>>,
+    /// Per scene mark: the jaw angle when the tip last entered its clip band, while it stays
+    /// inside (see [`crate::scene::ClipOffset::in_band`]).
+    clip_entry_jaw_rad: Vec<Option<f64>>,
+    /// Per object: bound at any time since the start.
+    ever_bound: Vec<bool>,
+    /// Per object: its pose when last released, until it is bound again.
+    released_at: Vec<Option<Isometry3<f64>>>,
 }
 
 /// Pose of the instrument's shaft frame: origin at the wrist-pitch joint, z from the RCM outward.
@@ -121,6 +122,7 @@ impl Simulator {
             &world_from_shaft(&config.psm, &joints),
         );
         let marks = scene.marks.len();
+        let objects = scene.objects.len();
         let mut sim = Simulator {
             config,
             scene,
@@ -134,17 +136,23 @@ impl Simulator {
                 ik,
                 ..StepReport::default()
             },
-            mark_approach_jaw_rad: vec![None; marks],
+            clip_entry_jaw_rad: vec![None; marks],
+            ever_bound: vec![false; objects],
+            released_at: vec![None; objects],
         };
-        sim.record_mark_approaches();
+        sim.record_clip_entries();
         sim
     }
 
-    /// Records the jaw angle for every mark the tip has just come near for the first time.
-    fn record_mark_approaches(&mut self) {
+    /// Records the jaw angle for every clip site whose band the tip has just entered, and
+    /// forgets the sites whose band it has left (a clip is judged on the jaws as they entered).
+    fn record_clip_entries(&mut self) {
         let tip = self.world_from_tip().translation.vector;
-        for (mark, record) in self.scene.marks.iter().zip(&mut self.mark_approach_jaw_rad) {
-            if record.is_none() && (tip - mark.position_m).norm() <= MARK_APPROACH_RADIUS_M {
+        for (mark, record) in self.scene.marks.iter().zip(&mut self.clip_entry_jaw_rad) {
+            let inside = mark.clip_offset(&tip).is_some_and(|o| o.in_band());
+            if !inside {
+                *record = None;
+            } else if record.is_none() {
                 *record = Some(self.jaw_angle_rad);
             }
         }
@@ -282,7 +290,7 @@ impl Simulator {
         }
         self.step_index += 1;
         self.last_report = report;
-        self.record_mark_approaches();
+        self.record_clip_entries();
         report
     }
 
@@ -315,6 +323,12 @@ impl Simulator {
                     let world_from_object = self.physics.object_pose(object).unwrap_or_default();
                     let tip_from_object = self.world_from_tip().inverse() * world_from_object;
                     self.physics.set_object_bound(object, true);
+                    if let Some(ever) = self.ever_bound.get_mut(object) {
+                        *ever = true;
+                    }
+                    if let Some(released) = self.released_at.get_mut(object) {
+                        *released = None;
+                    }
                     self.binding = Some(Binding {
                         object,
                         tip_from_object,
@@ -324,6 +338,9 @@ impl Simulator {
             }
             JawCommand::Open => {
                 if let Some(binding) = self.binding.take() {
+                    if let Some(released) = self.released_at.get_mut(binding.object) {
+                        *released = self.physics.object_pose(binding.object);
+                    }
                     self.physics.set_object_bound(binding.object, false);
                     report.released = Some(binding.object);
                 }
@@ -333,7 +350,8 @@ impl Simulator {
         self.jaw_command = command;
     }
 
-    /// The object the jaws would bind now: the nearest one satisfying the rule.
+    /// The object the jaws would bind now: of those satisfying the rule, the one whose surface
+    /// is nearest the tip.
     pub fn grasp_candidate(&self) -> Option<usize> {
         let tip = self.world_from_tip();
         let tip_position = tip.translation.vector;
@@ -344,8 +362,8 @@ impl Simulator {
                 let kind = self.scene.objects.get(i)?.kind;
                 self.config
                     .grasp
-                    .binds(&tip_position, yaw, kind, &pose)
-                    .then(|| ((pose.translation.vector - tip_position).norm(), i))
+                    .binding_gap(&tip_position, yaw, kind, &pose)
+                    .map(|gap| (gap, i))
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, i)| i)
@@ -376,11 +394,14 @@ impl Simulator {
                     kind: spec.kind,
                     world_from_object: pose,
                     bound: self.bound_object() == Some(i),
+                    ever_bound: self.ever_bound.get(i).copied().unwrap_or(false),
+                    released_at: self.released_at.get(i).copied().flatten(),
                     on_tray: self.physics.object_on_tray(i),
                     on_block: block.is_some_and(|b| b != i && self.physics.objects_touching(i, b)),
                     displacement_m,
                     moved: displacement_m > MOVED_THRESHOLD_M,
                     at_rest: self.physics.object_sleeping(i),
+                    speed_m_per_s: self.physics.object_speed_m_per_s(i),
                 }
             })
             .collect();
@@ -395,7 +416,7 @@ impl Simulator {
             objects,
             bound_object: self.bound_object(),
             ik: self.last_report.ik,
-            mark_approach_jaw_rad: self.mark_approach_jaw_rad.clone(),
+            clip_entry_jaw_rad: self.clip_entry_jaw_rad.clone(),
             descent_stopped: self.last_report.descent_stopped,
         }
     }
@@ -407,7 +428,7 @@ impl Simulator {
         self.joints = joints;
         self.physics
             .move_instrument(&world_from_shaft(&self.config.psm, &self.joints));
-        self.record_mark_approaches();
+        self.record_clip_entries();
         ik
     }
 

@@ -1,26 +1,33 @@
-//! Success predicates: whether an observation completes the task of a [`TaskInstance`].
+//! Success predicates: whether an observation completes the task of a [`TaskInstance`]. Each
+//! judges the physical event (rule set [`RULE_SET`]; docs/FIDELITY.md gives every rule with a
+//! motion that passes and one that fails):
 //!
 //! | task | success |
 //! |---|---|
-//! | T1-1, T2-1 | the named gauze bound and raised >= 10 mm |
-//! | T1-2, T2-2 | the named needle bound, raised >= 4 mm, not touching the tray |
-//! | T2-1, T2-2 | ... and no distractor moved more than 2 mm from its spawn |
-//! | T1-3 | jaws closed with the tip within 4 mm of the spot |
-//! | T2-3 | a clip: the jaws were open when the tip came within 10 mm of the named site; now closed, the tip within 4 mm of it horizontally and between the tissue surface and the vessel's centre line (the jaws straddle the vessel), crossing the vessel within 20 deg |
-//! | T3-1 | gauze released, its centre over the block's top, bottom-to-top gap < 3 mm |
-//! | T3-2 | gauze released, its centre within 10 mm of the target |
+//! | T1-1, T2-1 | the named gauze bound (the jaws closed on its top face: see `sim::grasp`) and raised >= 10 mm |
+//! | T1-2, T2-2 | the named needle bound (the jaws closed on its wire, across it), raised >= 4 mm, not touching the tray |
+//! | T2-1, T2-2 | ... and no distractor ever grasped (a terminal failure: the trial ends there) or moved more than 2 mm |
+//! | T1-3 | jaws closed, the tip on the organ's surface (within 1 mm of it, either side) within 4 mm of the spot |
+//! | T2-3 | a clip: the jaws were open when the tip entered the band around the named site (within 1.5 mm of the vessel's axis across it, 4 mm along it, between the tissue and the vessel's centre line), closed while inside it, crossing the vessel within 20 deg |
+//! | T3-1 | the gauze placed: let go within 5 mm above the block, at rest, its centre over the block's top, bottom-to-top gap < 3 mm |
+//! | T3-2 | the gauze placed: let go within 5 mm above the spleen, at rest on it (underside within 3 mm of its surface), the target spot wholly under its footprint |
 //!
 //! Every verdict carries a short reason, so a failed episode says why.
 
 use crate::scene::{
-    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, ObjectKind, TRAY_TOP_Z_M, VESSEL_RADIUS_M,
+    BLOCK_HALF_EXTENTS_M, CLIP_BAND_ACROSS_M, CLIP_BAND_ALONG_M, GAUZE_HALF_EXTENTS_M, ObjectKind,
+    OrganKind, OrganSpec, organ,
 };
 use crate::sim::grasp::line_angle_difference;
 use crate::sim::observation::Observation;
 use crate::sim::psm::{JAW_CLOSED_RAD, JAW_OPEN_RAD};
 use crate::task::{TaskId, TaskInstance};
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use std::f64::consts::FRAC_PI_2;
+
+/// The name and version of these rules, recorded with every dataset and evaluation: a dataset
+/// judged by other rules is not re-judged by these.
+pub const RULE_SET: &str = "surgvla-physical-v1";
 
 /// Lift a picked gauze needs, metres.
 pub const GAUZE_LIFT_M: f64 = 0.010;
@@ -28,12 +35,20 @@ pub const GAUZE_LIFT_M: f64 = 0.010;
 pub const NEEDLE_LIFT_M: f64 = 0.004;
 /// Tip-to-mark distance for touch and clip, metres.
 pub const TOUCH_RADIUS_M: f64 = 0.004;
+/// Largest distance between the touching tip and the organ's surface, either side, metres:
+/// on the tissue, neither hovering over it nor pushed into it.
+pub const TOUCH_SURFACE_GAP_M: f64 = 0.001;
 /// Largest angle between the jaws' closing line and the vessel's normal, radians (20 deg).
 pub const CLIP_CROSSING_TOLERANCE_RAD: f64 = 20.0 * std::f64::consts::PI / 180.0;
 /// Largest gap between the placed gauze's bottom and the block's top, metres.
 pub const PLACE_GAP_M: f64 = 0.003;
-/// Largest distance between the placed gauze and the hemostasis target, metres.
-pub const HEMOSTASIS_RADIUS_M: f64 = 0.010;
+/// A placed object moving slower than this has settled, metres per second: a gauze on the
+/// spleen's curve jitters in contact at up to 15 mm/s for seconds before the engine puts it to
+/// sleep; one let go in the air falls faster than this within 0.02 s.
+pub const SETTLED_SPEED_M_PER_S: f64 = 0.02;
+/// Highest a gauze may be let go above its support and count as placed, metres (measured from
+/// its underside).
+pub const PLACE_RELEASE_HEIGHT_M: f64 = 0.005;
 /// Jaw angle that counts as closed, radians.
 const JAWS_CLOSED_RAD: f64 = JAW_CLOSED_RAD + 0.02;
 /// Jaw angle that counts as open when a clip reaches its site: at least half open, radians.
@@ -74,8 +89,22 @@ fn jaws_open(observation: &Observation) -> Option<Verdict> {
 }
 
 impl TaskInstance {
+    /// A failure that ends a trial (or an expert attempt) the moment it happens, whatever
+    /// follows: a distractor grasped (T2-1, T2-2).
+    pub fn terminal_failure(&self, observation: &Observation) -> Option<Verdict> {
+        observation
+            .objects
+            .iter()
+            .zip(&self.scene.objects)
+            .find(|(state, spec)| spec.distractor && state.ever_bound)
+            .map(|(_, spec)| Verdict::fail(format!("grasped the distractor '{}'", spec.name)))
+    }
+
     /// Whether `observation` completes this instance's task.
     pub fn success(&self, observation: &Observation) -> Verdict {
+        if let Some(failure) = self.terminal_failure(observation) {
+            return failure;
+        }
         match self.task {
             TaskId::GauzePick
             | TaskId::NeedlePick
@@ -154,10 +183,38 @@ impl TaskInstance {
                 TOUCH_RADIUS_M * 1e3
             ));
         }
-        Verdict::pass(format!("tip {:.1} mm from '{}'", distance * 1e3, mark.name))
+        // The organ the mark lies on: the solid organ whose surface passes nearest it.
+        let Some(gap) = self
+            .scene
+            .organs
+            .iter()
+            .filter(|o| o.kind != OrganKind::Vessel)
+            .min_by(|a, b| {
+                let at_mark = |o: &OrganSpec| organ::radial_gap_m(o, &mark.position_m).abs();
+                at_mark(a).total_cmp(&at_mark(b))
+            })
+            .map(|o| organ::radial_gap_m(o, &tip))
+        else {
+            return Verdict::fail("no tissue to touch");
+        };
+        if gap.abs() > TOUCH_SURFACE_GAP_M {
+            return Verdict::fail(format!(
+                "tip {:.1} mm {} the tissue's surface (touching is within {:.0} mm of it)",
+                gap.abs() * 1e3,
+                if gap > 0.0 { "above" } else { "inside" },
+                TOUCH_SURFACE_GAP_M * 1e3
+            ));
+        }
+        Verdict::pass(format!(
+            "tip on the tissue ({:+.1} mm) {:.1} mm from '{}'",
+            gap * 1e3,
+            distance * 1e3,
+            mark.name
+        ))
     }
 
-    /// A clip: arrived with open jaws, closed around the vessel at the named site.
+    /// A clip: the jaws entered the band around the vessel at the named site open, closed
+    /// there, and cross the vessel.
     fn clipped(&self, observation: &Observation) -> Verdict {
         let Some((index, mark)) = self
             .target_mark
@@ -165,22 +222,32 @@ impl TaskInstance {
         else {
             return Verdict::fail("no target mark");
         };
-        match observation
-            .mark_approach_jaw_rad
-            .get(index)
-            .copied()
-            .flatten()
-        {
-            None => {
-                return Verdict::fail(format!(
-                    "the tip never came within {:.0} mm of '{}'",
-                    crate::sim::MARK_APPROACH_RADIUS_M * 1e3,
-                    mark.name
-                ));
-            }
+        let tip = Vector3::from(observation.tip_position_m);
+        let Some(offset) = mark.clip_offset(&tip) else {
+            return Verdict::fail(format!("'{}' is not on a vessel", mark.name));
+        };
+        if offset.across_m > CLIP_BAND_ACROSS_M || offset.along_m > CLIP_BAND_ALONG_M {
+            return Verdict::fail(format!(
+                "tip {:.1} mm from the vessel's axis and {:.1} mm along it from '{}' (a clip closes within {:.1} mm of the axis, {:.0} mm of the site)",
+                offset.across_m * 1e3,
+                offset.along_m * 1e3,
+                mark.name,
+                CLIP_BAND_ACROSS_M * 1e3,
+                CLIP_BAND_ALONG_M * 1e3
+            ));
+        }
+        if !offset.in_band() {
+            return Verdict::fail(format!(
+                "tip {:.1} mm above the vessel's centre line, {:.1} mm above the tissue: the jaws do not straddle the vessel",
+                offset.above_centre_line_m * 1e3,
+                offset.above_tissue_m * 1e3
+            ));
+        }
+        match observation.clip_entry_jaw_rad.get(index).copied().flatten() {
+            None => return Verdict::fail("the tip is not in the clip band"),
             Some(jaw) if jaw < JAWS_OPEN_FOR_CLIP_RAD => {
                 return Verdict::fail(format!(
-                    "the jaws were closed ({:.0} deg) when the tip reached '{}': a clip arrives open",
+                    "the jaws were closed ({:.0} deg) when the tip reached the vessel at '{}': a clip closes around it",
                     jaw.to_degrees(),
                     mark.name
                 ));
@@ -189,29 +256,6 @@ impl TaskInstance {
         }
         if let Some(open) = jaws_open(observation) {
             return open;
-        }
-        let tip = Vector3::from(observation.tip_position_m);
-        let offset = tip - mark.position_m;
-        let horizontal = offset.x.hypot(offset.y);
-        if horizontal > TOUCH_RADIUS_M {
-            return Verdict::fail(format!(
-                "tip {:.1} mm beside '{}' (> {:.0} mm)",
-                horizontal * 1e3,
-                mark.name,
-                TOUCH_RADIUS_M * 1e3
-            ));
-        }
-        // The site mark sits on the vessel's top; the jaws straddle the vessel when the tip is
-        // between the tissue below it and its centre line.
-        let centre_line_z = mark.position_m.z - VESSEL_RADIUS_M;
-        if !(TRAY_TOP_Z_M..=centre_line_z).contains(&tip.z) {
-            return Verdict::fail(format!(
-                "tip {:.1} mm {} the vessel's top: the jaws do not straddle the vessel (need {:.1}..{:.1} mm below it)",
-                offset.z.abs() * 1e3,
-                if offset.z >= 0.0 { "above" } else { "below" },
-                VESSEL_RADIUS_M * 1e3,
-                (mark.position_m.z - TRAY_TOP_Z_M) * 1e3
-            ));
         }
         if let Some(line) = mark.line_direction {
             let jaw_line = observation.tip_euler_xyz_rad[2] + FRAC_PI_2;
@@ -224,17 +268,19 @@ impl TaskInstance {
             }
         }
         Verdict::pass(format!(
-            "clipped '{}': tip {:.1} mm beside it, {:.1} mm below its top",
+            "clipped '{}': tip {:.1} mm from the axis, {:.1} mm along it, {:.1} mm below the centre line",
             mark.name,
-            horizontal * 1e3,
-            -offset.z * 1e3
+            offset.across_m * 1e3,
+            offset.along_m * 1e3,
+            -offset.above_centre_line_m * 1e3
         ))
     }
 
+    /// The target object, let go by the jaws and at rest, with its pose when released.
     fn released_target<'a>(
         &self,
         observation: &'a Observation,
-    ) -> Result<&'a crate::sim::observation::ObjectState, Verdict> {
+    ) -> Result<(&'a crate::sim::observation::ObjectState, Isometry3<f64>), Verdict> {
         let target = self
             .target_object
             .ok_or_else(|| Verdict::fail("no target object"))?;
@@ -245,19 +291,41 @@ impl TaskInstance {
         if state.bound {
             return Err(Verdict::fail(format!("'{}' still held", state.name)));
         }
-        Ok(state)
+        let Some(released_at) = state.released_at else {
+            return Err(Verdict::fail(format!("'{}' never placed", state.name)));
+        };
+        if !state.at_rest && state.speed_m_per_s > SETTLED_SPEED_M_PER_S {
+            return Err(Verdict::fail(format!(
+                "'{}' still moving ({:.0} mm/s)",
+                state.name,
+                state.speed_m_per_s * 1e3
+            )));
+        }
+        Ok((state, released_at))
+    }
+
+    /// A released object dropped from higher than [`PLACE_RELEASE_HEIGHT_M`] was thrown, not
+    /// placed.
+    fn dropped(&self, height_m: f64) -> Option<Verdict> {
+        (height_m > PLACE_RELEASE_HEIGHT_M).then(|| {
+            Verdict::fail(format!(
+                "gauze released {:.1} mm above its support (placing is within {:.0} mm)",
+                height_m * 1e3,
+                PLACE_RELEASE_HEIGHT_M * 1e3
+            ))
+        })
     }
 
     fn placed_on_block(&self, observation: &Observation) -> Verdict {
-        let gauze = match self.released_target(observation) {
+        let (gauze, released_at) = match self.released_target(observation) {
             Ok(state) => state,
             Err(verdict) => return verdict,
         };
         let Some(block) = self.support_object.and_then(|i| observation.objects.get(i)) else {
             return Verdict::fail("no block");
         };
-        let centre = block.world_from_object.inverse()
-            * Point3::from(gauze.world_from_object.translation.vector);
+        let block_from_world = block.world_from_object.inverse();
+        let centre = block_from_world * Point3::from(gauze.world_from_object.translation.vector);
         if centre.x.abs() > BLOCK_HALF_EXTENTS_M[0] || centre.y.abs() > BLOCK_HALF_EXTENTS_M[1] {
             return Verdict::fail(format!(
                 "gauze centre not over the block ({:.1}, {:.1}) mm",
@@ -269,26 +337,72 @@ impl TaskInstance {
         if !(-0.001..PLACE_GAP_M).contains(&gap) {
             return Verdict::fail(format!("gauze {:.1} mm above the block", gap * 1e3));
         }
-        Verdict::pass(format!("gauze on the block, gap {:.1} mm", gap * 1e3))
+        let released = block_from_world * Point3::from(released_at.translation.vector);
+        let height = released.z - GAUZE_HALF_EXTENTS_M[2] - BLOCK_HALF_EXTENTS_M[2];
+        if let Some(dropped) = self.dropped(height) {
+            return dropped;
+        }
+        Verdict::pass(format!(
+            "gauze placed on the block from {:.1} mm, gap {:.1} mm",
+            height * 1e3,
+            gap * 1e3
+        ))
     }
 
     fn placed_on_mark(&self, observation: &Observation) -> Verdict {
-        let gauze = match self.released_target(observation) {
+        let (gauze, released_at) = match self.released_target(observation) {
             Ok(state) => state,
             Err(verdict) => return verdict,
         };
         let Some(mark) = self.target_mark.and_then(|i| self.scene.marks.get(i)) else {
             return Verdict::fail("no target mark");
         };
-        let distance = (gauze.world_from_object.translation.vector - mark.position_m).norm();
-        if distance > HEMOSTASIS_RADIUS_M {
+        // The spot under the footprint, all of it: its centre within the footprint shrunk by
+        // its radius.
+        let spot = gauze.world_from_object.inverse() * Point3::from(mark.position_m);
+        let [hx, hy, hz] = GAUZE_HALF_EXTENTS_M;
+        let uncovered_x = spot.x.abs() + mark.radius_m - hx;
+        let uncovered_y = spot.y.abs() + mark.radius_m - hy;
+        if uncovered_x > 0.0 || uncovered_y > 0.0 {
             return Verdict::fail(format!(
-                "gauze {:.1} mm from the target (> {:.0} mm)",
-                distance * 1e3,
-                HEMOSTASIS_RADIUS_M * 1e3
+                "'{}' not under the gauze (its edge {:.1} mm beyond the gauze's)",
+                mark.name,
+                uncovered_x.max(uncovered_y) * 1e3
             ));
         }
-        Verdict::pass(format!("gauze {:.1} mm from the target", distance * 1e3))
+        // Resting on the organ the spot is on: its underside on the surface there.
+        let Some(organ) = self
+            .scene
+            .organs
+            .iter()
+            .filter(|o| o.kind != OrganKind::Vessel)
+            .min_by(|a, b| {
+                let at_mark = |o: &OrganSpec| organ::radial_gap_m(o, &mark.position_m).abs();
+                at_mark(a).total_cmp(&at_mark(b))
+            })
+        else {
+            return Verdict::fail("no organ under the target");
+        };
+        let underside = |pose: &Isometry3<f64>| (pose * Point3::new(0.0, 0.0, -hz)).coords;
+        let resting = organ::radial_gap_m(organ, &underside(&gauze.world_from_object));
+        if resting.abs() > PLACE_GAP_M {
+            return Verdict::fail(format!(
+                "gauze {:.1} mm {} the {}'s surface, not resting on it",
+                resting.abs() * 1e3,
+                if resting > 0.0 { "above" } else { "inside" },
+                organ.kind.name()
+            ));
+        }
+        let height = organ::radial_gap_m(organ, &underside(&released_at));
+        if let Some(dropped) = self.dropped(height) {
+            return dropped;
+        }
+        Verdict::pass(format!(
+            "'{}' covered, gauze placed on the {} from {:.1} mm",
+            mark.name,
+            organ.kind.name(),
+            height * 1e3
+        ))
     }
 }
 

@@ -272,7 +272,7 @@ fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
             .iter()
             .all(|f| f.stage == "expert" && f.slot.task == TaskId::Hemostasis)
     );
-    assert!(report.failures[0].reason.contains("from the target"));
+    assert!(report.failures[0].reason.contains("not under the gauze"));
 
     let root = temp_root("exhausted");
     let mut writer = LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).unwrap();
@@ -311,7 +311,8 @@ fn the_experts_command_prints_rates_and_reproducible_failures() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     assert!(
-        stdout.contains("(expert): gauze") && stdout.contains("[seed "),
+        stdout.contains("(expert): 'bleeding_target' not under the gauze")
+            && stdout.contains("[seed "),
         "{stdout}"
     );
 }

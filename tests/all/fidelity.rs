@@ -1,7 +1,9 @@
 //! Every success predicate can fail, and fails for what a surgeon would not accept: a clip that
-//! touches or closes on top of the vessel, a gauze placed beside the block or 15 mm from the
-//! hemostasis target, a needle dragged along the tray; and a held object never sinks into the
-//! pad.
+//! arrives closed, closes on top of the vessel or beside it; a touch hovering over the spot or
+//! pushed into the organ; a gauze placed beside the block, dropped from high above its support,
+//! or leaving the hemostasis spot uncovered; a needle dragged along the tray; and a held object
+//! never sinks into the pad. (The grasp rule's cases are in `grasping.rs`, the distractors' in
+//! `tasks.rs`.)
 
 use surgvla::collect::record::{attempt_seed, run_expert};
 use surgvla::collect::rollout;
@@ -54,10 +56,84 @@ fn a_clip_must_arrive_open_and_straddle_the_vessel() {
     let task = TaskId::VesselClipping;
     let expert = builtin(task);
     // The built-in expert clips (checked on every task elsewhere); these must not.
+    // Closed from 25 mm above and pushed down onto the vessel: the jaws were closed when the
+    // tip entered the band around it.
     let touch = expert.replace("jaw = \"open\"", "jaw = \"close\"");
-    always_fails(task, &touch, "a clip arrives open");
+    always_fails(task, &touch, "a clip closes around it");
     let on_top = expert.replace("-0.0035", "0.0");
     always_fails(task, &on_top, "do not straddle");
+    // Beside the vessel: the tip 3.5 mm off its axis (the vessel runs along y, within 30 deg),
+    // outside its 2.5 mm radius.
+    let beside = expert.replace(
+        "frame = \"mark\"\noffset_m = [0.0, 0.0, -0.0035]",
+        "frame = \"mark\"\noffset_m = [0.0035, 0.0, -0.0035]",
+    );
+    assert_ne!(beside, expert);
+    always_fails(task, &beside, "from the vessel's axis");
+}
+
+#[test]
+fn a_touch_is_on_the_tissue_not_over_it_or_inside_it() {
+    let task = TaskId::Electrocoagulation;
+    let expert = builtin(task);
+    let touch = "name = \"touch\"\nframe = \"mark\"\noffset_m = [0.0, 0.0, 0.0]";
+    assert!(expert.contains(touch));
+    let hovering = expert.replace(touch, &touch.replace("0.0]", "0.0025]"));
+    always_fails(task, &hovering, "above the tissue's surface");
+    let pushed_in = expert.replace(touch, &touch.replace("0.0]", "-0.0025]"));
+    always_fails(task, &pushed_in, "inside the tissue's surface");
+}
+
+#[test]
+fn a_gauze_let_go_high_above_its_support_is_not_placed() {
+    for (task, height) in [
+        (TaskId::PickAndPlace, "0.0035"),
+        (TaskId::Hemostasis, "0.005"),
+    ] {
+        let expert = builtin(task);
+        let low = format!("frame = \"place\"\noffset_m = [0.0, 0.0, {height}]");
+        assert!(expert.contains(&low), "{task}");
+        // Lowered to 40 mm above the target only, and opened there.
+        let dropped = expert.replace(&low, "frame = \"place\"\noffset_m = [0.0, 0.0, 0.04]");
+        always_fails(task, &dropped, "above its support");
+    }
+}
+
+#[test]
+fn a_hemostasis_gauze_must_cover_the_spot() {
+    // The honest placement passes; the same gauze moved 9 mm along its short side (its centre
+    // still within the old 10 mm) leaves the spot uncovered.
+    let task = TaskId::Hemostasis;
+    let plan = plan(&builtin(task));
+    for k in 0..3 {
+        let instance = instance(task, k);
+        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        let mut expert = plan
+            .expert(&instance, &sim.observation(), instance.seed)
+            .expect("expert");
+        let placed = rollout(&mut sim, &mut expert, 150).final_observation;
+        let verdict = instance.success(&placed);
+        assert!(verdict.success, "k {k}: {}", verdict.reason);
+        let gauze = instance.target_object.expect("gauze");
+        let mut moved = placed.clone();
+        let pose = &mut moved.objects[gauze].world_from_object;
+        let short_side = pose.rotation * nalgebra::Vector3::x();
+        let mark = &instance.scene.marks[instance.target_mark.expect("mark")];
+        let from_mark = pose.translation.vector - mark.position_m;
+        let sign = if from_mark.dot(&short_side) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
+        pose.translation.vector += sign * 0.009 * short_side;
+        let verdict = instance.success(&moved);
+        assert!(!verdict.success);
+        assert!(
+            verdict.reason.contains("not under the gauze"),
+            "{}",
+            verdict.reason
+        );
+    }
 }
 
 #[test]
@@ -71,7 +147,7 @@ fn a_gauze_beside_the_block_or_15_mm_from_the_target_is_not_placed() {
         "frame = \"place\"\noffset_m = [0.0, 0.0,",
         "frame = \"place\"\noffset_m = [0.0, 0.015,",
     );
-    always_fails(TaskId::Hemostasis, &off_target, "from the target");
+    always_fails(TaskId::Hemostasis, &off_target, "not under the gauze");
 }
 
 #[test]

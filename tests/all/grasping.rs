@@ -41,8 +41,10 @@ fn tip_near_gauze(dx_m: f64, dz_m: f64) -> Simulator {
 }
 
 #[test]
-fn binds_within_3mm_above_and_9mm_aside() {
-    for (dx, dz) in [(0.0, 0.0029), (0.0089, 0.0), (0.006, 0.002), (0.0, 0.0005)] {
+fn binds_where_the_jaws_close_on_the_gauzes_top_face() {
+    // The grasp point is the gauze's centre, 1.3 mm below its top face: the tip on the face,
+    // 0.8 mm into it (the expert), at its centre and 6 mm aside over the footprint.
+    for (dx, dz) in [(0.0, 0.0013), (0.0, 0.0005), (0.006, 0.001), (0.0, 0.002)] {
         let mut sim = tip_near_gauze(dx, dz);
         let report = sim.step_native(&CLOSE);
         assert_eq!(report.bound, Some(0), "offset ({dx}, {dz}) should bind");
@@ -51,12 +53,95 @@ fn binds_within_3mm_above_and_9mm_aside() {
 }
 
 #[test]
-fn does_not_bind_4mm_above_or_10mm_aside() {
-    for (dx, dz) in [(0.0, 0.004), (0.010, 0.0), (0.0, 0.010)] {
+fn does_not_bind_in_the_air_above_it_or_beside_it() {
+    // 1.2 mm and 2.7 mm above the face (the old rule's 3 mm box bound both), beyond the
+    // footprint's 7.5 mm half width, 10 mm up.
+    for (dx, dz) in [(0.0, 0.0025), (0.0, 0.004), (0.0085, 0.0013), (0.0, 0.010)] {
         let mut sim = tip_near_gauze(dx, dz);
         let report = sim.step_native(&CLOSE);
         assert_eq!(report.bound, None, "offset ({dx}, {dz}) must not bind");
         assert_eq!(sim.observation().bound_object, None);
+    }
+}
+
+/// A settled needle and the jaws closing at `theta` along its arc (pi/2: the midpoint),
+/// `inward_m` toward the arc's centre and `dz_m` above the wire, across the tangent there plus
+/// `yaw_off_rad`; then lifting 20 mm. Returns whether the needle bound and the verdict of the
+/// needle pick on the final observation.
+fn close_on_needle(theta: f64, inward_m: f64, dz_m: f64, yaw_off_rad: f64) -> (bool, bool) {
+    use surgvla::scene::NEEDLE_ARC_RADIUS_M as R;
+    let mut sim = simulator(three_objects(0.0));
+    sim.step_native(&OPEN);
+    let observation = sim.observation();
+    let index = observation
+        .objects
+        .iter()
+        .position(|o| o.name == "needle")
+        .expect("needle");
+    let needle = observation.objects[index].world_from_object;
+    let radial = R - inward_m;
+    let local = nalgebra::Point3::new(radial * theta.cos(), radial * theta.sin() - R, dz_m);
+    let point = needle * local;
+    let tangent = needle.rotation * nalgebra::Vector3::new(-theta.sin(), theta.cos(), 0.0);
+    let yaw = tangent.y.atan2(tangent.x) - std::f64::consts::FRAC_PI_2 + yaw_off_rad;
+    sim.teleport_tip(&tip_at(point.x, point.y, point.z, yaw));
+    let bound = sim.step_native(&CLOSE).bound == Some(index);
+    for _ in 0..4 {
+        sim.step_native(&NativeCommand { dz: 0.5, ..CLOSE });
+    }
+    let scene = sim.scene().clone();
+    let instance = surgvla::task::TaskInstance {
+        target_object: Some(index),
+        ..surgvla::task::TaskId::NeedlePick
+            .instance(0, &surgvla::task::TaskConfig::default())
+            .expect("instance")
+    };
+    let instance = surgvla::task::TaskInstance { scene, ..instance };
+    (bound, instance.success(&sim.observation()).success)
+}
+
+#[test]
+fn a_needle_grasped_on_its_wire_anywhere_along_the_arc_is_picked() {
+    use std::f64::consts::FRAC_PI_2;
+    let r = surgvla::scene::NEEDLE_ARC_RADIUS_M;
+    // Honest: the midpoint; 7 and 12 mm along the wire from it (where surgeons grasp),
+    // jaws across the tangent there within the 20 deg tolerance.
+    for (theta, yaw_off) in [
+        (FRAC_PI_2, 0.0),
+        (FRAC_PI_2 - 0.007 / r, 0.2),
+        (FRAC_PI_2 + 0.012 / r, -0.2),
+    ] {
+        assert_eq!(
+            close_on_needle(theta, 0.0, 0.0, yaw_off),
+            (true, true),
+            "theta {theta}"
+        );
+    }
+}
+
+#[test]
+fn a_needle_is_not_grasped_above_its_wire_inside_its_arc_or_along_it() {
+    use std::f64::consts::FRAC_PI_2;
+    let r = surgvla::scene::NEEDLE_ARC_RADIUS_M;
+    let third = FRAC_PI_2 - 0.010 / r;
+    for (theta, inward, dz, yaw_off, what) in [
+        (FRAC_PI_2, 0.0, 0.002, 0.0, "2 mm above the wire"),
+        (FRAC_PI_2, 0.0, 0.003, 0.0, "3 mm above the wire"),
+        (FRAC_PI_2, 0.008, 0.0, 0.0, "8 mm inside the arc"),
+        (third, 0.0, 0.0, FRAC_PI_2, "jaws along the wire"),
+        (
+            third,
+            0.0,
+            0.0,
+            FRAC_PI_2 - third,
+            "jaws set for the midpoint's tangent",
+        ),
+    ] {
+        assert_eq!(
+            close_on_needle(theta, inward, dz, yaw_off),
+            (false, false),
+            "{what}"
+        );
     }
 }
 

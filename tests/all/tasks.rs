@@ -31,6 +31,15 @@ fn every_expert_succeeds_and_its_actions_replay_to_success() {
             assert!(run.actions.len() <= task.step_limit() as usize);
             let replay = verify_replay(&instance, &run.actions, encoding);
             assert!(replay.success, "{task} k {k} replay: {}", replay.reason);
+            // Every recorded action lies in the reference's action space as recorded (eval's
+            // clipping changes none), roll and pitch exact zeros.
+            for action in &run.actions {
+                let physical = surgvla::sim::PhysicalAction::from_array(action.map(f64::from));
+                let (within, clipped) = physical.within_reference();
+                assert!(!clipped, "{task} k {k}: {action:?}");
+                assert_eq!(within.to_array(), physical.to_array(), "{task} k {k}");
+                assert_eq!((action[3], action[4]), (0.0, 0.0), "{task} k {k}");
+            }
             // The gripper column is the continuous state unless pulse was asked for.
             let gripper: Vec<f32> = run.actions.iter().map(|a| a[6]).collect();
             if encoding == GripperEncoding::Continuous {
@@ -127,7 +136,8 @@ fn distractor_tasks_pick_the_named_object_and_a_distractor_is_no_success() {
                     run.verdict.reason
                 );
 
-                // The same expert aimed at a distractor grasps it, which must not count.
+                // The same expert aimed at a distractor grasps it: a terminal failure, the
+                // attempt ends the moment it binds.
                 let distractor = instance
                     .scene
                     .objects
@@ -138,7 +148,21 @@ fn distractor_tasks_pick_the_named_object_and_a_distractor_is_no_success() {
                     target_object: Some(distractor),
                     ..instance.clone()
                 };
-                let wrong = run_expert(&decoy, plan, 100, GripperEncoding::Continuous).unwrap();
+                // Aimed with the expert of the distractor's own kind (a gauze expert does not
+                // land on a needle's wire).
+                let decoy_plan = match instance.scene.objects[distractor].kind {
+                    surgvla::scene::ObjectKind::Needle => library.plan(TaskId::NeedlePick),
+                    _ => library.plan(TaskId::GauzePick),
+                }
+                .unwrap();
+                let wrong =
+                    run_expert(&decoy, decoy_plan, 100, GripperEncoding::Continuous).unwrap();
+                assert!(!wrong.verdict.success);
+                assert!(
+                    wrong.verdict.reason.contains("grasped the distractor"),
+                    "{}",
+                    wrong.verdict.reason
+                );
                 let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
                 for action in &wrong.actions {
                     let mut values = action.map(f64::from);
@@ -149,7 +173,21 @@ fn distractor_tasks_pick_the_named_object_and_a_distractor_is_no_success() {
                 assert_eq!(observation.bound_object, Some(distractor), "{task} k {k}");
                 let verdict = instance.success(&observation);
                 assert!(!verdict.success);
-                assert!(verdict.reason.contains("holding"), "{}", verdict.reason);
+                assert!(
+                    verdict.reason.contains("grasped the distractor"),
+                    "{}",
+                    verdict.reason
+                );
+                // Putting it back and taking the target afterwards does not help: the binding
+                // is remembered.
+                sim.step_native(&surgvla::sim::NativeCommand {
+                    jaw: 1.0,
+                    ..Default::default()
+                });
+                let after = sim.observation();
+                assert_eq!(after.bound_object, None);
+                assert!(after.objects[distractor].ever_bound);
+                assert!(instance.terminal_failure(&after).is_some());
             }
         }
     }

@@ -930,6 +930,28 @@ fn replay_confirms_recorded_frames_and_catches_changed_actions() {
         "the change is invisible without --replay: {:#?}",
         report.errors
     );
+    // A dataset judged by other success rules: frames and states replayed, success not
+    // judged, a warning says so.
+    let (_copy, _) = broken(&c.lerobot, |r| {
+        edit_json(&r.join("meta/surgvla.json"), |v| {
+            assert_eq!(
+                v["collection"]["success_rules"],
+                surgvla::task::success::RULE_SET
+            );
+            v["collection"]["success_rules"] = "surgvla-older".into();
+        });
+        let (code, out, err) = surgvla(&["validate", path(r), "--replay", "--json"]);
+        assert_eq!(code, 0, "{out}{err}");
+        let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+        let warnings = json["warnings"].as_array().expect("warnings");
+        assert!(
+            warnings.iter().any(|w| w["check"] == "replay"
+                && w["message"]
+                    .as_str()
+                    .is_some_and(|m| m.contains("surgvla-older") && m.contains("not judged"))),
+            "{warnings:#?}"
+        );
+    });
     let (code, _, err) = surgvla(&["validate", path(&c.zarr), "--replay"]);
     assert_eq!(code, 2, "{err}");
     let (_copy, _) = broken(&c.lerobot, |r| {
