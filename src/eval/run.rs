@@ -167,6 +167,13 @@ fn dataset_step(before: &mut EnvObservation, after: &EnvObservation, open: bool)
         let turn = f64::from(after.state[axis + 3] - before.state[axis + 3]);
         action[axis + 3] = wrap_angle(turn) as f32;
     }
+    // Roll and pitch do not change (the action space keeps the tool pointing down): what the
+    // f32 state shows of them is rounding (at most a few ulps), recorded as exact zeros.
+    for turn in &mut action[3..5] {
+        if turn.abs() < 1e-5 {
+            *turn = 0.0;
+        }
+    }
     action[6] = if open { 1.0 } else { 0.0 };
     Step {
         rgb,

@@ -72,6 +72,39 @@ fn a_clip_must_arrive_open_and_straddle_the_vessel() {
     always_fails(task, &beside, "from the vessel's axis");
 }
 
+/// The loophole as it was found: closed jaws 3.5 mm over the spot, or 3.5 mm into the kidney
+/// under it, were within the old 4 mm sphere; on the spot itself they touch.
+#[test]
+fn closed_jaws_3_5_mm_over_or_into_the_kidney_do_not_touch_it() {
+    let task = TaskId::Electrocoagulation;
+    for k in 0..4 {
+        let instance = instance(task, k);
+        let spot = instance.scene.marks[instance.target_mark.expect("spot")].position_m;
+        let verdict_at = |dz: f64| {
+            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+            sim.step_native(&surgvla::sim::NativeCommand {
+                jaw: -1.0,
+                ..Default::default()
+            });
+            let mut pose = sim.world_from_tip();
+            pose.translation.vector = spot + nalgebra::Vector3::new(0.0, 0.0, dz);
+            assert!(sim.teleport_tip(&pose).is_exact());
+            instance.success(&sim.observation())
+        };
+        let on = verdict_at(0.0);
+        assert!(on.success, "k {k}: {}", on.reason);
+        for dz in [0.0035, -0.0035] {
+            let verdict = verdict_at(dz);
+            assert!(!verdict.success, "k {k} dz {dz}: {}", verdict.reason);
+            assert!(
+                verdict.reason.contains("tissue's surface"),
+                "{}",
+                verdict.reason
+            );
+        }
+    }
+}
+
 #[test]
 fn a_touch_is_on_the_tissue_not_over_it_or_inside_it() {
     let task = TaskId::Electrocoagulation;
