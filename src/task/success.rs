@@ -89,6 +89,16 @@ fn jaws_open(observation: &Observation) -> Option<Verdict> {
 }
 
 impl TaskInstance {
+    /// The solid organ a mark lies on: the one whose surface passes nearest it.
+    fn organ_under(&self, mark_m: &Vector3<f64>) -> Option<&OrganSpec> {
+        let at_mark = |o: &OrganSpec| organ::radial_gap_m(o, mark_m).abs();
+        self.scene
+            .organs
+            .iter()
+            .filter(|o| o.kind != OrganKind::Vessel)
+            .min_by(|a, b| at_mark(a).total_cmp(&at_mark(b)))
+    }
+
     /// A failure that ends a trial (or an expert attempt) the moment it happens, whatever
     /// follows: a distractor grasped (T2-1, T2-2).
     pub fn terminal_failure(&self, observation: &Observation) -> Option<Verdict> {
@@ -183,16 +193,8 @@ impl TaskInstance {
                 TOUCH_RADIUS_M * 1e3
             ));
         }
-        // The organ the mark lies on: the solid organ whose surface passes nearest it.
         let Some(gap) = self
-            .scene
-            .organs
-            .iter()
-            .filter(|o| o.kind != OrganKind::Vessel)
-            .min_by(|a, b| {
-                let at_mark = |o: &OrganSpec| organ::radial_gap_m(o, &mark.position_m).abs();
-                at_mark(a).total_cmp(&at_mark(b))
-            })
+            .organ_under(&mark.position_m)
             .map(|o| organ::radial_gap_m(o, &tip))
         else {
             return Verdict::fail("no tissue to touch");
@@ -371,16 +373,7 @@ impl TaskInstance {
             ));
         }
         // Resting on the organ the spot is on: its underside on the surface there.
-        let Some(organ) = self
-            .scene
-            .organs
-            .iter()
-            .filter(|o| o.kind != OrganKind::Vessel)
-            .min_by(|a, b| {
-                let at_mark = |o: &OrganSpec| organ::radial_gap_m(o, &mark.position_m).abs();
-                at_mark(a).total_cmp(&at_mark(b))
-            })
-        else {
+        let Some(organ) = self.organ_under(&mark.position_m) else {
             return Verdict::fail("no organ under the target");
         };
         let underside = |pose: &Isometry3<f64>| (pose * Point3::new(0.0, 0.0, -hz)).coords;
