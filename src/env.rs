@@ -15,7 +15,7 @@ use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, StepExtras};
 use crate::render::{Camera, RenderOptions, Renderer};
 use crate::sim::{NativeCommand, Observation, PhysicalAction, SimConfig, Simulator, StepReport};
 use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
-use crate::view::render_simulator;
+use crate::view::render_simulator_over_static;
 use std::time::Instant;
 
 /// How an environment is set up.
@@ -170,7 +170,9 @@ impl Env {
         let sim = self.sim.observation();
         let images = self.view.as_mut().map(|(assets, renderer)| {
             let started = Instant::now();
-            let frame = render_simulator(assets, renderer, &self.options.camera, &self.sim);
+            // The environment's renderer serves this episode's scene only.
+            let frame =
+                render_simulator_over_static(assets, renderer, &self.options.camera, &self.sim);
             self.timing.render_secs += started.elapsed().as_secs_f64();
             Images {
                 rgb: frame.rgb,

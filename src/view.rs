@@ -21,6 +21,18 @@ pub fn render_simulator(
     renderer.render(camera, &instances)
 }
 
+/// [`render_simulator`] with a renderer that keeps the scene's static layer from frame to
+/// frame (the same pixels, drawn faster): for a renderer serving one scene, e.g. an episode's.
+pub fn render_simulator_over_static(
+    assets: &SceneAssets,
+    renderer: &mut Renderer,
+    camera: &Camera,
+    sim: &Simulator,
+) -> Frame {
+    let instances = assets.instances(&sim.object_poses(), &sim.instrument_pose());
+    renderer.render_over_static(camera, &instances, assets.static_count())
+}
+
 /// An RGB image assembled from tiles.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sheet {

@@ -483,8 +483,14 @@ impl SceneAssets {
             + i.jaw_right.triangle_count()
     }
 
-    /// The instances of one frame: objects at `object_poses` (grasp frames, in scene order) and
-    /// the instrument at `instrument`.
+    /// How many of [`SceneAssets::instances`] come first and never move (the tray, drape and
+    /// organs).
+    pub fn static_count(&self) -> usize {
+        self.statics.len()
+    }
+
+    /// The instances of one frame: the static parts first, then objects at `object_poses`
+    /// (grasp frames, in scene order) and the instrument at `instrument`.
     pub fn instances(
         &self,
         object_poses: &[Isometry3<f64>],

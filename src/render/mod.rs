@@ -50,6 +50,22 @@ impl Renderer {
         }
     }
 
+    /// Renders the instances seen by `camera`, the first `statics` of which stand still from
+    /// call to call (see [`raster::Rasterizer::render_over_static`]: the same pixels as
+    /// [`Renderer::render`], their layer drawn once). Supersampled rendering draws everything.
+    pub fn render_over_static(
+        &mut self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        statics: usize,
+    ) -> Frame {
+        if self.options.supersample > 1 {
+            return self.render(camera, instances);
+        }
+        self.rasterizer
+            .render_over_static(camera, instances, &self.options.lighting, statics)
+    }
+
     /// Renders the instances seen by `camera`.
     pub fn render(&mut self, camera: &Camera, instances: &[Instance<'_>]) -> Frame {
         self.rasterizer.render(

@@ -94,6 +94,62 @@ pub struct Rasterizer {
     /// Linear colour lit at each vertex (instances lit per vertex only).
     vertex_colours: Vec<[f32; 3]>,
     vertex_offsets: Vec<usize>,
+    /// The static instances' layer kept by [`Rasterizer::render_over_static`].
+    layer: Option<StaticLayer>,
+}
+
+/// What a static layer was drawn from.
+#[derive(Clone, Debug, PartialEq)]
+struct StaticKey {
+    camera: Camera,
+    lighting: Lighting,
+    instances: Vec<StaticInstance>,
+}
+
+/// One static instance as a layer saw it: the mesh's address and sizes, and everything else.
+#[derive(Clone, Debug, PartialEq)]
+struct StaticInstance {
+    mesh_address: usize,
+    positions: usize,
+    triangles: usize,
+    world_from_mesh: Isometry3<f64>,
+    material: Material,
+    mask_id: u8,
+    cull_back_faces: bool,
+}
+
+impl StaticKey {
+    fn of(camera: &Camera, lighting: &Lighting, instances: &[Instance<'_>]) -> Self {
+        StaticKey {
+            camera: *camera,
+            lighting: *lighting,
+            instances: instances
+                .iter()
+                .map(|i| StaticInstance {
+                    mesh_address: std::ptr::from_ref(i.mesh) as usize,
+                    positions: i.mesh.positions.len(),
+                    triangles: i.mesh.triangles.len(),
+                    world_from_mesh: i.world_from_mesh,
+                    material: i.material,
+                    mask_id: i.mask_id,
+                    cull_back_faces: i.cull_back_faces,
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The G-buffer and the sRGB pixels of the static instances alone.
+#[derive(Debug)]
+struct StaticLayer {
+    key: StaticKey,
+    inv_depth: Vec<f32>,
+    instance: Vec<u16>,
+    triangle: Vec<u32>,
+    bary: Vec<[f32; 2]>,
+    /// Camera-space vertices of the static instances.
+    vertices: usize,
+    rgb: Vec<u8>,
 }
 
 /// A clipped polygon vertex: camera-frame position and barycentrics in the original triangle.
@@ -314,8 +370,20 @@ impl Rasterizer {
         self.camera_normals.clear();
         self.vertex_colours.clear();
         self.vertex_offsets.clear();
+        self.visibility_from(camera, instances, lighting, 0);
+    }
+
+    /// Draws `instances[start..]` over a G-buffer that holds `instances[..start]` drawn in
+    /// order (and their camera-space vertices): the same buffers as drawing them all.
+    fn visibility_from(
+        &mut self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+        start: usize,
+    ) {
         let camera_from_world = camera.world_from_camera.inverse();
-        for instance in instances {
+        for instance in instances.iter().skip(start) {
             let pose = camera_from_world * instance.world_from_mesh;
             let rotation = pose.rotation.to_rotation_matrix();
             let r = rotation.matrix().map(|v| v as f32);
@@ -365,8 +433,11 @@ impl Rasterizer {
         };
         let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
         let mut polygon = Vec::with_capacity(4);
-        for (instance_index, instance) in
-            instances.iter().enumerate().take(usize::from(NO_INSTANCE))
+        for (instance_index, instance) in instances
+            .iter()
+            .enumerate()
+            .take(usize::from(NO_INSTANCE))
+            .skip(start)
         {
             let offset = self.vertex_offsets[instance_index];
             for (triangle_index, tri) in instance.mesh.triangles.iter().enumerate() {
@@ -426,6 +497,67 @@ impl Rasterizer {
         if supersample <= 1 {
             frame.rgb = self.shade_srgb(camera, instances, lighting);
         }
+        self.depth_and_mask(instances, &mut frame);
+        frame
+    }
+
+    /// [`Rasterizer::render`] (without supersampling) of a scene whose first `statics`
+    /// instances stand still from frame to frame (the tray, drape and organs in an episode):
+    /// their layer (G-buffer and shaded pixels) is drawn once and kept, and each frame draws
+    /// only the rest over it and shades only the pixels they cover. The pixels are the same
+    /// bytes as [`Rasterizer::render`]'s: instances are drawn in list order either way, and a
+    /// pixel showing a static surface shades the same (the light sits at the lens; nothing
+    /// casts shadows). A layer is redrawn when the camera, the lighting or any static
+    /// instance (mesh, pose, material, mask, culling) differs from the kept one's.
+    pub fn render_over_static(
+        &mut self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+        statics: usize,
+    ) -> Frame {
+        let statics = statics.min(instances.len());
+        let key = StaticKey::of(camera, lighting, &instances[..statics]);
+        if self.layer.as_ref().is_none_or(|layer| layer.key != key) {
+            self.visibility(camera, &instances[..statics], lighting);
+            let rgb = self.shade_srgb(camera, &instances[..statics], lighting);
+            self.layer = Some(StaticLayer {
+                key,
+                inv_depth: self.inv_depth.clone(),
+                instance: self.instance.clone(),
+                triangle: self.triangle.clone(),
+                bary: self.bary.clone(),
+                vertices: self.camera_positions.len(),
+                rgb,
+            });
+        }
+        let Some(layer) = self.layer.as_ref() else {
+            return self.render(camera, instances, lighting, 1);
+        };
+        self.inv_depth.clone_from(&layer.inv_depth);
+        self.instance.clone_from(&layer.instance);
+        self.triangle.clone_from(&layer.triangle);
+        self.bary.clone_from(&layer.bary);
+        self.camera_positions.truncate(layer.vertices);
+        self.camera_normals.truncate(layer.vertices);
+        self.vertex_colours.truncate(layer.vertices);
+        self.vertex_offsets.truncate(statics);
+        let mut rgb = layer.rgb.clone();
+        self.visibility_from(camera, instances, lighting, statics);
+        self.shade_srgb_into(camera, instances, lighting, statics, &mut rgb);
+        let mut frame = Frame {
+            width_px: camera.width_px,
+            height_px: camera.height_px,
+            rgb,
+            depth_m: Vec::new(),
+            mask: Vec::new(),
+        };
+        self.depth_and_mask(instances, &mut frame);
+        frame
+    }
+
+    /// The frame's depth and mask from the G-buffer.
+    fn depth_and_mask(&self, instances: &[Instance<'_>], frame: &mut Frame) {
         frame.depth_m = self
             .inv_depth
             .iter()
@@ -442,7 +574,6 @@ impl Rasterizer {
                 }
             })
             .collect();
-        frame
     }
 
     /// Shading pass over the G-buffer: linear RGB per pixel.
@@ -453,7 +584,7 @@ impl Rasterizer {
         lighting: &Lighting,
     ) -> Vec<[f32; 3]> {
         let mut out = vec![lighting.background; (camera.width_px * camera.height_px) as usize];
-        self.shade_each(camera, instances, lighting, |index, colour| {
+        self.shade_each(camera, instances, lighting, 0, |index, colour| {
             out[index] = colour
         });
         out
@@ -469,18 +600,33 @@ impl Rasterizer {
         let lut = srgb_table();
         let background = lighting.background.map(|c| lut.lookup(c));
         let mut out: Vec<u8> = background.repeat((camera.width_px * camera.height_px) as usize);
-        self.shade_each(camera, instances, lighting, |index, colour| {
-            out[index * 3..index * 3 + 3].copy_from_slice(&colour.map(|c| lut.lookup(c)));
-        });
+        self.shade_srgb_into(camera, instances, lighting, 0, &mut out);
         out
     }
 
-    /// Calls `emit(pixel index, linear RGB)` for every pixel that shows a surface.
+    /// Shades into `out` (sRGB) the pixels whose surface belongs to `instances[first..]`.
+    fn shade_srgb_into(
+        &self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+        first: usize,
+        out: &mut [u8],
+    ) {
+        let lut = srgb_table();
+        self.shade_each(camera, instances, lighting, first, |index, colour| {
+            out[index * 3..index * 3 + 3].copy_from_slice(&colour.map(|c| lut.lookup(c)));
+        });
+    }
+
+    /// Calls `emit(pixel index, linear RGB)` for every pixel that shows a surface of
+    /// `instances[first..]`.
     fn shade_each(
         &self,
         camera: &Camera,
         instances: &[Instance<'_>],
         lighting: &Lighting,
+        first: usize,
         mut emit: impl FnMut(usize, [f32; 3]),
     ) {
         let (w, h) = (camera.width_px as usize, camera.height_px as usize);
@@ -515,7 +661,7 @@ impl Rasterizer {
             let mut run_key = (NO_INSTANCE, u32::MAX);
             let mut run = TriangleData::default();
             for (x, (((&instance_index, &triangle), &[b1, b2]), &vx)) in pixels.enumerate() {
-                if instance_index == NO_INSTANCE {
+                if instance_index == NO_INSTANCE || usize::from(instance_index) < first {
                     continue;
                 }
                 let instance = &instances[usize::from(instance_index)];

@@ -396,3 +396,61 @@ fn the_needles_thin_wire_is_in_the_depth_image_where_the_mask_has_it() {
         }
     }
 }
+
+/// The static layer kept between frames gives the same pixels, depth and mask as drawing every
+/// frame whole, while the instrument and a grasped object move over it; the same renderer given
+/// another camera or another scene draws a new layer.
+#[test]
+fn frames_drawn_over_a_kept_static_layer_are_the_frames_drawn_whole() {
+    use surgvla::collect::rollout;
+    use surgvla::policy::ExpertLibrary;
+    use surgvla::task::TaskConfig;
+    use surgvla::view::{render_simulator, render_simulator_over_static};
+    let library = ExpertLibrary::builtin().expect("plans");
+    let mut layered = Renderer::new(RenderOptions::default());
+    let mut compared = 0;
+    for (task, seed) in [
+        (TaskId::Hemostasis, 3),
+        (TaskId::VesselClipping, 4),
+        (TaskId::Hemostasis, 5),
+    ] {
+        let instance = task.instance(seed, &TaskConfig::default()).expect("scene");
+        let assets = SceneAssets::new(&instance.scene, seed, Appearance::default());
+        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        let mut expert = library
+            .plan(task)
+            .expect("plan")
+            .expert(&instance, &sim.observation(), seed)
+            .expect("expert");
+        let commands: Vec<_> = rollout(&mut sim, &mut expert, 45)
+            .steps
+            .iter()
+            .map(|s| s.command)
+            .collect();
+        let mut wide = Camera::endoscope();
+        wide.fx_px *= 0.8;
+        wide.fy_px *= 0.8;
+        for camera in [Camera::endoscope(), wide] {
+            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+            for (i, command) in commands.iter().enumerate() {
+                sim.step_native(command);
+                if i % 4 != 0 {
+                    continue;
+                }
+                let whole = render_simulator(
+                    &assets,
+                    &mut Renderer::new(RenderOptions::default()),
+                    &camera,
+                    &sim,
+                );
+                let over = render_simulator_over_static(&assets, &mut layered, &camera, &sim);
+                assert!(
+                    whole == over,
+                    "{task} seed {seed} step {i}: the frames differ"
+                );
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 30, "{compared}");
+}
