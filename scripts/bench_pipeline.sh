@@ -7,6 +7,8 @@
 #   scripts/bench_pipeline.sh memory [threads]
 #   scripts/bench_pipeline.sh rlds [threads]
 #   scripts/bench_pipeline.sh datasets [threads]
+#   scripts/bench_pipeline.sh scaling [episodes-per-task]
+#   scripts/bench_pipeline.sh compare OLD_BINARY [NEW_BINARY] [rounds]
 #
 # Default: 8 tasks x 100 episodes on all cores. `memory`: peak RSS of the default collection at
 # about 100 and 1,000 episodes (8 tasks x 13 and x 125), which must not grow with the number of
@@ -20,8 +22,12 @@
 # compared byte for byte with the single run. `video`: the default dataset in video mode
 # (H.264), `convert` to v2.1 and back (compared byte for byte with the original), two video
 # shards `merge`d (compared with the single run), `validate`; and the image-mode dataset
-# converted to v2.1 and to RLDS, its PNG and TIFF bytes copied. Figures go to BENCHMARKS.md by
-# hand.
+# converted to v2.1 and to RLDS, its PNG and TIFF bytes copied. `scaling`: the default collect
+# on one thread pinned to one core (`taskset`, so the writer thread cannot borrow a second one),
+# then on 2, 4, ... threads up to the machine's cores: frames per second and the speed-up over
+# one core. `compare`: the default collect with an older binary and this one (or NEW_BINARY)
+# back to back, `rounds` times (2), the same machine and hour: wall, CPU and peak RSS of each,
+# and their summary lines. Figures go to BENCHMARKS.md by hand.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked --quiet
@@ -120,6 +126,36 @@ elif [ "${1:-}" = video ]; then
     "${surgvla}" collect --threads "${threads}" --out "${work}/data" | tail -n 1
     timed "${surgvla}" convert "${work}/data" --to lerobot --lerobot-version 2.1 --threads "${threads}" --out "${work}/v21"
     timed "${surgvla}" convert "${work}/data" --to rlds --threads "${threads}" --out "${work}/rlds"
+elif [ "${1:-}" = scaling ]; then
+    episodes="${2:-100}"
+    cores="$(nproc)"
+    one=""
+    threads=1
+    while [ "${threads}" -le "${cores}" ]; do
+        pin=()
+        if [ "${threads}" = 1 ] && command -v taskset >/dev/null; then pin=(taskset -c 0); fi
+        started="$(date +%s.%N)"
+        "${pin[@]}" ./target/release/surgvla collect --episodes-per-task "${episodes}" \
+            --threads "${threads}" --out "${work}/dataset" >"${work}/stdout"
+        secs="$(echo "$(date +%s.%N) - ${started}" | bc -l)"
+        frames="$(grep -o '[0-9]* frames' "${work}/stdout" | tail -n 1 | cut -d' ' -f1)"
+        one="${one:-${secs}}"
+        printf '%2d threads: %6.1f s, %6.0f frames/s, %4.2fx one core\n' "${threads}" "${secs}" \
+            "$(echo "${frames} / ${secs}" | bc -l)" "$(echo "${one} / ${secs}" | bc -l)"
+        rm -rf "${work}/dataset"
+        threads=$((threads * 2))
+    done
+elif [ "${1:-}" = compare ]; then
+    old="${2:?the older binary}"
+    new="${3:-./target/release/surgvla}"
+    for round in $(seq "${4:-2}"); do
+        for binary in "${old}" "${new}"; do
+            echo "== round ${round}: ${binary}"
+            /usr/bin/time -f "wall %e s, CPU %U + %S s, peak RSS %M kB" "${binary}" collect \
+                --out "${work}/dataset" 2>&1 | tail -n 3
+            rm -rf "${work}/dataset"
+        done
+    done
 elif [ "${1:-}" = memory ]; then
     threads="${2:-$(nproc)}"
     for episodes in 13 125; do

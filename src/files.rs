@@ -63,6 +63,11 @@ pub fn encode_png(
         PngLevel::Default => png::Compression::Balanced,
         PngLevel::Best => png::Compression::High,
     });
+    if level == PngLevel::Fast && matches!(layout, PngPixels::Rgb8 | PngPixels::Rgba8) {
+        // Rendered colour: the Paeth filter on every row gives the adaptive choice's size
+        // (34.9 kB a 224 x 224 frame either way) in 15 % less time (BENCHMARKS.md, issue 27).
+        encoder.set_filter(png::Filter::Paeth);
+    }
     let mut writer = encoder.write_header()?;
     writer.write_image_data(pixels)?;
     writer.finish()?;

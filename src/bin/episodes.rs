@@ -83,7 +83,7 @@ pub struct JobArgs {
     seed: u64,
     /// Worker threads (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
-    threads: Option<usize>,
+    pub(crate) threads: Option<usize>,
     /// Distractors in the level-2 pick tasks (T2-1, T2-2).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]
     distractors: u64,
@@ -144,7 +144,7 @@ impl JobArgs {
 #[derive(Args, Debug)]
 pub struct CollectArgs {
     #[command(flatten)]
-    job: JobArgs,
+    pub(crate) job: JobArgs,
     /// Output folder (must not exist or be empty).
     #[arg(long, default_value = "data")]
     out: PathBuf,

@@ -1,17 +1,28 @@
-//! How the process allocates: one glibc malloc arena, trimmed every 64 episodes of a conversion.
+//! How the process allocates: few glibc malloc arenas, trimmed every 64 episodes of a
+//! conversion.
 //!
 //! glibc gives each thread that allocates while another holds a lock an arena of its own (up to
-//! 8 per core). The recording workers allocate each frame's buffers (~400 KB) in their arenas
-//! and the writer frees them batch after batch; freed holes in several arenas stay resident, so
-//! peak RSS crept up with the number of episodes (BENCHMARKS.md, "Peak memory"). One arena
-//! reuses those holes: peak RSS measured lower and flat in episodes, at the same speed on 2
-//! cores (the small allocations, most of them, go through glibc's per-thread cache without the
-//! arena's lock). `MALLOC_ARENA_MAX` in the environment still wins when set.
+//! 8 per core). Freed holes in many arenas stay resident, so peak RSS crept up with the number
+//! of episodes (BENCHMARKS.md, "Peak memory"); one arena reuses them. `collect` gets one arena
+//! per worker and one for the writer: its workers allocate and free every frame's buffers
+//! while encoding, and on one arena they waited on its lock (13 % of the CPU of a 3,000-episode
+//! run, BENCHMARKS.md, issue 27), with peak RSS still flat in episodes. Other commands keep
+//! one. `MALLOC_ARENA_MAX` in the environment still wins when set.
 
-/// Limits glibc's malloc to one arena, unless `MALLOC_ARENA_MAX` says otherwise.
+/// The arenas `collect` on `threads` worker threads gets (0: one per core).
+pub fn collect_arenas(threads: usize) -> usize {
+    let workers = if threads == 0 {
+        surgvla::collect::slot::cores()
+    } else {
+        threads
+    };
+    workers + 1
+}
+
+/// Limits glibc's malloc to `arenas` arenas, unless `MALLOC_ARENA_MAX` says otherwise.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
-pub fn one_arena() {
+pub fn limit_arenas(arenas: usize) {
     /// glibc's `M_ARENA_MAX` parameter of `mallopt` (malloc.h).
     const M_ARENA_MAX: i32 = -8;
     unsafe extern "C" {
@@ -24,16 +35,19 @@ pub fn one_arena() {
     // before any other thread exists. A refusal (return 0) leaves glibc's default, which is
     // correct, only larger.
     unsafe {
-        mallopt(M_ARENA_MAX, 1);
+        mallopt(
+            M_ARENA_MAX,
+            i32::try_from(arenas.max(1)).unwrap_or(i32::MAX),
+        );
     }
 }
 
 /// Other platforms keep their allocator's defaults.
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-pub fn one_arena() {}
+pub fn limit_arenas(_arenas: usize) {}
 
-/// Hands the free pages inside glibc's heap back to the system every [`Trimmer::EPISODES`]
-/// episodes. A long conversion frees frame buffers of many sizes between small allocations
+/// Hands the free pages inside glibc's heaps back to the system every [`Trimmer::EPISODES`]
+/// episodes (of a conversion, or of a collection's writing). A long conversion frees frame buffers of many sizes between small allocations
 /// that live on; the holes stay resident, and without this peak RSS crept up with the number
 /// of episodes converted (BENCHMARKS.md, "convert's memory"). Per batch it cost seconds of
 /// system time; every 64 episodes it costs nothing measurable.

@@ -10,6 +10,8 @@ pub struct Bars {
     multi: MultiProgress,
     overall: ProgressBar,
     tasks: Vec<(TaskId, ProgressBar)>,
+    /// Gives freed frame memory back as episodes are written.
+    trimmer: crate::memory::Trimmer,
 }
 
 impl Bars {
@@ -38,6 +40,7 @@ impl Bars {
             multi,
             overall,
             tasks,
+            trimmer: crate::memory::Trimmer::default(),
         }
     }
 
@@ -131,6 +134,7 @@ impl CollectProgress for Bars {
                 bar.set_message(format!("last retry: {}", outcome.failures[0].reason));
             }
         }
+        self.trimmer.after_episodes(self.overall.position());
     }
 }
 
@@ -181,12 +185,14 @@ pub fn print_summary(report: &CollectReport) -> std::io::Result<()> {
         t.frames_per_sec
     );
     say!(
-        "time: physics {:.1} s and rendering {:.1} s (CPU, summed over {} threads); encoding {:.1} s, writing {:.1} s",
+        "CPU time ({} threads): physics {:.1} s, rendering {:.1} s, image encoding {:.1} s, statistics {:.1} s, tables and files {:.1} s, final metadata {:.1} s",
+        report.threads,
         t.physics_cpu_secs,
         t.render_cpu_secs,
-        report.threads,
-        t.encode_secs,
-        t.write_secs
+        t.encode_cpu_secs,
+        t.stats_cpu_secs,
+        t.write_cpu_secs,
+        t.finish_cpu_secs
     );
     Ok(())
 }

@@ -397,7 +397,6 @@ pub(crate) fn threads_arg(text: &str) -> Result<usize, String> {
 }
 
 fn main() -> ExitCode {
-    memory::one_arena();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(error) => {
@@ -406,6 +405,11 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
+    // Before any thread exists (parsing starts none).
+    memory::limit_arenas(match &cli.command {
+        Command::Collect(args) => memory::collect_arenas(args.job.threads.unwrap_or(0)),
+        _ => 1,
+    });
     let result = match cli.command {
         Command::Sim(args) => run_sim(&args),
         Command::Render(args) => run_render(&args),

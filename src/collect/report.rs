@@ -25,16 +25,22 @@ pub struct TaskReport {
     pub replay_failures: u64,
 }
 
-/// Where the time went, seconds. Physics and rendering are summed over worker threads; the
-/// export figures come from the writer.
+/// Where the time went, seconds. Each stage's `_cpu_secs` is the time its code ran, summed over
+/// the threads that ran it (on a machine with a core per thread, its CPU time): physics and
+/// rendering on the workers; image encoding and statistics on the workers too when the sink
+/// encodes apart (LeRobot), else inside the sink's batches (then wall seconds); building the
+/// tables and writing the files on the writer; and the final metadata when the dataset is
+/// finished.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Timing {
     pub wall_secs: f64,
     pub frames_per_sec: f64,
     pub physics_cpu_secs: f64,
     pub render_cpu_secs: f64,
-    pub encode_secs: f64,
-    pub write_secs: f64,
+    pub encode_cpu_secs: f64,
+    pub stats_cpu_secs: f64,
+    pub write_cpu_secs: f64,
+    pub finish_cpu_secs: f64,
     /// Per task: wall seconds attributed by frames, and frames per second.
     pub tasks: BTreeMap<String, (f64, f64)>,
 }

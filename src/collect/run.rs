@@ -22,10 +22,13 @@ pub use crate::collect::slot::{
 use crate::episode::Episode;
 use crate::episode::FeatureSet;
 use crate::export::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, Summary};
+use crate::export::{Encoded, EpisodeSink, ExportError, Summary};
 use crate::policy::{ExpertLibrary, PlanError};
 use crate::task::TaskId;
 use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
 use std::time::Instant;
 
 /// What stops a collection.
@@ -254,6 +257,163 @@ pub fn measure_experts(
     ))
 }
 
+/// Records `slots` (the `first`-th onward) on `pool` and writes their episodes to `sink` in
+/// slot order, reporting each to `tally` and `progress`.
+///
+/// A stream, not batches: each worker takes the next slot as soon as it is free, and the calling
+/// thread hands each episode to the sink the moment every episode before it is written (the
+/// sink's encoding runs as jobs on the same pool, between recordings). At most
+/// [`episodes_in_flight`] episodes are recorded ahead of the writer, so memory stays flat; no
+/// core waits for the slowest episode of a batch.
+#[allow(clippy::too_many_arguments)]
+fn record_and_write(
+    slots: &[Slot],
+    first: usize,
+    threads: usize,
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    pool: &rayon::ThreadPool,
+    sink: &mut (dyn EpisodeSink + Send),
+    tally: &mut Tally,
+    progress: &mut dyn CollectProgress,
+) -> Result<(), CollectError> {
+    let window = episodes_in_flight(threads);
+    let stop = AtomicBool::new(false);
+    // With a detached encoder, a worker encodes the episode it recorded and this thread only
+    // appends; without one, the sink's batches run on the pool.
+    let encoder = sink.detached_encoder();
+    let (done, arrivals) = mpsc::channel::<(usize, Arrival)>();
+    pool.in_place_scope(|scope| {
+        let record = |i: usize| {
+            let reply = Reply {
+                slot: i,
+                done: Some(done.clone()),
+            };
+            let stop = &stop;
+            let encoder = encoder.clone();
+            scope.spawn(move |_| {
+                // After a failure the remaining slots are not recorded.
+                if stop.load(Ordering::Relaxed) {
+                    return;
+                }
+                let arrival = collect_slot(slots[i], (first + i) as u64, options, library, true)
+                    .and_then(|outcome| {
+                        let encoded = match (&encoder, &outcome.episode) {
+                            (Some(encoder), Some(episode)) => Some(encoder.encode(episode)?),
+                            _ => None,
+                        };
+                        Ok((outcome, encoded))
+                    });
+                reply.send(arrival);
+            });
+        };
+        let result = (|| {
+            let mut spawned = 0;
+            let mut written = 0;
+            let mut arrived: BTreeMap<usize, Arrival> = BTreeMap::new();
+            let mut last_write = Instant::now();
+            while written < slots.len() {
+                while spawned < slots.len() && spawned < written + window {
+                    record(spawned);
+                    spawned += 1;
+                }
+                // The episodes ready in slot order from `written` on (at least one).
+                while !arrived.contains_key(&written) {
+                    let (i, arrival) = arrivals.recv().map_err(|_| {
+                        CollectError::Export(ExportError::Internal(
+                            "a recording job ended without a result".into(),
+                        ))
+                    })?;
+                    arrived.insert(i, arrival);
+                }
+                let mut ready = Vec::new();
+                let mut episodes = Vec::new();
+                while ready.len() < threads.max(1) {
+                    let Some(arrival) = arrived.remove(&(written + ready.len())) else {
+                        break;
+                    };
+                    let (mut outcome, encoded) = arrival?;
+                    if let Some(error) = outcome.exhausted() {
+                        return Err(error);
+                    }
+                    if let Some(episode) = outcome.episode.take() {
+                        episodes.push((episode, encoded));
+                    }
+                    ready.push(outcome);
+                }
+                if encoder.is_some() {
+                    let encoded = episodes
+                        .into_iter()
+                        .map(|(episode, encoded)| {
+                            encoded.map(|e| (episode, e)).ok_or_else(|| {
+                                ExportError::Internal("an episode was not encoded".into())
+                            })
+                        })
+                        .collect::<Result<Vec<_>, _>>()?;
+                    sink.write_encoded(encoded)?;
+                } else {
+                    let episodes: Vec<Episode> = episodes.into_iter().map(|(e, _)| e).collect();
+                    pool.install(|| sink.write_batch(&episodes))?;
+                }
+                // The time since the last write goes to these episodes' tasks, shared by frames.
+                let secs = last_write.elapsed().as_secs_f64();
+                last_write = Instant::now();
+                let frames: u64 = ready.iter().map(|o| o.frames).sum();
+                for outcome in &ready {
+                    tally.add(outcome, secs * outcome.frames as f64 / frames.max(1) as f64);
+                    progress.slot_done(outcome);
+                }
+                written += ready.len();
+            }
+            Ok(())
+        })();
+        if result.is_err() {
+            stop.store(true, Ordering::Relaxed);
+        }
+        result
+    })
+}
+
+/// What a recording job has made of slot `slot`, or why it has not.
+type Arrival = Result<(SlotOutcome, Option<Encoded>), CollectError>;
+
+/// A recording job's way back to the writer: its result, or, should the job end without one
+/// (a panic), an error, so the writer never waits for a slot that will not come.
+struct Reply {
+    slot: usize,
+    done: Option<mpsc::Sender<(usize, Arrival)>>,
+}
+
+impl Reply {
+    fn send(mut self, arrival: Arrival) {
+        if let Some(done) = self.done.take() {
+            // The receiver outlives every job (the writer returns only after the scope), so a
+            // failed send means the run already stopped: nothing to report.
+            let _ = done.send((self.slot, arrival));
+        }
+    }
+}
+
+impl Drop for Reply {
+    fn drop(&mut self) {
+        if let Some(done) = self.done.take() {
+            let _ = done.send((
+                self.slot,
+                Err(CollectError::Export(ExportError::Internal(
+                    "a recording job ended without a result".into(),
+                ))),
+            ));
+        }
+    }
+}
+
+/// Episodes recorded ahead of the writer at most: enough that a worker never waits on a long
+/// episode before it (two per thread), few enough that memory stays flat (each holds its
+/// frames' pixels, about 20 MB for 55 frames of RGB, depth and mask at 224 x 224).
+pub fn episodes_in_flight(threads: usize) -> usize {
+    threads.max(1) * 4 + 2
+}
+
 /// What a collection's dataset is: its features, the camera, the robot and the collection
 /// options, with the experts' plans (`library`; custom plans are named with their checksums).
 pub fn dataset_info(
@@ -311,57 +471,17 @@ pub fn collect(
         &mut report,
         progress,
     )?;
-    let batch_size = threads * 2;
-    // Batch i + 1 is recorded while batch i is written, so the writer's serial part does not
-    // leave cores idle; episodes still reach the sink in index order.
-    let batches: Vec<&[Slot]> = slots[resume_at..].chunks(batch_size).collect();
-    // The batch recorded in the previous iteration: its outcomes, episodes and recording time.
-    let mut pending: Option<(Vec<SlotOutcome>, Vec<Episode>, f64)> = None;
-    for (j, batch) in batches.iter().map(Some).chain([None]).enumerate() {
-        let iteration_started = Instant::now();
-        let first = resume_at + j * batch_size;
-        let (outcomes, to_write, recording_secs) = pending.take().unwrap_or_default();
-        let (recorded, written) = pool.install(|| {
-            rayon::join(
-                || {
-                    batch.map(|batch| {
-                        batch
-                            .par_iter()
-                            .enumerate()
-                            .map(|(i, slot)| {
-                                collect_slot(*slot, (first + i) as u64, options, library, true)
-                            })
-                            .collect::<Result<Vec<_>, _>>()
-                    })
-                },
-                || sink.write_batch(&to_write),
-            )
-        });
-        written?;
-        let recorded = recorded.transpose()?;
-        if let Some(error) = recorded.iter().flatten().find_map(SlotOutcome::exhausted) {
-            return Err(error);
-        }
-        // An iteration's time goes to the batch it recorded (the last one's to what it wrote),
-        // shared among the batch's tasks by frames.
-        let secs = iteration_started.elapsed().as_secs_f64();
-        let written_secs = recording_secs + if recorded.is_none() { secs } else { 0.0 };
-        let frames: u64 = outcomes.iter().map(|o| o.frames).sum();
-        for outcome in &outcomes {
-            report.add(
-                outcome,
-                written_secs * outcome.frames as f64 / frames.max(1) as f64,
-            );
-            progress.slot_done(outcome);
-        }
-        if let Some(mut outcomes) = recorded {
-            let episodes = outcomes
-                .iter_mut()
-                .filter_map(|o| o.episode.take())
-                .collect();
-            pending = Some((outcomes, episodes, secs));
-        }
-    }
+    record_and_write(
+        &slots[resume_at..],
+        resume_at,
+        threads,
+        options,
+        library,
+        &pool,
+        sink,
+        &mut report,
+        progress,
+    )?;
     let sink_timing = sink.timing();
     let finish_started = Instant::now();
     let all = options.all_slots().len();
@@ -383,8 +503,10 @@ pub fn collect(
             [range.start, range.end],
             Timing {
                 wall_secs: started.elapsed().as_secs_f64(),
-                encode_secs: sink_timing.encode_secs,
-                write_secs: sink_timing.write_secs + finish_secs,
+                encode_cpu_secs: sink_timing.encode_secs,
+                stats_cpu_secs: sink_timing.stats_secs,
+                write_cpu_secs: sink_timing.write_secs,
+                finish_cpu_secs: finish_secs,
                 ..Timing::default()
             },
         );

@@ -274,10 +274,24 @@ pub struct Summary {
 /// Seconds a sink spent, for reports (never written into a dataset).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SinkTiming {
-    /// Encoding images, video and statistics (wall seconds, parallel inside).
+    /// Encoding images and video: thread-seconds when a detached encoder did it (summed over
+    /// the threads), else wall seconds of the batches' parallel encoding (statistics included
+    /// where the format does not count them apart).
     pub encode_secs: f64,
+    /// Computing statistics (thread-seconds; 0 where the format does not count them apart).
+    pub stats_secs: f64,
     /// Building tables and writing files.
     pub write_secs: f64,
+}
+
+/// An episode encoded for one sink by its detached encoder, ahead of its turn (what
+/// [`EpisodeSink::write_encoded`] appends).
+pub struct Encoded(pub(crate) Box<dyn std::any::Any + Send>);
+
+/// Encodes episodes for a sink on any thread, apart from the sink (see
+/// [`EpisodeSink::detached_encoder`]).
+pub trait DetachedEncoder: Send + Sync {
+    fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError>;
 }
 
 /// Receives consecutive episodes, in episode-index order, and writes one dataset.
@@ -289,6 +303,19 @@ pub trait EpisodeSink {
     /// Writes one episode.
     fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
         self.write_batch(std::slice::from_ref(episode))
+    }
+    /// An encoder that works apart from the sink: a producer encodes each episode on its own
+    /// threads as soon as it is made, and the sink's [`EpisodeSink::write_encoded`] only
+    /// appends. `None`: the sink encodes inside [`EpisodeSink::write_batch`].
+    fn detached_encoder(&self) -> Option<std::sync::Arc<dyn DetachedEncoder>> {
+        None
+    }
+    /// Writes consecutive episodes with what this sink's detached encoder made of each (the
+    /// same bytes as [`EpisodeSink::write_batch`] of the episodes).
+    fn write_encoded(&mut self, _episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
+        Err(ExportError::Internal(
+            "this sink has no detached encoder".into(),
+        ))
     }
     /// Index of the next episode the sink expects (after a resume: the first one to rewrite).
     fn next_episode_index(&self) -> u64;

@@ -122,6 +122,11 @@ impl VectorStats {
         }
     }
 
+    /// Elements per value.
+    pub fn elements(&self) -> usize {
+        self.running.len()
+    }
+
     /// Adds one frame's vector.
     pub fn push(&mut self, values: &[f32]) {
         for (running, v) in self.running.iter_mut().zip(values) {
@@ -239,46 +244,85 @@ impl ImageStats {
 
     /// Adds one interleaved u8 image.
     pub fn push_u8(&mut self, pixels: &[u8]) {
-        self.frames += 1;
-        let channels = self.running.len();
-        let mut frame = vec![Running::default(); channels];
-        let mut counts = vec![[0u64; 256]; channels];
-        for chunk in pixels.chunks_exact(channels) {
-            for (c, v) in chunk.iter().enumerate() {
-                counts[c][*v as usize] += 1;
-            }
-        }
-        for c in 0..channels {
-            for (v, n) in counts[c].iter().enumerate() {
-                if *n > 0 {
-                    let x = v as f64 / 255.0;
-                    frame[c].count += n;
-                    frame[c].sum += x * *n as f64;
-                    frame[c].sum_sq += x * x * *n as f64;
-                    frame[c].min = frame[c].min.min(x);
-                    frame[c].max = frame[c].max.max(x);
-                    self.histograms[c][v] += n;
-                }
-            }
-            self.running[c].merge(&frame[c]);
-        }
+        let mut histograms = std::mem::take(&mut self.histograms);
+        self.push_u8_counting(pixels, &mut histograms);
+        self.histograms = histograms;
     }
 
     /// Adds one depth image (metres).
     pub fn push_depth(&mut self, depth_m: &[f32]) {
+        let mut histograms = std::mem::take(&mut self.histograms);
+        self.push_depth_counting(depth_m, &mut histograms);
+        self.histograms = histograms;
+    }
+
+    /// These statistics' shape without histograms: a frame's part whose pixel counts go to a
+    /// histogram set kept elsewhere (see [`ImageStats::push_u8_counting`]). Merging it adds no
+    /// counts.
+    pub fn without_histograms(&self) -> ImageStats {
+        ImageStats {
+            running: vec![Running::default(); self.running.len()],
+            histograms: Vec::new(),
+            bin_width: self.bin_width,
+            frames: 0,
+        }
+    }
+
+    /// Empty histograms of these statistics' shape.
+    pub fn empty_histograms(&self) -> Vec<Vec<u64>> {
+        self.histograms.iter().map(|h| vec![0; h.len()]).collect()
+    }
+
+    /// Adds `histograms` (of this shape) to these statistics' counts. Counts are integers, so
+    /// the order parts are added in does not change them.
+    pub fn add_histograms(&mut self, histograms: &[Vec<u64>]) {
+        for (a, b) in self.histograms.iter_mut().zip(histograms) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+    }
+
+    /// [`ImageStats::push_u8`] with the pixel counts going to `histograms` (one per channel).
+    pub fn push_u8_counting(&mut self, pixels: &[u8], histograms: &mut [Vec<u64>]) {
+        self.frames += 1;
+        let channels = self.running.len();
+        if channels == 0 {
+            return;
+        }
+        let counts = count_u8(pixels, channels);
+        for (c, (counts, running)) in counts.iter().zip(self.running.iter_mut()).enumerate() {
+            running.merge(&fold_counts(counts));
+            if let Some(histogram) = histograms.get_mut(c) {
+                for (bin, n) in histogram.iter_mut().zip(counts) {
+                    *bin += n;
+                }
+            }
+        }
+    }
+
+    /// [`ImageStats::push_depth`] with the pixel counts going to `histograms`.
+    pub fn push_depth_counting(&mut self, depth_m: &[f32], histograms: &mut [Vec<u64>]) {
         self.frames += 1;
         let mut frame = Running::default();
-        let bins = self.histograms[0].len();
+        let mut counts = histograms.first_mut().map(Vec::as_mut_slice);
         let per_bin = 1.0 / self.bin_width;
-        let histogram = &mut self.histograms[0];
+        let last = counts.as_ref().map_or(0, |h| h.len().saturating_sub(1));
         for v in depth_m {
             let x = f64::from(*v);
             frame.push(x);
-            // Casts saturate (negative and NaN read as bin 0): nearest bin without a libm call.
-            let bin = ((x * per_bin + 0.5) as usize).min(bins - 1);
-            histogram[bin] += 1;
+            if let Some(counts) = counts.as_mut() {
+                // Casts saturate (negative and NaN read as bin 0): nearest bin without a libm
+                // call.
+                let bin = ((x * per_bin + 0.5) as usize).min(last);
+                if let Some(n) = counts.get_mut(bin) {
+                    *n += 1;
+                }
+            }
         }
-        self.running[0].merge(&frame);
+        if let Some(running) = self.running.first_mut() {
+            running.merge(&frame);
+        }
     }
 
     fn quantile(&self, channel: usize, q: f64) -> f64 {
@@ -320,6 +364,50 @@ impl ImageStats {
         }
         Value::Object(out)
     }
+}
+
+/// One u8 channel's running statistics (scaled to [0, 1]) from its value counts: sums over the
+/// values in value order, so the same for any pixel order.
+fn fold_counts(counts: &[u64; 256]) -> Running {
+    let mut frame = Running::default();
+    for (v, n) in counts.iter().enumerate().filter(|(_, n)| **n > 0) {
+        let x = v as f64 / 255.0;
+        frame.count += n;
+        frame.sum += x * *n as f64;
+        frame.sum_sq += x * x * *n as f64;
+        frame.min = frame.min.min(x);
+        frame.max = frame.max.max(x);
+    }
+    frame
+}
+
+/// Per channel, how many of the interleaved `pixels` hold each value. Four tables per channel
+/// take turns, so runs of equal values (flat colour) do not wait on one counter.
+fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
+    // A trailing partial pixel is left out.
+    let pixels = &pixels[..pixels.len() - pixels.len() % channels];
+    let mut tables = vec![[0u64; 256]; channels * 4];
+    let group = channels * 4;
+    let mut groups = pixels.chunks_exact(group);
+    for chunk in &mut groups {
+        for (table, v) in tables.iter_mut().zip(chunk) {
+            table[usize::from(*v)] += 1;
+        }
+    }
+    for (i, v) in groups.remainder().iter().enumerate() {
+        tables[i][usize::from(*v)] += 1;
+    }
+    (0..channels)
+        .map(|c| {
+            let mut total = [0u64; 256];
+            for k in 0..4 {
+                for (t, n) in total.iter_mut().zip(&tables[k * channels + c]) {
+                    *t += n;
+                }
+            }
+            total
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -386,6 +474,85 @@ mod tests {
         assert_eq!(json["min"], json!([[[0.0]], [[1.0]], [[0.2]]]));
         assert_eq!(json["q99"], json!([[[0.0]], [[1.0]], [[0.2]]]));
         assert_eq!(json["count"], json!([1]));
+    }
+
+    /// The straightforward per-pixel count [`count_u8`] replaced: one counter per channel
+    /// value.
+    fn naive_u8(stats: &mut ImageStats, pixels: &[u8]) {
+        stats.frames += 1;
+        let channels = stats.running.len();
+        let mut counts = vec![[0u64; 256]; channels];
+        for chunk in pixels.chunks_exact(channels) {
+            for (c, v) in chunk.iter().enumerate() {
+                counts[c][usize::from(*v)] += 1;
+            }
+        }
+        for (c, counts) in counts.iter().enumerate() {
+            stats.running[c].merge(&fold_counts(counts));
+            for (bin, n) in stats.histograms[c].iter_mut().zip(counts) {
+                *bin += n;
+            }
+        }
+    }
+
+    #[test]
+    fn u8_statistics_equal_the_per_pixel_count_bit_for_bit() {
+        let mut rng = SplitMix64::new(27);
+        for channels in [1usize, 3, 4] {
+            let mut fast = ImageStats::unit_scaled(channels);
+            let mut split = ImageStats::unit_scaled(channels);
+            let mut split_counts = split.empty_histograms();
+            let mut naive = ImageStats::unit_scaled(channels);
+            for frame in 0..6 {
+                // Flat runs (rendered colour) and noise, lengths that leave partial groups
+                // of four pixels and a partial pixel.
+                let len = 97 * channels + frame * 5 + 1;
+                let pixels: Vec<u8> = (0..len)
+                    .map(|i| {
+                        if (i / 40) % 2 == 0 {
+                            (i % channels * 60) as u8
+                        } else {
+                            rng.next_u64() as u8
+                        }
+                    })
+                    .collect();
+                fast.push_u8(&pixels);
+                split.push_u8_counting(&pixels, &mut split_counts);
+                naive_u8(&mut naive, &pixels);
+            }
+            split.add_histograms(&split_counts);
+            let expected = serde_json::to_string(&naive).expect("json");
+            assert_eq!(serde_json::to_string(&fast).expect("json"), expected);
+            assert_eq!(serde_json::to_string(&split).expect("json"), expected);
+        }
+    }
+
+    #[test]
+    fn depth_parts_with_shared_histograms_equal_whole_frames() {
+        let mut rng = SplitMix64::new(7);
+        let frames: Vec<Vec<f32>> = (0..5)
+            .map(|_| {
+                (0..300)
+                    .map(|_| (rng.next_u64() % 6000) as f32 * 1e-4 - 0.05)
+                    .collect()
+            })
+            .collect();
+        let mut whole = ImageStats::depth();
+        for frame in &frames {
+            whole.push_depth(frame);
+        }
+        let mut parts = ImageStats::depth();
+        let mut counts = parts.empty_histograms();
+        for frame in &frames {
+            let mut part = parts.without_histograms();
+            part.push_depth_counting(frame, &mut counts);
+            parts.merge(&part);
+        }
+        parts.add_histograms(&counts);
+        assert_eq!(
+            serde_json::to_string(&parts).expect("json"),
+            serde_json::to_string(&whole).expect("json")
+        );
     }
 
     #[test]

@@ -39,8 +39,11 @@ pub fn encode_f32_tiff(width: u32, height: u32, pixels: &[f32]) -> Vec<u8> {
         }
     }
     out.extend_from_slice(&0u32.to_le_bytes()); // no next IFD
-    for v in pixels {
-        out.extend_from_slice(&v.to_le_bytes());
+    // Little-endian samples, written through a sized buffer the compiler turns into a copy.
+    let start = out.len();
+    out.resize(start + data_len, 0);
+    for (bytes, v) in out[start..].chunks_exact_mut(4).zip(pixels) {
+        bytes.copy_from_slice(&v.to_le_bytes());
     }
     out
 }

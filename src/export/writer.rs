@@ -10,7 +10,9 @@
 use crate::episode::{Episode, ImageEncoding};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch};
+use crate::export::{
+    DetachedEncoder, Encoded, EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch,
+};
 use rayon::prelude::*;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -61,6 +63,17 @@ pub trait FormatWriter: Send + Sized {
     /// The writer's encoder (no file is touched; it runs in parallel across a batch).
     fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> Self::Encoder<'a>;
 
+    /// An encoder that owns what it needs, so episodes can be encoded on other threads while
+    /// the writer appends earlier ones (see [`EpisodeSink::detached_encoder`]); it may do more
+    /// of the work than [`FormatWriter::encoder`] (the bytes are the same either way). `None`:
+    /// the format encodes only in its batches.
+    fn detached_encoder(
+        &self,
+        _info: &DatasetInfo,
+    ) -> Option<std::sync::Arc<dyn EpisodeEncoder<Self::Encoded> + Send>> {
+        None
+    }
+
     /// Appends an encoded episode to the folder (in index order); returns the seconds of it
     /// spent encoding what the encoder left (counted as encoding, not writing).
     fn append(
@@ -71,6 +84,12 @@ pub trait FormatWriter: Send + Sized {
         encoded: Self::Encoded,
     ) -> Result<f64, ExportError>;
 
+    /// Thread-seconds its detached encoder spent so far encoding, and computing statistics
+    /// (counted apart from encoding).
+    fn apart_secs(&self) -> (f64, f64) {
+        (0.0, 0.0)
+    }
+
     /// Checkpoints and writes the format's own last files; returns the summary so far, which
     /// [`Writer`] completes when it seals the folder.
     fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError>;
@@ -79,6 +98,15 @@ pub trait FormatWriter: Send + Sized {
 /// Encodes one episode for appending; called from several threads at once.
 pub trait EpisodeEncoder<T>: Sync {
     fn encode(&self, episode: &Episode) -> Result<T, ExportError>;
+}
+
+/// A format's detached encoder as a sink's (its output boxed).
+struct Detached<T>(std::sync::Arc<dyn EpisodeEncoder<T> + Send>);
+
+impl<T: Send + 'static> DetachedEncoder for Detached<T> {
+    fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError> {
+        Ok(Encoded(Box::new(self.0.encode(episode)?)))
+    }
 }
 
 /// A sink of any format: see the module overview.
@@ -155,7 +183,10 @@ impl<F: FormatWriter> Writer<F> {
     }
 }
 
-impl<F: FormatWriter> EpisodeSink for Writer<F> {
+impl<F: FormatWriter> EpisodeSink for Writer<F>
+where
+    F::Encoded: 'static,
+{
     fn reuses_stored(&self, encoding: ImageEncoding) -> bool {
         self.format.reuses_stored(encoding)
     }
@@ -196,12 +227,47 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         Ok(())
     }
 
+    fn detached_encoder(&self) -> Option<std::sync::Arc<dyn DetachedEncoder>> {
+        let encoder = self.format.detached_encoder(&self.info)?;
+        Some(std::sync::Arc::new(Detached(encoder)))
+    }
+
+    /// Appends in order what the detached encoder made of each episode.
+    fn write_encoded(&mut self, episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
+        let (episodes, encoded): (Vec<Episode>, Vec<Encoded>) = episodes.into_iter().unzip();
+        check_batch(
+            &self.info,
+            self.finished.is_some(),
+            &episodes,
+            self.format.episodes(),
+        )?;
+        let appending = Instant::now();
+        let mut encoding_secs = 0.0;
+        for (episode, encoded) in episodes.iter().zip(encoded) {
+            let encoded = encoded
+                .0
+                .downcast::<F::Encoded>()
+                .map_err(|_| ExportError::Internal("an episode encoded for another sink".into()))?;
+            encoding_secs += self
+                .format
+                .append(&mut self.dir, &self.info, episode, *encoded)?;
+        }
+        self.timing.encode_secs += encoding_secs;
+        self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
+        Ok(())
+    }
+
     fn next_episode_index(&self) -> u64 {
         self.format.episodes()
     }
 
     fn timing(&self) -> SinkTiming {
-        self.timing
+        let (encode_secs, stats_secs) = self.format.apart_secs();
+        SinkTiming {
+            encode_secs: self.timing.encode_secs + encode_secs,
+            stats_secs,
+            ..self.timing
+        }
     }
 
     /// Finishing, in an order that an interruption at any point can resume: the format's

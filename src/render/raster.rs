@@ -96,6 +96,41 @@ pub struct Rasterizer {
     vertex_offsets: Vec<usize>,
     /// The static instances' layer kept by [`Rasterizer::render_over_static`].
     layer: Option<StaticLayer>,
+    /// Where the G-buffer differs from the kept layer's.
+    changed: Changed,
+}
+
+/// Where the G-buffer differs from the kept static layer's.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+enum Changed {
+    /// Anywhere (drawn without the layer, or never drawn).
+    #[default]
+    Anywhere,
+    /// Only inside this rectangle.
+    Within(PixelRect),
+    /// Nowhere.
+    Nowhere,
+}
+
+/// An inclusive rectangle of pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PixelRect {
+    x0: usize,
+    x1: usize,
+    y0: usize,
+    y1: usize,
+}
+
+impl PixelRect {
+    /// The smallest rectangle holding both.
+    fn union(self, other: PixelRect) -> PixelRect {
+        PixelRect {
+            x0: self.x0.min(other.x0),
+            x1: self.x1.max(other.x1),
+            y0: self.y0.min(other.y0),
+            y1: self.y1.max(other.y1),
+        }
+    }
 }
 
 /// What a static layer was drawn from.
@@ -231,6 +266,8 @@ struct Target<'a> {
     instance: &'a mut [u16],
     triangle: &'a mut [u32],
     bary: &'a mut [[f32; 2]],
+    /// The bounding box of every triangle drawn so far (a superset of the pixels written).
+    touched: Option<PixelRect>,
 }
 
 impl Target<'_> {
@@ -276,6 +313,13 @@ impl Target<'_> {
         if x0 > x1 || y0 > y1 {
             return;
         }
+        let rect = PixelRect {
+            x0: x0 as usize,
+            x1: x1 as usize,
+            y0: y0 as usize,
+            y1: y1 as usize,
+        };
+        self.touched = Some(self.touched.map_or(rect, |t| t.union(rect)));
         // Edge k is opposite vertex k: (1 -> 2), (2 -> 0), (0 -> 1).
         let edges = [(p[1], p[2]), (p[2], p[0]), (p[0], p[1])];
         let bias = edges.map(|(a, b)| {
@@ -360,6 +404,7 @@ impl Rasterizer {
     /// Visibility pass: fills the G-buffer for `camera`.
     fn visibility(&mut self, camera: &Camera, instances: &[Instance<'_>], lighting: &Lighting) {
         let pixels = (camera.width_px * camera.height_px) as usize;
+        self.changed = Changed::Anywhere;
         self.inv_depth.clear();
         self.inv_depth.resize(pixels, 0.0);
         self.instance.clear();
@@ -374,14 +419,15 @@ impl Rasterizer {
     }
 
     /// Draws `instances[start..]` over a G-buffer that holds `instances[..start]` drawn in
-    /// order (and their camera-space vertices): the same buffers as drawing them all.
+    /// order (and their camera-space vertices): the same buffers as drawing them all. Returns
+    /// a rectangle holding every pixel written (`None`: none).
     fn visibility_from(
         &mut self,
         camera: &Camera,
         instances: &[Instance<'_>],
         lighting: &Lighting,
         start: usize,
-    ) {
+    ) -> Option<PixelRect> {
         let camera_from_world = camera.world_from_camera.inverse();
         for instance in instances.iter().skip(start) {
             let pose = camera_from_world * instance.world_from_mesh;
@@ -430,6 +476,7 @@ impl Rasterizer {
             instance: &mut self.instance,
             triangle: &mut self.triangle,
             bary: &mut self.bary,
+            touched: None,
         };
         let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
         let mut polygon = Vec::with_capacity(4);
@@ -470,6 +517,7 @@ impl Rasterizer {
                 }
             }
         }
+        target.touched
     }
 
     /// Renders RGB, depth and mask; RGB optionally from a supersampled pass.
@@ -530,21 +578,41 @@ impl Rasterizer {
                 vertices: self.camera_positions.len(),
                 rgb,
             });
+            self.changed = Changed::Nowhere;
         }
         let Some(layer) = self.layer.as_ref() else {
             return self.render(camera, instances, lighting, 1);
         };
-        self.inv_depth.clone_from(&layer.inv_depth);
-        self.instance.clone_from(&layer.instance);
-        self.triangle.clone_from(&layer.triangle);
-        self.bary.clone_from(&layer.bary);
+        // Back to the layer: only where the last frame's moving instances drew.
+        match self.changed {
+            Changed::Anywhere => {
+                self.inv_depth.clone_from(&layer.inv_depth);
+                self.instance.clone_from(&layer.instance);
+                self.triangle.clone_from(&layer.triangle);
+                self.bary.clone_from(&layer.bary);
+            }
+            Changed::Within(rect) => {
+                let width = camera.width_px as usize;
+                for y in rect.y0..=rect.y1 {
+                    let row = y * width + rect.x0..=y * width + rect.x1;
+                    self.inv_depth[row.clone()].copy_from_slice(&layer.inv_depth[row.clone()]);
+                    self.instance[row.clone()].copy_from_slice(&layer.instance[row.clone()]);
+                    self.triangle[row.clone()].copy_from_slice(&layer.triangle[row.clone()]);
+                    self.bary[row.clone()].copy_from_slice(&layer.bary[row]);
+                }
+            }
+            Changed::Nowhere => {}
+        }
         self.camera_positions.truncate(layer.vertices);
         self.camera_normals.truncate(layer.vertices);
         self.vertex_colours.truncate(layer.vertices);
         self.vertex_offsets.truncate(statics);
         let mut rgb = layer.rgb.clone();
-        self.visibility_from(camera, instances, lighting, statics);
-        self.shade_srgb_into(camera, instances, lighting, statics, &mut rgb);
+        let touched = self.visibility_from(camera, instances, lighting, statics);
+        self.changed = touched.map_or(Changed::Nowhere, Changed::Within);
+        if let Some(rect) = touched {
+            self.shade_srgb_into(camera, instances, lighting, statics, Some(rect), &mut rgb);
+        }
         let mut frame = Frame {
             width_px: camera.width_px,
             height_px: camera.height_px,
@@ -584,7 +652,7 @@ impl Rasterizer {
         lighting: &Lighting,
     ) -> Vec<[f32; 3]> {
         let mut out = vec![lighting.background; (camera.width_px * camera.height_px) as usize];
-        self.shade_each(camera, instances, lighting, 0, |index, colour| {
+        self.shade_each(camera, instances, lighting, 0, None, |index, colour| {
             out[index] = colour
         });
         out
@@ -600,33 +668,43 @@ impl Rasterizer {
         let lut = srgb_table();
         let background = lighting.background.map(|c| lut.lookup(c));
         let mut out: Vec<u8> = background.repeat((camera.width_px * camera.height_px) as usize);
-        self.shade_srgb_into(camera, instances, lighting, 0, &mut out);
+        self.shade_srgb_into(camera, instances, lighting, 0, None, &mut out);
         out
     }
 
-    /// Shades into `out` (sRGB) the pixels whose surface belongs to `instances[first..]`.
+    /// Shades into `out` (sRGB) the pixels whose surface belongs to `instances[first..]`
+    /// (`within`: only those inside it).
     fn shade_srgb_into(
         &self,
         camera: &Camera,
         instances: &[Instance<'_>],
         lighting: &Lighting,
         first: usize,
+        within: Option<PixelRect>,
         out: &mut [u8],
     ) {
         let lut = srgb_table();
-        self.shade_each(camera, instances, lighting, first, |index, colour| {
-            out[index * 3..index * 3 + 3].copy_from_slice(&colour.map(|c| lut.lookup(c)));
-        });
+        self.shade_each(
+            camera,
+            instances,
+            lighting,
+            first,
+            within,
+            |index, colour| {
+                out[index * 3..index * 3 + 3].copy_from_slice(&colour.map(|c| lut.lookup(c)));
+            },
+        );
     }
 
     /// Calls `emit(pixel index, linear RGB)` for every pixel that shows a surface of
-    /// `instances[first..]`.
+    /// `instances[first..]` (`within`: every such pixel inside it).
     fn shade_each(
         &self,
         camera: &Camera,
         instances: &[Instance<'_>],
         lighting: &Lighting,
         first: usize,
+        within: Option<PixelRect>,
         mut emit: impl FnMut(usize, [f32; 3]),
     ) {
         let (w, h) = (camera.width_px as usize, camera.height_px as usize);
@@ -638,32 +716,32 @@ impl Rasterizer {
         let ray_x: Vec<f32> = (0..w)
             .map(|x| (x as f32 + 0.5 - cx) / camera.fx_px as f32)
             .collect();
-        let rows = self
-            .instance
-            .chunks_exact(w)
-            .zip(self.triangle.chunks_exact(w))
-            .take(h);
-        for (y, (instance_row, triangle_row)) in rows.enumerate() {
+        let rect = within.unwrap_or(PixelRect {
+            x0: 0,
+            x1: w.saturating_sub(1),
+            y0: 0,
+            y1: h.saturating_sub(1),
+        });
+        let columns = rect.x0..(rect.x1 + 1).min(w);
+        for y in rect.y0..(rect.y1 + 1).min(h) {
             let vignette_y = (y as f32 + 0.5 - cy).powi(2) / corner;
-            let bary_row = &self.bary[y * w..(y + 1) * w];
-            let depth_row: Vec<f32> = self.inv_depth[y * w..(y + 1) * w]
-                .iter()
-                .map(|d| 1.0 / d)
-                .collect();
+            let row = y * w + columns.start..y * w + columns.end;
+            let inv_depth_row = &self.inv_depth[row.clone()];
             let ray_y = (y as f32 + 0.5 - cy) / camera.fy_px as f32;
-            let pixels = instance_row
+            let pixels = self.instance[row.clone()]
                 .iter()
-                .zip(triangle_row)
-                .zip(bary_row)
-                .zip(&vignette_x);
+                .zip(&self.triangle[row.clone()])
+                .zip(&self.bary[row])
+                .zip(&vignette_x[columns.clone()]);
             // Neighbouring pixels mostly show the same triangle: its vertex data is fetched once
             // per run.
             let mut run_key = (NO_INSTANCE, u32::MAX);
             let mut run = TriangleData::default();
-            for (x, (((&instance_index, &triangle), &[b1, b2]), &vx)) in pixels.enumerate() {
+            for (i, (((&instance_index, &triangle), &[b1, b2]), &vx)) in pixels.enumerate() {
                 if instance_index == NO_INSTANCE || usize::from(instance_index) < first {
                     continue;
                 }
+                let x = columns.start + i;
                 let instance = &instances[usize::from(instance_index)];
                 if run_key != (instance_index, triangle) {
                     run_key = (instance_index, triangle);
@@ -683,7 +761,7 @@ impl Rasterizer {
                     continue;
                 }
                 // The surface point from the pixel's ray and depth; the normal from the vertices.
-                let z = depth_row[x];
+                let z = 1.0 / inv_depth_row[i];
                 let position = [ray_x[x] * z, ray_y * z, z];
                 let normal = interpolate(&run.normals, b);
                 let mut pattern = b[0] * run.shade[0] + b[1] * run.shade[1] + b[2] * run.shade[2];

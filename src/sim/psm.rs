@@ -142,6 +142,30 @@ fn link6_from_dh_tip() -> Isometry3<f64> {
     )
 }
 
+/// Each DH row's constant part, `Rx(alpha) * Tx(a)`, computed once (the same operations as
+/// per call, so the same bits).
+static DH_FIXED: std::sync::LazyLock<[Isometry3<f64>; NUM_JOINTS]> =
+    std::sync::LazyLock::new(|| {
+        std::array::from_fn(|joint| {
+            let rot_x = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), DH_ALPHA_RAD[joint]);
+            Isometry3::from_parts(Translation3::identity(), rot_x)
+                * Isometry3::from_parts(
+                    Translation3::new(DH_A_M[joint], 0.0, 0.0),
+                    UnitQuaternion::identity(),
+                )
+        })
+    });
+
+/// [`link6_from_dh_tip`] and the reported tip in the DH tip frame as a quaternion, computed
+/// once (a rotation matrix's quaternion is found iteratively).
+static TIP_FRAMES: std::sync::LazyLock<(Isometry3<f64>, UnitQuaternion<f64>)> =
+    std::sync::LazyLock::new(|| {
+        (
+            link6_from_dh_tip(),
+            UnitQuaternion::from_rotation_matrix(&dh_tip_from_reported_tip()),
+        )
+    });
+
 /// One row of the modified DH table as a transform.
 fn dh_transform(joint: usize, q: f64) -> Isometry3<f64> {
     let (theta, d) = if joint == 2 {
@@ -149,13 +173,8 @@ fn dh_transform(joint: usize, q: f64) -> Isometry3<f64> {
     } else {
         (q + DH_THETA_OFFSET_RAD[joint], DH_D_M[joint])
     };
-    let rot_x = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), DH_ALPHA_RAD[joint]);
     let rot_z = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta);
-    Isometry3::from_parts(Translation3::identity(), rot_x)
-        * Isometry3::from_parts(
-            Translation3::new(DH_A_M[joint], 0.0, 0.0),
-            UnitQuaternion::identity(),
-        )
+    DH_FIXED[joint]
         * Isometry3::from_parts(Translation3::identity(), rot_z)
         * Isometry3::from_parts(Translation3::new(0.0, 0.0, d), UnitQuaternion::identity())
 }
@@ -230,7 +249,7 @@ impl Psm {
         }
         ChainFrames {
             rcm_from_link,
-            rcm_from_dh_tip: pose * link6_from_dh_tip(),
+            rcm_from_dh_tip: pose * TIP_FRAMES.0,
         }
     }
 
@@ -239,10 +258,7 @@ impl Psm {
         let frames = self.chain(joints);
         self.world_from_rcm
             * frames.rcm_from_dh_tip
-            * Isometry3::from_parts(
-                Translation3::identity(),
-                UnitQuaternion::from_rotation_matrix(&dh_tip_from_reported_tip()),
-            )
+            * Isometry3::from_parts(Translation3::identity(), TIP_FRAMES.1)
     }
 
     /// Closed-form inverse kinematics for a reported tip pose in the world.

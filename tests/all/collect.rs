@@ -61,6 +61,23 @@ fn one_and_two_threads_write_identical_datasets() {
     assert_eq!(a.episodes, 4);
     assert_eq!(a.dataset.episodes, 4);
     assert!(a.tasks.iter().all(|t| t.episodes == 2 && t.attempts >= 2));
+    // Every stage's time is measured (LeRobot encodes and computes statistics on the workers,
+    // the writer builds tables and files, the finish writes the metadata); none is counted
+    // twice, so together they fit in the threads' time.
+    for report in &reports {
+        let t = &report.timing;
+        let stages = [
+            t.physics_cpu_secs,
+            t.render_cpu_secs,
+            t.encode_cpu_secs,
+            t.stats_cpu_secs,
+            t.write_cpu_secs,
+            t.finish_cpu_secs,
+        ];
+        assert!(stages.iter().all(|s| *s > 0.0), "{t:?}");
+        let busy = (report.threads + 1) as f64 * t.wall_secs;
+        assert!(stages.iter().sum::<f64>() <= busy, "{t:?}");
+    }
 }
 
 /// What the memory sink keeps of an episode: index, seed, instruction, length, actions.

@@ -448,6 +448,67 @@ fn batched_video_encoding_writes_the_same_bytes_as_one_by_one() {
 }
 
 #[test]
+fn episodes_encoded_apart_write_the_same_bytes_as_batches() {
+    // Image mode (PNG, TIFF, statistics made by the detached encoder on other threads) and
+    // video mode, each against the sink's own batches.
+    use surgvla::export::lerobot::VideoOptions;
+    let recorded = episodes(4, 6);
+    for (name, options) in [
+        ("image", LeRobotOptions::default()),
+        (
+            "video",
+            LeRobotOptions {
+                video: Some(VideoOptions::default()),
+                ..LeRobotOptions::default()
+            },
+        ),
+    ] {
+        let (batched, apart) = (
+            temp_root(&format!("batched-{name}")),
+            temp_root(&format!("apart-{name}")),
+        );
+        write(&batched, &recorded, options.clone());
+        let mut writer: Box<dyn EpisodeSink> =
+            Box::new(LeRobotWriter::create(&apart, &info(false), options).expect("create"));
+        let encoder = writer.detached_encoder().expect("LeRobot encodes apart");
+        let encoded: Vec<_> = std::thread::scope(|scope| {
+            let jobs: Vec<_> = recorded
+                .iter()
+                .map(|episode| {
+                    let encoder = encoder.clone();
+                    scope.spawn(move || encoder.encode(episode).expect("encode"))
+                })
+                .collect();
+            jobs.into_iter()
+                .map(|job| job.join().expect("encoder thread"))
+                .collect()
+        });
+        // Appended in two calls, as a producer hands them over when they are ready.
+        let mut pairs: Vec<_> = recorded.iter().cloned().zip(encoded).collect();
+        let rest = pairs.split_off(1);
+        writer.write_encoded(pairs).expect("first");
+        writer.write_encoded(rest).expect("rest");
+        writer.finish().expect("finish");
+        assert_eq!(
+            crate::util::tree(&batched),
+            crate::util::tree(&apart),
+            "{name}"
+        );
+        // An episode out of order is refused, encoded or not.
+        let other = temp_root(&format!("refused-{name}"));
+        let mut writer: Box<dyn EpisodeSink> = Box::new(
+            LeRobotWriter::create(&other, &info(false), LeRobotOptions::default()).expect("create"),
+        );
+        let encoded = encoder.encode(&recorded[1]).expect("encode");
+        assert!(
+            writer
+                .write_encoded(vec![(recorded[1].clone(), encoded)])
+                .is_err()
+        );
+    }
+}
+
+#[test]
 fn an_interrupted_dataset_resumes_to_the_same_bytes() {
     use surgvla::export::lerobot::VideoOptions;
     for video in [None, Some(VideoOptions::h264())] {

@@ -187,13 +187,16 @@ pub struct LeRobotFiles {
     videos: Vec<VideoFile>,
     state: State,
     task_lookup: HashMap<String, u64>,
+    /// Thread-seconds the detached encoder spent encoding, and on statistics.
+    apart_secs: (f64, f64),
 }
 
 impl FormatWriter for LeRobotFiles {
     type Options = LeRobotOptions;
     type State = State;
-    /// The episode's video features' frames (encoded, or copied as they arrived).
-    type Encoded = Vec<Vec<EncodedFrame>>;
+    /// The episode's video features' frames (encoded, or copied as they arrived), and from the
+    /// detached encoder its images and statistics too.
+    type Encoded = work::Prepared;
     type Encoder<'a> = EpisodeWork<'a>;
     const MANIFEST: &'static str = crate::export::MANIFEST;
 
@@ -237,14 +240,31 @@ impl FormatWriter for LeRobotFiles {
         self.work(info)
     }
 
+    fn detached_encoder(
+        &self,
+        info: &DatasetInfo,
+    ) -> Option<std::sync::Arc<dyn crate::export::writer::EpisodeEncoder<work::Prepared> + Send>>
+    {
+        Some(std::sync::Arc::new(work::OwnedWork {
+            info: info.clone(),
+            parquet_features: self.parquet_features.clone(),
+            video_features: self.video_features.clone(),
+            options: self.options.clone(),
+        }))
+    }
+
     fn append(
         &mut self,
         dir: &mut DatasetDir,
         info: &DatasetInfo,
         episode: &Episode,
-        video: Vec<Vec<EncodedFrame>>,
+        prepared: work::Prepared,
     ) -> Result<f64, ExportError> {
-        self.write_with_video(dir, info, episode, video)
+        self.write_prepared(dir, info, episode, prepared)
+    }
+
+    fn apart_secs(&self) -> (f64, f64) {
+        self.apart_secs
     }
 
     fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
@@ -337,6 +357,7 @@ impl LeRobotFiles {
             },
             options,
             task_lookup: HashMap::new(),
+            apart_secs: (0.0, 0.0),
         }
     }
 
@@ -524,23 +545,37 @@ impl LeRobotFiles {
         i
     }
 
-    /// Writes one episode whose video features' frames are `video`; returns the seconds spent
-    /// encoding its images and statistics.
-    fn write_with_video(
+    /// Writes one episode with what was made of it ahead (its video features' frames, and
+    /// perhaps its images and statistics); returns the seconds spent encoding its images and
+    /// statistics here.
+    fn write_prepared(
         &mut self,
         dir: &mut DatasetDir,
         info: &DatasetInfo,
         episode: &Episode,
-        video_frames: Vec<Vec<EncodedFrame>>,
+        prepared: work::Prepared,
     ) -> Result<f64, ExportError> {
         let task_index = self.task_index(&episode.meta.instruction);
         let first_index = self.state.total_frames;
         let encode_started = std::time::Instant::now();
         let work = self.work(info);
-        let (images, episode_stats) = rayon::join(
-            || work.encode_images(episode),
-            || work.episode_stats(episode, task_index, first_index),
+        let work::Prepared {
+            video: video_frames,
+            images,
+            stats,
+            encode_secs: encoded_ahead_secs,
+            stats_secs,
+        } = prepared;
+        let (images, mut episode_stats) = rayon::join(
+            || images.map_or_else(|| work.encode_images(episode), Ok),
+            || stats.unwrap_or_else(|| work.feature_stats(episode)),
         );
+        episode_stats.extend(work::default_stats(
+            episode,
+            f64::from(info.fps),
+            task_index,
+            first_index,
+        ));
         let images = images?;
         let encode_secs = encode_started.elapsed().as_secs_f64();
         let videos = if self.video_features.is_empty() {
@@ -623,12 +658,15 @@ impl LeRobotFiles {
                 dir.save_checkpoint(&self.state)?;
             }
         }
+        self.apart_secs.0 += encoded_ahead_secs;
+        self.apart_secs.1 += stats_secs;
         Ok(encode_secs)
     }
 
     /// The per-episode work's view of this writer.
     fn work<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
         EpisodeWork {
+            parallel: true,
             info,
             parquet_features: &self.parquet_features,
             video_features: &self.video_features,

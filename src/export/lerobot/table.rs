@@ -100,7 +100,14 @@ pub fn frame_batch(
                 let encoded = images.get(&feature.name).ok_or_else(|| {
                     ExportError::Internal(format!("no encoded images for {}", feature.name))
                 })?;
-                let bytes = BinaryArray::from_iter_values(encoded.iter());
+                // One buffer of the exact size (growing it would copy every image again).
+                let total: usize = encoded.iter().map(Vec::len).sum();
+                let mut builder =
+                    arrow_array::builder::BinaryBuilder::with_capacity(encoded.len(), total);
+                for image in encoded {
+                    builder.append_value(image);
+                }
+                let bytes = builder.finish();
                 let paths = StringArray::new_null(n);
                 Arc::new(StructArray::new(
                     image_fields(),
