@@ -261,11 +261,10 @@ impl Env {
     fn observe_step(&mut self, report: StepReport) -> EnvStep {
         let mut observation = self.observe();
         (observation.extras.grasped, observation.extras.released) = self.events(&report);
-        let verdict = self.verdict();
-        let terminal = self
-            .instance
-            .terminal_failure(&self.sim.observation())
-            .is_some();
+        // The simulator's observation, built once for the frame, the verdict and the failure
+        // check.
+        let verdict = self.instance.success(&observation.sim);
+        let terminal = self.instance.terminal_failure(&observation.sim).is_some();
         EnvStep {
             done: verdict.success || terminal || self.steps >= self.max_steps(),
             observation,
