@@ -13,6 +13,9 @@
 //! `export/decode/{av1,h264}`: demuxing, decoding and converting to RGB every frame of the
 //! same episodes' 224 x 224 video, one thread (`scripts/bench_decode.sh` sets PyAV beside it).
 //!
+//! `export/frame/{png_adaptive,png_paeth,stats_rgb,stats_depth}`: one recorded frame's RGB PNG
+//! with either filter choice at the fast level, and its RGB and depth statistics, one core.
+//!
 //! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
 //! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
 //! and of two threads. Throughput is in frames. The episodes are recorded once beforehand, so
@@ -205,11 +208,58 @@ fn bench_decode(c: &mut Criterion) {
     group.finish();
 }
 
+/// One recorded frame's per-frame encoding work, one core (issue 27's levers): the RGB PNG at
+/// the fast level with the adaptive filter choice and with Paeth on every row (what surgvla
+/// writes), and the image statistics of the RGB and the depth.
+fn bench_frame_work(c: &mut Criterion) {
+    let (episodes, _) = episodes();
+    let step = &episodes[0].steps[episodes[0].steps.len() / 2];
+    let mut group = c.benchmark_group("export/frame");
+    group.throughput(Throughput::Elements(1));
+    for (name, filter) in [
+        ("png_adaptive", png::Filter::Adaptive),
+        ("png_paeth", png::Filter::Paeth),
+    ] {
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let mut out = Vec::new();
+                let mut encoder = png::Encoder::new(&mut out, 224, 224);
+                encoder.set_color(png::ColorType::Rgb);
+                encoder.set_depth(png::BitDepth::Eight);
+                encoder.set_compression(png::Compression::Fast);
+                encoder.set_filter(filter);
+                let mut writer = encoder.write_header().expect("header");
+                writer.write_image_data(&step.rgb).expect("png");
+                writer.finish().expect("finish");
+                out.len()
+            })
+        });
+    }
+    group.bench_function("stats_rgb", |b| {
+        b.iter(|| {
+            let mut stats = surgvla::export::stats::ImageStats::unit_scaled(3);
+            stats.push_u8(&step.rgb);
+            stats
+        })
+    });
+    group.bench_function("stats_depth", |b| {
+        let mut stats = surgvla::export::stats::ImageStats::depth();
+        let mut counts = stats.empty_histograms();
+        b.iter(|| {
+            let mut part = stats.without_histograms();
+            part.push_depth_counting(&step.depth_m, &mut counts);
+            stats.merge(&part);
+        })
+    });
+    group.finish();
+}
+
 criterion_group!(
     benches,
     bench_lerobot,
     bench_rlds,
     bench_pointcloud,
-    bench_decode
+    bench_decode,
+    bench_frame_work
 );
 criterion_main!(benches);
