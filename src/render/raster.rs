@@ -153,24 +153,40 @@ struct StaticInstance {
     cull_back_faces: bool,
 }
 
+impl StaticInstance {
+    fn of(instance: &Instance<'_>) -> Self {
+        StaticInstance {
+            mesh_address: std::ptr::from_ref(instance.mesh) as usize,
+            positions: instance.mesh.positions.len(),
+            triangles: instance.mesh.triangles.len(),
+            world_from_mesh: instance.world_from_mesh,
+            material: instance.material,
+            mask_id: instance.mask_id,
+            cull_back_faces: instance.cull_back_faces,
+        }
+    }
+}
+
 impl StaticKey {
     fn of(camera: &Camera, lighting: &Lighting, instances: &[Instance<'_>]) -> Self {
         StaticKey {
             camera: *camera,
             lighting: *lighting,
-            instances: instances
-                .iter()
-                .map(|i| StaticInstance {
-                    mesh_address: std::ptr::from_ref(i.mesh) as usize,
-                    positions: i.mesh.positions.len(),
-                    triangles: i.mesh.triangles.len(),
-                    world_from_mesh: i.world_from_mesh,
-                    material: i.material,
-                    mask_id: i.mask_id,
-                    cull_back_faces: i.cull_back_faces,
-                })
-                .collect(),
+            instances: instances.iter().map(StaticInstance::of).collect(),
         }
+    }
+
+    /// Whether this key is what [`StaticKey::of`] would make of these (compared in place:
+    /// every frame asks, and nothing is allocated for it).
+    fn describes(&self, camera: &Camera, lighting: &Lighting, instances: &[Instance<'_>]) -> bool {
+        self.camera == *camera
+            && self.lighting == *lighting
+            && self.instances.len() == instances.len()
+            && self
+                .instances
+                .iter()
+                .zip(instances)
+                .all(|(kept, instance)| *kept == StaticInstance::of(instance))
     }
 }
 
@@ -565,8 +581,12 @@ impl Rasterizer {
         statics: usize,
     ) -> Frame {
         let statics = statics.min(instances.len());
-        let key = StaticKey::of(camera, lighting, &instances[..statics]);
-        if self.layer.as_ref().is_none_or(|layer| layer.key != key) {
+        if self
+            .layer
+            .as_ref()
+            .is_none_or(|layer| !layer.key.describes(camera, lighting, &instances[..statics]))
+        {
+            let key = StaticKey::of(camera, lighting, &instances[..statics]);
             self.visibility(camera, &instances[..statics], lighting);
             let rgb = self.shade_srgb(camera, &instances[..statics], lighting);
             self.layer = Some(StaticLayer {
