@@ -325,6 +325,11 @@ pub struct ConvertArgs {
     /// Continue an interrupted conversion into --out (same input and options).
     #[arg(long)]
     resume: bool,
+    /// This machine's part of the input's episodes, I/N (0-based): N machines with I = 0..N-1
+    /// each convert the I-th contiguous range into its own complete dataset; `merge` joins them
+    /// into what one conversion writes (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT).
+    #[arg(long, default_value = "0/1")]
+    shard: surgvla::export::shard::Shard,
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
@@ -389,6 +394,10 @@ fn converted_source(
     };
     let mut source = surgvla::export::open_source_with(&args.input, &source_options)
         .map_err(ConvertError::Read)?;
+    if args.shard != surgvla::export::shard::Shard::default() {
+        // Usage: a shard past the input's episodes, or an input that is itself a shard.
+        source = Box::new(surgvla::export::shard::Sharded::new(source, args.shard)?);
+    }
     if !args.without.is_empty() {
         source = Box::new(surgvla::export::convert::Without::new(
             source,
@@ -478,8 +487,9 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
 
 #[derive(Args, Debug)]
 pub struct MergeArgs {
-    /// The LeRobot datasets to merge (e.g. the outputs of `collect --shard I/N`; shards are put
-    /// in shard order).
+    /// The datasets to merge, all of one format: LeRobot, RLDS, zarr, PLY/PCD or MCAP folders
+    /// (e.g. the outputs of `collect --shard I/N` or `convert --shard I/N`; shards are put in
+    /// shard order, other datasets kept in the order given).
     #[arg(required = true, num_args = 1..)]
     inputs: Vec<PathBuf>,
     /// Output folder (must not exist or be empty).
@@ -488,7 +498,8 @@ pub struct MergeArgs {
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
-    /// Continue an interrupted merge into --out (the same inputs).
+    /// Continue an interrupted merge into --out (the same inputs; LeRobot and RLDS: zarr,
+    /// point-cloud and MCAP merges start again in an empty folder).
     #[arg(long)]
     resume: bool,
     /// Recompute the pixel statistics of video features another tool wrote (whose metadata

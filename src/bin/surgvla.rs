@@ -64,8 +64,9 @@ enum Command {
     /// Measure the experts' success rates as `collect` would run them (same attempts and replay
     /// check) without rendering or writing: the quick check of a new or edited plan.
     Experts(episodes::ExpertsArgs),
-    /// Merge LeRobot datasets (the outputs of `collect --shard I/N`, or any compatible ones)
-    /// into one: episodes re-indexed, statistics recomputed, files rolled by size.
+    /// Merge datasets of one format (the outputs of `collect --shard I/N` or `convert --shard
+    /// I/N`, or any compatible ones) into one: episodes re-indexed, files rolled as one run rolls
+    /// them; all N shards merged are the single run's bytes.
     Merge(formats::MergeArgs),
     /// Score a policy in closed loop on the tasks: a VLA behind openpi's policy-server protocol
     /// (`--policy ws://HOST:PORT`) or a built-in reference (expert, replay, random, noop);

@@ -4,59 +4,9 @@
 
 use crate::collect::record::RecordOptions;
 use crate::episode::Episode;
+pub use crate::export::shard::{BadShard, Shard};
 use crate::task::TaskId;
 use serde::Serialize;
-use std::fmt;
-use std::str::FromStr;
-
-/// One part of a collection split across machines: `index` of `count` (0-based).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Shard {
-    pub index: u32,
-    pub count: u32,
-}
-
-impl Default for Shard {
-    fn default() -> Self {
-        Shard { index: 0, count: 1 }
-    }
-}
-
-/// A shard written other than "I/N" with I < N.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error(
-    "shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
-)]
-pub struct BadShard(pub String);
-
-impl FromStr for Shard {
-    type Err = BadShard;
-
-    fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let bad = || BadShard(text.to_string());
-        let (i, n) = text.split_once('/').ok_or_else(bad)?;
-        let index: u32 = i.trim().parse().map_err(|_| bad())?;
-        let count: u32 = n.trim().parse().map_err(|_| bad())?;
-        if count == 0 || index >= count {
-            return Err(bad());
-        }
-        Ok(Shard { index, count })
-    }
-}
-
-impl fmt::Display for Shard {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl Shard {
-    /// This shard's contiguous part of `0..total`.
-    pub fn range(&self, total: usize) -> std::ops::Range<usize> {
-        let part = |i: u32| (total as u128 * u128::from(i) / u128::from(self.count)) as usize;
-        part(self.index)..part(self.index + 1)
-    }
-}
 
 /// One episode slot: the `k`-th episode of `task`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

@@ -171,6 +171,10 @@ impl EpisodeSource for Without {
         Some(episode.map(|e| self.strip(e)))
     }
 
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.inner.skip_episode()
+    }
+
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
     }

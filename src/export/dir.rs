@@ -193,12 +193,30 @@ impl RunOptions {
         self.0.extend(other.0);
     }
 
-    /// CRC-32C of the options' canonical JSON (keys sorted), 8 hex digits.
-    pub fn digest(&self) -> String {
-        // The input's identity decides what may be resumed, not the bytes written.
+    /// The options that shape the bytes: all but [`RunOptions::INPUT`] (the input's identity
+    /// decides what may be resumed, not the bytes written), as a JSON object, keys sorted.
+    pub fn shaping(&self) -> Value {
         let mut shaping = self.0.clone();
         shaping.remove(Self::INPUT);
-        let text = serde_json::to_string(&shaping).unwrap_or_default();
+        Value::Object(shaping.into_iter().collect())
+    }
+
+    /// The options a dataset's manifest records ([`RunOptions::shaping`]); empty when it
+    /// records none (a dataset written before manifests did).
+    pub fn from_manifest(manifest: &Value) -> RunOptions {
+        let mut options = RunOptions::default();
+        options.extend_from(&manifest["options"]);
+        options
+    }
+
+    /// The value of `option`, if set.
+    pub fn get(&self, option: &str) -> Option<&Value> {
+        self.0.get(option)
+    }
+
+    /// CRC-32C of the options' canonical JSON (keys sorted), 8 hex digits.
+    pub fn digest(&self) -> String {
+        let text = serde_json::to_string(&self.shaping()).unwrap_or_default();
         format!("{:08x}", crc32c::crc32c(text.as_bytes()))
     }
 
@@ -813,9 +831,12 @@ impl DatasetDir {
         let mut files = self.files.clone();
         files.retain(|f| f.path != relative);
         files.sort_by(|a, b| a.path.cmp(&b.path));
+        // The options themselves, so that a merge can check its inputs agree and write what
+        // one run writes (RunOptions::from_manifest).
         let manifest = serde_json::json!({
             "checksum": "crc32c",
             "options_digest": self.options.digest(),
+            "options": self.options.shaping(),
             "files": files,
         });
         let text = serde_json::to_vec_pretty(&manifest).map_err(|source| ExportError::Json {

@@ -91,6 +91,10 @@ impl EpisodeSource for Identified {
         self.inner.next_episode()
     }
 
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.inner.skip_episode()
+    }
+
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
     }

@@ -32,12 +32,14 @@ pub mod image;
 pub mod info;
 pub mod lerobot;
 pub mod mcap;
+pub mod merge;
 pub(crate) mod mp4scan;
 pub mod paths;
 pub mod pointcloud;
 pub mod registry;
 pub mod rlds;
 pub mod schema;
+pub mod shard;
 pub mod stats;
 pub mod tiff;
 pub mod validate;
@@ -410,6 +412,12 @@ pub trait EpisodeSource {
     /// again says so before reading, so that no episode in flight holds its frames twice.
     /// Sources that keep none ignore it.
     fn drop_stored(&mut self, _unused: &[crate::episode::ImageEncoding]) {}
+    /// Passes over the next episode (None after the last): what a shard does with the
+    /// episodes before its range. Reading and dropping it by default; a source that can skip
+    /// without decoding does so.
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.next_episode().map(|e| e.map(|_| ()))
+    }
 }
 
 /// A format and its own options.

@@ -93,7 +93,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
             path: first,
             format: found.format.name(),
             operation: "merge",
-            handled: "LeRobot datasets",
+            handled: "LeRobot, RLDS, zarr, PLY/PCD and MCAP datasets",
         }))
     })
 }

@@ -142,3 +142,186 @@ fn a_killed_merge_resumes_to_the_uninterrupted_dataset() {
     };
     assert!(files(&killed) == files(&reference), "resumed merge differs");
 }
+
+/// The converted dataset's files, every one (conversions write no report).
+fn converted(input: &Path, to: &[&str], shard: Option<&str>) -> crate::util::TempRoot {
+    let out = temp_root("merge-converted");
+    let mut args = vec!["convert", path(input), "--out", path(&out)];
+    args.extend(to);
+    if let Some(shard) = shard {
+        args.extend(["--shard", shard]);
+    }
+    let (code, _, err) = surgvla(&args);
+    assert_eq!(code, 0, "{args:?}: {err}");
+    out
+}
+
+/// `convert --shard I/N` into each format that has a dataset folder, merged (shards given in
+/// reverse): the single conversion's bytes, every file.
+#[test]
+fn converted_shards_of_every_format_merge_into_the_single_conversion() {
+    let input = temp_root("merge-convert-input");
+    collect(&input, &[]);
+    let targets: [&[&str]; 6] = [
+        &["--to", "rlds", "--rlds-shard-mb", "1"],
+        &["--to", "zarr", "--zarr-images"],
+        &["--to", "ply"],
+        &["--to", "pcd"],
+        &["--to", "mcap"],
+        &["--to", "lerobot"],
+    ];
+    for to in targets {
+        let single = converted(&input, to, None);
+        let expected = tree(&single);
+        for n in [2u32, 3] {
+            let shards: Vec<_> = (0..n)
+                .map(|i| converted(&input, to, Some(&format!("{i}/{n}"))))
+                .collect();
+            let out = temp_root("merge-converted-out");
+            let mut args = vec!["merge"];
+            args.extend(shards.iter().rev().map(|s| path(s)));
+            args.extend(["--out", path(&out)]);
+            let (code, stdout, err) = surgvla(&args);
+            assert_eq!(code, 0, "{to:?} N = {n}: {err}");
+            assert!(stdout.contains("4 episodes"), "{stdout}");
+            let merged = tree(&out);
+            assert_eq!(
+                merged.keys().collect::<Vec<_>>(),
+                expected.keys().collect::<Vec<_>>(),
+                "{to:?} N = {n}"
+            );
+            for (name, bytes) in &expected {
+                assert!(merged[name] == *bytes, "{to:?} N = {n}: {name} differs");
+            }
+            let (code, _, err) = surgvla(&["validate", path(&out)]);
+            assert_eq!(code, 0, "{to:?}: {err}");
+        }
+    }
+}
+
+/// Collected shards in RLDS and zarr merge into the single run, the report merged beside.
+#[test]
+fn collected_rlds_and_zarr_shards_merge_into_the_single_run() {
+    for format in [&["--format", "rlds"][..], &["--format", "zarr"][..]] {
+        let single = temp_root("merge-collect-single");
+        collect(&single, format);
+        let shards: Vec<_> = (0..2)
+            .map(|i| {
+                let shard = temp_root("merge-collect-shard");
+                let mut extra = format.to_vec();
+                let label = format!("{i}/2");
+                extra.extend(["--shard", &label]);
+                collect(&shard, &extra);
+                shard
+            })
+            .collect();
+        let out = temp_root("merge-collect-out");
+        let (code, _, err) = surgvla(&[
+            "merge",
+            path(&shards[1]),
+            path(&shards[0]),
+            "--out",
+            path(&out),
+        ]);
+        assert_eq!(code, 0, "{format:?}: {err}");
+        assert!(
+            dataset(&out) == dataset(&single),
+            "{format:?}: merged differs"
+        );
+        let report: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(out.join("collect_report.json")).expect("report"),
+        )
+        .expect("json");
+        assert_eq!(report["episodes"], 4, "{format:?}");
+        assert_eq!(report["shard"], "0/1", "{format:?}");
+    }
+}
+
+/// Shards that differ in an option that shapes the bytes are refused naming it, as is a
+/// dataset whose manifest records no options, a shard past the input's episodes and the
+/// sharding of a shard; nothing is written.
+#[test]
+fn merging_other_formats_refuses_what_cannot_make_one_run() {
+    let input = temp_root("merge-refuse-input");
+    collect(&input, &[]);
+    let a = converted(&input, &["--to", "zarr"], Some("0/2"));
+    let b = converted(&input, &["--to", "zarr", "--points", "512"], Some("1/2"));
+    let out = temp_root("merge-refuse-out");
+    let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&out)]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("cloud_points"), "{err}");
+    assert!(!out.exists());
+
+    let old = converted(&input, &["--to", "ply"], Some("1/2"));
+    let manifest = old.join("surgvla_manifest.json");
+    let mut value: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&manifest).expect("manifest")).expect("json");
+    value.as_object_mut().expect("object").remove("options");
+    std::fs::write(&manifest, serde_json::to_vec_pretty(&value).expect("json")).expect("write");
+    let first = converted(&input, &["--to", "ply"], Some("0/2"));
+    let (code, _, err) = surgvla(&["merge", path(&first), path(&old), "--out", path(&out)]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("records no options"), "{err}");
+    assert!(!out.exists());
+
+    let (code, _, err) = surgvla(&[
+        "convert",
+        path(&input),
+        "--to",
+        "rlds",
+        "--shard",
+        "0/5",
+        "--out",
+        path(&out),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("would hold no episode"), "{err}");
+    assert!(!out.exists());
+    let shard = converted(&input, &["--to", "rlds"], Some("0/2"));
+    let (code, _, err) = surgvla(&[
+        "convert",
+        path(&shard),
+        "--to",
+        "zarr",
+        "--shard",
+        "0/2",
+        "--out",
+        path(&out),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("itself shard 0/2"), "{err}");
+    assert!(!out.exists());
+}
+
+/// A damaged chunk or frame file in an input fails the merge naming the file (exit 1), and the
+/// output is left marked incomplete, never looking finished.
+#[test]
+fn a_damaged_input_file_fails_the_merge_naming_it() {
+    let input = temp_root("merge-damaged-input");
+    collect(&input, &[]);
+    let cases = [
+        ("zarr", "data/state/0.0"),
+        ("pcd", "episode_000001/frame_000003.pcd"),
+        ("mcap", "episode_000001.mcap"),
+    ];
+    for (to, damaged) in cases {
+        let a = converted(&input, &["--to", to], Some("0/2"));
+        let b = converted(&input, &["--to", to], Some("1/2"));
+        let file = b.join(damaged);
+        let bytes = std::fs::read(&file).expect("file");
+        if to != "pcd" {
+            std::fs::write(&file, &bytes[..bytes.len() / 2]).expect("truncate");
+        } else {
+            std::fs::remove_file(&file).expect("remove");
+        }
+        let out = temp_root("merge-damaged-out");
+        let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&out)]);
+        assert_ne!(code, 0, "{to}: {err}");
+        assert!(err.contains(damaged), "{to}: {err}");
+        let complete = out.exists() && !out.join(surgvla::export::INCOMPLETE_MARKER).exists();
+        assert!(
+            !complete || tree(&out).is_empty(),
+            "{to}: the output looks complete"
+        );
+    }
+}

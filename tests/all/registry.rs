@@ -84,7 +84,7 @@ fn validate_and_convert_agree_on_every_input() {
             }
         }
     }
-    // merge joins LeRobot datasets only, and one format at a time.
+    // merge joins every format, one format at a time (and the same run once).
     let (code, _, stderr) = surgvla(&[
         "merge",
         path(&root.join("rlds")),
@@ -93,7 +93,7 @@ fn validate_and_convert_agree_on_every_input() {
         path(&root.join("merged")),
     ]);
     assert_eq!(code, 2, "{stderr}");
-    assert!(stderr.contains("merge does not handle rlds"), "{stderr}");
+    assert!(stderr.contains("both are shard \"0/1\""), "{stderr}");
     let (code, _, stderr) = surgvla(&[
         "merge",
         path(&lerobot),

@@ -148,6 +148,14 @@ impl EpisodeSource for Decoded {
         self.ready.pop_front()
     }
 
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        match self.ready.pop_front() {
+            Some(episode) => Some(episode.map(|_| ())),
+            None if self.drained => None,
+            None => self.inner.skip_episode(),
+        }
+    }
+
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
     }

@@ -15,11 +15,10 @@ use crate::export::format::{MergeError, MergeRequest};
 use crate::export::lerobot::read::LeRobotSource;
 use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
 use crate::export::{DatasetInfo, EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
-use serde_json::{Value, json};
+use serde_json::Value;
 use std::path::{Path, PathBuf};
 
-/// The report file `collect` leaves in a dataset, merged when every input has one.
-pub const REPORT: &str = "collect_report.json";
+pub use crate::export::merge::REPORT;
 
 /// What of an input's info.json shapes the merged files: all inputs must agree on it.
 #[derive(Debug, PartialEq, serde::Serialize)]
@@ -284,15 +283,8 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let shard = info.collection["shard"].clone();
     let summary = match reports {
         Some(reports) => {
-            let mut sidecar = |summary: &Summary| -> Result<(String, Vec<u8>), ExportError> {
-                let report = merge_reports(&reports, summary, &shard);
-                let bytes =
-                    serde_json::to_vec_pretty(&report).map_err(|source| ExportError::Json {
-                        path: REPORT.into(),
-                        source,
-                    })?;
-                Ok((REPORT.to_string(), bytes))
-            };
+            let mut sidecar =
+                |summary: &Summary| crate::export::merge::report_bytes(&reports, summary, &shard);
             sink.finish_with(Some(&mut sidecar))
         }
         None => sink.finish(),
@@ -309,66 +301,4 @@ fn exact(batch: &mut [crate::episode::Episode], info: &DatasetInfo) -> Result<()
         .par_iter_mut()
         .try_for_each(|episode| crate::export::decode::exact_video_stats(episode, info))
         .map_err(|e| MergeError::Convert(ConvertError::Read(e)))
-}
-
-/// One collect report of several: counts summed per task (in order of first appearance),
-/// rates recomputed, failures concatenated, the slot range spanning them all, the merged
-/// dataset's summary, timings summed.
-fn merge_reports(reports: &[Value], summary: &Summary, shard: &Value) -> Value {
-    let mut merged = reports.first().cloned().unwrap_or(Value::Null);
-    let sum = |key: &str| -> u64 { reports.iter().filter_map(|r| r[key].as_u64()).sum() };
-    let mut tasks: Vec<Value> = Vec::new();
-    for report in reports {
-        for task in report["tasks"].as_array().into_iter().flatten() {
-            match tasks.iter_mut().find(|t| t["code"] == task["code"]) {
-                Some(total) => {
-                    for key in [
-                        "episodes",
-                        "frames",
-                        "attempts",
-                        "expert_successes",
-                        "replay_failures",
-                    ] {
-                        let value =
-                            total[key].as_u64().unwrap_or(0) + task[key].as_u64().unwrap_or(0);
-                        total[key] = value.into();
-                    }
-                }
-                None => tasks.push(task.clone()),
-            }
-        }
-    }
-    for task in &mut tasks {
-        let attempts = task["attempts"].as_u64().unwrap_or(0);
-        let successes = task["expert_successes"].as_u64().unwrap_or(0);
-        task["expert_success_rate"] = if attempts > 0 {
-            (successes as f64 / attempts as f64).into()
-        } else {
-            0.0.into()
-        };
-    }
-    let failures: Vec<Value> = reports
-        .iter()
-        .flat_map(|r| r["failures"].as_array().cloned().unwrap_or_default())
-        .collect();
-    let range = |k: usize| {
-        reports
-            .iter()
-            .filter_map(move |r| r["slot_range"][k].as_u64())
-    };
-    merged["shard"] = shard.clone();
-    merged["slot_range"] = json!([range(0).min(), range(1).max()]);
-    merged["episodes"] = sum("episodes").into();
-    merged["frames"] = sum("frames").into();
-    merged["tasks"] = tasks.into();
-    merged["failures"] = failures.into();
-    merged["resumed_at_episode"] = Value::Null;
-    merged["dataset"] = serde_json::to_value(summary).unwrap_or(Value::Null);
-    merged["merged_from"] = reports.len().into();
-    let wall: f64 = reports
-        .iter()
-        .filter_map(|r| r["timing"]["wall_secs"].as_f64())
-        .sum();
-    merged["timing"] = json!({"wall_secs_summed_over_inputs": wall});
-    merged
 }

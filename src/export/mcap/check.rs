@@ -124,7 +124,7 @@ fn overlong_record(bytes: &[u8], mut at: usize) -> Option<(usize, u8, u64)> {
 /// [`MAX_CHUNK_BYTES`], an uncompressed chunk whose size disagrees with its records, or a record
 /// inside a chunk running past the chunk's end. Top-level records cut short, and chunks that do
 /// not decompress, are left to the reader, which reports them.
-fn chunks_problem(bytes: &[u8]) -> Option<String> {
+pub(super) fn chunks_problem(bytes: &[u8]) -> Option<String> {
     const MAGIC_LEN: usize = 8;
     const CHUNK: u8 = 0x06;
     let mut at = MAGIC_LEN;

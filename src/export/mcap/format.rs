@@ -2,9 +2,9 @@
 //! folder of them. Validated and written; surgvla does not read it back as episodes.
 
 use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, Probe, Sniff};
+use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, SinkOptions};
+use crate::export::{EpisodeSink, ExportError, SinkOptions, Summary};
 use std::path::Path;
 
 /// An MCAP file's first bytes.
@@ -53,5 +53,9 @@ impl DatasetFormat for McapFormat {
             return Err(ExportError::Internal("not MCAP options".into()));
         };
         super::McapWriter::boxed(root, info, *options, resuming)
+    }
+
+    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
+        Some(super::merge::merge(request))
     }
 }

@@ -16,6 +16,7 @@
 
 pub mod check;
 mod format;
+mod merge;
 
 pub use format::McapFormat;
 pub mod messages;
@@ -90,6 +91,18 @@ fn encoded<T: Encode>(message: &T) -> Result<Vec<u8>, ExportError> {
     Ok(bytes)
 }
 
+/// A writer into memory as every episode's file is written: zstd chunks compressed on this
+/// thread, no profile, `library` in the header.
+fn new_writer(library: &str) -> Result<mcap::Writer<std::io::Cursor<Vec<u8>>>, ExportError> {
+    mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .compression_threads(0)
+        .profile("")
+        .library(library)
+        .create(std::io::Cursor::new(Vec::new()))
+        .map_err(mcap_error("writer"))
+}
+
 /// The MCAP file of one episode; `scene`, when given, goes on `/scene` once at the start (the
 /// simulator's recorder has it, a dataset does not).
 pub fn record_episode(
@@ -105,14 +118,7 @@ pub fn record_episode(
     } else {
         None
     };
-    let write_options = mcap::WriteOptions::new()
-        .compression(Some(mcap::Compression::Zstd))
-        .compression_threads(0)
-        .profile("")
-        .library(info.generator.clone());
-    let mut writer = write_options
-        .create(std::io::Cursor::new(Vec::new()))
-        .map_err(mcap_error("writer"))?;
+    let mut writer = new_writer(&info.generator)?;
     let meta = &episode.meta;
     let provenance: BTreeMap<String, String> = [
         ("episode_index", meta.index.to_string()),

@@ -1,12 +1,12 @@
 //! Point-cloud files in the format registry: a folder whose `surgvla.json` states a
-//! `point_cloud.file_format` (PLY or PCD). Validated and written; surgvla does not read clouds
-//! back as episodes.
+//! `point_cloud.file_format` (PLY or PCD). Validated, written and merged (files copied under new
+//! episode numbers, `merge.rs`); surgvla does not read clouds back as episodes.
 
 use super::files::{CloudFileFormat, SURGVLA_JSON};
 use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, Probe, Sniff};
+use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, SinkOptions, read_json};
+use crate::export::{EpisodeSink, ExportError, SinkOptions, Summary, read_json};
 use std::path::Path;
 
 /// The largest `surgvla.json` sniffing reads (ours are a few kilobytes).
@@ -69,5 +69,9 @@ impl DatasetFormat for CloudFilesFormat {
             return Err(ExportError::Internal("not point-cloud options".into()));
         };
         super::files::CloudFilesWriter::boxed(root, info, (*format, *settings), resuming)
+    }
+
+    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
+        Some(super::merge::merge(request))
     }
 }

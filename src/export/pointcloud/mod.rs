@@ -17,6 +17,7 @@
 pub mod check;
 pub mod files;
 mod format;
+mod merge;
 pub mod pcd;
 pub mod ply;
 

@@ -194,4 +194,9 @@ impl EpisodeSource for ForeignRldsSource {
         self.records
             .next_decoded(|bytes| Self::decode(columns, bytes, index))
     }
+
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.next_index += 1;
+        self.records.next_decoded(|_| Ok(()))
+    }
 }

@@ -4,9 +4,9 @@
 //! own `features.json` ([`super::foreign::ForeignRldsSource`]) and need a frame rate.
 
 use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, Holds, Probe, Sniff};
+use crate::export::format::{DatasetFormat, Found, Holds, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions};
+use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions, Summary};
 use std::path::Path;
 
 /// RLDS in the TFDS layout.
@@ -71,22 +71,10 @@ impl DatasetFormat for RldsFormat {
         found: &Found,
         options: &SourceOptions,
     ) -> Option<Result<Box<dyn EpisodeSource + Send>, ExportError>> {
-        Some(open_source(&found.root, options))
+        Some(super::open_any(&found.root, options))
     }
-}
 
-fn open_source(
-    folder: &Path,
-    options: &SourceOptions,
-) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
-    if folder.join(super::SURGVLA_JSON).is_file() {
-        return Ok(Box::new(super::read::RldsSource::open(folder)?));
+    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
+        Some(super::merge::merge(request))
     }
-    let fps = options.fps.ok_or_else(|| ExportError::NoFrameRate {
-        path: folder.to_path_buf(),
-    })?;
-    let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
-    Ok(Box::new(super::foreign::ForeignRldsSource::open(
-        folder, fps, robot_type,
-    )?))
 }

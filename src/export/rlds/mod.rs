@@ -23,6 +23,7 @@ pub mod features;
 pub mod foreign;
 mod format;
 pub mod generic;
+pub mod merge;
 mod openvla;
 pub mod read;
 pub mod record;
@@ -176,6 +177,30 @@ impl RldsOptions {
             options.set("rlds_jpeg_quality", quality.into());
         }
         options
+    }
+
+    /// The options a dataset recorded ([`RldsOptions::run_options`], in its manifest); None
+    /// when an option is missing or not of its type.
+    pub fn from_run_options(run: &RunOptions) -> Option<RldsOptions> {
+        let text = |key: &str| run.get(key)?.as_str().map(String::from);
+        let png = match text("png")?.as_str() {
+            "Fast" => PngLevel::Fast,
+            "Default" => PngLevel::Default,
+            "Best" => PngLevel::Best,
+            _ => return None,
+        };
+        let jpeg_quality = match run.get("rlds_jpeg_quality") {
+            None => None,
+            Some(quality) => Some(u8::try_from(quality.as_u64()?).ok()?),
+        };
+        Some(RldsOptions {
+            name: text("rlds_name")?,
+            version: text("rlds_version")?,
+            shard_size_mb: run.get("rlds_shard_mb")?.as_u64()?,
+            png,
+            keys: serde_json::from_value(run.get("rlds_keys")?.clone()).ok()?,
+            jpeg_quality,
+        })
     }
 
     /// The version folder, relative to the output folder.
@@ -453,6 +478,24 @@ impl EpisodeEncoder<Vec<u8>> for (&RldsShards, &DatasetInfo) {
     }
 }
 
+/// Reads an RLDS version folder: ours (with `surgvla.json`), or another tool's through its own
+/// `features.json`, which needs `options.fps`.
+pub fn open_any(
+    folder: &std::path::Path,
+    options: &crate::export::SourceOptions,
+) -> Result<Box<dyn crate::export::EpisodeSource + Send>, ExportError> {
+    if folder.join(SURGVLA_JSON).is_file() {
+        return Ok(Box::new(read::RldsSource::open(folder)?));
+    }
+    let fps = options.fps.ok_or_else(|| ExportError::NoFrameRate {
+        path: folder.to_path_buf(),
+    })?;
+    let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
+    Ok(Box::new(foreign::ForeignRldsSource::open(
+        folder, fps, robot_type,
+    )?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -472,6 +515,25 @@ mod tests {
         assert!(with(&|o| o.keys.state = "image".into()).is_err());
         assert!(with(&|o| o.keys.image = "a/b".into()).is_err());
         assert!(with(&|o| o.keys.image = "agentview_rgb".into()).is_ok());
+    }
+
+    #[test]
+    fn options_are_read_back_from_what_a_dataset_records() {
+        let options = RldsOptions {
+            name: "other".into(),
+            shard_size_mb: 3,
+            png: PngLevel::Best,
+            jpeg_quality: Some(90),
+            ..RldsOptions::default()
+        };
+        let read = RldsOptions::from_run_options(&options.run_options());
+        assert_eq!(read, Some(options));
+        let default = RldsOptions::default();
+        assert_eq!(
+            RldsOptions::from_run_options(&default.run_options()),
+            Some(default)
+        );
+        assert_eq!(RldsOptions::from_run_options(&RunOptions::default()), None);
     }
 
     #[test]

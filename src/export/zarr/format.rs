@@ -1,10 +1,11 @@
 //! The DP3 zarr store in the format registry: a folder with `.zgroup`, `.zarray` or `.zattrs`.
-//! Validated and written; surgvla does not read it back as episodes.
+//! Validated, written and merged (chunks re-packed, `merge.rs`); surgvla does not read it back
+//! as episodes.
 
 use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, Probe, Sniff};
+use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, SinkOptions};
+use crate::export::{EpisodeSink, ExportError, SinkOptions, Summary};
 use std::path::Path;
 
 /// The DP3 zarr v2 store.
@@ -45,5 +46,9 @@ impl DatasetFormat for ZarrFormat {
             return Err(ExportError::Internal("not zarr options".into()));
         };
         super::ZarrWriter::boxed(root, info, *options, resuming)
+    }
+
+    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
+        Some(super::merge::merge(request))
     }
 }

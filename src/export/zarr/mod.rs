@@ -15,6 +15,7 @@
 pub mod array;
 pub mod check;
 mod format;
+mod merge;
 
 pub use format::ZarrFormat;
 

@@ -1,0 +1,282 @@
+//! Splitting one run across machines: [`Shard`] ("I/N", the I-th of N contiguous ranges, what
+//! `collect --shard` and `convert --shard` take), and [`Sharded`], the source that reads one
+//! shard of a dataset's episodes. Shards in order hold exactly the episodes of the whole run,
+//! and `merge` joins them back ([`crate::export::merge`]).
+//!
+//! A shard records itself where the dataset records how it was made: the `shard` key of its
+//! collection ([`crate::export::DatasetInfo::collection`]), so a merge can put shards in order
+//! and, given all N of N, say "0/1" again, as the single run does. A dataset another tool made
+//! has no collection: its shards record nothing, and a merge keeps the order it is given.
+
+use crate::episode::Episode;
+use crate::export::{DatasetInfo, EpisodeSource, ExportError};
+use std::fmt;
+use std::str::FromStr;
+
+/// One part of a collection split across machines: `index` of `count` (0-based).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Default for Shard {
+    fn default() -> Self {
+        Shard { index: 0, count: 1 }
+    }
+}
+
+/// A shard written other than "I/N" with I < N.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
+)]
+pub struct BadShard(pub String);
+
+impl FromStr for Shard {
+    type Err = BadShard;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let bad = || BadShard(text.to_string());
+        let (i, n) = text.split_once('/').ok_or_else(bad)?;
+        let index: u32 = i.trim().parse().map_err(|_| bad())?;
+        let count: u32 = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl Shard {
+    /// This shard's contiguous part of `0..total`.
+    pub fn range(&self, total: usize) -> std::ops::Range<usize> {
+        let part = |i: u32| (total as u128 * u128::from(i) / u128::from(self.count)) as usize;
+        part(self.index)..part(self.index + 1)
+    }
+}
+
+/// The collection key a shard records itself under.
+pub const SHARD_KEY: &str = "shard";
+
+/// The shard a dataset's collection says it is (None: it says nothing, or not "I/N").
+pub fn recorded(collection: &serde_json::Value) -> Option<Shard> {
+    collection[SHARD_KEY].as_str()?.parse().ok()
+}
+
+/// One shard of a source's episodes, numbered from 0 again; its info's collection says which
+/// shard it is (when the dataset has a collection).
+pub struct Sharded {
+    inner: Box<dyn EpisodeSource + Send>,
+    info: DatasetInfo,
+    range: std::ops::Range<u64>,
+    /// Episodes of `inner` read so far (skipped or returned).
+    read: u64,
+}
+
+impl Sharded {
+    /// The `shard` of `inner`'s episodes. Refuses a shard that would hold no episode, and a
+    /// dataset that is itself a part of a larger run (its collection says a shard other than
+    /// "0/1": merge the parts first).
+    pub fn new(inner: Box<dyn EpisodeSource + Send>, shard: Shard) -> Result<Self, ExportError> {
+        let total = inner.len();
+        let range = shard.range(total as usize);
+        let range = range.start as u64..range.end as u64;
+        if range.is_empty() {
+            return Err(ExportError::InvalidOptions(format!(
+                "shard {shard} would hold no episode: the input has {total}; use at most {total} shards"
+            )));
+        }
+        let mut info = inner.info().clone();
+        if let Some(collection) = info.collection.as_object_mut() {
+            if let Some(part) = collection.get(SHARD_KEY).and_then(|s| s.as_str())
+                && part != Shard::default().to_string()
+            {
+                return Err(ExportError::InvalidOptions(format!(
+                    "the input is itself shard {part} of a larger run: merge its shards first, then shard the whole"
+                )));
+            }
+            collection.insert(SHARD_KEY.into(), shard.to_string().into());
+        }
+        Ok(Sharded {
+            inner,
+            info,
+            range,
+            read: 0,
+        })
+    }
+}
+
+impl EpisodeSource for Sharded {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn len(&self) -> u64 {
+        self.range.end - self.range.start
+    }
+
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        while self.read < self.range.start {
+            match self.inner.skip_episode()? {
+                Ok(()) => self.read += 1,
+                Err(error) => return Some(Err(error)),
+            }
+        }
+        if self.read >= self.range.end {
+            return None;
+        }
+        let episode = self.inner.next_episode()?;
+        self.read += 1;
+        let start = self.range.start;
+        Some(episode.map(|mut e| {
+            e.meta.index -= start;
+            e
+        }))
+    }
+
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.next_episode().map(|e| e.map(|_| ()))
+    }
+
+    fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
+        self.inner.drop_stored(unused);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::EpisodeMeta;
+    use serde_json::json;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    /// Episodes 0..total with nothing in them; counts what was decoded and what skipped.
+    struct Numbers {
+        info: DatasetInfo,
+        total: u64,
+        next: u64,
+        decoded: Arc<AtomicU64>,
+        skipped: Arc<AtomicU64>,
+    }
+
+    fn numbers(total: u64, collection: serde_json::Value) -> Numbers {
+        let surgvla = json!({ "collection": collection });
+        Numbers {
+            info: DatasetInfo::from_surgvla_json(&surgvla, 5, "robot", Vec::new()),
+            total,
+            next: 0,
+            decoded: Arc::default(),
+            skipped: Arc::default(),
+        }
+    }
+
+    impl EpisodeSource for Numbers {
+        fn info(&self) -> &DatasetInfo {
+            &self.info
+        }
+
+        fn len(&self) -> u64 {
+            self.total
+        }
+
+        fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+            (self.next < self.total).then(|| {
+                self.next += 1;
+                self.decoded.fetch_add(1, Ordering::Relaxed);
+                Ok(Episode {
+                    meta: EpisodeMeta {
+                        index: self.next - 1,
+                        task_code: "T1-1".into(),
+                        task_name: "gauze_pick".into(),
+                        level: 1,
+                        instruction: String::new(),
+                        seed: self.next - 1,
+                        attempts: 1,
+                        success: true,
+                    },
+                    steps: Vec::new(),
+                    encoded: Vec::new(),
+                })
+            })
+        }
+
+        fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+            (self.next < self.total).then(|| {
+                self.next += 1;
+                self.skipped.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            })
+        }
+    }
+
+    /// Seeded sizes: the shards of 1..=40 episodes in N = 1..=total parts hold every episode
+    /// once, in order, each numbered from 0, decoding only its own.
+    #[test]
+    fn shards_in_order_hold_every_episode_once_and_decode_only_their_own() {
+        let mut rng = crate::rng::SplitMix64::new(27);
+        for _ in 0..60 {
+            let total = 1 + rng.next_u64() % 40;
+            let count = 1 + (rng.next_u64() % total) as u32;
+            let mut seeds = Vec::new();
+            for index in 0..count {
+                let shard = Shard { index, count };
+                let inner = numbers(total, json!({"seed": 0, "shard": "0/1"}));
+                let (decoded, skipped) = (inner.decoded.clone(), inner.skipped.clone());
+                let mut sharded = Sharded::new(Box::new(inner), shard).expect("a shard");
+                assert_eq!(sharded.info().collection["shard"], shard.to_string());
+                assert_eq!(recorded(&sharded.info().collection), Some(shard));
+                let mut k = 0;
+                while let Some(episode) = sharded.next_episode() {
+                    let episode = episode.expect("episode");
+                    assert_eq!(episode.meta.index, k, "numbered from 0");
+                    seeds.push(episode.meta.seed);
+                    k += 1;
+                }
+                assert_eq!(k, sharded.len());
+                let range = shard.range(total as usize);
+                assert_eq!(decoded.load(Ordering::Relaxed), range.len() as u64);
+                assert_eq!(skipped.load(Ordering::Relaxed), range.start as u64);
+            }
+            assert_eq!(seeds, (0..total).collect::<Vec<_>>(), "{total} in {count}");
+        }
+        let source = numbers(10, serde_json::Value::Null);
+        let shard = Shard { index: 2, count: 3 };
+        let mut sharded = Sharded::new(Box::new(source), shard).expect("a shard");
+        assert!(
+            sharded.info().collection.is_null(),
+            "another tool's: nothing recorded"
+        );
+        let seeds: Vec<u64> = std::iter::from_fn(|| sharded.next_episode())
+            .map(|e| e.expect("episode").meta.seed)
+            .collect();
+        assert_eq!(seeds, [6, 7, 8, 9]);
+    }
+
+    #[test]
+    fn an_empty_shard_and_the_shard_of_a_shard_are_refused() {
+        let empty = Sharded::new(
+            Box::new(numbers(2, json!({}))),
+            Shard { index: 0, count: 3 },
+        );
+        assert!(
+            empty
+                .err()
+                .is_some_and(|e| e.to_string().contains("no episode"))
+        );
+        let part = numbers(4, json!({"shard": "1/2"}));
+        let nested = Sharded::new(Box::new(part), Shard { index: 0, count: 2 });
+        assert!(
+            nested
+                .err()
+                .is_some_and(|e| e.to_string().contains("itself shard 1/2"))
+        );
+    }
+}
