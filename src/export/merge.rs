@@ -270,6 +270,10 @@ pub fn merge_episode_files(
     for (relative, bytes) in metadata {
         dir.write_atomically(relative, bytes).map_err(write)?;
     }
+    if let Some(card) = merged_card(plan)? {
+        dir.write_atomically(crate::export::card::CARD, &card)
+            .map_err(write)?;
+    }
     let roots: Vec<&Path> = inputs.iter().map(|(root, _)| *root).collect();
     finish_folder(dir, manifest, (episodes, frames), &roots, plan)
 }
@@ -300,6 +304,34 @@ pub fn finish_folder(
     }
     dir.complete().map_err(write)?;
     Ok(summary)
+}
+
+/// The merged dataset's card, for merges that write their folders themselves: the first
+/// input's card with every input's tally added up and the merged shard
+/// ([`crate::export::card::retally`]); None when an input has no card of ours (a dataset
+/// written before cards: the merged one has none either).
+pub fn merged_card(plan: &Plan) -> Result<Option<Vec<u8>>, MergeError> {
+    use crate::export::card::{CARD, Tally, parse, retally};
+    let read = |e| MergeError::Convert(ConvertError::Read(e));
+    let mut first = None;
+    let mut tally = Tally::default();
+    for part in &plan.parts {
+        let path = part.path.join(CARD);
+        if !path.is_file() {
+            return Ok(None);
+        }
+        let bytes = crate::export::bounded::read_metadata(&path).map_err(read)?;
+        let text = String::from_utf8_lossy(&bytes).into_owned();
+        let Some(part_tally) = parse(&text) else {
+            return Ok(None);
+        };
+        tally.extend(&part_tally);
+        first.get_or_insert(text);
+    }
+    let shard = &plan.collection[SHARD_KEY];
+    Ok(first
+        .and_then(|card| retally(&card, &tally, shard))
+        .map(String::into_bytes))
 }
 
 /// The inputs' collect reports merged (see [`merge_reports`]) when every input has one.

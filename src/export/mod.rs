@@ -21,6 +21,7 @@
 //! [`convert`] copies any source into any sink.
 
 pub mod bounded;
+pub mod card;
 pub mod convert;
 pub mod decode;
 pub mod demux;

@@ -104,6 +104,12 @@ impl Sharded {
             }
             collection.insert(SHARD_KEY.into(), shard.to_string().into());
         }
+        // What a resume compares besides the options: another shard of the same input is
+        // another input (a dataset another tool made has no collection to say it).
+        info.input = Some(match &info.input {
+            Some(input) => format!("{input}, shard {shard}"),
+            None => format!("shard {shard}"),
+        });
         Ok(Sharded {
             inner,
             info,

@@ -37,5 +37,14 @@ pub fn validate(path: &Path, options: &ValidateOptions) -> Result<Report, Export
         .build()
         .map_err(|e| ExportError::Internal(format!("no worker threads: {e}")))?;
     let (episodes, frames) = pool.install(|| format.check(&found, options, &findings));
+    // The card sits in the dataset's folder: above an RLDS version folder, none for one file.
+    let folder = match found.format {
+        Format::Rlds => found.root.parent().and_then(Path::parent),
+        _ if found.root.is_file() => None,
+        _ => Some(found.root.as_path()),
+    };
+    if let Some(folder) = folder {
+        crate::export::card::check(folder, episodes, frames, &findings);
+    }
     Ok(findings.into_report(found.format, episodes, frames))
 }

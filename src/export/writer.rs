@@ -8,6 +8,7 @@
 //! episode is encoded, appended and finished.
 
 use crate::episode::{Episode, ImageEncoding};
+use crate::export::card::{CARD, TALLY_JOURNAL, Tally};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::{
@@ -33,6 +34,10 @@ pub trait FormatWriter: Send + Sized {
         Self: 'a;
     /// The manifest's path in the folder.
     const MANIFEST: &'static str;
+
+    /// What the dataset card says of the format: its name and data files
+    /// ([`crate::export::card`]).
+    fn card_format(&self) -> crate::export::card::CardFormat;
 
     /// Refuses options the dataset cannot have; returns what its bytes depend on (a resume
     /// with other values is refused).
@@ -218,6 +223,9 @@ where
         self.timing.encode_secs += (appending - started).as_secs_f64();
         let mut encoding_secs = 0.0;
         for (episode, encoded) in episodes.iter().zip(encoded) {
+            // The card's line first, so that a checkpoint the append makes holds it.
+            self.dir
+                .append(TALLY_JOURNAL, Tally::line(episode).as_bytes())?;
             encoding_secs += self
                 .format
                 .append(&mut self.dir, &self.info, episode, encoded)?;
@@ -248,6 +256,8 @@ where
                 .0
                 .downcast::<F::Encoded>()
                 .map_err(|_| ExportError::Internal("an episode encoded for another sink".into()))?;
+            self.dir
+                .append(TALLY_JOURNAL, Tally::line(episode).as_bytes())?;
             encoding_secs += self
                 .format
                 .append(&mut self.dir, &self.info, episode, *encoded)?;
@@ -278,6 +288,13 @@ where
             return Ok(summary.clone());
         }
         let mut summary = self.format.finish(&mut self.dir, &self.info)?;
+        let mut tally = Tally::default();
+        for line in self.dir.journal_lines(TALLY_JOURNAL)? {
+            tally.add_line(&line?);
+        }
+        let card = crate::export::card::render(&self.info, &tally, &self.format.card_format());
+        summary.bytes += self.dir.write_atomically(CARD, card.as_bytes())?;
+        summary.files += 1;
         summary.bytes += self.dir.write_manifest(F::MANIFEST)?;
         summary.files += 1;
         if let Some(make) = sidecar {

@@ -290,11 +290,25 @@ fn zarr_resumes_after_a_kill_at_each_point() {
             }
             if finishing {
                 // Killed just before the marker goes: the finish's files are written, the
-                // marker (with its checkpoint) is still there.
-                let marker = root.join(surgvla::export::INCOMPLETE_MARKER);
-                let saved = std::fs::read(&marker).expect("marker");
+                // marker (with its checkpoint) and the journals it names are still there.
+                let hidden: Vec<(std::path::PathBuf, Vec<u8>)> = std::fs::read_dir(&*root)
+                    .expect("dir")
+                    .flatten()
+                    .map(|e| e.path())
+                    .filter(|p| {
+                        p.file_name()
+                            .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+                    })
+                    .filter(|p| p.is_file())
+                    .map(|p| {
+                        let bytes = std::fs::read(&p).expect("hidden file");
+                        (p, bytes)
+                    })
+                    .collect();
                 sink.finish().expect("finish");
-                std::fs::write(&marker, saved).expect("marker back");
+                for (path, bytes) in hidden {
+                    std::fs::write(&path, bytes).expect("put back");
+                }
             }
         }
         let mut sink = open_sink(&root, &info, &options, true)

@@ -325,3 +325,114 @@ fn a_damaged_input_file_fails_the_merge_naming_it() {
         );
     }
 }
+
+/// An RLDS merge killed after a closed shard resumes to the bytes of an uninterrupted one.
+#[test]
+fn a_killed_rlds_merge_resumes_to_the_uninterrupted_dataset() {
+    let parent = temp_root("merge-rlds-killed");
+    let shard = |i: usize| parent.join(format!("shard-{i}"));
+    for i in 0..2 {
+        let label = format!("{i}/2");
+        let out = shard(i);
+        let args = [
+            "collect",
+            "--tasks",
+            "T1-1",
+            "--episodes-per-task",
+            "8",
+            "--format",
+            "rlds",
+            "--rlds-shard-mb",
+            "1",
+            "--shard",
+            &label,
+            "--out",
+            path(&out),
+        ];
+        let (code, _, err) = surgvla(&args);
+        assert_eq!(code, 0, "{err}");
+    }
+    let (a, b) = (shard(0), shard(1));
+    let reference = parent.join("reference");
+    let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&reference)]);
+    assert_eq!(code, 0, "{err}");
+    let killed = parent.join("killed");
+    kill_after_checkpoint(
+        &[
+            "merge",
+            path(&a),
+            path(&b),
+            "--out",
+            path(&killed),
+            "--threads",
+            "1",
+        ],
+        &killed,
+    );
+    let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&killed)]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--resume"), "{err}");
+    let (code, _, err) = surgvla(&[
+        "merge",
+        path(&b),
+        path(&a),
+        "--out",
+        path(&killed),
+        "--resume",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        dataset(&killed) == dataset(&reference),
+        "resumed merge differs"
+    );
+}
+
+/// A killed `convert --shard` resumes only as the same shard, to the uninterrupted shard's bytes.
+#[test]
+fn a_killed_converted_shard_resumes_only_as_itself() {
+    let parent = temp_root("merge-convert-killed");
+    let input = parent.join("input");
+    let (code, _, err) = surgvla(&[
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "8",
+        "--out",
+        path(&input),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let args = |out: &Path, shard: &str| -> Vec<String> {
+        let mut args = vec![
+            "convert",
+            path(&input),
+            "--to",
+            "rlds",
+            "--rlds-shard-mb",
+            "1",
+        ];
+        args.extend(["--shard", shard, "--out", path(out)]);
+        args.into_iter().map(String::from).collect()
+    };
+    let convert = |out: &Path, shard: &str, extra: &[&str]| {
+        let mut all = args(out, shard);
+        all.extend(extra.iter().map(|e| e.to_string()));
+        surgvla(&all.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let reference = parent.join("reference");
+    let (code, _, err) = convert(&reference, "1/2", &[]);
+    assert_eq!(code, 0, "{err}");
+    let killed = parent.join("killed");
+    let mut killed_args = args(&killed, "1/2");
+    killed_args.extend(["--threads".to_string(), "1".to_string()]);
+    kill_after_checkpoint(
+        &killed_args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &killed,
+    );
+    let (code, _, err) = convert(&killed, "0/2", &["--resume"]);
+    assert_eq!(code, 2, "another shard is another run: {err}");
+    assert!(err.contains("shard"), "{err}");
+    let (code, _, err) = convert(&killed, "1/2", &["--resume"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(tree(&killed) == tree(&reference), "resumed shard differs");
+}

@@ -58,6 +58,7 @@ fn collect_rlds_writes_what_convert_makes_of_the_lerobot_dataset() {
         names,
         [
             "OPENVLA.md",
+            "README.md",
             "surgvla_benchmark/1.0.0/dataset_info.json",
             "surgvla_benchmark/1.0.0/features.json",
             "surgvla_benchmark/1.0.0/surgvla.json",

@@ -833,12 +833,16 @@ fn random_corruption_never_panics_a_reader() {
             let copy = temp_root("validate-fuzz");
             copy_tree(good, &copy);
             // Whether a file the manifest lists was changed or removed: the copy keeps its
-            // manifest, so validation must then find a defect.
+            // manifest, so validation must then find a defect. The card (README.md) is known to
+            // be ours only by the manifest: harmed with the manifest gone, it is another tool's.
             let mut harmed = false;
+            let mut card_harmed = false;
             for _ in 0..3 {
                 let name = &files[(rng.next_u64() % files.len() as u64) as usize];
-                let listed =
-                    !name.ends_with("surgvla_manifest.json") && name != "collect_report.json";
+                let card = name == "README.md";
+                let listed = !name.ends_with("surgvla_manifest.json")
+                    && name != "collect_report.json"
+                    && !card;
                 let file = copy.join(name);
                 let Ok(original) = std::fs::read(&file) else {
                     continue;
@@ -855,12 +859,18 @@ fn random_corruption_never_panics_a_reader() {
                     _ => {
                         std::fs::remove_file(&file).ok();
                         harmed |= listed;
+                        card_harmed |= card;
                         continue;
                     }
                 }
                 harmed |= listed && bytes != original;
+                card_harmed |= card && bytes != original;
                 std::fs::write(&file, bytes).expect("write");
             }
+            let manifest_kept = tree(&copy)
+                .keys()
+                .any(|name| name.ends_with("surgvla_manifest.json"));
+            harmed |= card_harmed && manifest_kept;
             if let Ok(report) = validate(&copy, &ValidateOptions::default()) {
                 assert!(
                     !harmed || !report.valid,
@@ -1043,4 +1053,55 @@ fn mcap_json_channel_schema_snapshot_matches_the_recorder() {
         committed,
         surgvla::export::mcap::messages::json_channel_schemas()
     );
+}
+
+/// The card (README.md) against the data: counts that disagree are an error naming it, a card
+/// that is not ours is an error, and a dataset of ours without one gets a warning only.
+#[test]
+fn the_dataset_card_is_checked_against_the_data() {
+    let root = temp_root("validate-card");
+    let (code, _, err) = surgvla(&[
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "2",
+        "--format",
+        "ply",
+        "--out",
+        path(&root),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let card = std::fs::read_to_string(root.join("README.md")).expect("card");
+    assert!(card.contains("| T1-1 | 1 | 2 |"), "{card}");
+    // The manifest stops listing the card, so that only the card's own check can speak.
+    let manifest_path = root.join("surgvla_manifest.json");
+    let mut manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&manifest_path).expect("manifest")).expect("json");
+    manifest["files"]
+        .as_array_mut()
+        .expect("files")
+        .retain(|f| f["path"] != "README.md");
+    std::fs::write(&manifest_path, manifest.to_string()).expect("manifest");
+    let (code, out, _) = surgvla(&["validate", path(&root)]);
+    assert_eq!(code, 0, "{out}");
+    std::fs::write(
+        root.join("README.md"),
+        card.replace("| T1-1 | 1 | 2 |", "| T1-1 | 1 | 5 |"),
+    )
+    .expect("card");
+    let (code, out, _) = surgvla(&["validate", path(&root)]);
+    assert_eq!(code, 1, "{out}");
+    assert!(
+        out.contains("README.md: [card] says 5 episodes, the dataset holds 2"),
+        "{out}"
+    );
+    std::fs::write(root.join("README.md"), "# my notes\n").expect("card");
+    let (code, out, _) = surgvla(&["validate", path(&root)]);
+    assert_eq!(code, 1, "{out}");
+    assert!(out.contains("[card] has no tasks table"), "{out}");
+    std::fs::remove_file(root.join("README.md")).expect("remove");
+    let (code, out, _) = surgvla(&["validate", path(&root)]);
+    assert_eq!(code, 0, "a missing card is a warning: {out}");
+    assert!(out.contains("warning: README.md: [card]"), "{out}");
 }

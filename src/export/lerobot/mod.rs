@@ -200,6 +200,18 @@ impl FormatWriter for LeRobotFiles {
     type Encoder<'a> = EpisodeWork<'a>;
     const MANIFEST: &'static str = crate::export::MANIFEST;
 
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: "lerobot",
+            data_files: Some("data/*/*.parquet"),
+            video: self
+                .video_features
+                .iter()
+                .map(|(name, codec)| (name.clone(), codec.name()))
+                .collect(),
+        }
+    }
+
     fn run_options(
         info: &DatasetInfo,
         options: &LeRobotOptions,

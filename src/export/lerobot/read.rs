@@ -543,9 +543,11 @@ struct Row {
     step: Step,
     /// The row's `timestamp` (seconds), if the data has the column.
     timestamp_secs: Option<f64>,
-    /// The encoded bytes of the RGB, mask and depth images, in the order of
-    /// [`stored_images`].
-    stored: Vec<Vec<u8>>,
+    /// The encoded bytes of the RGB, mask and depth images, in the order of [`step_images`]:
+    /// decoded when the episode is put together ([`decode_row`]), never for a skipped one.
+    images: Vec<Vec<u8>>,
+    /// The data file the row is in.
+    file: std::sync::Arc<Path>,
 }
 
 /// Reads a LeRobot dataset (v3.0 or v2.1, image mode) episode by episode.
@@ -791,7 +793,7 @@ impl LeRobotSource {
             match reader.next() {
                 Some(batch) => {
                     let batch = batch.map_err(ExportError::Arrow)?;
-                    return rows_of(&batch, path, &self.info, &self.unused_stored).map(Some);
+                    return rows_of(&batch, path, &self.info).map(Some);
                 }
                 None => self.batches = None,
             }
@@ -799,27 +801,68 @@ impl LeRobotSource {
     }
 }
 
-/// The image features surgvla decodes into steps (RGB, mask, depth) whose encoded bytes a
-/// [`Row`] also keeps (those not of an `unused` encoding).
-fn stored_images<'a>(
-    info: &'a DatasetInfo,
-    unused: &'a [ImageEncoding],
-) -> impl Iterator<Item = &'a FeatureSpec> {
-    info.features.iter().filter(|f| {
-        f.in_steps()
-            && f.dtype == Dtype::Image
-            && f.kind != FeatureKind::Other
-            && !unused.contains(&ImageEncoding::of_kind(f.kind))
-    })
+/// The image features surgvla decodes into steps (RGB, mask, depth), in feature order: a
+/// [`Row`] holds their encoded bytes.
+fn step_images(info: &DatasetInfo) -> impl Iterator<Item = &FeatureSpec> {
+    info.features
+        .iter()
+        .filter(|f| f.in_steps() && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+}
+
+/// Decodes a row's images into its step (frame `frame` of episode `episode`); returns the
+/// encoded bytes of those not of an `unused` encoding, which the episode keeps beside the
+/// pixels (in [`step_images`] order).
+fn decode_row(
+    row: &mut Row,
+    info: &DatasetInfo,
+    unused: &[ImageEncoding],
+    frame: usize,
+) -> Result<Vec<Vec<u8>>, ExportError> {
+    let (width, height) = info.image_size();
+    let mut kept = Vec::new();
+    let images = std::mem::take(&mut row.images);
+    for (feature, encoded) in step_images(info).zip(images) {
+        let name = &feature.name;
+        let step = &mut row.step;
+        let bad = |e: String| {
+            invalid(
+                &row.file,
+                format!("{name} of episode {} frame {frame}: {e}", row.episode),
+            )
+        };
+        match feature.kind {
+            FeatureKind::Depth => {
+                let (w, h, depth) =
+                    decode_f32_tiff(&encoded).ok_or_else(|| bad("not a float32 TIFF".into()))?;
+                if (w as usize, h as usize) != (width, height) {
+                    return Err(bad(format!("a {w}x{h} depth image")));
+                }
+                step.depth_m = depth;
+            }
+            kind => {
+                let (w, h, channels, pixels) =
+                    decode_png_sized(&encoded, Some((width, height))).map_err(bad)?;
+                let wanted = if kind == FeatureKind::Rgb { 3 } else { 1 };
+                if (w as usize, h as usize, channels) != (width, height, wanted) {
+                    return Err(bad(format!("a {w}x{h} image with {channels} channels")));
+                }
+                if kind == FeatureKind::Rgb {
+                    step.rgb = pixels;
+                } else {
+                    step.mask = pixels;
+                }
+            }
+        }
+        if !unused.contains(&ImageEncoding::of_kind(feature.kind)) {
+            kept.push(encoded);
+        }
+    }
+    Ok(kept)
 }
 
 /// Decodes a batch of frame rows into steps.
-fn rows_of(
-    batch: &RecordBatch,
-    path: &Path,
-    info: &DatasetInfo,
-    unused: &[ImageEncoding],
-) -> Result<Vec<Row>, ExportError> {
+fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<Row>, ExportError> {
+    let file: std::sync::Arc<Path> = std::sync::Arc::from(path);
     let episode = column::<Int64Array>(batch, "episode_index", path)?;
     let task = column::<Int64Array>(batch, "task_index", path)?;
     let timestamp = batch
@@ -833,10 +876,10 @@ fn rows_of(
                 .filter(|t| t.is_valid(row))
                 .map(|t| f64::from(t.value(row))),
             step: Step::empty(),
-            stored: Vec::new(),
+            images: Vec::new(),
+            file: file.clone(),
         })
         .collect();
-    let (width, height) = info.image_size();
     for feature in info.features.iter().filter(|f| f.in_steps()) {
         let name = feature.name.as_str();
         if feature.kind == FeatureKind::Other {
@@ -853,38 +896,8 @@ fn rows_of(
                     .column_by_name("bytes")
                     .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
                     .ok_or_else(|| invalid(path, format!("{name} has no image bytes")))?;
-                let keep = !unused.contains(&ImageEncoding::of_kind(feature.kind));
-                for (row, Row { step, stored, .. }) in steps.iter_mut().enumerate() {
-                    let encoded = bytes.value(row);
-                    if keep {
-                        stored.push(encoded.to_vec());
-                    }
-                    let bad = |e: String| invalid(path, format!("{name} row {row}: {e}"));
-                    match feature.kind {
-                        FeatureKind::Depth => {
-                            let (w, h, depth) = decode_f32_tiff(encoded)
-                                .ok_or_else(|| bad("not a float32 TIFF".into()))?;
-                            if (w as usize, h as usize) != (width, height) {
-                                return Err(bad(format!("a {w}x{h} depth image")));
-                            }
-                            step.depth_m = depth;
-                        }
-                        kind => {
-                            let (w, h, channels, pixels) =
-                                decode_png_sized(encoded, Some((width, height))).map_err(bad)?;
-                            let wanted = if kind == FeatureKind::Rgb { 3 } else { 1 };
-                            if (w as usize, h as usize, channels) != (width, height, wanted) {
-                                return Err(bad(format!(
-                                    "a {w}x{h} image with {channels} channels"
-                                )));
-                            }
-                            if kind == FeatureKind::Rgb {
-                                step.rgb = pixels;
-                            } else {
-                                step.mask = pixels;
-                            }
-                        }
-                    }
+                for (row, Row { images, .. }) in steps.iter_mut().enumerate() {
+                    images.push(bytes.value(row).to_vec());
                 }
             }
             _ => {
@@ -916,7 +929,7 @@ fn rows_of(
 
 impl LeRobotSource {
     /// After the last row: None, once the episodes read agree with info.json's total.
-    fn end(&mut self) -> Option<Result<Episode, ExportError>> {
+    fn end<T>(&mut self) -> Option<Result<T, ExportError>> {
         if self.ended || self.returned == self.total_episodes {
             self.ended = true;
             return None;
@@ -932,30 +945,17 @@ impl LeRobotSource {
     }
 }
 
-impl EpisodeSource for LeRobotSource {
-    fn info(&self) -> &DatasetInfo {
-        &self.info
-    }
-
-    fn drop_stored(&mut self, unused: &[ImageEncoding]) {
-        self.unused_stored = unused.to_vec();
-    }
-
-    fn len(&self) -> u64 {
-        self.total_episodes
-    }
-
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+impl LeRobotSource {
+    /// The next episode's rows (images still encoded), its index and task, and its row of the
+    /// episodes table; None after the last.
+    #[allow(clippy::type_complexity)]
+    fn take_episode(
+        &mut self,
+    ) -> Option<Result<(i64, i64, Vec<Row>, Option<StoredEpisode>), ExportError>> {
         if self.ended {
             return None;
         }
-        let mut steps = Vec::new();
-        let mut timestamps = Vec::new();
-        let stored_keys: Vec<(String, FeatureKind)> =
-            stored_images(&self.info, &self.unused_stored)
-                .map(|f| (f.name.clone(), f.kind))
-                .collect();
-        let mut stored: Vec<Vec<EncodedFrame>> = vec![Vec::new(); stored_keys.len()];
+        let mut rows = Vec::new();
         let mut current: Option<(i64, i64)> = None;
         loop {
             if let Some(Row { episode, task, .. }) = self.pending.front() {
@@ -964,21 +964,17 @@ impl EpisodeSource for LeRobotSource {
                 }
                 current = Some((*episode, *task));
                 if let Some(row) = self.pending.pop_front() {
-                    steps.push(row.step);
-                    timestamps.push(row.timestamp_secs);
-                    for (frames, data) in stored.iter_mut().zip(row.stored) {
-                        frames.push(EncodedFrame {
-                            data,
-                            keyframe: true,
-                        });
-                    }
+                    rows.push(row);
                 }
                 continue;
             }
             match self.next_rows() {
-                Ok(Some(rows)) => self.pending.extend(rows),
+                Ok(Some(batch)) => self.pending.extend(batch),
                 Ok(None) => break,
-                Err(error) => return Some(Err(error)),
+                Err(error) => {
+                    self.ended = true;
+                    return Some(Err(error));
+                }
             }
         }
         let Some((index, task)) = current else {
@@ -996,13 +992,63 @@ impl EpisodeSource for LeRobotSource {
         }
         self.returned += 1;
         // The episodes table's rows come in the data's order: this episode's is the next.
-        let row = match self.episodes.next_row() {
-            Ok(row) => row,
+        match self.episodes.next_row() {
+            Ok(row) => Some(Ok((index, task, rows, row))),
             Err(error) => {
                 self.ended = true;
-                return Some(Err(error));
+                Some(Err(error))
             }
+        }
+    }
+}
+
+impl EpisodeSource for LeRobotSource {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn drop_stored(&mut self, unused: &[ImageEncoding]) {
+        self.unused_stored = unused.to_vec();
+    }
+
+    fn len(&self) -> u64 {
+        self.total_episodes
+    }
+
+    /// The episode's rows are read, but its images are never decoded nor its video read.
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.take_episode().map(|taken| taken.map(|_| ()))
+    }
+
+    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        let (index, task, rows, row) = match self.take_episode()? {
+            Ok(taken) => taken,
+            Err(error) => return Some(Err(error)),
         };
+        let stored_keys: Vec<(String, FeatureKind)> = step_images(&self.info)
+            .filter(|f| !self.unused_stored.contains(&ImageEncoding::of_kind(f.kind)))
+            .map(|f| (f.name.clone(), f.kind))
+            .collect();
+        let mut stored: Vec<Vec<EncodedFrame>> = vec![Vec::new(); stored_keys.len()];
+        let mut steps = Vec::with_capacity(rows.len());
+        let mut timestamps = Vec::with_capacity(rows.len());
+        for (frame, mut data_row) in rows.into_iter().enumerate() {
+            let kept = match decode_row(&mut data_row, &self.info, &self.unused_stored, frame) {
+                Ok(kept) => kept,
+                Err(error) => {
+                    self.ended = true;
+                    return Some(Err(error));
+                }
+            };
+            for (frames, data) in stored.iter_mut().zip(kept) {
+                frames.push(EncodedFrame {
+                    data,
+                    keyframe: true,
+                });
+            }
+            steps.push(data_row.step);
+            timestamps.push(data_row.timestamp_secs);
+        }
         let provenance = row
             .as_ref()
             .map(|e| e.provenance.clone())

@@ -320,12 +320,88 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         files.sort();
         files
     };
-    let frames: u64 = files
+    let frames: Vec<u64> = files
         .par_iter()
         .enumerate()
         .map(|(i, path)| check_file(path, i as u64, options.quick, findings))
-        .sum();
-    (files.len() as u64, frames)
+        .collect();
+    if !root.is_file() {
+        check_episode_lines(root, &files, &frames, options.quick, findings);
+    }
+    (files.len() as u64, frames.iter().sum())
+}
+
+/// A folder's `episodes.jsonl` (when there is one) against its recordings: a line per file in
+/// order, each naming its file and episode, and (unless `quick`, which reads one frame per
+/// file) the frames the file holds.
+fn check_episode_lines(
+    root: &Path,
+    files: &[PathBuf],
+    frames: &[u64],
+    quick: bool,
+    findings: &Findings,
+) {
+    let path = root.join("episodes.jsonl");
+    if !path.is_file() {
+        return;
+    }
+    let lines = match crate::export::bounded::lines(&path) {
+        Ok(lines) => lines,
+        Err(error) => {
+            findings.file_error(&path, "episodes", error.to_string());
+            return;
+        }
+    };
+    let mut count = 0usize;
+    for line in lines {
+        let at = || At::file(findings.relative(&path)).episode(count as u64);
+        let text = match line {
+            Ok((_, text)) => text,
+            Err(error) => {
+                findings.error(at(), "episodes", error.to_string());
+                return;
+            }
+        };
+        let Ok(value) = serde_json::from_str::<serde_json::Value>(&text) else {
+            findings.error(at(), "episodes", format!("line {} is not JSON", count + 1));
+            count += 1;
+            continue;
+        };
+        let name = files
+            .get(count)
+            .and_then(|f| f.file_name())
+            .map(|n| n.to_string_lossy().into_owned());
+        if value["episode_index"].as_u64() != Some(count as u64) {
+            findings.error(
+                at(),
+                "episodes",
+                format!("line {} does not say episode {count}", count + 1),
+            );
+        } else if value["file"].as_str() != name.as_deref() {
+            findings.error(
+                at(),
+                "episodes",
+                format!("names {}, the recording is {name:?}", value["file"]),
+            );
+        } else if !quick && value["frames"].as_u64() != frames.get(count).copied() {
+            findings.error(
+                at(),
+                "episodes",
+                format!(
+                    "says {} frames, the recording holds {}",
+                    value["frames"], frames[count]
+                ),
+            );
+        }
+        count += 1;
+    }
+    if count != files.len() {
+        findings.file_error(
+            &path,
+            "episodes",
+            format!("has {count} lines for {} recordings", files.len()),
+        );
+    }
 }
 
 #[cfg(test)]

@@ -278,6 +278,14 @@ impl FormatWriter for McapFiles {
     type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: "mcap",
+            data_files: None,
+            video: Vec::new(),
+        }
+    }
+
     fn run_options(info: &DatasetInfo, options: &McapOptions) -> Result<RunOptions, ExportError> {
         if info.has(FeatureKind::Depth) {
             options.cloud.options(info)?;

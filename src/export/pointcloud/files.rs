@@ -64,6 +64,14 @@ impl FormatWriter for CloudFiles {
     type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: self.format.extension(),
+            data_files: None,
+            video: Vec::new(),
+        }
+    }
+
     fn run_options(
         info: &DatasetInfo,
         (format, settings): &Self::Options,

@@ -260,6 +260,14 @@ impl FormatWriter for RldsShards {
     type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: "rlds",
+            data_files: None,
+            video: Vec::new(),
+        }
+    }
+
     fn run_options(info: &DatasetInfo, options: &RldsOptions) -> Result<RunOptions, ExportError> {
         options.check()?;
         let shapes_fit = info

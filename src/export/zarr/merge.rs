@@ -290,6 +290,10 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         dir.write_atomically(relative, &bytes)
             .map_err(write_error)?;
     }
+    if let Some(card) = crate::export::merge::merged_card(&plan)? {
+        dir.write_atomically(crate::export::card::CARD, &card)
+            .map_err(write_error)?;
+    }
     let roots: Vec<&Path> = ordered.iter().map(|s| s.root.as_path()).collect();
     let frames = ends.last().copied().unwrap_or(0) as u64;
     finish_folder(dir, MANIFEST, (ends.len() as u64, frames), &roots, &plan)

@@ -115,6 +115,14 @@ impl FormatWriter for ZarrStore {
     type Encoder<'a> = (&'a Self, &'a DatasetInfo);
     const MANIFEST: &'static str = MANIFEST;
 
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: "zarr",
+            data_files: None,
+            video: Vec::new(),
+        }
+    }
+
     fn run_options(info: &DatasetInfo, options: &ZarrOptions) -> Result<RunOptions, ExportError> {
         options.cloud.options(info)?;
         if options.mask_channel && !info.has(crate::episode::FeatureKind::Mask) {
