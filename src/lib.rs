@@ -6,12 +6,14 @@
 //! - [`env`]: the environment API (reset, step, observe) that collection and evaluation share.
 //! - [`collect`]: verified expert collection into any dataset sink.
 //! - [`export`]: the dataset layer: `DatasetInfo`, every format's sink and source.
+//! - [`chart`]: charts as PNG in pure Rust (success rates, dataset histograms).
 //! - [`error`]: the kinds of failure (user's input or the work), for exit codes.
 //!
 //! The library never sees command-line types, progress bars or exit codes; `src/bin/surgvla.rs`
 //! owns those. Every output is a pure function of (config, seed).
 
 pub mod assets;
+pub mod chart;
 pub mod collect;
 pub mod env;
 pub mod episode;

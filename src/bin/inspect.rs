@@ -39,6 +39,10 @@ pub struct InfoArgs {
     /// Print as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Also draw the dataset as PNG: a histogram of episode lengths per task, and the range
+    /// of each state and action dimension (reads every episode: LeRobot and RLDS datasets).
+    #[arg(long, value_name = "FILE.png")]
+    pub plot: Option<PathBuf>,
 }
 
 fn step_limits() -> std::collections::BTreeMap<String, usize> {
@@ -127,6 +131,9 @@ pub fn run_info(args: &InfoArgs) -> Result<(), CliError> {
         threads: 0,
     };
     let report = validate(&args.path, &options)?;
+    if let Some(plot) = &args.plot {
+        draw_plot(&args.path, plot)?;
+    }
     let facts = &report.facts;
     if args.json {
         let json = serde_json::json!({
@@ -200,4 +207,21 @@ fn quick_check_result(report: &Report, path: &std::path::Path, json: bool) -> Re
         report.errors.len(),
         place(path)
     )))
+}
+
+/// `info --plot`: every episode read into its profile, drawn.
+fn draw_plot(dataset: &std::path::Path, plot: &std::path::Path) -> Result<(), CliError> {
+    let mut source = surgvla::export::open_source(dataset)?;
+    let profile = surgvla::export::profile::profile(source.as_mut())?;
+    let (histograms, ranges) = surgvla::export::profile::chart_parts(&profile, 12);
+    let title = format!(
+        "{}: episode lengths per task, state and action ranges",
+        dataset.display()
+    );
+    let canvas = surgvla::chart::plots::dataset_chart(&title, &histograms, &ranges);
+    let png = canvas
+        .png()
+        .map_err(|e| CliError::invalid(format!("encoding {}: {e}", plot.display())))?;
+    surgvla::export::write_atomically(plot, &png)?;
+    Ok(())
 }

@@ -70,8 +70,13 @@ enum Command {
     Merge(formats::MergeArgs),
     /// Score a policy in closed loop on the tasks: a VLA behind openpi's policy-server protocol
     /// (`--policy ws://HOST:PORT`) or a built-in reference (expert, replay, random, noop);
-    /// writes results.json, results.csv and results.md with Wilson 95 % intervals.
+    /// writes results.json, results.csv, results.md and results.png (the chart) with Wilson 95 %
+    /// intervals.
     Eval(eval::EvalArgs),
+    /// Chart several evaluations' success rates side by side (`report RESULTS_DIR... --out
+    /// chart.png`): each task's rate with its 95 % interval, one colour per run, tasks grouped by
+    /// level.
+    Report(eval::ReportArgs),
     /// Check a dataset (LeRobot v3.0/v2.1, RLDS, DP3 zarr, MCAP; ours or not) frame by frame
     /// and name every defect: exit 0 valid, 1 invalid, 2 nothing recognisable at the path.
     Validate(inspect::ValidateArgs),
@@ -421,6 +426,7 @@ fn main() -> ExitCode {
         Command::Experts(args) => episodes::run_experts(&args),
         Command::Merge(args) => formats::run_merge(&args),
         Command::Eval(args) => eval::run_eval(&args),
+        Command::Report(args) => eval::run_report(&args),
         Command::Validate(args) => inspect::run_validate(&args),
         Command::Info(args) => inspect::run_info(&args),
         Command::Schema { with_mask, format } => run_schema(with_mask, format),

@@ -10,6 +10,7 @@
 //! - [`results`]: success rates with Wilson 95 % intervals, written as JSON, CSV and Markdown.
 
 pub mod agents;
+pub mod chart;
 pub mod numpy;
 pub mod remote;
 pub mod results;

@@ -248,11 +248,43 @@ pub fn evaluate(
     ] {
         write(options, name, text.as_bytes())?;
     }
+    // results.png: the success rates with their intervals, grouped by level.
+    let rates: Vec<super::chart::TaskRate> = report
+        .tasks
+        .iter()
+        .map(|t| super::chart::TaskRate {
+            task_id: t.task_id.clone(),
+            level: t.level,
+            success_rate: t.success_rate,
+            ci95_low: t.ci95_low,
+            ci95_high: t.ci95_high,
+        })
+        .collect();
+    let run = super::chart::RunRates {
+        policy: report.policy.clone(),
+        tasks: rates,
+    };
+    let title = format!(
+        "success rate per task, 95 % interval ({} trials a task)",
+        options.trials
+    );
+    let chart = super::chart::chart_of(&title, &[run], std::slice::from_ref(&report.policy));
+    let png = crate::chart::plots::rate_chart(&chart)
+        .0
+        .png()
+        .map_err(|e| EvalError::Write {
+            path: options.out.join("results.png"),
+            source: crate::export::ExportError::Encode {
+                what: "results.png".into(),
+                source: Box::new(e),
+            },
+        })?;
+    write(options, "results.png", &png)?;
     Ok(report)
 }
 
 /// The results' files in `out` (a run writes nothing else).
-const RESULT_FILES: [&str; 3] = ["results.json", "results.csv", "results.md"];
+const RESULT_FILES: [&str; 4] = ["results.json", "results.csv", "results.md", "results.png"];
 const FAILURES: &str = "failures";
 
 /// Takes `options.out` for this run: created if needed and locked; refused when it holds files

@@ -37,6 +37,7 @@ pub mod merge;
 pub(crate) mod mp4scan;
 pub mod paths;
 pub mod pointcloud;
+pub mod profile;
 pub mod registry;
 pub mod rlds;
 pub mod schema;

@@ -357,6 +357,83 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
     assert!(markdown.contains("| noop | 0.0 | 0.0 |"), "{markdown}");
     let csv = std::fs::read_to_string(out.join("expert/results.csv")).expect("results.csv");
     assert_eq!(csv.lines().count(), 9);
+    // results.png, and the two runs charted side by side by `surgvla report`.
+    let png = std::fs::read(out.join("expert/results.png")).expect("results.png");
+    assert_eq!(&png[1..4], b"PNG");
+    let chart = out.join("chart.png");
+    let (expert_dir, noop_dir) = (out.join("expert"), out.join("noop"));
+    let (code, stdout, stderr) = surgvla(&[
+        "report",
+        &expert_dir.display().to_string(),
+        &noop_dir.display().to_string(),
+        "--out",
+        &chart.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("charted 2 runs over 8 tasks"), "{stdout}");
+    let report_png = std::fs::read(&chart).expect("chart");
+    let (code, _, _) = surgvla(&[
+        "report",
+        &expert_dir.display().to_string(),
+        &noop_dir.display().to_string(),
+        "--out",
+        &chart.display().to_string(),
+    ]);
+    assert_eq!(code, 0);
+    assert_eq!(
+        std::fs::read(&chart).expect("chart"),
+        report_png,
+        "same runs, same bytes"
+    );
+    let (code, _, stderr) = surgvla(&[
+        "report",
+        &out.join("nothing").display().to_string(),
+        "--out",
+        &chart.display().to_string(),
+    ]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("holds no results.json"), "{stderr}");
+}
+
+/// The chart's bars follow the numbers: read at the places the layout puts each run's bar.
+#[test]
+fn the_report_chart_draws_each_rate_where_the_layout_says() {
+    use surgvla::chart::plots::{BarLayout, PLOT_HEIGHT_PX, rate_chart};
+    use surgvla::eval::chart::{RunRates, TaskRate, chart_of};
+    let run = |policy: &str, rates: &[(&str, u8, f64)]| RunRates {
+        policy: policy.into(),
+        tasks: rates
+            .iter()
+            .map(|&(id, level, rate)| TaskRate {
+                task_id: id.into(),
+                level,
+                success_rate: rate,
+                ci95_low: rate,
+                ci95_high: rate,
+            })
+            .collect(),
+    };
+    // Tasks come out by level then id, whatever order the runs list them in.
+    let runs = [
+        run("a", &[("T3-1", 3, 0.5), ("T1-1", 1, 1.0)]),
+        run("b", &[("T1-1", 1, 0.25)]),
+    ];
+    let chart = chart_of("t", &runs, &["a".into(), "b".into()]);
+    let labels: Vec<&str> = chart.categories.iter().map(|c| c.label.as_str()).collect();
+    assert_eq!(labels, ["T1-1", "T3-1"]);
+    let (canvas, layout) = rate_chart(&chart);
+    let height = |category: usize, series: usize| {
+        let x = layout.bar_x(category, series) + 2;
+        let colour = surgvla::chart::SERIES[series];
+        (0..BarLayout::zero_y())
+            .rev()
+            .take_while(|&y| canvas.at(x, y) == Some(colour))
+            .count()
+    };
+    assert_eq!(height(0, 0), PLOT_HEIGHT_PX);
+    assert_eq!(height(1, 0), PLOT_HEIGHT_PX / 2);
+    assert_eq!(height(0, 1), PLOT_HEIGHT_PX / 4);
+    assert_eq!(height(1, 1), 0, "b has no T3-1");
 }
 
 #[test]

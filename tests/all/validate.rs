@@ -1105,3 +1105,23 @@ fn the_dataset_card_is_checked_against_the_data() {
     assert_eq!(code, 0, "a missing card is a warning: {out}");
     assert!(out.contains("warning: README.md: [card]"), "{out}");
 }
+
+/// `info --plot` draws a readable dataset (the chart's pixels are tested beside its code) and
+/// refuses a format surgvla does not read back as episodes.
+#[test]
+fn info_plot_draws_readable_datasets() {
+    let c = corpus();
+    let plot = temp_root("info-plot");
+    std::fs::create_dir_all(&*plot).expect("dir");
+    let png = plot.join("lerobot.png");
+    let (code, _, err) = surgvla(&["info", path(&c.lerobot), "--plot", path(&png)]);
+    assert_eq!(code, 0, "{err}");
+    let bytes = std::fs::read(&png).expect("png");
+    assert_eq!(&bytes[1..4], b"PNG");
+    let again = plot.join("again.png");
+    let (code, _, err) = surgvla(&["info", path(&c.lerobot), "--plot", path(&again)]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(std::fs::read(&again).expect("png"), bytes, "deterministic");
+    let (code, _, err) = surgvla(&["info", path(&c.zarr), "--plot", path(&plot.join("z.png"))]);
+    assert_eq!(code, 2, "{err}");
+}

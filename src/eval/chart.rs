@@ -1,0 +1,138 @@
+//! The success-rate chart of one or several evaluations: each task's rate with its Wilson 95 %
+//! interval, policies side by side, tasks grouped by level ([`crate::chart::plots::rate_chart`]).
+//! `eval` draws its own run as `results.png`; `surgvla report` reads several runs'
+//! `results.json` ([`read_results`]) and draws them together: the paper's table as a chart.
+
+use crate::chart::plots::{Category, Rate, RateChart, rate_chart};
+use crate::export::ExportError;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// What the chart needs of a run's `results.json`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct RunRates {
+    pub policy: String,
+    pub tasks: Vec<TaskRate>,
+}
+
+/// One task's rate in a run.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct TaskRate {
+    pub task_id: String,
+    pub level: u8,
+    pub success_rate: f64,
+    pub ci95_low: f64,
+    pub ci95_high: f64,
+}
+
+/// Why a run's results cannot be charted.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    #[error("{dir} holds no results.json: give the folders `surgvla eval --out` wrote")]
+    Missing { dir: PathBuf },
+    /// The file names itself.
+    #[error(transparent)]
+    Read(ExportError),
+    #[error("{path} is not an evaluation's results.json: {problem}")]
+    NotResults { path: PathBuf, problem: String },
+    #[error("writing {path}")]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: ExportError,
+    },
+}
+
+impl crate::error::HasKind for ReportError {
+    fn kind(&self) -> crate::error::ErrorKind {
+        match self {
+            ReportError::Read(source) | ReportError::Write { source, .. } => source.kind(),
+            ReportError::Missing { .. } => crate::error::ErrorKind::Usage,
+            ReportError::NotResults { .. } => crate::error::ErrorKind::Failed,
+        }
+    }
+
+    fn is_disk_full(&self) -> bool {
+        matches!(self, ReportError::Write { source, .. } if source.is_disk_full())
+    }
+}
+
+/// The rates of the run whose results are in `dir` (its `results.json`), refusing rates outside
+/// [0, 1].
+pub fn read_results(dir: &Path) -> Result<RunRates, ReportError> {
+    let path = dir.join("results.json");
+    if !path.is_file() {
+        return Err(ReportError::Missing {
+            dir: dir.to_path_buf(),
+        });
+    }
+    let bytes = crate::export::bounded::read_metadata(&path).map_err(ReportError::Read)?;
+    let rates: RunRates = serde_json::from_slice(&bytes).map_err(|e| ReportError::NotResults {
+        path: path.clone(),
+        problem: e.to_string(),
+    })?;
+    for task in &rates.tasks {
+        let values = [task.success_rate, task.ci95_low, task.ci95_high];
+        if values.iter().any(|v| !(0.0..=1.0).contains(v)) {
+            return Err(ReportError::NotResults {
+                path,
+                problem: format!("{} has a rate outside 0..1", task.task_id),
+            });
+        }
+    }
+    Ok(rates)
+}
+
+/// The chart of `runs` (one series each, named by `names`): every task any run scored, by
+/// level then id.
+pub fn chart_of(title: &str, runs: &[RunRates], names: &[String]) -> RateChart {
+    let mut tasks: Vec<(u8, String)> = runs
+        .iter()
+        .flat_map(|r| r.tasks.iter().map(|t| (t.level, t.task_id.clone())))
+        .collect();
+    tasks.sort();
+    tasks.dedup();
+    let rates = runs
+        .iter()
+        .map(|run| {
+            tasks
+                .iter()
+                .map(|(_, id)| {
+                    run.tasks.iter().find(|t| t.task_id == *id).map(|t| Rate {
+                        value: t.success_rate,
+                        low: t.ci95_low,
+                        high: t.ci95_high,
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    RateChart {
+        title: title.to_string(),
+        series: names.to_vec(),
+        categories: tasks
+            .iter()
+            .map(|(level, id)| Category {
+                label: id.clone(),
+                group: format!("level {level}"),
+            })
+            .collect(),
+        rates,
+    }
+}
+
+/// The chart as PNG bytes, written to `path` atomically.
+pub fn write_chart(chart: &RateChart, path: &Path) -> Result<(), ReportError> {
+    let write = |source| ReportError::Write {
+        path: path.to_path_buf(),
+        source,
+    };
+    let png = rate_chart(chart).0.png().map_err(|e| {
+        write(ExportError::Encode {
+            what: "the chart's PNG".into(),
+            source: Box::new(e),
+        })
+    })?;
+    crate::export::write_atomically(path, &png).map_err(write)?;
+    Ok(())
+}

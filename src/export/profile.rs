@@ -1,0 +1,142 @@
+//! What `info --plot` draws of a dataset ([`crate::chart::plots::dataset_chart`]): each task's
+//! episode lengths, and each state and action dimension's range, read episode by episode from
+//! any [`EpisodeSource`] (memory: one episode).
+
+use crate::episode::FeatureKind;
+use crate::export::{EpisodeSource, ExportError};
+
+/// A dataset's episode lengths by task (in order of first appearance) and its vectors' ranges.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Profile {
+    /// (task, each of its episodes' frames).
+    pub lengths: Vec<(String, Vec<u64>)>,
+    /// (min, max) of each state dimension; empty without frames.
+    pub state: Vec<(f64, f64)>,
+    pub action: Vec<(f64, f64)>,
+}
+
+fn widen(ranges: &mut Vec<(f64, f64)>, values: &[f32]) {
+    if ranges.is_empty() {
+        ranges.resize(values.len(), (f64::INFINITY, f64::NEG_INFINITY));
+    }
+    for (range, &value) in ranges.iter_mut().zip(values) {
+        let value = f64::from(value);
+        if value.is_finite() {
+            *range = (range.0.min(value), range.1.max(value));
+        }
+    }
+}
+
+/// Reads every episode of `source` into its profile.
+pub fn profile(source: &mut dyn EpisodeSource) -> Result<Profile, ExportError> {
+    let mut profile = Profile::default();
+    // Another tool's vectors are features of its own (not in the steps' state and action).
+    let has_state = source.info().has(FeatureKind::State);
+    let has_action = source.info().has(FeatureKind::Action);
+    while let Some(episode) = source.next_episode() {
+        let episode = episode?;
+        let meta = &episode.meta;
+        let task = if meta.task_code.is_empty() {
+            meta.instruction.clone()
+        } else {
+            meta.task_code.clone()
+        };
+        let frames = episode.steps.len() as u64;
+        match profile.lengths.iter_mut().find(|(t, _)| *t == task) {
+            Some((_, lengths)) => lengths.push(frames),
+            None => profile.lengths.push((task, vec![frames])),
+        }
+        for step in &episode.steps {
+            if has_state {
+                widen(&mut profile.state, &step.state);
+            }
+            if has_action {
+                widen(&mut profile.action, &step.action);
+            }
+        }
+    }
+    Ok(profile)
+}
+
+/// The profile's histograms (`bins` equal bins over every task's lengths, so panels compare)
+/// and ranges, as the chart takes them.
+pub fn chart_parts(
+    profile: &Profile,
+    bins: usize,
+) -> (
+    Vec<crate::chart::plots::Histogram>,
+    Vec<(String, Vec<crate::chart::plots::Range>)>,
+) {
+    use crate::chart::plots::{Histogram, Range};
+    let all = profile.lengths.iter().flat_map(|(_, l)| l.iter().copied());
+    let low = all.clone().min().unwrap_or(0);
+    let high = all.max().unwrap_or(0).max(low + 1);
+    let bins = bins.max(1);
+    let histograms = profile
+        .lengths
+        .iter()
+        .map(|(task, lengths)| {
+            let mut counts = vec![0u64; bins];
+            for &length in lengths {
+                let bin =
+                    ((length - low) as usize * bins / (high - low + 1) as usize).min(bins - 1);
+                counts[bin] += 1;
+            }
+            Histogram {
+                label: format!("{task}: {} episodes, frames", lengths.len()),
+                counts,
+                low: low as f64,
+                high: high as f64,
+            }
+        })
+        .collect();
+    let ranges = |name: &str, values: &[(f64, f64)]| -> (String, Vec<Range>) {
+        let rows = values
+            .iter()
+            .enumerate()
+            .filter(|(_, (min, max))| min <= max)
+            .map(|(i, &(min, max))| Range {
+                label: format!("{name}[{i}]"),
+                min,
+                max,
+            })
+            .collect();
+        (name.to_string(), rows)
+    };
+    (
+        histograms,
+        vec![
+            ranges("state", &profile.state),
+            ranges("action", &profile.action),
+        ],
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lengths_fall_in_bins_shared_by_every_task_and_ranges_keep_their_extremes() {
+        let profile = Profile {
+            lengths: vec![("T1-1".into(), vec![30, 30, 39]), ("T3-1".into(), vec![49])],
+            state: vec![(-1.0, 2.0)],
+            action: vec![(f64::INFINITY, f64::NEG_INFINITY)],
+        };
+        let (histograms, ranges) = chart_parts(&profile, 4);
+        // [30, 49] in 4 bins of 5 frames: 30-34, 35-39, 40-44, 45-49.
+        assert_eq!(histograms[0].counts, [2, 1, 0, 0]);
+        assert_eq!(histograms[1].counts, [0, 0, 0, 1]);
+        assert_eq!((histograms[0].low, histograms[0].high), (30.0, 49.0));
+        assert_eq!(ranges[0].1.len(), 1);
+        assert_eq!((ranges[0].1[0].min, ranges[0].1[0].max), (-1.0, 2.0));
+        assert!(
+            ranges[1].1.is_empty(),
+            "a dimension never seen has no range"
+        );
+        let mut numbers = vec![(f64::INFINITY, f64::NEG_INFINITY); 2];
+        widen(&mut numbers, &[1.0, f32::NAN]);
+        widen(&mut numbers, &[-3.0, 2.0]);
+        assert_eq!(numbers, [(-3.0, 1.0), (2.0, 2.0)]);
+    }
+}
