@@ -155,7 +155,7 @@ pub struct CollectArgs {
     #[arg(long)]
     with_mask: bool,
     /// Leave features of the default dataset out, comma-separated: `depth`, `environment_state`.
-    /// Training with lerobot-train: `--without depth,environment_state` (README, "Train a
+    /// Training with lerobot-train: `--without depth,environment_state` (docs/training.md, "Train a
     /// policy").
     #[arg(long, value_enum, value_delimiter = ',')]
     without: Vec<Omit>,

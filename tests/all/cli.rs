@@ -254,3 +254,51 @@ fn collect_without_depth_and_object_poses_writes_the_training_dataset() {
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("depth, environment_state"), "{stderr}");
 }
+
+/// docs/commands.md shows every command's `--help` exactly as the CLI prints it, and the
+/// README's table links every command: the documentation cannot drift from the code. After
+/// changing the CLI: `SURGVLA_UPDATE_DOCS=1 cargo test --release --test all -- command_docs`.
+#[test]
+fn command_docs_show_the_clis_own_help() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let path = root.join("docs/commands.md");
+    let text = std::fs::read_to_string(&path).expect("docs/commands.md");
+    let (code, top, _) = surgvla(&["--help"]);
+    assert_eq!(code, 0);
+    let commands: Vec<String> = top
+        .split("Commands:")
+        .nth(1)
+        .expect("a command list")
+        .lines()
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next().map(String::from))
+        .filter(|c| c != "help")
+        .collect();
+    assert!(commands.len() >= 14, "{commands:?}");
+    let mut fresh = text.clone();
+    for command in &commands {
+        let marker = format!("<!-- help: {command} -->\n```text\n");
+        let start = fresh
+            .find(&marker)
+            .unwrap_or_else(|| panic!("docs/commands.md has no help block for {command}"))
+            + marker.len();
+        let end = start + fresh[start..].find("```").expect("the block's end");
+        let (code, help, _) = surgvla(&[command, "--help"]);
+        assert_eq!(code, 0, "{command} --help");
+        fresh.replace_range(start..end, &help);
+    }
+    if std::env::var_os("SURGVLA_UPDATE_DOCS").is_some() && fresh != text {
+        std::fs::write(&path, &fresh).expect("write docs/commands.md");
+        return;
+    }
+    assert!(
+        fresh == text,
+        "docs/commands.md differs from the CLI's help: SURGVLA_UPDATE_DOCS=1 cargo test --release --test all -- command_docs"
+    );
+    let readme = std::fs::read_to_string(root.join("README.md")).expect("README.md");
+    for command in &commands {
+        let link = format!("(docs/commands.md#surgvla-{command})");
+        assert!(readme.contains(&link), "the README's table lacks {command}");
+    }
+}

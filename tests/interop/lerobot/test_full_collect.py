@@ -30,7 +30,7 @@ CODES = ["T1-1", "T1-2", "T1-3", "T2-1", "T2-2", "T2-3", "T3-1", "T3-2"]
 EPISODES_PER_TASK = 100
 FRAMES_SAMPLED_PER_TASK = 8
 CLIP_SITES = {f"clip the {c} point on the vein" for c in ("yellow", "blue", "green")}
-# The default collection uses the canonical instructions (README "The tasks").
+# The default collection uses the canonical instructions (docs/tasks.md).
 CANONICAL = {
     "T1-1": {"pick up the gauze"},
     "T1-2": {"pick up the needle"},

@@ -1,6 +1,6 @@
 """lerobot-train, the real lerobot 0.6.1 training script, on surgvla datasets.
 
-The README's recipe (`collect --without depth,environment_state`, then `lerobot-train` with ACT
+docs/training.md's recipe (`collect --without depth,environment_state`, then `lerobot-train` with ACT
 or Diffusion) must run: two optimisation steps on CPU with randomly initialised backbones and no
 network. The default dataset, whose depth (and here mask) images have one channel, must fail the
 way that made `--without` necessary, so this test also documents why the option exists.
