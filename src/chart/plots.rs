@@ -320,6 +320,9 @@ mod tests {
     #[test]
     fn bars_are_as_tall_as_their_rates_in_their_series_colours() {
         let (canvas, layout) = rate_chart(&chart());
+        // Three tasks of two bars: each slot as wide as a 6-character label plus the gap.
+        assert_eq!((canvas.width_px, canvas.height_px), (270, 352));
+        assert_eq!(canvas.pixels.len(), 270 * 352 * 3);
         let full = PLOT_HEIGHT_PX;
         assert_eq!(bar_height(&canvas, &layout, 0, 0), full);
         assert_eq!(bar_height(&canvas, &layout, 1, 0), full / 2);
