@@ -21,7 +21,7 @@ struct ArrayMeta {
 }
 
 /// The largest chunk decoded, in bytes (ours are a few MB).
-const MAX_CHUNK_BYTES: usize = 256 << 20;
+pub(super) const MAX_CHUNK_BYTES: usize = 256 << 20;
 
 /// Bytes per item of `.zarray`'s dtype (`<f4` -> 4; 0 when not a numpy type string).
 fn item_bytes_of(meta: &Value) -> usize {

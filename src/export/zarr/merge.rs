@@ -29,8 +29,6 @@ const DATA_ARRAYS: [&str; 5] = [
     "data/depth",
 ];
 const EPISODE_ENDS: &str = "meta/episode_ends";
-/// A row larger than this is not one surgvla writes (a 4,096 x 4,096 depth row is 64 MiB).
-const MAX_ROW_BYTES: usize = 64 << 20;
 
 /// One array of one input, as its `.zarray` says.
 #[derive(Clone, Debug, PartialEq)]
@@ -105,13 +103,14 @@ fn array_shape(root: &Path, array: &str) -> Result<ArrayShape, MergeError> {
         row_shape: shape[1..].to_vec(),
         rows: shape[0] as u64,
     };
-    if array
+    // A chunk is decompressed whole: its size is checked before anything is allocated, with
+    // the cap validate uses.
+    let chunk_bytes = array
         .row_shape
         .iter()
-        .try_fold(item_bytes, |a, &b| a.checked_mul(b))
-        .is_none_or(|b| b > MAX_ROW_BYTES)
-    {
-        return Err(invalid(&path, "has rows too large to be surgvla's"));
+        .try_fold(item_bytes * CHUNK_ROWS, |a, &b| a.checked_mul(b));
+    if chunk_bytes.is_none_or(|b| b > super::check::MAX_CHUNK_BYTES) {
+        return Err(invalid(&path, "has chunks over the 256 MiB accepted"));
     }
     Ok(array)
 }
