@@ -165,6 +165,13 @@ impl Env {
         crate::view::camera_info(&self.options.camera)
     }
 
+    /// Takes back an observation's images: the next [`Env::observe`] draws into their buffers.
+    pub fn recycle(&mut self, images: Images) {
+        if let Some((_, renderer)) = self.view.as_mut() {
+            renderer.recycle(images.rgb, images.depth_m, images.mask);
+        }
+    }
+
     /// The current observation (rendered when the environment renders).
     pub fn observe(&mut self) -> EnvObservation {
         let sim = self.sim.observation();

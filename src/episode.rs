@@ -389,7 +389,24 @@ pub struct Step {
     pub other: Vec<FeatureValue>,
 }
 
+/// A step's image buffers, taken out of it (see [`Step::take_pixels`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Pixels {
+    pub rgb: Vec<u8>,
+    pub depth_m: Vec<f32>,
+    pub mask: Vec<u8>,
+}
+
 impl Step {
+    /// Takes the step's RGB, depth and mask out of it (leaving them empty).
+    pub fn take_pixels(&mut self) -> Pixels {
+        Pixels {
+            rgb: std::mem::take(&mut self.rgb),
+            depth_m: std::mem::take(&mut self.depth_m),
+            mask: std::mem::take(&mut self.mask),
+        }
+    }
+
     /// A step holding nothing yet (readers fill in what their dataset has).
     pub fn empty() -> Step {
         Step {
@@ -475,10 +492,16 @@ impl Episode {
         height_px: usize,
         features: &[FeatureSpec],
     ) -> Result<(), String> {
+        self.validate_structure(features)?;
+        self.validate_pixels(width_px, height_px, features)
+    }
+
+    /// [`Episode::validate`] but the sizes of the steps' RGB, depth and mask (whose pixels an
+    /// encoder that checked them may have taken already).
+    pub fn validate_structure(&self, features: &[FeatureSpec]) -> Result<(), String> {
         if self.steps.is_empty() {
             return Err(format!("episode {} has no steps", self.meta.index));
         }
-        let pixels = width_px * height_px;
         let others: Vec<&FeatureSpec> = features
             .iter()
             .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
@@ -530,20 +553,21 @@ impl Episode {
                     ));
                 }
             }
-            for feature in features.iter().filter(|f| f.in_steps()) {
-                let (what, len, expected) = match feature.kind {
-                    FeatureKind::Rgb => ("rgb", step.rgb.len(), pixels * 3),
-                    FeatureKind::Depth => ("depth", step.depth_m.len(), pixels),
-                    FeatureKind::Mask => ("mask", step.mask.len(), pixels),
-                    _ => continue,
-                };
-                if len != expected {
-                    return Err(format!(
-                        "episode {} step {i}: {what} has {len} values where a {width_px}x{height_px} image has {expected}",
-                        self.meta.index
-                    ));
-                }
-            }
+        }
+        Ok(())
+    }
+
+    /// That every step holds each image feature of `features` kept in the steps (RGB, depth,
+    /// mask) with the size of a `width_px` x `height_px` image.
+    pub fn validate_pixels(
+        &self,
+        width_px: usize,
+        height_px: usize,
+        features: &[FeatureSpec],
+    ) -> Result<(), String> {
+        for (i, step) in self.steps.iter().enumerate() {
+            step_pixels_fit(step, width_px, height_px, features)
+                .map_err(|problem| format!("episode {} step {i}: {problem}", self.meta.index))?;
         }
         Ok(())
     }
@@ -573,6 +597,31 @@ impl Episode {
             .iter()
             .find(|e| e.feature == feature && matches!(e.encoding, ImageEncoding::Video(_)))
     }
+}
+
+/// Whether `step` holds each image feature of `features` kept in the steps with the size of a
+/// `width_px` x `height_px` image (the problem otherwise).
+pub fn step_pixels_fit(
+    step: &Step,
+    width_px: usize,
+    height_px: usize,
+    features: &[FeatureSpec],
+) -> Result<(), String> {
+    let pixels = width_px * height_px;
+    for feature in features.iter().filter(|f| f.in_steps()) {
+        let (what, len, expected) = match feature.kind {
+            FeatureKind::Rgb => ("rgb", step.rgb.len(), pixels * 3),
+            FeatureKind::Depth => ("depth", step.depth_m.len(), pixels),
+            FeatureKind::Mask => ("mask", step.mask.len(), pixels),
+            _ => continue,
+        };
+        if len != expected {
+            return Err(format!(
+                "{what} has {len} values where a {width_px}x{height_px} image has {expected}"
+            ));
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -48,14 +48,27 @@ pub fn encode_png(
     pixels: &[u8],
     level: PngLevel,
 ) -> Result<Vec<u8>, png::EncodingError> {
+    let mut out = Vec::with_capacity(pixels.len() / 2);
+    encode_png_into(&mut out, width, height, layout, pixels, level)?;
+    Ok(out)
+}
+
+/// [`encode_png`] appending to `out`.
+pub fn encode_png_into(
+    out: &mut Vec<u8>,
+    width: usize,
+    height: usize,
+    layout: PngPixels,
+    pixels: &[u8],
+    level: PngLevel,
+) -> Result<(), png::EncodingError> {
     let (colour, depth) = match layout {
         PngPixels::Grey8 => (png::ColorType::Grayscale, png::BitDepth::Eight),
         PngPixels::Rgb8 => (png::ColorType::Rgb, png::BitDepth::Eight),
         PngPixels::Rgba8 => (png::ColorType::Rgba, png::BitDepth::Eight),
         PngPixels::Grey16 => (png::ColorType::Grayscale, png::BitDepth::Sixteen),
     };
-    let mut out = Vec::with_capacity(pixels.len() / 2);
-    let mut encoder = png::Encoder::new(&mut out, width as u32, height as u32);
+    let mut encoder = png::Encoder::new(out, width as u32, height as u32);
     encoder.set_color(colour);
     encoder.set_depth(depth);
     encoder.set_compression(match level {
@@ -70,8 +83,7 @@ pub fn encode_png(
     }
     let mut writer = encoder.write_header()?;
     writer.write_image_data(pixels)?;
-    writer.finish()?;
-    Ok(out)
+    writer.finish()
 }
 
 /// The temporary name of `path` while it is being written (`.name.partial`).

@@ -186,6 +186,10 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         Gripper::Pulse => GripperEncoding::Pulse,
     };
     options.record.randomize_appearance = args.randomize_appearance;
+    // Point clouds (PLY, PCD, MCAP, zarr) carry the mask ids of their points when the frames
+    // have them; LeRobot and RLDS store the mask only as its feature.
+    options.record.render.mask =
+        args.with_mask || !matches!(args.format, Format::Lerobot | Format::Rlds);
     let features = FeatureSet {
         mask: args.with_mask,
         depth: !args.without.contains(&Omit::Depth),

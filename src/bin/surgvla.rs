@@ -169,6 +169,7 @@ impl LookArgs {
                 ..appearance.lighting(Lighting::default())
             },
             supersample: self.supersample,
+            ..RenderOptions::default()
         };
         (options, appearance)
     }

@@ -11,7 +11,7 @@
 //!    saved episode is, by construction, what its own actions reproduce.
 
 use crate::env::{Env, EnvOptions, Images};
-use crate::episode::{Episode, EpisodeMeta, GripperEncoding, Step};
+use crate::episode::{Episode, EpisodeMeta, GripperEncoding, Pixels, Step};
 use crate::policy::{ExpertLibrary, ExpertPlan, PlanError, Policy};
 use crate::render::{Camera, RenderOptions};
 use crate::sim::psm::wrap_angle;
@@ -196,6 +196,26 @@ pub fn render_replay(
     attempts: u32,
     options: &RecordOptions,
 ) -> Recorded {
+    let kept = render_replay_with(instance, actions, index, attempts, options, |_| {
+        Ok::<Vec<Pixels>, std::convert::Infallible>(Vec::new())
+    });
+    match kept {
+        Ok(recorded) => recorded,
+        Err(never) => match never {},
+    }
+}
+
+/// [`render_replay`] handing each step to `on_frame` as soon as it is recorded (with its
+/// images, in step order). `on_frame` may take the step's pixels (the step is kept without
+/// them) and returns image buffers it is done with, which later frames are drawn into.
+pub fn render_replay_with<E>(
+    instance: &TaskInstance,
+    actions: &[[f32; 7]],
+    index: u64,
+    attempts: u32,
+    options: &RecordOptions,
+    mut on_frame: impl FnMut(&mut Step) -> Result<Vec<Pixels>, E>,
+) -> Result<Recorded, E> {
     let (mut env, mut observation) = Env::from_instance(instance.clone(), &options.env(true));
     let physical = physical_actions(actions, options.gripper);
     let mut steps = Vec::with_capacity(actions.len());
@@ -207,7 +227,7 @@ pub fn render_replay(
         let mut extras = std::mem::take(&mut observation.extras);
         (extras.grasped, extras.released) = env.events(&report);
         extras.success_after = Some(env.verdict().success);
-        steps.push(Step {
+        let mut step = Step {
             rgb,
             depth_m,
             mask,
@@ -216,14 +236,18 @@ pub fn render_replay(
             environment_state: observation.environment_state,
             extras,
             other: Vec::new(),
-        });
+        };
+        for Pixels { rgb, depth_m, mask } in on_frame(&mut step)? {
+            env.recycle(Images { rgb, depth_m, mask });
+        }
+        steps.push(step);
         if i + 1 < physical.len() {
             observation = env.observe();
         }
     }
     let verdict = env.verdict();
     let task = instance.task;
-    Recorded {
+    Ok(Recorded {
         episode: Episode {
             encoded: Vec::new(),
             meta: EpisodeMeta {
@@ -241,7 +265,7 @@ pub fn render_replay(
         verdict,
         physics_secs: env.timing.physics_secs,
         render_secs: env.timing.render_secs,
-    }
+    })
 }
 
 /// Why an episode could not be recorded.

@@ -12,7 +12,7 @@
 //! - a resumed run skips the slots already written and recounts their attempts without
 //!   rendering, so its report matches an uninterrupted run's.
 
-use crate::collect::record::{attempt_seed, render_replay, run_expert, verify_replay};
+use crate::collect::record::{attempt_seed, render_replay_with, run_expert, verify_replay};
 use crate::collect::report::Tally;
 pub use crate::collect::report::{CollectReport, TaskReport, Timing};
 pub use crate::collect::slot::{
@@ -22,7 +22,7 @@ pub use crate::collect::slot::{
 use crate::episode::Episode;
 use crate::episode::FeatureSet;
 use crate::export::DatasetInfo;
-use crate::export::{Encoded, EpisodeSink, ExportError, Summary};
+use crate::export::{DetachedEncoder, Encoded, EpisodeSink, ExportError, Summary};
 use crate::policy::{ExpertLibrary, PlanError};
 use crate::task::TaskId;
 use rayon::prelude::*;
@@ -84,6 +84,20 @@ pub fn collect_slot(
     library: &ExpertLibrary,
     render: bool,
 ) -> Result<SlotOutcome, CollectError> {
+    collect_slot_encoded(slot, index, options, library, render, None).map(|(outcome, _)| outcome)
+}
+
+/// [`collect_slot`] that also encodes the verified episode for a sink with `encoder`: frame
+/// by frame while it is rendered when the encoder can ([`DetachedEncoder::frames`]; each
+/// frame's buffers are then drawn into again and the episode keeps no pixels), else whole.
+pub fn collect_slot_encoded(
+    slot: Slot,
+    index: u64,
+    options: &CollectOptions,
+    library: &ExpertLibrary,
+    render: bool,
+    encoder: Option<&dyn DetachedEncoder>,
+) -> Result<(SlotOutcome, Option<Encoded>), CollectError> {
     let plan = library.plan(slot.task)?;
     let record = &options.record;
     let max_steps = record.max_steps.unwrap_or_else(|| slot.task.step_limit());
@@ -129,9 +143,19 @@ pub fn collect_slot(
                 .push(fail("expert", expert.verdict.reason.clone()));
             continue;
         }
+        let mut frames = encoder.and_then(|e| e.frames(expert.actions.len()));
         let verdict = if render {
-            let recorded =
-                render_replay(&instance, &expert.actions, index, outcome.attempts, record);
+            let recorded = render_replay_with(
+                &instance,
+                &expert.actions,
+                index,
+                outcome.attempts,
+                record,
+                |step| match frames.as_mut() {
+                    Some(frames) => frames.push(step),
+                    None => Ok(Vec::new()),
+                },
+            )?;
             outcome.physics_secs += recorded.physics_secs;
             outcome.render_secs += recorded.render_secs;
             outcome.episode = Some(recorded.episode);
@@ -142,12 +166,19 @@ pub fn collect_slot(
         if verdict.success {
             outcome.frames = expert.actions.len() as u64;
             outcome.verified = true;
-            return Ok(outcome);
+            let encoded = match (encoder, &outcome.episode) {
+                (Some(encoder), Some(episode)) => Some(match frames {
+                    Some(frames) => frames.finish(episode)?,
+                    None => encoder.encode(episode)?,
+                }),
+                _ => None,
+            };
+            return Ok((outcome, encoded));
         }
         outcome.episode = None;
         outcome.failures.push(fail("replay", verdict.reason));
     }
-    Ok(outcome)
+    Ok((outcome, None))
 }
 
 impl SlotOutcome {
@@ -296,14 +327,14 @@ fn record_and_write(
                 if stop.load(Ordering::Relaxed) {
                     return;
                 }
-                let arrival = collect_slot(slots[i], (first + i) as u64, options, library, true)
-                    .and_then(|outcome| {
-                        let encoded = match (&encoder, &outcome.episode) {
-                            (Some(encoder), Some(episode)) => Some(encoder.encode(episode)?),
-                            _ => None,
-                        };
-                        Ok((outcome, encoded))
-                    });
+                let arrival = collect_slot_encoded(
+                    slots[i],
+                    (first + i) as u64,
+                    options,
+                    library,
+                    true,
+                    encoder.as_deref(),
+                );
                 reply.send(arrival);
             });
         };

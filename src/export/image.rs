@@ -35,6 +35,20 @@ pub fn encode_png(
     pixels: &[u8],
     level: PngLevel,
 ) -> Result<Vec<u8>, ExportError> {
+    let mut out = Vec::with_capacity(pixels.len() / 2);
+    encode_png_into(&mut out, width, height, channels, pixels, level)?;
+    Ok(out)
+}
+
+/// [`encode_png`] appending to `out`.
+pub fn encode_png_into(
+    out: &mut Vec<u8>,
+    width: usize,
+    height: usize,
+    channels: usize,
+    pixels: &[u8],
+    level: PngLevel,
+) -> Result<(), ExportError> {
     let layout = match channels {
         1 => PngPixels::Grey8,
         3 => PngPixels::Rgb8,
@@ -45,7 +59,7 @@ pub fn encode_png(
             )));
         }
     };
-    crate::files::encode_png(width, height, layout, pixels, level).map_err(png_error)
+    crate::files::encode_png_into(out, width, height, layout, pixels, level).map_err(png_error)
 }
 
 /// Encodes row-major 8-bit RGB as a baseline JPEG (4:2:0, `quality` 1-100) with integer

@@ -58,7 +58,7 @@ pub use format::{DatasetFormat, MergeError};
 pub use info::DatasetInfo;
 pub use registry::{BUILTIN_FORMATS, merge};
 
-use crate::episode::Episode;
+use crate::episode::{Episode, Pixels, Step};
 use crate::error::ErrorKind;
 use std::path::{Path, PathBuf};
 
@@ -293,9 +293,26 @@ pub struct SinkTiming {
 pub struct Encoded(pub(crate) Box<dyn std::any::Any + Send>);
 
 /// Encodes episodes for a sink on any thread, apart from the sink (see
-/// [`EpisodeSink::detached_encoder`]).
+/// [`EpisodeSink::detached_encoder`]). It checks the sizes of the images it encodes, which
+/// [`EpisodeSink::write_encoded`] then leaves out of its checks.
 pub trait DetachedEncoder: Send + Sync {
     fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError>;
+    /// An encoder of one episode frame by frame while it is recorded, so that each frame is
+    /// encoded while its pixels are in the core's cache and its buffers can be drawn into
+    /// again; `None` when the sink needs whole episodes. `expected_frames` sizes its buffers.
+    fn frames(&self, _expected_frames: usize) -> Option<Box<dyn FrameEncoder>> {
+        None
+    }
+}
+
+/// Encodes one episode frame by frame (see [`DetachedEncoder::frames`]): the same bytes as
+/// [`DetachedEncoder::encode`] of the whole episode.
+pub trait FrameEncoder: Send {
+    /// Takes the next step's images (it is kept without them) to encode them and take its
+    /// statistics, in small batches; returns the buffers of earlier steps it is done with.
+    fn push(&mut self, step: &mut Step) -> Result<Vec<Pixels>, ExportError>;
+    /// The episode whose steps were pushed, encoded (its steps' pixels may be gone).
+    fn finish(self: Box<Self>, episode: &Episode) -> Result<Encoded, ExportError>;
 }
 
 /// Receives consecutive episodes, in episode-index order, and writes one dataset.
@@ -352,6 +369,7 @@ pub(crate) fn check_episode(
     finished: bool,
     episode: &Episode,
     expected: u64,
+    pixels: bool,
 ) -> Result<(), ExportError> {
     if finished {
         return Err(ExportError::Internal(
@@ -377,10 +395,16 @@ pub(crate) fn check_episode(
             episode.meta.index, video.feature
         )));
     }
-    let (width, height) = info.image_size();
     episode
-        .validate(width, height, &info.features)
-        .map_err(ExportError::InvalidEpisode)
+        .validate_structure(&info.features)
+        .map_err(ExportError::InvalidEpisode)?;
+    if pixels {
+        let (width, height) = info.image_size();
+        episode
+            .validate_pixels(width, height, &info.features)
+            .map_err(ExportError::InvalidEpisode)?;
+    }
+    Ok(())
 }
 
 /// [`check_episode`] for consecutive episodes starting at `first`.
@@ -389,10 +413,11 @@ pub(crate) fn check_batch(
     finished: bool,
     episodes: &[Episode],
     first: u64,
+    pixels: bool,
 ) -> Result<(), ExportError> {
     (first..)
         .zip(episodes)
-        .try_for_each(|(index, episode)| check_episode(info, finished, episode, index))
+        .try_for_each(|(index, episode)| check_episode(info, finished, episode, index, pixels))
 }
 
 /// Makes a file to write beside a finished dataset from its summary: (relative path, bytes).

@@ -16,6 +16,8 @@ pub const RESERVOIR: usize = 10_000;
 /// Histogram bins for depth quantiles and their range, metres.
 pub const DEPTH_BINS: usize = 8192;
 pub const DEPTH_RANGE_M: f64 = 0.5;
+/// Lanes a depth frame's sums run in (see [`ImageStats::push_depth_counting`]).
+const DEPTH_LANES: usize = 4;
 /// The quantiles LeRobot (and pi0.5-style normalisation) reads.
 pub const QUANTILES: [(&str, f64); 5] = [
     ("q01", 0.01),
@@ -26,7 +28,7 @@ pub const QUANTILES: [(&str, f64); 5] = [
 ];
 
 /// Running statistics of one scalar series.
-#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug)]
 struct Running {
     count: u64,
     sum: f64,
@@ -302,26 +304,53 @@ impl ImageStats {
     }
 
     /// [`ImageStats::push_depth`] with the pixel counts going to `histograms`.
+    ///
+    /// A frame's sums run in [`DEPTH_LANES`] lanes (pixel `i` into lane `i % DEPTH_LANES`),
+    /// added up lane by lane in a fixed order: the same on every machine and for any thread
+    /// count, and free of the one long chain of dependent additions a single sum makes (the
+    /// compiler turns the lanes into vector instructions). The pixel counts go through as many
+    /// tables taking turns, so a row of equal depths does not wait on one counter.
     pub fn push_depth_counting(&mut self, depth_m: &[f32], histograms: &mut [Vec<u64>]) {
         self.frames += 1;
-        let mut frame = Running::default();
-        let mut counts = histograms.first_mut().map(Vec::as_mut_slice);
-        let per_bin = 1.0 / self.bin_width;
-        let last = counts.as_ref().map_or(0, |h| h.len().saturating_sub(1));
-        for v in depth_m {
-            let x = f64::from(*v);
-            frame.push(x);
-            if let Some(counts) = counts.as_mut() {
-                // Casts saturate (negative and NaN read as bin 0): nearest bin without a libm
-                // call.
-                let bin = ((x * per_bin + 0.5) as usize).min(last);
-                if let Some(n) = counts.get_mut(bin) {
+        let counts = histograms.first_mut().filter(|h| !h.is_empty());
+        let bins = counts.as_ref().map_or(1, |h| h.len());
+        let scale = DepthBins::new(1.0 / self.bin_width, bins);
+        let mut sums = DepthSums::default();
+        let mut tables = vec![
+            0u32;
+            if counts.is_some() {
+                bins * DEPTH_LANES
+            } else {
+                0
+            }
+        ];
+        let mut chunks = depth_m.chunks_exact(DEPTH_LANES);
+        for chunk in &mut chunks {
+            let mut values = [0f32; DEPTH_LANES];
+            values.copy_from_slice(chunk);
+            let at = sums.push(&values, &scale);
+            for (k, bin) in at.into_iter().enumerate() {
+                if let Some(n) = tables.get_mut(bin as usize * DEPTH_LANES + k) {
                     *n += 1;
                 }
             }
         }
+        let rest = chunks.remainder();
+        let mut values = [f32::NAN; DEPTH_LANES];
+        values[..rest.len()].copy_from_slice(rest);
+        let at = sums.push_some(&values, rest.len(), &scale);
+        for bin in &at[..rest.len()] {
+            if let Some(n) = tables.get_mut(*bin as usize * DEPTH_LANES) {
+                *n += 1;
+            }
+        }
+        if let Some(counts) = counts {
+            for (n, lanes) in counts.iter_mut().zip(tables.chunks_exact(DEPTH_LANES)) {
+                *n += lanes.iter().map(|t| u64::from(*t)).sum::<u64>();
+            }
+        }
         if let Some(running) = self.running.first_mut() {
-            running.merge(&frame);
+            running.merge(&sums.total(depth_m.len() as u64));
         }
     }
 
@@ -363,6 +392,120 @@ impl ImageStats {
             out.insert(name.into(), per(&|c, _| self.quantile(c, q)));
         }
         Value::Object(out)
+    }
+}
+
+/// A depth value's histogram bin, computed in `f32`: `trunc(x * per_bin + 0.5)` clamped to the
+/// bins (negative and NaN values read as bin 0), without a libm call or a float-to-integer
+/// conversion (neither becomes vector instructions).
+///
+/// With [`DEPTH_BINS`] over [`DEPTH_RANGE_M`], `per_bin` is 2^14, so `x * per_bin` is exact
+/// and this is the same bin as the formula in `f64`, ties included (tested).
+struct DepthBins {
+    per_bin: f32,
+    last: f32,
+}
+
+impl DepthBins {
+    fn new(per_bin: f64, bins: usize) -> Self {
+        DepthBins {
+            per_bin: per_bin as f32,
+            // The truncation below needs the bins under 2^22 (ours are 8,192).
+            last: bins.saturating_sub(1).min(1 << 22) as f32,
+        }
+    }
+
+    fn bin(&self, x: f32) -> i32 {
+        // Plain comparisons, not `max` and `min`, so this stays a few vector instructions; a NaN
+        // fails the first and reads as 0.
+        let y = x * self.per_bin;
+        let y = if y > 0.0 { y } else { 0.0 };
+        let y = if y < self.last { y } else { self.last };
+        // 0 <= y < 2^23: adding 2^23 rounds y to the nearest integer (ties to even), exactly
+        // representable; a tie rounded down is one more for `trunc(y + 0.5)`.
+        let nearest = (y + MAGIC) - MAGIC;
+        let bin = if y - nearest == 0.5 {
+            nearest + 1.0
+        } else {
+            nearest
+        };
+        ((bin + MAGIC).to_bits() & 0x7f_ffff) as i32
+    }
+}
+
+/// 2^23, where an `f32`'s spacing is 1.
+const MAGIC: f32 = 8_388_608.0;
+
+/// A depth frame's sums in [`DEPTH_LANES`] lanes, one array per quantity.
+struct DepthSums {
+    sum: [f64; DEPTH_LANES],
+    sum_sq: [f64; DEPTH_LANES],
+    min: [f32; DEPTH_LANES],
+    max: [f32; DEPTH_LANES],
+}
+
+impl Default for DepthSums {
+    fn default() -> Self {
+        DepthSums {
+            sum: [0.0; DEPTH_LANES],
+            sum_sq: [0.0; DEPTH_LANES],
+            min: [f32::INFINITY; DEPTH_LANES],
+            max: [f32::NEG_INFINITY; DEPTH_LANES],
+        }
+    }
+}
+
+impl DepthSums {
+    /// Adds one value to each lane; returns their bins.
+    #[inline(always)]
+    fn push(&mut self, values: &[f32; DEPTH_LANES], bins: &DepthBins) -> [i32; DEPTH_LANES] {
+        let mut at = [0i32; DEPTH_LANES];
+        for k in 0..DEPTH_LANES {
+            let v = values[k];
+            let x = f64::from(v);
+            self.sum[k] += x;
+            self.sum_sq[k] += x * x;
+            // Comparisons, not `min` and `max` (a NaN fails both and is left out alike).
+            self.min[k] = if v < self.min[k] { v } else { self.min[k] };
+            self.max[k] = if v > self.max[k] { v } else { self.max[k] };
+            at[k] = bins.bin(v);
+        }
+        at
+    }
+
+    /// Adds the first `n` of `values` to lanes 0..n.
+    fn push_some(
+        &mut self,
+        values: &[f32; DEPTH_LANES],
+        n: usize,
+        bins: &DepthBins,
+    ) -> [i32; DEPTH_LANES] {
+        let mut at = [0i32; DEPTH_LANES];
+        for k in 0..n.min(DEPTH_LANES) {
+            let mut one = DepthSums::default();
+            let bin = one.push(&[values[k]; DEPTH_LANES], bins);
+            self.sum[k] += one.sum[0];
+            self.sum_sq[k] += one.sum_sq[0];
+            self.min[k] = self.min[k].min(one.min[0]);
+            self.max[k] = self.max[k].max(one.max[0]);
+            at[k] = bin[0];
+        }
+        at
+    }
+
+    /// The lanes added up in lane order, over `count` values.
+    fn total(&self, count: u64) -> Running {
+        let mut frame = Running {
+            count,
+            ..Running::default()
+        };
+        for k in 0..DEPTH_LANES {
+            frame.sum += self.sum[k];
+            frame.sum_sq += self.sum_sq[k];
+            frame.min = frame.min.min(f64::from(self.min[k]));
+            frame.max = frame.max.max(f64::from(self.max[k]));
+        }
+        frame
     }
 }
 
@@ -553,6 +696,68 @@ mod tests {
             serde_json::to_string(&parts).expect("json"),
             serde_json::to_string(&whole).expect("json")
         );
+    }
+
+    #[test]
+    fn depth_bins_in_f32_equal_the_f64_formula_ties_included() {
+        let per_bin = 1.0 / ImageStats::depth().bin_width;
+        let bins = DepthBins::new(per_bin, DEPTH_BINS);
+        let last = DEPTH_BINS - 1;
+        let reference = |x: f32| ((f64::from(x) * per_bin + 0.5) as usize).min(last);
+        let mut rng = SplitMix64::new(11);
+        let mut values: Vec<f32> = (0..200_000)
+            .map(|_| f32::from_bits(rng.next_u64() as u32 % 0x3f80_0000))
+            .collect();
+        // Ties: halfway between two bins, and the values beside them.
+        for b in 0..DEPTH_BINS as u32 {
+            let tie = (b as f32 + 0.5) / per_bin as f32;
+            values.extend([tie, tie.next_down(), tie.next_up()]);
+        }
+        values.extend([
+            0.0,
+            -0.0,
+            -1.0,
+            0.49999,
+            0.5,
+            1e9,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE / 4.0,
+        ]);
+        for x in values {
+            assert_eq!(
+                bins.bin(x) as usize,
+                reference(x),
+                "{x:e} ({:#x})",
+                x.to_bits()
+            );
+        }
+    }
+
+    #[test]
+    fn depth_lanes_meet_the_sequential_sums() {
+        let mut rng = SplitMix64::new(5);
+        for len in [0, 1, 3, 4, 5, 1001] {
+            let frame: Vec<f32> = (0..len)
+                .map(|_| (rng.next_u64() % 4000) as f32 * 1e-4 + 0.01)
+                .collect();
+            let mut stats = ImageStats::depth();
+            stats.push_depth(&frame);
+            let mut sequential = Running::default();
+            for v in &frame {
+                sequential.push(f64::from(*v));
+            }
+            let lanes = &stats.running[0];
+            assert_eq!(lanes.count, sequential.count);
+            // These depths are multiples of 2^-33 far from overflow: their sum is exact in any
+            // order.
+            assert_eq!(lanes.sum, sequential.sum);
+            assert!((lanes.sum_sq - sequential.sum_sq).abs() <= 1e-12 * sequential.sum_sq);
+            assert_eq!(lanes.finite_min(), sequential.finite_min());
+            assert_eq!(lanes.finite_max(), sequential.finite_max());
+            assert_eq!(stats.histograms[0].iter().sum::<u64>(), len as u64);
+        }
     }
 
     #[test]

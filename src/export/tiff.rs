@@ -4,12 +4,24 @@
 
 /// Encodes `pixels` (row-major, `width * height` values) as a float32 grey TIFF.
 pub fn encode_f32_tiff(width: u32, height: u32, pixels: &[f32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(f32_tiff_len(pixels.len()));
+    encode_f32_tiff_into(&mut out, width, height, pixels);
+    out
+}
+
+/// The size of [`encode_f32_tiff`]'s file of `samples` values, bytes.
+pub fn f32_tiff_len(samples: usize) -> usize {
+    8 + 2 + 10 * 12 + 4 + samples * 4
+}
+
+/// [`encode_f32_tiff`] appending to `out`.
+pub fn encode_f32_tiff_into(out: &mut Vec<u8>, width: u32, height: u32, pixels: &[f32]) {
     const ENTRIES: u16 = 10;
     let data_len = pixels.len() * 4;
     let ifd_offset = 8u32;
     let ifd_len = 2 + u32::from(ENTRIES) * 12 + 4;
     let data_offset = ifd_offset + ifd_len;
-    let mut out = Vec::with_capacity(data_offset as usize + data_len);
+    out.reserve(data_offset as usize + data_len);
     out.extend_from_slice(b"II");
     out.extend_from_slice(&42u16.to_le_bytes());
     out.extend_from_slice(&ifd_offset.to_le_bytes());
@@ -45,7 +57,6 @@ pub fn encode_f32_tiff(width: u32, height: u32, pixels: &[f32]) -> Vec<u8> {
     for (bytes, v) in out[start..].chunks_exact_mut(4).zip(pixels) {
         bytes.copy_from_slice(&v.to_le_bytes());
     }
-    out
 }
 
 /// Decodes what [`encode_f32_tiff`] writes (our own round trip; the real reader is Pillow).

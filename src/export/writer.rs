@@ -7,12 +7,13 @@
 //! summary, and seals the dataset (manifest, sidecar, marker). A format says only how an
 //! episode is encoded, appended and finished.
 
-use crate::episode::{Episode, ImageEncoding};
+use crate::episode::{Episode, ImageEncoding, Pixels, Step};
 use crate::export::card::{CARD, TALLY_JOURNAL, Tally};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::{
-    DetachedEncoder, Encoded, EpisodeSink, ExportError, Sidecar, SinkTiming, Summary, check_batch,
+    DetachedEncoder, Encoded, EpisodeSink, ExportError, FrameEncoder, Sidecar, SinkTiming, Summary,
+    check_batch,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -103,14 +104,52 @@ pub trait FormatWriter: Send + Sized {
 /// Encodes one episode for appending; called from several threads at once.
 pub trait EpisodeEncoder<T>: Sync {
     fn encode(&self, episode: &Episode) -> Result<T, ExportError>;
+    /// An encoder of one episode frame by frame (see [`DetachedEncoder::frames`]); `None`: whole
+    /// episodes only.
+    fn frames(&self, _expected_frames: usize) -> Option<Box<dyn EpisodeFrames<T>>> {
+        None
+    }
 }
 
-/// A format's detached encoder as a sink's (its output boxed).
-struct Detached<T>(std::sync::Arc<dyn EpisodeEncoder<T> + Send>);
+/// A format's encoder of one episode frame by frame (see [`FrameEncoder`]).
+pub trait EpisodeFrames<T>: Send {
+    fn push(&mut self, step: &mut Step) -> Result<Vec<Pixels>, ExportError>;
+    fn finish(self: Box<Self>, episode: &Episode) -> Result<T, ExportError>;
+}
+
+/// A format's detached encoder as a sink's (its output boxed), with what it checks the
+/// episodes' images against.
+struct Detached<T> {
+    encoder: std::sync::Arc<dyn EpisodeEncoder<T> + Send>,
+    image_size: (usize, usize),
+    features: Vec<crate::episode::FeatureSpec>,
+}
 
 impl<T: Send + 'static> DetachedEncoder for Detached<T> {
     fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError> {
-        Ok(Encoded(Box::new(self.0.encode(episode)?)))
+        let (width, height) = self.image_size;
+        episode
+            .validate_pixels(width, height, &self.features)
+            .map_err(ExportError::InvalidEpisode)?;
+        Ok(Encoded(Box::new(self.encoder.encode(episode)?)))
+    }
+
+    fn frames(&self, expected_frames: usize) -> Option<Box<dyn FrameEncoder>> {
+        let frames = self.encoder.frames(expected_frames)?;
+        Some(Box::new(DetachedFrames(frames)))
+    }
+}
+
+/// A format's frame-by-frame encoder as a sink's (its output boxed).
+struct DetachedFrames<T>(Box<dyn EpisodeFrames<T>>);
+
+impl<T: Send + 'static> FrameEncoder for DetachedFrames<T> {
+    fn push(&mut self, step: &mut Step) -> Result<Vec<Pixels>, ExportError> {
+        self.0.push(step)
+    }
+
+    fn finish(self: Box<Self>, episode: &Episode) -> Result<Encoded, ExportError> {
+        Ok(Encoded(Box::new(self.0.finish(episode)?)))
     }
 }
 
@@ -203,6 +242,7 @@ where
             self.finished.is_some(),
             episodes,
             self.format.episodes(),
+            true,
         )?;
         let started = Instant::now();
         let encoded: Vec<F::Encoded> = {
@@ -237,17 +277,23 @@ where
 
     fn detached_encoder(&self) -> Option<std::sync::Arc<dyn DetachedEncoder>> {
         let encoder = self.format.detached_encoder(&self.info)?;
-        Some(std::sync::Arc::new(Detached(encoder)))
+        Some(std::sync::Arc::new(Detached {
+            encoder,
+            image_size: self.info.image_size(),
+            features: self.info.features.clone(),
+        }))
     }
 
     /// Appends in order what the detached encoder made of each episode.
     fn write_encoded(&mut self, episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
         let (episodes, encoded): (Vec<Episode>, Vec<Encoded>) = episodes.into_iter().unzip();
+        // The detached encoder checked the images' sizes before it encoded them.
         check_batch(
             &self.info,
             self.finished.is_some(),
             &episodes,
             self.format.episodes(),
+            false,
         )?;
         let appending = Instant::now();
         let mut encoding_secs = 0.0;

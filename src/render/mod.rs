@@ -24,6 +24,9 @@ pub struct RenderOptions {
     /// RGB is rendered at this many samples per pixel edge and box-filtered (1 = off). Depth
     /// and mask always sample pixel centres, so they stay aligned with RGB.
     pub supersample: u32,
+    /// Whether frames carry the segmentation mask (false: an empty one, for a dataset that
+    /// stores none; RGB and depth are the same either way).
+    pub mask: bool,
 }
 
 impl Default for RenderOptions {
@@ -31,6 +34,7 @@ impl Default for RenderOptions {
         RenderOptions {
             lighting: Lighting::default(),
             supersample: 1,
+            mask: true,
         }
     }
 }
@@ -44,9 +48,11 @@ pub struct Renderer {
 
 impl Renderer {
     pub fn new(options: RenderOptions) -> Self {
+        let mut rasterizer = Rasterizer::default();
+        rasterizer.skip_mask = !options.mask;
         Renderer {
             options,
-            rasterizer: Rasterizer::default(),
+            rasterizer,
         }
     }
 
@@ -64,6 +70,12 @@ impl Renderer {
         }
         self.rasterizer
             .render_over_static(camera, instances, &self.options.lighting, statics)
+    }
+
+    /// Takes back a frame's buffers for the next [`Renderer::render_over_static`] frame to be
+    /// drawn into (no allocation, and memory the core has just used).
+    pub fn recycle(&mut self, rgb: Vec<u8>, depth_m: Vec<f32>, mask: Vec<u8>) {
+        self.rasterizer.recycle(rgb, depth_m, mask);
     }
 
     /// Renders the instances seen by `camera`.

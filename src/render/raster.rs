@@ -98,6 +98,10 @@ pub struct Rasterizer {
     layer: Option<StaticLayer>,
     /// Where the G-buffer differs from the kept layer's.
     changed: Changed,
+    /// Frames leave the mask empty (see [`super::RenderOptions::mask`]).
+    pub(super) skip_mask: bool,
+    /// Buffers of frames handed back ([`Rasterizer::recycle`]) for the next layered frames.
+    spare: Vec<(Vec<u8>, Vec<f32>, Vec<u8>)>,
 }
 
 /// Where the G-buffer differs from the kept static layer's.
@@ -627,7 +631,9 @@ impl Rasterizer {
         self.camera_normals.truncate(layer.vertices);
         self.vertex_colours.truncate(layer.vertices);
         self.vertex_offsets.truncate(statics);
-        let mut rgb = layer.rgb.clone();
+        let (mut rgb, depth_m, mask) = self.spare.pop().unwrap_or_default();
+        rgb.clear();
+        rgb.extend_from_slice(&layer.rgb);
         let touched = self.visibility_from(camera, instances, lighting, statics);
         self.changed = touched.map_or(Changed::Nowhere, Changed::Within);
         if let Some(rect) = touched {
@@ -637,31 +643,38 @@ impl Rasterizer {
             width_px: camera.width_px,
             height_px: camera.height_px,
             rgb,
-            depth_m: Vec::new(),
-            mask: Vec::new(),
+            depth_m,
+            mask,
         };
         self.depth_and_mask(instances, &mut frame);
         frame
     }
 
+    /// Takes back a frame's buffers (their contents do not matter): a later
+    /// [`Rasterizer::render_over_static`] frame is drawn into them instead of new ones.
+    pub fn recycle(&mut self, rgb: Vec<u8>, depth_m: Vec<f32>, mask: Vec<u8>) {
+        self.spare.push((rgb, depth_m, mask));
+    }
+
     /// The frame's depth and mask from the G-buffer.
     fn depth_and_mask(&self, instances: &[Instance<'_>], frame: &mut Frame) {
-        frame.depth_m = self
-            .inv_depth
-            .iter()
-            .map(|d| if *d > 0.0 { 1.0 / d } else { 0.0 })
-            .collect();
-        frame.mask = self
-            .instance
-            .iter()
-            .map(|i| {
-                if *i == NO_INSTANCE {
-                    0
-                } else {
-                    instances[usize::from(*i)].mask_id
-                }
-            })
-            .collect();
+        frame.depth_m.clear();
+        frame.depth_m.extend(
+            self.inv_depth
+                .iter()
+                .map(|d| if *d > 0.0 { 1.0 / d } else { 0.0 }),
+        );
+        frame.mask.clear();
+        if self.skip_mask {
+            return;
+        }
+        frame.mask.extend(self.instance.iter().map(|i| {
+            if *i == NO_INSTANCE {
+                0
+            } else {
+                instances[usize::from(*i)].mask_id
+            }
+        }));
     }
 
     /// Shading pass over the G-buffer: linear RGB per pixel.

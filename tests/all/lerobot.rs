@@ -509,6 +509,72 @@ fn episodes_encoded_apart_write_the_same_bytes_as_batches() {
 }
 
 #[test]
+fn episodes_encoded_frame_by_frame_write_the_same_bytes_as_batches() {
+    // The stream `collect` uses: each step's pixels taken as it is recorded, encoded in
+    // batches, the episode then appended without pixels. One episode longer than a batch.
+    let mut recorded = episodes(3, 6);
+    let mut long = recorded[0].clone();
+    long.steps = std::iter::repeat_n(recorded[0].steps.clone(), 15)
+        .flatten()
+        .collect();
+    recorded[0] = long;
+    let (batched, streamed) = (temp_root("batched-stream"), temp_root("streamed"));
+    write(&batched, &recorded, LeRobotOptions::default());
+    let mut writer: Box<dyn EpisodeSink> = Box::new(
+        LeRobotWriter::create(&streamed, &info(false), LeRobotOptions::default()).expect("create"),
+    );
+    let encoder = writer.detached_encoder().expect("LeRobot encodes apart");
+    let mut pairs = Vec::new();
+    let mut handed_back = 0;
+    for episode in &recorded {
+        let mut frames = encoder
+            .frames(episode.steps.len())
+            .expect("image mode streams");
+        let mut kept = episode.clone();
+        for step in &mut kept.steps {
+            handed_back += frames.push(step).expect("push").len();
+            assert!(
+                step.rgb.is_empty() && step.depth_m.is_empty(),
+                "pixels taken"
+            );
+        }
+        let encoded = frames.finish(&kept).expect("finish");
+        pairs.push((kept, encoded));
+    }
+    assert!(
+        handed_back > 0,
+        "a long episode's buffers come back to be drawn into"
+    );
+    writer.write_encoded(pairs).expect("write");
+    writer.finish().expect("finish");
+    assert_eq!(crate::util::tree(&batched), crate::util::tree(&streamed));
+
+    // A step of the wrong size is refused by the stream, and by the whole-episode encoder
+    // (the sink leaves the images' sizes to them).
+    let mut frames = encoder.frames(1).expect("image mode streams");
+    let mut step = recorded[1].steps[0].clone();
+    step.depth_m.pop();
+    assert!(frames.push(&mut step).is_err());
+    let mut short = recorded[1].clone();
+    short.steps[2].rgb.truncate(10);
+    assert!(encoder.encode(&short).is_err());
+
+    // Video mode encodes whole episodes only.
+    let video = temp_root("video-stream");
+    let writer = LeRobotWriter::create(
+        &video,
+        &info(false),
+        LeRobotOptions {
+            video: Some(surgvla::export::lerobot::VideoOptions::default()),
+            ..LeRobotOptions::default()
+        },
+    )
+    .expect("create");
+    let encoder = EpisodeSink::detached_encoder(&writer).expect("LeRobot encodes apart");
+    assert!(encoder.frames(6).is_none());
+}
+
+#[test]
 fn an_interrupted_dataset_resumes_to_the_same_bytes() {
     use surgvla::export::lerobot::VideoOptions;
     for video in [None, Some(VideoOptions::h264())] {

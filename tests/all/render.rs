@@ -307,6 +307,7 @@ fn randomized_appearance_changes_colours_not_geometry() {
         let options = RenderOptions {
             lighting: appearance.lighting(Default::default()),
             supersample: 1,
+            mask: true,
         };
         surgvla::view::render_simulator(
             &assets,
@@ -336,6 +337,7 @@ fn per_pixel_lighting_changes_only_the_gouraud_surfaces() {
         let mut renderer = Renderer::new(RenderOptions {
             lighting,
             supersample: 1,
+            mask: true,
         });
         surgvla::view::render_simulator(&assets, &mut renderer, &Camera::endoscope(), &sim)
     };
@@ -399,7 +401,8 @@ fn the_needles_thin_wire_is_in_the_depth_image_where_the_mask_has_it() {
 
 /// The static layer kept between frames gives the same pixels, depth and mask as drawing every
 /// frame whole, while the instrument and a grasped object move over it; the same renderer given
-/// another camera or another scene draws a new layer.
+/// another camera or another scene draws a new layer. So does one that draws into the buffers
+/// of frames handed back, without the mask.
 #[test]
 fn frames_drawn_over_a_kept_static_layer_are_the_frames_drawn_whole() {
     use surgvla::collect::rollout;
@@ -408,6 +411,10 @@ fn frames_drawn_over_a_kept_static_layer_are_the_frames_drawn_whole() {
     use surgvla::view::{render_simulator, render_simulator_over_static};
     let library = ExpertLibrary::builtin().expect("plans");
     let mut layered = Renderer::new(RenderOptions::default());
+    let mut recycling = Renderer::new(RenderOptions {
+        mask: false,
+        ..RenderOptions::default()
+    });
     let mut compared = 0;
     for (task, seed) in [
         (TaskId::Hemostasis, 3),
@@ -448,6 +455,17 @@ fn frames_drawn_over_a_kept_static_layer_are_the_frames_drawn_whole() {
                     whole == over,
                     "{task} seed {seed} step {i}: the frames differ"
                 );
+                // Drawn into recycled buffers (whatever they held), without the mask.
+                let mut again =
+                    render_simulator_over_static(&assets, &mut recycling, &camera, &sim);
+                assert!(again.mask.is_empty(), "no mask asked for");
+                assert!(
+                    again.rgb == whole.rgb && again.depth_m == whole.depth_m,
+                    "{task} seed {seed} step {i}: the recycled frame differs"
+                );
+                again.rgb.fill(7);
+                again.depth_m.truncate(5);
+                recycling.recycle(again.rgb, again.depth_m, vec![1; 3]);
                 compared += 1;
             }
         }

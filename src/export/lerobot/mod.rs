@@ -257,12 +257,14 @@ impl FormatWriter for LeRobotFiles {
         info: &DatasetInfo,
     ) -> Option<std::sync::Arc<dyn crate::export::writer::EpisodeEncoder<work::Prepared> + Send>>
     {
-        Some(std::sync::Arc::new(work::OwnedWork {
-            info: info.clone(),
-            parquet_features: self.parquet_features.clone(),
-            video_features: self.video_features.clone(),
-            options: self.options.clone(),
-        }))
+        Some(std::sync::Arc::new(work::SharedWork(std::sync::Arc::new(
+            work::OwnedWork {
+                info: info.clone(),
+                parquet_features: self.parquet_features.clone(),
+                video_features: self.video_features.clone(),
+                options: self.options.clone(),
+            },
+        ))))
     }
 
     fn append(
@@ -599,7 +601,7 @@ impl LeRobotFiles {
             &self.schema,
             &self.parquet_features,
             episode,
-            &images,
+            images,
             first_index,
             task_index,
             info.fps,

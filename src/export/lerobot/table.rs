@@ -73,15 +73,89 @@ pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
     Arc::new(Schema::new(fields))
 }
 
-/// Encoded image bytes of one episode, per image feature, frame by frame.
-pub type EncodedImages = HashMap<String, Vec<Vec<u8>>>;
+/// Encoded image bytes of one episode, per image feature.
+pub type EncodedImages = HashMap<String, ImageColumn>;
+
+/// One image feature's encoded frames of an episode, back to back in one buffer: the parquet
+/// column's values as they are, so appending the episode copies none of them again.
+#[derive(Debug, Default)]
+pub struct ImageColumn {
+    values: Vec<u8>,
+    /// Where each frame starts in `values`, then its end.
+    offsets: Vec<i32>,
+}
+
+impl ImageColumn {
+    /// An empty column with room for `frames` images of about `bytes_per_frame` bytes.
+    pub fn with_capacity(frames: usize, bytes_per_frame: usize) -> Self {
+        let mut offsets = Vec::with_capacity(frames + 1);
+        offsets.push(0);
+        ImageColumn {
+            values: Vec::with_capacity(frames.saturating_mul(bytes_per_frame)),
+            offsets,
+        }
+    }
+
+    /// Appends one frame that `write` encodes at the end of the buffer.
+    pub fn push_with<E>(
+        &mut self,
+        write: impl FnOnce(&mut Vec<u8>) -> Result<(), E>,
+    ) -> Result<(), E>
+    where
+        E: From<ExportError>,
+    {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        write(&mut self.values)?;
+        let end = i32::try_from(self.values.len()).map_err(|_| {
+            ExportError::InvalidEpisode(
+                "an episode's images of one feature exceed 2 GiB, one parquet column's limit"
+                    .into(),
+            )
+        })?;
+        self.offsets.push(end);
+        Ok(())
+    }
+
+    /// Frames already encoded.
+    pub fn from_frames(frames: &[Vec<u8>]) -> Result<Self, ExportError> {
+        let total = frames.iter().map(Vec::len).sum();
+        let mut column = ImageColumn::with_capacity(frames.len(), 0);
+        column.values.reserve_exact(total);
+        for frame in frames {
+            column.push_with(|out| {
+                out.extend_from_slice(frame);
+                Ok::<(), ExportError>(())
+            })?;
+        }
+        Ok(column)
+    }
+
+    /// Frames in the column.
+    pub fn len(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// The column as arrow's binary array, without copying the bytes.
+    fn into_array(mut self) -> arrow_array::BinaryArray {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        arrow_array::BinaryArray::new(
+            arrow_buffer::OffsetBuffer::new(arrow_buffer::ScalarBuffer::from(self.offsets)),
+            arrow_buffer::Buffer::from_vec(self.values),
+            None,
+        )
+    }
+}
 
 /// The rows of one episode.
 pub fn frame_batch(
     schema: &Arc<Schema>,
     features: &[FeatureSpec],
     episode: &Episode,
-    images: &EncodedImages,
+    mut images: EncodedImages,
     first_index: u64,
     task_index: u64,
     fps: u32,
@@ -97,17 +171,17 @@ pub fn frame_batch(
                 column
             }
             FeatureKind::Rgb | FeatureKind::Depth | FeatureKind::Mask => {
-                let encoded = images.get(&feature.name).ok_or_else(|| {
+                let encoded = images.remove(&feature.name).ok_or_else(|| {
                     ExportError::Internal(format!("no encoded images for {}", feature.name))
                 })?;
-                // One buffer of the exact size (growing it would copy every image again).
-                let total: usize = encoded.iter().map(Vec::len).sum();
-                let mut builder =
-                    arrow_array::builder::BinaryBuilder::with_capacity(encoded.len(), total);
-                for image in encoded {
-                    builder.append_value(image);
+                if encoded.len() != n {
+                    return Err(ExportError::Internal(format!(
+                        "{} encoded images of {} for {n} steps",
+                        encoded.len(),
+                        feature.name
+                    )));
                 }
-                let bytes = builder.finish();
+                let bytes = encoded.into_array();
                 let paths = StringArray::new_null(n);
                 Arc::new(StructArray::new(
                     image_fields(),

@@ -3,15 +3,16 @@
 //! video encoding, and the episode's statistics.
 
 use super::LeRobotOptions;
-use super::table::{DEFAULT_COLUMNS, EncodedImages};
+use super::table::{DEFAULT_COLUMNS, EncodedImages, ImageColumn};
 use crate::episode::{
-    Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue, ImageEncoding, PixelStats, VideoCodec,
+    Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue, ImageEncoding, PixelStats, Pixels,
+    Step, VideoCodec,
 };
 use crate::export::ExportError;
-use crate::export::image::{decode_png, encode_png};
+use crate::export::image::{decode_png, encode_png_into};
 use crate::export::info::DatasetInfo;
 use crate::export::stats::{FeatureStats, ImageStats, SummaryStats, VectorStats};
-use crate::export::tiff::encode_f32_tiff;
+use crate::export::tiff::{encode_f32_tiff_into, f32_tiff_len};
 use crate::export::video::{EncodedFrame, encode};
 use rayon::prelude::*;
 
@@ -91,56 +92,106 @@ impl EpisodeWork<'_> {
 
     /// Encodes every image stored in the parquet (frames in parallel, order kept).
     pub fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
-        let (w, h) = self.info.image_size();
-        let level = self.options.png;
         let mut images = EncodedImages::new();
-        // Other features' images are stored as they came (no encoding).
-        for feature in self
-            .parquet_features
-            .iter()
-            .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
-        {
-            let kind = feature.kind;
-            // Bytes the source stored in this encoding are copied (PNG and TIFF are lossless: the
-            // pixels are the same whatever compression made them).
-            if let Some(stored) = episode.stored_frames(&feature.name, ImageEncoding::of_kind(kind))
-            {
-                let bytes = stored.iter().map(|f| f.data.clone()).collect();
-                images.insert(feature.name.clone(), bytes);
-                continue;
-            }
-            let encode = |step: &crate::episode::Step| match kind {
-                FeatureKind::Rgb => encode_png(w, h, 3, &step.rgb, level),
-                FeatureKind::Mask => encode_png(w, h, 1, &step.mask, level),
-                _ => Ok(encode_f32_tiff(w as u32, h as u32, &step.depth_m)),
+        for (name, plan) in self.image_plans(episode) {
+            let encoded = match plan {
+                ImagePlan::Stored(bytes) => ImageColumn::from_frames(&bytes)?,
+                ImagePlan::Encode(kind) if self.parallel => {
+                    let frames: Vec<Vec<u8>> = episode
+                        .steps
+                        .par_iter()
+                        .map(|step| {
+                            let mut out = Vec::new();
+                            self.encode_image(kind, step, &mut out)?;
+                            Ok::<_, ExportError>(out)
+                        })
+                        .collect::<Result<_, _>>()?;
+                    ImageColumn::from_frames(&frames)?
+                }
+                ImagePlan::Encode(kind) => {
+                    let mut column = self.image_column(kind, episode.steps.len());
+                    for step in &episode.steps {
+                        column.push_with(|out| self.encode_image(kind, step, out))?;
+                    }
+                    column
+                }
             };
-            let encoded: Result<Vec<Vec<u8>>, ExportError> = if self.parallel {
-                episode.steps.par_iter().map(encode).collect()
-            } else {
-                episode.steps.iter().map(encode).collect()
-            };
-            images.insert(feature.name.clone(), encoded?);
+            images.insert(name, encoded);
         }
         Ok(images)
+    }
+
+    /// What becomes of each image feature stored in the parquet, by name: bytes the source
+    /// stored in the feature's encoding are copied (PNG and TIFF are lossless: the pixels are
+    /// the same whatever compression made them); other features' images are stored as they
+    /// came (not here).
+    fn image_plans(&self, episode: &Episode) -> Vec<(String, ImagePlan)> {
+        self.parquet_features
+            .iter()
+            .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+            .map(|feature| {
+                let kind = feature.kind;
+                let plan = match episode.stored_frames(&feature.name, ImageEncoding::of_kind(kind))
+                {
+                    Some(stored) => {
+                        ImagePlan::Stored(stored.iter().map(|f| f.data.clone()).collect())
+                    }
+                    None => ImagePlan::Encode(kind),
+                };
+                (feature.name.clone(), plan)
+            })
+            .collect()
+    }
+
+    /// Appends one step's image of a feature of `kind` to `out`: RGB and masks as PNG, depth
+    /// as float TIFF.
+    fn encode_image(
+        &self,
+        kind: FeatureKind,
+        step: &Step,
+        out: &mut Vec<u8>,
+    ) -> Result<(), ExportError> {
+        let (w, h) = self.info.image_size();
+        match kind {
+            FeatureKind::Rgb => encode_png_into(out, w, h, 3, &step.rgb, self.options.png),
+            FeatureKind::Mask => encode_png_into(out, w, h, 1, &step.mask, self.options.png),
+            _ => {
+                encode_f32_tiff_into(out, w as u32, h as u32, &step.depth_m);
+                Ok(())
+            }
+        }
+    }
+
+    /// An empty column for `frames` images of `kind`, sized for them: a depth TIFF's size is
+    /// known; a PNG's is guessed (the buffer grows if needed).
+    fn image_column(&self, kind: FeatureKind, frames: usize) -> ImageColumn {
+        let (w, h) = self.info.image_size();
+        let per_frame = match kind {
+            FeatureKind::Depth => f32_tiff_len(w * h),
+            _ => w * h,
+        };
+        ImageColumn::with_capacity(frames, per_frame)
+    }
+
+    /// [`EpisodeWork::encode_images`] and [`EpisodeWork::feature_stats`] on one thread, frame
+    /// by frame (see [`FrameWork`]; the same bytes and statistics).
+    pub fn encode_with_stats(&self, episode: &Episode) -> Result<Finished, ExportError> {
+        let mut frames = FrameWork::new(self, self.image_plans(episode), episode.steps.len())?;
+        for step in &episode.steps {
+            frames.push(self, step)?;
+        }
+        Ok(frames.finish(self, episode))
     }
 
     /// Statistics of the episode's features, in feature order: frames in parallel, folded in
     /// frame order (so the result does not depend on the thread count).
     pub fn feature_stats(&self, episode: &Episode) -> EpisodeStats {
-        let features = &self.info.features;
-        // A feature whose pixels are not in the steps (video) gets its statistics below.
-        let kinds: Vec<Option<FeatureKind>> = features
-            .iter()
-            .map(|f| f.in_steps().then_some(f.kind))
-            .collect();
-        let mut total: EpisodeStats = features
-            .iter()
-            .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
-            .collect();
+        let kinds = self.step_kinds();
+        let mut total = fresh_feature_stats(&self.info.features);
         // Frames in chunks in parallel: each frame's statistics on their own (their sums are
         // folded in frame order below), its images' pixel counts into its chunk's histograms
         // (integers: any order).
-        let chunk_stats = |chunk: &[crate::episode::Step]| {
+        let chunk_stats = |chunk: &[Step]| {
             let mut histograms: Vec<Vec<Vec<u64>>> = total
                 .iter()
                 .map(|(_, s)| match s {
@@ -179,12 +230,29 @@ impl EpisodeWork<'_> {
                 }
             }
         }
+        self.carried_stats(episode, &mut total);
+        total
+    }
+
+    /// Each feature's kind when its values are in the steps; `None` for a feature whose pixels
+    /// are not (video), which gets its statistics from [`EpisodeWork::carried_stats`].
+    fn step_kinds(&self) -> Vec<Option<FeatureKind>> {
+        self.info
+            .features
+            .iter()
+            .map(|f| f.in_steps().then_some(f.kind))
+            .collect()
+    }
+
+    /// The statistics of features whose pixels are not in the steps (video): the RGB camera
+    /// encoded here from its pixels had them in the steps; a copied video brings its source's
+    /// statistics.
+    fn carried_stats(&self, episode: &Episode, total: &mut EpisodeStats) {
+        let features = &self.info.features;
         for (feature, (_, t)) in features.iter().zip(total.iter_mut()) {
             if feature.in_steps() {
                 continue;
             }
-            // The RGB camera encoded here from its pixels had them in the steps; a copied video
-            // brings its source's statistics.
             let carried = episode
                 .encoded_video(&feature.name)
                 .and_then(|e| e.pixel_stats.as_ref());
@@ -202,7 +270,6 @@ impl EpisodeWork<'_> {
                 None => {}
             }
         }
-        total
     }
 
     /// One frame's statistics of the features, shaped as `shape` (the episode's), with its
@@ -211,7 +278,7 @@ impl EpisodeWork<'_> {
         &self,
         shape: &EpisodeStats,
         kinds: &[Option<FeatureKind>],
-        step: &crate::episode::Step,
+        step: &Step,
         histograms: &mut [Vec<Vec<u64>>],
     ) -> EpisodeStats {
         let mut stats: EpisodeStats = shape
@@ -260,6 +327,140 @@ impl EpisodeWork<'_> {
             }
         }
         stats
+    }
+}
+
+/// Empty statistics of `features`.
+fn fresh_feature_stats(features: &[FeatureSpec]) -> EpisodeStats {
+    features
+        .iter()
+        .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
+        .collect()
+}
+
+/// How one image feature stored in the parquet gets its bytes.
+enum ImagePlan {
+    /// The source's own bytes, per frame.
+    Stored(Vec<Vec<u8>>),
+    /// Encoded here from the steps' pixels.
+    Encode(FeatureKind),
+}
+
+/// An episode's images and statistics as [`FrameWork`] leaves them, with the seconds spent
+/// encoding and on the statistics.
+pub struct Finished {
+    pub images: EncodedImages,
+    pub stats: EpisodeStats,
+    pub encode_secs: f64,
+    pub stats_secs: f64,
+}
+
+/// One episode's images encoded and statistics taken frame by frame on one thread: each
+/// frame's images one after the other, then its statistics, while its pixels are in the
+/// core's cache.
+pub struct FrameWork {
+    plans: Vec<(String, ImagePlan)>,
+    columns: Vec<ImageColumn>,
+    fold: StatsFold,
+    encode_secs: f64,
+    stats_secs: f64,
+}
+
+impl FrameWork {
+    /// For an episode of about `frames` frames (the columns' room).
+    fn new(
+        work: &EpisodeWork<'_>,
+        plans: Vec<(String, ImagePlan)>,
+        frames: usize,
+    ) -> Result<Self, ExportError> {
+        let columns = plans
+            .iter()
+            .map(|(_, plan)| match plan {
+                ImagePlan::Stored(bytes) => ImageColumn::from_frames(bytes),
+                ImagePlan::Encode(kind) => Ok(work.image_column(*kind, frames)),
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(FrameWork {
+            plans,
+            columns,
+            fold: StatsFold::new(work),
+            encode_secs: 0.0,
+            stats_secs: 0.0,
+        })
+    }
+
+    fn push(&mut self, work: &EpisodeWork<'_>, step: &Step) -> Result<(), ExportError> {
+        let started = std::time::Instant::now();
+        for ((_, plan), column) in self.plans.iter().zip(&mut self.columns) {
+            if let ImagePlan::Encode(kind) = plan {
+                column.push_with(|out| work.encode_image(*kind, step, out))?;
+            }
+        }
+        let encoded = std::time::Instant::now();
+        self.fold.push(work, step);
+        self.encode_secs += (encoded - started).as_secs_f64();
+        self.stats_secs += encoded.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn finish(self, work: &EpisodeWork<'_>, episode: &Episode) -> Finished {
+        let started = std::time::Instant::now();
+        let stats = self.fold.finish(work, episode);
+        Finished {
+            images: self
+                .plans
+                .into_iter()
+                .map(|(name, _)| name)
+                .zip(self.columns)
+                .collect(),
+            stats,
+            encode_secs: self.encode_secs,
+            stats_secs: self.stats_secs + started.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// An episode's feature statistics taken frame by frame on one thread: each frame's sums
+/// folded into the episode's in frame order, its pixel counts into one set of histograms (as
+/// [`EpisodeWork::feature_stats`] does in chunks).
+struct StatsFold {
+    kinds: Vec<Option<FeatureKind>>,
+    total: EpisodeStats,
+    histograms: Vec<Vec<Vec<u64>>>,
+}
+
+impl StatsFold {
+    fn new(work: &EpisodeWork<'_>) -> Self {
+        let total = fresh_feature_stats(&work.info.features);
+        let histograms = total
+            .iter()
+            .map(|(_, s)| match s {
+                FeatureStats::Image(s) => s.empty_histograms(),
+                _ => Vec::new(),
+            })
+            .collect();
+        StatsFold {
+            kinds: work.step_kinds(),
+            total,
+            histograms,
+        }
+    }
+
+    fn push(&mut self, work: &EpisodeWork<'_>, step: &Step) {
+        let frame = work.frame_stats(&self.total, &self.kinds, step, &mut self.histograms);
+        for ((_, t), (_, f)) in self.total.iter_mut().zip(frame) {
+            t.merge(&f);
+        }
+    }
+
+    fn finish(mut self, work: &EpisodeWork<'_>, episode: &Episode) -> EpisodeStats {
+        for ((_, t), h) in self.total.iter_mut().zip(&self.histograms) {
+            if let FeatureStats::Image(t) = t {
+                t.add_histograms(h);
+            }
+        }
+        work.carried_stats(episode, &mut self.total);
+        self.total
     }
 }
 
@@ -352,27 +553,132 @@ impl OwnedWork {
     }
 }
 
-impl crate::export::writer::EpisodeEncoder<Prepared> for OwnedWork {
+/// [`OwnedWork`] shared with the frame-by-frame encoders it starts: the LeRobot sink's
+/// detached encoder.
+pub struct SharedWork(pub std::sync::Arc<OwnedWork>);
+
+impl crate::export::writer::EpisodeEncoder<Prepared> for SharedWork {
     fn encode(&self, episode: &Episode) -> Result<Prepared, ExportError> {
-        let work = self.work();
+        let work = self.0.work();
         let started = std::time::Instant::now();
         let video = work.video_frames(episode)?;
-        let images = work.encode_images(episode)?;
-        let encoded = std::time::Instant::now();
-        let stats = work.feature_stats(episode);
+        let video_secs = started.elapsed().as_secs_f64();
+        let finished = work.encode_with_stats(episode)?;
         Ok(Prepared {
             video,
-            images: Some(images),
-            stats: Some(stats),
-            encode_secs: (encoded - started).as_secs_f64(),
-            stats_secs: encoded.elapsed().as_secs_f64(),
+            images: Some(finished.images),
+            stats: Some(finished.stats),
+            encode_secs: video_secs + finished.encode_secs,
+            stats_secs: finished.stats_secs,
+        })
+    }
+
+    /// Image mode only: a video feature is encoded from the whole episode's frames.
+    fn frames(
+        &self,
+        expected_frames: usize,
+    ) -> Option<Box<dyn crate::export::writer::EpisodeFrames<Prepared>>> {
+        if !self.0.video_features.is_empty() {
+            return None;
+        }
+        let work = self.0.work();
+        // A recorded episode brings no stored images: every image feature is encoded.
+        let plans = work
+            .parquet_features
+            .iter()
+            .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+            .map(|f| (f.name.clone(), ImagePlan::Encode(f.kind)))
+            .collect();
+        let frames = FrameWork::new(&work, plans, expected_frames).ok()?;
+        Some(Box::new(FrameStream {
+            owned: self.0.clone(),
+            frames,
+            pending: Vec::with_capacity(STREAM_BATCH_FRAMES),
+            pushed: 0,
+        }))
+    }
+}
+
+/// Frames a [`FrameStream`] gathers before it encodes them one after another: encoding frame
+/// by frame between the physics and the rendering of the next one was slower (each stage's
+/// code and data pushed the others' out of the core's caches).
+const STREAM_BATCH_FRAMES: usize = 64;
+
+/// The LeRobot sink's frame-by-frame encoder (see [`crate::export::FrameEncoder`]): it takes
+/// each step's pixels as it is recorded and encodes them in batches of
+/// [`STREAM_BATCH_FRAMES`], handing the buffers back to be drawn into again.
+struct FrameStream {
+    owned: std::sync::Arc<OwnedWork>,
+    frames: FrameWork,
+    /// Steps taken and not encoded yet: their pixels and what their statistics read.
+    pending: Vec<Step>,
+    pushed: usize,
+}
+
+impl FrameStream {
+    /// Encodes the pending steps; returns their buffers.
+    fn flush(&mut self) -> Result<Vec<Pixels>, ExportError> {
+        let work = self.owned.work();
+        let mut done = Vec::with_capacity(self.pending.len());
+        for mut step in self.pending.drain(..) {
+            self.frames.push(&work, &step)?;
+            done.push(step.take_pixels());
+        }
+        Ok(done)
+    }
+}
+
+impl crate::export::writer::EpisodeFrames<Prepared> for FrameStream {
+    fn push(&mut self, step: &mut Step) -> Result<Vec<Pixels>, ExportError> {
+        let work = self.owned.work();
+        let (width, height) = work.info.image_size();
+        crate::episode::step_pixels_fit(step, width, height, &work.info.features).map_err(
+            |problem| ExportError::InvalidEpisode(format!("step {}: {problem}", self.pushed)),
+        )?;
+        let Pixels { rgb, depth_m, mask } = step.take_pixels();
+        // What the statistics read besides the pixels (not the extras).
+        self.pending.push(Step {
+            rgb,
+            depth_m,
+            mask,
+            state: step.state,
+            action: step.action,
+            environment_state: step.environment_state,
+            other: step.other.clone(),
+            ..Step::empty()
+        });
+        self.pushed += 1;
+        if self.pending.len() < STREAM_BATCH_FRAMES {
+            return Ok(Vec::new());
+        }
+        self.flush()
+    }
+
+    fn finish(mut self: Box<Self>, episode: &Episode) -> Result<Prepared, ExportError> {
+        self.flush()?;
+        if episode.steps.len() != self.pushed {
+            return Err(ExportError::Internal(format!(
+                "episode {}: {} frames encoded for {} steps",
+                episode.meta.index,
+                self.pushed,
+                episode.steps.len()
+            )));
+        }
+        let work = self.owned.work();
+        let finished = self.frames.finish(&work, episode);
+        Ok(Prepared {
+            video: Vec::new(),
+            images: Some(finished.images),
+            stats: Some(finished.stats),
+            encode_secs: finished.encode_secs,
+            stats_secs: finished.stats_secs,
         })
     }
 }
 
 /// Step `step`'s RGB pixels of the other feature at value `at` (a PNG of `width` x `height`).
 fn other_rgb(
-    step: &crate::episode::Step,
+    step: &Step,
     at: usize,
     width: usize,
     height: usize,
