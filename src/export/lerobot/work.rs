@@ -292,41 +292,57 @@ impl EpisodeWork<'_> {
                 (name.clone(), empty)
             })
             .collect();
-        let mut others = step.other.iter();
-        for (((_, s), counts), kind) in stats.iter_mut().zip(histograms).zip(kinds) {
-            match (*kind, s) {
-                (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => {
-                    s.push_u8_counting(&step.rgb, counts)
-                }
-                (Some(FeatureKind::Mask), FeatureStats::Image(s)) => {
-                    s.push_u8_counting(&step.mask, counts)
-                }
-                (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
-                    s.push_depth_counting(&step.depth_m, counts)
-                }
-                (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
-                (Some(FeatureKind::Action), FeatureStats::Vector(s)) => s.push(&step.action),
-                (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
-                    s.push(&step.environment_state)
-                }
-                (Some(FeatureKind::Other), s) => match (others.next(), s) {
-                    (Some(FeatureValue::Float32(v)), FeatureStats::Vector(s)) => s.push(v),
-                    (Some(FeatureValue::Int64(v)), FeatureStats::Vector(s)) => {
-                        s.push(&v.iter().map(|&x| x as f32).collect::<Vec<_>>())
-                    }
-                    (Some(FeatureValue::Image(bytes)), FeatureStats::Image(s)) => {
-                        // Statistics need pixels: PNG decodes here; other encodings leave the
-                        // image out of them.
-                        if let Ok((_, _, _, pixels)) = decode_png(bytes) {
-                            s.push_u8_counting(&pixels, counts)
-                        }
-                    }
-                    _ => {}
-                },
-                _ => {}
-            }
-        }
+        fold_frame(&mut stats, kinds, step, histograms);
         stats
+    }
+}
+
+/// Folds one frame into `stats` (per feature): each image's own sums merged in, its pixel
+/// counts added to `histograms`; vectors pushed (the same as merging a one-frame part).
+fn fold_frame(
+    stats: &mut EpisodeStats,
+    kinds: &[Option<FeatureKind>],
+    step: &Step,
+    histograms: &mut [Vec<Vec<u64>>],
+) {
+    let image = |s: &mut ImageStats, push: &mut dyn FnMut(&mut ImageStats)| {
+        let mut frame = s.without_histograms();
+        push(&mut frame);
+        s.merge(&frame);
+    };
+    let mut others = step.other.iter();
+    for (((_, s), counts), kind) in stats.iter_mut().zip(histograms).zip(kinds) {
+        match (*kind, s) {
+            (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => {
+                image(s, &mut |f| f.push_u8_counting(&step.rgb, counts))
+            }
+            (Some(FeatureKind::Mask), FeatureStats::Image(s)) => {
+                image(s, &mut |f| f.push_u8_counting(&step.mask, counts))
+            }
+            (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
+                image(s, &mut |f| f.push_depth_counting(&step.depth_m, counts))
+            }
+            (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
+            (Some(FeatureKind::Action), FeatureStats::Vector(s)) => s.push(&step.action),
+            (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
+                s.push(&step.environment_state)
+            }
+            (Some(FeatureKind::Other), s) => match (others.next(), s) {
+                (Some(FeatureValue::Float32(v)), FeatureStats::Vector(s)) => s.push(v),
+                (Some(FeatureValue::Int64(v)), FeatureStats::Vector(s)) => {
+                    s.push(&v.iter().map(|&x| x as f32).collect::<Vec<_>>())
+                }
+                (Some(FeatureValue::Image(bytes)), FeatureStats::Image(s)) => {
+                    // Statistics need pixels: PNG decodes here; other encodings leave the
+                    // image out of them.
+                    if let Ok((_, _, _, pixels)) = decode_png(bytes) {
+                        image(s, &mut |f| f.push_u8_counting(&pixels, counts))
+                    }
+                }
+                _ => {}
+            },
+            _ => {}
+        }
     }
 }
 
@@ -397,7 +413,7 @@ impl FrameWork {
             }
         }
         let encoded = std::time::Instant::now();
-        self.fold.push(work, step);
+        self.fold.push(step);
         self.encode_secs += (encoded - started).as_secs_f64();
         self.stats_secs += encoded.elapsed().as_secs_f64();
         Ok(())
@@ -446,11 +462,8 @@ impl StatsFold {
         }
     }
 
-    fn push(&mut self, work: &EpisodeWork<'_>, step: &Step) {
-        let frame = work.frame_stats(&self.total, &self.kinds, step, &mut self.histograms);
-        for ((_, t), (_, f)) in self.total.iter_mut().zip(frame) {
-            t.merge(&f);
-        }
+    fn push(&mut self, step: &Step) {
+        fold_frame(&mut self.total, &self.kinds, step, &mut self.histograms);
     }
 
     fn finish(mut self, work: &EpisodeWork<'_>, episode: &Episode) -> EpisodeStats {
