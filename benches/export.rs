@@ -13,8 +13,10 @@
 //! `export/decode/{av1,h264}`: demuxing, decoding and converting to RGB every frame of the
 //! same episodes' 224 x 224 video, one thread (`scripts/bench_decode.sh` sets PyAV beside it).
 //!
-//! `export/frame/{png_adaptive,png_paeth,stats_rgb,stats_depth}`: one recorded frame's RGB PNG
-//! with either filter choice at the fast level, and its RGB and depth statistics, one core.
+//! `export/frame/{png_adaptive,png_paeth,png_surgvla,stats_rgb,stats_depth}`: one recorded
+//! frame's RGB PNG with either filter choice at the fast level (the `png` crate) and through
+//! surgvla's own fast path (the same bytes as `png_paeth`), and its RGB and depth statistics, one
+//! core.
 //!
 //! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
 //! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
@@ -235,6 +237,18 @@ fn bench_frame_work(c: &mut Criterion) {
             })
         });
     }
+    group.bench_function("png_surgvla", |b| {
+        b.iter(|| {
+            surgvla::files::encode_png(
+                224,
+                224,
+                surgvla::files::PngPixels::Rgb8,
+                &step.rgb,
+                surgvla::files::PngLevel::Fast,
+            )
+            .expect("png")
+        })
+    });
     group.bench_function("stats_rgb", |b| {
         b.iter(|| {
             let mut stats = surgvla::export::stats::ImageStats::unit_scaled(3);
