@@ -484,20 +484,9 @@ pub struct Episode {
 }
 
 impl Episode {
-    /// Checks that the episode has steps and that every step holds each of `features` with
-    /// the size of a `width_px` x `height_px` image.
-    pub fn validate(
-        &self,
-        width_px: usize,
-        height_px: usize,
-        features: &[FeatureSpec],
-    ) -> Result<(), String> {
-        self.validate_structure(features)?;
-        self.validate_pixels(width_px, height_px, features)
-    }
-
-    /// [`Episode::validate`] but the sizes of the steps' RGB, depth and mask (whose pixels an
-    /// encoder that checked them may have taken already).
+    /// Checks that the episode has steps, video frames for its video features and the other
+    /// features' values in every step: all but the sizes of the steps' RGB, depth and mask
+    /// ([`Episode::validate_pixels`]; an encoder that checked them may have taken the pixels).
     pub fn validate_structure(&self, features: &[FeatureSpec]) -> Result<(), String> {
         if self.steps.is_empty() {
             return Err(format!("episode {} has no steps", self.meta.index));

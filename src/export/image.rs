@@ -35,9 +35,7 @@ pub fn encode_png(
     pixels: &[u8],
     level: PngLevel,
 ) -> Result<Vec<u8>, ExportError> {
-    let mut out = Vec::with_capacity(pixels.len() / 2);
-    encode_png_into(&mut out, width, height, channels, pixels, level)?;
-    Ok(out)
+    crate::files::encode_png(width, height, png_layout(channels)?, pixels, level).map_err(png_error)
 }
 
 /// [`encode_png`] appending to `out`.
@@ -49,17 +47,20 @@ pub fn encode_png_into(
     pixels: &[u8],
     level: PngLevel,
 ) -> Result<(), ExportError> {
-    let layout = match channels {
-        1 => PngPixels::Grey8,
-        3 => PngPixels::Rgb8,
-        4 => PngPixels::Rgba8,
-        other => {
-            return Err(ExportError::InvalidEpisode(format!(
-                "an image with {other} channels cannot be stored as PNG"
-            )));
-        }
-    };
+    let layout = png_layout(channels)?;
     crate::files::encode_png_into(out, width, height, layout, pixels, level).map_err(png_error)
+}
+
+/// The PNG layout of 8-bit pixels with `channels` (1 = grey, 3 = RGB, 4 = RGBA).
+fn png_layout(channels: usize) -> Result<PngPixels, ExportError> {
+    match channels {
+        1 => Ok(PngPixels::Grey8),
+        3 => Ok(PngPixels::Rgb8),
+        4 => Ok(PngPixels::Rgba8),
+        other => Err(ExportError::InvalidEpisode(format!(
+            "an image with {other} channels cannot be stored as PNG"
+        ))),
+    }
 }
 
 /// Encodes row-major 8-bit RGB as a baseline JPEG (4:2:0, `quality` 1-100) with integer

@@ -78,10 +78,10 @@ pub type EncodedImages = HashMap<String, ImageColumn>;
 
 /// One image feature's encoded frames of an episode, back to back in one buffer: the parquet
 /// column's values as they are, so appending the episode copies none of them again.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct ImageColumn {
     values: Vec<u8>,
-    /// Where each frame starts in `values`, then its end.
+    /// Where each frame starts in `values`, then its end (so never empty).
     offsets: Vec<i32>,
 }
 
@@ -104,9 +104,6 @@ impl ImageColumn {
     where
         E: From<ExportError>,
     {
-        if self.offsets.is_empty() {
-            self.offsets.push(0);
-        }
         write(&mut self.values)?;
         let end = i32::try_from(self.values.len()).map_err(|_| {
             ExportError::InvalidEpisode(
@@ -138,10 +135,7 @@ impl ImageColumn {
     }
 
     /// The column as arrow's binary array, without copying the bytes.
-    fn into_array(mut self) -> arrow_array::BinaryArray {
-        if self.offsets.is_empty() {
-            self.offsets.push(0);
-        }
+    fn into_array(self) -> arrow_array::BinaryArray {
         arrow_array::BinaryArray::new(
             arrow_buffer::OffsetBuffer::new(arrow_buffer::ScalarBuffer::from(self.offsets)),
             arrow_buffer::Buffer::from_vec(self.values),
