@@ -13,10 +13,11 @@
 //! `export/decode/{av1,h264}`: demuxing, decoding and converting to RGB every frame of the
 //! same episodes' 224 x 224 video, one thread (`scripts/bench_decode.sh` sets PyAV beside it).
 //!
-//! `export/frame/{png_adaptive,png_paeth,png_surgvla,stats_rgb,stats_depth}`: one recorded
-//! frame's RGB PNG with either filter choice at the fast level (the `png` crate) and through
-//! surgvla's own fast path (the same bytes as `png_paeth`), and its RGB and depth statistics, one
-//! core.
+//! `export/frame/{png_adaptive,png_paeth,png_surgvla,stats_rgb,stats_rgb_since,stats_depth,stats_depth_since}`:
+//! one recorded frame's RGB PNG with either filter choice at the fast level (the `png` crate)
+//! and through surgvla's own fast path (the same bytes as `png_paeth`), and its RGB and depth
+//! statistics, one core; `stats_{rgb,depth}_since` take the frame and the next one in turn, each
+//! after the other (what `collect` does frame after frame: pixels counted only where changed).
 //!
 //! `export/lerobot/image/{1,2}_threads`: writing 224 x 224 episodes (RGB PNG + float depth TIFF,
 //! state, action, object poses) into a LeRobot v3.0 dataset in image mode, on a rayon pool of one
@@ -254,6 +255,31 @@ fn bench_frame_work(c: &mut Criterion) {
             let mut stats = surgvla::export::stats::ImageStats::unit_scaled(3);
             stats.push_u8(&step.rgb);
             stats
+        })
+    });
+    group.bench_function("stats_rgb_since", |b| {
+        let next = &episodes[0].steps[episodes[0].steps.len() / 2 + 1];
+        let mut stats = surgvla::export::stats::ImageStats::unit_scaled(3);
+        let mut counts = stats.empty_histograms();
+        let mut last = surgvla::export::stats::LastFrame::default();
+        let mut frames = [&step.rgb, &next.rgb].into_iter().cycle();
+        b.iter(|| {
+            let mut part = stats.without_histograms();
+            part.push_u8_counting_since(frames.next().expect("cycles"), &mut counts, &mut last);
+            stats.merge(&part);
+        })
+    });
+    group.bench_function("stats_depth_since", |b| {
+        let next = &episodes[0].steps[episodes[0].steps.len() / 2 + 1];
+        let mut stats = surgvla::export::stats::ImageStats::depth();
+        let mut counts = stats.empty_histograms();
+        let mut last = surgvla::export::stats::LastFrame::default();
+        let mut frames = [&step.depth_m, &next.depth_m].into_iter().cycle();
+        b.iter(|| {
+            let mut part = stats.without_histograms();
+            let frame = frames.next().expect("cycles");
+            part.push_depth_counting_since(frame, &mut counts, &mut last);
+            stats.merge(&part);
         })
     });
     group.bench_function("stats_depth", |b| {

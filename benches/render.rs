@@ -3,6 +3,8 @@
 //! `render/endoscope_224`: one 224 x 224 endoscope frame (RGB + depth + mask) of a full scene:
 //! drape, tray, kidney with its bleeding spot, gauze, needle, block and the instrument.
 //! `render/endoscope_224_ss2`: the same with 2x2 supersampled RGB.
+//! `render/endoscope_224_over_static`: the same frame drawn over the scene's kept static layer,
+//! no mask, its buffers handed back after each frame: what `collect` pays per frame.
 
 // Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -43,6 +45,18 @@ fn bench_render(c: &mut Criterion) {
             })
         });
     }
+    let mut renderer = Renderer::new(RenderOptions {
+        mask: false,
+        ..RenderOptions::default()
+    });
+    group.bench_function("endoscope_224_over_static", |b| {
+        b.iter(|| {
+            let instances = assets.instances(&poses, &instrument);
+            let frame = renderer.render_over_static(&camera, &instances, assets.static_count());
+            black_box(&frame);
+            renderer.recycle(frame.rgb, frame.depth_m, frame.mask);
+        })
+    });
     group.finish();
 }
 

@@ -293,6 +293,69 @@ impl ImageStats {
             return;
         }
         let counts = count_u8(pixels, channels);
+        self.fold_u8_counts(&counts, histograms);
+    }
+
+    /// [`ImageStats::push_depth_counting`] for the next frame of a series whose last frame
+    /// `last` kept: the sums run over every pixel as there, the pixel counts are taken again
+    /// only where blocks of pixels differ from the last frame's (integers: exactly a full
+    /// count's).
+    pub fn push_depth_counting_since(
+        &mut self,
+        depth_m: &[f32],
+        histograms: &mut [Vec<u64>],
+        last: &mut LastFrame,
+    ) {
+        let Some(counts) = histograms.first_mut().filter(|h| !h.is_empty()) else {
+            return self.push_depth_counting(depth_m, histograms);
+        };
+        self.frames += 1;
+        let scale = DepthBins::new(1.0 / self.bin_width, counts.len());
+        let mut sums = DepthSums::default();
+        let mut chunks = depth_m.chunks_exact(DEPTH_LANES);
+        for chunk in &mut chunks {
+            let mut values = [0f32; DEPTH_LANES];
+            values.copy_from_slice(chunk);
+            // The bins go unused (the compiler drops them): the sums are push_depth_counting's.
+            sums.push(&values, &scale);
+        }
+        let rest = chunks.remainder();
+        let mut values = [f32::NAN; DEPTH_LANES];
+        values[..rest.len()].copy_from_slice(rest);
+        sums.push_some(&values, rest.len(), &scale);
+        let bins = counts.len();
+        for (n, kept) in counts
+            .iter_mut()
+            .zip(last.depth_counts(depth_m, &scale, bins))
+        {
+            *n += u64::from(*kept);
+        }
+        if let Some(running) = self.running.first_mut() {
+            running.merge(&sums.total(depth_m.len() as u64));
+        }
+    }
+
+    /// [`ImageStats::push_u8_counting`] for the next frame of a series whose last frame
+    /// `last` kept: only the blocks of pixels that differ from it are counted again (the
+    /// counts are integers, so they are exactly those of a full count). Frames of a camera
+    /// that stands still change where things move, a small part of each.
+    pub fn push_u8_counting_since(
+        &mut self,
+        pixels: &[u8],
+        histograms: &mut [Vec<u64>],
+        last: &mut LastFrame,
+    ) {
+        self.frames += 1;
+        let channels = self.running.len();
+        if channels == 0 {
+            return;
+        }
+        let counts = last.count(pixels, channels);
+        self.fold_u8_counts(counts, histograms);
+    }
+
+    /// One frame's per-channel counts folded into the sums and added to `histograms`.
+    fn fold_u8_counts(&mut self, counts: &[[u64; 256]], histograms: &mut [Vec<u64>]) {
         for (c, (counts, running)) in counts.iter().zip(self.running.iter_mut()).enumerate() {
             running.merge(&fold_counts(counts));
             if let Some(histogram) = histograms.get_mut(c) {
@@ -524,6 +587,100 @@ fn fold_counts(counts: &[u64; 256]) -> Running {
     frame
 }
 
+/// The last frame an image series counted and its per-channel counts (see
+/// [`ImageStats::push_u8_counting_since`]).
+#[derive(Clone, Debug, Default)]
+pub struct LastFrame {
+    pixels: Vec<u8>,
+    counts: Vec<[u64; 256]>,
+    /// A depth series': the last frame's values (bits) and bin counts, and the bins'
+    /// (scale bits, count).
+    depth: Vec<u32>,
+    depth_counts: Vec<u32>,
+    depth_bins: Option<(u32, usize)>,
+}
+
+impl LastFrame {
+    /// Pixels compared at a time: a block that differs is counted again.
+    const BLOCK_PIXELS: usize = 32;
+
+    /// The counts of `pixels` (a whole count for a first frame or a new size), kept with them
+    /// for the next.
+    fn count(&mut self, pixels: &[u8], channels: usize) -> &[[u64; 256]] {
+        let pixels = &pixels[..pixels.len() - pixels.len() % channels];
+        if self.counts.len() != channels || self.pixels.len() != pixels.len() {
+            self.counts = count_u8(pixels, channels);
+            self.pixels.clear();
+            self.pixels.extend_from_slice(pixels);
+            return &self.counts;
+        }
+        let block = channels * Self::BLOCK_PIXELS;
+        for (kept, new) in self.pixels.chunks_mut(block).zip(pixels.chunks(block)) {
+            if *kept == *new {
+                continue;
+            }
+            for (was, now) in kept.chunks_exact(channels).zip(new.chunks_exact(channels)) {
+                for ((counts, &was), &now) in self.counts.iter_mut().zip(was).zip(now) {
+                    counts[usize::from(was)] -= 1;
+                    counts[usize::from(now)] += 1;
+                }
+            }
+            kept.copy_from_slice(new);
+        }
+        &self.counts
+    }
+
+    /// The bin counts of `depth_m` (a whole count for a first frame, a new size or new bins),
+    /// kept with its values for the next.
+    fn depth_counts(&mut self, depth_m: &[f32], scale: &DepthBins, bins: usize) -> &[u32] {
+        let key = Some((scale.per_bin.to_bits(), bins));
+        if self.depth_bins != key || self.depth.len() != depth_m.len() {
+            self.depth_bins = key;
+            self.depth_counts = vec![0; bins];
+            for v in depth_m {
+                if let Some(n) = self.depth_counts.get_mut(scale.bin(*v) as usize) {
+                    *n += 1;
+                }
+            }
+            self.depth.clear();
+            self.depth.extend(depth_m.iter().map(|v| v.to_bits()));
+            return &self.depth_counts;
+        }
+        let blocks = self.depth.chunks_mut(Self::BLOCK_PIXELS);
+        for (kept, new) in blocks.zip(depth_m.chunks(Self::BLOCK_PIXELS)) {
+            // Bits, not values: a NaN equals nothing, and -0 and 0 are different bits.
+            let differ = kept
+                .iter()
+                .zip(new)
+                .fold(0u32, |d, (was, now)| d | (was ^ now.to_bits()));
+            if differ == 0 {
+                continue;
+            }
+            // The block's bins before and after in one pass of vector instructions, then
+            // counts moved where they differ.
+            let mut before = [0i32; Self::BLOCK_PIXELS];
+            let mut after = [0i32; Self::BLOCK_PIXELS];
+            let bins = before.iter_mut().zip(&mut after);
+            for ((b, a), (was, now)) in bins.zip(kept.iter().zip(new)) {
+                *b = scale.bin(f32::from_bits(*was));
+                *a = scale.bin(*now);
+            }
+            for (b, a) in before.iter().zip(&after).filter(|(b, a)| b != a) {
+                if let Some(n) = self.depth_counts.get_mut(*b as usize) {
+                    *n -= 1;
+                }
+                if let Some(n) = self.depth_counts.get_mut(*a as usize) {
+                    *n += 1;
+                }
+            }
+            for (was, now) in kept.iter_mut().zip(new) {
+                *was = now.to_bits();
+            }
+        }
+        &self.depth_counts
+    }
+}
+
 /// Per channel, how many of the interleaved `pixels` hold each value. Four tables per channel
 /// take turns, so runs of equal values (flat colour) do not wait on one counter.
 fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
@@ -671,6 +828,67 @@ mod tests {
     }
 
     #[test]
+    fn counting_since_the_last_frame_equals_counting_every_frame() {
+        // Seeded: a series whose frames change in a few random stretches (a moving
+        // instrument), sometimes everywhere or not at all, sometimes in size (a new count).
+        let mut rng = SplitMix64::new(41);
+        for channels in [1usize, 3, 4] {
+            let mut whole = ImageStats::unit_scaled(channels);
+            let mut whole_counts = whole.empty_histograms();
+            let mut since = ImageStats::unit_scaled(channels);
+            let mut since_counts = since.empty_histograms();
+            let mut last = LastFrame::default();
+            let mut pixels: Vec<u8> = (0..4_000 * channels)
+                .map(|_| rng.next_u64() as u8)
+                .collect();
+            let mut resized = 0;
+            for frame in 0..40 {
+                match rng.next_u64() % 8 {
+                    0 => {}
+                    1 => pixels.iter_mut().for_each(|p| *p = rng.next_u64() as u8),
+                    2 => pixels.resize(pixels.len() + 1 + (rng.next_u64() % 300) as usize, 9),
+                    _ => {
+                        for _ in 0..1 + rng.next_u64() % 4 {
+                            let start = (rng.next_u64() % pixels.len() as u64) as usize;
+                            let end = (start + (rng.next_u64() % 500) as usize).min(pixels.len());
+                            let value = rng.next_u64() as u8;
+                            pixels[start..end].iter_mut().for_each(|p| *p = value);
+                        }
+                    }
+                }
+                let before = last.pixels.len();
+                whole.push_u8_counting(&pixels, &mut whole_counts);
+                since.push_u8_counting_since(&pixels, &mut since_counts, &mut last);
+                resized += usize::from(before != last.pixels.len());
+                let frame_counts = count_u8(&pixels, channels);
+                assert_eq!(
+                    last.counts, frame_counts,
+                    "{channels} channels, frame {frame}"
+                );
+            }
+            same_series(whole, &whole_counts, since, &since_counts, resized);
+        }
+    }
+
+    /// A series counted frame by frame and since the last frame ended the same, with fewer
+    /// than half of its 40 frames counted whole for a new size.
+    fn same_series(
+        mut whole: ImageStats,
+        whole_counts: &[Vec<u64>],
+        mut since: ImageStats,
+        since_counts: &[Vec<u64>],
+        resized: usize,
+    ) {
+        assert!(resized < 20, "most frames count only what changed");
+        whole.add_histograms(whole_counts);
+        since.add_histograms(since_counts);
+        assert_eq!(
+            serde_json::to_string(&since).expect("json"),
+            serde_json::to_string(&whole).expect("json")
+        );
+    }
+
+    #[test]
     fn depth_parts_with_shared_histograms_equal_whole_frames() {
         let mut rng = SplitMix64::new(7);
         let frames: Vec<Vec<f32>> = (0..5)
@@ -696,6 +914,52 @@ mod tests {
             serde_json::to_string(&parts).expect("json"),
             serde_json::to_string(&whole).expect("json")
         );
+    }
+
+    #[test]
+    fn depth_counted_since_the_last_frame_equals_every_frame_counted() {
+        // Seeded: depth series changing in random stretches, now and then everywhere, in
+        // size, or to values out of range, NaN, -0 and 0 (bits, not values, decide).
+        let mut rng = SplitMix64::new(43);
+        let value = |rng: &mut SplitMix64| match rng.next_u64() % 16 {
+            0 => f32::NAN,
+            1 => -0.0,
+            2 => 0.0,
+            3 => 0.9,
+            _ => (rng.next_u64() % 6000) as f32 * 1e-4 - 0.05,
+        };
+        let mut frame: Vec<f32> = (0..3_001).map(|_| value(&mut rng)).collect();
+        let mut whole = ImageStats::depth();
+        let mut whole_counts = whole.empty_histograms();
+        let mut since = ImageStats::depth();
+        let mut since_counts = since.empty_histograms();
+        let mut last = LastFrame::default();
+        let mut resized = 0;
+        for step in 0..40 {
+            match rng.next_u64() % 8 {
+                0 => {}
+                1 => frame.iter_mut().for_each(|v| *v = value(&mut rng)),
+                2 => frame.truncate(frame.len() - 1 - (rng.next_u64() % 200) as usize),
+                _ => {
+                    for _ in 0..1 + rng.next_u64() % 4 {
+                        let start = (rng.next_u64() % frame.len() as u64) as usize;
+                        let end = (start + (rng.next_u64() % 400) as usize).min(frame.len());
+                        let v = value(&mut rng);
+                        frame[start..end].iter_mut().for_each(|x| *x = v);
+                    }
+                }
+            }
+            let before = last.depth.len();
+            let mut part = whole.without_histograms();
+            part.push_depth_counting(&frame, &mut whole_counts);
+            whole.merge(&part);
+            let mut part = since.without_histograms();
+            part.push_depth_counting_since(&frame, &mut since_counts, &mut last);
+            since.merge(&part);
+            resized += usize::from(before != last.depth.len());
+            assert_eq!(whole_counts, since_counts, "step {step}");
+        }
+        same_series(whole, &whole_counts, since, &since_counts, resized);
     }
 
     #[test]

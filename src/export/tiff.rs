@@ -51,11 +51,16 @@ pub fn encode_f32_tiff_into(out: &mut Vec<u8>, width: u32, height: u32, pixels: 
         }
     }
     out.extend_from_slice(&0u32.to_le_bytes()); // no next IFD
-    // Little-endian samples, written through a sized buffer the compiler turns into a copy.
-    let start = out.len();
-    out.resize(start + data_len, 0);
-    for (bytes, v) in out[start..].chunks_exact_mut(4).zip(pixels) {
-        bytes.copy_from_slice(&v.to_le_bytes());
+    // Little-endian samples through a small buffer the compiler fills with vector copies, so
+    // `out` is written once (not zeroed first).
+    const SAMPLES: usize = 1024;
+    let mut buffer = [0u8; SAMPLES * 4];
+    for samples in pixels.chunks(SAMPLES) {
+        let bytes = &mut buffer[..samples.len() * 4];
+        for (bytes, v) in bytes.chunks_exact_mut(4).zip(samples) {
+            bytes.copy_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(bytes);
     }
 }
 

@@ -11,7 +11,7 @@ use crate::episode::{
 use crate::export::ExportError;
 use crate::export::image::{decode_png, encode_png_into};
 use crate::export::info::DatasetInfo;
-use crate::export::stats::{FeatureStats, ImageStats, SummaryStats, VectorStats};
+use crate::export::stats::{FeatureStats, ImageStats, LastFrame, SummaryStats, VectorStats};
 use crate::export::tiff::{encode_f32_tiff_into, f32_tiff_len};
 use crate::export::video::{EncodedFrame, encode};
 use rayon::prelude::*;
@@ -199,9 +199,10 @@ impl EpisodeWork<'_> {
                     _ => Vec::new(),
                 })
                 .collect();
+            let mut last = vec![LastFrame::default(); total.len()];
             let frames = chunk
                 .iter()
-                .map(|step| self.frame_stats(&total, &kinds, step, &mut histograms))
+                .map(|step| self.frame_stats(&total, &kinds, step, &mut histograms, &mut last))
                 .collect();
             (frames, histograms)
         };
@@ -280,6 +281,7 @@ impl EpisodeWork<'_> {
         kinds: &[Option<FeatureKind>],
         step: &Step,
         histograms: &mut [Vec<Vec<u64>>],
+        last: &mut [LastFrame],
     ) -> EpisodeStats {
         let mut stats: EpisodeStats = shape
             .iter()
@@ -292,7 +294,7 @@ impl EpisodeWork<'_> {
                 (name.clone(), empty)
             })
             .collect();
-        fold_frame(&mut stats, kinds, step, histograms);
+        fold_frame(&mut stats, kinds, step, histograms, last);
         stats
     }
 }
@@ -304,6 +306,7 @@ fn fold_frame(
     kinds: &[Option<FeatureKind>],
     step: &Step,
     histograms: &mut [Vec<Vec<u64>>],
+    last: &mut [LastFrame],
 ) {
     let image = |s: &mut ImageStats, push: &mut dyn FnMut(&mut ImageStats)| {
         let mut frame = s.without_histograms();
@@ -311,17 +314,18 @@ fn fold_frame(
         s.merge(&frame);
     };
     let mut others = step.other.iter();
-    for (((_, s), counts), kind) in stats.iter_mut().zip(histograms).zip(kinds) {
+    let features = stats.iter_mut().zip(histograms).zip(kinds).zip(last);
+    for ((((_, s), counts), kind), last) in features {
         match (*kind, s) {
-            (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => {
-                image(s, &mut |f| f.push_u8_counting(&step.rgb, counts))
-            }
-            (Some(FeatureKind::Mask), FeatureStats::Image(s)) => {
-                image(s, &mut |f| f.push_u8_counting(&step.mask, counts))
-            }
-            (Some(FeatureKind::Depth), FeatureStats::Image(s)) => {
-                image(s, &mut |f| f.push_depth_counting(&step.depth_m, counts))
-            }
+            (Some(FeatureKind::Rgb), FeatureStats::Image(s)) => image(s, &mut |f| {
+                f.push_u8_counting_since(&step.rgb, counts, last)
+            }),
+            (Some(FeatureKind::Mask), FeatureStats::Image(s)) => image(s, &mut |f| {
+                f.push_u8_counting_since(&step.mask, counts, last)
+            }),
+            (Some(FeatureKind::Depth), FeatureStats::Image(s)) => image(s, &mut |f| {
+                f.push_depth_counting_since(&step.depth_m, counts, last)
+            }),
             (Some(FeatureKind::State), FeatureStats::Vector(s)) => s.push(&step.state),
             (Some(FeatureKind::Action), FeatureStats::Vector(s)) => s.push(&step.action),
             (Some(FeatureKind::EnvironmentState), FeatureStats::Vector(s)) => {
@@ -336,7 +340,7 @@ fn fold_frame(
                     // Statistics need pixels: PNG decodes here; other encodings leave the
                     // image out of them.
                     if let Ok((_, _, _, pixels)) = decode_png(bytes) {
-                        image(s, &mut |f| f.push_u8_counting(&pixels, counts))
+                        image(s, &mut |f| f.push_u8_counting_since(&pixels, counts, last))
                     }
                 }
                 _ => {}
@@ -443,6 +447,8 @@ struct StatsFold {
     kinds: Vec<Option<FeatureKind>>,
     total: EpisodeStats,
     histograms: Vec<Vec<Vec<u64>>>,
+    /// Per feature, the last frame's pixels and counts.
+    last: Vec<LastFrame>,
 }
 
 impl StatsFold {
@@ -457,13 +463,20 @@ impl StatsFold {
             .collect();
         StatsFold {
             kinds: work.step_kinds(),
+            last: vec![LastFrame::default(); total.len()],
             total,
             histograms,
         }
     }
 
     fn push(&mut self, step: &Step) {
-        fold_frame(&mut self.total, &self.kinds, step, &mut self.histograms);
+        fold_frame(
+            &mut self.total,
+            &self.kinds,
+            step,
+            &mut self.histograms,
+            &mut self.last,
+        );
     }
 
     fn finish(mut self, work: &EpisodeWork<'_>, episode: &Episode) -> EpisodeStats {
