@@ -94,15 +94,16 @@ fn pair_codes() -> &'static [u32] {
     })
 }
 
-/// The codes of `run` zero bytes (1..=259; bits in the low 24, count in the high 8) as fdeflate
-/// writes them: a literal zero, then for the rest, when more than four remain, a copy of the
-/// byte before (a length symbol, its extra bits, and distance 1: the distance code's one bit 0),
-/// literal zeros otherwise. Longer runs put length-258 copies between the zero and the rest.
+/// The codes of a run of zero bytes, by its length (1..=258; index 0 empty): bits in the low
+/// 24, their count in the high 8. As fdeflate writes them: a literal zero, then for the rest,
+/// when more than four remain, a copy of the byte before (a length symbol, its extra bits, and
+/// distance 1: the distance code's one bit 0), literal zeros otherwise. Longer runs put
+/// length-258 copies between the zero and the rest.
 fn run_codes() -> &'static [u32] {
     static RUN_CODES: OnceLock<Box<[u32]>> = OnceLock::new();
     RUN_CODES.get_or_init(|| {
         let zero = (u32::from(CODES[0]), u32::from(LENGTHS[0]));
-        (0..=259u32)
+        (0..=258u32)
             .map(|run| {
                 let rest = run.saturating_sub(1);
                 let (bits, count) = if run == 0 {
@@ -211,12 +212,10 @@ struct Pending {
 
 /// Deflate's bit order into a slice that runs past `at`, the first byte not final, by at least
 /// the room [`BitWriter::with_room`] asked for. A local value (taken and given back as
-/// [`Pending`]) so that its fields stay in registers while bytes are stored.
+/// [`Pending`]) so that its state stays in registers while bytes are stored.
 struct BitWriter<'a> {
     out: &'a mut [u8],
-    at: usize,
-    bits: u64,
-    count: u32,
+    state: Pending,
 }
 
 impl<'a> BitWriter<'a> {
@@ -229,36 +228,26 @@ impl<'a> BitWriter<'a> {
         }
         BitWriter {
             out: out.as_mut_slice(),
-            at: pending.at,
-            bits: pending.bits,
-            count: pending.count,
-        }
-    }
-
-    fn pending(&self) -> Pending {
-        Pending {
-            at: self.at,
-            bits: self.bits,
-            count: self.count,
+            state: pending,
         }
     }
 
     /// Adds `count` bits (the buffer must hold no more than 63 after it).
     #[inline(always)]
     fn put(&mut self, bits: u64, count: u32) {
-        self.bits |= bits << self.count;
-        self.count += count;
+        self.state.bits |= bits << self.state.count;
+        self.state.count += count;
     }
 
     /// Writes the buffer's whole bytes: all eight are stored, and `at` moves past the whole ones.
     #[inline(always)]
     fn store(&mut self) {
-        let whole = self.count / 8;
-        self.out[self.at..self.at + 8].copy_from_slice(&self.bits.to_le_bytes());
-        self.at += whole as usize;
+        let whole = self.state.count / 8;
+        self.out[self.state.at..self.state.at + 8].copy_from_slice(&self.state.bits.to_le_bytes());
+        self.state.at += whole as usize;
         // `whole` <= 7: no caller fills the buffer to 64 bits.
-        self.bits >>= whole * 8;
-        self.count -= whole * 8;
+        self.state.bits >>= whole * 8;
+        self.state.count -= whole * 8;
     }
 
     /// The end-of-block symbol and the zero bits that pad the last byte.
@@ -268,9 +257,9 @@ impl<'a> BitWriter<'a> {
             u32::from(LENGTHS[END_OF_BLOCK]),
         );
         self.store();
-        self.put(0, (8 - self.count % 8) % 8);
+        self.put(0, (8 - self.state.count % 8) % 8);
         self.store();
-        self.pending()
+        self.state
     }
 
     /// Literal bytes, two at a time.
@@ -373,7 +362,7 @@ impl<'a> BitWriter<'a> {
             self.run(run, runs);
         }
         self.literals(words.remainder(), pairs);
-        self.pending()
+        self.state
     }
 }
 

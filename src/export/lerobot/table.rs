@@ -116,9 +116,16 @@ impl ImageColumn {
     }
 
     /// Frames already encoded.
-    pub fn from_frames(frames: &[Vec<u8>]) -> Result<Self, ExportError> {
-        let total = frames.iter().map(Vec::len).sum();
-        let mut column = ImageColumn::with_capacity(frames.len(), 0);
+    pub fn from_frames<'a, I>(frames: I) -> Result<Self, ExportError>
+    where
+        I: IntoIterator<Item = &'a [u8]>,
+        I::IntoIter: Clone,
+    {
+        let frames = frames.into_iter();
+        let (count, total) = frames.clone().fold((0, 0), |(count, total), frame| {
+            (count + 1, total + frame.len())
+        });
+        let mut column = ImageColumn::with_capacity(count, 0);
         column.values.reserve_exact(total);
         for frame in frames {
             column.push_with(|out| {

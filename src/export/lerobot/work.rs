@@ -93,9 +93,9 @@ impl EpisodeWork<'_> {
     /// Encodes every image stored in the parquet (frames in parallel, order kept).
     pub fn encode_images(&self, episode: &Episode) -> Result<EncodedImages, ExportError> {
         let mut images = EncodedImages::new();
-        for (name, plan) in self.image_plans(episode) {
+        for (name, plan) in self.image_plans(episode)? {
             let encoded = match plan {
-                ImagePlan::Stored(bytes) => ImageColumn::from_frames(&bytes)?,
+                ImagePlan::Stored(column) => column,
                 ImagePlan::Encode(kind) if self.parallel => {
                     let frames: Vec<Vec<u8>> = episode
                         .steps
@@ -106,7 +106,7 @@ impl EpisodeWork<'_> {
                             Ok::<_, ExportError>(out)
                         })
                         .collect::<Result<_, _>>()?;
-                    ImageColumn::from_frames(&frames)?
+                    ImageColumn::from_frames(frames.iter().map(Vec::as_slice))?
                 }
                 ImagePlan::Encode(kind) => {
                     let mut column = self.image_column(kind, episode.steps.len());
@@ -125,7 +125,7 @@ impl EpisodeWork<'_> {
     /// stored in the feature's encoding are copied (PNG and TIFF are lossless: the pixels are
     /// the same whatever compression made them); other features' images are stored as they
     /// came (not here).
-    fn image_plans(&self, episode: &Episode) -> Vec<(String, ImagePlan)> {
+    fn image_plans(&self, episode: &Episode) -> Result<Vec<(String, ImagePlan)>, ExportError> {
         self.parquet_features
             .iter()
             .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
@@ -133,12 +133,12 @@ impl EpisodeWork<'_> {
                 let kind = feature.kind;
                 let plan = match episode.stored_frames(&feature.name, ImageEncoding::of_kind(kind))
                 {
-                    Some(stored) => {
-                        ImagePlan::Stored(stored.iter().map(|f| f.data.clone()).collect())
-                    }
+                    Some(stored) => ImagePlan::Stored(ImageColumn::from_frames(
+                        stored.iter().map(|f| f.data.as_slice()),
+                    )?),
                     None => ImagePlan::Encode(kind),
                 };
-                (feature.name.clone(), plan)
+                Ok((feature.name.clone(), plan))
             })
             .collect()
     }
@@ -176,7 +176,7 @@ impl EpisodeWork<'_> {
     /// [`EpisodeWork::encode_images`] and [`EpisodeWork::feature_stats`] on one thread, frame
     /// by frame (see [`FrameWork`]; the same bytes and statistics).
     pub fn encode_with_stats(&self, episode: &Episode) -> Result<Finished, ExportError> {
-        let mut frames = FrameWork::new(self, self.image_plans(episode), episode.steps.len())?;
+        let mut frames = FrameWork::new(self, self.image_plans(episode)?, episode.steps.len());
         for step in &episode.steps {
             frames.push(self, step)?;
         }
@@ -360,8 +360,8 @@ fn fresh_feature_stats(features: &[FeatureSpec]) -> EpisodeStats {
 
 /// How one image feature stored in the parquet gets its bytes.
 enum ImagePlan {
-    /// The source's own bytes, per frame.
-    Stored(Vec<Vec<u8>>),
+    /// The source's own bytes, copied once into the feature's column.
+    Stored(ImageColumn),
     /// Encoded here from the steps' pixels.
     Encode(FeatureKind),
 }
@@ -379,8 +379,9 @@ pub struct Finished {
 /// frame's images one after the other, then its statistics, while its pixels are in the
 /// core's cache.
 pub struct FrameWork {
-    plans: Vec<(String, ImagePlan)>,
-    columns: Vec<ImageColumn>,
+    /// Per image feature: its name, the kind encoded here (`None`: the source's bytes, already
+    /// in its column) and its column.
+    features: Vec<(String, Option<FeatureKind>, ImageColumn)>,
     fold: StatsFold,
     encode_secs: f64,
     stats_secs: f64,
@@ -388,32 +389,27 @@ pub struct FrameWork {
 
 impl FrameWork {
     /// For an episode of about `frames` frames (the columns' room).
-    fn new(
-        work: &EpisodeWork<'_>,
-        plans: Vec<(String, ImagePlan)>,
-        frames: usize,
-    ) -> Result<Self, ExportError> {
-        let columns = plans
-            .iter()
-            .map(|(_, plan)| match plan {
-                ImagePlan::Stored(bytes) => ImageColumn::from_frames(bytes),
-                ImagePlan::Encode(kind) => Ok(work.image_column(*kind, frames)),
+    fn new(work: &EpisodeWork<'_>, plans: Vec<(String, ImagePlan)>, frames: usize) -> Self {
+        let features = plans
+            .into_iter()
+            .map(|(name, plan)| match plan {
+                ImagePlan::Stored(column) => (name, None, column),
+                ImagePlan::Encode(kind) => (name, Some(kind), work.image_column(kind, frames)),
             })
-            .collect::<Result<_, _>>()?;
-        Ok(FrameWork {
-            plans,
-            columns,
+            .collect();
+        FrameWork {
+            features,
             fold: StatsFold::new(work),
             encode_secs: 0.0,
             stats_secs: 0.0,
-        })
+        }
     }
 
     fn push(&mut self, work: &EpisodeWork<'_>, step: &Step) -> Result<(), ExportError> {
         let started = std::time::Instant::now();
-        for ((_, plan), column) in self.plans.iter().zip(&mut self.columns) {
-            if let ImagePlan::Encode(kind) = plan {
-                column.push_with(|out| work.encode_image(*kind, step, out))?;
+        for (_, kind, column) in &mut self.features {
+            if let Some(kind) = *kind {
+                column.push_with(|out| work.encode_image(kind, step, out))?;
             }
         }
         let encoded = std::time::Instant::now();
@@ -428,10 +424,9 @@ impl FrameWork {
         let stats = self.fold.finish(work, episode);
         Finished {
             images: self
-                .plans
+                .features
                 .into_iter()
-                .map(|(name, _)| name)
-                .zip(self.columns)
+                .map(|(name, _, column)| (name, column))
                 .collect(),
             stats,
             encode_secs: self.encode_secs,
@@ -615,7 +610,7 @@ impl crate::export::writer::EpisodeEncoder<Prepared> for SharedWork {
             .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
             .map(|f| (f.name.clone(), ImagePlan::Encode(f.kind)))
             .collect();
-        let frames = FrameWork::new(&work, plans, expected_frames).ok()?;
+        let frames = FrameWork::new(&work, plans, expected_frames);
         Some(Box::new(FrameStream {
             owned: self.0.clone(),
             frames,
