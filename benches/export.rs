@@ -180,8 +180,8 @@ fn decode_inputs() -> Vec<(&'static str, std::path::PathBuf, usize)> {
 /// `export/decode/{av1,h264}`: every frame of a 224 x 224 MP4 demuxed, decoded and converted
 /// to RGB, on one thread. Throughput is in frames.
 fn bench_decode(c: &mut Criterion) {
-    use surgvla::export::decode::{MAX_DECODED_SIDE_PX, decode_span_each, rgb_from_yuv420};
-    use surgvla::export::demux::VideoReader;
+    use surgvla::media::decode::{MAX_DECODED_SIDE_PX, decode_span_each, rgb_from_yuv420};
+    use surgvla::media::demux::VideoReader;
     let mut group = c.benchmark_group("export/decode");
     group.sample_size(10);
     for (name, mp4, frames) in decode_inputs() {

@@ -188,8 +188,7 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
     options.record.randomize_appearance = args.randomize_appearance;
     // Point clouds (PLY, PCD, MCAP, zarr) carry the mask ids of their points when the frames
     // have them; LeRobot and RLDS store the mask only as its feature.
-    options.record.render.mask =
-        args.with_mask || !matches!(args.format, Format::Lerobot | Format::Rlds);
+    options.record.render.mask = args.with_mask || args.format.0.capabilities().point_clouds;
     let features = FeatureSet {
         mask: args.with_mask,
         depth: !args.without.contains(&Omit::Depth),
@@ -199,7 +198,7 @@ pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
     let sink_options = args.formats.sink_options(args.format, "--format")?;
     let info = dataset_info(&options, features, &library);
     let resuming = resumes(&args.out, args.resume);
-    let mut sink = open_sink(&args.out, &info, &sink_options, args.resume)?;
+    let mut sink = open_sink(&args.out, &info, sink_options.as_ref(), args.resume)?;
     if resuming {
         let next = sink.next_episode_index();
         eprintln!("resuming {} at episode {next}", args.out.display());

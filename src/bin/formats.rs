@@ -2,36 +2,63 @@
 //! (refused with another format), and the `convert` command.
 
 use crate::error::CliError;
+use clap::builder::PossibleValue;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
+use std::sync::LazyLock;
 use surgvla::episode::FeatureKind;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::format::MergeRequest;
-use surgvla::export::image::PngLevel;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
 use surgvla::export::mcap::McapOptions;
 use surgvla::export::pointcloud::files::CloudFileFormat;
-use surgvla::export::pointcloud::{Aabb, CloudSettings};
+use surgvla::export::pointcloud::{Aabb, CloudFileOptions, CloudSettings};
 use surgvla::export::rlds::{RldsKeys, RldsOptions};
 use surgvla::export::zarr::ZarrOptions;
-use surgvla::export::{SinkOptions, open_sink, resumes};
+use surgvla::export::{BUILTIN_FORMATS, SinkOptions, open_sink, resumes};
+use surgvla::media::image::PngLevel;
 
-/// A dataset format to write.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Format {
-    /// LeRobot (v3.0 by default; see --lerobot-version).
-    Lerobot,
-    /// RLDS in the TFDS layout (tensorflow_datasets, OpenVLA, Octo); see --rlds-name.
-    Rlds,
-    /// One PLY point cloud per frame (Open3D, CloudCompare); see --points, --crop.
-    Ply,
-    /// One PCD v0.7 point cloud per frame (PCL, Open3D); see --points, --crop.
-    Pcd,
-    /// The DP3 zarr v2 store (3D Diffusion Policy); see --points, --crop, --zarr-images.
-    Zarr,
-    /// One MCAP recording per episode for Foxglove (images, depth, point cloud, frames, state,
-    /// action); see --points, --crop.
-    Mcap,
+/// A dataset format to write (`--to`, `--format`): the registry's formats, by name, each with
+/// its own help line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Format(pub surgvla::export::Format);
+
+impl ValueEnum for Format {
+    fn value_variants<'a>() -> &'a [Self] {
+        static ALL: LazyLock<Vec<Format>> =
+            LazyLock::new(|| BUILTIN_FORMATS.iter().copied().map(Format).collect());
+        &ALL
+    }
+
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        Some(PossibleValue::new(self.0.name()).help(self.0.help()))
+    }
+}
+
+/// A format with a features schema (`surgvla schema --format`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SchemaFormat(pub surgvla::export::Format);
+
+impl ValueEnum for SchemaFormat {
+    fn value_variants<'a>() -> &'a [Self] {
+        static ALL: LazyLock<Vec<SchemaFormat>> = LazyLock::new(|| {
+            BUILTIN_FORMATS
+                .iter()
+                .filter(|f| f.schema_help().is_some())
+                .copied()
+                .map(SchemaFormat)
+                .collect()
+        });
+        &ALL
+    }
+
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        let value = PossibleValue::new(self.0.name());
+        Some(match self.0.schema_help() {
+            Some(help) => value.help(help),
+            None => value,
+        })
+    }
 }
 
 /// The codec of video mode.
@@ -246,6 +273,34 @@ impl CloudArgs {
             ..defaults
         }
     }
+
+    /// The options of every format that makes point clouds.
+    fn options(&self) -> Vec<Box<dyn SinkOptions>> {
+        let settings = self.settings();
+        let mut options: Vec<Box<dyn SinkOptions>> = CloudFileFormat::ALL
+            .into_iter()
+            .map(|format| Box::new(CloudFileOptions { format, settings }) as Box<dyn SinkOptions>)
+            .collect();
+        options.push(Box::new(self.zarr()));
+        options.push(Box::new(McapOptions { cloud: settings }));
+        options
+    }
+
+    fn zarr(&self) -> ZarrOptions {
+        ZarrOptions {
+            cloud: self.settings(),
+            images: self.zarr_images,
+            mask_channel: self.zarr_mask_channel,
+        }
+    }
+}
+
+/// Flags that belong to some formats: who owns them (for the message refusing them), the first
+/// one given, and the options they make, one per format they apply to.
+struct FlagGroup {
+    owner: &'static str,
+    given: Option<&'static str>,
+    options: Vec<Box<dyn SinkOptions>>,
 }
 
 /// Every format's options, for a command that writes one format.
@@ -262,52 +317,52 @@ pub struct FormatArgs {
 impl FormatArgs {
     /// The options of `format`; another format's option is a usage error (`flag` names how
     /// the format was chosen, e.g. "--format").
-    pub fn sink_options(&self, format: Format, flag: &str) -> Result<SinkOptions, CliError> {
-        let refuse = |option: &str, owner: &str| {
-            Err(CliError::usage(format!(
-                "{option} is {owner} option; it means nothing with {flag} {}",
-                format
-                    .to_possible_value()
-                    .map_or(String::new(), |v| v.get_name().to_string())
-            )))
-        };
-        // Each format's options, by owner; only the chosen format's may be given.
-        let owners = [
-            ("a LeRobot", self.lerobot.given(), format == Format::Lerobot),
-            ("an RLDS", self.rlds.given(), format == Format::Rlds),
-            (
-                "a point-cloud",
-                self.cloud.given(),
-                matches!(
-                    format,
-                    Format::Ply | Format::Pcd | Format::Zarr | Format::Mcap
-                ),
-            ),
-            ("a zarr", self.cloud.zarr_given(), format == Format::Zarr),
+    pub fn sink_options(
+        &self,
+        format: Format,
+        flag: &str,
+    ) -> Result<Box<dyn SinkOptions>, CliError> {
+        let groups = [
+            FlagGroup {
+                owner: "a LeRobot",
+                given: self.lerobot.given(),
+                options: vec![Box::new(self.lerobot.options())],
+            },
+            FlagGroup {
+                owner: "an RLDS",
+                given: self.rlds.given(),
+                options: vec![Box::new(self.rlds.options())],
+            },
+            FlagGroup {
+                owner: "a point-cloud",
+                given: self.cloud.given(),
+                options: self.cloud.options(),
+            },
+            FlagGroup {
+                owner: "a zarr",
+                given: self.cloud.zarr_given(),
+                options: vec![Box::new(self.cloud.zarr())],
+            },
         ];
-        for (owner, given, chosen) in owners {
-            if let (Some(option), false) = (given, chosen) {
-                return refuse(option, owner);
+        // Only the chosen format's options may be given.
+        for group in &groups {
+            if let Some(option) = group.given
+                && !group.options.iter().any(|o| o.format() == format.0)
+            {
+                return Err(CliError::usage(format!(
+                    "{option} is {} option; it means nothing with {flag} {}",
+                    group.owner,
+                    format.0.name()
+                )));
             }
         }
-        Ok(match format {
-            Format::Lerobot => SinkOptions::LeRobot(self.lerobot.options()),
-            Format::Rlds => {
-                let options = self.rlds.options();
-                options.check()?;
-                SinkOptions::Rlds(options)
-            }
-            Format::Ply => SinkOptions::CloudFiles(CloudFileFormat::Ply, self.cloud.settings()),
-            Format::Pcd => SinkOptions::CloudFiles(CloudFileFormat::Pcd, self.cloud.settings()),
-            Format::Zarr => SinkOptions::Zarr(ZarrOptions {
-                cloud: self.cloud.settings(),
-                images: self.cloud.zarr_images,
-                mask_channel: self.cloud.zarr_mask_channel,
-            }),
-            Format::Mcap => SinkOptions::Mcap(McapOptions {
-                cloud: self.cloud.settings(),
-            }),
-        })
+        let options = groups
+            .into_iter()
+            .flat_map(|group| group.options)
+            .find(|o| o.format() == format.0)
+            .ok_or_else(|| CliError::usage(format!("{flag} {} has no options", format.0.name())))?;
+        options.check()?;
+        Ok(options)
     }
 }
 
@@ -386,7 +441,7 @@ fn omitted(without: &[ConvertOmit]) -> Vec<FeatureKind> {
 /// asked (`--decode`) or the target needs pixels.
 fn converted_source(
     args: &ConvertArgs,
-    options: &SinkOptions,
+    options: &dyn SinkOptions,
 ) -> Result<Box<dyn surgvla::export::EpisodeSource + Send>, CliError> {
     let source_options = surgvla::export::SourceOptions {
         fps: args.fps,
@@ -404,9 +459,9 @@ fn converted_source(
             &omitted(&args.without),
         ));
     }
-    let needed = surgvla::export::decoding_needed(source.info(), options)?;
-    if needed || (args.decode && surgvla::export::decode::Decoded::needed(source.info())) {
-        source = Box::new(surgvla::export::decode::Decoded::new(source)?);
+    let needed = surgvla::export::decoding_needed(source.info(), options);
+    if needed || (args.decode && surgvla::export::decoded::Decoded::needed(source.info())) {
+        source = Box::new(surgvla::export::decoded::Decoded::new(source)?);
     }
     Ok(source)
 }
@@ -414,7 +469,7 @@ fn converted_source(
 /// `--verify`: what the output holds against the input.
 fn verify(
     args: &ConvertArgs,
-    options: &SinkOptions,
+    options: &dyn SinkOptions,
     summary: &surgvla::export::Summary,
 ) -> Result<(), CliError> {
     let mut source = converted_source(args, options)?;
@@ -437,11 +492,11 @@ fn verify(
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
 pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
-    let mut source = converted_source(args, &options)?;
+    let mut source = converted_source(args, options.as_ref())?;
     let info = source.info().clone();
     let resuming = resumes(&args.out, args.resume);
     let created = !args.out.exists();
-    let mut sink = open_sink(&args.out, &info, &options, args.resume)?;
+    let mut sink = open_sink(&args.out, &info, options.as_ref(), args.resume)?;
     if resuming {
         eprintln!(
             "resuming {} at episode {}",
@@ -480,7 +535,7 @@ pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         summary.bytes as f64 / 1e6
     );
     if args.verify {
-        verify(args, &options, &summary)?;
+        verify(args, options.as_ref(), &summary)?;
     }
     Ok(())
 }

@@ -64,15 +64,14 @@ pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
     };
     let mut report = validate(&args.path, &options)?;
     if args.replay {
-        use surgvla::export::validate::Format;
-        if !matches!(
-            report.format,
-            Format::LeRobotV30 | Format::LeRobotV21 | Format::Rlds
-        ) {
+        let reads = surgvla::export::registry::of_layout(report.format)
+            .is_some_and(|format| format.capabilities().reads);
+        if !reads {
             return Err(CliError::usage(format!(
-                "--replay reads LeRobot or RLDS datasets; {} is {}",
+                "--replay reads {} datasets; {} is {}",
+                surgvla::export::registry::titles(|c| c.reads, "or"),
                 place(&report.path),
-                report.format.name()
+                report.format
             )));
         }
         if report.valid {
@@ -94,7 +93,7 @@ pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
         Err(CliError::invalid(format!(
             "{} is not a valid {} dataset: {} error{}",
             place(&report.path),
-            report.format.name(),
+            report.format,
             report.errors.len(),
             if report.errors.len() == 1 { "" } else { "s" }
         )))
@@ -105,7 +104,7 @@ fn print_report(report: &Report) -> Result<(), CliError> {
     say!(
         "{}: {} dataset, {} episodes, {} frames{}",
         place(&report.path),
-        report.format.name(),
+        report.format,
         report.episodes,
         report.frames,
         if report.valid { ": valid" } else { "" }
@@ -154,7 +153,7 @@ pub fn run_info(args: &InfoArgs) -> Result<(), CliError> {
         return quick_check_result(&report, &args.path, true);
     }
     say!("path       {}", place(&report.path));
-    say!("format     {}", report.format.name());
+    say!("format     {}", report.format);
     say!("episodes   {}", report.episodes);
     say!("frames     {}", report.frames);
     say!("size       {:.1} MB", report.bytes as f64 / 1e6);

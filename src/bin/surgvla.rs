@@ -20,6 +20,7 @@ mod memory;
 mod progress;
 
 use error::CliError;
+use formats::SchemaFormat;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -443,36 +444,16 @@ fn main() -> ExitCode {
     }
 }
 
-/// The formats with a feature schema.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-enum SchemaFormat {
-    /// The `features` of LeRobot's meta/info.json.
-    Lerobot,
-    /// RLDS's features.json.
-    Rlds,
-    /// The JSON Schemas of an MCAP recording's JSON channels, by topic.
-    Mcap,
-}
-
 fn run_schema(with_mask: bool, format: SchemaFormat) -> Result<(), CliError> {
     let set = surgvla::episode::FeatureSet {
         mask: with_mask,
         ..Default::default()
     };
-    let json = match format {
-        SchemaFormat::Lerobot => {
-            let features = surgvla::episode::standard_features(224, 224, set);
-            surgvla::export::lerobot::features_json(&features)
-        }
-        SchemaFormat::Rlds => {
-            let options = surgvla::collect::run::CollectOptions::default();
-            let info =
-                surgvla::collect::run::dataset_info(&options, set, &ExpertLibrary::builtin()?);
-            let rlds = surgvla::export::rlds::RldsOptions::default();
-            surgvla::export::rlds::features::features_json(&info, &rlds)
-        }
-        SchemaFormat::Mcap => surgvla::export::mcap::messages::json_channel_schemas(),
-    };
+    let options = surgvla::collect::run::CollectOptions::default();
+    let info = surgvla::collect::run::dataset_info(&options, set, &ExpertLibrary::builtin()?);
+    let json = format.0.schema(&info).ok_or_else(|| {
+        CliError::usage(format!("{} has no features schema", format.0.name()))
+    })?;
     say!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())
 }

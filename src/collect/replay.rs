@@ -173,9 +173,9 @@ pub struct Replayed {
 pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayError> {
     let mut source = open_source(path)?;
     // Video is decoded and compared within the lossy tolerance.
-    let lossy = crate::export::decode::Decoded::needed(source.info());
+    let lossy = crate::export::decoded::Decoded::needed(source.info());
     if lossy {
-        source = Box::new(crate::export::decode::Decoded::new(source)?);
+        source = Box::new(crate::export::decoded::Decoded::new(source)?);
     }
     let collection = source.info().collection.clone();
     if collection.is_null() {

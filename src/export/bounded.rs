@@ -5,7 +5,7 @@
 //! `dataset_info.json` and `features.json` and our own metadata are kilobytes to a few
 //! megabytes.
 
-use crate::export::ExportError;
+use crate::export::error::ExportError;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -122,6 +122,16 @@ impl Iterator for Lines {
         None
     }
 }
+
+/// Reads a JSON file, naming it in the error.
+pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, ExportError> {
+    let bytes = read_metadata(path)?;
+    serde_json::from_slice(&bytes).map_err(|source| ExportError::Json {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 
 #[cfg(test)]
 mod tests {

@@ -1,11 +1,14 @@
 //! Converting a dataset: every episode of an [`EpisodeSource`] into an [`EpisodeSink`] made
-//! with the source's [`DatasetInfo`](crate::export::DatasetInfo). Episodes travel in small
+//! with the source's [`DatasetInfo`](crate::export::info::DatasetInfo). Episodes travel in small
 //! batches (one per worker thread, so the sink encodes them in parallel and memory stays
 //! bounded by a few episodes); a resumed sink skips the episodes it already holds.
 
 use crate::episode::{Episode, FeatureKind, ImageEncoding, MAX_OBJECTS, POSE_VALUES};
 use crate::error::ErrorKind;
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary};
+use crate::export::sink::EpisodeSink;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 
 /// Which side of a conversion failed.
 #[derive(Debug, thiserror::Error)]
@@ -113,7 +116,7 @@ fn read_batch(
 /// dataset's features and every step.
 pub struct Without {
     inner: Box<dyn EpisodeSource + Send>,
-    info: crate::export::DatasetInfo,
+    info: crate::export::info::DatasetInfo,
     kinds: Vec<FeatureKind>,
 }
 
@@ -158,7 +161,7 @@ impl Without {
 }
 
 impl EpisodeSource for Without {
-    fn info(&self) -> &crate::export::DatasetInfo {
+    fn info(&self) -> &crate::export::info::DatasetInfo {
         &self.info
     }
 
@@ -207,7 +210,7 @@ fn others_differ(
     let Some(min_psnr_db) = min_psnr_db else {
         return a != b;
     };
-    let pixels = |bytes: &[u8]| crate::export::image::decode_png(bytes).ok().map(|p| p.3);
+    let pixels = |bytes: &[u8]| crate::media::image::decode_png(bytes).ok().map(|p| p.3);
     a.len() != b.len()
         || a.iter().any(|(name, x)| match (x, b.get(name)) {
             (FeatureValue::Image(x), Some(FeatureValue::Image(y))) => {
@@ -282,11 +285,11 @@ pub fn verify_within(
     rgb_min_psnr_db: Option<f64>,
 ) -> Result<Verification, ConvertError> {
     let mut result = Verification::default();
-    let has = |info: &crate::export::DatasetInfo, kind| info.has(kind);
+    let has = |info: &crate::export::info::DatasetInfo, kind| info.has(kind);
     let (a_info, b_info) = (source.info().clone(), target.info().clone());
     let both = |kind| has(&a_info, kind) && has(&b_info, kind);
     // Other features by name: formats may order them differently.
-    let others = |info: &crate::export::DatasetInfo| -> Vec<String> {
+    let others = |info: &crate::export::info::DatasetInfo| -> Vec<String> {
         info.features
             .iter()
             .filter(|f| f.kind == FeatureKind::Other && f.in_steps())

@@ -24,7 +24,9 @@
 //!   number of episodes; a checkpoint records their length and checksum, resume cuts them back.
 //! - **Rolling.** [`FileCounter`] numbers rolled files `chunk/file` the LeRobot way.
 
-use crate::export::{ExportError, paths};
+use crate::export::paths;
+use crate::export::error::ExportError;
+use crate::export::error::OptionChange;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -128,49 +130,6 @@ pub(crate) fn checksum(mut file: impl Read, path: &Path) -> Result<(u64, u32), E
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RunOptions(BTreeMap<String, Value>);
 
-/// One option whose value differs between the recorded run and a resume.
-#[derive(Clone, Debug, PartialEq)]
-pub struct OptionChange {
-    pub option: String,
-    /// `None`: the option was not recorded (or is not given now).
-    pub recorded: Option<Value>,
-    pub given: Option<Value>,
-}
-
-impl std::fmt::Display for OptionChange {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let show = |v: &Option<Value>| v.as_ref().map_or("(none)".into(), Value::to_string);
-        if let (Some(Value::Array(was)), Some(Value::Array(now))) = (&self.recorded, &self.given) {
-            let list = |items: Vec<&Value>| {
-                items
-                    .iter()
-                    .map(|v| v.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
-            let added: Vec<&Value> = now.iter().filter(|v| !was.contains(v)).collect();
-            let removed: Vec<&Value> = was.iter().filter(|v| !now.contains(v)).collect();
-            if !added.is_empty() || !removed.is_empty() {
-                let mut parts = Vec::new();
-                if !added.is_empty() {
-                    parts.push(format!("now also {}", list(added)));
-                }
-                if !removed.is_empty() {
-                    parts.push(format!("no longer {}", list(removed)));
-                }
-                return write!(f, "{}: {}", self.option, parts.join(", "));
-            }
-        }
-        write!(
-            f,
-            "{} was {}, now {}",
-            self.option,
-            show(&self.recorded),
-            show(&self.given)
-        )
-    }
-}
-
 impl RunOptions {
     /// The option naming the dataset a conversion reads ([`crate::export::identity`]): a
     /// resume must read the same one; it is not part of the [`RunOptions::digest`].
@@ -233,6 +192,12 @@ impl RunOptions {
             })
             .collect()
     }
+}
+
+/// Whether opening a sink with `resume` continues the dataset in `root` (it holds an
+/// interrupted one) rather than starting a new one.
+pub fn resumes(root: &Path, resume: bool) -> bool {
+    resume && DatasetDir::is_interrupted(root)
 }
 
 /// Which process holds a dataset folder.

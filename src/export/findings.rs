@@ -5,7 +5,7 @@
 //! formats and the dispatcher (`validate`) import this module; it imports no format.
 
 use crate::episode::{Aabb, Episode, GripperEncoding};
-use crate::export::read_json;
+use crate::export::bounded::read_json;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -13,39 +13,6 @@ use std::sync::Mutex;
 /// Findings kept per check before the rest are only counted (a defect repeated on 40,000 frames
 /// is one problem).
 pub const FINDINGS_PER_CHECK: usize = 20;
-
-/// A dataset format [`detect`] recognises.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-pub enum Format {
-    #[serde(rename = "lerobot-v3.0")]
-    LeRobotV30,
-    #[serde(rename = "lerobot-v2.1")]
-    LeRobotV21,
-    #[serde(rename = "rlds")]
-    Rlds,
-    #[serde(rename = "zarr")]
-    Zarr,
-    #[serde(rename = "mcap")]
-    Mcap,
-    #[serde(rename = "ply")]
-    Ply,
-    #[serde(rename = "pcd")]
-    Pcd,
-}
-
-impl Format {
-    pub fn name(self) -> &'static str {
-        match self {
-            Format::LeRobotV30 => "lerobot-v3.0",
-            Format::LeRobotV21 => "lerobot-v2.1",
-            Format::Rlds => "rlds",
-            Format::Zarr => "zarr",
-            Format::Mcap => "mcap",
-            Format::Ply => "ply",
-            Format::Pcd => "pcd",
-        }
-    }
-}
 
 /// One defect (or, as a warning, one oddity): where it is and what is wrong. Ordered by place
 /// (file, episode, frame), then check and message: the order of a report.
@@ -84,7 +51,8 @@ impl std::fmt::Display for Finding {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Report {
     pub valid: bool,
-    pub format: Format,
+    /// The layout found, as the format names it ("lerobot-v3.0", "rlds", "ply", ...).
+    pub format: &'static str,
     /// The folder or file that was checked (an RLDS version folder when given its data dir).
     pub path: PathBuf,
     pub episodes: u64,
@@ -248,7 +216,7 @@ impl Findings {
     }
 
     /// The report, with one more finding per check that had more than it kept.
-    pub fn into_report(self, format: Format, episodes: u64, frames: u64) -> Report {
+    pub fn into_report(self, format: &'static str, episodes: u64, frames: u64) -> Report {
         let mut inner = self.inner.into_inner().unwrap_or_else(|e| e.into_inner());
         let (mut errors, mut warnings) = (Vec::new(), Vec::new());
         let listed: BTreeMap<(String, bool), usize> = inner
@@ -334,7 +302,7 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
         return;
     };
     for file in files {
-        let record: crate::export::FileRecord = match serde_json::from_value(file.clone()) {
+        let record: crate::export::dir::FileRecord = match serde_json::from_value(file.clone()) {
             Ok(record) => record,
             Err(_) => {
                 findings.file_error(&path, "manifest", format!("has a malformed entry {file}"));
@@ -492,7 +460,7 @@ mod tests {
                 findings.error(at, "timestamps", format!("frame {i} is late"));
                 findings.warning(At::file("meta/info.json"), "video-decode", "not decoded");
             }
-            let report = findings.into_report(Format::LeRobotV30, 0, 0);
+            let report = findings.into_report("lerobot-v3.0", 0, 0);
             serde_json::to_string(&(report.errors, report.warnings)).unwrap()
         };
         let forward: Vec<u64> = (0..100).collect();

@@ -1,15 +1,19 @@
 //! The one shape of a dataset format: [`DatasetFormat`], implemented once per format folder
 //! (`lerobot/`, `rlds/`, `zarr/`, `mcap/`, `pointcloud/`) and listed once in
 //! [`crate::export::registry::BUILTIN_FORMATS`], which `validate`, `info`, `convert`, `merge`,
-//! [`crate::export::open_source`] and [`crate::export::open_sink`] all walk.
+//! [`crate::export::open::open_source`] and [`crate::export::open::open_sink`] all walk.
 //!
 //! A format recognises a path itself ([`DatasetFormat::sniff`]: no, yes, or "looks like me but
 //! broken"), checks it into [`Findings`], and opens a sink, a source and a merge where it has
 //! them. This module imports no format: formats import it.
 
-use crate::export::findings::{Findings, Format, ValidateOptions};
+use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions, Summary};
+use crate::export::sink::EpisodeSink;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::source::SourceOptions;
+use crate::export::sink::Summary;
 use std::path::{Path, PathBuf};
 
 /// What [`DatasetFormat::sniff`] looks at: a path, read once for every format.
@@ -75,10 +79,12 @@ impl Probe {
     }
 }
 
-/// A dataset a format recognised: which layout, and the folder (or file) to read.
+/// A dataset a format recognised: its layout and the folder (or file) to read.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Found {
-    pub format: Format,
+    /// The layout as reports name it: one of the format's [`DatasetFormat::layouts`]
+    /// ("lerobot-v3.0", "rlds", "ply", ...).
+    pub layout: &'static str,
     /// The dataset's own root: an RLDS version folder when given the data directory above it.
     pub root: PathBuf,
 }
@@ -95,10 +101,46 @@ pub enum Sniff {
     Broken { found: Found, problem: String },
 }
 
+/// What a format does: the registry, the command line and the dispatchers ask these instead of
+/// naming formats.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Capabilities {
+    /// surgvla reads its datasets back as episodes ([`DatasetFormat::open_source`]).
+    pub reads: bool,
+    /// Its datasets merge ([`DatasetFormat::merge`]).
+    pub merges: bool,
+    /// It stores features that arrive as video without decoding them.
+    pub video: bool,
+    /// It stores features surgvla has no role for (another robot's state, another camera).
+    pub other_features: bool,
+    /// It stores point clouds of the frames (whose points carry the mask ids, so collecting
+    /// into it renders the mask).
+    pub point_clouds: bool,
+}
+
 /// One dataset format: recognising, checking, writing, reading and merging its datasets.
 pub trait DatasetFormat: Sync {
     /// The format's name, as `--to` says it.
     fn name(&self) -> &'static str;
+
+    /// The format's name in a sentence ("LeRobot", "RLDS", "PLY").
+    fn title(&self) -> &'static str;
+
+    /// One line on the format for `--to`'s help.
+    fn help(&self) -> &'static str;
+
+    /// The layouts its datasets come in, as reports name them (the first is what it writes by
+    /// default).
+    fn layouts(&self) -> &'static [&'static str];
+
+    /// What it does besides recognising, checking and writing.
+    fn capabilities(&self) -> Capabilities;
+
+    /// Whether a path must be offered to this format before the others, because its datasets
+    /// also look like another format's (a zarr store has `meta/` and `data/`, as LeRobot has).
+    fn sniffed_first(&self) -> bool {
+        false
+    }
 
     /// Whether `probe` is a dataset of this format.
     fn sniff(&self, probe: &Probe) -> Sniff;
@@ -107,26 +149,14 @@ pub trait DatasetFormat: Sync {
     /// episodes and frames it holds.
     fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64);
 
-    /// Whether `options` are this format's.
-    fn writes(&self, options: &SinkOptions) -> bool;
-
-    /// Whether the format stores features as video (without decoding them) and features
-    /// surgvla has no role for (`FeatureKind::Other`).
-    fn holds(&self) -> Holds {
-        Holds::default()
+    /// The folder holding the dataset's card (README.md): the found folder itself, or none for
+    /// a single file.
+    fn card_folder<'a>(&self, found: &'a Found) -> Option<&'a Path> {
+        (!found.root.is_file()).then_some(found.root.as_path())
     }
 
-    /// Starts (or, `resuming`, continues) a dataset in `root` with this format's `options`.
-    fn open_sink(
-        &self,
-        root: &Path,
-        info: &DatasetInfo,
-        options: &SinkOptions,
-        resuming: bool,
-    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError>;
-
     /// Reads a dataset [`DatasetFormat::sniff`] found, episode by episode; `None`: surgvla
-    /// does not read this format.
+    /// does not read this format ([`Capabilities::reads`] says which).
     fn open_source(
         &self,
         _found: &Found,
@@ -139,15 +169,77 @@ pub trait DatasetFormat: Sync {
     fn merge(&self, _request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         None
     }
+
+    /// What its features schema is, for `surgvla schema --format`'s help; `None`: it has none.
+    fn schema_help(&self) -> Option<&'static str> {
+        None
+    }
+
+    /// The features schema of a dataset of `info` in this format (what `surgvla schema`
+    /// prints); `None` where [`DatasetFormat::schema_help`] is.
+    fn schema(&self, _info: &DatasetInfo) -> Option<serde_json::Value> {
+        None
+    }
 }
 
-/// What a format stores besides surgvla's own features.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Holds {
-    /// Features that arrive as video, copied without decoding.
-    pub video: bool,
-    /// Features surgvla has no role for (another robot's state, another camera).
-    pub other_features: bool,
+/// A format of the registry: the one value that names a format anywhere (compared by name).
+#[derive(Clone, Copy)]
+pub struct Format(pub &'static dyn DatasetFormat);
+
+impl Format {
+    /// The format's name, as `--to` says it.
+    pub fn name(self) -> &'static str {
+        self.0.name()
+    }
+}
+
+impl std::ops::Deref for Format {
+    type Target = dyn DatasetFormat;
+
+    fn deref(&self) -> &Self::Target {
+        self.0
+    }
+}
+
+impl PartialEq for Format {
+    fn eq(&self, other: &Self) -> bool {
+        self.name() == other.name()
+    }
+}
+
+impl Eq for Format {}
+
+impl std::fmt::Debug for Format {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A format's own options for writing. Each format's options type implements it and opens its
+/// sink with itself, so nothing casts options back to a format's.
+pub trait SinkOptions: std::fmt::Debug + Send + Sync {
+    /// The format these options write.
+    fn format(&self) -> Format;
+
+    /// Refuses values the format cannot write (a name its readers would refuse): the user's
+    /// error.
+    fn check(&self) -> Result<(), ExportError> {
+        Ok(())
+    }
+
+    /// Whether a video feature of `info` must be decoded (and encoded again) although the
+    /// format stores video: another codec asked for.
+    fn reencodes(&self, _info: &DatasetInfo) -> bool {
+        false
+    }
+
+    /// Starts (or, `resuming`, continues) a dataset of `info` in `root` with these options.
+    fn open_sink(
+        &self,
+        root: &Path,
+        info: &DatasetInfo,
+        resuming: bool,
+    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError>;
 }
 
 /// A merge: its inputs (in the order given), the output folder, worker threads (0: one per

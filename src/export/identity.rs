@@ -9,7 +9,9 @@
 //! in a Hugging Face hub snapshot, are followed).
 
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSource, ExportError, bounded};
+use crate::export::bounded;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
 use std::path::Path;
 
 /// The most files listed for an identity.

@@ -11,7 +11,11 @@ use crate::export::dir::DatasetDir;
 use crate::export::dir::RunOptions;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::shard::{SHARD_KEY, Shard, recorded};
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
+use crate::export::sink::EpisodeSink;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
+use crate::export::bounded::read_json;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,8 @@
 //! any [`EpisodeSource`] (memory: one episode).
 
 use crate::episode::FeatureKind;
-use crate::export::{EpisodeSource, ExportError};
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
 
 /// A dataset's episode lengths by task (in order of first appearance) and its vectors' ranges.
 #[derive(Clone, Debug, Default, PartialEq)]

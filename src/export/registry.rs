@@ -1,26 +1,62 @@
 //! The built-in formats, one list ([`BUILTIN_FORMATS`]), and the walks every command makes over
-//! it: which format a path holds ([`detect`]), which format writes a [`SinkOptions`]
-//! ([`writer_of`]), and merging ([`merge`]). Adding a format is one folder implementing
-//! [`DatasetFormat`] plus one line here (and its `SinkOptions` variant, its report name and
-//! its `--to` value: ARCHITECTURE.md's "How to add a format").
+//! it: which format a path holds ([`detect`]), a format by its name ([`by_name`]), the formats
+//! that can do something ([`titles`] for messages), and merging ([`merge`]). Adding a format is
+//! one folder implementing [`crate::export::format::DatasetFormat`] and [`crate::export::format::SinkOptions`] plus one
+//! line here (and its flags in the command line: ARCHITECTURE.md's "How to add a format").
 
-use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
-use crate::export::{ExportError, SinkOptions, Summary, lerobot, mcap, pointcloud, rlds, zarr};
+use crate::export::convert::ConvertError;
+use crate::export::error::ExportError;
+use crate::export::format::{
+    Capabilities, Format, Found, MergeError, MergeRequest, Probe, Sniff,
+};
+use crate::export::sink::Summary;
+use crate::export::{lerobot, mcap, pointcloud, rlds, zarr};
 use std::path::Path;
 
-/// Every format, in the order [`detect`] asks them (the first that recognises a path has it).
-pub static BUILTIN_FORMATS: &[&dyn DatasetFormat] = &[
-    &zarr::ZarrFormat,
-    &lerobot::LeRobotFormat,
-    &rlds::RldsFormat,
-    &mcap::McapFormat,
-    &pointcloud::CloudFilesFormat,
+/// Every format, in the order `--to` lists them. [`detect`] asks those
+/// [`DatasetFormat::sniffed_first`] first, then the rest in this order: the first that
+/// recognises a path has it.
+pub static BUILTIN_FORMATS: &[Format] = &[
+    Format(&lerobot::LeRobotFormat),
+    Format(&rlds::RldsFormat),
+    Format(&pointcloud::PLY),
+    Format(&pointcloud::PCD),
+    Format(&zarr::ZarrFormat),
+    Format(&mcap::McapFormat),
 ];
+
+/// The format named `name` (as `--to` says it).
+pub fn by_name(name: &str) -> Option<Format> {
+    BUILTIN_FORMATS.iter().copied().find(|f| f.name() == name)
+}
+
+/// The format whose datasets come in `layout` (as a report names it: "lerobot-v2.1").
+pub fn of_layout(layout: &str) -> Option<Format> {
+    BUILTIN_FORMATS
+        .iter()
+        .copied()
+        .find(|f| f.layouts().contains(&layout))
+}
+
+/// The titles of the formats whose capabilities pass `which`, as a list in a sentence:
+/// "LeRobot and RLDS", "LeRobot, RLDS or zarr" (`last` joins the last two).
+pub fn titles(which: impl Fn(&Capabilities) -> bool, last: &str) -> String {
+    let names: Vec<&str> = BUILTIN_FORMATS
+        .iter()
+        .filter(|f| which(&f.capabilities()))
+        .map(|f| f.title())
+        .collect();
+    match names.split_last() {
+        None => String::new(),
+        Some((only, [])) => (*only).to_string(),
+        Some((final_one, rest)) => format!("{} {last} {final_one}", rest.join(", ")),
+    }
+}
 
 /// What [`detect`] found: the format, its dataset, and, when it only looks like one, why it
 /// cannot be read (`validate` still checks it, readers refuse it).
 pub struct Detected {
-    pub format: &'static dyn DatasetFormat,
+    pub format: Format,
     pub found: Found,
     pub broken: Option<String>,
 }
@@ -29,7 +65,9 @@ pub struct Detected {
 /// cannot be read or holds nothing a format recognises is an error (the user's: exit 2).
 pub fn detect(path: &Path) -> Result<Detected, ExportError> {
     let probe = Probe::of(path)?;
-    for format in BUILTIN_FORMATS {
+    let first = BUILTIN_FORMATS.iter().filter(|f| f.sniffed_first());
+    let then = BUILTIN_FORMATS.iter().filter(|f| !f.sniffed_first());
+    for format in first.chain(then) {
         let (found, broken) = match format.sniff(&probe) {
             Sniff::No => continue,
             Sniff::Yes(found) => (found, None),
@@ -42,18 +80,21 @@ pub fn detect(path: &Path) -> Result<Detected, ExportError> {
         });
     }
     let problem = if probe.is_file {
-        "is a file that is not MCAP; give a dataset folder or an .mcap file"
+        "is a file that is not MCAP; give a dataset folder or an .mcap file".to_string()
     } else {
-        "holds nothing surgvla recognises (LeRobot, RLDS, zarr, MCAP or point-cloud files)"
+        format!(
+            "holds nothing surgvla recognises ({} files)",
+            titles(|_| true, "or")
+        )
     };
     Err(ExportError::Unrecognised {
         path: path.to_path_buf(),
-        problem: problem.into(),
+        problem,
     })
 }
 
 /// [`detect`] for a reader: a broken dataset is an error (the data's: exit 1).
-pub fn detect_readable(path: &Path) -> Result<(&'static dyn DatasetFormat, Found), ExportError> {
+pub fn detect_readable(path: &Path) -> Result<(Format, Found), ExportError> {
     let detected = detect(path)?;
     match detected.broken {
         None => Ok((detected.format, detected.found)),
@@ -64,23 +105,14 @@ pub fn detect_readable(path: &Path) -> Result<(&'static dyn DatasetFormat, Found
     }
 }
 
-/// The format whose options these are.
-pub fn writer_of(options: &SinkOptions) -> Result<&'static dyn DatasetFormat, ExportError> {
-    BUILTIN_FORMATS
-        .iter()
-        .find(|f| f.writes(options))
-        .copied()
-        .ok_or_else(|| ExportError::Internal(format!("no format writes {options:?}")))
-}
-
 /// Merges `request.inputs` (datasets of one format that merges) into `request.out`.
 pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
-    let read = |e| MergeError::Convert(crate::export::convert::ConvertError::Read(e));
+    let read = |e| MergeError::Convert(ConvertError::Read(e));
     let first = request.inputs.first().ok_or(MergeError::NoInput)?.clone();
     let (format, found) = detect_readable(&first).map_err(read)?;
     for input in &request.inputs[1..] {
         let (other, _) = detect_readable(input).map_err(read)?;
-        if other.name() != format.name() {
+        if other != format {
             return Err(MergeError::Incompatible {
                 path: input.clone(),
                 first,
@@ -91,9 +123,9 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     format.merge(request).unwrap_or_else(|| {
         Err(read(ExportError::NotHandled {
             path: first,
-            format: found.format.name(),
+            format: found.layout,
             operation: "merge",
-            handled: "LeRobot, RLDS, zarr, PLY/PCD and MCAP datasets",
+            handled: format!("{} datasets", titles(|c| c.merges, "and")),
         }))
     })
 }

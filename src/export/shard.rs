@@ -4,12 +4,14 @@
 //! and `merge` joins them back ([`crate::export::merge`]).
 //!
 //! A shard records itself where the dataset records how it was made: the `shard` key of its
-//! collection ([`crate::export::DatasetInfo::collection`]), so a merge can put shards in order
+//! collection ([`crate::export::info::DatasetInfo::collection`]), so a merge can put shards in order
 //! and, given all N of N, say "0/1" again, as the single run does. A dataset another tool made
 //! has no collection: its shards record nothing, and a merge keeps the order it is given.
 
 use crate::episode::Episode;
-use crate::export::{DatasetInfo, EpisodeSource, ExportError};
+use crate::export::info::DatasetInfo;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
 use std::fmt;
 use std::str::FromStr;
 

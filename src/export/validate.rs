@@ -11,22 +11,13 @@
 //! alone. Our own datasets (with surgvla metadata) also get the semantic checks of
 //! [`check_semantics`]. What the checks report into lives in [`crate::export::findings`].
 
-use crate::export::ExportError;
+use crate::export::error::ExportError;
 pub use crate::export::findings::{
-    At, FINDINGS_PER_CHECK, Facts, FeatureFact, Finding, Findings, Format, Report, Semantics,
+    At, FINDINGS_PER_CHECK, Facts, FeatureFact, Finding, Findings, Report, Semantics,
     ValidateOptions, check_manifest, check_semantics,
 };
 use crate::export::registry::Detected;
-use std::path::{Path, PathBuf};
-
-/// The format of the dataset at `path` and the folder (or file) to check: a LeRobot folder (any
-/// of `meta/info.json`, `meta/`, `data/` with parquet), an RLDS version folder or the data
-/// directory above it, a zarr store (`.zgroup`, `.zarray`), an MCAP file or a folder of them,
-/// a folder of point-cloud files.
-pub fn detect(path: &Path) -> Result<(Format, PathBuf), ExportError> {
-    let found = crate::export::registry::detect(path)?.found;
-    Ok((found.format, found.root))
-}
+use std::path::Path;
 
 /// Validates the dataset at `path` (see the module overview).
 pub fn validate(path: &Path, options: &ValidateOptions) -> Result<Report, ExportError> {
@@ -37,14 +28,9 @@ pub fn validate(path: &Path, options: &ValidateOptions) -> Result<Report, Export
         .build()
         .map_err(|e| ExportError::Internal(format!("no worker threads: {e}")))?;
     let (episodes, frames) = pool.install(|| format.check(&found, options, &findings));
-    // The card sits in the dataset's folder: above an RLDS version folder, none for one file.
-    let folder = match found.format {
-        Format::Rlds => found.root.parent().and_then(Path::parent),
-        _ if found.root.is_file() => None,
-        _ => Some(found.root.as_path()),
-    };
-    if let Some(folder) = folder {
+    // The card sits in the dataset's folder (above an RLDS version folder, none for one file).
+    if let Some(folder) = format.card_folder(&found) {
         crate::export::card::check(folder, episodes, frames, &findings);
     }
-    Ok(findings.into_report(found.format, episodes, frames))
+    Ok(findings.into_report(found.layout, episodes, frames))
 }

@@ -4,9 +4,12 @@
 //! conversion encoded (from pixels) is decoded and compared within a lossy tolerance.
 
 use crate::export::convert::{ConvertError, verify, verify_within};
-use crate::export::decode::Decoded;
+use crate::export::decoded::Decoded;
 use crate::export::validate::{ValidateOptions, validate};
-use crate::export::{EpisodeSource, SourceOptions, Summary, registry};
+use crate::export::registry;
+use crate::export::source::EpisodeSource;
+use crate::export::source::SourceOptions;
+use crate::export::sink::Summary;
 use std::path::Path;
 
 /// The differences between `out` and `source` (read again from its start), of which `summary`

@@ -7,19 +7,19 @@ use surgvla::collect::record::{RecordOptions, episode_seed, record_episode};
 use surgvla::episode::Episode;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion};
 use surgvla::export::mcap::McapOptions;
-use surgvla::export::pointcloud::CloudSettings;
 use surgvla::export::pointcloud::files::CloudFileFormat;
+use surgvla::export::pointcloud::{CloudFileOptions, CloudSettings};
 use surgvla::export::rlds::RldsOptions;
 use surgvla::export::rlds::record::depth_to_mm;
 use surgvla::export::zarr::ZarrOptions;
-use surgvla::export::{DatasetInfo, SinkOptions, open_sink, open_source};
+use surgvla::export::{BUILTIN_FORMATS, DatasetInfo, SinkOptions, open_sink, open_source};
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 
 /// A format under test.
 struct Format {
     name: &'static str,
-    options: SinkOptions,
+    options: Box<dyn SinkOptions>,
     /// A folder the format owns, where a stray file of an interrupted run is left.
     data_folder: &'static str,
     /// Depth is stored in whole millimetres (RLDS), not as float metres.
@@ -33,7 +33,7 @@ fn formats() -> Vec<Format> {
     vec![
         Format {
             name: "lerobot-3.0",
-            options: SinkOptions::LeRobot(LeRobotOptions {
+            options: Box::new(LeRobotOptions {
                 data_file_size_mb: 1,
                 ..LeRobotOptions::default()
             }),
@@ -43,7 +43,7 @@ fn formats() -> Vec<Format> {
         },
         Format {
             name: "lerobot-2.1",
-            options: SinkOptions::LeRobot(LeRobotOptions {
+            options: Box::new(LeRobotOptions {
                 version: LeRobotVersion::V21,
                 ..LeRobotOptions::default()
             }),
@@ -53,7 +53,7 @@ fn formats() -> Vec<Format> {
         },
         Format {
             name: "rlds",
-            options: SinkOptions::Rlds(RldsOptions {
+            options: Box::new(RldsOptions {
                 shard_size_mb: 1,
                 ..RldsOptions::default()
             }),
@@ -63,7 +63,7 @@ fn formats() -> Vec<Format> {
         },
         Format {
             name: "zarr",
-            options: SinkOptions::Zarr(ZarrOptions {
+            options: Box::new(ZarrOptions {
                 images: true,
                 mask_channel: true,
                 ..ZarrOptions::default()
@@ -74,19 +74,60 @@ fn formats() -> Vec<Format> {
         },
         Format {
             name: "mcap",
-            options: SinkOptions::Mcap(McapOptions::default()),
+            options: Box::new(McapOptions::default()),
             data_folder: "",
             depth_in_mm: false,
             readable: false,
         },
         Format {
             name: "ply",
-            options: SinkOptions::CloudFiles(CloudFileFormat::Ply, CloudSettings::default()),
+            options: Box::new(CloudFileOptions {
+                format: CloudFileFormat::Ply,
+                settings: CloudSettings::default(),
+            }),
+            data_folder: "episode_000003",
+            depth_in_mm: false,
+            readable: false,
+        },
+        Format {
+            name: "pcd",
+            options: Box::new(CloudFileOptions {
+                format: CloudFileFormat::Pcd,
+                settings: CloudSettings::default(),
+            }),
             data_folder: "episode_000003",
             depth_in_mm: false,
             readable: false,
         },
     ]
+}
+
+#[test]
+fn the_contract_runs_every_registered_format() {
+    // A format registered without an entry in `formats()` fails here, and so does an entry
+    // whose options write another format than its name says.
+    let under_test = formats();
+    for format in BUILTIN_FORMATS {
+        assert!(
+            under_test.iter().any(|f| f.options.format() == *format),
+            "{} is registered but not in the sink contract's formats()",
+            format.name()
+        );
+    }
+    for format in &under_test {
+        assert!(
+            format.name.starts_with(format.options.format().name()),
+            "{} writes {}",
+            format.name,
+            format.options.format().name()
+        );
+        assert_eq!(
+            format.readable,
+            format.options.format().capabilities().reads,
+            "{}",
+            format.name
+        );
+    }
 }
 
 fn episodes(count: u64) -> Vec<Episode> {
@@ -107,7 +148,7 @@ fn episodes(count: u64) -> Vec<Episode> {
         .collect()
 }
 
-fn write_all(root: &Path, info: &DatasetInfo, options: &SinkOptions, episodes: &[Episode]) {
+fn write_all(root: &Path, info: &DatasetInfo, options: &dyn SinkOptions, episodes: &[Episode]) {
     let mut sink = open_sink(root, info, options, false).expect("open");
     sink.write_batch(episodes).expect("write");
     let summary = sink.finish().expect("finish");
@@ -124,7 +165,7 @@ fn every_sink_keeps_the_contract() {
     let recorded = episodes(4);
     let info = info(true);
     for format in formats() {
-        let (name, options) = (format.name, &format.options);
+        let (name, options) = (format.name, format.options.as_ref());
         // Episodes out of order and episodes that do not match the features are rejected.
         let bad = temp_root("contract-bad");
         let mut sink = open_sink(&bad, &info, options, false).expect("open");
@@ -237,7 +278,7 @@ fn every_sink_keeps_the_contract() {
 fn a_source_refuses_an_incomplete_dataset_by_name() {
     let root = temp_root("contract-incomplete");
     let options = formats().remove(0).options;
-    let mut sink = open_sink(&root, &info(false), &options, false).expect("open");
+    let mut sink = open_sink(&root, &info(false), options.as_ref(), false).expect("open");
     sink.write_batch(&episodes(1)).expect("write");
     let error = open_source(&root).err().expect("no info.json yet");
     let message = error.to_string();
@@ -254,7 +295,7 @@ fn a_source_refuses_an_incomplete_dataset_by_name() {
 fn zarr_resumes_after_a_kill_at_each_point() {
     use surgvla::export::zarr::CHECKPOINT_EPISODES;
     let info = info(true);
-    let options = SinkOptions::Zarr(ZarrOptions {
+    let options = Box::new(ZarrOptions {
         images: true,
         ..ZarrOptions::default()
     });
@@ -271,7 +312,7 @@ fn zarr_resumes_after_a_kill_at_each_point() {
         })
         .collect();
     let reference = temp_root("zarr-reference");
-    write_all(&reference, &info, &options, &recorded);
+    write_all(&reference, &info, options.as_ref(), &recorded);
     let expected = tree(&reference);
     let checkpoint = CHECKPOINT_EPISODES as usize;
     // (episodes written before the kill, whether the kill came during finish)
@@ -283,7 +324,7 @@ fn zarr_resumes_after_a_kill_at_each_point() {
     ] {
         let root = temp_root("zarr-killed");
         {
-            let mut sink = open_sink(&root, &info, &options, false).expect("open");
+            let mut sink = open_sink(&root, &info, options.as_ref(), false).expect("open");
             for episode in &recorded[..written] {
                 sink.write_batch(std::slice::from_ref(episode))
                     .expect("write");
@@ -311,7 +352,7 @@ fn zarr_resumes_after_a_kill_at_each_point() {
                 }
             }
         }
-        let mut sink = open_sink(&root, &info, &options, true)
+        let mut sink = open_sink(&root, &info, options.as_ref(), true)
             .unwrap_or_else(|e| panic!("resume after {written} episodes: {e}"));
         let next = sink.next_episode_index() as usize;
         assert!(next <= written, "{written}: resumes at {next}");

@@ -316,7 +316,7 @@ fn every_command_takes_the_same_thread_rule() {
 #[test]
 fn a_conversion_resumes_only_from_the_input_it_started_with() {
     use surgvla::export::rlds::RldsOptions;
-    use surgvla::export::{SinkOptions, SourceOptions, open_sink, open_source_with};
+    use surgvla::export::{SourceOptions, open_sink, open_source_with};
     let parent = temp_root("hostile-input");
     let input = |seed: &str| {
         let path = parent.join(format!("input-{seed}"));
@@ -330,7 +330,7 @@ fn a_conversion_resumes_only_from_the_input_it_started_with() {
         let mut source = open_source_with(&a, &SourceOptions::default()).expect("source");
         let info = source.info().clone();
         assert!(info.input.is_some());
-        let options = SinkOptions::Rlds(RldsOptions::default());
+        let options = RldsOptions::default();
         let mut sink = open_sink(&out, &info, &options, false).expect("sink");
         let first = source.next_episode().expect("one").expect("read");
         sink.write_batch(&[first]).expect("write");
@@ -646,16 +646,16 @@ fn mutated_binary_files_never_panic_hang_or_escape() {
 fn video_mode_without_a_camera_is_the_users_mistake() {
     use surgvla::error::HasKind as _;
     use surgvla::export::lerobot::{LeRobotOptions, VideoOptions};
-    use surgvla::export::{SinkOptions, open_sink};
+    use surgvla::export::open_sink;
     let parent = temp_root("hostile-video");
     let (mut info, _) = crate::util::foreign_dataset();
     // Without its 3-channel camera (which video mode would encode), nothing can be video.
     info.features
         .retain(|f| f.dtype != surgvla::episode::Dtype::Image);
-    let options = SinkOptions::LeRobot(LeRobotOptions {
+    let options = LeRobotOptions {
         video: Some(VideoOptions::default()),
         ..LeRobotOptions::default()
-    });
+    };
     let error = open_sink(&parent.join("out"), &info, &options, false)
         .err()
         .expect("refused");
@@ -669,14 +669,14 @@ fn a_foreign_float_image_is_not_made_rlds_depth() {
     use surgvla::episode::FeatureValue;
     use surgvla::error::HasKind as _;
     use surgvla::export::rlds::RldsOptions;
-    use surgvla::export::{SinkOptions, open_sink};
+    use surgvla::export::open_sink;
     let parent = temp_root("hostile-tiff");
     let (info, mut episodes) = crate::util::foreign_dataset();
-    let tiff = surgvla::export::tiff::encode_f32_tiff(10, 8, &[0.5; 80]);
+    let tiff = surgvla::media::tiff::encode_f32_tiff(10, 8, &[0.5; 80]);
     for step in &mut episodes[0].steps {
         step.other[2] = FeatureValue::Image(tiff.clone());
     }
-    let options = SinkOptions::Rlds(RldsOptions::default());
+    let options = RldsOptions::default();
     let mut sink = open_sink(&parent.join("out"), &info, &options, false).expect("open");
     let error = sink.write_batch(&episodes[..1]).expect_err("refused");
     assert_eq!(error.kind(), surgvla::error::ErrorKind::Usage, "{error}");

@@ -144,12 +144,12 @@ fn points_labelled_as_an_object_lie_on_its_true_surface() {
 fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
     use surgvla::export::pointcloud::CloudSettings;
     use surgvla::export::zarr::ZarrOptions;
-    use surgvla::export::{SinkOptions, open_sink};
+    use surgvla::export::open_sink;
     let mut info = crate::util::info(false);
     let out = crate::util::temp_root("clouds-refused");
     info.features
         .retain(|f| f.kind != surgvla::episode::FeatureKind::Depth);
-    let zarr = SinkOptions::Zarr(ZarrOptions::default());
+    let zarr = ZarrOptions::default();
     let error = open_sink(&out, &info, &zarr, false)
         .err()
         .expect("no depth");
@@ -161,7 +161,7 @@ fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
         .err()
         .expect("no workspace");
     assert!(error.to_string().contains("crop box"), "{error}");
-    let given = SinkOptions::Zarr(ZarrOptions {
+    let given = ZarrOptions {
         cloud: CloudSettings {
             crop: Some(Aabb {
                 min_m: [0.4, -0.1, 0.6],
@@ -170,7 +170,7 @@ fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
             ..CloudSettings::default()
         },
         ..ZarrOptions::default()
-    });
+    };
     assert!(!out.exists(), "nothing written before the refusal");
     assert!(
         open_sink(&out, &info, &given, false).is_ok(),

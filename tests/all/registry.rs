@@ -6,7 +6,7 @@
 
 use crate::util::{surgvla, temp_root};
 use std::path::Path;
-use surgvla::export::{BUILTIN_FORMATS, SinkOptions, registry};
+use surgvla::export::{BUILTIN_FORMATS, registry};
 
 fn path(p: &Path) -> &str {
     p.to_str().expect("utf-8")
@@ -158,25 +158,31 @@ fn point_cloud_folders_are_validated_and_their_defects_named() {
 }
 
 #[test]
-fn every_format_is_listed_once_and_writes_its_own_options() {
+fn every_format_is_listed_once_and_says_what_it_does() {
     let names: std::collections::BTreeSet<&str> =
         BUILTIN_FORMATS.iter().map(|f| f.name()).collect();
     assert_eq!(names.len(), BUILTIN_FORMATS.len(), "{names:?}");
-    let every = [
-        SinkOptions::LeRobot(Default::default()),
-        SinkOptions::Rlds(Default::default()),
-        SinkOptions::CloudFiles(
-            surgvla::export::pointcloud::files::CloudFileFormat::Ply,
-            Default::default(),
-        ),
-        SinkOptions::Zarr(Default::default()),
-        SinkOptions::Mcap(Default::default()),
-    ];
-    for options in &every {
-        let writers = BUILTIN_FORMATS.iter().filter(|f| f.writes(options)).count();
-        assert_eq!(writers, 1, "{options:?}");
-        assert!(registry::writer_of(options).is_ok());
+    let mut layouts = std::collections::BTreeSet::new();
+    for format in BUILTIN_FORMATS {
+        assert_eq!(registry::by_name(format.name()), Some(*format));
+        assert!(!format.title().is_empty() && !format.help().is_empty());
+        assert!(!format.layouts().is_empty(), "{format:?}");
+        for layout in format.layouts() {
+            assert!(layouts.insert(*layout), "{layout} is two formats' layout");
+            assert_eq!(registry::of_layout(layout), Some(*format));
+        }
+        assert_eq!(
+            format.schema_help().is_some(),
+            format.schema(&crate::util::info(false)).is_some(),
+            "{format:?}"
+        );
     }
+    // Messages list the formats from the registry.
+    assert_eq!(registry::titles(|c| c.reads, "and"), "LeRobot and RLDS");
+    assert_eq!(
+        registry::titles(|c| c.point_clouds, "or"),
+        "PLY, PCD, zarr or MCAP"
+    );
 }
 
 #[test]

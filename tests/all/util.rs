@@ -100,7 +100,7 @@ pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
 /// all `FeatureKind::Other`, no generator; three episodes of seeded values.
 pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode::Episode>) {
     use surgvla::episode::{Dtype, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
-    use surgvla::export::image::{PngLevel, encode_png};
+    use surgvla::media::image::{PngLevel, encode_png};
     let spec = |name: &str, dtype, shape: Vec<usize>| FeatureSpec {
         name: name.into(),
         dtype,

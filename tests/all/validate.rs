@@ -242,7 +242,7 @@ fn good_datasets_of_every_format_are_valid_and_described() {
             "{format}: {:#?}",
             report.warnings
         );
-        assert_eq!(report.format.name(), format);
+        assert_eq!(report.format, format);
         assert_eq!(report.episodes, episodes, "{format}");
         assert!(report.frames > 2 * 10, "{format}: {} frames", report.frames);
         let quick = validate(
@@ -399,12 +399,12 @@ fn lerobot_defects_are_each_named() {
     let good = &corpus().lerobot;
     type Harm = Box<dyn Fn(&Path)>;
     let png = |pixels: &[u8], channels: usize| {
-        surgvla::export::image::encode_png(
+        surgvla::media::image::encode_png(
             224,
             224,
             channels,
             pixels,
-            surgvla::export::image::PngLevel::Fast,
+            surgvla::media::image::PngLevel::Fast,
         )
         .expect("png")
     };

@@ -2,18 +2,60 @@
 //! LeRobot; `codebase_version` (or, without a readable info.json, the JSON-lines metadata)
 //! tells v3.0 from v2.1.
 
-use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, Holds, MergeError, MergeRequest, Probe, Sniff};
+use super::LeRobotOptions;
+use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::format::{
+    Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
+};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions, Summary};
+use crate::export::sink::EpisodeSink;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::source::SourceOptions;
+use crate::export::sink::Summary;
 use std::path::Path;
 
 /// LeRobot v3.0 and v2.1.
 pub struct LeRobotFormat;
 
+/// The v3.0 layout, as reports name it.
+pub const V30: &str = "lerobot-v3.0";
+/// The v2.1 layout (one file per episode, JSON-lines metadata).
+pub const V21: &str = "lerobot-v2.1";
+
 impl DatasetFormat for LeRobotFormat {
     fn name(&self) -> &'static str {
         "lerobot"
+    }
+
+    fn title(&self) -> &'static str {
+        "LeRobot"
+    }
+
+    fn help(&self) -> &'static str {
+        "LeRobot (v3.0 by default; see --lerobot-version)"
+    }
+
+    fn layouts(&self) -> &'static [&'static str] {
+        &[V30, V21]
+    }
+
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            reads: true,
+            merges: true,
+            video: true,
+            other_features: true,
+            point_clouds: false,
+        }
+    }
+
+    fn schema_help(&self) -> Option<&'static str> {
+        Some("The `features` of LeRobot's meta/info.json")
+    }
+
+    fn schema(&self, info: &DatasetInfo) -> Option<serde_json::Value> {
+        Some(super::features_json(&info.features))
     }
 
     fn sniff(&self, probe: &Probe) -> Sniff {
@@ -24,7 +66,7 @@ impl DatasetFormat for LeRobotFormat {
             return Sniff::No;
         }
         let found = Found {
-            format: version(path),
+            layout: version(path),
             root: path.clone(),
         };
         if path.join("meta/info.json").is_file() {
@@ -38,31 +80,7 @@ impl DatasetFormat for LeRobotFormat {
     }
 
     fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
-        super::check::check(&found.root, found.format, options, findings)
-    }
-
-    fn writes(&self, options: &SinkOptions) -> bool {
-        matches!(options, SinkOptions::LeRobot(_))
-    }
-
-    fn holds(&self) -> Holds {
-        Holds {
-            video: true,
-            other_features: true,
-        }
-    }
-
-    fn open_sink(
-        &self,
-        root: &Path,
-        info: &DatasetInfo,
-        options: &SinkOptions,
-        resuming: bool,
-    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        let SinkOptions::LeRobot(options) = options else {
-            return Err(ExportError::Internal("not LeRobot options".into()));
-        };
-        super::LeRobotWriter::boxed(root, info, options.clone(), resuming)
+        super::check::check(&found.root, found.layout == V21, options, findings)
     }
 
     fn open_source(
@@ -78,6 +96,30 @@ impl DatasetFormat for LeRobotFormat {
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         Some(super::merge::merge(request))
+    }
+}
+
+impl SinkOptions for LeRobotOptions {
+    fn format(&self) -> Format {
+        Format(&LeRobotFormat)
+    }
+
+    /// A video feature of another codec than the one asked for is decoded and encoded again.
+    fn reencodes(&self, info: &DatasetInfo) -> bool {
+        self.video.is_some_and(|video| {
+            info.features
+                .iter()
+                .any(|f| f.video.is_some_and(|codec| codec != video.codec))
+        })
+    }
+
+    fn open_sink(
+        &self,
+        root: &Path,
+        info: &DatasetInfo,
+        resuming: bool,
+    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
+        super::LeRobotWriter::boxed(root, info, self.clone(), resuming)
     }
 }
 
@@ -97,16 +139,12 @@ fn has_parquet(data: &Path) -> bool {
 
 /// v2.1 when info.json says so or, without a readable info.json, when the metadata is JSON
 /// lines; else v3.0.
-fn version(root: &Path) -> Format {
+fn version(root: &Path) -> &'static str {
     if let Ok(info) = super::read::read_info(&root.join("meta/info.json")) {
-        return if info.is_v21() {
-            Format::LeRobotV21
-        } else {
-            Format::LeRobotV30
-        };
+        return if info.is_v21() { V21 } else { V30 };
     }
     if root.join("meta/episodes.jsonl").exists() || root.join("meta/tasks.jsonl").exists() {
-        return Format::LeRobotV21;
+        return V21;
     }
-    Format::LeRobotV30
+    V30
 }

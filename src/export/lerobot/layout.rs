@@ -13,9 +13,8 @@
 use super::LeRobotVersion;
 use super::meta::StatsJson;
 use super::table::{EpisodeRow, episodes_batch, tasks_batch};
-use crate::export::ExportError;
+use crate::export::error::ExportError;
 use crate::export::dir::{DatasetDir, FileCounter};
-use crate::export::video::video_path;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::Compression;
 use parquet::file::properties::WriterProperties;
@@ -261,4 +260,9 @@ fn write_episodes_jsonl(
         source: e.into_error(),
     })?;
     Ok(dir.commit(episodes_pending)? + dir.commit(stats_pending)?)
+}
+
+/// The path of a v3.0 video file relative to the dataset root.
+pub fn video_path(key: &str, chunk: u64, file: u64) -> String {
+    format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4")
 }

@@ -14,7 +14,12 @@ use crate::export::convert::ConvertError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::lerobot::read::LeRobotSource;
 use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
-use crate::export::{DatasetInfo, EpisodeSink, EpisodeSource, ExportError, Summary, read_json};
+use crate::export::info::DatasetInfo;
+use crate::export::sink::EpisodeSink;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
+use crate::export::bounded::read_json;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -236,7 +241,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         .map(|i| read_json(&i.path.join(REPORT)).ok())
         .collect();
     let write = |e| MergeError::Convert(ConvertError::Write(e));
-    let resuming = crate::export::resumes(out, request.resume);
+    let resuming = crate::export::dir::resumes(out, request.resume);
     let mut sink = LeRobotWriter::open(out, &info, options, resuming).map_err(write)?;
     // A resumed merge skips the episodes already written.
     let mut skip = sink.next_episode_index();
@@ -299,6 +304,6 @@ fn exact(batch: &mut [crate::episode::Episode], info: &DatasetInfo) -> Result<()
     use rayon::prelude::*;
     batch
         .par_iter_mut()
-        .try_for_each(|episode| crate::export::decode::exact_video_stats(episode, info))
+        .try_for_each(|episode| crate::export::decoded::exact_video_stats(episode, info))
         .map_err(|e| MergeError::Convert(ConvertError::Read(e)))
 }

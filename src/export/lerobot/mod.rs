@@ -32,12 +32,13 @@ pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
 use crate::export::dir::RunOptions;
 use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
-use crate::export::image::PngLevel;
+use crate::media::image::PngLevel;
 use crate::export::info::DatasetInfo;
-pub use crate::export::video::Codec;
-use crate::export::video::{EncodedFrame, VideoFile};
+pub use crate::media::video::Codec;
+use crate::media::video::{EncodedFrame, Mp4Writer};
 use crate::export::writer::{FormatWriter, Writer};
-use crate::export::{ExportError, Summary};
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 use meta::{FeatureStatsJson, StatsJson};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
@@ -150,6 +151,14 @@ struct OpenFile {
     pending: PendingFile,
 }
 
+/// A video file being written: its MP4 and its place.
+struct VideoFile {
+    mp4: Mp4Writer,
+    pending: PendingFile,
+    chunk: u64,
+    file: u64,
+}
+
 /// The journal of episode rows (one JSON line per episode), read back when the dataset
 /// finishes: the writer keeps no per-episode state in memory.
 const EPISODES_JOURNAL: &str = "meta/.surgvla-episodes.jsonl";
@@ -198,7 +207,7 @@ impl FormatWriter for LeRobotFiles {
     /// detached encoder its images and statistics too.
     type Encoded = work::Prepared;
     type Encoder<'a> = EpisodeWork<'a>;
-    const MANIFEST: &'static str = crate::export::MANIFEST;
+    const MANIFEST: &'static str = crate::export::dir::MANIFEST;
 
     fn card_format(&self) -> crate::export::card::CardFormat {
         crate::export::card::CardFormat {
@@ -493,7 +502,7 @@ impl LeRobotFiles {
         if self
             .videos
             .iter()
-            .any(|v| version.file_is_full(v.bytes(), limit))
+            .any(|v| version.file_is_full(v.pending.bytes_so_far(), limit))
         {
             self.close_videos(dir)?;
         }
@@ -512,13 +521,13 @@ impl LeRobotFiles {
                             )
                         });
                 let relative = version.video_path(&key, location.0, location.1);
-                self.videos.push(VideoFile::create(
-                    dir.create_file(&relative)?,
-                    codec,
-                    location,
-                    size,
-                    info.fps,
-                )?);
+                let (handle, pending) = dir.create_file(&relative)?;
+                self.videos.push(VideoFile {
+                    mp4: Mp4Writer::create(handle, pending.path.clone(), codec, size, info.fps)?,
+                    pending,
+                    chunk: location.0,
+                    file: location.1,
+                });
             }
         }
         let mut spans = Vec::with_capacity(frames.len());
@@ -527,7 +536,7 @@ impl LeRobotFiles {
             .iter()
             .zip(self.videos.iter_mut().zip(frames))
         {
-            let (from, to) = video.append(frames)?;
+            let (from, to) = video.mp4.append(frames)?;
             spans.push(KeyedSpan {
                 key: key.clone(),
                 span: VideoSpan {
@@ -543,7 +552,8 @@ impl LeRobotFiles {
 
     fn close_videos(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         for video in std::mem::take(&mut self.videos) {
-            self.state.summary.bytes += dir.commit(video.finish()?)?;
+            video.mp4.finish()?;
+            self.state.summary.bytes += dir.commit(video.pending)?;
             self.state.summary.files += 1;
         }
         Ok(())

@@ -8,13 +8,15 @@ use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
     FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
 };
-use crate::export::decode;
-use crate::export::demux::VideoReader;
-use crate::export::image::decode_png_sized;
+use crate::media::decode;
+use crate::media::demux::VideoReader;
+use crate::media::image::decode_png_sized;
 use crate::export::info::DatasetInfo;
 use crate::export::paths::{self, Field};
-use crate::export::tiff::decode_f32_tiff;
-use crate::export::{EpisodeSource, ExportError, read_json};
+use crate::media::tiff::decode_f32_tiff;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::bounded::read_json;
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
     StructArray,

@@ -3,7 +3,7 @@
 
 use super::meta::{StatValue, StatsJson};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
-use crate::export::ExportError;
+use crate::export::error::ExportError;
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{
     ArrayRef, BinaryArray, BooleanArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch,

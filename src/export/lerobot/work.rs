@@ -8,12 +8,12 @@ use crate::episode::{
     Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue, ImageEncoding, PixelStats, Pixels,
     Step, VideoCodec,
 };
-use crate::export::ExportError;
-use crate::export::image::{decode_png, encode_png_into};
+use crate::export::error::ExportError;
+use crate::media::image::{decode_png, encode_png_into};
 use crate::export::info::DatasetInfo;
 use crate::export::stats::{FeatureStats, ImageStats, LastFrame, SummaryStats, VectorStats};
-use crate::export::tiff::{encode_f32_tiff_into, f32_tiff_len};
-use crate::export::video::{EncodedFrame, encode};
+use crate::media::tiff::{encode_f32_tiff_into, f32_tiff_len};
+use crate::media::video::{EncodedFrame, encode};
 use rayon::prelude::*;
 
 /// Statistics per feature, then per default column, in column order.
@@ -81,11 +81,11 @@ impl EpisodeWork<'_> {
                         .map(|(i, step)| other_rgb(step, at, width, height, key, i))
                         .collect::<Result<Vec<Vec<u8>>, ExportError>>()?;
                     let frames: Vec<&[u8]> = pixels.iter().map(Vec::as_slice).collect();
-                    return encode(*codec, &frames, width, height, self.info.fps, quality);
+                    return Ok(encode(*codec, &frames, width, height, self.info.fps, quality)?);
                 }
                 let (width, height) = self.info.image_size();
                 let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
-                encode(*codec, &frames, width, height, self.info.fps, quality)
+                Ok(encode(*codec, &frames, width, height, self.info.fps, quality)?)
             })
             .collect()
     }
@@ -153,8 +153,8 @@ impl EpisodeWork<'_> {
     ) -> Result<(), ExportError> {
         let (w, h) = self.info.image_size();
         match kind {
-            FeatureKind::Rgb => encode_png_into(out, w, h, 3, &step.rgb, self.options.png),
-            FeatureKind::Mask => encode_png_into(out, w, h, 1, &step.mask, self.options.png),
+            FeatureKind::Rgb => Ok(encode_png_into(out, w, h, 3, &step.rgb, self.options.png)?),
+            FeatureKind::Mask => Ok(encode_png_into(out, w, h, 1, &step.mask, self.options.png)?),
             _ => {
                 encode_f32_tiff_into(out, w as u32, h as u32, &step.depth_m);
                 Ok(())
@@ -625,7 +625,7 @@ impl crate::export::writer::EpisodeEncoder<Prepared> for SharedWork {
 /// code and data pushed the others' out of the core's caches).
 const STREAM_BATCH_FRAMES: usize = 64;
 
-/// The LeRobot sink's frame-by-frame encoder (see [`crate::export::FrameEncoder`]): it takes
+/// The LeRobot sink's frame-by-frame encoder (see [`crate::export::sink::FrameEncoder`]): it takes
 /// each step's pixels as it is recorded and encodes them in batches of
 /// [`STREAM_BATCH_FRAMES`], handing the buffers back to be drawn into again.
 struct FrameStream {
@@ -712,7 +712,7 @@ fn other_rgb(
         return Err(bad("holds no image".into()));
     };
     let (w, h, channels, pixels) =
-        crate::export::image::decode_png_sized(bytes, Some((width, height))).map_err(bad)?;
+        crate::media::image::decode_png_sized(bytes, Some((width, height))).map_err(bad)?;
     if (w as usize, h as usize, channels) != (width, height, 3) {
         return Err(bad(format!(
             "a {w}x{h} image with {channels} channels where {width}x{height} RGB was declared"

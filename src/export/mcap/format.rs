@@ -1,10 +1,15 @@
 //! MCAP in the format registry: an MCAP file (by its magic bytes or its `.mcap` name) or a
 //! folder of them. Validated and written; surgvla does not read it back as episodes.
 
-use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
+use super::McapOptions;
+use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::format::{
+    Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
+};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, SinkOptions, Summary};
+use crate::export::sink::EpisodeSink;
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 use std::path::Path;
 
 /// An MCAP file's first bytes.
@@ -18,6 +23,34 @@ impl DatasetFormat for McapFormat {
         "mcap"
     }
 
+    fn title(&self) -> &'static str {
+        "MCAP"
+    }
+
+    fn help(&self) -> &'static str {
+        "One MCAP recording per episode for Foxglove (images, depth, point cloud, frames, state, action); see --points, --crop"
+    }
+
+    fn layouts(&self) -> &'static [&'static str] {
+        &["mcap"]
+    }
+
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            merges: true,
+            point_clouds: true,
+            ..Capabilities::default()
+        }
+    }
+
+    fn schema_help(&self) -> Option<&'static str> {
+        Some("The JSON Schemas of an MCAP recording's JSON channels, by topic")
+    }
+
+    fn schema(&self, _info: &DatasetInfo) -> Option<serde_json::Value> {
+        Some(super::messages::json_channel_schemas())
+    }
+
     fn sniff(&self, probe: &Probe) -> Sniff {
         let recognised = if probe.is_file {
             probe.magic == MAGIC || probe.path.extension().is_some_and(|e| e == "mcap")
@@ -26,7 +59,7 @@ impl DatasetFormat for McapFormat {
         };
         if recognised {
             Sniff::Yes(Found {
-                format: Format::Mcap,
+                layout: "mcap",
                 root: probe.path.clone(),
             })
         } else {
@@ -38,24 +71,22 @@ impl DatasetFormat for McapFormat {
         super::check::check(&found.root, options, findings)
     }
 
-    fn writes(&self, options: &SinkOptions) -> bool {
-        matches!(options, SinkOptions::Mcap(_))
+    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
+        Some(super::merge::merge(request))
+    }
+}
+
+impl SinkOptions for McapOptions {
+    fn format(&self) -> Format {
+        Format(&McapFormat)
     }
 
     fn open_sink(
         &self,
         root: &Path,
         info: &DatasetInfo,
-        options: &SinkOptions,
         resuming: bool,
     ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        let SinkOptions::Mcap(options) = options else {
-            return Err(ExportError::Internal("not MCAP options".into()));
-        };
-        super::McapWriter::boxed(root, info, *options, resuming)
-    }
-
-    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
-        Some(super::merge::merge(request))
+        super::McapWriter::boxed(root, info, *self, resuming)
     }
 }

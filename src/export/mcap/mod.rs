@@ -23,11 +23,12 @@ pub mod messages;
 
 use crate::episode::{Episode, FeatureKind, SceneMesh};
 use crate::export::dir::{DatasetDir, RunOptions};
-use crate::export::image::{PngLevel, encode_png, stored_or};
+use crate::media::image::{PngLevel, encode_png, stored_or};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud};
 use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
-use crate::export::{ExportError, Summary};
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 use foxglove::Encode;
 use rayon::prelude::*;
 

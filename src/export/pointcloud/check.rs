@@ -4,7 +4,8 @@
 //! empty frame file, and the manifest. Returns what the folder holds, counted from the files.
 
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
-use crate::export::{read_json, schema};
+use crate::export::schema;
+use crate::export::bounded::read_json;
 use std::path::Path;
 
 /// Checks the folder at `root` of `extension` files; returns (episodes, frames) on disk.

@@ -13,7 +13,8 @@ use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::pointcloud::{CloudSettings, frame_cloud, pcd, ply};
 use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
-use crate::export::{ExportError, Summary};
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -38,6 +39,9 @@ pub enum CloudFileFormat {
 }
 
 impl CloudFileFormat {
+    /// Every file format, in the order `--to` lists them.
+    pub const ALL: [CloudFileFormat; 2] = [CloudFileFormat::Ply, CloudFileFormat::Pcd];
+
     pub fn extension(self) -> &'static str {
         match self {
             CloudFileFormat::Ply => "ply",

@@ -11,7 +11,9 @@ use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, merge_episode_files, plan};
-use crate::export::{ExportError, Summary, read_json};
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
+use crate::export::bounded::read_json;
 use serde_json::Value;
 use std::path::Path;
 

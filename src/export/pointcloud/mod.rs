@@ -23,10 +23,10 @@ pub mod ply;
 
 pub use crate::episode::Aabb;
 use crate::episode::{CameraInfo, Step};
-use crate::export::ExportError;
+use crate::export::error::ExportError;
 use crate::export::dir::RunOptions;
 use crate::export::info::DatasetInfo;
-pub use format::CloudFilesFormat;
+pub use format::{CloudFileOptions, CloudFilesFormat, PCD, PLY};
 use serde_json::{Value, json};
 
 /// How clouds are made.

@@ -12,7 +12,9 @@ use crate::export::info::DatasetInfo;
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, leaves};
 use crate::export::rlds::read::{ShardRecords, invalid, version_dir};
-use crate::export::{EpisodeSource, ExportError, read_json};
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::bounded::read_json;
 use serde_json::Value;
 use std::path::Path;
 

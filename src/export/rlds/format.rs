@@ -3,10 +3,17 @@
 //! `dataset_info.json` are ours ([`super::read::RldsSource`]); others are read through their
 //! own `features.json` ([`super::foreign::ForeignRldsSource`]) and need a frame rate.
 
-use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, Holds, MergeError, MergeRequest, Probe, Sniff};
+use super::RldsOptions;
+use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::format::{
+    Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
+};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, EpisodeSource, ExportError, SinkOptions, SourceOptions, Summary};
+use crate::export::sink::EpisodeSink;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
+use crate::export::source::SourceOptions;
+use crate::export::sink::Summary;
 use std::path::Path;
 
 /// RLDS in the TFDS layout.
@@ -17,12 +24,47 @@ impl DatasetFormat for RldsFormat {
         "rlds"
     }
 
+    fn title(&self) -> &'static str {
+        "RLDS"
+    }
+
+    fn help(&self) -> &'static str {
+        "RLDS in the TFDS layout (tensorflow_datasets, OpenVLA, Octo); see --rlds-name"
+    }
+
+    fn layouts(&self) -> &'static [&'static str] {
+        &["rlds"]
+    }
+
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            reads: true,
+            merges: true,
+            video: false,
+            other_features: true,
+            point_clouds: false,
+        }
+    }
+
+    fn schema_help(&self) -> Option<&'static str> {
+        Some("RLDS's features.json")
+    }
+
+    fn schema(&self, info: &DatasetInfo) -> Option<serde_json::Value> {
+        Some(super::features::features_json(info, &RldsOptions::default()))
+    }
+
+    /// The card sits in the TFDS data directory, above the `<name>/<version>` folder.
+    fn card_folder<'a>(&self, found: &'a Found) -> Option<&'a Path> {
+        found.root.parent().and_then(Path::parent)
+    }
+
     fn sniff(&self, probe: &Probe) -> Sniff {
         if probe.is_file {
             return Sniff::No;
         }
         let found = |root: &Path| Found {
-            format: Format::Rlds,
+            layout: "rlds",
             root: root.to_path_buf(),
         };
         let loose = probe.has("dataset_info.json")
@@ -42,30 +84,6 @@ impl DatasetFormat for RldsFormat {
         super::check::check(&found.root, options, findings)
     }
 
-    fn writes(&self, options: &SinkOptions) -> bool {
-        matches!(options, SinkOptions::Rlds(_))
-    }
-
-    fn holds(&self) -> Holds {
-        Holds {
-            video: false,
-            other_features: true,
-        }
-    }
-
-    fn open_sink(
-        &self,
-        root: &Path,
-        info: &DatasetInfo,
-        options: &SinkOptions,
-        resuming: bool,
-    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        let SinkOptions::Rlds(options) = options else {
-            return Err(ExportError::Internal("not RLDS options".into()));
-        };
-        super::RldsWriter::boxed(root, info, options.clone(), resuming)
-    }
-
     fn open_source(
         &self,
         found: &Found,
@@ -76,5 +94,24 @@ impl DatasetFormat for RldsFormat {
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         Some(super::merge::merge(request))
+    }
+}
+
+impl SinkOptions for RldsOptions {
+    fn format(&self) -> Format {
+        Format(&RldsFormat)
+    }
+
+    fn check(&self) -> Result<(), ExportError> {
+        RldsOptions::check(self)
+    }
+
+    fn open_sink(
+        &self,
+        root: &Path,
+        info: &DatasetInfo,
+        resuming: bool,
+    ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
+        super::RldsWriter::boxed(root, info, self.clone(), resuming)
     }
 }

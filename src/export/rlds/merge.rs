@@ -8,7 +8,9 @@
 use crate::export::convert::ConvertError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, plan, reports, write_through};
-use crate::export::{EpisodeSource, SourceOptions, Summary};
+use crate::export::source::EpisodeSource;
+use crate::export::source::SourceOptions;
+use crate::export::sink::Summary;
 use std::path::Path;
 
 /// Merges the request's RLDS datasets into a new one at its `out` (or continues an
@@ -26,7 +28,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         let manifest = data_dir.join(super::MANIFEST);
         let surgvla = folder.join(super::SURGVLA_JSON);
         let collection = if surgvla.is_file() {
-            crate::export::read_json(&surgvla).map_err(read)?["collection"].clone()
+            crate::export::bounded::read_json(&surgvla).map_err(read)?["collection"].clone()
         } else {
             serde_json::Value::Null
         };
@@ -76,7 +78,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         .map_err(read)?;
     info.input = Some(identities.join("; "));
     let write = |e| MergeError::Convert(ConvertError::Write(e));
-    let resuming = crate::export::resumes(request.out, request.resume);
+    let resuming = crate::export::dir::resumes(request.out, request.resume);
     let mut sink =
         super::RldsWriter::boxed(request.out, &info, options, resuming).map_err(write)?;
     let dirs: Vec<&Path> = data_dirs.iter().map(|d| d.as_path()).collect();

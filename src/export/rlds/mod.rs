@@ -34,10 +34,11 @@ pub use openvla::openvla_md;
 
 use crate::episode::{Episode, FeatureKind, ImageEncoding};
 use crate::export::dir::{DatasetDir, PendingFile, RunOptions};
-use crate::export::image::PngLevel;
+use crate::media::image::PngLevel;
 use crate::export::info::DatasetInfo;
 use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
-use crate::export::{ExportError, Summary};
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 use record::{StepLayout, encode_episode, encode_foreign_episode};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -490,8 +491,8 @@ impl EpisodeEncoder<Vec<u8>> for (&RldsShards, &DatasetInfo) {
 /// `features.json`, which needs `options.fps`.
 pub fn open_any(
     folder: &std::path::Path,
-    options: &crate::export::SourceOptions,
-) -> Result<Box<dyn crate::export::EpisodeSource + Send>, ExportError> {
+    options: &crate::export::source::SourceOptions,
+) -> Result<Box<dyn crate::export::source::EpisodeSource + Send>, ExportError> {
     if folder.join(SURGVLA_JSON).is_file() {
         return Ok(Box::new(read::RldsSource::open(folder)?));
     }

@@ -7,8 +7,8 @@ use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureValue,
     ImageEncoding, MAX_OBJECTS, POSE_VALUES, Step,
 };
-use crate::export::ExportError;
-use crate::export::image::{
+use crate::export::error::ExportError;
+use crate::media::image::{
     PngLevel, decode_jpeg_sized, decode_png_sized, decode_png16_sized, encode_jpeg, encode_png,
     encode_png16, is_jpeg, stored_or,
 };

@@ -5,7 +5,8 @@
 //! arrays (every chunk; `quick` reads the metadata and the first chunk of each array).
 
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
-use crate::export::{read_json, schema};
+use crate::export::schema;
+use crate::export::bounded::read_json;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::path::Path;

@@ -2,10 +2,15 @@
 //! Validated, written and merged (chunks re-packed, `merge.rs`); surgvla does not read it back
 //! as episodes.
 
-use crate::export::findings::{Findings, Format, ValidateOptions};
-use crate::export::format::{DatasetFormat, Found, MergeError, MergeRequest, Probe, Sniff};
+use super::ZarrOptions;
+use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::format::{
+    Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
+};
 use crate::export::info::DatasetInfo;
-use crate::export::{EpisodeSink, ExportError, SinkOptions, Summary};
+use crate::export::sink::EpisodeSink;
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
 use std::path::Path;
 
 /// The DP3 zarr v2 store.
@@ -16,10 +21,35 @@ impl DatasetFormat for ZarrFormat {
         "zarr"
     }
 
+    fn title(&self) -> &'static str {
+        "zarr"
+    }
+
+    fn help(&self) -> &'static str {
+        "The DP3 zarr v2 store (3D Diffusion Policy); see --points, --crop, --zarr-images"
+    }
+
+    fn layouts(&self) -> &'static [&'static str] {
+        &["zarr"]
+    }
+
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            merges: true,
+            point_clouds: true,
+            ..Capabilities::default()
+        }
+    }
+
+    /// A store has `meta/` and `data/` folders, which LeRobot's sniff would take.
+    fn sniffed_first(&self) -> bool {
+        true
+    }
+
     fn sniff(&self, probe: &Probe) -> Sniff {
         if probe.has(".zgroup") || probe.has(".zarray") || probe.has(".zattrs") {
             Sniff::Yes(Found {
-                format: Format::Zarr,
+                layout: "zarr",
                 root: probe.path.clone(),
             })
         } else {
@@ -31,24 +61,22 @@ impl DatasetFormat for ZarrFormat {
         super::check::check(&found.root, options, findings)
     }
 
-    fn writes(&self, options: &SinkOptions) -> bool {
-        matches!(options, SinkOptions::Zarr(_))
+    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
+        Some(super::merge::merge(request))
+    }
+}
+
+impl SinkOptions for ZarrOptions {
+    fn format(&self) -> Format {
+        Format(&ZarrFormat)
     }
 
     fn open_sink(
         &self,
         root: &Path,
         info: &DatasetInfo,
-        options: &SinkOptions,
         resuming: bool,
     ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        let SinkOptions::Zarr(options) = options else {
-            return Err(ExportError::Internal("not zarr options".into()));
-        };
-        super::ZarrWriter::boxed(root, info, *options, resuming)
-    }
-
-    fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
-        Some(super::merge::merge(request))
+        super::ZarrWriter::boxed(root, info, *self, resuming)
     }
 }

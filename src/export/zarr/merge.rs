@@ -16,7 +16,9 @@ use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, finish_folder, plan};
-use crate::export::{ExportError, Summary, read_json};
+use crate::export::error::ExportError;
+use crate::export::sink::Summary;
+use crate::export::bounded::read_json;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 

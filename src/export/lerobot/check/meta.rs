@@ -4,11 +4,11 @@
 
 use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
 use crate::error::ErrorKind;
-use crate::export::demux::VideoReader;
+use crate::media::demux::VideoReader;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
 use crate::export::paths::{self, Field};
-use crate::export::read_json;
+use crate::export::bounded::read_json;
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -84,10 +84,10 @@ fn bounded_lines(
 }
 
 /// An error's own problem, without the path a finding already names.
-fn error_text(error: &crate::export::ExportError) -> String {
+fn error_text(error: &crate::export::error::ExportError) -> String {
     match error {
-        crate::export::ExportError::InvalidDataset { problem, .. } => problem.clone(),
-        crate::export::ExportError::Io { source, .. } => source.to_string(),
+        crate::export::error::ExportError::InvalidDataset { problem, .. } => problem.clone(),
+        crate::export::error::ExportError::Io { source, .. } => source.to_string(),
         other => other.to_string(),
     }
 }
@@ -554,7 +554,7 @@ pub(super) fn check_videos(
                 let Some(&(chunk, file, from, to)) = entry.videos.get(key) else {
                     continue;
                 };
-                let relative = crate::export::video::video_path(key, chunk as u64, file as u64);
+                let relative = crate::export::lerobot::layout::video_path(key, chunk as u64, file as u64);
                 (relative, Some((from, to)))
             };
             let path = root.join(&relative);
@@ -568,7 +568,7 @@ pub(super) fn check_videos(
                 VideoReader::open(&path).map(Arc::new).map_err(|e| {
                     let unsupported = crate::error::HasKind::kind(&e) == ErrorKind::Usage;
                     match e {
-                        crate::export::ExportError::InvalidDataset { problem, .. } => {
+                        crate::media::MediaError::Invalid { problem, .. } => {
                             (problem, unsupported)
                         }
                         other => (other.to_string(), unsupported),
@@ -661,7 +661,7 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
             stored_mean,
         } = to_decode;
         {
-            let (problems, decoded_mean) = crate::export::decode::check::check_span(
+            let (problems, decoded_mean) = crate::media::decode::check::check_span(
                 video,
                 *span,
                 *size_px,

@@ -11,10 +11,10 @@
 //! files (tasks, episodes, stats, videos); [`rows`] checks the rows of one row group.
 
 use crate::export::findings::{
-    At, FeatureFact, Findings, Format, Semantics, ValidateOptions, check_manifest,
+    At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest,
 };
 use crate::export::lerobot::InfoJson;
-use crate::export::read_json;
+use crate::export::bounded::read_json;
 use crate::export::schema;
 use arrow_array::RecordBatch;
 use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
@@ -101,11 +101,10 @@ pub(super) struct Part {
 /// Checks the LeRobot dataset at `root`; returns (episodes, frames) found.
 pub fn check(
     root: &Path,
-    format: Format,
+    v21: bool,
     options: &ValidateOptions,
     findings: &Findings,
 ) -> (u64, u64) {
-    let v21 = format == Format::LeRobotV21;
     let (info, info_known) = read_info(root, findings);
     let features = declared_features(&info);
     let fps = info.fps_hz();
@@ -123,7 +122,7 @@ pub fn check(
     });
     let surgvla = check_our_metadata(root, findings);
     let semantics = Semantics::of(&surgvla, options);
-    check_manifest(root, crate::export::MANIFEST, findings);
+    check_manifest(root, crate::export::dir::MANIFEST, findings);
     let tasks = read_tasks(root, v21, findings);
     let entries = read_episodes(root, v21, &features, findings);
     learn_tasks(&tasks, &entries, findings);

@@ -5,8 +5,8 @@
 use super::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
 use crate::export::findings::{At, Semantics, check_semantics};
-use crate::export::image::{decode_png, png_size};
-use crate::export::tiff::decode_f32_tiff;
+use crate::media::image::{decode_png, png_size};
+use crate::media::tiff::decode_f32_tiff;
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
     LargeBinaryArray, RecordBatch, StructArray,
@@ -539,7 +539,7 @@ fn decoded_size(encoded: &[u8]) -> Result<Option<(usize, usize, usize)>, String>
     decode_png(encoded)
         .map(|(w, h, c, _)| Some((w as usize, h as usize, c)))
         .or_else(|e| {
-            crate::export::image::decode_png16(encoded)
+            crate::media::image::decode_png16(encoded)
                 .map(|(w, h, _)| Some((w as usize, h as usize, 1)))
                 .map_err(|_| e)
         })

@@ -6,7 +6,7 @@
 
 use super::{ColorSpace, YuvFrame};
 use crate::episode::EncodedFrame;
-use crate::export::ExportError;
+use crate::media::MediaError;
 use rav1d::include::dav1d::data::Dav1dData;
 use rav1d::include::dav1d::dav1d::{Dav1dContext, Dav1dSettings};
 use rav1d::include::dav1d::headers::DAV1D_PIXEL_LAYOUT_I420;
@@ -166,23 +166,23 @@ fn planes(picture: &Dav1dPicture) -> Result<YuvFrame, Failure> {
 }
 
 /// Decodes an AV1 span (temporal units starting on a keyframe, as
-/// [`crate::export::demux::VideoReader::decodable`] returns them), handing each picture to
+/// [`crate::media::demux::VideoReader::decodable`] returns them), handing each picture to
 /// `on_picture` as it comes out (so a long span never holds more than a few); returns how many
 /// there were. `what` names the stream in errors. Frames over `max_side` x `max_side` are
 /// refused by the decoder before it allocates them; other than 8-bit 4:2:0 is refused as a
 /// usage error.
-pub fn decode_av1_each(
+pub fn decode_av1_each<E: From<MediaError>>(
     samples: &[EncodedFrame],
     what: &str,
     max_side: u32,
-    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), ExportError>,
-) -> Result<usize, ExportError> {
+    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), E>,
+) -> Result<usize, E> {
     let failed = |failure: Failure| match failure {
-        Failure::Code(code) => ExportError::Decode {
+        Failure::Code(code) => MediaError::Decode {
             what: what.to_string(),
             source: format!("rav1d error {code}").into(),
         },
-        Failure::Layout => ExportError::InvalidOptions(format!(
+        Failure::Layout => MediaError::Unsupported(format!(
             "{what} is AV1 of another bit depth or chroma layout than 8-bit 4:2:0, which surgvla does not decode"
         )),
     };
@@ -190,7 +190,7 @@ pub fn decode_av1_each(
         .map_err(|code| failed(Failure::Code(code)))?;
     let mut out = Vec::new();
     let mut count = 0;
-    let mut hand_over = |out: &mut Vec<YuvFrame>| -> Result<(), ExportError> {
+    let mut hand_over = |out: &mut Vec<YuvFrame>| -> Result<(), E> {
         for picture in out.drain(..) {
             count += 1;
             on_picture(picture)?;
@@ -204,10 +204,11 @@ pub fn decode_av1_each(
     decoder.drain(&mut out).map_err(failed)?;
     hand_over(&mut out)?;
     if count != samples.len() {
-        return Err(ExportError::Decode {
+        return Err(MediaError::Decode {
             what: what.to_string(),
             source: format!("{} samples gave {count} pictures", samples.len()).into(),
-        });
+        }
+        .into());
     }
     Ok(count)
 }
@@ -217,7 +218,7 @@ pub fn decode_av1(
     samples: &[EncodedFrame],
     what: &str,
     max_side: u32,
-) -> Result<Vec<YuvFrame>, ExportError> {
+) -> Result<Vec<YuvFrame>, MediaError> {
     let mut pictures = Vec::with_capacity(samples.len());
     decode_av1_each(samples, what, max_side, &mut |p| {
         pictures.push(p);
@@ -229,9 +230,9 @@ pub fn decode_av1(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::decode::rgb_from_yuv420;
-    use crate::export::decode::tests::mean_difference;
-    use crate::export::video::encode_av1;
+    use crate::media::decode::rgb_from_yuv420;
+    use crate::media::decode::tests::mean_difference;
+    use crate::media::video::encode_av1;
 
     #[test]
     fn our_av1_decodes_frame_for_frame_near_the_source() {

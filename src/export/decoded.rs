@@ -8,18 +8,17 @@
 //! episode per worker), so memory holds a few episodes whatever the dataset's length, and each
 //! picture is converted to RGB as it leaves the decoder.
 
-use super::{YuvFrame, decode_span_each, rgb_from_yuv420};
+use crate::media::decode::{MAX_DECODED_SIDE_PX, YuvFrame, decode_span_each, rgb_from_yuv420};
 use crate::episode::{
     Dtype, EncodedFeature, Episode, FeatureKind, FeatureValue, ImageEncoding, PixelStats,
 };
-use crate::export::image::{PngLevel, encode_png};
+use crate::media::image::{PngLevel, encode_png};
 use crate::export::stats::ImageStats;
-use crate::export::{DatasetInfo, EpisodeSource, ExportError};
+use crate::export::info::DatasetInfo;
+use crate::export::source::EpisodeSource;
+use crate::export::error::ExportError;
 use rayon::prelude::*;
 use std::collections::VecDeque;
-
-/// The largest frame side decoded, pixels (8K video; larger is refused before allocating).
-pub const MAX_DECODED_SIDE_PX: u32 = 8192;
 
 /// Where a video feature's decoded frames go.
 #[derive(Clone, Debug)]

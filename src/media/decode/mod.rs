@@ -12,13 +12,14 @@
 mod av1;
 pub mod check;
 pub mod color;
-mod source;
 
 pub use av1::{decode_av1, decode_av1_each};
-pub use source::{Decoded, MAX_DECODED_SIDE_PX, exact_video_stats};
+
+/// The largest frame side decoded, pixels (8K video; larger is refused before allocating).
+pub const MAX_DECODED_SIDE_PX: u32 = 8192;
 
 use crate::episode::{EncodedFrame, VideoCodec};
-use crate::export::ExportError;
+use crate::media::MediaError;
 pub use color::ColorSpace;
 use openh264::OpenH264API;
 use openh264::decoder::{DecodedYUV, Decoder, DecoderConfig, Flush};
@@ -75,8 +76,8 @@ pub fn h264_profile(annex_b: &[u8]) -> Option<u8> {
     None
 }
 
-fn decode_error(what: &str) -> impl Fn(openh264::Error) -> ExportError + '_ {
-    move |e| ExportError::Decode {
+fn decode_error(what: &str) -> impl Fn(openh264::Error) -> MediaError + '_ {
+    move |e| MediaError::Decode {
         what: what.to_string(),
         source: Box::new(e),
     }
@@ -106,23 +107,24 @@ fn planes(picture: &DecodedYUV<'_>) -> YuvFrame {
 }
 
 /// Decodes an H.264 span (Annex B samples in decode order starting on a keyframe, as
-/// [`crate::export::demux::VideoReader::decodable`] returns them), handing each picture to
+/// [`crate::media::demux::VideoReader::decodable`] returns them), handing each picture to
 /// `on_picture` in presentation order (OpenH264 reorders B-frames); returns how many there
 /// were. `what` names the stream in errors (file and feature). A profile the decoder is not
 /// used for is refused as a usage error naming it.
-pub fn decode_h264_each(
+pub fn decode_h264_each<E: From<MediaError>>(
     samples: &[EncodedFrame],
     what: &str,
-    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), ExportError>,
-) -> Result<usize, ExportError> {
+    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), E>,
+) -> Result<usize, E> {
     if let Some(profile) = samples.first().and_then(|s| h264_profile(&s.data))
         && !DECODED_PROFILES.iter().any(|(idc, _)| *idc == profile)
     {
-        return Err(ExportError::InvalidOptions(format!(
+        return Err(MediaError::Unsupported(format!(
             "{what} is H.264 {} profile (profile_idc {profile}); surgvla decodes H.264 {} only",
             h264_profile_name(profile),
             DECODED_PROFILES.map(|(_, name)| name).join(", ")
-        )));
+        ))
+        .into());
     }
     let error = decode_error(what);
     // Flushing after every sample (the crate's default) would hand out pictures before the
@@ -151,16 +153,17 @@ pub fn decode_h264_each(
         on_picture(with_color(&picture))?;
     }
     if count != samples.len() {
-        return Err(ExportError::Decode {
+        return Err(MediaError::Decode {
             what: what.to_string(),
             source: format!("{} samples gave {count} pictures", samples.len()).into(),
-        });
+        }
+        .into());
     }
     Ok(count)
 }
 
 /// [`decode_h264_each`], the pictures collected.
-pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>, ExportError> {
+pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>, MediaError> {
     let mut pictures = Vec::with_capacity(samples.len());
     decode_h264_each(samples, what, &mut |p| {
         pictures.push(p);
@@ -172,23 +175,24 @@ pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>
 /// Decodes a span of `codec` samples (decode order, from a keyframe), handing each picture to
 /// `on_picture` in presentation order; `what` names the stream in errors, frames beyond
 /// `max_side` on a side are refused. Returns the number of pictures.
-pub fn decode_span_each(
+pub fn decode_span_each<E: From<MediaError>>(
     codec: VideoCodec,
     samples: &[EncodedFrame],
     what: &str,
     max_side: u32,
-    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), ExportError>,
-) -> Result<usize, ExportError> {
-    let mut checked = |picture: YuvFrame| {
+    on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), E>,
+) -> Result<usize, E> {
+    let mut checked = |picture: YuvFrame| -> Result<(), E> {
         if picture.width_px > max_side || picture.height_px > max_side {
-            return Err(ExportError::Decode {
+            return Err(MediaError::Decode {
                 what: what.to_string(),
                 source: format!(
                     "a {}x{} picture, larger than {max_side} a side",
                     picture.width_px, picture.height_px
                 )
                 .into(),
-            });
+            }
+            .into());
         }
         on_picture(picture)
     };
@@ -204,7 +208,7 @@ pub fn decode_span(
     samples: &[EncodedFrame],
     what: &str,
     max_side: u32,
-) -> Result<Vec<YuvFrame>, ExportError> {
+) -> Result<Vec<YuvFrame>, MediaError> {
     let mut pictures = Vec::with_capacity(samples.len());
     decode_span_each(codec, samples, what, max_side, &mut |p| {
         pictures.push(p);
@@ -291,7 +295,7 @@ pub fn rgb_from_yuv420(frame: &YuvFrame) -> Option<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::video::{encode_h264, rgb_to_yuv420};
+    use crate::media::video::{encode_h264, rgb_to_yuv420};
 
     /// The mean absolute difference of two images' bytes (what a lossy codec keeps close).
     pub(super) fn mean_difference(source: &[u8], decoded: &[u8]) -> f64 {
@@ -419,7 +423,7 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("tests/fixtures/video")
             .join(format!("{name}.mp4"));
-        let mut reader = crate::export::demux::VideoReader::open(&path).expect("open");
+        let mut reader = crate::media::demux::VideoReader::open(&path).expect("open");
         assert_eq!((reader.codec, reader.reorders), (codec, reorders));
         let span = reader
             .decodable(f64::NEG_INFINITY, f64::INFINITY)

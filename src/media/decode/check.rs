@@ -5,8 +5,8 @@
 
 use super::{MAX_DECODED_SIDE_PX, decode_span_each};
 use crate::error::{ErrorKind, HasKind};
-use crate::export::ExportError;
-use crate::export::demux::VideoReader;
+use crate::media::MediaError;
+use crate::media::demux::VideoReader;
 
 /// What decoding a span found.
 #[derive(Clone, Debug, PartialEq)]
@@ -19,7 +19,7 @@ pub struct DecodeProblem {
     pub unsupported: bool,
 }
 
-fn problem(frame: Option<u64>, error: &ExportError) -> DecodeProblem {
+fn problem(frame: Option<u64>, error: &MediaError) -> DecodeProblem {
     DecodeProblem {
         frame,
         message: crate::error::chain(error),

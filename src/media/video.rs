@@ -3,8 +3,7 @@
 //! with an IDR frame), appended to a shared MP4 whose presentation times run on across episodes,
 //! so an episode is the span `[from_timestamp, to_timestamp)` of its file.
 
-use crate::export::ExportError;
-use crate::export::dir::PendingFile;
+use crate::media::MediaError;
 use muxide::api::{Muxer, MuxerBuilder, VideoCodec};
 use openh264::OpenH264API;
 use openh264::encoder::{
@@ -12,7 +11,7 @@ use openh264::encoder::{
 };
 use openh264::formats::{RgbSliceU8, YUVBuffer};
 use std::fs::File;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// One encoded frame (Annex B bytes for H.264, OBUs for AV1).
 pub use crate::episode::EncodedFrame;
@@ -113,9 +112,9 @@ pub fn encode_av1(
     height: usize,
     fps: u32,
     quantizer: usize,
-) -> Result<Vec<EncodedFrame>, ExportError> {
+) -> Result<Vec<EncodedFrame>, MediaError> {
     use rav1e::prelude::*;
-    let encode_error = |source: Box<dyn std::error::Error + Send + Sync>| ExportError::Encode {
+    let encode_error = |source: Box<dyn std::error::Error + Send + Sync>| MediaError::Encode {
         what: "AV1".into(),
         source,
     };
@@ -139,7 +138,7 @@ pub fn encode_av1(
         .map_err(|e| encode_error(Box::new(e)))?;
     let mut out = Vec::with_capacity(frames.len());
     let drain =
-        |context: &mut Context<u8>, out: &mut Vec<EncodedFrame>| -> Result<bool, ExportError> {
+        |context: &mut Context<u8>, out: &mut Vec<EncodedFrame>| -> Result<bool, MediaError> {
             loop {
                 match context.receive_packet() {
                     Ok(packet) => out.push(EncodedFrame {
@@ -184,7 +183,7 @@ pub fn encode(
     height: usize,
     fps: u32,
     quality: u32,
-) -> Result<Vec<EncodedFrame>, ExportError> {
+) -> Result<Vec<EncodedFrame>, MediaError> {
     match codec {
         Codec::H264 => encode_h264(frames, width, height, fps, quality.min(51) as u8),
         Codec::Av1 => encode_av1(frames, width, height, fps, quality.min(255) as usize),
@@ -199,8 +198,8 @@ pub fn encode_h264(
     height: usize,
     fps: u32,
     max_qp: u8,
-) -> Result<Vec<EncodedFrame>, ExportError> {
-    let encode_error = |e: openh264::Error| ExportError::Encode {
+) -> Result<Vec<EncodedFrame>, MediaError> {
+    let encode_error = |e: openh264::Error| MediaError::Encode {
         what: "H.264".into(),
         source: Box::new(e),
     };
@@ -224,7 +223,7 @@ pub fn encode_h264(
         );
         let data = bitstream.to_vec();
         if data.is_empty() {
-            return Err(ExportError::Encode {
+            return Err(MediaError::Encode {
                 what: "H.264".into(),
                 source: "the encoder skipped a frame".into(),
             });
@@ -234,40 +233,39 @@ pub fn encode_h264(
     Ok(out)
 }
 
-/// An MP4 file being appended to.
-pub struct VideoFile {
+/// An MP4 file being appended to: the muxer over an open file, and the presentation clock.
+pub struct Mp4Writer {
     muxer: Muxer<File>,
-    pending: PendingFile,
-    pub chunk: u64,
-    pub file: u64,
+    /// The file's name, for errors.
+    path: PathBuf,
     /// Frames written so far (the next frame's presentation time is `frames / fps`).
     pub frames: u64,
     fps: u32,
 }
 
 /// An MP4 error naming the file; an I/O failure (a full disk) stays an I/O error.
-fn mp4_error(path: &Path) -> impl Fn(muxide::api::MuxerError) -> ExportError + '_ {
+fn mp4_error(path: &Path) -> impl Fn(muxide::api::MuxerError) -> MediaError + '_ {
     move |e| match e {
-        muxide::api::MuxerError::Io(source) => ExportError::Io {
+        muxide::api::MuxerError::Io(source) => MediaError::Io {
             path: path.to_path_buf(),
             source,
         },
-        other => ExportError::Encode {
+        other => MediaError::Encode {
             what: format!("MP4 {}", path.display()),
             source: Box::new(other),
         },
     }
 }
 
-impl VideoFile {
-    /// Starts an MP4 in `handle`, the open temporary file of `pending`.
+impl Mp4Writer {
+    /// Starts an MP4 in `handle`; `path` names it in errors.
     pub fn create(
-        (handle, pending): (File, PendingFile),
+        handle: File,
+        path: PathBuf,
         codec: Codec,
-        (chunk, file): (u64, u64),
         (width, height): (usize, usize),
         fps: u32,
-    ) -> Result<Self, ExportError> {
+    ) -> Result<Self, MediaError> {
         let muxer = MuxerBuilder::new(handle)
             .video(
                 match codec {
@@ -280,50 +278,32 @@ impl VideoFile {
             )
             .with_fast_start(false)
             .build()
-            .map_err(mp4_error(&pending.path))?;
-        Ok(VideoFile {
+            .map_err(mp4_error(&path))?;
+        Ok(Mp4Writer {
             muxer,
-            pending,
-            chunk,
-            file,
+            path,
             frames: 0,
             fps,
         })
     }
 
-    /// The file's final name.
-    pub fn path(&self) -> &Path {
-        &self.pending.path
-    }
-
     /// Appends an episode's frames; returns its (from, to) timestamps in this file.
-    pub fn append(&mut self, frames: &[EncodedFrame]) -> Result<(f64, f64), ExportError> {
+    pub fn append(&mut self, frames: &[EncodedFrame]) -> Result<(f64, f64), MediaError> {
         let from = self.frames as f64 / f64::from(self.fps);
         for frame in frames {
             let pts = self.frames as f64 / f64::from(self.fps);
             self.muxer
                 .write_video(pts, &frame.data, frame.keyframe)
-                .map_err(mp4_error(&self.pending.path))?;
+                .map_err(mp4_error(&self.path))?;
             self.frames += 1;
         }
         Ok((from, self.frames as f64 / f64::from(self.fps)))
     }
 
-    /// Bytes written so far.
-    pub fn bytes(&self) -> u64 {
-        self.pending.bytes_so_far()
+    /// Completes the file (the moov box at the end).
+    pub fn finish(self) -> Result<(), MediaError> {
+        self.muxer.finish().map_err(mp4_error(&self.path))
     }
-
-    /// Completes the file; the caller gives it its final name ([`crate::export::DatasetDir::commit`]).
-    pub fn finish(self) -> Result<PendingFile, ExportError> {
-        self.muxer.finish().map_err(mp4_error(&self.pending.path))?;
-        Ok(self.pending)
-    }
-}
-
-/// The path of a v3.0 video file relative to the dataset root.
-pub fn video_path(key: &str, chunk: u64, file: u64) -> String {
-    format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4")
 }
 
 #[cfg(test)]

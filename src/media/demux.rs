@@ -1,5 +1,5 @@
 //! Reading MP4 video back without decoding it ([`re_mp4`]): the samples of a span of a file's
-//! video track, in the form the muxer ([`crate::export::video::VideoFile`]) takes (AV1 OBUs,
+//! video track, in the form the muxer ([`crate::media::video::VideoFile`]) takes (AV1 OBUs,
 //! H.264 Annex B), so video passes from one dataset to another unchanged.
 //!
 //! A span must start on a keyframe (every episode does: LeRobot and surgvla encode episodes
@@ -10,8 +10,8 @@
 //! samples in decode order from the keyframe before it, with their presentation times.
 
 use crate::episode::{EncodedFrame, VideoCodec};
-use crate::export::ExportError;
-use crate::export::video::{obus, strip_temporal_delimiters};
+use crate::media::MediaError;
+use crate::media::video::{obus, strip_temporal_delimiters};
 use re_mp4::{Mp4, StsdBoxContent};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
@@ -58,8 +58,8 @@ pub struct DecodableSpan {
     pub picture_secs: Vec<f64>,
 }
 
-fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
-    ExportError::InvalidDataset {
+fn invalid(path: &Path, problem: impl Into<String>) -> MediaError {
+    MediaError::Invalid {
         path: path.to_path_buf(),
         problem: problem.into(),
     }
@@ -67,19 +67,19 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
 
 impl VideoReader {
     /// Reads the sample tables of the file's video track (not its media data).
-    pub fn open(path: &Path) -> Result<Self, ExportError> {
-        let mut file = File::open(path).map_err(ExportError::io(path))?;
-        let size = file.metadata().map_err(ExportError::io(path))?.len();
+    pub fn open(path: &Path) -> Result<Self, MediaError> {
+        let mut file = File::open(path).map_err(MediaError::io(path))?;
+        let size = file.metadata().map_err(MediaError::io(path))?.len();
         // re_mp4 trusts stsz's sample count and indexes its tables without bounds checks in
         // places: a damaged file must be an error naming it, never a crash or an abort.
         if let Some(problem) =
-            crate::export::mp4scan::check_tables(&mut file, size).map_err(ExportError::io(path))?
+            crate::media::mp4scan::check_tables(&mut file, size).map_err(MediaError::io(path))?
         {
             return Err(invalid(path, format!("not a readable MP4: {problem}")));
         }
         file.seek(SeekFrom::Start(0))
-            .map_err(ExportError::io(path))?;
-        let parsed = crate::export::mp4scan::quietly(|| Mp4::read(&mut file, size));
+            .map_err(MediaError::io(path))?;
+        let parsed = crate::media::mp4scan::quietly(|| Mp4::read(&mut file, size));
         let mp4 = match parsed {
             Ok(Ok(mp4)) => mp4,
             Ok(Err(e)) => return Err(invalid(path, format!("not a readable MP4: {e}"))),
@@ -119,7 +119,7 @@ impl VideoReader {
             }
             other => {
                 // Not a defect of the file: a codec this build has no decoder for (exit 2).
-                return Err(ExportError::InvalidOptions(format!(
+                return Err(MediaError::Unsupported(format!(
                     "{} holds {} video; surgvla reads AV1 and H.264 (no HEVC or VP9 decoder is built in)",
                     path.display(),
                     other.codec_string().unwrap_or_else(|| "unknown".into())
@@ -173,10 +173,10 @@ impl VideoReader {
     /// Another reader of the same file with its own file handle, sharing the sample tables
     /// this one read (for workers reading spans of one file in parallel: the tables are parsed
     /// once).
-    pub fn reopen(&self) -> Result<Self, ExportError> {
+    pub fn reopen(&self) -> Result<Self, MediaError> {
         Ok(VideoReader {
             path: self.path.clone(),
-            file: File::open(&self.path).map_err(ExportError::io(&self.path))?,
+            file: File::open(&self.path).map_err(MediaError::io(&self.path))?,
             codec: self.codec,
             width_px: self.width_px,
             height_px: self.height_px,
@@ -215,7 +215,7 @@ impl VideoReader {
 
     /// The frames presented in `[from_secs, to_secs)`, ready to append to another file; the
     /// first must be a keyframe.
-    pub fn span(&mut self, from_secs: f64, to_secs: f64) -> Result<Vec<EncodedFrame>, ExportError> {
+    pub fn span(&mut self, from_secs: f64, to_secs: f64) -> Result<Vec<EncodedFrame>, MediaError> {
         if self.reorders {
             return Err(invalid(
                 &self.path,
@@ -249,7 +249,7 @@ impl VideoReader {
         &mut self,
         from_secs: f64,
         to_secs: f64,
-    ) -> Result<DecodableSpan, ExportError> {
+    ) -> Result<DecodableSpan, MediaError> {
         let inside = |s: &SampleRef| {
             s.time_secs >= from_secs - TIME_TOLERANCE_SECS
                 && s.time_secs < to_secs - TIME_TOLERANCE_SECS
@@ -283,16 +283,16 @@ impl VideoReader {
     }
 
     /// Every frame of the file.
-    pub fn all(&mut self) -> Result<Vec<EncodedFrame>, ExportError> {
+    pub fn all(&mut self) -> Result<Vec<EncodedFrame>, MediaError> {
         self.span(f64::NEG_INFINITY, f64::INFINITY)
     }
 
-    fn frame(&mut self, sample: &SampleRef) -> Result<EncodedFrame, ExportError> {
+    fn frame(&mut self, sample: &SampleRef) -> Result<EncodedFrame, MediaError> {
         let mut bytes = vec![0u8; sample.size as usize];
         self.file
             .seek(SeekFrom::Start(sample.offset))
             .and_then(|_| self.file.read_exact(&mut bytes))
-            .map_err(ExportError::io(&self.path))?;
+            .map_err(MediaError::io(&self.path))?;
         let data = match self.codec {
             VideoCodec::Av1 => {
                 let obus = strip_temporal_delimiters(&bytes);
@@ -359,8 +359,7 @@ fn has_h264_sps(annex_b: &[u8]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::dir::DatasetDir;
-    use crate::export::video::{VideoFile, encode};
+    use crate::media::video::{Mp4Writer, encode};
 
     fn frames(n: u8) -> Vec<Vec<u8>> {
         (0..n)
@@ -381,28 +380,22 @@ mod tests {
             std::process::id()
         ));
         let _ = std::fs::remove_dir_all(&root);
-        let run = crate::export::RunOptions::default();
-        let mut dir = DatasetDir::create(&root, &run).expect("dir");
+        std::fs::create_dir_all(&root).expect("dir");
         let pixels = frames(5);
         let refs: Vec<&[u8]> = pixels.iter().map(|f| f.as_slice()).collect();
         let encoded = encode(codec, &refs, 64, 48, 10, 30).expect("encode");
-        let write = |dir: &mut DatasetDir, name: &str, episodes: &[&[EncodedFrame]]| {
-            let mut video = VideoFile::create(
-                dir.create_file(name).expect("file"),
-                codec,
-                (0, 0),
-                (64, 48),
-                10,
-            )
-            .expect("video");
+        let write = |name: &str, episodes: &[&[EncodedFrame]]| {
+            let path = root.join(name);
+            let file = File::create(&path).expect("file");
+            let mut video = Mp4Writer::create(file, path, codec, (64, 48), 10).expect("video");
             let spans: Vec<(f64, f64)> = episodes
                 .iter()
                 .map(|e| video.append(e).expect("append"))
                 .collect();
-            dir.commit(video.finish().expect("finish")).expect("commit");
+            video.finish().expect("finish");
             spans
         };
-        let spans = write(&mut dir, "a.mp4", &[&encoded, &encoded]);
+        let spans = write("a.mp4", &[&encoded, &encoded]);
         let mut reader = VideoReader::open(&root.join("a.mp4")).expect("open");
         assert_eq!(
             (reader.codec, reader.width_px, reader.len()),
@@ -412,13 +405,13 @@ mod tests {
         assert_eq!(second.len(), 5);
         assert!(second[0].keyframe);
         let first = reader.span(spans[0].0, spans[0].1).expect("span");
-        write(&mut dir, "b.mp4", &[&first, &second]);
+        write("b.mp4", &[&first, &second]);
         assert_eq!(
             std::fs::read(root.join("a.mp4")).expect("a"),
             std::fs::read(root.join("b.mp4")).expect("b")
         );
         // The second episode alone starts a valid file of its own.
-        write(&mut dir, "c.mp4", &[&second]);
+        write("c.mp4", &[&second]);
         let alone = VideoReader::open(&root.join("c.mp4"))
             .expect("open")
             .all()

@@ -1,14 +1,14 @@
 //! Image encoding and decoding shared by every format: 8-bit PNG (RGB, grey masks) and 16-bit
 //! grey PNG (RLDS depth in millimetres) here, float32 TIFF (depth in metres, LeRobot) in
-//! [`crate::export::tiff`].
+//! [`crate::media::tiff`].
 
-use crate::export::ExportError;
+use crate::media::MediaError;
 
 pub use crate::files::PngLevel;
 use crate::files::PngPixels;
 
-fn png_error(source: png::EncodingError) -> ExportError {
-    ExportError::Encode {
+fn png_error(source: png::EncodingError) -> MediaError {
+    MediaError::Encode {
         what: "PNG".into(),
         source: Box::new(source),
     }
@@ -19,8 +19,8 @@ fn png_error(source: png::EncodingError) -> ExportError {
 pub fn stored_or(
     stored: Option<&[crate::episode::EncodedFrame]>,
     i: usize,
-    encode: impl FnOnce() -> Result<Vec<u8>, ExportError>,
-) -> Result<Vec<u8>, ExportError> {
+    encode: impl FnOnce() -> Result<Vec<u8>, MediaError>,
+) -> Result<Vec<u8>, MediaError> {
     match stored.and_then(|frames| frames.get(i)) {
         Some(frame) => Ok(frame.data.clone()),
         None => encode(),
@@ -34,7 +34,7 @@ pub fn encode_png(
     channels: usize,
     pixels: &[u8],
     level: PngLevel,
-) -> Result<Vec<u8>, ExportError> {
+) -> Result<Vec<u8>, MediaError> {
     crate::files::encode_png(width, height, png_layout(channels)?, pixels, level).map_err(png_error)
 }
 
@@ -46,18 +46,18 @@ pub fn encode_png_into(
     channels: usize,
     pixels: &[u8],
     level: PngLevel,
-) -> Result<(), ExportError> {
+) -> Result<(), MediaError> {
     let layout = png_layout(channels)?;
     crate::files::encode_png_into(out, width, height, layout, pixels, level).map_err(png_error)
 }
 
 /// The PNG layout of 8-bit pixels with `channels` (1 = grey, 3 = RGB, 4 = RGBA).
-fn png_layout(channels: usize) -> Result<PngPixels, ExportError> {
+fn png_layout(channels: usize) -> Result<PngPixels, MediaError> {
     match channels {
         1 => Ok(PngPixels::Grey8),
         3 => Ok(PngPixels::Rgb8),
         4 => Ok(PngPixels::Rgba8),
-        other => Err(ExportError::InvalidEpisode(format!(
+        other => Err(MediaError::BadPixels(format!(
             "an image with {other} channels cannot be stored as PNG"
         ))),
     }
@@ -70,18 +70,18 @@ pub fn encode_jpeg(
     height: usize,
     rgb: &[u8],
     quality: u8,
-) -> Result<Vec<u8>, ExportError> {
-    let encode_error = |source: jpeg_encoder::EncodingError| ExportError::Encode {
+) -> Result<Vec<u8>, MediaError> {
+    let encode_error = |source: jpeg_encoder::EncodingError| MediaError::Encode {
         what: "JPEG".into(),
         source: Box::new(source),
     };
     let (Ok(w), Ok(h)) = (u16::try_from(width), u16::try_from(height)) else {
-        return Err(ExportError::InvalidEpisode(format!(
+        return Err(MediaError::BadPixels(format!(
             "a {width}x{height} image is too large for JPEG"
         )));
     };
     if rgb.len() != width * height * 3 {
-        return Err(ExportError::InvalidEpisode(format!(
+        return Err(MediaError::BadPixels(format!(
             "{} bytes of RGB for a {width}x{height} image",
             rgb.len()
         )));
@@ -137,7 +137,7 @@ pub fn encode_png16(
     height: usize,
     values: &[u16],
     level: PngLevel,
-) -> Result<Vec<u8>, ExportError> {
+) -> Result<Vec<u8>, MediaError> {
     let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
     crate::files::encode_png(width, height, PngPixels::Grey16, &bytes, level).map_err(png_error)
 }

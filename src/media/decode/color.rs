@@ -250,7 +250,7 @@ mod tests {
         // libx264 fixtures: untagged (BT.601 limited assumed).
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("tests/fixtures/video/x264_high_bframes.mp4");
-        let mut reader = crate::export::demux::VideoReader::open(&path).expect("open");
+        let mut reader = crate::media::demux::VideoReader::open(&path).expect("open");
         let span = reader.decodable(0.0, 0.05).expect("span");
         assert_eq!(
             h264_color_space(&span.samples[0].data),
@@ -261,7 +261,7 @@ mod tests {
         // converts to what FFmpeg's swscale gives with those tags stated (PyAV's
         // to_ndarray("rgb24") alone ignores the tags and is up to 33 levels off).
         let fixture = path.with_file_name("x264_bt709_full.mp4");
-        let mut reader = crate::export::demux::VideoReader::open(&fixture).expect("open");
+        let mut reader = crate::media::demux::VideoReader::open(&fixture).expect("open");
         let span = reader.decodable(0.0, 0.05).expect("span");
         let tagged = h264_color_space(&span.samples[0].data).expect("sps");
         assert_eq!(tagged, ColorSpace::from_h273(1, true));

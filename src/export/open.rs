@@ -1,0 +1,87 @@
+//! Opening datasets through the registry: [`open_sink`] starts (or resumes) the sink of the
+//! format whose options it is given, after refusing features that format cannot hold;
+//! [`open_source`] finds a path's format and opens its reader. What a conversion must decode
+//! ([`decoding_needed`]) is asked of the options and their format.
+
+use crate::episode::FeatureKind;
+use crate::export::decoded::Decoded;
+use crate::export::dir::resumes;
+use crate::export::error::ExportError;
+use crate::export::format::SinkOptions;
+use crate::export::identity;
+use crate::export::info::DatasetInfo;
+use crate::export::registry;
+use crate::export::sink::EpisodeSink;
+use crate::export::source::{EpisodeSource, SourceOptions};
+use std::path::Path;
+
+/// Whether a conversion of a dataset of `info` into `options` must decode its video (through
+/// [`Decoded`]): the format does not store video, or the options ask for another codec than a
+/// video feature's.
+pub fn decoding_needed(info: &DatasetInfo, options: &dyn SinkOptions) -> bool {
+    Decoded::needed(info) && (!options.format().capabilities().video || options.reencodes(info))
+}
+
+/// Starts a dataset of `info` in `root` (which must not exist or be empty), or, when
+/// [`resumes`], continues it from its last checkpoint ([`EpisodeSink::next_episode_index`] says
+/// where), in the format whose `options` these are.
+pub fn open_sink(
+    root: &Path,
+    info: &DatasetInfo,
+    options: &dyn SinkOptions,
+    resume: bool,
+) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
+    options.check()?;
+    let holds = options.format().capabilities();
+    let videos: Vec<String> = info
+        .features
+        .iter()
+        .filter_map(|f| Some(format!("{} ({})", f.name, f.video?.name())))
+        .collect();
+    if !videos.is_empty() && !holds.video {
+        return Err(ExportError::InvalidOptions(format!(
+            "the input stores {} as video, which this format needs decoded (read the input through decode::Decoded)",
+            videos.join(", ")
+        )));
+    }
+    let others: Vec<&str> = info
+        .features
+        .iter()
+        .filter(|f| f.kind == FeatureKind::Other)
+        .map(|f| f.name.as_str())
+        .collect();
+    if !others.is_empty() && !holds.other_features {
+        return Err(ExportError::InvalidOptions(format!(
+            "the features {} have no place in this format yet ({} hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to {}",
+            others.join(", "),
+            registry::titles(|c| !c.other_features, "and"),
+            registry::titles(|c| c.other_features, "or"),
+        )));
+    }
+    options.open_sink(root, info, resumes(root, resume))
+}
+
+/// Opens a dataset for reading, detecting its format through the registry (LeRobot, or RLDS:
+/// a TFDS version folder or the data directory above it). A path holding nothing recognised,
+/// or a format surgvla does not read, is the user's error.
+pub fn open_source(root: &Path) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
+    open_source_with(root, &SourceOptions::default())
+}
+
+/// [`open_source`] with what the dataset may not say: an RLDS dataset surgvla did not write
+/// (no `surgvla.json` beside its `dataset_info.json`) is read through its own `features.json`
+/// and needs `options.fps`.
+pub fn open_source_with(
+    root: &Path,
+    options: &SourceOptions,
+) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
+    let (format, found) = registry::detect_readable(root)?;
+    let source = format.open_source(&found, options).unwrap_or_else(|| {
+        Err(ExportError::NotReadable {
+            path: found.root.clone(),
+            format: found.layout,
+            readers: registry::titles(|c| c.reads, "and"),
+        })
+    })?;
+    Ok(Box::new(identity::Identified::new(source, &found.root)?))
+}

@@ -1,0 +1,164 @@
+//! What a format's writer is to its callers: [`EpisodeSink`] (consecutive episodes in, a
+//! [`Summary`] out, `finish` safe twice), the detached encoders collect's pipeline uses, and the
+//! checks every sink makes before it writes an episode.
+
+use crate::episode::{Episode, Pixels, Step};
+use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+
+/// What a sink wrote.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Summary {
+    pub episodes: u64,
+    pub frames: u64,
+    pub files: u64,
+    pub bytes: u64,
+}
+
+/// Seconds a sink spent, for reports (never written into a dataset).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SinkTiming {
+    /// Encoding images and video: thread-seconds when a detached encoder did it (summed over
+    /// the threads), else wall seconds of the batches' parallel encoding (statistics included
+    /// where the format does not count them apart).
+    pub encode_secs: f64,
+    /// Computing statistics (thread-seconds; 0 where the format does not count them apart).
+    pub stats_secs: f64,
+    /// Building tables and writing files.
+    pub write_secs: f64,
+}
+
+/// An episode encoded for one sink by its detached encoder, ahead of its turn (what
+/// [`EpisodeSink::write_encoded`] appends).
+pub struct Encoded(pub(crate) Box<dyn std::any::Any + Send>);
+
+/// Encodes episodes for a sink on any thread, apart from the sink (see
+/// [`EpisodeSink::detached_encoder`]). It checks the sizes of the images it encodes, which
+/// [`EpisodeSink::write_encoded`] then leaves out of its checks.
+pub trait DetachedEncoder: Send + Sync {
+    fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError>;
+    /// An encoder of one episode frame by frame while it is recorded, so that each frame is
+    /// encoded while its pixels are in the core's cache and its buffers can be drawn into
+    /// again; `None` when the sink needs whole episodes. `expected_frames` sizes its buffers.
+    fn frames(&self, _expected_frames: usize) -> Option<Box<dyn FrameEncoder>> {
+        None
+    }
+}
+
+/// Encodes one episode frame by frame (see [`DetachedEncoder::frames`]): the same bytes as
+/// [`DetachedEncoder::encode`] of the whole episode.
+pub trait FrameEncoder: Send {
+    /// Takes the next step's images (it is kept without them) to encode them and take its
+    /// statistics, in small batches; returns the buffers of earlier steps it is done with.
+    fn push(&mut self, step: &mut Step) -> Result<Vec<Pixels>, ExportError>;
+    /// The episode whose steps were pushed, encoded (its steps' pixels may be gone).
+    fn finish(self: Box<Self>, episode: &Episode) -> Result<Encoded, ExportError>;
+}
+
+/// Receives consecutive episodes, in episode-index order, and writes one dataset.
+pub trait EpisodeSink {
+    /// Writes consecutive episodes (a sink may work on them in parallel; the output is as if
+    /// they were written one by one). An episode out of order or not matching the dataset's
+    /// features is rejected.
+    fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError>;
+    /// Writes one episode.
+    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
+        self.write_batch(std::slice::from_ref(episode))
+    }
+    /// An encoder that works apart from the sink: a producer encodes each episode on its own
+    /// threads as soon as it is made, and the sink's [`EpisodeSink::write_encoded`] only
+    /// appends. `None`: the sink encodes inside [`EpisodeSink::write_batch`].
+    fn detached_encoder(&self) -> Option<std::sync::Arc<dyn DetachedEncoder>> {
+        None
+    }
+    /// Writes consecutive episodes with what this sink's detached encoder made of each (the
+    /// same bytes as [`EpisodeSink::write_batch`] of the episodes).
+    fn write_encoded(&mut self, _episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
+        Err(ExportError::Internal(
+            "this sink has no detached encoder".into(),
+        ))
+    }
+    /// Index of the next episode the sink expects (after a resume: the first one to rewrite).
+    fn next_episode_index(&self) -> u64;
+    /// Whether the sink copies a source's stored still images of `encoding` (PNG, TIFF, JPEG)
+    /// instead of encoding the pixels again (see [`crate::export::writer::FormatWriter::reuses_stored`]).
+    fn reuses_stored(&self, _encoding: crate::episode::ImageEncoding) -> bool {
+        true
+    }
+    /// Time spent so far.
+    fn timing(&self) -> SinkTiming {
+        SinkTiming::default()
+    }
+    /// Completes the dataset: after this returns Ok, it is consistent and loadable. Calling it
+    /// again returns the same summary and writes nothing.
+    fn finish(&mut self) -> Result<Summary, ExportError> {
+        self.finish_with(None)
+    }
+    /// [`EpisodeSink::finish`], writing `sidecar`'s file (made from the summary; e.g. a run's
+    /// report) into the folder after the dataset's own files and before the dataset is marked
+    /// complete, so an interrupted finish leaves a resumable dataset, never one without it.
+    /// Sidecar files are not in the manifest.
+    fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError>;
+}
+
+/// What every sink checks before it writes an episode: that the dataset is not finished yet,
+/// that the episode is the `expected` one (episodes come in index order), and that its steps
+/// hold the dataset's features.
+pub(crate) fn check_episode(
+    info: &DatasetInfo,
+    finished: bool,
+    episode: &Episode,
+    expected: u64,
+    pixels: bool,
+) -> Result<(), ExportError> {
+    if finished {
+        return Err(ExportError::Internal(
+            "an episode arrived after the dataset was finished".into(),
+        ));
+    }
+    if episode.meta.index != expected {
+        return Err(ExportError::InvalidEpisode(format!(
+            "episode index {} arrived where {expected} was expected (episodes must come in order)",
+            episode.meta.index
+        )));
+    }
+    // Video that cannot be copied (the user's choice to copy it, not a defect): exit 2.
+    if let Some(video) = episode.encoded.iter().find(|e| {
+        e.shown.is_some()
+            && info
+                .features
+                .iter()
+                .any(|f| f.name == e.feature && !f.in_steps())
+    }) {
+        return Err(ExportError::InvalidOptions(format!(
+            "episode {}: {}'s video is not one frame per row in presentation order (B-frames, or frames the rows skip), so it cannot be copied as it is: decode it (convert --decode, or --video to re-encode)",
+            episode.meta.index, video.feature
+        )));
+    }
+    episode
+        .validate_structure(&info.features)
+        .map_err(ExportError::InvalidEpisode)?;
+    if pixels {
+        let (width, height) = info.image_size();
+        episode
+            .validate_pixels(width, height, &info.features)
+            .map_err(ExportError::InvalidEpisode)?;
+    }
+    Ok(())
+}
+
+/// [`check_episode`] for consecutive episodes starting at `first`.
+pub(crate) fn check_batch(
+    info: &DatasetInfo,
+    finished: bool,
+    episodes: &[Episode],
+    first: u64,
+    pixels: bool,
+) -> Result<(), ExportError> {
+    (first..)
+        .zip(episodes)
+        .try_for_each(|(index, episode)| check_episode(info, finished, episode, index, pixels))
+}
+
+/// Makes a file to write beside a finished dataset from its summary: (relative path, bytes).
+pub type Sidecar<'a> = &'a mut dyn FnMut(&Summary) -> Result<(String, Vec<u8>), ExportError>;
