@@ -193,7 +193,7 @@ fn bench_decode(c: &mut Criterion) {
                     .decodable(f64::NEG_INFINITY, f64::INFINITY)
                     .expect("span");
                 let mut bytes = 0usize;
-                let count = decode_span_each(
+                let count = decode_span_each::<surgvla::media::MediaError>(
                     reader.codec,
                     &span.samples,
                     "bench",

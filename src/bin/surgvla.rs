@@ -19,10 +19,9 @@ mod inspect;
 mod memory;
 mod progress;
 
+use clap::{Parser, Subcommand};
 use error::CliError;
 use formats::SchemaFormat;
-
-use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use surgvla::assets::{Appearance, SceneAssets};
@@ -451,9 +450,10 @@ fn run_schema(with_mask: bool, format: SchemaFormat) -> Result<(), CliError> {
     };
     let options = surgvla::collect::run::CollectOptions::default();
     let info = surgvla::collect::run::dataset_info(&options, set, &ExpertLibrary::builtin()?);
-    let json = format.0.schema(&info).ok_or_else(|| {
-        CliError::usage(format!("{} has no features schema", format.0.name()))
-    })?;
+    let json = format
+        .0
+        .schema(&info)
+        .ok_or_else(|| CliError::usage(format!("{} has no features schema", format.0.name())))?;
     say!("{}", serde_json::to_string_pretty(&json)?);
     Ok(())
 }

@@ -10,9 +10,9 @@ use super::agents::{
     Agent, Command, ExpertAgent, NoopAgent, RandomAgent, RemoteAgent, ReplayLibrary,
 };
 use super::numpy::metadata_json;
+use super::options::{EvalError, EvalOptions, PolicyChoice};
 use super::remote::RemotePolicy;
 use super::results::{EvalReport, TaskResult, TrialResult};
-use super::{EvalError, EvalOptions, PolicyChoice};
 use crate::env::{Env, EnvObservation, EnvOptions, Images};
 use crate::episode::{Episode, EpisodeMeta, FeatureSet, Step};
 use crate::export::mcap::{McapOptions, record_episode};

@@ -132,7 +132,6 @@ pub(crate) fn read_json(path: &Path) -> Result<serde_json::Value, ExportError> {
     })
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,10 +5,10 @@
 
 use crate::episode::{Episode, FeatureKind, ImageEncoding, MAX_OBJECTS, POSE_VALUES};
 use crate::error::ErrorKind;
-use crate::export::sink::EpisodeSink;
-use crate::export::source::EpisodeSource;
 use crate::export::error::ExportError;
+use crate::export::sink::EpisodeSink;
 use crate::export::sink::Summary;
+use crate::export::source::EpisodeSource;
 
 /// Which side of a conversion failed.
 #[derive(Debug, thiserror::Error)]

@@ -8,15 +8,15 @@
 //! episode per worker), so memory holds a few episodes whatever the dataset's length, and each
 //! picture is converted to RGB as it leaves the decoder.
 
-use crate::media::decode::{MAX_DECODED_SIDE_PX, YuvFrame, decode_span_each, rgb_from_yuv420};
 use crate::episode::{
     Dtype, EncodedFeature, Episode, FeatureKind, FeatureValue, ImageEncoding, PixelStats,
 };
-use crate::media::image::{PngLevel, encode_png};
-use crate::export::stats::ImageStats;
+use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
+use crate::export::stats::ImageStats;
+use crate::media::decode::{MAX_DECODED_SIDE_PX, YuvFrame, decode_span_each, rgb_from_yuv420};
+use crate::media::image::{PngLevel, encode_png};
 use rayon::prelude::*;
 use std::collections::VecDeque;
 

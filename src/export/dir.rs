@@ -24,9 +24,9 @@
 //!   number of episodes; a checkpoint records their length and checksum, resume cuts them back.
 //! - **Rolling.** [`FileCounter`] numbers rolled files `chunk/file` the LeRobot way.
 
-use crate::export::paths;
 use crate::export::error::ExportError;
 use crate::export::error::OptionChange;
+use crate::export::paths;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;

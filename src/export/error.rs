@@ -210,7 +210,6 @@ impl crate::error::HasKind for ExportError {
     }
 }
 
-
 fn not_empty(path: &Path, interrupted: bool) -> String {
     if interrupted {
         format!("{} holds an interrupted surgvla dataset", path.display())
@@ -221,7 +220,6 @@ fn not_empty(path: &Path, interrupted: bool) -> String {
         )
     }
 }
-
 
 /// One option whose value differs between the recorded run and a resume.
 #[derive(Clone, Debug, PartialEq)]

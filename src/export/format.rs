@@ -7,13 +7,13 @@
 //! broken"), checks it into [`Findings`], and opens a sink, a source and a merge where it has
 //! them. This module imports no format: formats import it.
 
+use crate::export::error::ExportError;
 use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
-use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::source::SourceOptions;
 use crate::export::sink::Summary;
+use crate::export::source::EpisodeSource;
+use crate::export::source::SourceOptions;
 use std::path::{Path, PathBuf};
 
 /// What [`DatasetFormat::sniff`] looks at: a path, read once for every format.

@@ -8,10 +8,10 @@
 //! time it takes to list it. Folders reached through links are not entered (links to files, as
 //! in a Hugging Face hub snapshot, are followed).
 
-use crate::export::info::DatasetInfo;
 use crate::export::bounded;
-use crate::export::source::EpisodeSource;
 use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::source::EpisodeSource;
 use std::path::Path;
 
 /// The most files listed for an identity.

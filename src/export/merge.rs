@@ -6,16 +6,16 @@
 //! the others start from [`plan`]: RLDS re-encodes its records through its writer, zarr re-packs
 //! its chunks, point-cloud folders copy their files under new episode numbers.
 
+use crate::export::bounded::read_json;
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::dir::RunOptions;
+use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::shard::{SHARD_KEY, Shard, recorded};
 use crate::export::sink::EpisodeSink;
-use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
-use crate::export::bounded::read_json;
+use crate::export::source::EpisodeSource;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 

@@ -60,7 +60,5 @@ pub use format::{DatasetFormat, Format, MergeError, SinkOptions};
 pub use info::DatasetInfo;
 pub use open::{decoding_needed, open_sink, open_source, open_source_with};
 pub use registry::{BUILTIN_FORMATS, merge};
-pub use sink::{
-    DetachedEncoder, Encoded, EpisodeSink, FrameEncoder, Sidecar, SinkTiming, Summary,
-};
+pub use sink::{DetachedEncoder, Encoded, EpisodeSink, FrameEncoder, Sidecar, SinkTiming, Summary};
 pub use source::{EpisodeSource, SourceOptions};

@@ -3,8 +3,8 @@
 //! any [`EpisodeSource`] (memory: one episode).
 
 use crate::episode::FeatureKind;
-use crate::export::source::EpisodeSource;
 use crate::export::error::ExportError;
+use crate::export::source::EpisodeSource;
 
 /// A dataset's episode lengths by task (in order of first appearance) and its vectors' ranges.
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -6,9 +6,7 @@
 
 use crate::export::convert::ConvertError;
 use crate::export::error::ExportError;
-use crate::export::format::{
-    Capabilities, Format, Found, MergeError, MergeRequest, Probe, Sniff,
-};
+use crate::export::format::{Capabilities, Format, Found, MergeError, MergeRequest, Probe, Sniff};
 use crate::export::sink::Summary;
 use crate::export::{lerobot, mcap, pointcloud, rlds, zarr};
 use std::path::Path;

@@ -1,7 +1,7 @@
 //! Splitting one run across machines: [`Shard`] ("I/N", the I-th of N contiguous ranges, what
 //! `collect --shard` and `convert --shard` take), and [`Sharded`], the source that reads one
 //! shard of a dataset's episodes. Shards in order hold exactly the episodes of the whole run,
-//! and `merge` joins them back ([`crate::export::merge`]).
+//! and `merge` joins them back ([`crate::export::registry::merge`]).
 //!
 //! A shard records itself where the dataset records how it was made: the `shard` key of its
 //! collection ([`crate::export::info::DatasetInfo::collection`]), so a merge can put shards in order
@@ -9,9 +9,9 @@
 //! has no collection: its shards record nothing, and a merge keeps the order it is given.
 
 use crate::episode::Episode;
+use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
 use std::fmt;
 use std::str::FromStr;
 

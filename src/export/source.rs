@@ -30,7 +30,6 @@ pub trait EpisodeSource {
     }
 }
 
-
 /// What a reader needs to know that a dataset may not say.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SourceOptions {

@@ -5,11 +5,11 @@
 
 use crate::export::convert::{ConvertError, verify, verify_within};
 use crate::export::decoded::Decoded;
-use crate::export::validate::{ValidateOptions, validate};
 use crate::export::registry;
+use crate::export::sink::Summary;
 use crate::export::source::EpisodeSource;
 use crate::export::source::SourceOptions;
-use crate::export::sink::Summary;
+use crate::export::validate::{ValidateOptions, validate};
 use std::path::Path;
 
 /// The differences between `out` and `source` (read again from its start), of which `summary`

@@ -10,11 +10,11 @@
 use crate::episode::{Episode, ImageEncoding, Pixels, Step};
 use crate::export::card::{CARD, TALLY_JOURNAL, Tally};
 use crate::export::dir::{DatasetDir, RunOptions};
+use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::sink::DetachedEncoder;
 use crate::export::sink::Encoded;
 use crate::export::sink::EpisodeSink;
-use crate::export::error::ExportError;
 use crate::export::sink::FrameEncoder;
 use crate::export::sink::Sidecar;
 use crate::export::sink::SinkTiming;

@@ -11,7 +11,7 @@
 //! bytes at a time without a branch on its fill, where fdeflate branches on every symbol and
 //! writes through `io::Write`.
 
-use super::PngPixels;
+use super::pixels::PngPixels;
 use std::sync::OnceLock;
 
 /// `png`'s largest IDAT chunk.

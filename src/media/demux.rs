@@ -245,11 +245,7 @@ impl VideoReader {
     /// decode order, from the keyframe at or before the first of them to the last of them, and
     /// the presentation times of every picture they give (sorted). Empty when the span holds
     /// no picture.
-    pub fn decodable(
-        &mut self,
-        from_secs: f64,
-        to_secs: f64,
-    ) -> Result<DecodableSpan, MediaError> {
+    pub fn decodable(&mut self, from_secs: f64, to_secs: f64) -> Result<DecodableSpan, MediaError> {
         let inside = |s: &SampleRef| {
             s.time_secs >= from_secs - TIME_TOLERANCE_SECS
                 && s.time_secs < to_secs - TIME_TOLERANCE_SECS

@@ -16,7 +16,7 @@
 //! (native units, 1 = 1 cm) on the position command; the closed loop recovers from it, so the
 //! data shows recoveries.
 
-use crate::policy::{Policy, Waypoint, WaypointPolicy};
+use crate::policy::waypoint::{Policy, Waypoint, WaypointPolicy};
 use crate::rng::SplitMix64;
 use crate::scene::{BLOCK_HALF_EXTENTS_M, ObjectKind};
 use crate::sim::control::{JawCommand, NativeCommand};

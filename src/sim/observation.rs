@@ -28,7 +28,7 @@ pub struct ObjectState {
     pub on_block: bool,
     /// Distance from the spawn position, metres.
     pub displacement_m: f64,
-    /// Moved more than [`crate::sim::MOVED_THRESHOLD_M`] from its spawn position.
+    /// Moved more than [`crate::sim::simulator::MOVED_THRESHOLD_M`] from its spawn position.
     pub moved: bool,
     /// Asleep in the physics engine (settled).
     pub at_rest: bool,

@@ -3,7 +3,7 @@
 //! ([`super::spawn`]) and placement ([`super::placement`]) both use.
 
 use crate::scene::SceneSpec;
-use crate::task::TaskId;
+use crate::task::id::TaskId;
 
 /// Most distractors at level 2.
 pub const MAX_DISTRACTORS: usize = 3;

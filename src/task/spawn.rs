@@ -9,7 +9,7 @@
 
 use crate::rng::SplitMix64;
 use crate::scene::{MarkColour, ObjectKind, OrganKind, SceneSpec};
-use crate::task::TaskId;
+use crate::task::id::TaskId;
 pub use crate::task::instance::{
     InstructionChoice, MAX_DISTRACTORS, Range, SpawnRanges, TaskConfig, TaskInstance,
 };
@@ -77,6 +77,11 @@ impl TaskId {
                 (-10.0, 10.0),
             ),
         }
+    }
+
+    /// The scene of episode `seed` with the default configuration.
+    pub fn scene(self, seed: u64) -> Result<crate::scene::SceneSpec, SpawnError> {
+        Ok(self.instance(seed, &TaskConfig::default())?.scene)
     }
 
     /// The episode's setup with the default spawn ranges scaled by `config.spawn_scale`.

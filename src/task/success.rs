@@ -21,7 +21,8 @@ use crate::scene::{
 use crate::sim::grasp::line_angle_difference;
 use crate::sim::observation::Observation;
 use crate::sim::psm::{JAW_CLOSED_RAD, JAW_OPEN_RAD};
-use crate::task::{TaskId, TaskInstance};
+use crate::task::id::TaskId;
+use crate::task::spawn::TaskInstance;
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::f64::consts::FRAC_PI_2;
 
@@ -403,7 +404,7 @@ impl TaskInstance {
 mod tests {
     use super::*;
     use crate::sim::{SimConfig, Simulator};
-    use crate::task::TaskConfig;
+    use crate::task::spawn::TaskConfig;
 
     #[test]
     fn no_task_is_done_at_the_start() {

@@ -668,8 +668,8 @@ fn video_mode_without_a_camera_is_the_users_mistake() {
 fn a_foreign_float_image_is_not_made_rlds_depth() {
     use surgvla::episode::FeatureValue;
     use surgvla::error::HasKind as _;
-    use surgvla::export::rlds::RldsOptions;
     use surgvla::export::open_sink;
+    use surgvla::export::rlds::RldsOptions;
     let parent = temp_root("hostile-tiff");
     let (info, mut episodes) = crate::util::foreign_dataset();
     let tiff = surgvla::media::tiff::encode_f32_tiff(10, 8, &[0.5; 80]);

@@ -1,10 +1,13 @@
 //! ARCHITECTURE.md's layer table, kept: every path a library module names (`crate::`,
-//! `super::`, `self::` and `crate` aliases such as `use crate as root;`, grouped imports
-//! included) resolves to a module its row allows; the library never names clap or indicatif;
-//! only `src/sim/physics.rs` names rapier; and the module graph has no circle: an import
-//! between two modules counts between the children of their nearest common ancestor (files of
-//! one folder, or the folders that hold them), and an import between a module and its own
-//! ancestor (`export/mod.rs` and `export/lerobot/mod.rs`) is not a circle.
+//! `super::`, `self::`, a child module's name, and `crate` aliases such as `use crate as
+//! root;`, grouped imports included) resolves to a module its row allows; the library never
+//! names clap or indicatif; only `src/sim/physics.rs` names rapier; and the module graph has no
+//! circle: an import between two modules counts between the children of their nearest common
+//! ancestor (files of one folder, or the folders that hold them), and an import between a
+//! module and its own ancestor counts too (a folder's `mod.rs` that re-exports or uses its
+//! children must not be what they import: `use super::Thing` in `lerobot/read.rs`, with
+//! `lerobot/mod.rs` using `read`, is a circle). Test modules (`#[cfg(test)]` and below) are
+//! left out of the circles: their `super::` is their own file.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -80,6 +83,12 @@ fn library(src: &Path) -> BTreeMap<Module, String> {
         .collect()
 }
 
+/// A module's code without its test module (by convention the file's end, from
+/// `#[cfg(test)]`), whose `super::` means the file itself.
+fn without_tests(code: &str) -> &str {
+    code.find("#[cfg(test)]").map_or(code, |at| &code[..at])
+}
+
 fn is_word(c: char) -> bool {
     c.is_alphanumeric() || c == '_'
 }
@@ -132,8 +141,9 @@ fn paths_after(text: &str) -> Vec<Vec<String>> {
 }
 
 /// Every module path `text` (the code of `module`) names, made absolute: `crate::`, names
-/// `crate` is aliased to, `self::`, and `super::` (repeated), each resolved to the longest
-/// prefix that is a module of `modules`.
+/// `crate` is aliased to, `self::`, `super::` (repeated) and a path that starts with one of
+/// `module`'s children (`use read::Source;` in a folder's `mod.rs`), each resolved to the
+/// longest prefix that is a module of `modules`.
 fn references(module: &Module, text: &str, modules: &BTreeMap<Module, String>) -> Vec<Module> {
     let mut roots: Vec<String> = vec!["crate".into()];
     for (i, _) in text.match_indices("crate as ") {
@@ -154,6 +164,22 @@ fn references(module: &Module, text: &str, modules: &BTreeMap<Module, String>) -
                 _ => Vec::new(),
             };
             starts.push((i, base, prefix.len()));
+        }
+    }
+    // A relative path through a child module: `child::...` not after `::` or a word.
+    for (i, _) in text.match_indices("::") {
+        let name_start = text[..i]
+            .rfind(|c: char| !is_word(c))
+            .map_or(0, |at| at + 1);
+        let name = &text[name_start..i];
+        let before = &text[..name_start];
+        if name.is_empty() || before.ends_with(':') || ["crate", "self", "super"].contains(&name) {
+            continue;
+        }
+        let mut child = module.clone();
+        child.push(name.to_string());
+        if modules.contains_key(&child) {
+            starts.push((name_start, module.clone(), 0));
         }
     }
     for (i, mut base, skip) in starts {
@@ -216,20 +242,20 @@ fn cycles(src: &Path) -> Vec<String> {
     let modules = library(src);
     let mut edges: BTreeMap<Module, BTreeSet<Module>> = BTreeMap::new();
     for (module, text) in &modules {
-        for target in references(module, text, &modules) {
+        for target in references(module, without_tests(text), &modules) {
             let common = module
                 .iter()
                 .zip(&target)
                 .take_while(|(a, b)| a == b)
                 .count();
-            // A module and its own ancestor (or itself) are not two sides of a circle.
-            if common == module.len() || common == target.len() {
+            if common == module.len() && common == target.len() {
                 continue;
             }
-            edges
-                .entry(module[..=common].to_vec())
-                .or_default()
-                .insert(target[..=common].to_vec());
+            // Between a module and its ancestor, the edge runs from (or to) the ancestor itself
+            // and the ancestor's child on the way to the other.
+            let from = module[..module.len().min(common + 1)].to_vec();
+            let to = target[..target.len().min(common + 1)].to_vec();
+            edges.entry(from).or_default().insert(to);
         }
     }
     let mut found = BTreeSet::new();
@@ -305,6 +331,23 @@ fn circles_are_found_between_files_and_across_folders() {
                 "export/lerobot/check/rows.rs",
                 "use crate::{episode::Step, export::validate::{At, Findings}};\n",
             ),
+            // A folder's mod.rs that defines what its child imports and re-exports the child.
+            (
+                "policy/mod.rs",
+                "pub mod plan;\npub use plan::Plan;\npub struct Waypoint;\n#[cfg(test)]\nmod tests {\n    use super::plan::Plan;\n}\n",
+            ),
+            (
+                "policy/plan.rs",
+                "use super::Waypoint;\npub struct Plan;\n#[cfg(test)]\nmod tests {\n    use super::*;\n}\n",
+            ),
+            // A façade whose children import each other, not it: no circle; nor is a test
+            // module's `super::`.
+            ("task/mod.rs", "mod id;\nmod spawn;\npub use id::TaskId;\n"),
+            ("task/id.rs", "pub struct TaskId;\n"),
+            (
+                "task/spawn.rs",
+                "use super::id::TaskId;\n#[cfg(test)]\nmod tests {\n    use super::super::TaskId;\n}\n",
+            ),
             ("episode.rs", ""),
         ],
     );
@@ -318,7 +361,11 @@ fn circles_are_found_between_files_and_across_folders() {
         found.contains(&"export::lerobot -> export::validate -> export::lerobot".to_string()),
         "{found:?}"
     );
-    assert_eq!(found.len(), 2, "{found:?}");
+    assert!(
+        found.contains(&"policy -> policy::plan -> policy".to_string()),
+        "{found:?}"
+    );
+    assert_eq!(found.len(), 3, "{found:?}");
 }
 
 #[test]

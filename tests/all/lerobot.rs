@@ -7,8 +7,8 @@ use surgvla::episode::Episode;
 use surgvla::export::INCOMPLETE_MARKER;
 use surgvla::export::lerobot::read::{data_files, read_frames, read_parquet, schema_metadata};
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
-use surgvla::media::tiff::decode_f32_tiff;
 use surgvla::export::{EpisodeSink, ExportError};
+use surgvla::media::tiff::decode_f32_tiff;
 use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 
@@ -667,9 +667,9 @@ fn other_features_round_trip_unchanged() {
 #[test]
 fn video_decodes_to_the_recorded_frames() {
     use surgvla::episode::VideoCodec;
+    use surgvla::export::lerobot::VideoOptions;
     use surgvla::media::decode::{decode_av1, decode_h264, rgb_from_yuv420};
     use surgvla::media::demux::VideoReader;
-    use surgvla::export::lerobot::VideoOptions;
     let recorded = episodes(2, 12);
     for (codec, video) in [
         (VideoCodec::H264, VideoOptions::h264()),

@@ -9,9 +9,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use surgvla::episode::{EncodedFeature, EncodedFrame, ImageEncoding};
 use surgvla::export::EpisodeSink;
-use surgvla::media::image::{PngLevel, encode_png};
 use surgvla::export::lerobot::read::{data_files, read_parquet};
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
+use surgvla::media::image::{PngLevel, encode_png};
 
 const SMALL: [&str; 6] = [
     "--tasks",

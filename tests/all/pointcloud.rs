@@ -142,9 +142,9 @@ fn points_labelled_as_an_object_lie_on_its_true_surface() {
 
 #[test]
 fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
+    use surgvla::export::open_sink;
     use surgvla::export::pointcloud::CloudSettings;
     use surgvla::export::zarr::ZarrOptions;
-    use surgvla::export::open_sink;
     let mut info = crate::util::info(false);
     let out = crate::util::temp_root("clouds-refused");
     info.features

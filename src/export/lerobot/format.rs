@@ -2,17 +2,17 @@
 //! LeRobot; `codebase_version` (or, without a readable info.json, the JSON-lines metadata)
 //! tells v3.0 from v2.1.
 
-use super::LeRobotOptions;
+use super::options::LeRobotOptions;
+use crate::export::error::ExportError;
 use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
-use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::source::SourceOptions;
 use crate::export::sink::Summary;
+use crate::export::source::EpisodeSource;
+use crate::export::source::SourceOptions;
 use std::path::Path;
 
 /// LeRobot v3.0 and v2.1.
@@ -55,7 +55,7 @@ impl DatasetFormat for LeRobotFormat {
     }
 
     fn schema(&self, info: &DatasetInfo) -> Option<serde_json::Value> {
-        Some(super::features_json(&info.features))
+        Some(super::writer::features_json(&info.features))
     }
 
     fn sniff(&self, probe: &Probe) -> Sniff {
@@ -119,7 +119,7 @@ impl SinkOptions for LeRobotOptions {
         info: &DatasetInfo,
         resuming: bool,
     ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        super::LeRobotWriter::boxed(root, info, self.clone(), resuming)
+        super::writer::LeRobotWriter::boxed(root, info, self.clone(), resuming)
     }
 }
 

@@ -10,11 +10,11 @@
 //! meta/stats.json, meta/surgvla.json, meta/info.json (last) in both
 //! ```
 
-use super::LeRobotVersion;
 use super::meta::StatsJson;
+use super::options::LeRobotVersion;
 use super::table::{EpisodeRow, episodes_batch, tasks_batch};
-use crate::export::error::ExportError;
 use crate::export::dir::{DatasetDir, FileCounter};
+use crate::export::error::ExportError;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::Compression;
 use parquet::file::properties::WriterProperties;
@@ -32,7 +32,7 @@ pub(super) struct Metadata<'a> {
     /// surgvla.json's object.
     pub surgvla: Value,
     /// info.json as v3.0 has it.
-    pub info: super::InfoJson,
+    pub info: super::meta::InfoJson,
     pub chunks_size: u64,
     /// The video features' keys.
     pub video_keys: &'a [String],

@@ -10,20 +10,20 @@
 //! the single-machine run byte for byte. Their collect reports, when every input has one, are
 //! merged into the output's (counts summed, failures concatenated).
 
-use crate::export::convert::ConvertError;
-use crate::export::format::{MergeError, MergeRequest};
-use crate::export::lerobot::read::LeRobotSource;
-use crate::export::lerobot::{LeRobotOptions, LeRobotVersion, LeRobotWriter, VideoOptions};
-use crate::export::info::DatasetInfo;
-use crate::export::sink::EpisodeSink;
-use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::sink::Summary;
 use crate::export::bounded::read_json;
+use crate::export::convert::ConvertError;
+use crate::export::error::ExportError;
+use crate::export::format::{MergeError, MergeRequest};
+use crate::export::info::DatasetInfo;
+use crate::export::lerobot::options::{LeRobotOptions, LeRobotVersion, VideoOptions};
+use crate::export::lerobot::read::LeRobotSource;
+use crate::export::lerobot::writer::LeRobotWriter;
+pub use crate::export::merge::REPORT;
+use crate::export::sink::EpisodeSink;
+use crate::export::sink::Summary;
+use crate::export::source::EpisodeSource;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-
-pub use crate::export::merge::REPORT;
 
 /// What of an input's info.json shapes the merged files: all inputs must agree on it.
 #[derive(Debug, PartialEq, serde::Serialize)]

@@ -8,15 +8,15 @@ use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
     FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
 };
+use crate::export::bounded::read_json;
+use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::paths::{self, Field};
+use crate::export::source::EpisodeSource;
 use crate::media::decode;
 use crate::media::demux::VideoReader;
 use crate::media::image::decode_png_sized;
-use crate::export::info::DatasetInfo;
-use crate::export::paths::{self, Field};
 use crate::media::tiff::decode_f32_tiff;
-use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::bounded::read_json;
 use arrow_array::{
     Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
     StructArray,
@@ -220,9 +220,9 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
 }
 
 /// `meta/info.json`, typed (leniently: see [`super::meta`]).
-pub(crate) fn read_info(path: &Path) -> Result<super::InfoJson, ExportError> {
+pub(crate) fn read_info(path: &Path) -> Result<super::meta::InfoJson, ExportError> {
     let bytes = crate::export::bounded::read_metadata(path)?;
-    super::InfoJson::parse(&bytes).map_err(|source| ExportError::Json {
+    super::meta::InfoJson::parse(&bytes).map_err(|source| ExportError::Json {
         path: path.to_path_buf(),
         source,
     })
@@ -233,7 +233,7 @@ pub(crate) fn read_info(path: &Path) -> Result<super::InfoJson, ExportError> {
 /// metadata (`surgvla`, Null for another tool's dataset) names; every other float32, int64 or
 /// image feature is [`FeatureKind::Other`] and travels unchanged.
 fn features_of(
-    info: &super::InfoJson,
+    info: &super::meta::InfoJson,
     surgvla: &Value,
     path: &Path,
 ) -> Result<Vec<FeatureSpec>, ExportError> {
@@ -246,7 +246,7 @@ fn features_of(
     let depth_key = surgvla["depth"]["key"].as_str();
     let mut specs = Vec::new();
     for (name, f) in &features {
-        if super::DEFAULT_COLUMNS.contains(&name.as_str()) {
+        if super::table::DEFAULT_COLUMNS.contains(&name.as_str()) {
             continue;
         }
         let shape: Vec<usize> = f.shape().to_vec();

@@ -2,16 +2,16 @@
 //! threads while the writer holds its non-shareable parquet state: image encoding (PNG, TIFF),
 //! video encoding, and the episode's statistics.
 
-use super::LeRobotOptions;
+use super::options::LeRobotOptions;
 use super::table::{DEFAULT_COLUMNS, EncodedImages, ImageColumn};
 use crate::episode::{
     Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue, ImageEncoding, PixelStats, Pixels,
     Step, VideoCodec,
 };
 use crate::export::error::ExportError;
-use crate::media::image::{decode_png, encode_png_into};
 use crate::export::info::DatasetInfo;
 use crate::export::stats::{FeatureStats, ImageStats, LastFrame, SummaryStats, VectorStats};
+use crate::media::image::{decode_png, encode_png_into};
 use crate::media::tiff::{encode_f32_tiff_into, f32_tiff_len};
 use crate::media::video::{EncodedFrame, encode};
 use rayon::prelude::*;

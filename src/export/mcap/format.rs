@@ -1,14 +1,14 @@
 //! MCAP in the format registry: an MCAP file (by its magic bytes or its `.mcap` name) or a
 //! folder of them. Validated and written; surgvla does not read it back as episodes.
 
-use super::McapOptions;
+use super::writer::McapOptions;
+use crate::export::error::ExportError;
 use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
 use std::path::Path;
 
@@ -87,6 +87,6 @@ impl SinkOptions for McapOptions {
         info: &DatasetInfo,
         resuming: bool,
     ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        super::McapWriter::boxed(root, info, *self, resuming)
+        super::writer::McapWriter::boxed(root, info, *self, resuming)
     }
 }

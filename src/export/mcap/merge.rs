@@ -1,22 +1,22 @@
 //! MCAP folders' merge: a recording carries its episode's number (the `episode` Metadata
 //! record and the `/episode/info` message) and its own index and CRCs, so each file is
 //! re-packed: its records read in order and written again through the writer every episode
-//! file is written with ([`super::new_writer`]), the same schemas, channels and messages with
+//! file is written with ([`super::writer::new_writer`]), the same schemas, channels and messages with
 //! the new number, so the chunks, indexes and summary come out as one run writes them.
 //! `episodes.jsonl` gets each line again with the new `episode_index` and `file`
 //! ([`crate::export::merge::merge_episode_files`]). N of N merged are the single run's bytes.
 //! An MCAP merge does not resume: run it again into an empty folder.
 
-use super::{MANIFEST, mcap_error};
+use super::writer::{MANIFEST, mcap_error};
 use crate::export::bounded::read_capped;
+use crate::export::bounded::read_json;
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
+use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, merge_episode_files, plan};
 use crate::export::shard::SHARD_KEY;
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
-use crate::export::bounded::read_json;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -84,7 +84,7 @@ fn read_recording(path: &Path) -> Result<Recording, ExportError> {
 
 /// The recording again with episode number `index`.
 fn renumbered(recording: Recording, index: u64, path: &Path) -> Result<Vec<u8>, ExportError> {
-    let mut writer = super::new_writer(&recording.library)?;
+    let mut writer = super::writer::new_writer(&recording.library)?;
     for mut metadata in recording.metadata {
         if metadata.name == EPISODE_METADATA {
             metadata

@@ -3,9 +3,9 @@
 //! (one line per episode), each episode's folder holding exactly the frames its line states, no
 //! empty frame file, and the manifest. Returns what the folder holds, counted from the files.
 
+use crate::export::bounded::read_json;
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
-use crate::export::bounded::read_json;
 use std::path::Path;
 
 /// Checks the folder at `root` of `extension` files; returns (episodes, frames) on disk.

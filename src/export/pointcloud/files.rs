@@ -10,11 +10,12 @@
 
 use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
-use crate::export::info::DatasetInfo;
-use crate::export::pointcloud::{CloudSettings, frame_cloud, pcd, ply};
-use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
 use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::pointcloud::cloud::{CloudSettings, frame_cloud};
+use crate::export::pointcloud::{pcd, ply};
 use crate::export::sink::Summary;
+use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;

@@ -3,17 +3,17 @@
 //! merged (files copied under new episode numbers, `merge.rs`); surgvla does not read clouds
 //! back as episodes.
 
-use super::CloudSettings;
+use super::cloud::CloudSettings;
 use super::files::{CloudFileFormat, SURGVLA_JSON};
+use crate::export::bounded::read_json;
+use crate::export::error::ExportError;
 use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
-use crate::export::bounded::read_json;
 use std::path::Path;
 
 /// The largest `surgvla.json` sniffing reads (ours are a few kilobytes).

@@ -7,13 +7,13 @@
 
 use super::files::{EPISODES, MANIFEST, SURGVLA_JSON};
 use crate::export::bounded::read_capped;
+use crate::export::bounded::read_json;
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
+use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, merge_episode_files, plan};
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
-use crate::export::bounded::read_json;
 use serde_json::Value;
 use std::path::Path;
 

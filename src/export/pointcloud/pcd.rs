@@ -2,7 +2,7 @@
 //! 32-bit field, plus `label` when the cloud has mask ids): what PCL and Open3D read. Only the
 //! cloud's real points are written, not its padding.
 
-use crate::export::pointcloud::Cloud;
+use crate::export::pointcloud::cloud::Cloud;
 
 /// The PCD file of `cloud`.
 pub fn encode_pcd(cloud: &Cloud) -> Vec<u8> {

@@ -2,7 +2,7 @@
 //! and uchar red green blue, plus uchar `mask` when the cloud has mask ids): what plyfile,
 //! Open3D and CloudCompare read. Only the cloud's real points are written, not its padding.
 
-use crate::export::pointcloud::Cloud;
+use crate::export::pointcloud::cloud::Cloud;
 
 /// The PLY file of `cloud`.
 pub fn encode_ply(cloud: &Cloud) -> Vec<u8> {

@@ -5,6 +5,8 @@
 //! PNGs, depth and mask sizes) with the shared semantic checks. `quick` checks the framing and
 //! the first episode of each shard only.
 
+use crate::export::bounded::read_json;
+use crate::export::error::ExportError;
 use crate::export::findings::{
     At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest, check_semantics,
 };
@@ -15,8 +17,6 @@ use crate::export::rlds::read::RldsSource;
 use crate::export::rlds::tfrecord::{RecordError, RecordReader};
 use crate::export::schema;
 use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::bounded::read_json;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -121,16 +121,16 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             None
         }
     };
-    let surgvla_path = root.join(super::SURGVLA_JSON);
+    let surgvla_path = root.join(super::options::SURGVLA_JSON);
     let surgvla = if surgvla_path.is_file() {
         schema_check(&surgvla_path, schema::SURGVLA_META, findings)
     } else {
         Value::Null
     };
     if let Some(data_dir) = root.parent().and_then(Path::parent) {
-        let manifest = data_dir.join(super::MANIFEST);
+        let manifest = data_dir.join(super::options::MANIFEST);
         if manifest.is_file() {
-            check_manifest(data_dir, super::MANIFEST, findings);
+            check_manifest(data_dir, super::options::MANIFEST, findings);
         }
     }
     // Shards: the ones dataset_info.json names, and any other tfrecord file here.

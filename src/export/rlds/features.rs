@@ -5,7 +5,7 @@
 
 use crate::episode::{Dtype, FeatureKind};
 use crate::export::info::DatasetInfo;
-use crate::export::rlds::RldsOptions;
+use crate::export::rlds::options::RldsOptions;
 use serde_json::{Value, json};
 
 const FEATURES_DICT: &str = "tensorflow_datasets.core.features.features_dict.FeaturesDict";
@@ -307,7 +307,7 @@ pub fn foreign_features_json(info: &DatasetInfo) -> Value {
         };
         insert_at(
             &mut step,
-            &crate::export::rlds::rlds_path(&feature.name),
+            &crate::export::rlds::options::rlds_path(&feature.name),
             leaf,
         );
     }

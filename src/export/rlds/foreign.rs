@@ -8,13 +8,14 @@
 //! left out. RLDS has no frame rate: the caller gives one.
 
 use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
+use crate::export::bounded::read_json;
+use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, leaves};
+use crate::export::rlds::options::SURGVLA_JSON;
 use crate::export::rlds::read::{ShardRecords, invalid, version_dir};
 use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::bounded::read_json;
 use serde_json::Value;
 use std::path::Path;
 
@@ -201,4 +202,22 @@ impl EpisodeSource for ForeignRldsSource {
         self.next_index += 1;
         self.records.next_decoded(|_| Ok(()))
     }
+}
+
+/// Reads an RLDS version folder: ours (with `surgvla.json`), or another tool's through its own
+/// `features.json`, which needs `options.fps`.
+pub fn open_any(
+    folder: &std::path::Path,
+    options: &crate::export::source::SourceOptions,
+) -> Result<Box<dyn crate::export::source::EpisodeSource + Send>, ExportError> {
+    if folder.join(SURGVLA_JSON).is_file() {
+        return Ok(Box::new(super::read::RldsSource::open(folder)?));
+    }
+    let fps = options.fps.ok_or_else(|| ExportError::NoFrameRate {
+        path: folder.to_path_buf(),
+    })?;
+    let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
+    Ok(Box::new(super::foreign::ForeignRldsSource::open(
+        folder, fps, robot_type,
+    )?))
 }

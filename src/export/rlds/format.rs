@@ -3,17 +3,17 @@
 //! `dataset_info.json` are ours ([`super::read::RldsSource`]); others are read through their
 //! own `features.json` ([`super::foreign::ForeignRldsSource`]) and need a frame rate.
 
-use super::RldsOptions;
+use super::options::RldsOptions;
+use crate::export::error::ExportError;
 use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
-use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::source::SourceOptions;
 use crate::export::sink::Summary;
+use crate::export::source::EpisodeSource;
+use crate::export::source::SourceOptions;
 use std::path::Path;
 
 /// RLDS in the TFDS layout.
@@ -51,7 +51,10 @@ impl DatasetFormat for RldsFormat {
     }
 
     fn schema(&self, info: &DatasetInfo) -> Option<serde_json::Value> {
-        Some(super::features::features_json(info, &RldsOptions::default()))
+        Some(super::features::features_json(
+            info,
+            &RldsOptions::default(),
+        ))
     }
 
     /// The card sits in the TFDS data directory, above the `<name>/<version>` folder.
@@ -89,7 +92,7 @@ impl DatasetFormat for RldsFormat {
         found: &Found,
         options: &SourceOptions,
     ) -> Option<Result<Box<dyn EpisodeSource + Send>, ExportError>> {
-        Some(super::open_any(&found.root, options))
+        Some(super::foreign::open_any(&found.root, options))
     }
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
@@ -112,6 +115,6 @@ impl SinkOptions for RldsOptions {
         info: &DatasetInfo,
         resuming: bool,
     ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        super::RldsWriter::boxed(root, info, self.clone(), resuming)
+        super::writer::RldsWriter::boxed(root, info, self.clone(), resuming)
     }
 }

@@ -6,8 +6,8 @@
 //! floats, `is_first` / `is_last` / `is_terminal` as 0/1 on the right steps, and a non-empty
 //! language instruction.
 
-use crate::media::image::{decode_png, decode_png16, png_size};
 use crate::export::rlds::example::Feature;
+use crate::media::image::{decode_png, decode_png16, png_size};
 use serde_json::Value;
 use std::collections::BTreeMap;
 

@@ -1,5 +1,5 @@
 //! RLDS's merge: every input's records read back and written again through one
-//! [`RldsWriter`](super::RldsWriter) with the options the inputs recorded, so each record is
+//! [`RldsWriter`](super::writer::RldsWriter) with the options the inputs recorded, so each record is
 //! re-encoded with its new episode index, shards roll at the same size as one run rolls them
 //! and are renamed `-of-NNNNN` once at the end. The records hold the images as the inputs
 //! stored them (PNG, JPEG: copied, not encoded again), so N of N merged are the single run's
@@ -8,9 +8,9 @@
 use crate::export::convert::ConvertError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, plan, reports, write_through};
+use crate::export::sink::Summary;
 use crate::export::source::EpisodeSource;
 use crate::export::source::SourceOptions;
-use crate::export::sink::Summary;
 use std::path::Path;
 
 /// Merges the request's RLDS datasets into a new one at its `out` (or continues an
@@ -25,8 +25,8 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
             .and_then(Path::parent)
             .unwrap_or(path.as_path())
             .to_path_buf();
-        let manifest = data_dir.join(super::MANIFEST);
-        let surgvla = folder.join(super::SURGVLA_JSON);
+        let manifest = data_dir.join(super::options::MANIFEST);
+        let surgvla = folder.join(super::options::SURGVLA_JSON);
         let collection = if surgvla.is_file() {
             crate::export::bounded::read_json(&surgvla).map_err(read)?["collection"].clone()
         } else {
@@ -35,7 +35,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         parts.push((Part::read(path, &manifest, collection)?, folder, data_dir));
     }
     let plan = plan(parts.iter().map(|(p, _, _)| p.clone()).collect())?;
-    let Some(options) = super::RldsOptions::from_run_options(&plan.options) else {
+    let Some(options) = super::options::RldsOptions::from_run_options(&plan.options) else {
         return Err(MergeError::Unsupported {
             path: plan.parts[0].path.clone(),
             problem: "its manifest does not record RLDS options".into(),
@@ -63,7 +63,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         let Some((_, folder, data_dir)) = parts.iter().find(|(p, _, _)| p.path == part.path) else {
             continue;
         };
-        sources.push(super::open_any(folder, &source_options).map_err(read)?);
+        sources.push(super::foreign::open_any(folder, &source_options).map_err(read)?);
         data_dirs.push(data_dir.clone());
     }
     let mut info = sources
@@ -80,7 +80,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let write = |e| MergeError::Convert(ConvertError::Write(e));
     let resuming = crate::export::dir::resumes(request.out, request.resume);
     let mut sink =
-        super::RldsWriter::boxed(request.out, &info, options, resuming).map_err(write)?;
+        super::writer::RldsWriter::boxed(request.out, &info, options, resuming).map_err(write)?;
     let dirs: Vec<&Path> = data_dirs.iter().map(|d| d.as_path()).collect();
     let reports = reports(&dirs).map(|r| (r, plan.collection["shard"].clone()));
     write_through(

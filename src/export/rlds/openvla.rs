@@ -5,7 +5,7 @@
 
 use crate::episode::FeatureKind;
 use crate::export::info::DatasetInfo;
-use crate::export::rlds::RldsOptions;
+use crate::export::rlds::options::RldsOptions;
 
 /// The guide for a dataset of `info` written with `options`.
 pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {

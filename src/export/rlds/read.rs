@@ -5,13 +5,13 @@
 //! `tests/interop/`.
 
 use crate::episode::{Episode, FeatureSet, standard_features};
+use crate::export::bounded::read_json;
+use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
+use crate::export::rlds::options::{RldsKeys, SURGVLA_JSON};
 use crate::export::rlds::record::{StepLayout, decode_episode};
 use crate::export::rlds::tfrecord::{RecordError, RecordReader};
-use crate::export::rlds::{RldsKeys, SURGVLA_JSON};
 use crate::export::source::EpisodeSource;
-use crate::export::error::ExportError;
-use crate::export::bounded::read_json;
 use serde_json::Value;
 use std::fs::File;
 use std::io::BufReader;

@@ -8,13 +8,13 @@ use crate::episode::{
     ImageEncoding, MAX_OBJECTS, POSE_VALUES, Step,
 };
 use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::rlds::example::{Feature, decode_example, encode_example};
+use crate::export::rlds::options::RldsKeys;
 use crate::media::image::{
     PngLevel, decode_jpeg_sized, decode_png_sized, decode_png16_sized, encode_jpeg, encode_png,
     encode_png16, is_jpeg, stored_or,
 };
-use crate::export::info::DatasetInfo;
-use crate::export::rlds::RldsKeys;
-use crate::export::rlds::example::{Feature, decode_example, encode_example};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
@@ -103,7 +103,7 @@ pub fn encode_foreign_episode(
     for (position, feature) in info.features.iter().enumerate() {
         let key = format!(
             "steps/{}",
-            crate::export::rlds::rlds_path(&feature.name).join("/")
+            crate::export::rlds::options::rlds_path(&feature.name).join("/")
         );
         let wrong = || {
             ExportError::InvalidEpisode(format!(

@@ -5,8 +5,8 @@
 //! needs) of the chunk's C-order bytes; edge chunks are stored full size, padded with the
 //! fill value 0.
 
-use crate::export::error::ExportError;
 use crate::export::dir::DatasetDir;
+use crate::export::error::ExportError;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 

@@ -4,9 +4,9 @@
 //! length of every `data/` array, point clouds shaped (T, N, 6 or 7), and no NaN or Inf in float
 //! arrays (every chunk; `quick` reads the metadata and the first chunk of each array).
 
+use crate::export::bounded::read_json;
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
-use crate::export::bounded::read_json;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::path::Path;
@@ -287,7 +287,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             );
         }
     }
-    check_manifest(root, super::MANIFEST, findings);
+    check_manifest(root, super::writer::MANIFEST, findings);
     let data_names: Vec<String> = std::fs::read_dir(root.join("data"))
         .into_iter()
         .flatten()

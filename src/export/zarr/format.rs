@@ -2,14 +2,14 @@
 //! Validated, written and merged (chunks re-packed, `merge.rs`); surgvla does not read it back
 //! as episodes.
 
-use super::ZarrOptions;
+use super::writer::ZarrOptions;
+use crate::export::error::ExportError;
 use crate::export::findings::{Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
 use std::path::Path;
 
@@ -77,6 +77,6 @@ impl SinkOptions for ZarrOptions {
         info: &DatasetInfo,
         resuming: bool,
     ) -> Result<Box<dyn EpisodeSink + Send>, ExportError> {
-        super::ZarrWriter::boxed(root, info, *self, resuming)
+        super::writer::ZarrWriter::boxed(root, info, *self, resuming)
     }
 }

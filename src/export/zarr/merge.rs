@@ -9,16 +9,16 @@
 //! our chunking and codec, and episode ends that agree with the arrays' lengths. A zarr merge
 //! does not resume: run it again into an empty folder.
 
-use super::MANIFEST;
 use super::array::{ArrayWriter, CHUNK_ROWS};
+use super::writer::MANIFEST;
+use crate::export::bounded::read_json;
 use crate::export::bounded::{read_capped, read_metadata};
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
+use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, finish_folder, plan};
-use crate::export::error::ExportError;
 use crate::export::sink::Summary;
-use crate::export::bounded::read_json;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 

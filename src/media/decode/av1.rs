@@ -4,7 +4,8 @@
 
 #![allow(unsafe_code)]
 
-use super::{ColorSpace, YuvFrame};
+use super::color::ColorSpace;
+use super::frame::YuvFrame;
 use crate::episode::EncodedFrame;
 use crate::media::MediaError;
 use rav1d::include::dav1d::data::Dav1dData;

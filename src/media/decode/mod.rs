@@ -10,8 +10,11 @@
 //! frames. The wiring into `convert` and `validate` comes next.
 
 mod av1;
+
 pub mod check;
+
 pub mod color;
+mod frame;
 
 pub use av1::{decode_av1, decode_av1_each};
 
@@ -21,23 +24,10 @@ pub const MAX_DECODED_SIDE_PX: u32 = 8192;
 use crate::episode::{EncodedFrame, VideoCodec};
 use crate::media::MediaError;
 pub use color::ColorSpace;
+pub use frame::YuvFrame;
 use openh264::OpenH264API;
 use openh264::decoder::{DecodedYUV, Decoder, DecoderConfig, Flush};
 use openh264::formats::YUVSource;
-
-/// One decoded picture: 8-bit planar YUV 4:2:0, planes without padding.
-#[derive(Clone, Debug, PartialEq)]
-pub struct YuvFrame {
-    pub width_px: u32,
-    pub height_px: u32,
-    /// Luma, `width_px` x `height_px`.
-    pub y: Vec<u8>,
-    /// Chroma, each `ceil(width_px / 2)` x `ceil(height_px / 2)`.
-    pub u: Vec<u8>,
-    pub v: Vec<u8>,
-    /// The matrix and range the stream signals.
-    pub color: ColorSpace,
-}
 
 /// H.264 profiles (`profile_idc` of the sequence parameter set) the decoder is used for: 8-bit
 /// 4:2:0. Measured: libx264 (PyAV 15.1) Baseline, Main (CABAC) and High (8x8 transforms)

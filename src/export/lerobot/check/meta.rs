@@ -2,13 +2,15 @@
 //! episodes table (v3.0 parquet or v2.1 JSON lines), `stats.json` against the data, and the
 //! video files' spans.
 
-use super::{Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table};
+use super::parts::{
+    Declared, EpisodeEntry, Moments, Part, STATS_KEYS, is_index_column, read_table,
+};
 use crate::error::ErrorKind;
-use crate::media::demux::VideoReader;
+use crate::export::bounded::read_json;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
 use crate::export::paths::{self, Field};
-use crate::export::bounded::read_json;
+use crate::media::demux::VideoReader;
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -323,7 +325,7 @@ fn episode_entry(
             ),
         }
     }
-    for key in crate::export::lerobot::Provenance::KEYS {
+    for key in crate::export::lerobot::table::Provenance::KEYS {
         let Some(any) = column(key) else {
             continue;
         };
@@ -517,14 +519,14 @@ fn check_stats_against_data(
 pub(super) fn check_videos(
     root: &Path,
     v21: bool,
-    info: &crate::export::lerobot::InfoJson,
+    info: &crate::export::lerobot::meta::InfoJson,
     features: &[Declared],
     entries: &[EpisodeEntry],
     quick: bool,
     findings: &Findings,
 ) {
     let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
-    let declared: BTreeMap<String, crate::export::lerobot::FeatureJson> =
+    let declared: BTreeMap<String, crate::export::lerobot::meta::FeatureJson> =
         info.feature_list().into_iter().collect();
     let mut readers: BTreeMap<PathBuf, Result<Arc<VideoReader>, (String, bool)>> = BTreeMap::new();
     let mut spans: Vec<SpanToDecode> = Vec::new();
@@ -554,7 +556,8 @@ pub(super) fn check_videos(
                 let Some(&(chunk, file, from, to)) = entry.videos.get(key) else {
                     continue;
                 };
-                let relative = crate::export::lerobot::layout::video_path(key, chunk as u64, file as u64);
+                let relative =
+                    crate::export::lerobot::layout::video_path(key, chunk as u64, file as u64);
                 (relative, Some((from, to)))
             };
             let path = root.join(&relative);
@@ -568,9 +571,7 @@ pub(super) fn check_videos(
                 VideoReader::open(&path).map(Arc::new).map_err(|e| {
                     let unsupported = crate::error::HasKind::kind(&e) == ErrorKind::Usage;
                     match e {
-                        crate::media::MediaError::Invalid { problem, .. } => {
-                            (problem, unsupported)
-                        }
+                        crate::media::MediaError::Invalid { problem, .. } => (problem, unsupported),
                         other => (other.to_string(), unsupported),
                     }
                 })
@@ -709,7 +710,7 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
 
 /// info.json's `data_path` and `video_path` templates: only the placeholders of their version,
 /// integer widths within bounds, and nothing that leads outside the dataset.
-fn check_templates(info: &crate::export::lerobot::InfoJson, v21: bool, findings: &Findings) {
+fn check_templates(info: &crate::export::lerobot::meta::InfoJson, v21: bool, findings: &Findings) {
     let (chunk, file) = if v21 {
         ("episode_chunk", "episode_index")
     } else {

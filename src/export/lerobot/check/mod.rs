@@ -10,47 +10,26 @@
 //! `mod.rs` runs the checks and stitches row groups together; [`meta`] checks the metadata
 //! files (tasks, episodes, stats, videos); [`rows`] checks the rows of one row group.
 
+use crate::export::bounded::read_json;
 use crate::export::findings::{
     At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest,
 };
-use crate::export::lerobot::InfoJson;
-use crate::export::bounded::read_json;
+use crate::export::lerobot::meta::InfoJson;
 use crate::export::schema;
-use arrow_array::RecordBatch;
 use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
+use parts::{Context, Declared, EpisodeEntry, Part};
 use rayon::prelude::*;
 use serde_json::Value;
-use std::collections::BTreeMap;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
 mod meta;
+
+mod parts;
+
 mod rows;
 
 use meta::{check_stats, check_videos, read_episodes, read_tasks};
-
-/// The columns every LeRobot frame has besides its features.
-pub(super) const INDEX_COLUMNS: [&str; 4] = ["frame_index", "episode_index", "index", "task_index"];
-/// The statistics lerobot's normalisation reads for every feature.
-pub(super) const STATS_KEYS: [&str; 10] = [
-    "min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99",
-];
-/// Timestamps may differ from frame_index / fps by this much (lerobot's tolerance).
-pub(super) const TIMESTAMP_TOLERANCE_SECS: f64 = 1e-4;
-
-/// A declared feature.
-#[derive(Clone, Debug)]
-pub(super) struct Declared {
-    pub(super) name: String,
-    pub(super) dtype: String,
-    pub(super) shape: Vec<usize>,
-}
-
-impl Declared {
-    pub(super) fn elements(&self) -> usize {
-        self.shape.iter().product::<usize>().max(1)
-    }
-}
 
 fn declared_features(info: &InfoJson) -> Vec<Declared> {
     info.feature_list()
@@ -63,48 +42,8 @@ fn declared_features(info: &InfoJson) -> Vec<Declared> {
         .collect()
 }
 
-/// One episode as the episodes metadata describes it.
-#[derive(Clone, Debug, Default)]
-pub(super) struct EpisodeEntry {
-    pub(super) length: Option<i64>,
-    pub(super) from: Option<i64>,
-    pub(super) to: Option<i64>,
-    pub(super) data_file: Option<(i64, i64)>,
-    pub(super) tasks: Vec<String>,
-    /// Video key -> (chunk, file, from_secs, to_secs).
-    pub(super) videos: BTreeMap<String, (i64, i64, f64, f64)>,
-    pub(super) provenance: BTreeMap<String, Value>,
-}
-
-/// A run of consecutive rows of one episode in one row group.
-#[derive(Clone, Debug)]
-pub(super) struct Run {
-    pub(super) episode: i64,
-    pub(super) first_index: i64,
-    pub(super) last_index: i64,
-    pub(super) first_frame: i64,
-    pub(super) last_frame: i64,
-    pub(super) rows: u64,
-}
-
-/// Per element of a numeric feature: (min, max, sum, count).
-pub(super) type Moments = Vec<(f64, f64, f64, u64)>;
-
-/// What one row group held.
-#[derive(Debug, Default)]
-pub(super) struct Part {
-    pub(super) runs: Vec<Run>,
-    pub(super) rows: u64,
-    pub(super) moments: BTreeMap<String, Moments>,
-}
-
 /// Checks the LeRobot dataset at `root`; returns (episodes, frames) found.
-pub fn check(
-    root: &Path,
-    v21: bool,
-    options: &ValidateOptions,
-    findings: &Findings,
-) -> (u64, u64) {
+pub fn check(root: &Path, v21: bool, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
     let (info, info_known) = read_info(root, findings);
     let features = declared_features(&info);
     let fps = info.fps_hz();
@@ -270,7 +209,7 @@ fn learn_tasks(tasks: &[String], entries: &[EpisodeEntry], findings: &Findings) 
 /// Our datasets record each episode's provenance in the episodes table.
 fn check_provenance(entries: &[EpisodeEntry], v21: bool, findings: &Findings) {
     for (i, entry) in entries.iter().enumerate() {
-        for key in super::Provenance::KEYS {
+        for key in super::table::Provenance::KEYS {
             if !entry.provenance.contains_key(key) {
                 findings.error(
                     At::file(episodes_file(v21)).episode(i as u64),
@@ -323,35 +262,6 @@ fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata
             None
         }
     }
-}
-
-/// Reads every batch of a parquet file, or names the file in a finding.
-pub(super) fn read_table(path: &Path, findings: &Findings) -> Option<Vec<RecordBatch>> {
-    match super::read::read_parquet(path) {
-        Ok(batches) => Some(batches),
-        Err(_) => {
-            findings.file_error(path, "readable", "is not a readable parquet file");
-            None
-        }
-    }
-}
-
-pub(super) fn is_index_column(name: &str) -> bool {
-    name == "timestamp" || INDEX_COLUMNS.contains(&name)
-}
-
-/// What every row group's check needs.
-pub(super) struct Context<'a> {
-    pub(super) root: &'a Path,
-    pub(super) features: &'a [Declared],
-    pub(super) fps: Option<f64>,
-    pub(super) tasks: usize,
-    pub(super) quick: bool,
-    pub(super) entries: &'a [EpisodeEntry],
-    pub(super) task_names: &'a [String],
-    pub(super) semantics: Option<&'a Semantics>,
-    pub(super) findings: &'a Findings,
-    pub(super) info_known: bool,
 }
 
 /// One whole episode as the rows hold it: (episode, first index, last index, rows, file).

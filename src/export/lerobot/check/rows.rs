@@ -2,7 +2,7 @@
 //! indices, timestamps, task indices, finite numbers, decodable images of the declared size and
 //! channels, and the semantic checks of our datasets per episode.
 
-use super::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
+use super::parts::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
 use crate::export::findings::{At, Semantics, check_semantics};
 use crate::media::image::{decode_png, png_size};

@@ -1,0 +1,662 @@
+//! The LeRobot writer: [`LeRobotWriter`] appends each episode's row group (and video) to the
+//! open data file, rolls files by size (each close a checkpoint), journals the episode rows, and
+//! at the end writes the episodes table, tasks, statistics and `info.json` last.
+
+use super::meta::InfoJson;
+use super::meta::{FeatureStatsJson, StatsJson};
+use super::options::{CODEBASE_VERSION, LeRobotOptions, VideoOptions};
+use super::table::{DEFAULT_COLUMNS, Provenance, frame_schema};
+use super::table::{EpisodeRow, KeyedSpan, VideoSpan, frame_batch};
+use super::work::{EpisodeStats, EpisodeWork, fresh_stats};
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
+use crate::export::dir::RunOptions;
+use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
+use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::sink::Summary;
+use crate::export::writer::{FormatWriter, Writer};
+use crate::media::video::{EncodedFrame, Mp4Writer};
+use parquet::arrow::ArrowWriter;
+use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::properties::WriterProperties;
+use parquet::schema::types::ColumnPath;
+use serde_json::{Value, json};
+use std::collections::HashMap;
+use std::fs::File;
+
+/// The data file being written.
+struct OpenFile {
+    writer: ArrowWriter<File>,
+    chunk: u64,
+    file: u64,
+    pending: PendingFile,
+}
+
+/// A video file being written: its MP4 and its place.
+struct VideoFile {
+    mp4: Mp4Writer,
+    pending: PendingFile,
+    chunk: u64,
+    file: u64,
+}
+
+/// The journal of episode rows (one JSON line per episode), read back when the dataset
+/// finishes: the writer keeps no per-episode state in memory.
+const EPISODES_JOURNAL: &str = "meta/.surgvla-episodes.jsonl";
+
+/// The writer's state: everything a checkpoint records besides the files (which the
+/// [`DatasetDir`] records). It is saved at moments when every data and video file written so
+/// far is complete. Its size does not grow with the number of episodes (only with distinct
+/// instructions).
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
+pub struct State {
+    data_files: FileCounter,
+    video_files: FileCounter,
+    tasks: Vec<String>,
+    /// Episodes written; their rows are in [`EPISODES_JOURNAL`].
+    episodes: u64,
+    total_frames: u64,
+    stats: EpisodeStats,
+    summary: Summary,
+}
+
+/// Streams episodes into a LeRobot dataset.
+pub type LeRobotWriter = Writer<LeRobotFiles>;
+
+/// LeRobot's part of [`LeRobotWriter`].
+pub struct LeRobotFiles {
+    options: LeRobotOptions,
+    /// The features stored in the parquet (all but the video ones).
+    parquet_features: Vec<FeatureSpec>,
+    /// The features stored as video (the RGB camera in video mode, and every feature that
+    /// arrives as video), with their codec, in feature order.
+    video_features: Vec<(String, VideoCodec)>,
+    schema: std::sync::Arc<arrow_schema::Schema>,
+    open: Option<OpenFile>,
+    /// The open video files, one per video feature (opened and closed together).
+    videos: Vec<VideoFile>,
+    state: State,
+    task_lookup: HashMap<String, u64>,
+    /// Thread-seconds the detached encoder spent encoding, and on statistics.
+    apart_secs: (f64, f64),
+}
+
+impl FormatWriter for LeRobotFiles {
+    type Options = LeRobotOptions;
+    type State = State;
+    /// The episode's video features' frames (encoded, or copied as they arrived), and from the
+    /// detached encoder its images and statistics too.
+    type Encoded = super::work::Prepared;
+    type Encoder<'a> = EpisodeWork<'a>;
+    const MANIFEST: &'static str = crate::export::dir::MANIFEST;
+
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: "lerobot",
+            data_files: Some("data/*/*.parquet"),
+            video: self
+                .video_features
+                .iter()
+                .map(|(name, codec)| (name.clone(), codec.name()))
+                .collect(),
+        }
+    }
+
+    fn run_options(
+        info: &DatasetInfo,
+        options: &LeRobotOptions,
+    ) -> Result<RunOptions, ExportError> {
+        LeRobotFiles::check(info, options)
+    }
+
+    fn owned_folders(_: &LeRobotOptions) -> Vec<String> {
+        ["data", "videos", "meta"].map(String::from).to_vec()
+    }
+
+    fn new(
+        _: &DatasetDir,
+        info: &DatasetInfo,
+        options: LeRobotOptions,
+        state: Option<State>,
+    ) -> Result<Self, ExportError> {
+        let mut writer = LeRobotFiles::fresh(info, options);
+        if let Some(state) = state {
+            writer.task_lookup = state
+                .tasks
+                .iter()
+                .enumerate()
+                .map(|(i, t)| (t.clone(), i as u64))
+                .collect();
+            writer.state = state;
+        }
+        Ok(writer)
+    }
+
+    fn episodes(&self) -> u64 {
+        self.state.episodes
+    }
+
+    /// Video encoders run one per episode, so a batch encodes its episodes' videos in
+    /// parallel.
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
+        self.work(info)
+    }
+
+    fn detached_encoder(
+        &self,
+        info: &DatasetInfo,
+    ) -> Option<
+        std::sync::Arc<dyn crate::export::writer::EpisodeEncoder<super::work::Prepared> + Send>,
+    > {
+        Some(std::sync::Arc::new(super::work::SharedWork(
+            std::sync::Arc::new(super::work::OwnedWork {
+                info: info.clone(),
+                parquet_features: self.parquet_features.clone(),
+                video_features: self.video_features.clone(),
+                options: self.options.clone(),
+            }),
+        )))
+    }
+
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+        episode: &Episode,
+        prepared: super::work::Prepared,
+    ) -> Result<f64, ExportError> {
+        self.write_prepared(dir, info, episode, prepared)
+    }
+
+    fn apart_secs(&self) -> (f64, f64) {
+        self.apart_secs
+    }
+
+    fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
+        self.finish_dataset(dir, info)
+    }
+}
+
+/// Whether video mode stores `feature` as video: the RGB camera, and another dataset's
+/// 3-channel cameras (channels last, as LeRobot states them).
+pub(crate) fn encodes_as_video(feature: &FeatureSpec) -> bool {
+    match feature.kind {
+        FeatureKind::Rgb => true,
+        FeatureKind::Other => {
+            feature.dtype == crate::episode::Dtype::Image
+                && feature.shape.len() == 3
+                && feature.shape[2] == 3
+        }
+        _ => false,
+    }
+}
+
+impl LeRobotFiles {
+    /// Refuses options the dataset cannot have; returns what its bytes depend on.
+    fn check(info: &DatasetInfo, options: &LeRobotOptions) -> Result<RunOptions, ExportError> {
+        let arrives_as_video = info.features.iter().any(|f| !f.in_steps());
+        if options.video.is_some()
+            && !info.features.iter().any(encodes_as_video)
+            && !arrives_as_video
+        {
+            // What the user asked for, not a defect of the data: exit 2.
+            return Err(ExportError::InvalidOptions(
+                "video mode needs an RGB camera feature, and this dataset has none: leave --video out"
+                    .into(),
+            ));
+        }
+        if let Some(video) = options.video {
+            let other: Vec<String> = info
+                .features
+                .iter()
+                .filter(|f| f.video.is_some_and(|c| c != video.codec))
+                .map(|f| format!("{} ({})", f.name, f.video.map_or("", |c| c.name())))
+                .collect();
+            if !other.is_empty() {
+                return Err(ExportError::InvalidOptions(format!(
+                    "{} arrive as video in another codec than {}: decode them first (convert does: it re-encodes them), or leave the codec out to copy them as they are",
+                    other.join(", "),
+                    video.codec.name()
+                )));
+            }
+        }
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
+    }
+
+    /// A writer with empty state.
+    fn fresh(info: &DatasetInfo, options: LeRobotOptions) -> Self {
+        let video_features: Vec<(String, VideoCodec)> = info
+            .features
+            .iter()
+            .filter_map(|f| {
+                let codec = f.video.or(options
+                    .video
+                    .filter(|_| encodes_as_video(f))
+                    .map(|v| v.codec))?;
+                Some((f.name.clone(), codec))
+            })
+            .collect();
+        let parquet_features: Vec<FeatureSpec> = info
+            .features
+            .iter()
+            .filter(|f| !video_features.iter().any(|(key, _)| *key == f.name))
+            .cloned()
+            .collect();
+        let counter = FileCounter::new(options.chunks_size);
+        LeRobotFiles {
+            schema: frame_schema(&parquet_features),
+            parquet_features,
+            video_features,
+            open: None,
+            videos: Vec::new(),
+            state: State {
+                data_files: counter,
+                video_files: counter,
+                tasks: Vec::new(),
+                episodes: 0,
+                total_frames: 0,
+                stats: fresh_stats(&info.features),
+                summary: Summary::default(),
+            },
+            options,
+            task_lookup: HashMap::new(),
+            apart_secs: (0.0, 0.0),
+        }
+    }
+
+    fn writer_properties(&self) -> WriterProperties {
+        let mut builder = WriterProperties::builder()
+            .set_compression(Compression::ZSTD(ZstdLevel::try_new(1).unwrap_or_default()))
+            .set_created_by(format!("surgvla {}", env!("CARGO_PKG_VERSION")))
+            .set_max_row_group_row_count(None);
+        // PNG bytes are already deflated: store them as they are. Raw float TIFF depth keeps
+        // zstd. No dictionaries for image bytes.
+        for feature in self
+            .parquet_features
+            .iter()
+            .filter(|f| f.dtype == Dtype::Image)
+        {
+            let column = ColumnPath::new(vec![feature.name.clone(), "bytes".into()]);
+            builder = builder.set_column_dictionary_enabled(column.clone(), false);
+            if feature.kind != FeatureKind::Depth {
+                builder = builder.set_column_compression(column, Compression::UNCOMPRESSED);
+            }
+        }
+        builder.build()
+    }
+
+    fn open_file(&mut self, dir: &mut DatasetDir) -> Result<&mut OpenFile, ExportError> {
+        if self.open.is_none() {
+            let episode = self.state.episodes;
+            let version = self.options.version;
+            let (chunk, file) = version.next_location(&mut self.state.data_files, episode);
+            let (handle, pending) = dir.create_file(&version.data_path(chunk, file))?;
+            let writer =
+                ArrowWriter::try_new(handle, self.schema.clone(), Some(self.writer_properties()))
+                    .map_err(ExportError::parquet(&pending.path))?;
+            self.open = Some(OpenFile {
+                writer,
+                chunk,
+                file,
+                pending,
+            });
+        }
+        self.open
+            .as_mut()
+            .ok_or_else(|| ExportError::Internal("no open data file".into()))
+    }
+
+    fn close_file(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
+        if let Some(open) = self.open.take() {
+            let path = open.pending.path.clone();
+            open.writer.close().map_err(ExportError::parquet(&path))?;
+            let bytes = dir.commit(open.pending)?;
+            self.state.summary.files += 1;
+            self.state.summary.bytes += bytes;
+        }
+        Ok(())
+    }
+
+    /// The size at which video files roll, MB.
+    fn video_file_size_mb(&self) -> u64 {
+        self.options
+            .video
+            .map_or(VideoOptions::default().file_size_mb, |v| v.file_size_mb)
+    }
+
+    /// info.json as v3.0 has it.
+    fn info_json(&self, info: &DatasetInfo) -> InfoJson {
+        let mut features = feature_map(&info.features);
+        for (key, codec) in &self.video_features {
+            let shape = info
+                .features
+                .iter()
+                .find(|f| f.name == *key)
+                .map(|f| f.shape.clone())
+                .unwrap_or_default();
+            let dimension = |i: usize| shape.get(i).copied().unwrap_or(0);
+            let entry = features.entry(key.clone()).or_insert_with(|| json!({}));
+            entry["dtype"] = json!("video");
+            entry["info"] = json!({
+                "video.height": dimension(0),
+                "video.width": dimension(1),
+                "video.codec": codec.name(),
+                "video.pix_fmt": "yuv420p",
+                "video.is_depth_map": false,
+                "video.fps": info.fps,
+                "video.channels": dimension(2),
+                "has_audio": false,
+            });
+        }
+        let episodes = self.state.episodes;
+        InfoJson {
+            codebase_version: Some(CODEBASE_VERSION.into()),
+            robot_type: Some(info.robot_type.clone()),
+            total_episodes: Some(episodes),
+            total_frames: Some(self.state.total_frames),
+            total_tasks: Some(self.state.tasks.len() as u64),
+            chunks_size: Some(self.options.chunks_size),
+            data_files_size_in_mb: Some(self.options.data_file_size_mb),
+            video_files_size_in_mb: Some(self.video_file_size_mb()),
+            fps: Some(info.fps.into()),
+            splits: Some([("train".to_string(), format!("0:{episodes}"))].into()),
+            data_path: Some("data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet".into()),
+            video_path: (!self.video_features.is_empty()).then(|| {
+                "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into()
+            }),
+            features: Some(features),
+            ..InfoJson::default()
+        }
+    }
+
+    /// Appends an episode's frames, one list per video feature, to the open video files
+    /// (opening them, or rolling them all when one is full).
+    fn append_videos(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+        frames: &[Vec<EncodedFrame>],
+    ) -> Result<Vec<KeyedSpan>, ExportError> {
+        let version = self.options.version;
+        let limit = self.video_file_size_mb() * 1024 * 1024;
+        if self
+            .videos
+            .iter()
+            .any(|v| version.file_is_full(v.pending.bytes_so_far(), limit))
+        {
+            self.close_videos(dir)?;
+        }
+        if self.videos.is_empty() {
+            let episode = self.state.episodes;
+            let location = version.next_location(&mut self.state.video_files, episode);
+            for (key, codec) in self.video_features.clone() {
+                let size =
+                    info.features
+                        .iter()
+                        .find(|f| f.name == key)
+                        .map_or(info.image_size(), |f| {
+                            (
+                                f.shape.get(1).copied().unwrap_or(0),
+                                f.shape.first().copied().unwrap_or(0),
+                            )
+                        });
+                let relative = version.video_path(&key, location.0, location.1);
+                let (handle, pending) = dir.create_file(&relative)?;
+                self.videos.push(VideoFile {
+                    mp4: Mp4Writer::create(handle, pending.path.clone(), codec, size, info.fps)?,
+                    pending,
+                    chunk: location.0,
+                    file: location.1,
+                });
+            }
+        }
+        let mut spans = Vec::with_capacity(frames.len());
+        for ((key, _), (video, frames)) in self
+            .video_features
+            .iter()
+            .zip(self.videos.iter_mut().zip(frames))
+        {
+            let (from, to) = video.mp4.append(frames)?;
+            spans.push(KeyedSpan {
+                key: key.clone(),
+                span: VideoSpan {
+                    chunk: video.chunk,
+                    file: video.file,
+                    from_secs: from,
+                    to_secs: to,
+                },
+            });
+        }
+        Ok(spans)
+    }
+
+    fn close_videos(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
+        for video in std::mem::take(&mut self.videos) {
+            video.mp4.finish()?;
+            self.state.summary.bytes += dir.commit(video.pending)?;
+            self.state.summary.files += 1;
+        }
+        Ok(())
+    }
+
+    fn task_index(&mut self, instruction: &str) -> u64 {
+        if let Some(i) = self.task_lookup.get(instruction) {
+            return *i;
+        }
+        let i = self.state.tasks.len() as u64;
+        self.state.tasks.push(instruction.to_string());
+        self.task_lookup.insert(instruction.to_string(), i);
+        i
+    }
+
+    /// Writes one episode with what was made of it ahead (its video features' frames, and
+    /// perhaps its images and statistics); returns the seconds spent encoding its images and
+    /// statistics here.
+    fn write_prepared(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+        episode: &Episode,
+        prepared: super::work::Prepared,
+    ) -> Result<f64, ExportError> {
+        let task_index = self.task_index(&episode.meta.instruction);
+        let first_index = self.state.total_frames;
+        let encode_started = std::time::Instant::now();
+        let work = self.work(info);
+        let super::work::Prepared {
+            video: video_frames,
+            images,
+            stats,
+            encode_secs: encoded_ahead_secs,
+            stats_secs,
+        } = prepared;
+        let (images, mut episode_stats) = rayon::join(
+            || images.map_or_else(|| work.encode_images(episode), Ok),
+            || stats.unwrap_or_else(|| work.feature_stats(episode)),
+        );
+        episode_stats.extend(super::work::default_stats(
+            episode,
+            f64::from(info.fps),
+            task_index,
+            first_index,
+        ));
+        let images = images?;
+        let encode_secs = encode_started.elapsed().as_secs_f64();
+        let videos = if self.video_features.is_empty() {
+            Vec::new()
+        } else {
+            self.append_videos(dir, info, &video_frames)?
+        };
+        let batch = frame_batch(
+            &self.schema,
+            &self.parquet_features,
+            episode,
+            images,
+            first_index,
+            task_index,
+            info.fps,
+        )?;
+        let limit = self.options.data_file_size_mb * 1024 * 1024;
+        let version = self.options.version;
+        let open = self.open_file(dir)?;
+        let (chunk, file, path) = (open.chunk, open.file, open.pending.path.clone());
+        let parquet_error = ExportError::parquet(&path);
+        open.writer.write(&batch).map_err(&parquet_error)?;
+        open.writer.flush().map_err(&parquet_error)?;
+        let full = version.file_is_full(open.writer.bytes_written() as u64, limit);
+
+        let mut stats_json = StatsJson::new();
+        // A video feature's exact statistics travel with the episode (surgvla's datasets), so
+        // that merging or converting it later, without decoding the video, gives the same
+        // statistics.
+        let mut pixel_stats = Vec::new();
+        for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
+            if info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
+                let exact = match &this {
+                    crate::export::stats::FeatureStats::Image(s) => {
+                        serde_json::to_value(s).unwrap_or(Value::Null)
+                    }
+                    _ => Value::Null,
+                };
+                pixel_stats.push((name.clone(), exact));
+            }
+            stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
+            total.merge(&this);
+        }
+        let length = episode.steps.len() as u64;
+        let meta = &episode.meta;
+        let row = EpisodeRow {
+            episode_index: meta.index,
+            task: meta.instruction.clone(),
+            length,
+            data_chunk: chunk,
+            data_file: file,
+            from_index: first_index,
+            to_index: first_index + length,
+            stats: stats_json,
+            videos,
+            pixel_stats,
+            provenance: Provenance {
+                seed: meta.seed,
+                task_id: meta.task_code.clone(),
+                level: meta.level,
+                attempts: meta.attempts,
+                success: meta.success,
+            },
+        };
+        let line = serde_json::to_vec(&row).map_err(|source| ExportError::Json {
+            path: dir.path(EPISODES_JOURNAL),
+            source,
+        })?;
+        dir.append(EPISODES_JOURNAL, &line)?;
+        self.state.episodes += 1;
+        self.state.total_frames += length;
+        self.state.summary.episodes += 1;
+        self.state.summary.frames += length;
+        if full {
+            // Close the video file at the same moment, so that everything written so far is
+            // complete, and record the state.
+            self.close_file(dir)?;
+            self.close_videos(dir)?;
+            if version.checkpoint_due(self.state.episodes) {
+                dir.save_checkpoint(&self.state)?;
+            }
+        }
+        self.apart_secs.0 += encoded_ahead_secs;
+        self.apart_secs.1 += stats_secs;
+        Ok(encode_secs)
+    }
+
+    /// The per-episode work's view of this writer.
+    fn work<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
+        EpisodeWork {
+            parallel: true,
+            info,
+            parquet_features: &self.parquet_features,
+            video_features: &self.video_features,
+            options: &self.options,
+        }
+    }
+
+    /// Finishing, in an order that an interruption at any point can resume: close the files and
+    /// checkpoint (every episode is durable), write the metadata and the manifest, the sidecar
+    /// (the run's report), and only then remove the marker.
+    fn finish_dataset(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+    ) -> Result<Summary, ExportError> {
+        self.close_file(dir)?;
+        self.close_videos(dir)?;
+        dir.save_checkpoint(&self.state)?;
+        let stats: StatsJson = self
+            .state
+            .stats
+            .iter()
+            .map(|(name, s)| (name.clone(), FeatureStatsJson::from_value(s.to_json())))
+            .collect();
+        let video_keys: Vec<String> = self.video_features.iter().map(|(k, _)| k.clone()).collect();
+        let metadata = super::layout::Metadata {
+            tasks: &self.state.tasks,
+            episodes: self.state.episodes,
+            stats,
+            // A dataset surgvla did not make (converted from another tool's) gets no surgvla
+            // metadata: it has no camera intrinsics or collection to state.
+            surgvla: if info.is_ours() {
+                info.surgvla_json()
+            } else {
+                Value::Null
+            },
+            info: self.info_json(info),
+            chunks_size: self.options.chunks_size,
+            video_keys: &video_keys,
+        };
+        let mut summary = self.state.summary.clone();
+        let rows = dir.journal_lines(EPISODES_JOURNAL)?.map(|line| {
+            let line = line?;
+            serde_json::from_str::<EpisodeRow>(&line).map_err(|source| ExportError::Json {
+                path: EPISODES_JOURNAL.into(),
+                source,
+            })
+        });
+        let (files, bytes) = self.options.version.write_metadata(dir, &metadata, rows)?;
+        summary.files += files;
+        summary.bytes += bytes;
+        Ok(summary)
+    }
+}
+
+/// The `features` object of info.json for these features (defaults appended): what
+/// `schemas/lerobot_features.json` records.
+pub fn features_json(feature_specs: &[FeatureSpec]) -> Value {
+    Value::Object(feature_map(feature_specs))
+}
+
+/// [`features_json`]'s entries, in order.
+fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> {
+    let mut features = serde_json::Map::new();
+    for f in feature_specs {
+        let mut entry = json!({
+            "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64" },
+            "shape": f.shape,
+            "names": f.names,
+        });
+        if f.kind == FeatureKind::Depth {
+            entry["info"] = json!({"is_depth_map": true, "depth_unit": "m"});
+        }
+        features.insert(f.name.clone(), entry);
+    }
+    features.insert(
+        "timestamp".into(),
+        json!({"dtype": "float32", "shape": [1], "names": null}),
+    );
+    for name in &DEFAULT_COLUMNS[1..] {
+        features.insert(
+            name.to_string(),
+            json!({"dtype": "int64", "shape": [1], "names": null}),
+        );
+    }
+    features
+}

@@ -1,0 +1,353 @@
+//! The MCAP writer: [`McapWriter`] records each episode as one MCAP file (images, depth, point
+//! cloud, frames, state, action on Foxglove's schemas) and [`record_episode`] writes one alone.
+
+use crate::episode::{Episode, FeatureKind, SceneMesh};
+use crate::export::dir::{DatasetDir, RunOptions};
+use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::pointcloud::{CloudSettings, frame_cloud};
+use crate::export::sink::Summary;
+use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
+use crate::media::image::{PngLevel, encode_png, stored_or};
+use foxglove::Encode;
+use rayon::prelude::*;
+use serde_json::{Value, json};
+use std::collections::BTreeMap;
+
+/// The recordings' time origin: 2024-01-01T00:00:00Z in nanoseconds.
+pub const T0_NS: u64 = 1_704_067_200_000_000_000;
+
+/// Episodes between checkpoints.
+pub const CHECKPOINT_EPISODES: u64 = 16;
+
+/// Every file with its size and CRC-32C.
+pub const MANIFEST: &str = "surgvla_manifest.json";
+
+/// Options of the MCAP recordings.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct McapOptions {
+    /// How `/endoscope/points` clouds are made.
+    pub cloud: CloudSettings,
+}
+
+impl McapOptions {
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = self.cloud.run_options();
+        options.set("format", json!("mcap"));
+        options
+    }
+}
+
+pub(super) fn mcap_error(what: &str) -> impl FnOnce(mcap::McapError) -> ExportError + '_ {
+    move |source| ExportError::Encode {
+        what: format!("MCAP {what}"),
+        source: Box::new(source),
+    }
+}
+
+/// MCAP's part of [`McapWriter`].
+pub struct McapFiles {
+    options: McapOptions,
+    state: EpisodeFiles,
+}
+
+/// A message type's schema added to a writer.
+fn schema_of<T: Encode>(
+    writer: &mut mcap::Writer<std::io::Cursor<Vec<u8>>>,
+) -> Result<u16, ExportError> {
+    let schema = T::get_schema()
+        .ok_or_else(|| ExportError::Internal("a Foxglove type without a schema".into()))?;
+    writer
+        .add_schema(&schema.name, &schema.encoding, &schema.data)
+        .map_err(mcap_error("schema"))
+}
+
+fn encoded<T: Encode>(message: &T) -> Result<Vec<u8>, ExportError> {
+    let mut bytes = Vec::with_capacity(message.encoded_len().unwrap_or(1024));
+    message
+        .encode(&mut bytes)
+        .map_err(|e| ExportError::Encode {
+            what: "a Foxglove message".into(),
+            source: Box::new(std::io::Error::other(e.to_string())),
+        })?;
+    Ok(bytes)
+}
+
+/// A writer into memory as every episode's file is written: zstd chunks compressed on this
+/// thread, no profile, `library` in the header.
+pub(super) fn new_writer(
+    library: &str,
+) -> Result<mcap::Writer<std::io::Cursor<Vec<u8>>>, ExportError> {
+    mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .compression_threads(0)
+        .profile("")
+        .library(library)
+        .create(std::io::Cursor::new(Vec::new()))
+        .map_err(mcap_error("writer"))
+}
+
+/// The MCAP file of one episode; `scene`, when given, goes on `/scene` once at the start (the
+/// simulator's recorder has it, a dataset does not).
+pub fn record_episode(
+    info: &DatasetInfo,
+    options: &McapOptions,
+    episode: &Episode,
+    scene: Option<&[SceneMesh]>,
+) -> Result<Vec<u8>, ExportError> {
+    let camera = &info.camera;
+    let (width, height) = info.image_size();
+    let cloud_options = if info.has(FeatureKind::Depth) {
+        Some(options.cloud.options(info)?)
+    } else {
+        None
+    };
+    let mut writer = new_writer(&info.generator)?;
+    let meta = &episode.meta;
+    let provenance: BTreeMap<String, String> = [
+        ("episode_index", meta.index.to_string()),
+        ("task_id", meta.task_code.clone()),
+        ("level", meta.level.to_string()),
+        ("seed", meta.seed.to_string()),
+        ("instruction", meta.instruction.clone()),
+        ("success", meta.success.to_string()),
+        ("generator", info.generator.clone()),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    writer
+        .write_metadata(&mcap::records::Metadata {
+            name: "episode".into(),
+            metadata: provenance,
+        })
+        .map_err(mcap_error("metadata"))?;
+    let no_metadata = BTreeMap::new();
+    let rgb_schema = schema_of::<foxglove::messages::CompressedImage>(&mut writer)?;
+    let depth_schema = schema_of::<foxglove::messages::RawImage>(&mut writer)?;
+    let calibration_schema = schema_of::<foxglove::messages::CameraCalibration>(&mut writer)?;
+    let points_schema = schema_of::<foxglove::messages::PointCloud>(&mut writer)?;
+    let tf_schema = schema_of::<foxglove::messages::FrameTransforms>(&mut writer)?;
+    let scene_schema = match scene {
+        Some(_) => Some(schema_of::<foxglove::messages::SceneUpdate>(&mut writer)?),
+        None => None,
+    };
+    let json_schema = |writer: &mut mcap::Writer<_>, value: Value, name: &str| {
+        writer
+            .add_schema(name, "jsonschema", value.to_string().as_bytes())
+            .map_err(mcap_error("schema"))
+    };
+    let state_schema = json_schema(
+        &mut writer,
+        super::messages::state_schema(),
+        "surgvla.RobotState",
+    )?;
+    let action_schema = json_schema(
+        &mut writer,
+        super::messages::action_schema(),
+        "surgvla.RobotAction",
+    )?;
+    let info_schema = json_schema(
+        &mut writer,
+        super::messages::info_schema(),
+        "surgvla.EpisodeInfo",
+    )?;
+    let mut add = |schema: u16, topic: &str, encoding: &str| {
+        writer
+            .add_channel(schema, topic, encoding, &no_metadata)
+            .map_err(mcap_error("channel"))
+    };
+    let info_channel = add(info_schema, "/episode/info", "json")?;
+    let rgb = add(rgb_schema, "/endoscope/rgb", "protobuf")?;
+    let depth = if info.has(FeatureKind::Depth) {
+        Some(add(depth_schema, "/endoscope/depth", "protobuf")?)
+    } else {
+        None
+    };
+    let calibration = add(calibration_schema, "/endoscope/camera_info", "protobuf")?;
+    let points = if cloud_options.is_some() {
+        Some(add(points_schema, "/endoscope/points", "protobuf")?)
+    } else {
+        None
+    };
+    let tf = add(tf_schema, "/tf", "protobuf")?;
+    let scene_channel = match scene_schema {
+        Some(schema) => Some(add(schema, "/scene", "protobuf")?),
+        None => None,
+    };
+    let state = add(state_schema, "/robot/state", "json")?;
+    let action = add(action_schema, "/robot/action", "json")?;
+    let objects: Vec<String> = (0..crate::episode::MAX_OBJECTS)
+        .map(|i| format!("object_{i}"))
+        .collect();
+    let stored_rgb = info.rgb_key().and_then(|key| episode.stored_png(key));
+    // Per step, encoded in parallel: every message's bytes.
+    let fps = u64::from(info.fps.max(1));
+    let step_messages: Vec<Vec<(u16, Vec<u8>)>> = episode
+        .steps
+        .par_iter()
+        .enumerate()
+        .map(|(t, step)| -> Result<Vec<(u16, Vec<u8>)>, ExportError> {
+            let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
+            let png = stored_or(stored_rgb, t, || {
+                encode_png(width, height, 3, &step.rgb, PngLevel::Fast)
+            })?;
+            let mut out = vec![(rgb, encoded(&super::messages::compressed_image(ns, png))?)];
+            if let Some(channel) = depth {
+                out.push((
+                    channel,
+                    encoded(&super::messages::depth_image(ns, camera, &step.depth_m))?,
+                ));
+            }
+            out.push((
+                calibration,
+                encoded(&super::messages::calibration(ns, camera))?,
+            ));
+            if let (Some(channel), Some(cloud_options)) = (points, &cloud_options) {
+                let cloud = frame_cloud(camera, step, cloud_options);
+                out.push((channel, encoded(&super::messages::point_cloud(ns, &cloud))?));
+            }
+            out.push((
+                tf,
+                encoded(&super::messages::frames(ns, camera, step, &objects))?,
+            ));
+            out.push((
+                state,
+                super::messages::state_json(ns, step)
+                    .to_string()
+                    .into_bytes(),
+            ));
+            out.push((
+                action,
+                super::messages::action_json(ns, step)
+                    .to_string()
+                    .into_bytes(),
+            ));
+            Ok(out)
+        })
+        .collect::<Result<_, _>>()?;
+    let info_message = json!({
+        "episode_index": meta.index,
+        "task_id": meta.task_code,
+        "level": meta.level,
+        "seed": meta.seed,
+        "instruction": meta.instruction,
+        "success": meta.success,
+        "frames": episode.steps.len(),
+    });
+    let mut sequence = 0u32;
+    let mut write = |writer: &mut mcap::Writer<_>, channel: u16, ns: u64, data: &[u8]| {
+        sequence += 1;
+        writer
+            .write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id: channel,
+                    sequence,
+                    log_time: ns,
+                    publish_time: ns,
+                },
+                data,
+            )
+            .map_err(mcap_error("message"))
+    };
+    write(
+        &mut writer,
+        info_channel,
+        T0_NS,
+        info_message.to_string().as_bytes(),
+    )?;
+    if let (Some(channel), Some(meshes)) = (scene_channel, scene) {
+        let update = encoded(&super::messages::scene_update(T0_NS, meshes))?;
+        write(&mut writer, channel, T0_NS, &update)?;
+    }
+    for (t, messages) in step_messages.iter().enumerate() {
+        let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
+        for (channel, data) in messages {
+            write(&mut writer, *channel, ns, data)?;
+        }
+    }
+    writer.finish().map_err(mcap_error("summary"))?;
+    Ok(writer.into_inner().into_inner())
+}
+
+/// Writes one MCAP file per episode.
+pub type McapWriter = Writer<McapFiles>;
+
+impl FormatWriter for McapFiles {
+    type Options = McapOptions;
+    type State = EpisodeFiles;
+    type Encoded = Vec<u8>;
+    type Encoder<'a> = (&'a Self, &'a DatasetInfo);
+    const MANIFEST: &'static str = MANIFEST;
+
+    fn card_format(&self) -> crate::export::card::CardFormat {
+        crate::export::card::CardFormat {
+            name: "mcap",
+            data_files: None,
+            video: Vec::new(),
+        }
+    }
+
+    fn run_options(info: &DatasetInfo, options: &McapOptions) -> Result<RunOptions, ExportError> {
+        if info.has(FeatureKind::Depth) {
+            options.cloud.options(info)?;
+        }
+        let mut run = info.run_options();
+        run.merge(options.run_options());
+        Ok(run)
+    }
+
+    fn owned_folders(_: &McapOptions) -> Vec<String> {
+        vec![String::new()]
+    }
+
+    fn new(
+        _: &DatasetDir,
+        _: &DatasetInfo,
+        options: McapOptions,
+        state: Option<EpisodeFiles>,
+    ) -> Result<Self, ExportError> {
+        Ok(McapFiles {
+            options,
+            state: state.unwrap_or_default(),
+        })
+    }
+
+    fn episodes(&self) -> u64 {
+        self.state.episodes()
+    }
+
+    /// Only the RGB camera's PNG bytes are copied into its messages.
+    fn reuses_stored(&self, encoding: crate::episode::ImageEncoding) -> bool {
+        encoding == crate::episode::ImageEncoding::Png
+    }
+
+    fn encoder<'a>(&'a self, info: &'a DatasetInfo) -> (&'a Self, &'a DatasetInfo) {
+        (self, info)
+    }
+
+    fn append(
+        &mut self,
+        dir: &mut DatasetDir,
+        _: &DatasetInfo,
+        episode: &Episode,
+        bytes: Vec<u8>,
+    ) -> Result<f64, ExportError> {
+        let file = format!("episode_{:06}.mcap", episode.meta.index);
+        self.state.write_file(dir, &file, &bytes)?;
+        self.state
+            .episode_done(dir, episode, Some(&file), CHECKPOINT_EPISODES)?;
+        Ok(0.0)
+    }
+
+    fn finish(&mut self, dir: &mut DatasetDir, _: &DatasetInfo) -> Result<Summary, ExportError> {
+        self.state.finish(dir, "episodes.jsonl")
+    }
+}
+
+impl EpisodeEncoder<Vec<u8>> for (&McapFiles, &DatasetInfo) {
+    fn encode(&self, episode: &Episode) -> Result<Vec<u8>, ExportError> {
+        let (format, info) = *self;
+        record_episode(info, &format.options, episode, None)
+    }
+}

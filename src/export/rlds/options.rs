@@ -1,0 +1,189 @@
+//! What an RLDS dataset is written with: [`RldsOptions`] (name, version, shard size, keys, image
+//! encoding) and the names of its metadata files.
+
+use crate::export::dir::RunOptions;
+use crate::export::error::ExportError;
+use crate::media::image::PngLevel;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+
+/// Every file with its size and CRC-32C, at the top of the output folder.
+pub const MANIFEST: &str = "surgvla_manifest.json";
+
+/// The guide beside the dataset.
+pub const OPENVLA_GUIDE: &str = "OPENVLA.md";
+
+/// surgvla's own metadata inside the version folder.
+pub const SURGVLA_JSON: &str = "surgvla.json";
+
+/// Where another tool's feature goes in an RLDS step: `observation.images.X` ->
+/// `observation/X`, otherwise its dotted name as a path (`observation.state` ->
+/// `observation/state`, `action` -> `action`); [`foreign`] reads the names back.
+pub fn rlds_path(name: &str) -> Vec<String> {
+    match name.strip_prefix("observation.images.") {
+        Some(camera) => vec!["observation".into(), camera.replace('.', "_")],
+        None => name.split('.').map(String::from).collect(),
+    }
+}
+
+/// The observation keys of a step (`steps/observation/<key>`).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RldsKeys {
+    /// The RGB camera (OpenVLA's primary image key).
+    pub image: String,
+    pub depth: String,
+    pub mask: String,
+    pub state: String,
+    pub environment_state: String,
+}
+
+impl Default for RldsKeys {
+    /// OpenVLA-friendly names: `image`, `depth`, `mask`, `state`, `environment_state`.
+    fn default() -> Self {
+        RldsKeys {
+            image: "image".into(),
+            depth: "depth".into(),
+            mask: "mask".into(),
+            state: "state".into(),
+            environment_state: "environment_state".into(),
+        }
+    }
+}
+
+/// Options of the RLDS format.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RldsOptions {
+    /// The dataset name (folder and shard prefix; what `tfds.builder(name)` takes).
+    pub name: String,
+    /// The version folder, x.y.z.
+    pub version: String,
+    /// A shard is closed once it reaches this size.
+    pub shard_size_mb: u64,
+    pub png: PngLevel,
+    pub keys: RldsKeys,
+    /// The RGB camera as JPEG of this quality (1-100) instead of PNG: what Open X-Embodiment
+    /// and OpenVLA's datasets store, a fraction of the size, lossy.
+    pub jpeg_quality: Option<u8>,
+}
+
+impl Default for RldsOptions {
+    fn default() -> Self {
+        RldsOptions {
+            name: "surgvla_benchmark".into(),
+            version: "1.0.0".into(),
+            shard_size_mb: 64,
+            png: PngLevel::Fast,
+            keys: RldsKeys::default(),
+            jpeg_quality: None,
+        }
+    }
+}
+
+impl RldsOptions {
+    /// Refuses a name TFDS cannot load, a version that is not x.y.z, or keys that are empty,
+    /// contain '/' or repeat.
+    pub fn check(&self) -> Result<(), ExportError> {
+        let bad = |problem: String| Err(ExportError::InvalidOptions(problem));
+        let name = &self.name;
+        let snake = name.starts_with(|c: char| c.is_ascii_lowercase())
+            && name
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_');
+        if !snake {
+            return bad(format!(
+                "RLDS name {name:?} must be snake_case (a-z, 0-9, _; starting with a letter), as tfds.builder requires"
+            ));
+        }
+        let parts: Vec<&str> = self.version.split('.').collect();
+        if parts.len() != 3
+            || parts
+                .iter()
+                .any(|p| p.is_empty() || !p.chars().all(|c| c.is_ascii_digit()))
+        {
+            return bad(format!(
+                "RLDS version {:?} must be x.y.z, e.g. 1.0.0",
+                self.version
+            ));
+        }
+        let keys = &self.keys;
+        let all = [
+            &keys.image,
+            &keys.depth,
+            &keys.mask,
+            &keys.state,
+            &keys.environment_state,
+        ];
+        for (i, key) in all.iter().enumerate() {
+            let ok = !key.is_empty()
+                && key
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+            if !ok {
+                return bad(format!(
+                    "RLDS observation key {key:?} must be non-empty letters, digits, _ or -"
+                ));
+            }
+            if all[..i].contains(key) {
+                return bad(format!("RLDS observation key {key:?} is given twice"));
+            }
+        }
+        Ok(())
+    }
+
+    /// What these options change in the bytes, by option name (for resume).
+    pub fn run_options(&self) -> RunOptions {
+        let mut options = RunOptions::default();
+        options.set("format", "rlds".into());
+        options.set("rlds_name", self.name.clone().into());
+        options.set("rlds_version", self.version.clone().into());
+        options.set("rlds_shard_mb", self.shard_size_mb.into());
+        options.set("png", format!("{:?}", self.png).into());
+        options.set("rlds_keys", json!(self.keys));
+        if let Some(quality) = self.jpeg_quality {
+            options.set("rlds_jpeg_quality", quality.into());
+        }
+        options
+    }
+
+    /// The options a dataset recorded ([`RldsOptions::run_options`], in its manifest); None
+    /// when an option is missing or not of its type.
+    pub fn from_run_options(run: &RunOptions) -> Option<RldsOptions> {
+        let text = |key: &str| run.get(key)?.as_str().map(String::from);
+        let png = match text("png")?.as_str() {
+            "Fast" => PngLevel::Fast,
+            "Default" => PngLevel::Default,
+            "Best" => PngLevel::Best,
+            _ => return None,
+        };
+        let jpeg_quality = match run.get("rlds_jpeg_quality") {
+            None => None,
+            Some(quality) => Some(u8::try_from(quality.as_u64()?).ok()?),
+        };
+        Some(RldsOptions {
+            name: text("rlds_name")?,
+            version: text("rlds_version")?,
+            shard_size_mb: run.get("rlds_shard_mb")?.as_u64()?,
+            png,
+            keys: serde_json::from_value(run.get("rlds_keys")?.clone()).ok()?,
+            jpeg_quality,
+        })
+    }
+
+    /// The version folder, relative to the output folder.
+    pub fn version_dir(&self) -> String {
+        format!("{}/{}", self.name, self.version)
+    }
+
+    /// Shard `index` of `count` (`count` None: the name while the run is going on).
+    pub fn shard_path(&self, index: usize, count: Option<usize>) -> String {
+        let base = format!(
+            "{}/{}-train.tfrecord-{index:05}",
+            self.version_dir(),
+            self.name
+        );
+        match count {
+            Some(count) => format!("{base}-of-{count:05}"),
+            None => base,
+        }
+    }
+}
