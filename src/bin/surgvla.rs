@@ -412,6 +412,14 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
+    // A damaged MP4 the demuxer panics on is reported as an error naming the file; its panic
+    // message stays off the terminal. Other panics are printed as before.
+    let previous = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !surgvla::media::in_quiet_parse() {
+            previous(info);
+        }
+    }));
     // Before any thread exists (parsing starts none).
     memory::limit_arenas(match &cli.command {
         Command::Collect(args) => memory::collect_arenas(args.job.threads.unwrap_or(0)),

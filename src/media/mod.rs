@@ -15,6 +15,8 @@ pub mod decode;
 pub mod demux;
 pub mod image;
 pub(crate) mod mp4scan;
+
+pub use mp4scan::in_quiet_parse;
 pub mod tiff;
 pub mod video;
 

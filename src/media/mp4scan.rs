@@ -5,7 +5,8 @@
 //! make it allocate hundreds of gigabytes, an abort no `catch_unwind` stops. [`check_tables`]
 //! walks the box tree re_mp4 reads (`moov/trak/mdia/minf/stbl/stsz`, the sample description) and refuses sample counts and sizes
 //! the file cannot hold. What re_mp4 still panics on (tables that disagree with each other) is
-//! caught by [`quietly`], which keeps the panic's message off the user's terminal: the caller
+//! caught by [`quietly`], whose panics a process's panic hook can keep off the user's terminal
+//! ([`in_quiet_parse`]: the command line's hook does; the library installs none): the caller
 //! reports the damaged file as an error naming it.
 
 use std::cell::Cell;
@@ -122,18 +123,14 @@ thread_local! {
     static QUIET: Cell<bool> = const { Cell::new(false) };
 }
 
-/// Runs `parse`, turning a panic into `Err(())` without printing it. Other threads' panics are
-/// reported as before (the previous hook is kept and called for them).
+/// Whether this thread is inside [`quietly`], whose panics are expected and reported as errors:
+/// a panic hook leaves their message out.
+pub fn in_quiet_parse() -> bool {
+    QUIET.with(Cell::get)
+}
+
+/// Runs `parse`, turning a panic into `Err(())` (see [`in_quiet_parse`] for its message).
 pub fn quietly<T>(parse: impl FnOnce() -> T) -> Result<T, ()> {
-    static HOOK: std::sync::Once = std::sync::Once::new();
-    HOOK.call_once(|| {
-        let previous = std::panic::take_hook();
-        std::panic::set_hook(Box::new(move |info| {
-            if !QUIET.with(Cell::get) {
-                previous(info);
-            }
-        }));
-    });
     QUIET.with(|quiet| quiet.set(true));
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse));
     QUIET.with(|quiet| quiet.set(false));
