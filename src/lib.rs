@@ -30,4 +30,5 @@ pub mod rng;
 pub mod scene;
 pub mod sim;
 pub mod task;
+pub mod threads;
 pub mod view;

@@ -244,7 +244,7 @@ pub fn run_experts(args: &ExpertsArgs) -> Result<(), CliError> {
     let job = &args.job;
     // `surgvla sim` replays an attempt only with the built-in plans and default scene options.
     let sim_reproduces = job.policies.is_none() && job.distractors == 1 && job.spawn_scale == 1.0;
-    let failures = report.failures.iter().filter(|f| f.stage != "spawn");
+    let failures = report.failures.iter().filter(|f| f.stage.is_attempt());
     for failure in failures.take(args.show_failures) {
         let code = failure.slot.task.code();
         let seed = failure.seed;

@@ -201,10 +201,7 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
             ),
         });
     }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| ExportError::Internal(format!("no worker threads: {e}")))?;
+    let pool = crate::threads::pool(threads).map_err(ExportError::from)?;
     let mut findings = Vec::new();
     let batch_size = pool.current_num_threads().max(1);
     loop {

@@ -2,7 +2,7 @@
 //! rates, every failed attempt, the dataset summary and where the time went. [`Tally`]
 //! accumulates it slot by slot.
 
-use crate::collect::slot::{CollectOptions, Failure, SlotOutcome};
+use crate::collect::slot::{CollectOptions, Failure, FailureStage, SlotOutcome};
 use crate::export::Summary;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -109,7 +109,8 @@ impl Tally {
             .find(|(t, _)| t.code == outcome.slot.task.code())
         {
             let count = |stage| outcome.failures.iter().filter(|f| f.stage == stage).count() as u64;
-            let (replay_failures, expert_failures) = (count("replay"), count("expert"));
+            let (replay_failures, expert_failures) =
+                (count(FailureStage::Replay), count(FailureStage::Expert));
             task.episodes += u64::from(outcome.verified);
             task.frames += outcome.frames;
             task.attempts += u64::from(outcome.attempts);

@@ -16,7 +16,7 @@ use crate::collect::record::{attempt_seed, render_replay_with, run_expert, verif
 use crate::collect::report::Tally;
 pub use crate::collect::report::{CollectReport, TaskReport, Timing};
 pub use crate::collect::slot::{
-    BadOptions, BadShard, CollectOptions, Failure, MAX_THREADS_PER_CORE, Shard, Slot, SlotOutcome,
+    BadOptions, BadShard, CollectOptions, Failure, FailureStage, MAX_THREADS_PER_CORE, Shard, Slot, SlotOutcome,
     cores,
 };
 use crate::episode::Episode;
@@ -49,12 +49,8 @@ pub enum CollectError {
         attempts: u32,
         reason: String,
     },
-    #[error("starting {threads} worker threads")]
-    Threads {
-        threads: usize,
-        #[source]
-        source: rayon::ThreadPoolBuildError,
-    },
+    #[error(transparent)]
+    Threads(#[from] crate::threads::NoThreads),
 }
 
 impl crate::error::HasKind for CollectError {
@@ -121,7 +117,7 @@ pub fn collect_slot_encoded(
                     slot,
                     attempt,
                     seed,
-                    stage: "spawn",
+                    stage: FailureStage::Spawn,
                     reason: error.problem,
                 });
                 continue;
@@ -140,7 +136,7 @@ pub fn collect_slot_encoded(
         if !expert.verdict.success {
             outcome
                 .failures
-                .push(fail("expert", expert.verdict.reason.clone()));
+                .push(fail(FailureStage::Expert, expert.verdict.reason.clone()));
             continue;
         }
         let mut frames = encoder.and_then(|e| e.frames(expert.actions.len()));
@@ -176,7 +172,7 @@ pub fn collect_slot_encoded(
             return Ok((outcome, encoded));
         }
         outcome.episode = None;
-        outcome.failures.push(fail("replay", verdict.reason));
+        outcome.failures.push(fail(FailureStage::Replay, verdict.reason));
     }
     Ok((outcome, None))
 }
@@ -217,10 +213,7 @@ fn worker_pool(options: &CollectOptions) -> Result<(rayon::ThreadPool, usize), C
     } else {
         options.threads
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|source| CollectError::Threads { threads, source })?;
+    let pool = crate::threads::pool(threads)?;
     Ok((pool, threads))
 }
 

@@ -118,11 +118,43 @@ pub struct Failure {
     pub slot: Slot,
     pub attempt: u32,
     pub seed: u64,
-    /// "spawn" (no valid scene for this seed; not counted as an attempt), "expert" (the
-    /// predicate failed after the expert's run) or "replay" (the expert succeeded but
-    /// replaying its dataset actions did not).
-    pub stage: &'static str,
+    /// Where the attempt failed.
+    pub stage: FailureStage,
     pub reason: String,
+}
+
+/// Where an attempt failed (serialised as "spawn", "expert", "replay").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FailureStage {
+    /// No valid scene for this seed (not counted as an attempt).
+    Spawn,
+    /// The predicate failed after the expert's run.
+    Expert,
+    /// The expert succeeded but replaying its dataset actions did not.
+    Replay,
+}
+
+impl FailureStage {
+    /// The stage as reports write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            FailureStage::Spawn => "spawn",
+            FailureStage::Expert => "expert",
+            FailureStage::Replay => "replay",
+        }
+    }
+
+    /// Whether the attempt counts (a scene was made for it).
+    pub fn is_attempt(self) -> bool {
+        self != FailureStage::Spawn
+    }
+}
+
+impl std::fmt::Display for FailureStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// What happened at one slot.

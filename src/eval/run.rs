@@ -425,10 +425,8 @@ fn run_builtin(
     let run = |i: usize, env: &EnvOptions, record: bool| -> Result<Outcome, EvalError> {
         builtin_trial(builtin, &instances[i], i as u32, env, record)
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(options.threads.max(1))
-        .build()
-        .map_err(|e| EvalError::Options(format!("starting worker threads: {e}")))?;
+    let pool = crate::threads::pool(options.threads.max(1))
+        .map_err(|e| EvalError::Options(crate::error::chain(&e)))?;
     let mut results: Vec<TrialResult> = pool.install(|| {
         (0..instances.len())
             .into_par_iter()

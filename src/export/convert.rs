@@ -43,12 +43,7 @@ pub fn convert(
     threads: usize,
     progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<Summary, ConvertError> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| {
-            ConvertError::Write(ExportError::Internal(format!("no worker threads: {e}")))
-        })?;
+    let pool = crate::threads::pool(threads).map_err(|e| ConvertError::Write(e.into()))?;
     pool.install(|| copy(source, sink, progress))
 }
 

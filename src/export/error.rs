@@ -128,6 +128,9 @@ pub enum ExportError {
     },
     #[error("internal error: {0}")]
     Internal(String),
+    /// The worker threads could not be started.
+    #[error(transparent)]
+    Threads(#[from] crate::threads::NoThreads),
 }
 
 impl ExportError {

@@ -14,6 +14,20 @@ use std::sync::Mutex;
 /// is one problem).
 pub const FINDINGS_PER_CHECK: usize = 20;
 
+/// How much a dataset holds, as its checks counted it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    pub episodes: u64,
+    pub frames: u64,
+}
+
+impl From<(u64, u64)> for Counts {
+    /// (episodes, frames).
+    fn from((episodes, frames): (u64, u64)) -> Self {
+        Counts { episodes, frames }
+    }
+}
+
 /// One defect (or, as a warning, one oddity): where it is and what is wrong. Ordered by place
 /// (file, episode, frame), then check and message: the order of a report.
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize)]
@@ -216,7 +230,8 @@ impl Findings {
     }
 
     /// The report, with one more finding per check that had more than it kept.
-    pub fn into_report(self, format: &'static str, episodes: u64, frames: u64) -> Report {
+    pub fn into_report(self, format: &'static str, counts: Counts) -> Report {
+        let Counts { episodes, frames } = counts;
         let mut inner = self.inner.into_inner().unwrap_or_else(|e| e.into_inner());
         let (mut errors, mut warnings) = (Vec::new(), Vec::new());
         let listed: BTreeMap<(String, bool), usize> = inner
@@ -460,7 +475,7 @@ mod tests {
                 findings.error(at, "timestamps", format!("frame {i} is late"));
                 findings.warning(At::file("meta/info.json"), "video-decode", "not decoded");
             }
-            let report = findings.into_report("lerobot-v3.0", 0, 0);
+            let report = findings.into_report("lerobot-v3.0", Counts::default());
             serde_json::to_string(&(report.errors, report.warnings)).unwrap()
         };
         let forward: Vec<u64> = (0..100).collect();

@@ -8,7 +8,7 @@
 //! them. This module imports no format: formats import it.
 
 use crate::export::error::ExportError;
-use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::findings::{Counts, Findings, ValidateOptions};
 use crate::export::info::DatasetInfo;
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::Summary;
@@ -147,7 +147,7 @@ pub trait DatasetFormat: Sync {
 
     /// Checks a dataset [`DatasetFormat::sniff`] found, every defect a finding; returns the
     /// episodes and frames it holds.
-    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64);
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts;
 
     /// The folder holding the dataset's card (README.md): the found folder itself, or none for
     /// a single file.

@@ -137,10 +137,7 @@ pub fn write_through(
 ) -> Result<Summary, MergeError> {
     let read = |e| MergeError::Convert(ConvertError::Read(e));
     let write = |e| MergeError::Convert(ConvertError::Write(e));
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| write(ExportError::Internal(format!("no worker threads: {e}"))))?;
+    let pool = crate::threads::pool(threads).map_err(|e| write(e.into()))?;
     let mut skip = sink.next_episode_index();
     pool.install(|| -> Result<(), MergeError> {
         let batch_size = rayon::current_num_threads().max(1);

@@ -23,14 +23,11 @@ use std::path::Path;
 pub fn validate(path: &Path, options: &ValidateOptions) -> Result<Report, ExportError> {
     let Detected { format, found, .. } = crate::export::registry::detect(path)?;
     let findings = Findings::new(&found.root);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(options.threads)
-        .build()
-        .map_err(|e| ExportError::Internal(format!("no worker threads: {e}")))?;
-    let (episodes, frames) = pool.install(|| format.check(&found, options, &findings));
+    let pool = crate::threads::pool(options.threads)?;
+    let counts = pool.install(|| format.check(&found, options, &findings));
     // The card sits in the dataset's folder (above an RLDS version folder, none for one file).
     if let Some(folder) = format.card_folder(&found) {
-        crate::export::card::check(folder, episodes, frames, &findings);
+        crate::export::card::check(folder, counts.episodes, counts.frames, &findings);
     }
-    Ok(findings.into_report(found.layout, episodes, frames))
+    Ok(findings.into_report(found.layout, counts))
 }

@@ -4,7 +4,7 @@
 
 use super::options::LeRobotOptions;
 use crate::export::error::ExportError;
-use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::findings::{Counts, Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
@@ -79,8 +79,8 @@ impl DatasetFormat for LeRobotFormat {
         }
     }
 
-    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
-        super::check::check(&found.root, found.layout == V21, options, findings)
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
+        Counts::from(super::check::check(&found.root, found.layout == V21, options, findings))
     }
 
     fn open_source(

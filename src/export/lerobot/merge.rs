@@ -246,10 +246,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     // A resumed merge skips the episodes already written.
     let mut skip = sink.next_episode_index();
     let progress = &mut *request.progress;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| write(ExportError::Internal(format!("no worker threads: {e}"))))?;
+    let pool = crate::threads::pool(threads).map_err(|e| write(e.into()))?;
     pool.install(|| -> Result<(), MergeError> {
         let batch_size = rayon::current_num_threads().max(1);
         let mut batch = Vec::with_capacity(batch_size);

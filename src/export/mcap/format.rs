@@ -3,7 +3,7 @@
 
 use super::writer::McapOptions;
 use crate::export::error::ExportError;
-use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::findings::{Counts, Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
@@ -67,8 +67,8 @@ impl DatasetFormat for McapFormat {
         }
     }
 
-    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
-        super::check::check(&found.root, options, findings)
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
+        Counts::from(super::check::check(&found.root, options, findings))
     }
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {

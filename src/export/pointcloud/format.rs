@@ -7,7 +7,7 @@ use super::cloud::CloudSettings;
 use super::files::{CloudFileFormat, SURGVLA_JSON};
 use crate::export::bounded::read_json;
 use crate::export::error::ExportError;
-use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::findings::{Counts, Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
@@ -97,8 +97,8 @@ impl DatasetFormat for CloudFilesFormat {
         }
     }
 
-    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
-        super::check::check(&found.root, self.0.extension(), options, findings)
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
+        Counts::from(super::check::check(&found.root, self.0.extension(), options, findings))
     }
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {

@@ -5,7 +5,7 @@
 
 use super::options::RldsOptions;
 use crate::export::error::ExportError;
-use crate::export::findings::{Findings, ValidateOptions};
+use crate::export::findings::{Counts, Findings, ValidateOptions};
 use crate::export::format::{
     Capabilities, DatasetFormat, Format, Found, MergeError, MergeRequest, Probe, SinkOptions, Sniff,
 };
@@ -83,8 +83,8 @@ impl DatasetFormat for RldsFormat {
         }
     }
 
-    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> (u64, u64) {
-        super::check::check(&found.root, options, findings)
+    fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
+        Counts::from(super::check::check(&found.root, options, findings))
     }
 
     fn open_source(
