@@ -207,7 +207,7 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
     loop {
         let mut batch = Vec::with_capacity(batch_size);
         while batch.len() < batch_size {
-            match source.next_episode() {
+            match source.next() {
                 Some(Ok(episode)) => batch.push(episode),
                 Some(Err(error)) => {
                     findings.push(Finding {

@@ -16,8 +16,8 @@ use crate::collect::record::{attempt_seed, render_replay_with, run_expert, verif
 use crate::collect::report::Tally;
 pub use crate::collect::report::{CollectReport, TaskReport, Timing};
 pub use crate::collect::slot::{
-    BadOptions, BadShard, CollectOptions, Failure, FailureStage, MAX_THREADS_PER_CORE, Shard, Slot, SlotOutcome,
-    cores,
+    BadOptions, BadShard, CollectOptions, Failure, FailureStage, MAX_THREADS_PER_CORE, Shard, Slot,
+    SlotOutcome, cores,
 };
 use crate::episode::Episode;
 use crate::episode::FeatureSet;
@@ -172,7 +172,9 @@ pub fn collect_slot_encoded(
             return Ok((outcome, encoded));
         }
         outcome.episode = None;
-        outcome.failures.push(fail(FailureStage::Replay, verdict.reason));
+        outcome
+            .failures
+            .push(fail(FailureStage::Replay, verdict.reason));
     }
     Ok((outcome, None))
 }

@@ -133,7 +133,7 @@ impl ReplayLibrary {
             GripperEncoding::Continuous
         };
         let mut library = ReplayLibrary::default();
-        while let Some(episode) = source.next_episode() {
+        while let Some(episode) = source.next() {
             let episode = episode?;
             library.episodes += 1;
             let Some(first) = episode.steps.first() else {

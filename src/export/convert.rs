@@ -95,7 +95,7 @@ fn read_batch(
 ) -> Result<Vec<Episode>, ConvertError> {
     let mut batch = Vec::with_capacity(size);
     while batch.len() < size {
-        let Some(episode) = source.next_episode() else {
+        let Some(episode) = source.next() else {
             break;
         };
         let episode = episode.map_err(ConvertError::Read)?;
@@ -154,6 +154,14 @@ impl Without {
         episode
     }
 }
+impl Iterator for Without {
+    type Item = Result<Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let episode = self.inner.next()?;
+        Some(episode.map(|e| self.strip(e)))
+    }
+}
 
 impl EpisodeSource for Without {
     fn info(&self) -> &crate::export::info::DatasetInfo {
@@ -162,11 +170,6 @@ impl EpisodeSource for Without {
 
     fn len(&self) -> u64 {
         self.inner.len()
-    }
-
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        let episode = self.inner.next_episode()?;
-        Some(episode.map(|e| self.strip(e)))
     }
 
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
@@ -305,7 +308,7 @@ pub fn verify_within(
         }
     };
     loop {
-        let (a, b) = (source.next_episode(), target.next_episode());
+        let (a, b) = (source.next(), target.next());
         let (a, b) = match (a, b) {
             (None, None) => return Ok(result),
             (Some(a), Some(b)) => (

@@ -112,7 +112,7 @@ impl Decoded {
         let wanted = rayon::current_num_threads().max(1);
         let mut batch = Vec::with_capacity(wanted);
         while batch.len() < wanted && !self.drained {
-            match self.inner.next_episode() {
+            match self.inner.next() {
                 Some(Ok(episode)) => batch.push(Ok(episode)),
                 Some(Err(error)) => {
                     self.drained = true;
@@ -130,6 +130,16 @@ impl Decoded {
         self.ready.extend(decoded);
     }
 }
+impl Iterator for Decoded {
+    type Item = Result<Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.ready.is_empty() && !self.drained {
+            self.refill();
+        }
+        self.ready.pop_front()
+    }
+}
 
 impl EpisodeSource for Decoded {
     fn info(&self) -> &DatasetInfo {
@@ -138,13 +148,6 @@ impl EpisodeSource for Decoded {
 
     fn len(&self) -> u64 {
         self.inner.len()
-    }
-
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        if self.ready.is_empty() && !self.drained {
-            self.refill();
-        }
-        self.ready.pop_front()
     }
 
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {

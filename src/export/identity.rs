@@ -79,6 +79,13 @@ impl Identified {
         Ok(Identified { inner, info })
     }
 }
+impl Iterator for Identified {
+    type Item = Result<crate::episode::Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.inner.next()
+    }
+}
 
 impl EpisodeSource for Identified {
     fn info(&self) -> &DatasetInfo {
@@ -87,10 +94,6 @@ impl EpisodeSource for Identified {
 
     fn len(&self) -> u64 {
         self.inner.len()
-    }
-
-    fn next_episode(&mut self) -> Option<Result<crate::episode::Episode, ExportError>> {
-        self.inner.next_episode()
     }
 
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {

@@ -154,7 +154,7 @@ pub fn write_through(
                     next += 1;
                     continue;
                 }
-                let Some(episode) = source.next_episode() else {
+                let Some(episode) = source.next() else {
                     break;
                 };
                 let mut episode = episode.map_err(read)?;

@@ -120,6 +120,28 @@ impl Sharded {
         })
     }
 }
+impl Iterator for Sharded {
+    type Item = Result<Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        while self.read < self.range.start {
+            match self.inner.skip_episode()? {
+                Ok(()) => self.read += 1,
+                Err(error) => return Some(Err(error)),
+            }
+        }
+        if self.read >= self.range.end {
+            return None;
+        }
+        let episode = self.inner.next()?;
+        self.read += 1;
+        let start = self.range.start;
+        Some(episode.map(|mut e| {
+            e.meta.index -= start;
+            e
+        }))
+    }
+}
 
 impl EpisodeSource for Sharded {
     fn info(&self) -> &DatasetInfo {
@@ -130,27 +152,8 @@ impl EpisodeSource for Sharded {
         self.range.end - self.range.start
     }
 
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        while self.read < self.range.start {
-            match self.inner.skip_episode()? {
-                Ok(()) => self.read += 1,
-                Err(error) => return Some(Err(error)),
-            }
-        }
-        if self.read >= self.range.end {
-            return None;
-        }
-        let episode = self.inner.next_episode()?;
-        self.read += 1;
-        let start = self.range.start;
-        Some(episode.map(|mut e| {
-            e.meta.index -= start;
-            e
-        }))
-    }
-
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
-        self.next_episode().map(|e| e.map(|_| ()))
+        self.next().map(|e| e.map(|_| ()))
     }
 
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
@@ -185,17 +188,10 @@ mod tests {
             skipped: Arc::default(),
         }
     }
+    impl Iterator for Numbers {
+        type Item = Result<Episode, ExportError>;
 
-    impl EpisodeSource for Numbers {
-        fn info(&self) -> &DatasetInfo {
-            &self.info
-        }
-
-        fn len(&self) -> u64 {
-            self.total
-        }
-
-        fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+        fn next(&mut self) -> Option<Self::Item> {
             (self.next < self.total).then(|| {
                 self.next += 1;
                 self.decoded.fetch_add(1, Ordering::Relaxed);
@@ -214,6 +210,16 @@ mod tests {
                     encoded: Vec::new(),
                 })
             })
+        }
+    }
+
+    impl EpisodeSource for Numbers {
+        fn info(&self) -> &DatasetInfo {
+            &self.info
+        }
+
+        fn len(&self) -> u64 {
+            self.total
         }
 
         fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
@@ -242,7 +248,7 @@ mod tests {
                 assert_eq!(sharded.info().collection["shard"], shard.to_string());
                 assert_eq!(recorded(&sharded.info().collection), Some(shard));
                 let mut k = 0;
-                while let Some(episode) = sharded.next_episode() {
+                while let Some(episode) = sharded.next() {
                     let episode = episode.expect("episode");
                     assert_eq!(episode.meta.index, k, "numbered from 0");
                     seeds.push(episode.meta.seed);
@@ -262,7 +268,7 @@ mod tests {
             sharded.info().collection.is_null(),
             "another tool's: nothing recorded"
         );
-        let seeds: Vec<u64> = std::iter::from_fn(|| sharded.next_episode())
+        let seeds: Vec<u64> = std::iter::from_fn(|| sharded.next())
             .map(|e| e.expect("episode").meta.seed)
             .collect();
         assert_eq!(seeds, [6, 7, 8, 9]);

@@ -6,17 +6,15 @@ use crate::episode::Episode;
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 
-/// Reads a dataset back: its [`DatasetInfo`] and its episodes in order, one at a time (memory
-/// bounded by one episode).
-pub trait EpisodeSource {
+/// Reads a dataset back: its [`DatasetInfo`] and, as an iterator, its episodes in order, one at
+/// a time (memory bounded by one episode); a read that fails is an `Err` item.
+pub trait EpisodeSource: Iterator<Item = Result<Episode, ExportError>> {
     fn info(&self) -> &DatasetInfo;
     /// Episodes in the dataset.
     fn len(&self) -> u64;
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    /// The next episode, or None after the last.
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>>;
     /// Leaves the stored still images (PNG, TIFF, JPEG) of the `unused` encodings out of the
     /// episodes' [`Episode::encoded`] from now on: a conversion whose target would encode them
     /// again says so before reading, so that no episode in flight holds its frames twice.
@@ -26,7 +24,7 @@ pub trait EpisodeSource {
     /// episodes before its range. Reading and dropping it by default; a source that can skip
     /// without decoding does so.
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
-        self.next_episode().map(|e| e.map(|_| ()))
+        self.next().map(|e| e.map(|_| ()))
     }
 }
 

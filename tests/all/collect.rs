@@ -287,7 +287,8 @@ fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
         report
             .failures
             .iter()
-            .all(|f| f.stage == surgvla::collect::slot::FailureStage::Expert && f.slot.task == TaskId::Hemostasis)
+            .all(|f| f.stage == surgvla::collect::slot::FailureStage::Expert
+                && f.slot.task == TaskId::Hemostasis)
     );
     assert!(report.failures[0].reason.contains("not under the gauze"));
 

@@ -227,10 +227,7 @@ fn every_sink_keeps_the_contract() {
         assert_eq!(source.info().camera, info.camera, "{name}");
         assert_eq!(source.info().collection, info.collection, "{name}");
         for expected in &recorded {
-            let read = source
-                .next_episode()
-                .expect("an episode")
-                .expect("readable");
+            let read = source.next().expect("an episode").expect("readable");
             assert_eq!(read.meta.index, expected.meta.index, "{name}");
             assert_eq!(read.meta.instruction, expected.meta.instruction, "{name}");
             assert_eq!(
@@ -268,7 +265,7 @@ fn every_sink_keeps_the_contract() {
             }
         }
         assert!(
-            source.next_episode().is_none(),
+            source.next().is_none(),
             "{name}: nothing after the last episode"
         );
     }

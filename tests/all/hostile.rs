@@ -332,7 +332,7 @@ fn a_conversion_resumes_only_from_the_input_it_started_with() {
         assert!(info.input.is_some());
         let options = RldsOptions::default();
         let mut sink = open_sink(&out, &info, &options, false).expect("sink");
-        let first = source.next_episode().expect("one").expect("read");
+        let first = source.next().expect("one").expect("read");
         sink.write_batch(&[first]).expect("write");
     }
     let out_text = out.to_str().expect("utf-8");

@@ -649,13 +649,13 @@ fn other_features_round_trip_unchanged() {
         let mut source = surgvla::export::open_source(&root).expect("source");
         assert_eq!(source.info().features, dataset.features);
         for expected in &episodes {
-            let read = source.next_episode().expect("episode").expect("readable");
+            let read = source.next().expect("episode").expect("readable");
             assert_eq!(read.meta.instruction, expected.meta.instruction);
             let others: Vec<_> = read.steps.iter().map(|s| s.other.clone()).collect();
             let wanted: Vec<_> = expected.steps.iter().map(|s| s.other.clone()).collect();
             assert_eq!(others, wanted, "{version:?}");
         }
-        assert!(source.next_episode().is_none());
+        assert!(source.next().is_none());
         let report = surgvla::export::validate::validate(&root, &Default::default()).expect("runs");
         assert!(report.valid, "{version:?}: {:#?}", report.errors);
     }
@@ -726,10 +726,7 @@ fn a_reader_takes_the_episodes_table_a_batch_at_a_time_and_keeps_each_row_with_i
     write(&root, &recorded, options);
     let mut source = surgvla::export::open_source(&root).expect("source");
     for expected in &recorded {
-        let read = source
-            .next_episode()
-            .expect("an episode")
-            .expect("readable");
+        let read = source.next().expect("an episode").expect("readable");
         let meta = |e: &Episode| (e.meta.index, e.meta.seed, e.meta.attempts, e.meta.success);
         assert_eq!(meta(&read), meta(expected));
         let video = &read.encoded[0];
@@ -740,5 +737,5 @@ fn a_reader_takes_the_episodes_table_a_batch_at_a_time_and_keeps_each_row_with_i
         );
         assert_eq!(video.frames.len(), expected.steps.len());
     }
-    assert!(source.next_episode().is_none());
+    assert!(source.next().is_none());
 }

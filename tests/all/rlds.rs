@@ -100,10 +100,10 @@ fn collect_rlds_writes_what_convert_makes_of_the_lerobot_dataset() {
     let mut returned = open_source(&back).expect("lerobot from rlds");
     assert_eq!(returned.len(), original.len());
     assert_eq!(returned.info().features, original.info().features);
-    while let Some(episode) = original.next_episode() {
+    while let Some(episode) = original.next() {
         let (a, b) = (
             episode.expect("read"),
-            returned.next_episode().expect("one").expect("read"),
+            returned.next().expect("one").expect("read"),
         );
         assert_eq!(
             (
@@ -293,14 +293,14 @@ fn other_features_round_trip_through_rlds() {
     let read_info = source.info().clone();
     assert_eq!(read_info.robot_type, "unknown");
     for expected in &episodes {
-        let read = source.next_episode().expect("episode").expect("readable");
+        let read = source.next().expect("episode").expect("readable");
         assert_eq!(read.meta.instruction, expected.meta.instruction);
         assert_eq!(read.steps.len(), expected.steps.len());
         for (a, b) in read.steps.iter().zip(&expected.steps) {
             assert_eq!(named(&read_info, &a.other), named(&dataset, &b.other));
         }
     }
-    assert!(source.next_episode().is_none());
+    assert!(source.next().is_none());
     let report = surgvla::export::validate::validate(&root, &Default::default()).expect("runs");
     assert!(report.valid, "{:#?}", report.errors);
 }
@@ -360,10 +360,11 @@ fn jpeg_rgb_is_verified_within_the_tolerance_and_copied_between_jpeg_datasets() 
         fn len(&self) -> u64 {
             self.0.len()
         }
-        fn next_episode(
-            &mut self,
-        ) -> Option<Result<surgvla::episode::Episode, surgvla::export::ExportError>> {
-            self.0.next_episode().map(|e| {
+    }
+    impl Iterator for Late {
+        type Item = Result<surgvla::episode::Episode, surgvla::export::ExportError>;
+        fn next(&mut self) -> Option<Self::Item> {
+            self.0.next().map(|e| {
                 e.map(|mut episode| {
                     let first = episode.steps[0].rgb.clone();
                     for i in (1..episode.steps.len()).rev() {

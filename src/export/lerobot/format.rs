@@ -80,7 +80,12 @@ impl DatasetFormat for LeRobotFormat {
     }
 
     fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
-        Counts::from(super::check::check(&found.root, found.layout == V21, options, findings))
+        Counts::from(super::check::check(
+            &found.root,
+            found.layout == V21,
+            options,
+            findings,
+        ))
     }
 
     fn open_source(

@@ -1003,26 +1003,10 @@ impl LeRobotSource {
         }
     }
 }
+impl Iterator for LeRobotSource {
+    type Item = Result<Episode, ExportError>;
 
-impl EpisodeSource for LeRobotSource {
-    fn info(&self) -> &DatasetInfo {
-        &self.info
-    }
-
-    fn drop_stored(&mut self, unused: &[ImageEncoding]) {
-        self.unused_stored = unused.to_vec();
-    }
-
-    fn len(&self) -> u64 {
-        self.total_episodes
-    }
-
-    /// The episode's rows are read, but its images are never decoded nor its video read.
-    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
-        self.take_episode().map(|taken| taken.map(|_| ()))
-    }
-
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
+    fn next(&mut self) -> Option<Self::Item> {
         let (index, task, rows, row) = match self.take_episode()? {
             Ok(taken) => taken,
             Err(error) => return Some(Err(error)),
@@ -1101,6 +1085,25 @@ impl EpisodeSource for LeRobotSource {
             },
             steps,
         }))
+    }
+}
+
+impl EpisodeSource for LeRobotSource {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn drop_stored(&mut self, unused: &[ImageEncoding]) {
+        self.unused_stored = unused.to_vec();
+    }
+
+    fn len(&self) -> u64 {
+        self.total_episodes
+    }
+
+    /// The episode's rows are read, but its images are never decoded nor its video read.
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        self.take_episode().map(|taken| taken.map(|_| ()))
     }
 }
 

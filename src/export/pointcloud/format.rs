@@ -98,7 +98,12 @@ impl DatasetFormat for CloudFilesFormat {
     }
 
     fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
-        Counts::from(super::check::check(&found.root, self.0.extension(), options, findings))
+        Counts::from(super::check::check(
+            &found.root,
+            self.0.extension(),
+            options,
+            findings,
+        ))
     }
 
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {

@@ -16,7 +16,6 @@ use crate::export::rlds::generic::{Leaf, check_record, leaves};
 use crate::export::rlds::read::RldsSource;
 use crate::export::rlds::tfrecord::{RecordError, RecordReader};
 use crate::export::schema;
-use crate::export::source::EpisodeSource;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -302,7 +301,7 @@ fn check_our_episodes(
         return;
     };
     let mut episode_index = 0u64;
-    while let Some(episode) = source.next_episode() {
+    while let Some(episode) = source.next() {
         match episode {
             Ok(episode) => {
                 check_semantics(&episode, &semantics, &At::default(), findings);

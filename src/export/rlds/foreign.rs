@@ -180,6 +180,17 @@ impl ForeignRldsSource {
         })
     }
 }
+impl Iterator for ForeignRldsSource {
+    type Item = Result<Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let index = self.next_index;
+        self.next_index += 1;
+        let columns = &self.columns;
+        self.records
+            .next_decoded(|bytes| Self::decode(columns, bytes, index))
+    }
+}
 
 impl EpisodeSource for ForeignRldsSource {
     fn info(&self) -> &DatasetInfo {
@@ -188,14 +199,6 @@ impl EpisodeSource for ForeignRldsSource {
 
     fn len(&self) -> u64 {
         self.records.total()
-    }
-
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        let index = self.next_index;
-        self.next_index += 1;
-        let columns = &self.columns;
-        self.records
-            .next_decoded(|bytes| Self::decode(columns, bytes, index))
     }
 
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {

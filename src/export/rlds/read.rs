@@ -323,6 +323,15 @@ impl RldsSource {
         })
     }
 }
+impl Iterator for RldsSource {
+    type Item = Result<Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let layout = &self.layout;
+        self.records
+            .next_decoded(|bytes| decode_episode(layout, bytes))
+    }
+}
 
 impl EpisodeSource for RldsSource {
     fn info(&self) -> &DatasetInfo {
@@ -331,12 +340,6 @@ impl EpisodeSource for RldsSource {
 
     fn len(&self) -> u64 {
         self.records.total()
-    }
-
-    fn next_episode(&mut self) -> Option<Result<Episode, ExportError>> {
-        let layout = &self.layout;
-        self.records
-            .next_decoded(|bytes| decode_episode(layout, bytes))
     }
 
     /// The record is read (its framing and CRC checked) but not decoded.
