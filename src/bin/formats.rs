@@ -607,3 +607,45 @@ pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Flags {
+        #[arg(long, value_enum)]
+        to: Format,
+        #[command(flatten)]
+        formats: FormatArgs,
+    }
+
+    #[test]
+    fn every_registered_format_is_a_value_whose_flags_make_its_options() {
+        let values: Vec<String> = Format::value_variants()
+            .iter()
+            .filter_map(|f| f.to_possible_value())
+            .map(|v| v.get_name().to_string())
+            .collect();
+        assert_eq!(values.len(), BUILTIN_FORMATS.len(), "{values:?}");
+        for format in BUILTIN_FORMATS {
+            let flags = Flags::try_parse_from(["surgvla", "--to", format.name()])
+                .unwrap_or_else(|e| panic!("--to {}: {e}", format.name()));
+            let options = flags
+                .formats
+                .sink_options(flags.to, "--to")
+                .unwrap_or_else(|e| panic!("{}: {}", format.name(), e.message()));
+            assert_eq!(options.format(), *format);
+        }
+        // Another format's flag is refused, naming its owner.
+        let flags = Flags::try_parse_from(["surgvla", "--to", "rlds", "--points", "512"])
+            .expect("parses");
+        let refused = flags.formats.sink_options(flags.to, "--to").err().expect("refused");
+        assert!(
+            refused.message().contains("--points is a point-cloud option"),
+            "{}",
+            refused.message()
+        );
+    }
+}

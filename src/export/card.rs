@@ -125,6 +125,9 @@ fn task_key(code: &str, instruction: &str) -> String {
 pub struct CardFormat {
     /// As `--to` says it ("lerobot", "rlds", "zarr", "ply", "pcd", "mcap").
     pub name: &'static str,
+    /// Whether the front matter's tags name the format (every card is tagged LeRobot, the
+    /// hub's robotics tag, so LeRobot's own need not be).
+    pub tagged: bool,
     /// A glob of the data files (`configs: data_files`), where the format has loadable ones.
     pub data_files: Option<&'static str>,
     /// Features stored as video, with their codec's name (LeRobot's video mode).
@@ -145,7 +148,7 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
     if ours {
         card.push_str("- surgical\n- surgvla\n");
     }
-    if format.name != "lerobot" {
+    if format.tagged {
         let _ = writeln!(card, "- {}", format.name);
     }
     if let Some(files) = format.data_files {
@@ -410,6 +413,7 @@ mod tests {
 
     const LEROBOT: fn() -> CardFormat = || CardFormat {
         name: "lerobot",
+        tagged: false,
         data_files: Some("data/*/*.parquet"),
         video: Vec::new(),
     };

@@ -407,3 +407,52 @@ fn a_forbidden_import_is_found_however_it_is_written() {
     assert!(named("export::dir imports task"), "{found:?}");
     assert_eq!(found.len(), 5, "{found:?}");
 }
+
+/// The code map's paths: the first cell of each row, braces expanded
+/// (`src/export/{rlds,zarr}/check.rs` is two paths).
+fn code_map() -> Vec<String> {
+    let text = std::fs::read_to_string(root().join("ARCHITECTURE.md")).expect("ARCHITECTURE.md");
+    let section = text.split("## Code map").nth(1).expect("a Code map section");
+    let mut paths = Vec::new();
+    for line in section.lines().skip(2).take_while(|l| l.starts_with('|')) {
+        let cell = line.trim_matches('|').split('|').next().unwrap_or("").trim();
+        let path = cell.trim_matches('`');
+        match (path.find('{'), path.find('}')) {
+            (Some(open), Some(close)) => {
+                for choice in path[open + 1..close].split(',') {
+                    paths.push(format!("{}{choice}{}", &path[..open], &path[close + 1..]));
+                }
+            }
+            _ => paths.push(path.to_string()),
+        }
+    }
+    paths
+}
+
+#[test]
+fn the_code_map_names_every_source_file_and_nothing_gone() {
+    let paths = code_map();
+    let mut files = Vec::new();
+    rust_files(&root().join("src"), &mut files);
+    let mut missing = Vec::new();
+    for file in &files {
+        let relative = file
+            .strip_prefix(root())
+            .expect("under the root")
+            .to_string_lossy()
+            .into_owned();
+        // A file is named by its own row or by a folder row above it.
+        let named = paths
+            .iter()
+            .any(|p| *p == relative || (p.ends_with('/') && relative.starts_with(p.as_str())));
+        if !named {
+            missing.push(relative);
+        }
+    }
+    assert!(missing.is_empty(), "not in ARCHITECTURE.md's code map: {missing:?}");
+    let gone: Vec<&String> = paths
+        .iter()
+        .filter(|p| p.starts_with("src/") && !root().join(p.as_str()).exists())
+        .collect();
+    assert!(gone.is_empty(), "in the code map but not in the tree: {gone:?}");
+}

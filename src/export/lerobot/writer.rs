@@ -93,6 +93,7 @@ impl FormatWriter for LeRobotFiles {
     fn card_format(&self) -> crate::export::card::CardFormat {
         crate::export::card::CardFormat {
             name: "lerobot",
+            tagged: false,
             data_files: Some("data/*/*.parquet"),
             video: self
                 .video_features

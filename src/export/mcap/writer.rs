@@ -283,6 +283,7 @@ impl FormatWriter for McapFiles {
     fn card_format(&self) -> crate::export::card::CardFormat {
         crate::export::card::CardFormat {
             name: "mcap",
+            tagged: true,
             data_files: None,
             video: Vec::new(),
         }

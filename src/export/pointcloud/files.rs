@@ -72,6 +72,7 @@ impl FormatWriter for CloudFiles {
     fn card_format(&self) -> crate::export::card::CardFormat {
         crate::export::card::CardFormat {
             name: self.format.extension(),
+            tagged: true,
             data_files: None,
             video: Vec::new(),
         }

@@ -56,6 +56,7 @@ impl FormatWriter for RldsShards {
     fn card_format(&self) -> crate::export::card::CardFormat {
         crate::export::card::CardFormat {
             name: "rlds",
+            tagged: true,
             data_files: None,
             video: Vec::new(),
         }

@@ -102,6 +102,7 @@ impl FormatWriter for ZarrStore {
     fn card_format(&self) -> crate::export::card::CardFormat {
         crate::export::card::CardFormat {
             name: "zarr",
+            tagged: true,
             data_files: None,
             video: Vec::new(),
         }
