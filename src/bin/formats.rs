@@ -1,21 +1,17 @@
-//! The output formats on the command line: `--format` / `--to`, each format's own options
-//! (refused with another format), and the `convert` command.
+//! The output formats on the command line: `--format` / `--to` and `schema --format` (the
+//! registry's formats), and each format's own flags (refused with another format).
 
 use crate::error::CliError;
 use clap::builder::PossibleValue;
 use clap::{Args, ValueEnum};
-use std::path::PathBuf;
 use std::sync::LazyLock;
-use surgvla::episode::FeatureKind;
-use surgvla::export::convert::ConvertError;
-use surgvla::export::format::MergeRequest;
 use surgvla::export::lerobot::{LeRobotOptions, LeRobotVersion, VideoOptions};
 use surgvla::export::mcap::McapOptions;
 use surgvla::export::pointcloud::files::CloudFileFormat;
 use surgvla::export::pointcloud::{Aabb, CloudFileOptions, CloudSettings};
 use surgvla::export::rlds::{RldsKeys, RldsOptions};
 use surgvla::export::zarr::ZarrOptions;
-use surgvla::export::{BUILTIN_FORMATS, SinkOptions, open_sink, resumes};
+use surgvla::export::{BUILTIN_FORMATS, SinkOptions};
 use surgvla::media::image::PngLevel;
 
 /// A dataset format to write (`--to`, `--format`): the registry's formats, by name, each with
@@ -366,248 +362,6 @@ impl FormatArgs {
     }
 }
 
-#[derive(Args, Debug)]
-pub struct ConvertArgs {
-    /// The dataset to read: LeRobot (v3.0 or v2.1, image or video mode) or RLDS (a TFDS data directory
-    /// or its <name>/<version> folder).
-    input: PathBuf,
-    /// The format to write.
-    #[arg(long, value_enum)]
-    to: Format,
-    /// Output folder (must not exist or be empty); for RLDS the TFDS data directory.
-    #[arg(long)]
-    out: PathBuf,
-    /// Continue an interrupted conversion into --out (same input and options).
-    #[arg(long)]
-    resume: bool,
-    /// This machine's part of the input's episodes, I/N (0-based): N machines with I = 0..N-1
-    /// each convert the I-th contiguous range into its own complete dataset; `merge` joins them
-    /// into what one conversion writes (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT).
-    #[arg(long, default_value = "0/1")]
-    shard: surgvla::export::shard::Shard,
-    /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::threads_arg)]
-    threads: Option<usize>,
-    /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
-    fps: Option<u32>,
-    /// The robot type of an input that states none (default "unknown").
-    #[arg(long)]
-    robot_type: Option<String>,
-    /// Leave optional features out, comma-separated: depth, mask, environment_state.
-    #[arg(long, value_enum, value_delimiter = ',')]
-    without: Vec<ConvertOmit>,
-    /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of
-    /// copying the video as it is. Implied for every other target, and for --video with
-    /// another codec than the input's (re-encoding).
-    #[arg(long)]
-    decode: bool,
-    /// Afterwards read both sides and compare every frame (LeRobot and RLDS targets; for zarr
-    /// and MCAP the output is validated and its episodes and frames counted, for PLY/PCD its
-    /// files counted); a difference exits 1.
-    #[arg(long)]
-    verify: bool,
-    #[command(flatten)]
-    formats: FormatArgs,
-}
-
-/// An optional feature `convert --without` leaves out.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ConvertOmit {
-    /// `observation.images.depth`.
-    Depth,
-    /// `observation.images.mask`.
-    Mask,
-    /// `observation.environment_state`.
-    #[value(name = "environment_state")]
-    EnvironmentState,
-}
-
-impl ConvertOmit {
-    fn kind(self) -> FeatureKind {
-        match self {
-            ConvertOmit::Depth => FeatureKind::Depth,
-            ConvertOmit::Mask => FeatureKind::Mask,
-            ConvertOmit::EnvironmentState => FeatureKind::EnvironmentState,
-        }
-    }
-}
-
-fn omitted(without: &[ConvertOmit]) -> Vec<FeatureKind> {
-    without.iter().map(|w| w.kind()).collect()
-}
-
-/// The input as `convert` reads it into `options`: `--without` applied, video decoded when
-/// asked (`--decode`) or the target needs pixels.
-fn converted_source(
-    args: &ConvertArgs,
-    options: &dyn SinkOptions,
-) -> Result<Box<dyn surgvla::export::EpisodeSource + Send>, CliError> {
-    let source_options = surgvla::export::SourceOptions {
-        fps: args.fps,
-        robot_type: args.robot_type.clone(),
-    };
-    let mut source = surgvla::export::open_source_with(&args.input, &source_options)
-        .map_err(ConvertError::Read)?;
-    if args.shard != surgvla::export::shard::Shard::default() {
-        // Usage: a shard past the input's episodes, or an input that is itself a shard.
-        source = Box::new(surgvla::export::shard::Sharded::new(source, args.shard)?);
-    }
-    if !args.without.is_empty() {
-        source = Box::new(surgvla::export::convert::Without::new(
-            source,
-            &omitted(&args.without),
-        ));
-    }
-    let needed = surgvla::export::decoding_needed(source.info(), options);
-    if needed || (args.decode && surgvla::export::decoded::Decoded::needed(source.info())) {
-        source = Box::new(surgvla::export::decoded::Decoded::new(source)?);
-    }
-    Ok(source)
-}
-
-/// `--verify`: what the output holds against the input.
-fn verify(
-    args: &ConvertArgs,
-    options: &dyn SinkOptions,
-    summary: &surgvla::export::Summary,
-) -> Result<(), CliError> {
-    let mut source = converted_source(args, options)?;
-    let differences = surgvla::export::verify::verify_output(source.as_mut(), &args.out, summary)?;
-    if differences.is_empty() {
-        say!("verified: the output holds what was read");
-        return Ok(());
-    }
-    for difference in &differences {
-        say!("difference: {difference}");
-    }
-    Err(CliError::invalid(format!(
-        "{} does not hold what {} holds ({} differences)",
-        args.out.display(),
-        args.input.display(),
-        differences.len()
-    )))
-}
-
-/// `surgvla convert INPUT --to FORMAT --out DIR`.
-pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
-    let options = args.formats.sink_options(args.to, "--to")?;
-    let mut source = converted_source(args, options.as_ref())?;
-    let info = source.info().clone();
-    let resuming = resumes(&args.out, args.resume);
-    let created = !args.out.exists();
-    let mut sink = open_sink(&args.out, &info, options.as_ref(), args.resume)?;
-    if resuming {
-        eprintln!(
-            "resuming {} at episode {}",
-            args.out.display(),
-            sink.next_episode_index()
-        );
-    }
-    let bar = crate::progress::episode_bar(source.len(), "converting");
-    let threads = args.threads.unwrap_or(0);
-    let mut trimmed = crate::memory::Trimmer::default();
-    let summary =
-        surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), threads, &mut |done| {
-            bar.set_position(done);
-            trimmed.after_episodes(done);
-        })
-        .map_err(|e| {
-            // Resuming helps after a failed write, not after a damaged input.
-            let write = matches!(e, ConvertError::Write(_));
-            // A usage error found in the first episode (a feature the target cannot hold)
-            // leaves no output behind: nothing was written but the marker.
-            let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
-            if usage && !resuming {
-                surgvla::export::DatasetDir::discard_unstarted(&args.out, created);
-            }
-            let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
-            CliError::from(e).resumable(resumable)
-        })?;
-    bar.finish_and_clear();
-    say!(
-        "converted {} episodes, {} frames from {} to {} ({} files, {:.1} MB)",
-        summary.episodes,
-        summary.frames,
-        args.input.display(),
-        args.out.display(),
-        summary.files,
-        summary.bytes as f64 / 1e6
-    );
-    if args.verify {
-        verify(args, options.as_ref(), &summary)?;
-    }
-    Ok(())
-}
-
-#[derive(Args, Debug)]
-pub struct MergeArgs {
-    /// The datasets to merge, all of one format: LeRobot, RLDS, zarr, PLY/PCD or MCAP folders
-    /// (e.g. the outputs of `collect --shard I/N` or `convert --shard I/N`; shards are put in
-    /// shard order, other datasets kept in the order given).
-    #[arg(required = true, num_args = 1..)]
-    inputs: Vec<PathBuf>,
-    /// Output folder (must not exist or be empty).
-    #[arg(long)]
-    out: PathBuf,
-    /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::threads_arg)]
-    threads: Option<usize>,
-    /// Continue an interrupted merge into --out (the same inputs; LeRobot and RLDS: zarr,
-    /// point-cloud and MCAP merges start again in an empty folder).
-    #[arg(long)]
-    resume: bool,
-    /// Recompute the pixel statistics of video features another tool wrote (whose metadata
-    /// holds per-episode summaries only) from every decoded frame; without it they are combined
-    /// by count, as lerobot does (a single input's statistics stay as they are).
-    #[arg(long)]
-    exact_stats: bool,
-}
-
-/// `surgvla merge INPUT... --out DIR`.
-pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
-    let created = !args.out.exists();
-    let bar = crate::progress::episode_bar(0, "merging");
-    let threads = args.threads.unwrap_or(0);
-    let summary = surgvla::export::merge(&mut MergeRequest {
-        inputs: &args.inputs,
-        out: &args.out,
-        threads,
-        resume: args.resume,
-        exact_stats: args.exact_stats,
-        progress: &mut |done| {
-            bar.set_length(done);
-            bar.set_position(done)
-        },
-    })
-    .map_err(|e| {
-        // Resuming helps after a failed write (a full disk), not after a damaged input.
-        let write = matches!(
-            e,
-            surgvla::export::MergeError::Convert(ConvertError::Write(_))
-        );
-        // A usage error found in the first episodes (video that cannot be copied) leaves no
-        // output behind.
-        let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
-        if usage && !args.resume {
-            surgvla::export::DatasetDir::discard_unstarted(&args.out, created);
-        }
-        let resumable = write && surgvla::export::DatasetDir::is_interrupted(&args.out);
-        CliError::from(e).resumable(resumable)
-    })?;
-    bar.finish_and_clear();
-    say!(
-        "merged {} datasets: {} episodes, {} frames into {} ({} files, {:.1} MB)",
-        args.inputs.len(),
-        summary.episodes,
-        summary.frames,
-        args.out.display(),
-        summary.files,
-        summary.bytes as f64 / 1e6
-    );
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -639,11 +393,16 @@ mod tests {
             assert_eq!(options.format(), *format);
         }
         // Another format's flag is refused, naming its owner.
-        let flags = Flags::try_parse_from(["surgvla", "--to", "rlds", "--points", "512"])
-            .expect("parses");
-        let refused = flags.formats.sink_options(flags.to, "--to").err().expect("refused");
+        let flags =
+            Flags::try_parse_from(["surgvla", "--to", "rlds", "--points", "512"]).expect("parses");
+        let refused = flags
+            .formats
+            .sink_options(flags.to, "--to")
+            .expect_err("refused");
         assert!(
-            refused.message().contains("--points is a point-cloud option"),
+            refused
+                .message()
+                .contains("--points is a point-cloud option"),
             "{}",
             refused.message()
         );

@@ -125,7 +125,7 @@ impl ReplayLibrary {
     /// task, initial object positions and actions (the gripper decoded as the dataset encodes
     /// it).
     pub fn load(path: &Path) -> Result<ReplayLibrary, ExportError> {
-        let mut source = open_source(path)?;
+        let source = open_source(path)?;
         let pulse = source.info().collection["gripper_encoding"] == "pulse";
         let encoding = if pulse {
             GripperEncoding::Pulse
@@ -133,7 +133,7 @@ impl ReplayLibrary {
             GripperEncoding::Continuous
         };
         let mut library = ReplayLibrary::default();
-        while let Some(episode) = source.next() {
+        for episode in source {
             let episode = episode?;
             library.episodes += 1;
             let Some(first) = episode.steps.first() else {

@@ -20,12 +20,18 @@ pub enum ConvertError {
     /// Writing the output failed (a full disk: resume once there is space).
     #[error("writing the output dataset")]
     Write(#[source] ExportError),
+    /// What was asked of the input cannot be done (a shard past its episodes, video that
+    /// cannot be decoded).
+    #[error(transparent)]
+    Input(ExportError),
 }
 
 impl crate::error::HasKind for ConvertError {
     fn kind(&self) -> ErrorKind {
         match self {
-            ConvertError::Read(error) | ConvertError::Write(error) => error.kind(),
+            ConvertError::Read(error) | ConvertError::Write(error) | ConvertError::Input(error) => {
+                error.kind()
+            }
         }
     }
 

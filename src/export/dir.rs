@@ -200,6 +200,18 @@ pub fn resumes(root: &Path, resume: bool) -> bool {
     resume && DatasetDir::is_interrupted(root)
 }
 
+/// After a conversion or merge into `out` failed: a usage error found before anything was
+/// written (a feature the target cannot hold) leaves no output behind (the marker goes, and
+/// the folder when the run `created` it), unless the run was a resume. Returns whether running
+/// again with `--resume` continues it: after a failed write (a full disk) into a dataset left
+/// interrupted, not after a damaged input.
+pub fn after_failure(out: &Path, created: bool, resume: bool, usage: bool, write: bool) -> bool {
+    if usage && !resume {
+        DatasetDir::discard_unstarted(out, created);
+    }
+    write && DatasetDir::is_interrupted(out)
+}
+
 /// Which process holds a dataset folder.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct Holder {

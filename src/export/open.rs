@@ -85,3 +85,46 @@ pub fn open_source_with(
     })?;
     Ok(Box::new(identity::Identified::new(source, &found.root)?))
 }
+
+/// What `convert` reads: the input, what it may not say, one shard of it, the optional
+/// features left out, and whether video is decoded even where the target could copy it.
+#[derive(Clone, Debug, Default)]
+pub struct ConvertInput {
+    pub path: std::path::PathBuf,
+    pub source: crate::export::source::SourceOptions,
+    pub shard: crate::export::shard::Shard,
+    /// Optional features left out (depth, mask, environment state).
+    pub without: Vec<crate::episode::FeatureKind>,
+    /// Decode video features to pixels even where the target stores video.
+    pub decode: bool,
+}
+
+impl ConvertInput {
+    /// The input as it is converted into `options`: opened, its shard taken, features left out,
+    /// and its video decoded when asked or when the target needs pixels.
+    pub fn open(
+        &self,
+        options: &dyn crate::export::format::SinkOptions,
+    ) -> Result<Box<dyn EpisodeSource + Send>, crate::export::convert::ConvertError> {
+        use crate::export::decoded::Decoded;
+        let mut source = open_source_with(&self.path, &self.source)
+            .map_err(crate::export::convert::ConvertError::Read)?;
+        if self.shard != crate::export::shard::Shard::default() {
+            // Usage: a shard past the input's episodes, or an input that is itself a shard.
+            source = Box::new(
+                crate::export::shard::Sharded::new(source, self.shard)
+                    .map_err(crate::export::convert::ConvertError::Input)?,
+            );
+        }
+        if !self.without.is_empty() {
+            source = Box::new(crate::export::convert::Without::new(source, &self.without));
+        }
+        let needed = decoding_needed(source.info(), options);
+        if needed || (self.decode && Decoded::needed(source.info())) {
+            source = Box::new(
+                Decoded::new(source).map_err(crate::export::convert::ConvertError::Input)?,
+            );
+        }
+        Ok(source)
+    }
+}

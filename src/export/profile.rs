@@ -34,7 +34,7 @@ pub fn profile(source: &mut dyn EpisodeSource) -> Result<Profile, ExportError> {
     // Another tool's vectors are features of its own (not in the steps' state and action).
     let has_state = source.info().has(FeatureKind::State);
     let has_action = source.info().has(FeatureKind::Action);
-    while let Some(episode) = source.next() {
+    for episode in &mut *source {
         let episode = episode?;
         let meta = &episode.meta;
         let task = if meta.task_code.is_empty() {

@@ -248,7 +248,7 @@ mod tests {
                 assert_eq!(sharded.info().collection["shard"], shard.to_string());
                 assert_eq!(recorded(&sharded.info().collection), Some(shard));
                 let mut k = 0;
-                while let Some(episode) = sharded.next() {
+                for episode in sharded.by_ref() {
                     let episode = episode.expect("episode");
                     assert_eq!(episode.meta.index, k, "numbered from 0");
                     seeds.push(episode.meta.seed);

@@ -275,8 +275,10 @@ fn an_interrupted_finish_resumes_to_the_same_bytes_with_its_report() {
         root.join(INCOMPLETE_MARKER).exists(),
         "a finish without its report must stay resumable"
     );
-    let mut writer =
-        LeRobotWriter::resume(&root, &cli_info(), checkpoint_every_episode()).expect("resume");
+    let mut writer = crate::util::unless_briefly_locked(|| {
+        LeRobotWriter::resume(&root, &cli_info(), checkpoint_every_episode())
+    })
+    .expect("resume");
     assert_eq!(writer.next_episode_index(), 3, "nothing is written again");
     let mut report = |s: &surgvla::export::Summary| -> Result<(String, Vec<u8>), ExportError> {
         Ok((

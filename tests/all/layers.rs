@@ -412,10 +412,18 @@ fn a_forbidden_import_is_found_however_it_is_written() {
 /// (`src/export/{rlds,zarr}/check.rs` is two paths).
 fn code_map() -> Vec<String> {
     let text = std::fs::read_to_string(root().join("ARCHITECTURE.md")).expect("ARCHITECTURE.md");
-    let section = text.split("## Code map").nth(1).expect("a Code map section");
+    let section = text
+        .split("## Code map")
+        .nth(1)
+        .expect("a Code map section");
     let mut paths = Vec::new();
     for line in section.lines().skip(2).take_while(|l| l.starts_with('|')) {
-        let cell = line.trim_matches('|').split('|').next().unwrap_or("").trim();
+        let cell = line
+            .trim_matches('|')
+            .split('|')
+            .next()
+            .unwrap_or("")
+            .trim();
         let path = cell.trim_matches('`');
         match (path.find('{'), path.find('}')) {
             (Some(open), Some(close)) => {
@@ -449,10 +457,16 @@ fn the_code_map_names_every_source_file_and_nothing_gone() {
             missing.push(relative);
         }
     }
-    assert!(missing.is_empty(), "not in ARCHITECTURE.md's code map: {missing:?}");
+    assert!(
+        missing.is_empty(),
+        "not in ARCHITECTURE.md's code map: {missing:?}"
+    );
     let gone: Vec<&String> = paths
         .iter()
         .filter(|p| p.starts_with("src/") && !root().join(p.as_str()).exists())
         .collect();
-    assert!(gone.is_empty(), "in the code map but not in the tree: {gone:?}");
+    assert!(
+        gone.is_empty(),
+        "in the code map but not in the tree: {gone:?}"
+    );
 }

@@ -259,17 +259,10 @@ fn an_unfinished_dataset_is_obviously_incomplete() {
         data_files(&root).expect("list").is_empty(),
         "no data file under its final name"
     );
-    // And a new dataset will not be written over it. (The dropped writer's folder lock can
-    // outlive it for an instant: a child process another test thread forks before its exec
-    // shares the lock's file description. That is this test process, so wait it out.)
-    let mut attempt = LeRobotWriter::create(&root, &info(false), LeRobotOptions::default());
-    for _ in 0..50 {
-        if !matches!(attempt, Err(ExportError::Locked { .. })) {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(20));
-        attempt = LeRobotWriter::create(&root, &info(false), LeRobotOptions::default());
-    }
+    // And a new dataset will not be written over it (once the dropped writer's lock is gone).
+    let attempt = crate::util::unless_briefly_locked(|| {
+        LeRobotWriter::create(&root, &info(false), LeRobotOptions::default())
+    });
     match attempt {
         Err(ExportError::NotEmpty { path, interrupted }) => {
             assert_eq!(path, *root);

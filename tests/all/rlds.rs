@@ -96,11 +96,11 @@ fn collect_rlds_writes_what_convert_makes_of_the_lerobot_dataset() {
         "--out",
         path(&back),
     ]);
-    let mut original = open_source(&lerobot).expect("lerobot");
+    let original = open_source(&lerobot).expect("lerobot");
     let mut returned = open_source(&back).expect("lerobot from rlds");
     assert_eq!(returned.len(), original.len());
     assert_eq!(returned.info().features, original.info().features);
-    while let Some(episode) = original.next() {
+    for episode in original {
         let (a, b) = (
             episode.expect("read"),
             returned.next().expect("one").expect("read"),

@@ -176,3 +176,21 @@ pub fn kill_after_checkpoint(args: &[&str], root: &Path) {
     child.wait().expect("wait");
     assert!(checkpointed(), "no checkpoint within the deadline");
 }
+
+/// Runs `open` again while it finds the folder locked, for up to a second: a dropped writer's
+/// folder lock can outlive it for an instant, because a child process another test thread
+/// forks before its exec shares the lock's file description (that child is this test process's,
+/// so the wait is short).
+pub fn unless_briefly_locked<T>(
+    mut open: impl FnMut() -> Result<T, surgvla::export::ExportError>,
+) -> Result<T, surgvla::export::ExportError> {
+    let mut attempt = open();
+    for _ in 0..50 {
+        if !matches!(attempt, Err(surgvla::export::ExportError::Locked { .. })) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        attempt = open();
+    }
+    attempt
+}

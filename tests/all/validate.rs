@@ -892,7 +892,7 @@ fn random_corruption_never_panics_a_reader() {
                         robot_type: None,
                     };
                     if let Ok(mut source) = surgvla::export::open_source_with(&copy, &options) {
-                        while let Some(episode) = source.next() {
+                        for episode in source.by_ref() {
                             if episode.is_err() {
                                 break;
                             }

@@ -252,7 +252,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         let mut batch = Vec::with_capacity(batch_size);
         let mut next = 0u64;
         for input in &mut opened {
-            while let Some(episode) = input.source.next() {
+            for episode in input.source.by_ref() {
                 let mut episode =
                     episode.map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
                 if skip > 0 {

@@ -290,7 +290,7 @@ fn check_our_episodes(
     options: &ValidateOptions,
     findings: &Findings,
 ) {
-    let mut source = match RldsSource::open(root) {
+    let source = match RldsSource::open(root) {
         Ok(source) => source,
         Err(error) => {
             findings.error(At::default(), "open", error_text(&error));
@@ -301,7 +301,7 @@ fn check_our_episodes(
         return;
     };
     let mut episode_index = 0u64;
-    while let Some(episode) = source.next() {
+    for episode in source {
         match episode {
             Ok(episode) => {
                 check_semantics(&episode, &semantics, &At::default(), findings);

@@ -1,0 +1,96 @@
+//! `surgvla collect`: verified expert episodes of the tasks into a dataset of any format,
+//! resumable and shardable.
+
+use crate::error::CliError;
+use crate::formats::{Format, FormatArgs};
+use crate::job::Gripper;
+use crate::job::JobArgs;
+use crate::job::Omit;
+use crate::progress;
+use clap::Args;
+use std::path::PathBuf;
+use surgvla::collect::run::{Shard, collect, dataset_info};
+use surgvla::episode::{FeatureSet, GripperEncoding};
+use surgvla::export::{open_sink, resumes};
+
+#[derive(Args, Debug)]
+pub struct CollectArgs {
+    #[command(flatten)]
+    pub(crate) job: JobArgs,
+    /// Output folder (must not exist or be empty).
+    #[arg(long, default_value = "data")]
+    out: PathBuf,
+    /// Output format (each has its own options below).
+    #[arg(long, value_enum, default_value = "lerobot")]
+    format: Format,
+    /// Also store the segmentation mask as an image feature (another 1-channel image).
+    #[arg(long)]
+    with_mask: bool,
+    /// Leave features of the default dataset out, comma-separated: `depth`, `environment_state`.
+    /// Training with lerobot-train: `--without depth,environment_state` (docs/training.md, "Train a
+    /// policy").
+    #[arg(long, value_enum, value_delimiter = ',')]
+    without: Vec<Omit>,
+    /// This machine's part of the episode list, I/N (0-based): N machines with I = 0..N-1 each
+    /// write the I-th contiguous range of episodes as their own dataset.
+    #[arg(long, default_value = "0/1")]
+    shard: Shard,
+    /// Continue an interrupted run in --out (same options and seed): episodes up to its last
+    /// checkpoint are kept, the rest are recorded again.
+    #[arg(long)]
+    resume: bool,
+    /// action[6]: "continuous" (1 while commanded open, 0 while closed) or "pulse" (+1/-1 on
+    /// the step the command changes, 0 otherwise; for ablations).
+    #[arg(long, value_enum, default_value = "continuous")]
+    gripper_encoding: Gripper,
+    /// Randomise light, tissue colour and texture contrast per episode.
+    #[arg(long)]
+    randomize_appearance: bool,
+    #[command(flatten)]
+    formats: FormatArgs,
+}
+
+pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
+    let (mut options, library) = args.job.options()?;
+    options.shard = args.shard;
+    options.record.gripper = match args.gripper_encoding {
+        Gripper::Continuous => GripperEncoding::Continuous,
+        Gripper::Pulse => GripperEncoding::Pulse,
+    };
+    options.record.randomize_appearance = args.randomize_appearance;
+    // Point clouds (PLY, PCD, MCAP, zarr) carry the mask ids of their points when the frames
+    // have them; LeRobot and RLDS store the mask only as its feature.
+    options.record.render.mask = args.with_mask || args.format.0.capabilities().point_clouds;
+    let features = FeatureSet {
+        mask: args.with_mask,
+        depth: !args.without.contains(&Omit::Depth),
+        environment_state: !args.without.contains(&Omit::EnvironmentState),
+    };
+    options.check().map_err(CliError::usage)?;
+    let sink_options = args.formats.sink_options(args.format, "--format")?;
+    let info = dataset_info(&options, features, &library);
+    let resuming = resumes(&args.out, args.resume);
+    let mut sink = open_sink(&args.out, &info, sink_options.as_ref(), args.resume)?;
+    if resuming {
+        let next = sink.next_episode_index();
+        eprintln!("resuming {} at episode {next}", args.out.display());
+    }
+    let mut bars = progress::Bars::new(&options.tasks);
+    let report = collect(&options, &library, sink.as_mut(), &mut bars).map_err(|e| {
+        let resumable = surgvla::export::DatasetDir::is_interrupted(&args.out);
+        CliError::from(e).resumable(resumable)
+    })?;
+    bars.clear();
+    let path = args.out.join(surgvla::collect::run::REPORT);
+    progress::print_summary(&report)?;
+    say!(
+        "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
+        report.dataset.episodes,
+        report.dataset.frames,
+        args.out.display(),
+        report.dataset.files,
+        report.dataset.bytes as f64 / 1e6,
+        path.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,165 @@
+//! `surgvla convert INPUT --to FORMAT --out DIR`: any dataset surgvla reads into any format it
+//! writes (the library reads, converts, verifies and cleans up; here are the flags and the
+//! printing).
+
+use crate::error::CliError;
+use crate::formats::Format;
+use crate::formats::FormatArgs;
+use clap::{Args, ValueEnum};
+use std::path::PathBuf;
+use surgvla::episode::FeatureKind;
+use surgvla::export::convert::ConvertError;
+use surgvla::export::dir::after_failure;
+use surgvla::export::open::ConvertInput;
+use surgvla::export::{SinkOptions, open_sink, resumes};
+
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// The dataset to read: LeRobot (v3.0 or v2.1, image or video mode) or RLDS (a TFDS data directory
+    /// or its <name>/<version> folder).
+    input: PathBuf,
+    /// The format to write.
+    #[arg(long, value_enum)]
+    to: Format,
+    /// Output folder (must not exist or be empty); for RLDS the TFDS data directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue an interrupted conversion into --out (same input and options).
+    #[arg(long)]
+    resume: bool,
+    /// This machine's part of the input's episodes, I/N (0-based): N machines with I = 0..N-1
+    /// each convert the I-th contiguous range into its own complete dataset; `merge` joins them
+    /// into what one conversion writes (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT).
+    #[arg(long, default_value = "0/1")]
+    shard: surgvla::export::shard::Shard,
+    /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
+    #[arg(long, value_parser = crate::threads_arg)]
+    threads: Option<usize>,
+    /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    fps: Option<u32>,
+    /// The robot type of an input that states none (default "unknown").
+    #[arg(long)]
+    robot_type: Option<String>,
+    /// Leave optional features out, comma-separated: depth, mask, environment_state.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    without: Vec<ConvertOmit>,
+    /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of
+    /// copying the video as it is. Implied for every other target, and for --video with
+    /// another codec than the input's (re-encoding).
+    #[arg(long)]
+    decode: bool,
+    /// Afterwards read both sides and compare every frame (LeRobot and RLDS targets; for zarr
+    /// and MCAP the output is validated and its episodes and frames counted, for PLY/PCD its
+    /// files counted); a difference exits 1.
+    #[arg(long)]
+    verify: bool,
+    #[command(flatten)]
+    formats: FormatArgs,
+}
+
+/// An optional feature `convert --without` leaves out.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConvertOmit {
+    /// `observation.images.depth`.
+    Depth,
+    /// `observation.images.mask`.
+    Mask,
+    /// `observation.environment_state`.
+    #[value(name = "environment_state")]
+    EnvironmentState,
+}
+
+impl ConvertOmit {
+    fn kind(self) -> FeatureKind {
+        match self {
+            ConvertOmit::Depth => FeatureKind::Depth,
+            ConvertOmit::Mask => FeatureKind::Mask,
+            ConvertOmit::EnvironmentState => FeatureKind::EnvironmentState,
+        }
+    }
+}
+
+impl ConvertArgs {
+    /// What the conversion reads.
+    fn input(&self) -> ConvertInput {
+        ConvertInput {
+            path: self.input.clone(),
+            source: surgvla::export::SourceOptions {
+                fps: self.fps,
+                robot_type: self.robot_type.clone(),
+            },
+            shard: self.shard,
+            without: self.without.iter().map(|w| w.kind()).collect(),
+            decode: self.decode,
+        }
+    }
+}
+
+/// `--verify`: what the output holds against the input.
+fn verify(
+    args: &ConvertArgs,
+    options: &dyn SinkOptions,
+    summary: &surgvla::export::Summary,
+) -> Result<(), CliError> {
+    let mut source = args.input().open(options)?;
+    let differences = surgvla::export::verify::verify_output(source.as_mut(), &args.out, summary)?;
+    if differences.is_empty() {
+        say!("verified: the output holds what was read");
+        return Ok(());
+    }
+    for difference in &differences {
+        say!("difference: {difference}");
+    }
+    Err(CliError::invalid(format!(
+        "{} does not hold what {} holds ({} differences)",
+        args.out.display(),
+        args.input.display(),
+        differences.len()
+    )))
+}
+
+/// `surgvla convert INPUT --to FORMAT --out DIR`.
+pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
+    let options = args.formats.sink_options(args.to, "--to")?;
+    let mut source = args.input().open(options.as_ref())?;
+    let info = source.info().clone();
+    let resuming = resumes(&args.out, args.resume);
+    let created = !args.out.exists();
+    let mut sink = open_sink(&args.out, &info, options.as_ref(), args.resume)?;
+    if resuming {
+        eprintln!(
+            "resuming {} at episode {}",
+            args.out.display(),
+            sink.next_episode_index()
+        );
+    }
+    let bar = crate::progress::episode_bar(source.len(), "converting");
+    let threads = args.threads.unwrap_or(0);
+    let mut trimmed = crate::memory::Trimmer::default();
+    let summary =
+        surgvla::export::convert::convert(source.as_mut(), sink.as_mut(), threads, &mut |done| {
+            bar.set_position(done);
+            trimmed.after_episodes(done);
+        })
+        .map_err(|e| {
+            let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
+            let write = matches!(e, ConvertError::Write(_));
+            let resumable = after_failure(&args.out, created, resuming, usage, write);
+            CliError::from(e).resumable(resumable)
+        })?;
+    bar.finish_and_clear();
+    say!(
+        "converted {} episodes, {} frames from {} to {} ({} files, {:.1} MB)",
+        summary.episodes,
+        summary.frames,
+        args.input.display(),
+        args.out.display(),
+        summary.files,
+        summary.bytes as f64 / 1e6
+    );
+    if args.verify {
+        verify(args, options.as_ref(), &summary)?;
+    }
+    Ok(())
+}

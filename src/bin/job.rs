@@ -1,0 +1,138 @@
+//! What the episode-producing commands share (`collect`, `experts`, and `eval`'s task lists):
+//! [`JobArgs`], the task list and instruction choice.
+
+use crate::error::CliError;
+use clap::{Args, ValueEnum};
+use std::path::PathBuf;
+use surgvla::collect::run::CollectOptions;
+use surgvla::policy::ExpertLibrary;
+use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
+
+/// `--tasks`: "all" or a comma-separated list of names or ids.
+#[derive(Clone, Debug)]
+pub struct TaskList(pub Vec<TaskId>);
+
+pub fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
+    if text.trim() == "all" {
+        return Ok(TaskList(TaskId::ALL.to_vec()));
+    }
+    text.split(',')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map(TaskList)
+}
+
+/// Which instruction each episode gets.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum Instructions {
+    /// The task's canonical instruction.
+    Canonical,
+    /// A seeded paraphrase.
+    Paraphrase,
+    /// A seeded mix of the canonical instruction and the paraphrases.
+    Mixed,
+}
+
+impl Instructions {
+    /// The library's choice.
+    pub fn choice(self) -> InstructionChoice {
+        match self {
+            Instructions::Canonical => InstructionChoice::Canonical,
+            Instructions::Paraphrase => InstructionChoice::Paraphrase,
+            Instructions::Mixed => InstructionChoice::Mixed,
+        }
+    }
+}
+
+/// A feature of the default dataset to leave out.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Omit {
+    /// `observation.images.depth`: lerobot-train feeds every image feature to the policy, and
+    /// ACT and Diffusion need 3-channel images of one shape.
+    Depth,
+    /// `observation.environment_state`: ground-truth object poses, privileged information a
+    /// vision policy must not see.
+    #[value(name = "environment_state")]
+    EnvironmentState,
+}
+
+/// How action[6] (the gripper) is written.
+#[derive(ValueEnum, Clone, Copy, Debug)]
+pub enum Gripper {
+    /// 1 while commanded open, 0 while closed.
+    Continuous,
+    /// +1/-1 on the step the command changes, 0 otherwise (for ablations).
+    Pulse,
+}
+
+/// What episodes to make: tasks, counts, seed, scene options, experts.
+#[derive(Args, Debug)]
+pub struct JobArgs {
+    /// Tasks: "all" or a comma-separated list of names or ids.
+    #[arg(long, default_value = "all", value_parser = parse_tasks)]
+    tasks: TaskList,
+    /// Verified episodes per task.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    episodes_per_task: u64,
+    /// Collection seed: every episode's seed derives from it.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (default and 0: one per core; at most 8 per core).
+    #[arg(long, value_parser = crate::threads_arg)]
+    pub(crate) threads: Option<usize>,
+    /// Distractors in the level-2 pick tasks (T2-1, T2-2).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]
+    pub(crate) distractors: u64,
+    /// Instruction per episode: the canonical one, a seeded paraphrase, or a seeded mix.
+    #[arg(long, value_enum, default_value = "canonical")]
+    instructions: Instructions,
+    /// Multiplies every spawn range's half width (3 gives the needle's evaluation range).
+    #[arg(long, default_value_t = 1.0)]
+    pub(crate) spawn_scale: f64,
+    /// A folder of expert plans (*.toml) replacing the built-in scripted_policies/ per task.
+    #[arg(long)]
+    pub(crate) policies: Option<PathBuf>,
+    /// Attempts per episode before the run gives up.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    max_attempts: u32,
+}
+
+impl JobArgs {
+    /// The library's options (one shard, continuous gripper) and the experts.
+    pub(crate) fn options(&self) -> Result<(CollectOptions, ExpertLibrary), CliError> {
+        if !(self.spawn_scale.is_finite() && (0.0..=5.0).contains(&self.spawn_scale)) {
+            return Err(CliError::usage(format!(
+                "--spawn-scale {} must be between 0 and 5",
+                self.spawn_scale
+            )));
+        }
+        let library = match &self.policies {
+            Some(folder) => ExpertLibrary::with_folder(folder).map_err(|e| {
+                CliError::from(e).context(format!(
+                    "loading the plans of --policies {}",
+                    folder.display()
+                ))
+            })?,
+            None => ExpertLibrary::builtin()?,
+        };
+        let task = TaskConfig {
+            distractors: self.distractors as usize,
+            instruction: self.instructions.choice(),
+            spawn_scale: self.spawn_scale,
+            ..TaskConfig::default()
+        };
+        let options = CollectOptions {
+            tasks: self.tasks.0.clone(),
+            episodes_per_task: self.episodes_per_task,
+            seed: self.seed,
+            threads: self.threads.unwrap_or(0),
+            max_attempts: self.max_attempts,
+            record: surgvla::collect::record::RecordOptions {
+                task,
+                ..Default::default()
+            },
+            ..CollectOptions::default()
+        };
+        Ok((options, library))
+    }
+}
