@@ -78,6 +78,45 @@ impl BarLayout {
     }
 }
 
+/// Under the bars: each category's label, then each group's label under its categories,
+/// groups split by a line.
+fn category_labels(canvas: &mut Canvas, chart: &RateChart, layout: &BarLayout) {
+    let label_y = BarLayout::zero_y() + 6;
+    let mut start = 0;
+    for (c, category) in chart.categories.iter().enumerate() {
+        let centre = LEFT_PX + c * layout.slot_px + layout.slot_px / 2;
+        canvas.text_centred(
+            centre,
+            label_y,
+            &fit(&category.label, LABEL_CHARS),
+            1,
+            BLACK,
+        );
+        let last = chart
+            .categories
+            .get(c + 1)
+            .is_none_or(|n| n.group != category.group);
+        if last {
+            let (x0, x1) = (
+                LEFT_PX + start * layout.slot_px,
+                LEFT_PX + (c + 1) * layout.slot_px,
+            );
+            let chars = (x1 - x0) / GLYPH_PX;
+            canvas.text_centred(
+                (x0 + x1) / 2,
+                label_y + 16,
+                &fit(&category.group, chars),
+                1,
+                DARK,
+            );
+            if c + 1 < chart.categories.len() {
+                canvas.vline(x1, TOP_PX, label_y + 26, GREY);
+            }
+            start = c + 1;
+        }
+    }
+}
+
 /// Draws `chart`; returns the canvas and the layout its bars follow (tests read pixels there).
 pub fn rate_chart(chart: &RateChart) -> (Canvas, BarLayout) {
     let layout = BarLayout::new(chart.series.len());
@@ -137,41 +176,7 @@ pub fn rate_chart(chart: &RateChart) -> (Canvas, BarLayout) {
             canvas.hline(middle - 3, middle + 3, bottom, DARK);
         }
     }
-    // Category labels, then each group's label under its categories, groups split by a line.
-    let label_y = BarLayout::zero_y() + 6;
-    let mut start = 0;
-    for (c, category) in chart.categories.iter().enumerate() {
-        let centre = LEFT_PX + c * layout.slot_px + layout.slot_px / 2;
-        canvas.text_centred(
-            centre,
-            label_y,
-            &fit(&category.label, LABEL_CHARS),
-            1,
-            BLACK,
-        );
-        let last = chart
-            .categories
-            .get(c + 1)
-            .is_none_or(|n| n.group != category.group);
-        if last {
-            let (x0, x1) = (
-                LEFT_PX + start * layout.slot_px,
-                LEFT_PX + (c + 1) * layout.slot_px,
-            );
-            let chars = (x1 - x0) / GLYPH_PX;
-            canvas.text_centred(
-                (x0 + x1) / 2,
-                label_y + 16,
-                &fit(&category.group, chars),
-                1,
-                DARK,
-            );
-            if c + 1 < chart.categories.len() {
-                canvas.vline(x1, TOP_PX, label_y + 26, GREY);
-            }
-            start = c + 1;
-        }
-    }
+    category_labels(&mut canvas, chart, &layout);
     (canvas, layout)
 }
 

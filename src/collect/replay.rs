@@ -61,6 +61,36 @@ fn record_options(collection: &Value) -> RecordOptions {
     }
 }
 
+/// What of a recorded step differs from its replay, if anything (RGB compared within
+/// `min_psnr_db` when lossy).
+fn step_difference(
+    a: &crate::episode::Step,
+    b: &crate::episode::Step,
+    min_psnr_db: Option<f64>,
+) -> Option<&'static str> {
+    if a.state != b.state {
+        Some("the robot state")
+    } else if a.environment_state.iter().any(|v| *v != 0.0)
+        && a.environment_state != b.environment_state
+    {
+        Some("the object poses")
+    } else if !a.rgb.is_empty() && crate::export::convert::rgb_differs(&a.rgb, &b.rgb, min_psnr_db)
+    {
+        Some("the RGB image")
+    } else if !a.mask.is_empty() && a.mask != b.mask {
+        Some("the mask")
+    } else if !a.depth_m.is_empty()
+        && a.depth_m
+            .iter()
+            .zip(&b.depth_m)
+            .any(|(x, y)| (x - y).abs() > DEPTH_TOLERANCE_M)
+    {
+        Some("the depth")
+    } else {
+        None
+    }
+}
+
 /// What is wrong with one recorded episode's replay, if anything: (frame, check, message).
 /// `judge`: whether the replay must also succeed (the dataset was judged by today's rules).
 fn replay_episode(
@@ -106,33 +136,13 @@ fn replay_episode(
             .iter()
             .any(|e| e.encoding == crate::episode::ImageEncoding::Jpeg);
     let min_psnr_db = lossy.then_some(crate::export::convert::LOSSY_RGB_MIN_PSNR_DB);
-    let rgb_differs = |x: &[u8], y: &[u8]| crate::export::convert::rgb_differs(x, y, min_psnr_db);
     for (frame, (a, b)) in recorded
         .steps
         .iter()
         .zip(&replayed.episode.steps)
         .enumerate()
     {
-        let differs = if a.state != b.state {
-            Some("the robot state")
-        } else if a.environment_state.iter().any(|v| *v != 0.0)
-            && a.environment_state != b.environment_state
-        {
-            Some("the object poses")
-        } else if !a.rgb.is_empty() && rgb_differs(&a.rgb, &b.rgb) {
-            Some("the RGB image")
-        } else if !a.mask.is_empty() && a.mask != b.mask {
-            Some("the mask")
-        } else if !a.depth_m.is_empty()
-            && a.depth_m
-                .iter()
-                .zip(&b.depth_m)
-                .any(|(x, y)| (x - y).abs() > DEPTH_TOLERANCE_M)
-        {
-            Some("the depth")
-        } else {
-            None
-        };
+        let differs = step_difference(a, b, min_psnr_db);
         if let Some(what) = differs {
             return Some((
                 Some(frame as u64),
@@ -165,6 +175,22 @@ pub struct Replayed {
     pub warnings: Vec<Finding>,
 }
 
+/// The warning for a dataset recorded under other success rules than [`RULE_SET`].
+fn other_rules(collection: &serde_json::Value) -> Finding {
+    Finding {
+        file: None,
+        episode: None,
+        frame: None,
+        check: "replay".into(),
+        message: format!(
+            "the dataset records success rules {} where surgvla now judges by {RULE_SET}: frames and states were replayed, success was not judged",
+            collection["success_rules"]
+                .as_str()
+                .unwrap_or("from before they were named")
+        ),
+    }
+}
+
 /// Replays every episode of the dataset at `path` (LeRobot, or RLDS; video decoded, lossy RGB
 /// compared within [`crate::export::convert::LOSSY_RGB_MIN_PSNR_DB`]) on `threads` worker
 /// threads (0: one per core) and returns what failed. Success is judged only for datasets that
@@ -188,19 +214,10 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
     }
     let options = record_options(&collection);
     let judge = collection["success_rules"] == RULE_SET;
-    let mut warnings = Vec::new();
-    if !judge {
-        warnings.push(Finding {
-            file: None,
-            episode: None,
-            frame: None,
-            check: "replay".into(),
-            message: format!(
-                "the dataset records success rules {} where surgvla now judges by {RULE_SET}: frames and states were replayed, success was not judged",
-                collection["success_rules"].as_str().unwrap_or("from before they were named")
-            ),
-        });
-    }
+    let warnings: Vec<Finding> = (!judge)
+        .then(|| other_rules(&collection))
+        .into_iter()
+        .collect();
     let pool = crate::threads::pool(threads).map_err(ExportError::from)?;
     let mut findings = Vec::new();
     let batch_size = pool.current_num_threads().max(1);

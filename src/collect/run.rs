@@ -97,16 +97,7 @@ pub fn collect_slot_encoded(
     let plan = library.plan(slot.task)?;
     let record = &options.record;
     let max_steps = record.max_steps.unwrap_or_else(|| slot.task.step_limit());
-    let mut outcome = SlotOutcome {
-        slot,
-        verified: false,
-        episode: None,
-        frames: 0,
-        attempts: 0,
-        failures: Vec::new(),
-        physics_secs: 0.0,
-        render_secs: 0.0,
-    };
+    let mut outcome = SlotOutcome::empty(slot);
     for attempt in 0..options.max_attempts.max(1) {
         let seed = attempt_seed(options.seed, slot.task, slot.k, attempt);
         let instance = match slot.task.instance(seed, &record.task) {
@@ -180,6 +171,20 @@ pub fn collect_slot_encoded(
 }
 
 impl SlotOutcome {
+    /// A slot before its first attempt.
+    fn empty(slot: Slot) -> Self {
+        SlotOutcome {
+            slot,
+            verified: false,
+            episode: None,
+            frames: 0,
+            attempts: 0,
+            failures: Vec::new(),
+            physics_secs: 0.0,
+            render_secs: 0.0,
+        }
+    }
+
     /// The error of a slot whose every attempt failed, if this one did.
     pub fn exhausted(&self) -> Option<CollectError> {
         (!self.verified).then(|| CollectError::Exhausted {
@@ -283,6 +288,31 @@ pub fn measure_experts(
     ))
 }
 
+/// Writes consecutive recorded episodes to `sink`: what its detached encoder made of each
+/// when it has one (`encoded`), else the episodes in a batch on `pool`.
+fn write_ready(
+    sink: &mut (dyn EpisodeSink + Send),
+    pool: &rayon::ThreadPool,
+    encoded: bool,
+    episodes: Vec<(Episode, Option<Encoded>)>,
+) -> Result<(), CollectError> {
+    if encoded {
+        let encoded = episodes
+            .into_iter()
+            .map(|(episode, encoded)| {
+                encoded
+                    .map(|e| (episode, e))
+                    .ok_or_else(|| ExportError::Internal("an episode was not encoded".into()))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        sink.write_encoded(encoded)?;
+    } else {
+        let episodes: Vec<Episode> = episodes.into_iter().map(|(e, _)| e).collect();
+        pool.install(|| sink.write_batch(&episodes))?;
+    }
+    Ok(())
+}
+
 /// Records `slots` (the `first`-th onward) on `pool` and writes their episodes to `sink` in
 /// slot order, reporting each to `tally` and `progress`.
 ///
@@ -367,20 +397,7 @@ fn record_and_write(
                     }
                     ready.push(outcome);
                 }
-                if encoder.is_some() {
-                    let encoded = episodes
-                        .into_iter()
-                        .map(|(episode, encoded)| {
-                            encoded.map(|e| (episode, e)).ok_or_else(|| {
-                                ExportError::Internal("an episode was not encoded".into())
-                            })
-                        })
-                        .collect::<Result<Vec<_>, _>>()?;
-                    sink.write_encoded(encoded)?;
-                } else {
-                    let episodes: Vec<Episode> = episodes.into_iter().map(|(e, _)| e).collect();
-                    pool.install(|| sink.write_batch(&episodes))?;
-                }
+                write_ready(sink, pool, encoder.is_some(), episodes)?;
                 // The time since the last write goes to these episodes' tasks, shared by frames.
                 let secs = last_write.elapsed().as_secs_f64();
                 last_write = Instant::now();

@@ -248,7 +248,12 @@ pub fn evaluate(
     ] {
         write(options, name, text.as_bytes())?;
     }
-    // results.png: the success rates with their intervals, grouped by level.
+    write(options, "results.png", &results_png(&report, options)?)?;
+    Ok(report)
+}
+
+/// `results.png`: the success rates with their intervals, grouped by level.
+fn results_png(report: &EvalReport, options: &EvalOptions) -> Result<Vec<u8>, EvalError> {
     let rates: Vec<super::chart::TaskRate> = report
         .tasks
         .iter()
@@ -279,8 +284,7 @@ pub fn evaluate(
                 source: Box::new(e),
             },
         })?;
-    write(options, "results.png", &png)?;
-    Ok(report)
+    Ok(png)
 }
 
 /// The results' files in `out` (a run writes nothing else).

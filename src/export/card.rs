@@ -181,20 +181,7 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
     );
     card.push_str("## Tasks\n\n| task | level | episodes | frames | instructions |\n|---|---:|---:|---:|---|\n");
     card.push_str(&task_rows(tally));
-    card.push_str("\n## Features\n\n| feature | dtype | shape |\n|---|---|---|\n");
-    for feature in &info.features {
-        let dtype = match format.video.iter().find(|(name, _)| *name == feature.name) {
-            Some((_, codec)) => format!("video ({codec})"),
-            None => format!("{:?}", feature.dtype).to_lowercase(),
-        };
-        let shape: Vec<String> = feature.shape.iter().map(ToString::to_string).collect();
-        let _ = writeln!(
-            card,
-            "| `{}` | {dtype} | [{}] |",
-            cell(&feature.name),
-            shape.join(", ")
-        );
-    }
+    card.push_str(&feature_rows(info, format));
     card.push_str("\n## How it was made\n\n");
     match info.collection.as_object() {
         Some(collection) if !collection.is_empty() => {
@@ -224,6 +211,26 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
         "```bibtex\n@software{{surgvla,\n  title = {{surgvla: datasets for surgical robot learning}},\n  version = {{{version}}},\n{}\n}}\n```\n",
         note(tally)
     );
+    card
+}
+
+/// The features table, with its heading.
+fn feature_rows(info: &DatasetInfo, format: &CardFormat) -> String {
+    let mut card = String::new();
+    card.push_str("\n## Features\n\n| feature | dtype | shape |\n|---|---|---|\n");
+    for feature in &info.features {
+        let dtype = match format.video.iter().find(|(name, _)| *name == feature.name) {
+            Some((_, codec)) => format!("video ({codec})"),
+            None => format!("{:?}", feature.dtype).to_lowercase(),
+        };
+        let shape: Vec<String> = feature.shape.iter().map(ToString::to_string).collect();
+        let _ = writeln!(
+            card,
+            "| `{}` | {dtype} | [{}] |",
+            cell(&feature.name),
+            shape.join(", ")
+        );
+    }
     card
 }
 

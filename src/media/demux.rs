@@ -65,6 +65,43 @@ fn invalid(path: &Path, problem: impl Into<String>) -> MediaError {
     }
 }
 
+/// The codec of a video track's sample description, the parameter sets its keyframes need
+/// in-band (AV1's configuration OBUs, H.264's SPS and PPS in Annex B) and H.264's NAL length
+/// size; another codec is refused as one surgvla does not read.
+fn codec_of(
+    path: &Path,
+    contents: &StsdBoxContent,
+) -> Result<(VideoCodec, Vec<u8>, usize), MediaError> {
+    Ok(match contents {
+        StsdBoxContent::Av01(av01) => (VideoCodec::Av1, av01.av1c.contents.config_obus.clone(), 0),
+        StsdBoxContent::Avc1(avc1) => {
+            let config = &avc1.avcc.contents;
+            let mut parameters = Vec::new();
+            for nal in config
+                .sequence_parameter_sets
+                .iter()
+                .chain(&config.picture_parameter_sets)
+            {
+                parameters.extend_from_slice(&[0, 0, 0, 1]);
+                parameters.extend_from_slice(&nal.bytes);
+            }
+            (
+                VideoCodec::H264,
+                parameters,
+                usize::from(config.length_size_minus_one & 3) + 1,
+            )
+        }
+        other => {
+            // Not a defect of the file: a codec this build has no decoder for (exit 2).
+            return Err(MediaError::Unsupported(format!(
+                "{} holds {} video; surgvla reads AV1 and H.264 (no HEVC or VP9 decoder is built in)",
+                path.display(),
+                other.codec_string().unwrap_or_else(|| "unknown".into())
+            )));
+        }
+    })
+}
+
 impl VideoReader {
     /// Reads the sample tables of the file's video track (not its media data).
     pub fn open(path: &Path) -> Result<Self, MediaError> {
@@ -96,36 +133,7 @@ impl VideoReader {
             .iter()
             .find(|t| t.tkhd.track_id == track.track_id)
             .ok_or_else(|| invalid(path, "has no video track"))?;
-        let (codec, parameters, length_size) = match &trak.mdia.minf.stbl.stsd.contents {
-            StsdBoxContent::Av01(av01) => {
-                (VideoCodec::Av1, av01.av1c.contents.config_obus.clone(), 0)
-            }
-            StsdBoxContent::Avc1(avc1) => {
-                let config = &avc1.avcc.contents;
-                let mut parameters = Vec::new();
-                for nal in config
-                    .sequence_parameter_sets
-                    .iter()
-                    .chain(&config.picture_parameter_sets)
-                {
-                    parameters.extend_from_slice(&[0, 0, 0, 1]);
-                    parameters.extend_from_slice(&nal.bytes);
-                }
-                (
-                    VideoCodec::H264,
-                    parameters,
-                    usize::from(config.length_size_minus_one & 3) + 1,
-                )
-            }
-            other => {
-                // Not a defect of the file: a codec this build has no decoder for (exit 2).
-                return Err(MediaError::Unsupported(format!(
-                    "{} holds {} video; surgvla reads AV1 and H.264 (no HEVC or VP9 decoder is built in)",
-                    path.display(),
-                    other.codec_string().unwrap_or_else(|| "unknown".into())
-                )));
-            }
-        };
+        let (codec, parameters, length_size) = codec_of(path, &trak.mdia.minf.stbl.stsd.contents)?;
         if track.timescale == 0 {
             return Err(invalid(path, "has a video track with time scale 0"));
         }

@@ -438,16 +438,15 @@ impl Rasterizer {
         self.visibility_from(camera, instances, lighting, 0);
     }
 
-    /// Draws `instances[start..]` over a G-buffer that holds `instances[..start]` drawn in
-    /// order (and their camera-space vertices): the same buffers as drawing them all. Returns
-    /// a rectangle holding every pixel written (`None`: none).
-    fn visibility_from(
+    /// Moves `instances[start..]`'s vertices and normals into the camera frame and lights the
+    /// per-vertex ones.
+    fn transform_vertices(
         &mut self,
         camera: &Camera,
         instances: &[Instance<'_>],
         lighting: &Lighting,
         start: usize,
-    ) -> Option<PixelRect> {
+    ) {
         let camera_from_world = camera.world_from_camera.inverse();
         for instance in instances.iter().skip(start) {
             let pose = camera_from_world * instance.world_from_mesh;
@@ -483,6 +482,19 @@ impl Rasterizer {
                 }
             }
         }
+    }
+
+    /// Draws `instances[start..]` over a G-buffer that holds `instances[..start]` drawn in
+    /// order (and their camera-space vertices): the same buffers as drawing them all. Returns
+    /// a rectangle holding every pixel written (`None`: none).
+    fn visibility_from(
+        &mut self,
+        camera: &Camera,
+        instances: &[Instance<'_>],
+        lighting: &Lighting,
+        start: usize,
+    ) -> Option<PixelRect> {
+        self.transform_vertices(camera, instances, lighting, start);
         let mut target = Target {
             width: i64::from(camera.width_px),
             height: i64::from(camera.height_px),

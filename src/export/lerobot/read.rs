@@ -582,6 +582,16 @@ pub struct LeRobotSource {
     ended: bool,
 }
 
+/// The pixel statistics an episodes-table row stores for video feature `key`: surgvla's exact
+/// accumulator, else lerobot's per-episode summary.
+fn stored_pixel_stats(row: &StoredEpisode, key: &str) -> Option<PixelStats> {
+    match (row.pixel_stats.get(key), row.stats.get(key)) {
+        (Some(exact), _) => serde_json::from_str(exact).ok().map(PixelStats::Exact),
+        (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
+        (None, None) => None,
+    }
+}
+
 impl LeRobotSource {
     pub fn open(root: &Path) -> Result<Self, ExportError> {
         let info_path = root.join("meta/info.json");
@@ -659,28 +669,15 @@ impl LeRobotSource {
         })
     }
 
-    /// An episode's samples of the video feature `feature`, with the statistics its metadata
-    /// carries: for each row, the picture lerobot would give it (the nearest presentation time
-    /// to the row's `timestamp`, plus the episode's `from_timestamp` in v3.0, within 1e-4 s).
-    /// Samples that are one per row in order are marked copyable (`shown` None).
-    fn video_frames(
-        &mut self,
-        feature: &FeatureSpec,
+    /// Episode `index`'s file of video feature `key` (relative, from info.json's template) and
+    /// its span there (v2.1: the whole file).
+    fn video_file(
+        &self,
+        key: &str,
         index: u64,
         row: Option<&StoredEpisode>,
-        timestamps: &[Option<f64>],
-    ) -> Result<EncodedFeature, ExportError> {
-        let key = feature.name.as_str();
-        let steps = timestamps.len();
+    ) -> Result<(std::path::PathBuf, Option<(f64, f64)>), ExportError> {
         let stored_span = row.and_then(|r| r.videos.get(key)).copied();
-        let pixel_stats = match (
-            row.and_then(|r| r.pixel_stats.get(key)),
-            row.and_then(|r| r.stats.get(key)),
-        ) {
-            (Some(exact), _) => serde_json::from_str(exact).ok().map(PixelStats::Exact),
-            (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
-            (None, None) => None,
-        };
         let (fields, span) = if self.v21 {
             let fields = [
                 ("video_key", Field::Name(key)),
@@ -709,6 +706,24 @@ impl LeRobotSource {
                 name: self.video_path.clone(),
                 problem,
             })?;
+        Ok((relative, span))
+    }
+
+    /// An episode's samples of the video feature `feature`, with the statistics its metadata
+    /// carries: for each row, the picture lerobot would give it (the nearest presentation time
+    /// to the row's `timestamp`, plus the episode's `from_timestamp` in v3.0, within 1e-4 s).
+    /// Samples that are one per row in order are marked copyable (`shown` None).
+    fn video_frames(
+        &mut self,
+        feature: &FeatureSpec,
+        index: u64,
+        row: Option<&StoredEpisode>,
+        timestamps: &[Option<f64>],
+    ) -> Result<EncodedFeature, ExportError> {
+        let key = feature.name.as_str();
+        let steps = timestamps.len();
+        let pixel_stats = row.and_then(|r| stored_pixel_stats(r, key));
+        let (relative, span) = self.video_file(key, index, row)?;
         let path = self.root.join(relative);
         if self.video.as_ref().is_none_or(|(open, _)| *open != path) {
             self.video = Some((path.clone(), VideoReader::open(&path)?));

@@ -518,6 +518,68 @@ fn stats_column(values: &[Option<&StatValue>], name: &str) -> ArrayRef {
     Arc::new(builder.finish())
 }
 
+/// An int64 column of `f` of each row.
+fn int_column(rows: &[EpisodeRow], f: &dyn Fn(&EpisodeRow) -> u64) -> ArrayRef {
+    Arc::new(Int64Array::from_iter_values(
+        rows.iter().map(|r| f(r) as i64),
+    ))
+}
+
+/// The episodes table's columns of video feature `key`: each episode's file and span.
+fn video_columns(rows: &[EpisodeRow], key: &str) -> Vec<(String, ArrayRef)> {
+    let int = |f: &dyn Fn(&EpisodeRow) -> u64| int_column(rows, f);
+    let mut columns: Vec<(String, ArrayRef)> = Vec::with_capacity(4);
+    let span = |r: &EpisodeRow| {
+        r.videos.iter().find(|v| v.key == *key).map_or(
+            VideoSpan {
+                chunk: 0,
+                file: 0,
+                from_secs: 0.0,
+                to_secs: 0.0,
+            },
+            |v| v.span,
+        )
+    };
+    columns.push((format!("videos/{key}/chunk_index"), int(&|r| span(r).chunk)));
+    columns.push((format!("videos/{key}/file_index"), int(&|r| span(r).file)));
+    columns.push((
+        format!("videos/{key}/from_timestamp"),
+        Arc::new(arrow_array::Float64Array::from_iter_values(
+            rows.iter().map(|r| span(r).from_secs),
+        )),
+    ));
+    columns.push((
+        format!("videos/{key}/to_timestamp"),
+        Arc::new(arrow_array::Float64Array::from_iter_values(
+            rows.iter().map(|r| span(r).to_secs),
+        )),
+    ));
+    columns
+}
+
+/// The episodes table's provenance columns; the seed as int64 (two's complement: seeds above
+/// 2^63 read negative).
+fn provenance_columns(rows: &[EpisodeRow]) -> impl Iterator<Item = (String, ArrayRef)> {
+    let int = |f: &dyn Fn(&EpisodeRow) -> u64| int_column(rows, f);
+    let provenance: [ArrayRef; 5] = [
+        int(&|r| r.provenance.seed),
+        Arc::new(StringArray::from_iter_values(
+            rows.iter().map(|r| r.provenance.task_id.as_str()),
+        )),
+        int(&|r| u64::from(r.provenance.level)),
+        int(&|r| u64::from(r.provenance.attempts)),
+        Arc::new(BooleanArray::from(
+            rows.iter()
+                .map(|r| r.provenance.success)
+                .collect::<Vec<_>>(),
+        )),
+    ];
+    Provenance::KEYS
+        .iter()
+        .map(|k| k.to_string())
+        .zip(provenance)
+}
+
 /// The episodes table (episode_index equals row order); `video_keys` are the video features.
 pub fn episodes_batch(
     rows: &[EpisodeRow],
@@ -545,31 +607,7 @@ pub fn episodes_batch(
         ("meta/episodes/file_index".into(), int(&|_| 0)),
     ];
     for key in video_keys {
-        let span = |r: &EpisodeRow| {
-            r.videos.iter().find(|v| v.key == *key).map_or(
-                VideoSpan {
-                    chunk: 0,
-                    file: 0,
-                    from_secs: 0.0,
-                    to_secs: 0.0,
-                },
-                |v| v.span,
-            )
-        };
-        columns.push((format!("videos/{key}/chunk_index"), int(&|r| span(r).chunk)));
-        columns.push((format!("videos/{key}/file_index"), int(&|r| span(r).file)));
-        columns.push((
-            format!("videos/{key}/from_timestamp"),
-            Arc::new(arrow_array::Float64Array::from_iter_values(
-                rows.iter().map(|r| span(r).from_secs),
-            )),
-        ));
-        columns.push((
-            format!("videos/{key}/to_timestamp"),
-            Arc::new(arrow_array::Float64Array::from_iter_values(
-                rows.iter().map(|r| span(r).to_secs),
-            )),
-        ));
+        columns.extend(video_columns(rows, key));
     }
     if let Some(first) = rows.first() {
         for (feature, stats) in &first.stats {
@@ -583,26 +621,7 @@ pub fn episodes_batch(
             }
         }
     }
-    // Provenance; the seed as int64 (two's complement: seeds above 2^63 read negative).
-    let provenance: [ArrayRef; 5] = [
-        int(&|r| r.provenance.seed),
-        Arc::new(StringArray::from_iter_values(
-            rows.iter().map(|r| r.provenance.task_id.as_str()),
-        )),
-        int(&|r| u64::from(r.provenance.level)),
-        int(&|r| u64::from(r.provenance.attempts)),
-        Arc::new(BooleanArray::from(
-            rows.iter()
-                .map(|r| r.provenance.success)
-                .collect::<Vec<_>>(),
-        )),
-    ];
-    columns.extend(
-        Provenance::KEYS
-            .iter()
-            .map(|k| k.to_string())
-            .zip(provenance),
-    );
+    columns.extend(provenance_columns(rows));
     let stats_keys: Vec<&String> = rows
         .first()
         .map(|r| r.pixel_stats.iter().map(|(k, _)| k).collect())

@@ -508,24 +508,7 @@ impl LeRobotFiles {
         open.writer.flush().map_err(&parquet_error)?;
         let full = version.file_is_full(open.writer.bytes_written() as u64, limit);
 
-        let mut stats_json = StatsJson::new();
-        // A video feature's exact statistics travel with the episode (surgvla's datasets), so
-        // that merging or converting it later, without decoding the video, gives the same
-        // statistics.
-        let mut pixel_stats = Vec::new();
-        for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
-            if info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
-                let exact = match &this {
-                    crate::export::stats::FeatureStats::Image(s) => {
-                        serde_json::to_value(s).unwrap_or(Value::Null)
-                    }
-                    _ => Value::Null,
-                };
-                pixel_stats.push((name.clone(), exact));
-            }
-            stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
-            total.merge(&this);
-        }
+        let (stats_json, pixel_stats) = self.fold_stats(info, episode_stats);
         let length = episode.steps.len() as u64;
         let meta = &episode.meta;
         let row = EpisodeRow {
@@ -568,6 +551,35 @@ impl LeRobotFiles {
         self.apart_secs.0 += encoded_ahead_secs;
         self.apart_secs.1 += stats_secs;
         Ok(encode_secs)
+    }
+
+    /// Folds an episode's statistics into the dataset's; returns them as its row records them,
+    /// with the exact pixel statistics of its video features (surgvla's datasets: so that
+    /// merging or converting it later, without decoding the video, gives the same statistics).
+    fn fold_stats(
+        &mut self,
+        info: &DatasetInfo,
+        episode_stats: Vec<(String, crate::export::stats::FeatureStats)>,
+    ) -> (StatsJson, Vec<(String, Value)>) {
+        let mut stats_json = StatsJson::new();
+        // A video feature's exact statistics travel with the episode (surgvla's datasets), so
+        // that merging or converting it later, without decoding the video, gives the same
+        // statistics.
+        let mut pixel_stats = Vec::new();
+        for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
+            if info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
+                let exact = match &this {
+                    crate::export::stats::FeatureStats::Image(s) => {
+                        serde_json::to_value(s).unwrap_or(Value::Null)
+                    }
+                    _ => Value::Null,
+                };
+                pixel_stats.push((name.clone(), exact));
+            }
+            stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
+            total.merge(&this);
+        }
+        (stats_json, pixel_stats)
     }
 
     /// The per-episode work's view of this writer.

@@ -7,15 +7,10 @@ use crate::episode::FeatureKind;
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::options::RldsOptions;
 
-/// The guide for a dataset of `info` written with `options`.
-pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
-    let name = &options.name;
+/// The guide's paragraph on depth (empty without it).
+fn depth_note(info: &DatasetInfo, options: &RldsOptions) -> String {
     let keys = &options.keys;
-    let state_names = info
-        .feature(FeatureKind::State)
-        .map(|f| f.names.join(", "))
-        .unwrap_or_default();
-    let depth = if info.has(FeatureKind::Depth) {
+    if info.has(FeatureKind::Depth) {
         format!(
             "\n`steps/observation/{}` holds depth as 1-channel uint16 PNG in millimetres along the optical \
              axis (0 = nothing in range). Read through `tfds` itself it arrives as those uint16 values: \
@@ -27,7 +22,18 @@ pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
         )
     } else {
         String::new()
-    };
+    }
+}
+
+/// The guide for a dataset of `info` written with `options`.
+pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
+    let name = &options.name;
+    let keys = &options.keys;
+    let state_names = info
+        .feature(FeatureKind::State)
+        .map(|f| f.names.join(", "))
+        .unwrap_or_default();
+    let depth = depth_note(info, options);
     format!(
         r#"# Fine-tuning OpenVLA on `{name}`
 

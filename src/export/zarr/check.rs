@@ -30,6 +30,53 @@ fn item_bytes_of(meta: &Value) -> usize {
     dtype.get(2..).and_then(|n| n.parse().ok()).unwrap_or(0)
 }
 
+/// Whether the sizes `.zarray` claims (`shape`, `chunks`) are what surgvla reads: a chunk within
+/// [`MAX_CHUNK_BYTES`], and no more chunks than the folder's files could be (each a finding
+/// otherwise). Checked before anything is allocated or counted from them.
+fn sizes_fit(
+    root: &Path,
+    name: &str,
+    meta: &Value,
+    (shape, chunks): (&[usize], &[usize]),
+    findings: &Findings,
+) -> bool {
+    let path = root.join(name).join(".zarray");
+    let chunk_bytes = chunks
+        .iter()
+        .chain([&item_bytes_of(meta)])
+        .try_fold(1usize, |total, n| total.checked_mul(*n));
+    if chunk_bytes.is_none_or(|b| b > MAX_CHUNK_BYTES) {
+        findings.file_error(
+            &path,
+            "schema",
+            format!(
+                "chunks {chunks:?} are larger than the {} MiB surgvla reads",
+                MAX_CHUNK_BYTES >> 20
+            ),
+        );
+        return false;
+    }
+    let grid = shape.iter().zip(chunks).map(|(s, c)| s.div_ceil(*c));
+    let claimed = grid
+        .clone()
+        .try_fold(1usize, |total, n| total.checked_mul(n));
+    let present = std::fs::read_dir(root.join(name)).map_or(0, |entries| entries.count());
+    // A few missing chunks are reported one by one below; a shape claiming far more chunks
+    // than there are files is reported once (counting them would not end).
+    if claimed.is_none_or(|n| n > 2 * present + 64) {
+        findings.file_error(
+            &path,
+            "chunk",
+            format!(
+                "shape {shape:?} in chunks of {chunks:?} needs {} chunks; the folder holds {present} files",
+                claimed.map_or("more than 2^64".to_string(), |n| n.to_string())
+            ),
+        );
+        return false;
+    }
+    true
+}
+
 fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta> {
     let path = root.join(name).join(".zarray");
     let Ok(meta) = read_json(&path) else {
@@ -62,38 +109,7 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         );
         return None;
     }
-    // Sizes the metadata claims are checked before anything is allocated or counted from them.
-    let chunk_bytes = chunks
-        .iter()
-        .chain([&item_bytes_of(&meta)])
-        .try_fold(1usize, |total, n| total.checked_mul(*n));
-    if chunk_bytes.is_none_or(|b| b > MAX_CHUNK_BYTES) {
-        findings.file_error(
-            &path,
-            "schema",
-            format!(
-                "chunks {chunks:?} are larger than the {} MiB surgvla reads",
-                MAX_CHUNK_BYTES >> 20
-            ),
-        );
-        return None;
-    }
-    let grid = shape.iter().zip(&chunks).map(|(s, c)| s.div_ceil(*c));
-    let claimed = grid
-        .clone()
-        .try_fold(1usize, |total, n| total.checked_mul(n));
-    let present = std::fs::read_dir(root.join(name)).map_or(0, |entries| entries.count());
-    // A few missing chunks are reported one by one below; a shape claiming far more chunks
-    // than there are files is reported once (counting them would not end).
-    if claimed.is_none_or(|n| n > 2 * present + 64) {
-        findings.file_error(
-            &path,
-            "chunk",
-            format!(
-                "shape {shape:?} in chunks of {chunks:?} needs {} chunks; the folder holds {present} files",
-                claimed.map_or("more than 2^64".to_string(), |n| n.to_string())
-            ),
-        );
+    if !sizes_fit(root, name, &meta, (&shape, &chunks), findings) {
         return None;
     }
     if meta["order"] != "C" {

@@ -205,6 +205,59 @@ fn ends_of(root: &Path, shape: &ArrayShape) -> Result<Vec<i64>, MergeError> {
     Ok(ends)
 }
 
+/// Refuses stores whose arrays differ from the first's (names, dtypes or row shapes).
+fn same_arrays(ordered: &[&Store]) -> Result<(), MergeError> {
+    let names = |s: &Store| -> Vec<(&str, Vec<usize>, &str)> {
+        s.arrays
+            .iter()
+            .map(|(a, x)| (*a, x.row_shape.clone(), x.dtype))
+            .collect()
+    };
+    let Some(first) = ordered.first() else {
+        return Err(MergeError::NoInput);
+    };
+    for store in &ordered[1..] {
+        if names(store) != names(first) {
+            return Err(MergeError::Incompatible {
+                path: store.root.clone(),
+                first: first.root.clone(),
+                reasons: "its arrays differ (names, dtypes or row shapes)".into(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The merged store's groups and attributes (the first store's, with the merged collection).
+fn write_groups(
+    dir: &mut DatasetDir,
+    first: &Store,
+    plan: &crate::export::merge::Plan,
+) -> Result<(), MergeError> {
+    let mut attributes = first.attributes.clone();
+    if !plan.collection.is_null() {
+        attributes["surgvla"]["collection"] = plan.collection.clone();
+    }
+    let group = json!({"zarr_format": 2});
+    let files = [
+        (".zgroup", group.clone()),
+        ("data/.zgroup", group.clone()),
+        ("meta/.zgroup", group),
+        (".zattrs", attributes),
+    ];
+    for (relative, value) in files {
+        let bytes = serde_json::to_vec_pretty(&value).map_err(|source| {
+            write_error(ExportError::Json {
+                path: dir.path(relative),
+                source,
+            })
+        })?;
+        dir.write_atomically(relative, &bytes)
+            .map_err(write_error)?;
+    }
+    Ok(())
+}
+
 /// Merges the request's zarr stores into a new one at its `out` (see the module overview).
 pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     if request.resume {
@@ -228,21 +281,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         .filter_map(|p| stores.iter().find(|s| s.root == p.path))
         .collect();
     let first = ordered.first().ok_or(MergeError::NoInput)?;
-    for store in &ordered[1..] {
-        let names = |s: &Store| -> Vec<(&str, Vec<usize>, &str)> {
-            s.arrays
-                .iter()
-                .map(|(a, x)| (*a, x.row_shape.clone(), x.dtype))
-                .collect()
-        };
-        if names(store) != names(first) {
-            return Err(MergeError::Incompatible {
-                path: store.root.clone(),
-                first: first.root.clone(),
-                reasons: "its arrays differ (names, dtypes or row shapes)".into(),
-            });
-        }
-    }
+    same_arrays(&ordered)?;
     let mut dir = DatasetDir::create(request.out, &plan.options).map_err(write_error)?;
     let mut writers: Vec<ArrayWriter> = first
         .arrays
@@ -270,27 +309,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         writer.flush(&mut dir).map_err(write_error)?;
         writer.write_metadata(&mut dir).map_err(write_error)?;
     }
-    let mut attributes = first.attributes.clone();
-    if !plan.collection.is_null() {
-        attributes["surgvla"]["collection"] = plan.collection.clone();
-    }
-    let group = json!({"zarr_format": 2});
-    let files = [
-        (".zgroup", group.clone()),
-        ("data/.zgroup", group.clone()),
-        ("meta/.zgroup", group),
-        (".zattrs", attributes),
-    ];
-    for (relative, value) in files {
-        let bytes = serde_json::to_vec_pretty(&value).map_err(|source| {
-            write_error(ExportError::Json {
-                path: dir.path(relative),
-                source,
-            })
-        })?;
-        dir.write_atomically(relative, &bytes)
-            .map_err(write_error)?;
-    }
+    write_groups(&mut dir, first, &plan)?;
     if let Some(card) = crate::export::merge::merged_card(&plan)? {
         dir.write_atomically(crate::export::card::CARD, &card)
             .map_err(write_error)?;

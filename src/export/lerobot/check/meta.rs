@@ -510,6 +510,40 @@ fn check_stats_against_data(
     }
 }
 
+/// A video file's sample tables, or why they cannot be read (and whether that is a codec
+/// surgvla does not read rather than a defect).
+fn open_video(path: &Path) -> Result<Arc<VideoReader>, (String, bool)> {
+    VideoReader::open(path).map(Arc::new).map_err(|e| {
+        let unsupported = crate::error::HasKind::kind(&e) == ErrorKind::Usage;
+        match e {
+            crate::media::MediaError::Invalid { problem, .. } => (problem, unsupported),
+            other => (other.to_string(), unsupported),
+        }
+    })
+}
+
+/// Episode `i`'s video file of `key` (relative) and its span there (v2.1: the whole file);
+/// `None` when the episodes table gives the episode no span of it.
+fn episode_video(
+    v21: bool,
+    chunks_size: i64,
+    key: &str,
+    i: usize,
+    entry: &EpisodeEntry,
+) -> Option<(String, Option<(f64, f64)>)> {
+    if v21 {
+        let i = i as i64;
+        let chunk = i / chunks_size;
+        return Some((
+            format!("videos/chunk-{chunk:03}/{key}/episode_{i:06}.mp4"),
+            None,
+        ));
+    }
+    let &(chunk, file, from, to) = entry.videos.get(key)?;
+    let relative = crate::export::lerobot::layout::video_path(key, chunk as u64, file as u64);
+    Some((relative, Some((from, to))))
+}
+
 /// Every video feature's files and episode spans: through the MP4 sample tables, each file
 /// readable with its samples inside it, in the declared codec and frame size, and each
 /// episode's span holding exactly its frames and starting on a keyframe (v2.1: each episode's
@@ -547,18 +581,8 @@ pub(super) fn check_videos(
         };
         let declared_name = declared.get(key).and_then(|f| f.video_codec());
         for (i, entry) in entries.iter().enumerate() {
-            let (relative, span) = if v21 {
-                let i = i as i64;
-                let chunk = i / chunks_size;
-                let relative = format!("videos/chunk-{chunk:03}/{key}/episode_{i:06}.mp4");
-                (relative, None)
-            } else {
-                let Some(&(chunk, file, from, to)) = entry.videos.get(key) else {
-                    continue;
-                };
-                let relative =
-                    crate::export::lerobot::layout::video_path(key, chunk as u64, file as u64);
-                (relative, Some((from, to)))
+            let Some((relative, span)) = episode_video(v21, chunks_size, key, i, entry) else {
+                continue;
             };
             let path = root.join(&relative);
             let at = At::file(relative).episode(i as u64);
@@ -567,15 +591,9 @@ pub(super) fn check_videos(
                 continue;
             }
             let fresh = !readers.contains_key(&path);
-            let reader = readers.entry(path.clone()).or_insert_with(|| {
-                VideoReader::open(&path).map(Arc::new).map_err(|e| {
-                    let unsupported = crate::error::HasKind::kind(&e) == ErrorKind::Usage;
-                    match e {
-                        crate::media::MediaError::Invalid { problem, .. } => (problem, unsupported),
-                        other => (other.to_string(), unsupported),
-                    }
-                })
-            });
+            let reader = readers
+                .entry(path.clone())
+                .or_insert_with(|| open_video(&path));
             match reader {
                 Ok(reader) => {
                     if fresh {
