@@ -353,59 +353,66 @@ fn segment_pose(from: &Vector3<f64>, to: &Vector3<f64>) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::from(*from), rotation)
 }
 
+/// The drape (a frame of four slabs around the tray: nothing is drawn under the tray) and the
+/// tray (the pad, with its baked mottling, and the rim), posed in the world.
+fn drape_and_tray(appearance: &Appearance) -> Vec<(Part, Isometry3<f64>)> {
+    let mut statics = Vec::new();
+    // The drape: a frame of four slabs around the tray (nothing is drawn under the tray).
+    let [tcx, tcy] = TRAY_CENTER_XY_M;
+    let [thx, thy] = TRAY_HALF_EXTENTS_XY_M;
+    let (inner_x, inner_y, outer) = (thx + TRAY_RIM_WIDTH_M, thy + TRAY_RIM_WIDTH_M, 0.35);
+    let drape_z = TABLE_TOP_Z_M - 0.005;
+    let side = (outer - inner_y) / 2.0;
+    let end = (outer - inner_x) / 2.0;
+    let drape_boxes = [
+        ([tcx, tcy - inner_y - side, drape_z], [outer, side, 0.005]),
+        ([tcx, tcy + inner_y + side, drape_z], [outer, side, 0.005]),
+        ([tcx - inner_x - end, tcy, drape_z], [end, inner_y, 0.005]),
+        ([tcx + inner_x + end, tcy, drape_z], [end, inner_y, 0.005]),
+    ];
+    for (centre, half) in drape_boxes {
+        let mesh = Mesh::cuboid(half.map(|v| v as f32));
+        let part = Part {
+            mesh,
+            material: palette::table(),
+            mask: MaskClass::Table,
+            closed: true,
+        };
+        statics.push((
+            part,
+            Isometry3::translation(centre[0], centre[1], centre[2]),
+        ));
+    }
+    for (i, (centre, half)) in tray_boxes().into_iter().enumerate() {
+        let half32 = half.map(|v| v as f32);
+        let (mesh, material) = if i == 0 {
+            // The pad: a finely gridded top carrying its baked mottling.
+            let mut mesh = Mesh::slab(half32, 20, 22, |_, _| 0.0);
+            let material = mesh
+                .bake(appearance.tissue(palette::tray_pad()))
+                .per_vertex();
+            (mesh, material)
+        } else {
+            (Mesh::cuboid(half32), palette::tray_rim())
+        };
+        let part = Part {
+            mesh,
+            material,
+            mask: MaskClass::Tray,
+            closed: true,
+        };
+        statics.push((
+            part,
+            Isometry3::translation(centre[0], centre[1], centre[2]),
+        ));
+    }
+    statics
+}
+
 impl SceneAssets {
     /// Builds the meshes of `scene`; `seed` varies the objects' surface detail.
     pub fn new(scene: &SceneSpec, seed: u64, appearance: Appearance) -> Self {
-        let mut statics = Vec::new();
-        // The drape: a frame of four slabs around the tray (nothing is drawn under the tray).
-        let [tcx, tcy] = TRAY_CENTER_XY_M;
-        let [thx, thy] = TRAY_HALF_EXTENTS_XY_M;
-        let (inner_x, inner_y, outer) = (thx + TRAY_RIM_WIDTH_M, thy + TRAY_RIM_WIDTH_M, 0.35);
-        let drape_z = TABLE_TOP_Z_M - 0.005;
-        let side = (outer - inner_y) / 2.0;
-        let end = (outer - inner_x) / 2.0;
-        let drape_boxes = [
-            ([tcx, tcy - inner_y - side, drape_z], [outer, side, 0.005]),
-            ([tcx, tcy + inner_y + side, drape_z], [outer, side, 0.005]),
-            ([tcx - inner_x - end, tcy, drape_z], [end, inner_y, 0.005]),
-            ([tcx + inner_x + end, tcy, drape_z], [end, inner_y, 0.005]),
-        ];
-        for (centre, half) in drape_boxes {
-            let mesh = Mesh::cuboid(half.map(|v| v as f32));
-            let part = Part {
-                mesh,
-                material: palette::table(),
-                mask: MaskClass::Table,
-                closed: true,
-            };
-            statics.push((
-                part,
-                Isometry3::translation(centre[0], centre[1], centre[2]),
-            ));
-        }
-        for (i, (centre, half)) in tray_boxes().into_iter().enumerate() {
-            let half32 = half.map(|v| v as f32);
-            let (mesh, material) = if i == 0 {
-                // The pad: a finely gridded top carrying its baked mottling.
-                let mut mesh = Mesh::slab(half32, 20, 22, |_, _| 0.0);
-                let material = mesh
-                    .bake(appearance.tissue(palette::tray_pad()))
-                    .per_vertex();
-                (mesh, material)
-            } else {
-                (Mesh::cuboid(half32), palette::tray_rim())
-            };
-            let part = Part {
-                mesh,
-                material,
-                mask: MaskClass::Tray,
-                closed: true,
-            };
-            statics.push((
-                part,
-                Isometry3::translation(centre[0], centre[1], centre[2]),
-            ));
-        }
+        let mut statics = drape_and_tray(&appearance);
         for organ in &scene.organs {
             let (material, mask) = match organ.kind {
                 OrganKind::Kidney => (palette::kidney(), MaskClass::Kidney),

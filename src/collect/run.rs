@@ -224,19 +224,31 @@ fn worker_pool(options: &CollectOptions) -> Result<(rayon::ThreadPool, usize), C
     Ok((pool, threads))
 }
 
+/// What a run's slots are recorded with: its options, the experts, and the worker pool with its
+/// size.
+#[derive(Clone, Copy)]
+struct Workers<'a> {
+    options: &'a CollectOptions,
+    library: &'a ExpertLibrary,
+    pool: &'a rayon::ThreadPool,
+    threads: usize,
+}
+
 /// Fills `slots` (the `first`-th onward) without rendering, reporting each to `tally` and
 /// `progress` in order; with `strict`, a slot whose every attempt failed is an error.
-#[allow(clippy::too_many_arguments)]
 fn count_slots(
     strict: bool,
-    slots: &[Slot],
-    first: usize,
-    options: &CollectOptions,
-    library: &ExpertLibrary,
-    pool: &rayon::ThreadPool,
+    (slots, first): (&[Slot], usize),
+    workers: Workers<'_>,
     tally: &mut Tally,
     progress: &mut dyn CollectProgress,
 ) -> Result<(), CollectError> {
+    let Workers {
+        options,
+        library,
+        pool,
+        ..
+    } = workers;
     for (c, chunk) in slots.chunks(64).enumerate() {
         let start = first + c * 64;
         let outcomes: Vec<Result<SlotOutcome, CollectError>> = pool.install(|| {
@@ -270,9 +282,13 @@ pub fn measure_experts(
     let (pool, threads) = worker_pool(options)?;
     progress.start(&slots, 0);
     let mut tally = Tally::new(options);
-    count_slots(
-        false, &slots, 0, options, library, &pool, &mut tally, progress,
-    )?;
+    let workers = Workers {
+        options,
+        library,
+        pool: &pool,
+        threads,
+    };
+    count_slots(false, (&slots, 0), workers, &mut tally, progress)?;
     let range = options.shard.range(options.all_slots().len());
     let wall_secs = started.elapsed().as_secs_f64();
     Ok(tally.finish(
@@ -321,18 +337,15 @@ fn write_ready(
 /// sink's encoding runs as jobs on the same pool, between recordings). At most
 /// [`episodes_in_flight`] episodes are recorded ahead of the writer, so memory stays flat; no
 /// core waits for the slowest episode of a batch.
-#[allow(clippy::too_many_arguments)]
 fn record_and_write(
-    slots: &[Slot],
-    first: usize,
-    threads: usize,
-    options: &CollectOptions,
-    library: &ExpertLibrary,
-    pool: &rayon::ThreadPool,
+    (slots, first): (&[Slot], usize),
+    workers: Workers<'_>,
     sink: &mut (dyn EpisodeSink + Send),
     tally: &mut Tally,
     progress: &mut dyn CollectProgress,
 ) -> Result<(), CollectError> {
+    let (options, library) = (workers.options, workers.library);
+    let (pool, threads) = (workers.pool, workers.threads);
     let window = episodes_in_flight(threads);
     let stop = AtomicBool::new(false);
     // With a detached encoder, a worker encodes the episode it recorded and this thread only
@@ -504,23 +517,16 @@ pub fn collect(
     let mut report = Tally::new(options);
     // Recount what an interrupted run already wrote (physics only).
     let written = &slots[..resume_at];
-    count_slots(
-        true,
-        written,
-        0,
+    let workers = Workers {
         options,
         library,
-        &pool,
-        &mut report,
-        progress,
-    )?;
-    record_and_write(
-        &slots[resume_at..],
-        resume_at,
+        pool: &pool,
         threads,
-        options,
-        library,
-        &pool,
+    };
+    count_slots(true, (written, 0), workers, &mut report, progress)?;
+    record_and_write(
+        (&slots[resume_at..], resume_at),
+        workers,
         sink,
         &mut report,
         progress,

@@ -289,25 +289,7 @@ pub fn verify_within(
     rgb_min_psnr_db: Option<f64>,
 ) -> Result<Verification, ConvertError> {
     let mut result = Verification::default();
-    let has = |info: &crate::export::info::DatasetInfo, kind| info.has(kind);
-    let (a_info, b_info) = (source.info().clone(), target.info().clone());
-    let both = |kind| has(&a_info, kind) && has(&b_info, kind);
-    // Other features by name: formats may order them differently.
-    let others = |info: &crate::export::info::DatasetInfo| -> Vec<String> {
-        info.features
-            .iter()
-            .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
-            .map(|f| f.name.clone())
-            .collect()
-    };
-    let (a_others, b_others) = (others(&a_info), others(&b_info));
-    let named = |names: &[String], values: &[crate::episode::FeatureValue]| {
-        names
-            .iter()
-            .cloned()
-            .zip(values.iter().cloned())
-            .collect::<std::collections::BTreeMap<_, _>>()
-    };
+    let sides = Sides::of(source.info(), target.info());
     let note = |result: &mut Verification, text: String| {
         if result.differences.len() < 20 {
             result.differences.push(text);
@@ -341,30 +323,10 @@ pub fn verify_within(
         let index = a.meta.index;
         result.episodes += 1;
         result.frames += a.steps.len() as u64;
-        if a.meta.instruction != b.meta.instruction {
-            note(
-                &mut result,
-                format!(
-                    "episode {index}: instruction {:?} became {:?}",
-                    a.meta.instruction, b.meta.instruction
-                ),
-            );
-        }
-        if (a.meta.seed, &a.meta.task_code) != (b.meta.seed, &b.meta.task_code) {
-            note(
-                &mut result,
-                format!("episode {index}: provenance (task id, seed) differs"),
-            );
+        for text in meta_differences(&a, &b) {
+            note(&mut result, text);
         }
         if a.steps.len() != b.steps.len() {
-            note(
-                &mut result,
-                format!(
-                    "episode {index}: {} frames became {}",
-                    a.steps.len(),
-                    b.steps.len()
-                ),
-            );
             continue;
         }
         // Lossy RGB on either side (JPEG): compared within the lossy tolerance.
@@ -375,42 +337,119 @@ pub fn verify_within(
             note(&mut result, format!("episode {index}: video differs"));
         }
         for (frame, (x, y)) in a.steps.iter().zip(&b.steps).enumerate() {
-            let what = if both(FeatureKind::Rgb) && rgb_differs(&x.rgb, &y.rgb, min_psnr_db) {
-                Some("RGB")
-            } else if both(FeatureKind::Mask) && x.mask != y.mask {
-                Some("mask")
-            } else if both(FeatureKind::Depth)
-                && (x.depth_m.len() != y.depth_m.len()
-                    || x.depth_m
-                        .iter()
-                        .zip(&y.depth_m)
-                        .any(|(p, q)| (p - q).abs() > DEPTH_TOLERANCE_M))
-            {
-                Some("depth")
-            } else if x.state.map(f32::to_bits) != y.state.map(f32::to_bits) {
-                Some("state")
-            } else if x.action.map(f32::to_bits) != y.action.map(f32::to_bits) {
-                Some("action")
-            } else if both(FeatureKind::EnvironmentState)
-                && x.environment_state.map(f32::to_bits) != y.environment_state.map(f32::to_bits)
-            {
-                Some("object poses")
-            } else if others_differ(
-                &named(&a_others, &x.other),
-                &named(&b_others, &y.other),
-                min_psnr_db,
-            ) {
-                Some("another feature")
-            } else {
-                None
-            };
-            if let Some(what) = what {
+            if let Some(what) = sides.difference(x, y, min_psnr_db) {
                 note(
                     &mut result,
                     format!("episode {index} frame {frame}: {what} differs"),
                 );
                 break;
             }
+        }
+    }
+}
+
+/// What differs between two episodes' metadata and lengths, each a sentence.
+fn meta_differences(a: &Episode, b: &Episode) -> Vec<String> {
+    let index = a.meta.index;
+    let mut found = Vec::new();
+    if a.meta.instruction != b.meta.instruction {
+        found.push(format!(
+            "episode {index}: instruction {:?} became {:?}",
+            a.meta.instruction, b.meta.instruction
+        ));
+    }
+    if (a.meta.seed, &a.meta.task_code) != (b.meta.seed, &b.meta.task_code) {
+        found.push(format!(
+            "episode {index}: provenance (task id, seed) differs"
+        ));
+    }
+    if a.steps.len() != b.steps.len() {
+        found.push(format!(
+            "episode {index}: {} frames became {}",
+            a.steps.len(),
+            b.steps.len()
+        ));
+    }
+    found
+}
+
+/// The two datasets [`verify_within`] compares: which features both hold, and each side's other
+/// features by name (formats may order them differently).
+struct Sides {
+    both: Vec<FeatureKind>,
+    a_others: Vec<String>,
+    b_others: Vec<String>,
+}
+
+impl Sides {
+    fn of(a: &crate::export::info::DatasetInfo, b: &crate::export::info::DatasetInfo) -> Self {
+        let others = |info: &crate::export::info::DatasetInfo| -> Vec<String> {
+            info.features
+                .iter()
+                .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
+                .map(|f| f.name.clone())
+                .collect()
+        };
+        let both = [
+            FeatureKind::Rgb,
+            FeatureKind::Mask,
+            FeatureKind::Depth,
+            FeatureKind::EnvironmentState,
+        ]
+        .into_iter()
+        .filter(|kind| a.has(*kind) && b.has(*kind))
+        .collect();
+        Sides {
+            both,
+            a_others: others(a),
+            b_others: others(b),
+        }
+    }
+
+    /// What differs between two frames, if anything (RGB within `min_psnr_db` when lossy, depth
+    /// within [`DEPTH_TOLERANCE_M`], vectors bit for bit).
+    fn difference(
+        &self,
+        x: &crate::episode::Step,
+        y: &crate::episode::Step,
+        min_psnr_db: Option<f64>,
+    ) -> Option<&'static str> {
+        let both = |kind| self.both.contains(&kind);
+        let named = |names: &[String], values: &[crate::episode::FeatureValue]| {
+            names
+                .iter()
+                .cloned()
+                .zip(values.iter().cloned())
+                .collect::<std::collections::BTreeMap<_, _>>()
+        };
+        if both(FeatureKind::Rgb) && rgb_differs(&x.rgb, &y.rgb, min_psnr_db) {
+            Some("RGB")
+        } else if both(FeatureKind::Mask) && x.mask != y.mask {
+            Some("mask")
+        } else if both(FeatureKind::Depth)
+            && (x.depth_m.len() != y.depth_m.len()
+                || x.depth_m
+                    .iter()
+                    .zip(&y.depth_m)
+                    .any(|(p, q)| (p - q).abs() > DEPTH_TOLERANCE_M))
+        {
+            Some("depth")
+        } else if x.state.map(f32::to_bits) != y.state.map(f32::to_bits) {
+            Some("state")
+        } else if x.action.map(f32::to_bits) != y.action.map(f32::to_bits) {
+            Some("action")
+        } else if both(FeatureKind::EnvironmentState)
+            && x.environment_state.map(f32::to_bits) != y.environment_state.map(f32::to_bits)
+        {
+            Some("object poses")
+        } else if others_differ(
+            &named(&self.a_others, &x.other),
+            &named(&self.b_others, &y.other),
+            min_psnr_db,
+        ) {
+            Some("another feature")
+        } else {
+            None
         }
     }
 }

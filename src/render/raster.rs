@@ -171,6 +171,69 @@ impl StaticInstance {
     }
 }
 
+/// The edge function of `a -> b` at `p` (fixed point): twice the signed area of (a, b, p).
+#[inline(always)]
+fn edge(a: (i64, i64), b: (i64, i64), p: (i64, i64)) -> i64 {
+    (b.0 - a.0) * (p.1 - a.1) - (b.1 - a.1) * (p.0 - a.0)
+}
+
+/// A triangle's three edge functions (edge k opposite vertex k: 1 -> 2, 2 -> 0, 0 -> 1), for
+/// stepping them over pixel centres.
+struct Edges {
+    /// The fill rule: -1 for edges that do not own the pixels on them (top-left rule).
+    bias: [i64; 3],
+    /// Change a pixel to the right, and a row down.
+    step_x: [i64; 3],
+    step_y: [i64; 3],
+    /// Each biased edge function at `origin`.
+    row: [i64; 3],
+}
+
+impl Edges {
+    #[inline(always)]
+    fn of(p: &[(i64, i64); 3], origin: (i64, i64)) -> Self {
+        let step = SUBPIXEL as i64;
+        let edges = [(p[1], p[2]), (p[2], p[0]), (p[0], p[1])];
+        let bias = edges.map(|(a, b)| {
+            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+            if dy > 0 || (dy == 0 && dx < 0) { 0 } else { -1 }
+        });
+        let step_x = edges.map(|(a, b)| -(b.1 - a.1) * step);
+        let step_y = edges.map(|(a, b)| (b.0 - a.0) * step);
+        let row = [0usize, 1, 2].map(|k| edge(edges[k].0, edges[k].1, origin) + bias[k]);
+        Edges {
+            bias,
+            step_x,
+            step_y,
+            row,
+        }
+    }
+}
+
+/// The span of a row (from `x0` to `x1`) where every biased edge function is >= 0, given each
+/// edge's value `row` at `x0` and its step `step_x` a pixel; empty (`end < start`) when none.
+#[inline(always)]
+fn row_span(row: [i64; 3], step_x: [i64; 3], x0: i64, x1: i64) -> (i64, i64) {
+    let (mut start, mut end) = (x0, x1);
+    for k in 0..3 {
+        let (w, s) = (row[k], step_x[k]);
+        if s > 0 {
+            if w < 0 {
+                start = start.max(x0 + (-w + s - 1) / s);
+            }
+        } else if s < 0 {
+            if w < 0 {
+                end = x0 - 1;
+            } else {
+                end = end.min(x0 + w / -s);
+            }
+        } else if w < 0 {
+            end = x0 - 1;
+        }
+    }
+    (start, end)
+}
+
 impl StaticKey {
     fn of(camera: &Camera, lighting: &Lighting, instances: &[Instance<'_>]) -> Self {
         StaticKey {
@@ -291,8 +354,10 @@ struct Target<'a> {
 }
 
 impl Target<'_> {
-    /// Scans one (clipped) triangle into the G-buffer.
-    fn draw(&mut self, vertices: [ClipVertex; 3], instance: u16, triangle: u32) {
+    /// The triangle's corners on the screen in fixed point (1/256 px, clamped to the guard
+    /// band) and their inverse depths.
+    #[inline(always)]
+    fn project(&self, vertices: &[ClipVertex; 3]) -> ([(i64, i64); 3], [f32; 3]) {
         let mut fixed = [(0i64, 0i64); 3];
         let mut inv_z = [0f32; 3];
         for (k, v) in vertices.iter().enumerate() {
@@ -304,10 +369,30 @@ impl Target<'_> {
             fixed[k] = (round_i64(sx * SUBPIXEL), round_i64(sy * SUBPIXEL));
             inv_z[k] = 1.0 / v.position[2];
         }
+        (fixed, inv_z)
+    }
+
+    /// The pixels (x0, x1, y0, y1, inclusive) whose centres the corners `p` (fixed point) may
+    /// cover, within the target; `None` when there are none.
+    #[inline(always)]
+    fn pixel_bounds(&self, p: &[(i64, i64); 3]) -> Option<(i64, i64, i64, i64)> {
+        let min_x = p.iter().map(|v| v.0).min().unwrap_or(0);
+        let max_x = p.iter().map(|v| v.0).max().unwrap_or(0);
+        let min_y = p.iter().map(|v| v.1).min().unwrap_or(0);
+        let max_y = p.iter().map(|v| v.1).max().unwrap_or(0);
+        let half = (SUBPIXEL / 2.0) as i64;
+        let step = SUBPIXEL as i64;
+        let x0 = ((min_x - half + step - 1).div_euclid(step)).max(0);
+        let x1 = ((max_x - half).div_euclid(step)).min(self.width - 1);
+        let y0 = ((min_y - half + step - 1).div_euclid(step)).max(0);
+        let y1 = ((max_y - half).div_euclid(step)).min(self.height - 1);
+        (x0 <= x1 && y0 <= y1).then_some((x0, x1, y0, y1))
+    }
+
+    /// Scans one (clipped) triangle into the G-buffer.
+    fn draw(&mut self, vertices: [ClipVertex; 3], instance: u16, triangle: u32) {
+        let (fixed, inv_z) = self.project(&vertices);
         let mut order = [0usize, 1, 2];
-        let edge = |a: (i64, i64), b: (i64, i64), p: (i64, i64)| {
-            (b.0 - a.0) * (p.1 - a.1) - (b.1 - a.1) * (p.0 - a.0)
-        };
         let mut area = edge(fixed[0], fixed[1], fixed[2]);
         if area == 0 {
             return;
@@ -320,19 +405,11 @@ impl Target<'_> {
         let iz = order.map(|k| inv_z[k]);
         let bary = order.map(|k| vertices[k].bary);
 
-        let min_x = p.iter().map(|v| v.0).min().unwrap_or(0);
-        let max_x = p.iter().map(|v| v.0).max().unwrap_or(0);
-        let min_y = p.iter().map(|v| v.1).min().unwrap_or(0);
-        let max_y = p.iter().map(|v| v.1).max().unwrap_or(0);
         let half = (SUBPIXEL / 2.0) as i64;
         let step = SUBPIXEL as i64;
-        let x0 = ((min_x - half + step - 1).div_euclid(step)).max(0);
-        let x1 = ((max_x - half).div_euclid(step)).min(self.width - 1);
-        let y0 = ((min_y - half + step - 1).div_euclid(step)).max(0);
-        let y1 = ((max_y - half).div_euclid(step)).min(self.height - 1);
-        if x0 > x1 || y0 > y1 {
+        let Some((x0, x1, y0, y1)) = self.pixel_bounds(&p) else {
             return;
-        }
+        };
         let rect = PixelRect {
             x0: x0 as usize,
             x1: x1 as usize,
@@ -340,38 +417,17 @@ impl Target<'_> {
             y1: y1 as usize,
         };
         self.touched = Some(self.touched.map_or(rect, |t| t.union(rect)));
-        // Edge k is opposite vertex k: (1 -> 2), (2 -> 0), (0 -> 1).
-        let edges = [(p[1], p[2]), (p[2], p[0]), (p[0], p[1])];
-        let bias = edges.map(|(a, b)| {
-            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-            if dy > 0 || (dy == 0 && dx < 0) { 0 } else { -1 }
-        });
-        let step_x = edges.map(|(a, b)| -(b.1 - a.1) * step);
-        let step_y = edges.map(|(a, b)| (b.0 - a.0) * step);
-        let origin = (x0 * step + half, y0 * step + half);
-        let mut row = [0usize, 1, 2].map(|k| edge(edges[k].0, edges[k].1, origin) + bias[k]);
+        let Edges {
+            bias,
+            step_x,
+            step_y,
+            mut row,
+        } = Edges::of(&p, (x0 * step + half, y0 * step + half));
         let inv_area = 1.0 / area as f32;
         let (min_inv_z, max_inv_z) = (1.0 / self.far, 1.0 / self.near);
         let width = self.width as usize;
         for y in y0..=y1 {
-            // The span of this row where every (biased) edge function is >= 0.
-            let (mut start, mut end) = (x0, x1);
-            for k in 0..3 {
-                let (w, s) = (row[k], step_x[k]);
-                if s > 0 {
-                    if w < 0 {
-                        start = start.max(x0 + (-w + s - 1) / s);
-                    }
-                } else if s < 0 {
-                    if w < 0 {
-                        end = x0 - 1;
-                    } else {
-                        end = end.min(x0 + w / -s);
-                    }
-                } else if w < 0 {
-                    end = x0 - 1;
-                }
-            }
+            let (start, end) = row_span(row, step_x, x0, x1);
             if start <= end {
                 let base = y as usize * width;
                 let offset = start - x0;

@@ -39,6 +39,92 @@ impl crate::error::HasKind for SpawnError {
 /// Most whole-scene redraws before the spawn is declared impossible.
 pub const MAX_LAYOUTS: usize = 50;
 
+/// The target object (`target`, first) in the primary range and its distractors (the other two
+/// kinds in turn, `config.distractors` of them) in their slots.
+fn place_with_distractors(
+    placer: &mut Placer<'_>,
+    scene: &mut SceneSpec,
+    target: ObjectKind,
+    (config, spawn): (&TaskConfig, &SpawnRanges),
+    yaw_rad: f64,
+) -> Result<(), String> {
+    let others = if target == ObjectKind::Gauze {
+        [ObjectKind::Needle, ObjectKind::Block]
+    } else {
+        [ObjectKind::Gauze, ObjectKind::Block]
+    };
+    let range = (spawn.primary_x_m, spawn.primary_y_m);
+    scene
+        .objects
+        .push(placer.place(target.name(), target, range, Some(yaw_rad))?);
+    let slots = [
+        (spawn.secondary_x_m, spawn.secondary_y_m),
+        ((0.56, 0.58), (-0.045, -0.025)),
+        ((0.505, 0.525), (0.02, 0.04)),
+    ];
+    let count = config.distractors.clamp(1, MAX_DISTRACTORS);
+    for (i, slot) in slots.into_iter().take(count).enumerate() {
+        let kind = others[i % 2];
+        let name = format!("{}_distractor_{}", kind.name(), i + 1);
+        let mut object = placer.place(&name, kind, slot, None)?;
+        object.distractor = true;
+        scene.objects.push(object);
+    }
+    Ok(())
+}
+
+/// The vessel with its clip sites; returns the target site's index (the red one, or drawn when
+/// `config.vary_clip_target`).
+fn place_vessel(
+    placer: &mut Placer<'_>,
+    scene: &mut SceneSpec,
+    config: &TaskConfig,
+    spawn: &SpawnRanges,
+) -> usize {
+    let [x, y] = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
+    let shape = placer.rng.next_f64();
+    let order = placer.rng.next_f64();
+    let target_draw = placer.rng.next_f64();
+    let (vessel, marks) = vessel_with_sites(x, y, shape, order);
+    let target = if config.vary_clip_target {
+        ((target_draw * 3.0) as usize).min(2)
+    } else {
+        marks
+            .iter()
+            .position(|m| m.colour == MarkColour::Red)
+            .unwrap_or(0)
+    };
+    scene.marks = marks;
+    scene.marks[target].target = true;
+    scene.organs.push(vessel);
+    target
+}
+
+/// The spleen with its bleeding target, and the gauze off the spleen.
+fn place_hemostasis(
+    placer: &mut Placer<'_>,
+    scene: &mut SceneSpec,
+    spawn: &SpawnRanges,
+    yaw_rad: f64,
+) -> Result<(), String> {
+    let (spleen, target) = placer.organ_with_mark(
+        OrganKind::Spleen,
+        SPLEEN_SEMI_AXES_M,
+        spawn,
+        yaw_rad,
+        (Vector3::new(0.55, 0.0, 0.83), "bleeding_target"),
+    );
+    // The gauze must not start on the spleen.
+    placer.placed.push(organ_outline(&spleen));
+    scene.marks.push(target);
+    scene.organs.push(spleen);
+    let range = (spawn.secondary_x_m, spawn.secondary_y_m);
+    scene
+        .objects
+        .push(placer.place("gauze", ObjectKind::Gauze, range, Some(0.0))?);
+    Ok(())
+}
+
 impl TaskId {
     /// The reference spawn ranges (`tasks.md`), with our choices where the reference cannot be
     /// reached (the spleen sits 25 mm further +x so its target lies inside the workspace).
@@ -165,29 +251,13 @@ impl TaskId {
                 instance.target_object = Some(0);
             }
             TaskId::GauzePickDistractors | TaskId::NeedlePickDistractors => {
-                let (target, others) = if self == TaskId::GauzePickDistractors {
-                    (ObjectKind::Gauze, [ObjectKind::Needle, ObjectKind::Block])
+                let target = if self == TaskId::GauzePickDistractors {
+                    ObjectKind::Gauze
                 } else {
-                    (ObjectKind::Needle, [ObjectKind::Gauze, ObjectKind::Block])
+                    ObjectKind::Needle
                 };
-                let range = (spawn.primary_x_m, spawn.primary_y_m);
-                scene
-                    .objects
-                    .push(placer.place(target.name(), target, range, Some(yaw_rad))?);
+                place_with_distractors(&mut placer, scene, target, (config, spawn), yaw_rad)?;
                 instance.target_object = Some(0);
-                let slots = [
-                    (spawn.secondary_x_m, spawn.secondary_y_m),
-                    ((0.56, 0.58), (-0.045, -0.025)),
-                    ((0.505, 0.525), (0.02, 0.04)),
-                ];
-                let count = config.distractors.clamp(1, MAX_DISTRACTORS);
-                for (i, slot) in slots.into_iter().take(count).enumerate() {
-                    let kind = others[i % 2];
-                    let name = format!("{}_distractor_{}", kind.name(), i + 1);
-                    let mut object = placer.place(&name, kind, slot, None)?;
-                    object.distractor = true;
-                    scene.objects.push(object);
-                }
             }
             TaskId::PickAndPlace => {
                 let range = (spawn.primary_x_m, spawn.primary_y_m);
@@ -218,40 +288,10 @@ impl TaskId {
                 scene.tip_start_m = Some(electrocoagulation_start(seed));
             }
             TaskId::VesselClipping => {
-                let [x, y] = placer.xy(spawn.primary_x_m, spawn.primary_y_m);
-                let shape = placer.rng.next_f64();
-                let order = placer.rng.next_f64();
-                let target_draw = placer.rng.next_f64();
-                let (vessel, marks) = vessel_with_sites(x, y, shape, order);
-                let target = if config.vary_clip_target {
-                    ((target_draw * 3.0) as usize).min(2)
-                } else {
-                    marks
-                        .iter()
-                        .position(|m| m.colour == MarkColour::Red)
-                        .unwrap_or(0)
-                };
-                scene.marks = marks;
-                scene.marks[target].target = true;
-                scene.organs.push(vessel);
-                instance.target_mark = Some(target);
+                instance.target_mark = Some(place_vessel(&mut placer, scene, config, spawn));
             }
             TaskId::Hemostasis => {
-                let (spleen, target) = placer.organ_with_mark(
-                    OrganKind::Spleen,
-                    SPLEEN_SEMI_AXES_M,
-                    spawn,
-                    yaw_rad,
-                    (Vector3::new(0.55, 0.0, 0.83), "bleeding_target"),
-                );
-                // The gauze must not start on the spleen.
-                placer.placed.push(organ_outline(&spleen));
-                scene.marks.push(target);
-                scene.organs.push(spleen);
-                let range = (spawn.secondary_x_m, spawn.secondary_y_m);
-                scene
-                    .objects
-                    .push(placer.place("gauze", ObjectKind::Gauze, range, Some(0.0))?);
+                place_hemostasis(&mut placer, scene, spawn, yaw_rad)?;
                 instance.target_object = Some(0);
                 instance.target_mark = Some(0);
             }

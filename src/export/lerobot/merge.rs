@@ -143,16 +143,9 @@ fn differences(a: &Input, b: &Input) -> Vec<String> {
     differ
 }
 
-/// Merges the request's inputs into a new LeRobot dataset at its `out` (see the module
-/// overview), on `threads` worker threads (0: one per core), or continues an interrupted merge
-/// of the same inputs (`resume`); `progress` hears the episodes done so far.
-pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
-    let (out, threads, exact_stats) = (request.out, request.threads, request.exact_stats);
-    let mut opened: Vec<Input> = request
-        .inputs
-        .iter()
-        .map(|p| open(p))
-        .collect::<Result<_, _>>()?;
+/// Refuses inputs that cannot make one dataset with the first, and puts the shards of one
+/// collection in shard order (the same shard twice is a mistake).
+fn order_inputs(opened: &mut [Input]) -> Result<(), MergeError> {
     let Some(first) = opened.first() else {
         return Err(MergeError::NoInput);
     };
@@ -166,7 +159,6 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
             });
         }
     }
-    // Shards of one collection go in shard order; the same shard twice is a mistake.
     if opened.iter().all(|i| i.shard.is_some()) {
         opened.sort_by_key(|i| i.shard);
         for pair in opened.windows(2) {
@@ -182,14 +174,12 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
             }
         }
     }
-    let mut info = opened[0].source.info().clone();
-    // What a resume must find again: every input, in order.
-    let identities: Vec<String> = opened
-        .iter()
-        .map(|i| crate::export::identity::of(&i.path))
-        .collect::<Result<_, _>>()
-        .map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
-    info.input = Some(identities.join("; "));
+    Ok(())
+}
+
+/// Records in `info`'s collection which shards were merged: `0/1` when all N of N are, in
+/// order (the single run's dataset), else the list.
+fn mark_merged_shards(info: &mut crate::export::info::DatasetInfo, opened: &[Input]) {
     let shards: Vec<Option<(u64, u64)>> = opened.iter().map(|i| i.shard).collect();
     let complete = shards
         .iter()
@@ -212,8 +202,11 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         };
         collection.insert("shard".into(), Value::from(merged));
     }
-    let layout = &opened[0].layout;
-    // Video is copied as it is, in its own codec, rolled at the inputs' video file size.
+}
+
+/// The writer's options of the merged dataset: the first input's layout, its video copied as
+/// it is, in its own codec, rolled at the inputs' video file size.
+fn merged_options(info: &crate::export::info::DatasetInfo, layout: &Layout) -> LeRobotOptions {
     let video = info
         .features
         .iter()
@@ -225,7 +218,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
                 .video_files_size_in_mb
                 .unwrap_or(VideoOptions::default().file_size_mb),
         });
-    let options = LeRobotOptions {
+    LeRobotOptions {
         video,
         version: if layout.codebase_version.as_deref() == Some("v2.1") {
             LeRobotVersion::V21
@@ -235,7 +228,30 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         data_file_size_mb: layout.data_files_size_in_mb.unwrap_or(100),
         chunks_size: layout.chunks_size.unwrap_or(1000),
         ..LeRobotOptions::default()
-    };
+    }
+}
+
+/// Merges the request's inputs into a new LeRobot dataset at its `out` (see the module
+/// overview), on `threads` worker threads (0: one per core), or continues an interrupted merge
+/// of the same inputs (`resume`); `progress` hears the episodes done so far.
+pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
+    let (out, threads, exact_stats) = (request.out, request.threads, request.exact_stats);
+    let mut opened: Vec<Input> = request
+        .inputs
+        .iter()
+        .map(|p| open(p))
+        .collect::<Result<_, _>>()?;
+    order_inputs(&mut opened)?;
+    let mut info = opened[0].source.info().clone();
+    // What a resume must find again: every input, in order.
+    let identities: Vec<String> = opened
+        .iter()
+        .map(|i| crate::export::identity::of(&i.path))
+        .collect::<Result<_, _>>()
+        .map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
+    info.input = Some(identities.join("; "));
+    mark_merged_shards(&mut info, &opened);
+    let options = merged_options(&info, &opened[0].layout);
     let reports: Option<Vec<Value>> = opened
         .iter()
         .map(|i| read_json(&i.path.join(REPORT)).ok())

@@ -965,7 +965,7 @@ impl LeRobotSource {
 impl LeRobotSource {
     /// The next episode's rows (images still encoded), its index and task, and its row of the
     /// episodes table; None after the last.
-    #[allow(clippy::type_complexity)]
+    #[allow(clippy::type_complexity)] // (index, task index, rows, its episodes-table row): used once
     fn take_episode(
         &mut self,
     ) -> Option<Result<(i64, i64, Vec<Row>, Option<StoredEpisode>), ExportError>> {

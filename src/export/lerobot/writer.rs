@@ -530,15 +530,7 @@ impl LeRobotFiles {
                 success: meta.success,
             },
         };
-        let line = serde_json::to_vec(&row).map_err(|source| ExportError::Json {
-            path: dir.path(EPISODES_JOURNAL),
-            source,
-        })?;
-        dir.append(EPISODES_JOURNAL, &line)?;
-        self.state.episodes += 1;
-        self.state.total_frames += length;
-        self.state.summary.episodes += 1;
-        self.state.summary.frames += length;
+        self.journal(dir, &row)?;
         if full {
             // Close the video file at the same moment, so that everything written so far is
             // complete, and record the state.
@@ -551,6 +543,20 @@ impl LeRobotFiles {
         self.apart_secs.0 += encoded_ahead_secs;
         self.apart_secs.1 += stats_secs;
         Ok(encode_secs)
+    }
+
+    /// Appends an episode's row to the journal and counts the episode.
+    fn journal(&mut self, dir: &mut DatasetDir, row: &EpisodeRow) -> Result<(), ExportError> {
+        let line = serde_json::to_vec(row).map_err(|source| ExportError::Json {
+            path: dir.path(EPISODES_JOURNAL),
+            source,
+        })?;
+        dir.append(EPISODES_JOURNAL, &line)?;
+        self.state.episodes += 1;
+        self.state.total_frames += row.length;
+        self.state.summary.episodes += 1;
+        self.state.summary.frames += row.length;
+        Ok(())
     }
 
     /// Folds an episode's statistics into the dataset's; returns them as its row records them,

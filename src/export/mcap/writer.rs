@@ -87,23 +87,12 @@ pub(super) fn new_writer(
         .map_err(mcap_error("writer"))
 }
 
-/// The MCAP file of one episode; `scene`, when given, goes on `/scene` once at the start (the
-/// simulator's recorder has it, a dataset does not).
-pub fn record_episode(
+/// The episode's provenance as the recording's first metadata record.
+fn write_provenance(
+    writer: &mut mcap::Writer<std::io::Cursor<Vec<u8>>>,
     info: &DatasetInfo,
-    options: &McapOptions,
-    episode: &Episode,
-    scene: Option<&[SceneMesh]>,
-) -> Result<Vec<u8>, ExportError> {
-    let camera = &info.camera;
-    let (width, height) = info.image_size();
-    let cloud_options = if info.has(FeatureKind::Depth) {
-        Some(options.cloud.options(info)?)
-    } else {
-        None
-    };
-    let mut writer = new_writer(&info.generator)?;
-    let meta = &episode.meta;
+    meta: &crate::episode::EpisodeMeta,
+) -> Result<(), ExportError> {
     let provenance: BTreeMap<String, String> = [
         ("episode_index", meta.index.to_string()),
         ("task_id", meta.task_code.clone()),
@@ -122,110 +111,198 @@ pub fn record_episode(
             metadata: provenance,
         })
         .map_err(mcap_error("metadata"))?;
-    let no_metadata = BTreeMap::new();
-    let rgb_schema = schema_of::<foxglove::messages::CompressedImage>(&mut writer)?;
-    let depth_schema = schema_of::<foxglove::messages::RawImage>(&mut writer)?;
-    let calibration_schema = schema_of::<foxglove::messages::CameraCalibration>(&mut writer)?;
-    let points_schema = schema_of::<foxglove::messages::PointCloud>(&mut writer)?;
-    let tf_schema = schema_of::<foxglove::messages::FrameTransforms>(&mut writer)?;
-    let scene_schema = match scene {
-        Some(_) => Some(schema_of::<foxglove::messages::SceneUpdate>(&mut writer)?),
-        None => None,
-    };
-    let json_schema = |writer: &mut mcap::Writer<_>, value: Value, name: &str| {
-        writer
-            .add_schema(name, "jsonschema", value.to_string().as_bytes())
-            .map_err(mcap_error("schema"))
-    };
-    let state_schema = json_schema(
-        &mut writer,
-        super::messages::state_schema(),
-        "surgvla.RobotState",
-    )?;
-    let action_schema = json_schema(
-        &mut writer,
-        super::messages::action_schema(),
-        "surgvla.RobotAction",
-    )?;
-    let info_schema = json_schema(
-        &mut writer,
-        super::messages::info_schema(),
-        "surgvla.EpisodeInfo",
-    )?;
-    let mut add = |schema: u16, topic: &str, encoding: &str| {
-        writer
-            .add_channel(schema, topic, encoding, &no_metadata)
-            .map_err(mcap_error("channel"))
-    };
-    let info_channel = add(info_schema, "/episode/info", "json")?;
-    let rgb = add(rgb_schema, "/endoscope/rgb", "protobuf")?;
-    let depth = if info.has(FeatureKind::Depth) {
-        Some(add(depth_schema, "/endoscope/depth", "protobuf")?)
+    Ok(())
+}
+
+/// What a step's messages are made with.
+struct StepMessages<'a> {
+    info: &'a DatasetInfo,
+    channels: &'a Channels,
+    cloud_options: Option<&'a crate::export::pointcloud::CloudOptions>,
+    /// The frame names of the objects' poses.
+    objects: Vec<String>,
+    /// The source's PNG bytes of the RGB frames, copied instead of encoded again.
+    stored_rgb: Option<&'a [crate::episode::EncodedFrame]>,
+}
+
+impl StepMessages<'_> {
+    /// Step `t`'s messages at `ns`, channel by channel, in the order they are written.
+    fn of(
+        &self,
+        t: usize,
+        ns: u64,
+        step: &crate::episode::Step,
+    ) -> Result<Vec<(u16, Vec<u8>)>, ExportError> {
+        let (camera, channels) = (&self.info.camera, self.channels);
+        let (width, height) = self.info.image_size();
+        let png = stored_or(self.stored_rgb, t, || {
+            encode_png(width, height, 3, &step.rgb, PngLevel::Fast)
+        })?;
+        let mut out = vec![(
+            channels.rgb,
+            encoded(&super::messages::compressed_image(ns, png))?,
+        )];
+        if let Some(channel) = channels.depth {
+            out.push((
+                channel,
+                encoded(&super::messages::depth_image(ns, camera, &step.depth_m))?,
+            ));
+        }
+        out.push((
+            channels.calibration,
+            encoded(&super::messages::calibration(ns, camera))?,
+        ));
+        if let (Some(channel), Some(cloud_options)) = (channels.points, self.cloud_options) {
+            let cloud = frame_cloud(camera, step, cloud_options);
+            out.push((channel, encoded(&super::messages::point_cloud(ns, &cloud))?));
+        }
+        out.push((
+            channels.tf,
+            encoded(&super::messages::frames(ns, camera, step, &self.objects))?,
+        ));
+        out.push((
+            channels.state,
+            super::messages::state_json(ns, step)
+                .to_string()
+                .into_bytes(),
+        ));
+        out.push((
+            channels.action,
+            super::messages::action_json(ns, step)
+                .to_string()
+                .into_bytes(),
+        ));
+        Ok(out)
+    }
+}
+
+/// An episode recording's channels (ids), added with their schemas in a fixed order.
+struct Channels {
+    info: u16,
+    rgb: u16,
+    depth: Option<u16>,
+    calibration: u16,
+    points: Option<u16>,
+    tf: u16,
+    scene: Option<u16>,
+    state: u16,
+    action: u16,
+}
+
+impl Channels {
+    /// Adds the schemas, then the channels: depth with the depth feature, points `with_points`,
+    /// the scene's meshes `with_scene`.
+    fn add(
+        writer: &mut mcap::Writer<std::io::Cursor<Vec<u8>>>,
+        info: &DatasetInfo,
+        with_points: bool,
+        with_scene: bool,
+    ) -> Result<Self, ExportError> {
+        let no_metadata = BTreeMap::new();
+        let rgb_schema = schema_of::<foxglove::messages::CompressedImage>(writer)?;
+        let depth_schema = schema_of::<foxglove::messages::RawImage>(writer)?;
+        let calibration_schema = schema_of::<foxglove::messages::CameraCalibration>(writer)?;
+        let points_schema = schema_of::<foxglove::messages::PointCloud>(writer)?;
+        let tf_schema = schema_of::<foxglove::messages::FrameTransforms>(writer)?;
+        let scene_schema = if with_scene {
+            Some(schema_of::<foxglove::messages::SceneUpdate>(writer)?)
+        } else {
+            None
+        };
+        let json_schema = |writer: &mut mcap::Writer<_>, value: Value, name: &str| {
+            writer
+                .add_schema(name, "jsonschema", value.to_string().as_bytes())
+                .map_err(mcap_error("schema"))
+        };
+        let state_schema = json_schema(
+            writer,
+            super::messages::state_schema(),
+            "surgvla.RobotState",
+        )?;
+        let action_schema = json_schema(
+            writer,
+            super::messages::action_schema(),
+            "surgvla.RobotAction",
+        )?;
+        let info_schema = json_schema(
+            writer,
+            super::messages::info_schema(),
+            "surgvla.EpisodeInfo",
+        )?;
+        let mut add = |schema: u16, topic: &str, encoding: &str| {
+            writer
+                .add_channel(schema, topic, encoding, &no_metadata)
+                .map_err(mcap_error("channel"))
+        };
+        let info_channel = add(info_schema, "/episode/info", "json")?;
+        let rgb = add(rgb_schema, "/endoscope/rgb", "protobuf")?;
+        let depth = if info.has(FeatureKind::Depth) {
+            Some(add(depth_schema, "/endoscope/depth", "protobuf")?)
+        } else {
+            None
+        };
+        let calibration = add(calibration_schema, "/endoscope/camera_info", "protobuf")?;
+        let points = if with_points {
+            Some(add(points_schema, "/endoscope/points", "protobuf")?)
+        } else {
+            None
+        };
+        let tf = add(tf_schema, "/tf", "protobuf")?;
+        let scene_channel = match scene_schema {
+            Some(schema) => Some(add(schema, "/scene", "protobuf")?),
+            None => None,
+        };
+        let state = add(state_schema, "/robot/state", "json")?;
+        let action = add(action_schema, "/robot/action", "json")?;
+        Ok(Channels {
+            info: info_channel,
+            rgb,
+            depth,
+            calibration,
+            points,
+            tf,
+            scene: scene_channel,
+            state,
+            action,
+        })
+    }
+}
+
+/// The MCAP file of one episode; `scene`, when given, goes on `/scene` once at the start (the
+/// simulator's recorder has it, a dataset does not).
+pub fn record_episode(
+    info: &DatasetInfo,
+    options: &McapOptions,
+    episode: &Episode,
+    scene: Option<&[SceneMesh]>,
+) -> Result<Vec<u8>, ExportError> {
+    let cloud_options = if info.has(FeatureKind::Depth) {
+        Some(options.cloud.options(info)?)
     } else {
         None
     };
-    let calibration = add(calibration_schema, "/endoscope/camera_info", "protobuf")?;
-    let points = if cloud_options.is_some() {
-        Some(add(points_schema, "/endoscope/points", "protobuf")?)
-    } else {
-        None
+    let mut writer = new_writer(&info.generator)?;
+    let meta = &episode.meta;
+    write_provenance(&mut writer, info, meta)?;
+    let channels = Channels::add(&mut writer, info, cloud_options.is_some(), scene.is_some())?;
+    let steps = StepMessages {
+        info,
+        channels: &channels,
+        cloud_options: cloud_options.as_ref(),
+        objects: (0..crate::episode::MAX_OBJECTS)
+            .map(|i| format!("object_{i}"))
+            .collect(),
+        stored_rgb: info.rgb_key().and_then(|key| episode.stored_png(key)),
     };
-    let tf = add(tf_schema, "/tf", "protobuf")?;
-    let scene_channel = match scene_schema {
-        Some(schema) => Some(add(schema, "/scene", "protobuf")?),
-        None => None,
-    };
-    let state = add(state_schema, "/robot/state", "json")?;
-    let action = add(action_schema, "/robot/action", "json")?;
-    let objects: Vec<String> = (0..crate::episode::MAX_OBJECTS)
-        .map(|i| format!("object_{i}"))
-        .collect();
-    let stored_rgb = info.rgb_key().and_then(|key| episode.stored_png(key));
     // Per step, encoded in parallel: every message's bytes.
     let fps = u64::from(info.fps.max(1));
     let step_messages: Vec<Vec<(u16, Vec<u8>)>> = episode
         .steps
         .par_iter()
         .enumerate()
-        .map(|(t, step)| -> Result<Vec<(u16, Vec<u8>)>, ExportError> {
-            let ns = T0_NS + t as u64 * 1_000_000_000 / fps;
-            let png = stored_or(stored_rgb, t, || {
-                encode_png(width, height, 3, &step.rgb, PngLevel::Fast)
-            })?;
-            let mut out = vec![(rgb, encoded(&super::messages::compressed_image(ns, png))?)];
-            if let Some(channel) = depth {
-                out.push((
-                    channel,
-                    encoded(&super::messages::depth_image(ns, camera, &step.depth_m))?,
-                ));
-            }
-            out.push((
-                calibration,
-                encoded(&super::messages::calibration(ns, camera))?,
-            ));
-            if let (Some(channel), Some(cloud_options)) = (points, &cloud_options) {
-                let cloud = frame_cloud(camera, step, cloud_options);
-                out.push((channel, encoded(&super::messages::point_cloud(ns, &cloud))?));
-            }
-            out.push((
-                tf,
-                encoded(&super::messages::frames(ns, camera, step, &objects))?,
-            ));
-            out.push((
-                state,
-                super::messages::state_json(ns, step)
-                    .to_string()
-                    .into_bytes(),
-            ));
-            out.push((
-                action,
-                super::messages::action_json(ns, step)
-                    .to_string()
-                    .into_bytes(),
-            ));
-            Ok(out)
-        })
+        .map(|(t, step)| steps.of(t, T0_NS + t as u64 * 1_000_000_000 / fps, step))
         .collect::<Result<_, _>>()?;
+    let (info_channel, scene_channel) = (channels.info, channels.scene);
     let info_message = json!({
         "episode_index": meta.index,
         "task_id": meta.task_code,

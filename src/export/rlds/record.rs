@@ -174,12 +174,12 @@ pub fn encode_foreign_episode(
     Ok(encode_example(&features))
 }
 
-/// The serialized Example of `episode` (its images encoded in parallel).
-pub fn encode_episode(
+/// Each step's images, encoded (steps in parallel); stored PNG and JPEG bytes copied.
+fn step_images(
     layout: &StepLayout,
     episode: &Episode,
     png: PngLevel,
-) -> Result<Vec<u8>, ExportError> {
+) -> Result<Vec<StepImages>, ExportError> {
     let (w, h) = (layout.width_px, layout.height_px);
     let [stored_rgb, stored_mask] = layout
         .png_features
@@ -188,7 +188,7 @@ pub fn encode_episode(
     let stored_jpeg = layout.png_features[0]
         .as_ref()
         .and_then(|n| episode.stored_frames(n, ImageEncoding::Jpeg));
-    let images: Vec<StepImages> = episode
+    episode
         .steps
         .par_iter()
         .enumerate()
@@ -215,7 +215,41 @@ pub fn encode_episode(
                 },
             })
         })
-        .collect::<Result<_, ExportError>>()?;
+        .collect::<Result<_, ExportError>>()
+}
+
+/// The episode's provenance under `episode_metadata/`.
+fn insert_metadata(features: &mut BTreeMap<String, Feature>, meta: &crate::episode::EpisodeMeta) {
+    let metadata = |key: &str| format!("episode_metadata/{key}");
+    features.insert(metadata("file_path"), text(&file_path(meta)));
+    features.insert(
+        metadata("episode_index"),
+        Feature::Int64(vec![meta.index as i64]),
+    );
+    features.insert(metadata("task_id"), text(&meta.task_code));
+    features.insert(
+        metadata("level"),
+        Feature::Int64(vec![i64::from(meta.level)]),
+    );
+    // uint64 travels as int64 (two's complement); TFDS casts it back.
+    features.insert(metadata("seed"), Feature::Int64(vec![meta.seed as i64]));
+    features.insert(
+        metadata("attempts"),
+        Feature::Int64(vec![i64::from(meta.attempts)]),
+    );
+    features.insert(
+        metadata("success"),
+        Feature::Int64(vec![i64::from(meta.success)]),
+    );
+}
+
+/// The serialized Example of `episode` (its images encoded in parallel).
+pub fn encode_episode(
+    layout: &StepLayout,
+    episode: &Episode,
+    png: PngLevel,
+) -> Result<Vec<u8>, ExportError> {
+    let images = step_images(layout, episode, png)?;
     let steps = &episode.steps;
     let last = steps.len().saturating_sub(1);
     let meta = &episode.meta;
@@ -282,27 +316,7 @@ pub fn encode_episode(
         "steps/discount".into(),
         Feature::Float(vec![1.0; steps.len()]),
     );
-    let metadata = |key: &str| format!("episode_metadata/{key}");
-    features.insert(metadata("file_path"), text(&file_path(meta)));
-    features.insert(
-        metadata("episode_index"),
-        Feature::Int64(vec![meta.index as i64]),
-    );
-    features.insert(metadata("task_id"), text(&meta.task_code));
-    features.insert(
-        metadata("level"),
-        Feature::Int64(vec![i64::from(meta.level)]),
-    );
-    // uint64 travels as int64 (two's complement); TFDS casts it back.
-    features.insert(metadata("seed"), Feature::Int64(vec![meta.seed as i64]));
-    features.insert(
-        metadata("attempts"),
-        Feature::Int64(vec![i64::from(meta.attempts)]),
-    );
-    features.insert(
-        metadata("success"),
-        Feature::Int64(vec![i64::from(meta.success)]),
-    );
+    insert_metadata(&mut features, meta);
     Ok(encode_example(&features))
 }
 
@@ -365,6 +379,98 @@ fn copy(values: &[f32], into: &mut [f32]) {
     into.copy_from_slice(values);
 }
 
+/// One step's images from their stored bytes: the RGB (PNG or JPEG), and depth and mask when
+/// the layout has them, each checked against the declared size.
+fn decode_step_images(
+    layout: &StepLayout,
+    i: usize,
+    rgb: &[u8],
+    depth: Option<&Vec<u8>>,
+    mask: Option<&Vec<u8>>,
+) -> Result<Step, String> {
+    let (w, h) = (layout.width_px, layout.height_px);
+    let keys = &layout.keys;
+    let bad_image = |key: &str, i: usize, problem: String| format!("{key} step {i}: {problem}");
+    let image_key = StepLayout::observation(&keys.image);
+    let depth_key = StepLayout::observation(&keys.depth);
+    let mask_key = StepLayout::observation(&keys.mask);
+    let decoded = if is_jpeg(rgb) {
+        decode_jpeg_sized(rgb, (w, h))
+    } else {
+        decode_png_sized(rgb, Some((w, h)))
+    };
+    let (rw, rh, channels, pixels) = decoded.map_err(|e| bad_image(&image_key, i, e))?;
+    if (rw as usize, rh as usize, channels) != (w, h, 3) {
+        return Err(bad_image(
+            &image_key,
+            i,
+            format!("a {rw}x{rh} image with {channels} channels where {w}x{h} RGB was declared"),
+        ));
+    }
+    let mut step = Step {
+        rgb: pixels,
+        ..Step::empty()
+    };
+    if layout.depth {
+        let (dw, dh, mm) = decode_png16_sized(depth.map_or(&[][..], Vec::as_slice), Some((w, h)))
+            .map_err(|e| bad_image(&depth_key, i, e))?;
+        if (dw as usize, dh as usize) != (w, h) {
+            return Err(bad_image(&depth_key, i, format!("a {dw}x{dh} depth image")));
+        }
+        step.depth_m = mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
+    }
+    if layout.mask {
+        let (mw, mh, channels, ids) =
+            decode_png_sized(mask.map_or(&[][..], Vec::as_slice), Some((w, h)))
+                .map_err(|e| bad_image(&mask_key, i, e))?;
+        if (mw as usize, mh as usize, channels) != (w, h, 1) {
+            return Err(bad_image(
+                &mask_key,
+                i,
+                format!("a {mw}x{mh} mask with {channels} channels"),
+            ));
+        }
+        step.mask = ids;
+    }
+    Ok(step)
+}
+
+/// The step flags hold only 0 and 1, and the first and last steps are marked.
+fn check_flags(is_first: &[i64], is_last: &[i64], is_terminal: &[i64]) -> Result<(), String> {
+    for (i, flags) in [is_first, is_last, is_terminal].into_iter().enumerate() {
+        if flags.iter().any(|&v| v != 0 && v != 1) {
+            let name = ["is_first", "is_last", "is_terminal"][i];
+            return Err(format!("steps/{name} holds a value other than 0 and 1"));
+        }
+    }
+    if is_first.first() != Some(&1) || is_last[is_last.len().saturating_sub(1)] != 1 {
+        return Err("is_first or is_last is not set on the first or last step".into());
+    }
+    Ok(())
+}
+
+/// JPEG bytes are kept beside their pixels: copied when written as JPEG again, and the mark
+/// that the pixels are lossy (verify and replay compare them within a tolerance).
+fn stored_jpeg(layout: &StepLayout, rgb: &[Vec<u8>]) -> Vec<EncodedFeature> {
+    match (&layout.png_features[0], rgb.first()) {
+        (Some(feature), Some(first)) if is_jpeg(first) => vec![EncodedFeature {
+            feature: feature.clone(),
+            encoding: ImageEncoding::Jpeg,
+            frames: rgb
+                .iter()
+                .map(|data| EncodedFrame {
+                    data: data.clone(),
+                    keyframe: true,
+                })
+                .collect(),
+            pixel_stats: None,
+            shown: None,
+            file: None,
+        }],
+        _ => Vec::new(),
+    }
+}
+
 /// Decodes one serialized Example into an episode; the error says what is wrong with it.
 pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, String> {
     let mut fields = Fields {
@@ -378,20 +484,15 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     if count == 0 {
         return Err("has no steps".into());
     }
-    let (w, h) = (layout.width_px, layout.height_px);
     let keys = &layout.keys;
-    let bad_image = |key: &str, i: usize, problem: String| format!("{key} step {i}: {problem}");
-    let image_key = StepLayout::observation(&keys.image);
-    let rgb = fields.bytes(&image_key, count)?;
-    let depth_key = StepLayout::observation(&keys.depth);
+    let rgb = fields.bytes(&StepLayout::observation(&keys.image), count)?;
     let depth = if layout.depth {
-        fields.bytes(&depth_key, count)?
+        fields.bytes(&StepLayout::observation(&keys.depth), count)?
     } else {
         Vec::new()
     };
-    let mask_key = StepLayout::observation(&keys.mask);
     let mask = if layout.mask {
-        fields.bytes(&mask_key, count)?
+        fields.bytes(&StepLayout::observation(&keys.mask), count)?
     } else {
         Vec::new()
     };
@@ -410,59 +511,13 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     let is_terminal = fields.ints("steps/is_terminal", count)?;
     fields.floats("steps/reward", count)?;
     fields.floats("steps/discount", count)?;
-    for (i, flags) in [&is_first, &is_last, &is_terminal].into_iter().enumerate() {
-        if flags.iter().any(|&v| v != 0 && v != 1) {
-            let name = ["is_first", "is_last", "is_terminal"][i];
-            return Err(format!("steps/{name} holds a value other than 0 and 1"));
-        }
-    }
-    if is_first[0] != 1 || is_last[count - 1] != 1 {
-        return Err("is_first or is_last is not set on the first or last step".into());
-    }
+    check_flags(&is_first, &is_last, &is_terminal)?;
     let instruction = String::from_utf8(instructions[0].clone())
         .map_err(|_| "steps/language_instruction is not UTF-8".to_string())?;
     let steps = (0..count)
         .into_par_iter()
         .map(|i| {
-            let decoded = if is_jpeg(&rgb[i]) {
-                decode_jpeg_sized(&rgb[i], (w, h))
-            } else {
-                decode_png_sized(&rgb[i], Some((w, h)))
-            };
-            let (rw, rh, channels, pixels) = decoded.map_err(|e| bad_image(&image_key, i, e))?;
-            if (rw as usize, rh as usize, channels) != (w, h, 3) {
-                return Err(bad_image(
-                    &image_key,
-                    i,
-                    format!(
-                        "a {rw}x{rh} image with {channels} channels where {w}x{h} RGB was declared"
-                    ),
-                ));
-            }
-            let mut step = Step {
-                rgb: pixels,
-                ..Step::empty()
-            };
-            if layout.depth {
-                let (dw, dh, mm) = decode_png16_sized(&depth[i], Some((w, h)))
-                    .map_err(|e| bad_image(&depth_key, i, e))?;
-                if (dw as usize, dh as usize) != (w, h) {
-                    return Err(bad_image(&depth_key, i, format!("a {dw}x{dh} depth image")));
-                }
-                step.depth_m = mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
-            }
-            if layout.mask {
-                let (mw, mh, channels, ids) = decode_png_sized(&mask[i], Some((w, h)))
-                    .map_err(|e| bad_image(&mask_key, i, e))?;
-                if (mw as usize, mh as usize, channels) != (w, h, 1) {
-                    return Err(bad_image(
-                        &mask_key,
-                        i,
-                        format!("a {mw}x{mh} mask with {channels} channels"),
-                    ));
-                }
-                step.mask = ids;
-            }
+            let mut step = decode_step_images(layout, i, &rgb[i], depth.get(i), mask.get(i))?;
             copy(&state[i * 7..(i + 1) * 7], &mut step.state);
             copy(&action[i * 7..(i + 1) * 7], &mut step.action);
             if layout.environment_state {
@@ -485,25 +540,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
         attempts: fields.int("episode_metadata/attempts")? as u32,
         success: fields.int("episode_metadata/success")? == 1,
     };
-    // JPEG bytes are kept beside their pixels: copied when written as JPEG again, and the mark
-    // that the pixels are lossy (verify and replay compare them within a tolerance).
-    let encoded = match (&layout.png_features[0], rgb.first()) {
-        (Some(feature), Some(first)) if is_jpeg(first) => vec![EncodedFeature {
-            feature: feature.clone(),
-            encoding: ImageEncoding::Jpeg,
-            frames: rgb
-                .iter()
-                .map(|data| EncodedFrame {
-                    data: data.clone(),
-                    keyframe: true,
-                })
-                .collect(),
-            pixel_stats: None,
-            shown: None,
-            file: None,
-        }],
-        _ => Vec::new(),
-    };
+    let encoded = stored_jpeg(layout, &rgb);
     Ok(Episode {
         meta,
         steps,
