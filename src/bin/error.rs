@@ -6,7 +6,7 @@ use surgvla::export::ExportError;
 
 /// An error on its way to `main`: what happened, whose mistake it is, and a hint for the user.
 #[derive(Debug)]
-pub struct CliError {
+pub(crate) struct CliError {
     pub kind: ErrorKind,
     pub error: anyhow::Error,
     /// Said after the error (e.g. how to continue after a full disk).
@@ -42,18 +42,18 @@ impl CliError {
     }
 
     /// A mistake in what the user gave, found after parsing (exit 2).
-    pub fn usage(message: impl std::fmt::Display) -> Self {
+    pub(crate) fn usage(message: impl std::fmt::Display) -> Self {
         CliError::new(ErrorKind::Usage, anyhow::anyhow!("{message}"))
     }
 
     /// The work found the data invalid (exit 1).
-    pub fn invalid(message: impl std::fmt::Display) -> Self {
+    pub(crate) fn invalid(message: impl std::fmt::Display) -> Self {
         CliError::new(ErrorKind::Failed, anyhow::anyhow!("{message}"))
     }
 
     /// Says how to continue when the failure left a dataset that `--resume` continues (and
     /// only then).
-    pub fn resumable(mut self, resumable: bool) -> Self {
+    pub(crate) fn resumable(mut self, resumable: bool) -> Self {
         if resumable && self.kind == ErrorKind::Failed {
             self.hint = Some(if self.hint == Some(DISK_FULL) {
                 DISK_FULL_RESUME
@@ -65,13 +65,13 @@ impl CliError {
     }
 
     /// Adds what the command was doing, keeping the kind.
-    pub fn context(mut self, what: impl std::fmt::Display + Send + Sync + 'static) -> Self {
+    pub(crate) fn context(mut self, what: impl std::fmt::Display + Send + Sync + 'static) -> Self {
         self.error = self.error.context(what);
         self
     }
 
     /// The error and its causes on one line, each said once, then the hint.
-    pub fn message(&self) -> String {
+    pub(crate) fn message(&self) -> String {
         let causes: Vec<String> = self.error.chain().map(|c| c.to_string()).collect();
         let mut message = causes.join(": ");
         if let Some(hint) = self.hint {

@@ -17,7 +17,7 @@ use surgvla::media::image::PngLevel;
 /// A dataset format to write (`--to`, `--format`): the registry's formats, by name, each with
 /// its own help line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Format(pub surgvla::export::Format);
+pub(crate) struct Format(pub surgvla::export::Format);
 
 impl ValueEnum for Format {
     fn value_variants<'a>() -> &'a [Self] {
@@ -33,7 +33,7 @@ impl ValueEnum for Format {
 
 /// A format with a features schema (`surgvla schema --format`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SchemaFormat(pub surgvla::export::Format);
+pub(crate) struct SchemaFormat(pub surgvla::export::Format);
 
 impl ValueEnum for SchemaFormat {
     fn value_variants<'a>() -> &'a [Self] {
@@ -59,7 +59,7 @@ impl ValueEnum for SchemaFormat {
 
 /// The codec of video mode.
 #[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum VideoCodec {
+pub(crate) enum VideoCodec {
     /// AV1 (rav1e), LeRobot's codec family.
     Av1,
     /// H.264 (openh264), faster.
@@ -68,7 +68,7 @@ pub enum VideoCodec {
 
 /// The LeRobot layout.
 #[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum LayoutVersion {
+pub(crate) enum LayoutVersion {
     /// v3.0 (current): many episodes per file, parquet metadata.
     #[value(name = "3.0")]
     V30,
@@ -79,7 +79,7 @@ pub enum LayoutVersion {
 
 /// Options of the LeRobot format.
 #[derive(Args, Debug)]
-pub struct LeRobotArgs {
+pub(crate) struct LeRobotArgs {
     /// LeRobot: store the endoscope RGB as MP4 video (video mode) instead of PNG: av1 (rav1e,
     /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "av1")]
@@ -126,7 +126,7 @@ impl LeRobotArgs {
 
 /// Options of the RLDS format.
 #[derive(Args, Debug)]
-pub struct RldsArgs {
+pub(crate) struct RldsArgs {
     /// RLDS: the dataset name, its folder and shard prefix, what `tfds.builder(name)` takes
     /// (snake_case; default surgvla_benchmark).
     #[arg(long)]
@@ -159,7 +159,7 @@ pub struct RldsArgs {
 
 /// How RLDS stores the RGB image.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum RldsImageEncoding {
+pub(crate) enum RldsImageEncoding {
     /// PNG, lossless.
     Png,
     /// Baseline JPEG (4:2:0), lossy.
@@ -210,7 +210,7 @@ impl RldsArgs {
 
 /// Options of the point-cloud formats.
 #[derive(Args, Debug)]
-pub struct CloudArgs {
+pub(crate) struct CloudArgs {
     /// Point clouds: points per frame (default 1024; DP3 also uses 512).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=65_536))]
     points: Option<u64>,
@@ -301,7 +301,7 @@ struct FlagGroup {
 
 /// Every format's options, for a command that writes one format.
 #[derive(Args, Debug)]
-pub struct FormatArgs {
+pub(crate) struct FormatArgs {
     #[command(flatten)]
     lerobot: LeRobotArgs,
     #[command(flatten)]
@@ -313,7 +313,7 @@ pub struct FormatArgs {
 impl FormatArgs {
     /// The options of `format`; another format's option is a usage error (`flag` names how
     /// the format was chosen, e.g. "--format").
-    pub fn sink_options(
+    pub(crate) fn sink_options(
         &self,
         format: Format,
         flag: &str,

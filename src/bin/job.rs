@@ -10,9 +10,9 @@ use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
 
 /// `--tasks`: "all" or a comma-separated list of names or ids.
 #[derive(Clone, Debug)]
-pub struct TaskList(pub Vec<TaskId>);
+pub(crate) struct TaskList(pub Vec<TaskId>);
 
-pub fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
+pub(crate) fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
     if text.trim() == "all" {
         return Ok(TaskList(TaskId::ALL.to_vec()));
     }
@@ -24,7 +24,7 @@ pub fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
 
 /// Which instruction each episode gets.
 #[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum Instructions {
+pub(crate) enum Instructions {
     /// The task's canonical instruction.
     Canonical,
     /// A seeded paraphrase.
@@ -35,7 +35,7 @@ pub enum Instructions {
 
 impl Instructions {
     /// The library's choice.
-    pub fn choice(self) -> InstructionChoice {
+    pub(crate) fn choice(self) -> InstructionChoice {
         match self {
             Instructions::Canonical => InstructionChoice::Canonical,
             Instructions::Paraphrase => InstructionChoice::Paraphrase,
@@ -46,7 +46,7 @@ impl Instructions {
 
 /// A feature of the default dataset to leave out.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Omit {
+pub(crate) enum Omit {
     /// `observation.images.depth`: lerobot-train feeds every image feature to the policy, and
     /// ACT and Diffusion need 3-channel images of one shape.
     Depth,
@@ -58,7 +58,7 @@ pub enum Omit {
 
 /// How action[6] (the gripper) is written.
 #[derive(ValueEnum, Clone, Copy, Debug)]
-pub enum Gripper {
+pub(crate) enum Gripper {
     /// 1 while commanded open, 0 while closed.
     Continuous,
     /// +1/-1 on the step the command changes, 0 otherwise (for ablations).
@@ -67,7 +67,7 @@ pub enum Gripper {
 
 /// What episodes to make: tasks, counts, seed, scene options, experts.
 #[derive(Args, Debug)]
-pub struct JobArgs {
+pub(crate) struct JobArgs {
     /// Tasks: "all" or a comma-separated list of names or ids.
     #[arg(long, default_value = "all", value_parser = parse_tasks)]
     tasks: TaskList,

@@ -10,7 +10,7 @@
 //! one. `MALLOC_ARENA_MAX` in the environment still wins when set.
 
 /// The arenas `collect` on `threads` worker threads gets (0: one per core).
-pub fn collect_arenas(threads: usize) -> usize {
+pub(crate) fn collect_arenas(threads: usize) -> usize {
     let workers = if threads == 0 {
         surgvla::collect::slot::cores()
     } else {
@@ -22,7 +22,7 @@ pub fn collect_arenas(threads: usize) -> usize {
 /// Limits glibc's malloc to `arenas` arenas, unless `MALLOC_ARENA_MAX` says otherwise.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
-pub fn limit_arenas(arenas: usize) {
+pub(crate) fn limit_arenas(arenas: usize) {
     /// glibc's `M_ARENA_MAX` parameter of `mallopt` (malloc.h).
     const M_ARENA_MAX: i32 = -8;
     unsafe extern "C" {
@@ -52,14 +52,14 @@ pub fn limit_arenas(_arenas: usize) {}
 /// of episodes converted (BENCHMARKS.md, "convert's memory"). Per batch it cost seconds of
 /// system time; every 64 episodes it costs nothing measurable.
 #[derive(Default)]
-pub struct Trimmer {
+pub(crate) struct Trimmer {
     last: u64,
 }
 
 impl Trimmer {
     const EPISODES: u64 = 64;
 
-    pub fn after_episodes(&mut self, done: u64) {
+    pub(crate) fn after_episodes(&mut self, done: u64) {
         if done >= self.last + Self::EPISODES {
             self.last = done;
             trim();

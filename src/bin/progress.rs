@@ -6,7 +6,7 @@ use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use surgvla::collect::run::{CollectProgress, CollectReport, Slot, SlotOutcome};
 use surgvla::task::TaskId;
 
-pub struct Bars {
+pub(crate) struct Bars {
     multi: MultiProgress,
     overall: ProgressBar,
     tasks: Vec<(TaskId, ProgressBar)>,
@@ -15,7 +15,7 @@ pub struct Bars {
 }
 
 impl Bars {
-    pub fn new(tasks: &[TaskId]) -> Self {
+    pub(crate) fn new(tasks: &[TaskId]) -> Self {
         let multi = MultiProgress::new();
         let style = |template: &str| {
             ProgressStyle::with_template(template)
@@ -45,7 +45,7 @@ impl Bars {
     }
 
     /// Removes the bars (before the summary is printed).
-    pub fn clear(&self) {
+    pub(crate) fn clear(&self) {
         for (_, bar) in &self.tasks {
             bar.finish_and_clear();
         }
@@ -55,7 +55,7 @@ impl Bars {
 }
 
 /// One bar of `total` episodes, labelled `what`.
-pub fn episode_bar(total: u64, what: &str) -> ProgressBar {
+pub(crate) fn episode_bar(total: u64, what: &str) -> ProgressBar {
     let bar = ProgressBar::new(total);
     bar.set_style(
         ProgressStyle::with_template(
@@ -69,13 +69,13 @@ pub fn episode_bar(total: u64, what: &str) -> ProgressBar {
 }
 
 /// One bar of trials per task (`eval`).
-pub struct TrialBars {
+pub(crate) struct TrialBars {
     multi: MultiProgress,
     tasks: Vec<(TaskId, ProgressBar)>,
 }
 
 impl TrialBars {
-    pub fn new(tasks: &[TaskId], trials: u32) -> Self {
+    pub(crate) fn new(tasks: &[TaskId], trials: u32) -> Self {
         let multi = MultiProgress::new();
         let style =
             ProgressStyle::with_template("{prefix:>30} [{bar:30}] {pos}/{len} trials  {elapsed}")
@@ -94,14 +94,14 @@ impl TrialBars {
     }
 
     /// `done` trials of `task` finished.
-    pub fn set(&self, task: TaskId, done: u32) {
+    pub(crate) fn set(&self, task: TaskId, done: u32) {
         if let Some((_, bar)) = self.tasks.iter().find(|(t, _)| *t == task) {
             bar.set_position(u64::from(done));
         }
     }
 
     /// Removes the bars (before the table is printed).
-    pub fn clear(&self) {
+    pub(crate) fn clear(&self) {
         for (_, bar) in &self.tasks {
             bar.finish_and_clear();
         }
@@ -139,7 +139,7 @@ impl CollectProgress for Bars {
 }
 
 /// Prints the per-task table and the time shares.
-pub fn print_summary(report: &CollectReport) -> std::io::Result<()> {
+pub(crate) fn print_summary(report: &CollectReport) -> std::io::Result<()> {
     say!(
         "{:<5} {:<24} {:>8} {:>7} {:>8} {:>7} {:>7} {:>8}",
         "task",
@@ -198,7 +198,7 @@ pub fn print_summary(report: &CollectReport) -> std::io::Result<()> {
 }
 
 /// Prints the experts' figures per task (for `surgvla experts`).
-pub fn print_expert_table(report: &CollectReport) -> std::io::Result<()> {
+pub(crate) fn print_expert_table(report: &CollectReport) -> std::io::Result<()> {
     say!(
         "{:<5} {:<24} {:>8} {:>8} {:>8} {:>7} {:>7}",
         "task",

@@ -37,7 +37,7 @@ const MAX_DEPTH: usize = 8;
 const MAX_BOXES: usize = 100_000;
 
 /// Refuses sample tables that claim more than `file_size` bytes can hold: the problem, or None.
-pub fn check_tables(
+pub(crate) fn check_tables(
     file: &mut (impl Read + Seek),
     file_size: u64,
 ) -> std::io::Result<Option<String>> {
@@ -130,7 +130,7 @@ pub fn in_quiet_parse() -> bool {
 }
 
 /// Runs `parse`, turning a panic into `Err(())` (see [`in_quiet_parse`] for its message).
-pub fn quietly<T>(parse: impl FnOnce() -> T) -> Result<T, ()> {
+pub(crate) fn quietly<T>(parse: impl FnOnce() -> T) -> Result<T, ()> {
     QUIET.with(|quiet| quiet.set(true));
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse));
     QUIET.with(|quiet| quiet.set(false));

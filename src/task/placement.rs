@@ -57,13 +57,13 @@ pub(super) struct Placer<'a> {
 }
 
 impl Placer<'_> {
-    pub fn xy(&mut self, x: Range, y: Range) -> [f64; 2] {
+    pub(super) fn xy(&mut self, x: Range, y: Range) -> [f64; 2] {
         [self.rng.uniform(x.0, x.1), self.rng.uniform(y.0, y.1)]
     }
 
     /// A kidney or spleen in the primary range with a red target mark on its surface in the
     /// organ-frame direction `mark.0`.
-    pub fn organ_with_mark(
+    pub(super) fn organ_with_mark(
         &mut self,
         kind: OrganKind,
         semi_axes_m: [f64; 3],
@@ -79,7 +79,7 @@ impl Placer<'_> {
     }
 
     /// An object in `range` with `yaw` (or a drawn yaw in +-90 deg when `None`).
-    pub fn place(
+    pub(super) fn place(
         &mut self,
         name: &str,
         kind: ObjectKind,
@@ -198,7 +198,7 @@ pub(super) fn vessel_with_sites(
 }
 
 /// Radius of T2-3's clip-site marks, metres.
-pub const CLIP_SITE_RADIUS_M: f64 = 0.002;
+pub(super) const CLIP_SITE_RADIUS_M: f64 = 0.002;
 
 /// Points every ~2.5 mm along an organ's base outline, world xy (for clearance tests).
 pub(super) fn organ_outline(organ: &OrganSpec) -> Vec<Vector2<f64>> {

@@ -7,22 +7,22 @@ use surgvla::sim::psm::pointing_down;
 use surgvla::sim::{SceneSpec, SimConfig, Simulator};
 
 /// A scene with one object of each kind, resting on the tray (or `drop_m` above it).
-pub fn three_objects(drop_m: f64) -> SceneSpec {
+pub(crate) fn three_objects(drop_m: f64) -> SceneSpec {
     SceneSpec::one_of_each(drop_m)
 }
 
-pub fn simulator(scene: SceneSpec) -> Simulator {
+pub(crate) fn simulator(scene: SceneSpec) -> Simulator {
     Simulator::new(SimConfig::default(), scene)
 }
 
 /// A pointing-down tip pose.
-pub fn tip_at(x: f64, y: f64, z: f64, yaw_rad: f64) -> Isometry3<f64> {
+pub(crate) fn tip_at(x: f64, y: f64, z: f64, yaw_rad: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::new(x, y, z), pointing_down(yaw_rad))
 }
 
 /// A fresh, unique temporary folder path (not created), removed with everything under it when
 /// the guard drops, also when the test fails: a failing test must not leave datasets behind.
-pub fn temp_root(name: &str) -> TempRoot {
+pub(crate) fn temp_root(name: &str) -> TempRoot {
     static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
     let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
     TempRoot(std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id())))
@@ -30,7 +30,7 @@ pub fn temp_root(name: &str) -> TempRoot {
 
 /// See [`temp_root`].
 #[derive(Debug)]
-pub struct TempRoot(PathBuf);
+pub(crate) struct TempRoot(PathBuf);
 
 impl std::ops::Deref for TempRoot {
     type Target = Path;
@@ -52,7 +52,7 @@ impl Drop for TempRoot {
 }
 
 /// Every file under `root`: relative path -> bytes.
-pub fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
+pub(crate) fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
     let mut files = BTreeMap::new();
     let mut pending = vec![root.to_path_buf()];
     while let Some(dir) = pending.pop() {
@@ -71,7 +71,7 @@ pub fn tree(root: &Path) -> BTreeMap<String, Vec<u8>> {
 }
 
 /// Runs the `surgvla` binary: (exit code, stdout, stderr).
-pub fn surgvla(args: &[&str]) -> (i32, String, String) {
+pub(crate) fn surgvla(args: &[&str]) -> (i32, String, String) {
     let output = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
         .args(args)
         .output()
@@ -84,7 +84,7 @@ pub fn surgvla(args: &[&str]) -> (i32, String, String) {
 }
 
 /// The dataset info of a default collection (`with_mask`: plus the mask feature).
-pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
+pub(crate) fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
     let features = surgvla::episode::FeatureSet {
         mask: with_mask,
         ..Default::default()
@@ -98,7 +98,7 @@ pub fn info(with_mask: bool) -> surgvla::export::DatasetInfo {
 
 /// A dataset another tool made: a 14-D float vector, a one-value int64 and a camera's PNG,
 /// all `FeatureKind::Other`, no generator; three episodes of seeded values.
-pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode::Episode>) {
+pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode::Episode>) {
     use surgvla::episode::{Dtype, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
     use surgvla::media::image::{PngLevel, encode_png};
     let spec = |name: &str, dtype, shape: Vec<usize>| FeatureSpec {
@@ -157,7 +157,7 @@ pub fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::episode:
 
 /// Runs the binary with `args`, writing into `root`, and kills it once its marker holds a
 /// checkpoint (fails the test if none comes within two minutes).
-pub fn kill_after_checkpoint(args: &[&str], root: &Path) {
+pub(crate) fn kill_after_checkpoint(args: &[&str], root: &Path) {
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
         .args(args)
         .stdout(std::process::Stdio::null())
@@ -181,7 +181,7 @@ pub fn kill_after_checkpoint(args: &[&str], root: &Path) {
 /// folder lock can outlive it for an instant, because a child process another test thread
 /// forks before its exec shares the lock's file description (that child is this test process's,
 /// so the wait is short).
-pub fn unless_briefly_locked<T>(
+pub(crate) fn unless_briefly_locked<T>(
     mut open: impl FnMut() -> Result<T, surgvla::export::ExportError>,
 ) -> Result<T, surgvla::export::ExportError> {
     let mut attempt = open();

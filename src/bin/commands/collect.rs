@@ -14,7 +14,7 @@ use surgvla::episode::{FeatureSet, GripperEncoding};
 use surgvla::export::{open_sink, resumes};
 
 #[derive(Args, Debug)]
-pub struct CollectArgs {
+pub(crate) struct CollectArgs {
     #[command(flatten)]
     pub(crate) job: JobArgs,
     /// Output folder (must not exist or be empty).
@@ -50,7 +50,7 @@ pub struct CollectArgs {
     formats: FormatArgs,
 }
 
-pub fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
+pub(crate) fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
     let (mut options, library) = args.job.options()?;
     options.shard = args.shard;
     options.record.gripper = match args.gripper_encoding {

@@ -8,7 +8,7 @@ use surgvla::task::TaskId;
 use surgvla::view::contact_sheet;
 
 #[derive(clap::Args, Debug)]
-pub struct ContactSheetArgs {
+pub(crate) struct ContactSheetArgs {
     /// Output PNG.
     #[arg(long, default_value = "contact_sheet.png")]
     out: PathBuf,
@@ -19,7 +19,7 @@ pub struct ContactSheetArgs {
     look: LookArgs,
 }
 
-pub fn run_contact_sheet(args: &ContactSheetArgs) -> Result<(), CliError> {
+pub(crate) fn run_contact_sheet(args: &ContactSheetArgs) -> Result<(), CliError> {
     let (options, appearance) = args.look.options(args.seed);
     let sheet = contact_sheet(&TaskId::ALL, args.seed, options, appearance)?;
     write_png_file(&args.out, sheet.width_px, sheet.height_px, 3, &sheet.rgb)?;

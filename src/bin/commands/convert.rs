@@ -14,7 +14,7 @@ use surgvla::export::open::ConvertInput;
 use surgvla::export::{SinkOptions, open_sink, resumes};
 
 #[derive(Args, Debug)]
-pub struct ConvertArgs {
+pub(crate) struct ConvertArgs {
     /// The dataset to read: LeRobot (v3.0 or v2.1, image or video mode) or RLDS (a TFDS data directory
     /// or its <name>/<version> folder).
     input: PathBuf,
@@ -60,7 +60,7 @@ pub struct ConvertArgs {
 
 /// An optional feature `convert --without` leaves out.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ConvertOmit {
+pub(crate) enum ConvertOmit {
     /// `observation.images.depth`.
     Depth,
     /// `observation.images.mask`.
@@ -120,7 +120,7 @@ fn verify(
 }
 
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
-pub fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
+pub(crate) fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
     let mut source = args.input().open(options.as_ref())?;
     let info = source.info().clone();

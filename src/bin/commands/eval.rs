@@ -11,14 +11,14 @@ use surgvla::eval::{EvalOptions, PolicyChoice, SendExtras, evaluate};
 
 /// `--policy`: a server address or a built-in policy.
 #[derive(Clone, Debug, PartialEq)]
-pub enum PolicyArg {
+pub(crate) enum PolicyArg {
     Remote(String),
     Builtin(Builtin),
 }
 
 /// The built-in reference policies.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Builtin {
+pub(crate) enum Builtin {
     /// The task's scripted expert (the upper bound).
     Expert,
     /// The actions of the nearest training episode of `--dataset` (same task), open loop.
@@ -42,7 +42,7 @@ fn parse_policy(text: &str) -> Result<PolicyArg, String> {
 
 /// What a remote policy may be sent beyond the image, the state and the prompt.
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SendFeature {
+pub(crate) enum SendFeature {
     /// `observation/depth`, float32 (224, 224), metres.
     Depth,
     /// `observation/environment_state`, float32 (28,): ground-truth object poses (privileged).
@@ -51,7 +51,7 @@ pub enum SendFeature {
 }
 
 #[derive(Args, Debug)]
-pub struct EvalArgs {
+pub(crate) struct EvalArgs {
     /// The policy: `ws://HOST:PORT` (a server of openpi's protocol), or expert, replay, random,
     /// noop.
     #[arg(long, value_parser = parse_policy)]
@@ -162,7 +162,7 @@ impl EvalArgs {
     }
 }
 
-pub fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
+pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
     let choice = args.choice()?;
     let options = args.options()?;
     let bars = TrialBars::new(&options.tasks, options.trials);

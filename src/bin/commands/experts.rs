@@ -8,7 +8,7 @@ use clap::Args;
 use surgvla::collect::run::measure_experts;
 
 #[derive(Args, Debug)]
-pub struct ExpertsArgs {
+pub(crate) struct ExpertsArgs {
     #[command(flatten)]
     job: JobArgs,
     /// Failed attempts to list (with the seed that reproduces each).
@@ -18,7 +18,7 @@ pub struct ExpertsArgs {
 
 /// Runs the experts as `collect` would (same attempts, replay check) without rendering or
 /// writing, and prints their success rates: the quick check of a new or edited plan.
-pub fn run_experts(args: &ExpertsArgs) -> Result<(), CliError> {
+pub(crate) fn run_experts(args: &ExpertsArgs) -> Result<(), CliError> {
     let (options, library) = args.job.options()?;
     options.check().map_err(CliError::usage)?;
     let mut bars = progress::Bars::new(&options.tasks);

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use surgvla::export::validate::{Report, ValidateOptions, validate};
 
 #[derive(Args, Debug)]
-pub struct InfoArgs {
+pub(crate) struct InfoArgs {
     /// The dataset (as for `validate`).
     pub path: PathBuf,
     /// Print as JSON.
@@ -21,7 +21,7 @@ pub struct InfoArgs {
     pub plot: Option<PathBuf>,
 }
 
-pub fn run_info(args: &InfoArgs) -> Result<(), CliError> {
+pub(crate) fn run_info(args: &InfoArgs) -> Result<(), CliError> {
     let options = ValidateOptions {
         quick: true,
         step_limits: step_limits(),

@@ -8,7 +8,7 @@ use surgvla::export::dir::after_failure;
 use surgvla::export::format::MergeRequest;
 
 #[derive(Args, Debug)]
-pub struct MergeArgs {
+pub(crate) struct MergeArgs {
     /// The datasets to merge, all of one format: LeRobot, RLDS, zarr, PLY/PCD or MCAP folders
     /// (e.g. the outputs of `collect --shard I/N` or `convert --shard I/N`; shards are put in
     /// shard order, other datasets kept in the order given).
@@ -32,7 +32,7 @@ pub struct MergeArgs {
 }
 
 /// `surgvla merge INPUT... --out DIR`.
-pub fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
+pub(crate) fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     let created = !args.out.exists();
     let bar = crate::progress::episode_bar(0, "merging");
     let threads = args.threads.unwrap_or(0);

@@ -3,17 +3,17 @@
 //! does with the data (what a conversion reads, what is cleaned up after a failure) is the
 //! library's; this file only declares.
 
-pub mod collect;
-pub mod contact_sheet;
-pub mod convert;
-pub mod eval;
-pub mod experts;
-pub mod info;
-pub mod merge;
-pub mod record;
-pub mod render;
-pub mod report;
-pub mod schema;
-pub mod sim;
-pub mod tasks;
-pub mod validate;
+pub(crate) mod collect;
+pub(crate) mod contact_sheet;
+pub(crate) mod convert;
+pub(crate) mod eval;
+pub(crate) mod experts;
+pub(crate) mod info;
+pub(crate) mod merge;
+pub(crate) mod record;
+pub(crate) mod render;
+pub(crate) mod report;
+pub(crate) mod schema;
+pub(crate) mod sim;
+pub(crate) mod tasks;
+pub(crate) mod validate;

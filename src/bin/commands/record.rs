@@ -6,7 +6,7 @@ use surgvla::policy::ExpertLibrary;
 use surgvla::task::TaskId;
 
 #[derive(clap::Args, Debug)]
-pub struct RecordArgs {
+pub(crate) struct RecordArgs {
     /// Task name (gauze_pick, ...) or id (T1-1, ...).
     #[arg(long)]
     task: TaskId,
@@ -18,7 +18,7 @@ pub struct RecordArgs {
     out: PathBuf,
 }
 
-pub fn run_record(args: &RecordArgs) -> Result<(), CliError> {
+pub(crate) fn run_record(args: &RecordArgs) -> Result<(), CliError> {
     if args.out.exists() {
         return Err(CliError::usage(format!(
             "{} already exists; remove it or choose another path",

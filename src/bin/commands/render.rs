@@ -21,7 +21,7 @@ enum CameraChoice {
 }
 
 #[derive(clap::Args, Debug)]
-pub struct RenderArgs {
+pub(crate) struct RenderArgs {
     /// Task name (gauze_pick, ...) or id (T1-1, ...).
     #[arg(long, default_value = "gauze_pick")]
     task: TaskId,
@@ -47,7 +47,7 @@ pub struct RenderArgs {
 }
 
 #[derive(clap::Args, Debug)]
-pub struct LookArgs {
+pub(crate) struct LookArgs {
     /// Supersampling of RGB per pixel edge (1 = off, 2 = 4 samples a pixel).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=4))]
     supersample: u32,
@@ -78,7 +78,7 @@ impl LookArgs {
     }
 }
 
-pub fn run_render(args: &RenderArgs) -> Result<(), CliError> {
+pub(crate) fn run_render(args: &RenderArgs) -> Result<(), CliError> {
     let instance = args
         .task
         .instance(args.seed, &surgvla::task::TaskConfig::default())?;

@@ -5,7 +5,7 @@ use clap::Args;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
-pub struct ReportArgs {
+pub(crate) struct ReportArgs {
     /// The results folders of `surgvla eval` runs (each with its results.json), one bar
     /// colour each, in the order given.
     #[arg(required = true, num_args = 1..)]
@@ -20,7 +20,7 @@ pub struct ReportArgs {
 
 /// `surgvla report RESULTS_DIR... --out chart.png`: several policies' success rates side by
 /// side, the runs named by their policy (by their folder when two share one).
-pub fn run_report(args: &ReportArgs) -> Result<(), CliError> {
+pub(crate) fn run_report(args: &ReportArgs) -> Result<(), CliError> {
     let runs: Vec<surgvla::eval::chart::RunRates> = args
         .results
         .iter()

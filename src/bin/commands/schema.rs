@@ -5,7 +5,7 @@ use crate::formats::SchemaFormat;
 use surgvla::policy::ExpertLibrary;
 
 #[derive(clap::Args, Debug)]
-pub struct SchemaArgs {
+pub(crate) struct SchemaArgs {
     /// Include the segmentation mask feature.
     #[arg(long)]
     pub with_mask: bool,
@@ -15,7 +15,7 @@ pub struct SchemaArgs {
     pub format: SchemaFormat,
 }
 
-pub fn run_schema(args: &SchemaArgs) -> Result<(), CliError> {
+pub(crate) fn run_schema(args: &SchemaArgs) -> Result<(), CliError> {
     let (with_mask, format) = (args.with_mask, args.format);
     let set = surgvla::episode::FeatureSet {
         mask: with_mask,

@@ -7,7 +7,7 @@ use surgvla::sim::{SimConfig, Simulator};
 use surgvla::task::TaskId;
 
 #[derive(clap::Args, Debug)]
-pub struct SimArgs {
+pub(crate) struct SimArgs {
     /// Task name (gauze_pick, ...) or id (T1-1, ...).
     #[arg(long, default_value = "gauze_pick")]
     task: TaskId,
@@ -19,7 +19,7 @@ pub struct SimArgs {
     steps: u32,
 }
 
-pub fn run_sim(args: &SimArgs) -> Result<(), CliError> {
+pub(crate) fn run_sim(args: &SimArgs) -> Result<(), CliError> {
     let instance = args
         .task
         .instance(args.seed, &surgvla::task::TaskConfig::default())?;

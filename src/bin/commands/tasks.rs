@@ -3,7 +3,7 @@
 use crate::error::CliError;
 use surgvla::task::TaskId;
 
-pub fn run_tasks() -> Result<(), CliError> {
+pub(crate) fn run_tasks() -> Result<(), CliError> {
     for task in TaskId::ALL {
         say!(
             "{}  L{}  {:<24} {:>3} steps  \"{}\"",

@@ -11,7 +11,7 @@ use surgvla::task::TaskId;
 pub(crate) const PRINTED_FINDINGS: usize = 50;
 
 #[derive(Args, Debug)]
-pub struct ValidateArgs {
+pub(crate) struct ValidateArgs {
     /// The dataset: a LeRobot folder, an RLDS version folder (or the data dir above it), a DP3
     /// zarr store, an MCAP file or a folder of them.
     pub path: PathBuf,
@@ -42,7 +42,7 @@ pub(crate) fn place(path: &std::path::Path) -> String {
     path.display().to_string()
 }
 
-pub fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
+pub(crate) fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
     let options = ValidateOptions {
         quick: args.quick,
         step_limits: step_limits(),

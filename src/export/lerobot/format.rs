@@ -19,9 +19,9 @@ use std::path::Path;
 pub struct LeRobotFormat;
 
 /// The v3.0 layout, as reports name it.
-pub const V30: &str = "lerobot-v3.0";
+pub(super) const V30: &str = "lerobot-v3.0";
 /// The v2.1 layout (one file per episode, JSON-lines metadata).
-pub const V21: &str = "lerobot-v2.1";
+pub(super) const V21: &str = "lerobot-v2.1";
 
 impl DatasetFormat for LeRobotFormat {
     fn name(&self) -> &'static str {

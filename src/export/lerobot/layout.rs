@@ -263,6 +263,6 @@ fn write_episodes_jsonl(
 }
 
 /// The path of a v3.0 video file relative to the dataset root.
-pub fn video_path(key: &str, chunk: u64, file: u64) -> String {
+pub(super) fn video_path(key: &str, chunk: u64, file: u64) -> String {
     format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4")
 }

@@ -74,7 +74,7 @@ pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
 }
 
 /// Encoded image bytes of one episode, per image feature.
-pub type EncodedImages = HashMap<String, ImageColumn>;
+pub(super) type EncodedImages = HashMap<String, ImageColumn>;
 
 /// One image feature's encoded frames of an episode, back to back in one buffer: the parquet
 /// column's values as they are, so appending the episode copies none of them again.
@@ -152,7 +152,7 @@ impl ImageColumn {
 }
 
 /// The rows of one episode.
-pub fn frame_batch(
+pub(super) fn frame_batch(
     schema: &Arc<Schema>,
     features: &[FeatureSpec],
     episode: &Episode,
@@ -294,7 +294,7 @@ fn other_column(
 }
 
 /// `tasks.parquet`: task_index and task, written as a pandas frame indexed by the task string.
-pub fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> {
+pub(super) fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> {
     let pandas = serde_json::json!({
         "index_columns": ["task"],
         "column_indexes": [{"name": null, "field_name": null, "pandas_type": "unicode", "numpy_type": "object", "metadata": {"encoding": "UTF-8"}}],
@@ -321,7 +321,7 @@ pub fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> {
 
 /// One row of the episodes table.
 #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
-pub struct EpisodeRow {
+pub(super) struct EpisodeRow {
     pub episode_index: u64,
     pub task: String,
     pub length: u64,
@@ -345,7 +345,7 @@ pub struct EpisodeRow {
 /// `episodes.jsonl` line with its `episodes_stats.jsonl` line), read leniently: a column of the
 /// wrong type reads as absent.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct StoredEpisode {
+pub(super) struct StoredEpisode {
     /// Per video feature, where its frames are (v3.0: the four `videos/<key>/...` columns).
     pub videos: std::collections::BTreeMap<String, VideoSpan>,
     /// Per feature, its statistics (v3.0: the `stats/<feature>/<stat>` columns).
@@ -361,7 +361,7 @@ pub struct StoredEpisode {
 
 impl StoredEpisode {
     /// The episode whose columns, keyed the v3.0 way, are `columns`.
-    pub fn from_columns<'a>(columns: impl IntoIterator<Item = (&'a str, Value)>) -> Self {
+    pub(super) fn from_columns<'a>(columns: impl IntoIterator<Item = (&'a str, Value)>) -> Self {
         let mut episode = StoredEpisode::default();
         let mut spans: std::collections::BTreeMap<String, [Option<f64>; 4]> = Default::default();
         for (name, value) in columns {
@@ -426,13 +426,13 @@ impl StoredEpisode {
 
 /// A video feature's span.
 #[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
-pub struct KeyedSpan {
+pub(super) struct KeyedSpan {
     pub key: String,
     pub span: VideoSpan,
 }
 
 /// The episodes table's column prefix of a video feature's exact pixel statistics.
-pub const PIXEL_STATS: &str = "surgvla/pixel_stats/";
+pub(super) const PIXEL_STATS: &str = "surgvla/pixel_stats/";
 
 /// Where an episode came from: what it takes to re-run or audit it. Stored as the `surgvla/...`
 /// columns of the episodes table (v3.0) or keys of `episodes.jsonl` (v2.1).
@@ -470,7 +470,7 @@ impl Provenance {
 
 /// An episode's place in a video file.
 #[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq)]
-pub struct VideoSpan {
+pub(super) struct VideoSpan {
     pub chunk: u64,
     pub file: u64,
     pub from_secs: f64,
@@ -581,7 +581,7 @@ fn provenance_columns(rows: &[EpisodeRow]) -> impl Iterator<Item = (String, Arra
 }
 
 /// The episodes table (episode_index equals row order); `video_keys` are the video features.
-pub fn episodes_batch(
+pub(super) fn episodes_batch(
     rows: &[EpisodeRow],
     video_keys: &[String],
 ) -> Result<RecordBatch, ExportError> {

@@ -149,7 +149,7 @@ fn renumbered(recording: Recording, index: u64, path: &Path) -> Result<Vec<u8>, 
 }
 
 /// Merges the request's MCAP folders into a new one at its `out` (see the module overview).
-pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
+pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let read = |e| MergeError::Convert(ConvertError::Read(e));
     let write = |e| MergeError::Convert(ConvertError::Write(e));
     let mut parts = Vec::new();

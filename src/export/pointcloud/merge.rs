@@ -23,7 +23,7 @@ const MAX_FRAME_BYTES: u64 = 256 << 20;
 
 /// Merges the request's point-cloud folders into a new one at its `out` (see the module
 /// overview).
-pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
+pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let read = |e| MergeError::Convert(ConvertError::Read(e));
     let write = |e| MergeError::Convert(ConvertError::Write(e));
     let mut parts = Vec::new();

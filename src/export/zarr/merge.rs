@@ -259,7 +259,7 @@ fn write_groups(
 }
 
 /// Merges the request's zarr stores into a new one at its `out` (see the module overview).
-pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
+pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     if request.resume {
         return Err(MergeError::Unsupported {
             path: request.out.to_path_buf(),
