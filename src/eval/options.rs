@@ -42,7 +42,7 @@ pub struct EvalOptions {
     pub tasks: Vec<TaskId>,
     /// Trials per task.
     pub trials: u32,
-    /// Every trial's seed derives from it ([`trial_seed`]).
+    /// Every trial's seed derives from it ([`crate::eval::run::trial_seed`]).
     pub seed: u64,
     pub instruction: InstructionChoice,
     /// Distractors in T2-1 and T2-2.

@@ -61,7 +61,7 @@ impl std::fmt::Display for Finding {
     }
 }
 
-/// What [`validate`] found.
+/// What [`crate::export::validate::validate`] found.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Report {
     pub valid: bool,

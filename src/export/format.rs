@@ -4,8 +4,9 @@
 //! [`crate::export::open::open_source`] and [`crate::export::open::open_sink`] all walk.
 //!
 //! A format recognises a path itself ([`DatasetFormat::sniff`]: no, yes, or "looks like me but
-//! broken"), checks it into [`Findings`], and opens a sink, a source and a merge where it has
-//! them. This module imports no format: formats import it.
+//! broken"), checks it into [`Findings`], says what it can do ([`Capabilities`]), and opens a
+//! source and a merge where it has them; its options ([`SinkOptions`]) open its sink. One value,
+//! [`Format`], names a format anywhere. This module imports no format: formats import it.
 
 use crate::export::error::ExportError;
 use crate::export::findings::{Counts, Findings, ValidateOptions};

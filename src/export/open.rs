@@ -4,6 +4,7 @@
 //! ([`decoding_needed`]) is asked of the options and their format.
 
 use crate::episode::FeatureKind;
+use crate::export::convert::{ConvertError, Without};
 use crate::export::decoded::Decoded;
 use crate::export::dir::resumes;
 use crate::export::error::ExportError;
@@ -11,9 +12,10 @@ use crate::export::format::SinkOptions;
 use crate::export::identity;
 use crate::export::info::DatasetInfo;
 use crate::export::registry;
+use crate::export::shard::{Shard, Sharded};
 use crate::export::sink::EpisodeSink;
 use crate::export::source::{EpisodeSource, SourceOptions};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Whether a conversion of a dataset of `info` into `options` must decode its video (through
 /// [`Decoded`]): the format does not store video, or the options ask for another codec than a
@@ -40,7 +42,7 @@ pub fn open_sink(
         .collect();
     if !videos.is_empty() && !holds.video {
         return Err(ExportError::InvalidOptions(format!(
-            "the input stores {} as video, which this format needs decoded (read the input through decode::Decoded)",
+            "the input stores {} as video, which this format needs decoded (read the input through export::decoded::Decoded)",
             videos.join(", ")
         )));
     }
@@ -90,11 +92,11 @@ pub fn open_source_with(
 /// features left out, and whether video is decoded even where the target could copy it.
 #[derive(Clone, Debug, Default)]
 pub struct ConvertInput {
-    pub path: std::path::PathBuf,
-    pub source: crate::export::source::SourceOptions,
-    pub shard: crate::export::shard::Shard,
+    pub path: PathBuf,
+    pub source: SourceOptions,
+    pub shard: Shard,
     /// Optional features left out (depth, mask, environment state).
-    pub without: Vec<crate::episode::FeatureKind>,
+    pub without: Vec<FeatureKind>,
     /// Decode video features to pixels even where the target stores video.
     pub decode: bool,
 }
@@ -104,26 +106,19 @@ impl ConvertInput {
     /// and its video decoded when asked or when the target needs pixels.
     pub fn open(
         &self,
-        options: &dyn crate::export::format::SinkOptions,
-    ) -> Result<Box<dyn EpisodeSource + Send>, crate::export::convert::ConvertError> {
-        use crate::export::decoded::Decoded;
-        let mut source = open_source_with(&self.path, &self.source)
-            .map_err(crate::export::convert::ConvertError::Read)?;
-        if self.shard != crate::export::shard::Shard::default() {
+        options: &dyn SinkOptions,
+    ) -> Result<Box<dyn EpisodeSource + Send>, ConvertError> {
+        let mut source = open_source_with(&self.path, &self.source).map_err(ConvertError::Read)?;
+        if self.shard != Shard::default() {
             // Usage: a shard past the input's episodes, or an input that is itself a shard.
-            source = Box::new(
-                crate::export::shard::Sharded::new(source, self.shard)
-                    .map_err(crate::export::convert::ConvertError::Input)?,
-            );
+            source = Box::new(Sharded::new(source, self.shard).map_err(ConvertError::Input)?);
         }
         if !self.without.is_empty() {
-            source = Box::new(crate::export::convert::Without::new(source, &self.without));
+            source = Box::new(Without::new(source, &self.without));
         }
         let needed = decoding_needed(source.info(), options);
         if needed || (self.decode && Decoded::needed(source.info())) {
-            source = Box::new(
-                Decoded::new(source).map_err(crate::export::convert::ConvertError::Input)?,
-            );
+            source = Box::new(Decoded::new(source).map_err(ConvertError::Input)?);
         }
         Ok(source)
     }

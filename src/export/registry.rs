@@ -12,7 +12,7 @@ use crate::export::{lerobot, mcap, pointcloud, rlds, zarr};
 use std::path::Path;
 
 /// Every format, in the order `--to` lists them. [`detect`] asks those
-/// [`DatasetFormat::sniffed_first`] first, then the rest in this order: the first that
+/// [`crate::export::DatasetFormat::sniffed_first`] first, then the rest in this order: the first that
 /// recognises a path has it.
 pub static BUILTIN_FORMATS: &[Format] = &[
     Format(&lerobot::LeRobotFormat),

@@ -1,5 +1,5 @@
 //! Reading MP4 video back without decoding it ([`re_mp4`]): the samples of a span of a file's
-//! video track, in the form the muxer ([`crate::media::video::VideoFile`]) takes (AV1 OBUs,
+//! video track, in the form the muxer ([`crate::media::video::Mp4Writer`]) takes (AV1 OBUs,
 //! H.264 Annex B), so video passes from one dataset to another unchanged.
 //!
 //! A span must start on a keyframe (every episode does: LeRobot and surgvla encode episodes

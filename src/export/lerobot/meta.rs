@@ -1,7 +1,7 @@
 //! LeRobot's `meta/info.json`, typed ([`InfoJson`], each feature a [`FeatureJson`]), its
 //! statistics (`meta/stats.json` and each episode's, [`StatsJson`]), and v2.1's task lines
 //! ([`TaskLine`]), for the writer, the reader, the checks, detection and merge alike (episode
-//! rows are [`super::table::EpisodeRow`] when written, [`super::table::EpisodeMeta`] when read).
+//! rows are [`super::table::EpisodeRow`] when written, [`super::table::StoredEpisode`] when read).
 //!
 //! Read leniently, since the datasets are often another tool's: every field is optional, a
 //! value of the wrong type reads as absent (the checks report it through the JSON Schema and

@@ -13,7 +13,7 @@
 //! ```
 //! Images are embedded: RGB and mask as PNG, depth as float32 TIFF in metres
 //! (`is_depth_map`, `depth_unit: "m"`). The folder, its marker, temporary names and checkpoints
-//! belong to [`DatasetDir`]; whenever a data file closes (and the open MP4 with it) the writer's
+//! belong to [`crate::export::DatasetDir`]; whenever a data file closes (and the open MP4 with it) the writer's
 //! whole state is checkpointed, and [`LeRobotWriter::resume`] continues from there.
 
 pub mod check;

@@ -9,7 +9,7 @@ use serde_json::{Value, json};
 /// The codebase version written to info.json.
 pub const CODEBASE_VERSION: &str = "v3.0";
 
-/// Options of the LeRobot format (what the dataset holds is its [`DatasetInfo`]).
+/// Options of the LeRobot format (what the dataset holds is its [`crate::export::DatasetInfo`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LeRobotOptions {
     /// A new data file starts once the current one reaches this size.

@@ -4,7 +4,7 @@
 //! episodes.jsonl          per episode: index, file, frames, task id, level, seed, success, instruction
 //! surgvla_manifest.json   every file with size and CRC-32C
 //! ```
-//! Topics (`../shared/spec/formats.md`): `/endoscope/rgb` (foxglove.CompressedImage, PNG),
+//! Topics (docs/datasets.md, "MCAP recordings"): `/endoscope/rgb` (foxglove.CompressedImage, PNG),
 //! `/endoscope/depth` (foxglove.RawImage, 32FC1 metres), `/endoscope/camera_info`
 //! (foxglove.CameraCalibration), `/endoscope/points` (foxglove.PointCloud, with depth), `/tf`
 //! (foxglove.FrameTransforms), `/robot/state` and `/robot/action` (JSON with a JSON schema),

@@ -1,8 +1,7 @@
-//! Point clouds from a frame's depth, RGB and camera (issue 14; see `../shared/spec/formats.md`,
-//! "Point clouds"): [`frame_cloud`] back-projects every pixel with depth, moves it to the world
+//! Point clouds from a frame's depth, RGB and camera (docs/datasets.md, "Point clouds"): [`frame_cloud`] back-projects every pixel with depth, moves it to the world
 //! frame with `world_from_camera`, crops it to a box, pre-downsamples it on a voxel grid and
 //! picks [`CloudOptions::points`] of the survivors by farthest point sampling, zero-padded when
-//! fewer survive. Everything comes from the [`CameraInfo`] and the step, never from the renderer.
+//! fewer survive. Everything comes from the [`crate::episode::CameraInfo`] and the step, never from the renderer.
 //!
 //! Why the voxel grid: exact farthest point sampling over all ~50,000 pixels costs about 100 ms
 //! a frame. Keeping one point per `voxel_m` cube (the first in pixel order, so the result is

@@ -288,7 +288,7 @@ fn as_features_dicts(tree: serde_json::Map<String, Value>) -> serde_json::Map<St
 }
 
 /// `features.json` of a dataset another tool made (its features all
-/// [`FeatureKind::Other`]): each feature at its [`rlds_path`], the language instruction and
+/// [`FeatureKind::Other`]): each feature at its [`crate::export::rlds::rlds_path`], the language instruction and
 /// the RLDS flags; `episode_metadata/file_path`.
 pub fn foreign_features_json(info: &DatasetInfo) -> Value {
     let mut step = serde_json::Map::new();

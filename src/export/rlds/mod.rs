@@ -1,5 +1,5 @@
-//! RLDS in the TFDS on-disk layout, written without TensorFlow (see `../shared/spec/rlds.md`):
-//! [`RldsWriter`] (an [`EpisodeSink`]) and [`read::RldsSource`].
+//! RLDS in the TFDS on-disk layout, written without TensorFlow (docs/datasets.md, "The RLDS
+//! dataset"): [`RldsWriter`] (an [`crate::export::EpisodeSink`]) and [`read::RldsSource`].
 //!
 //! Layout, in the output folder (TFDS's `data_dir`):
 //! ```text
@@ -12,7 +12,7 @@
 //! ```
 //! Shards roll once they reach [`RldsOptions::shard_size_mb`] (TFDS sizes shards from 64 MiB
 //! up) and are written as `<name>-train.tfrecord-NNNNN` until the run finishes: only then is
-//! the count `MMMMM` known, and [`DatasetDir::rename_files`] gives them their final names (a
+//! the count `MMMMM` known, and [`crate::export::DatasetDir::rename_files`] gives them their final names (a
 //! resume after an interruption there undoes the renames first). Every closed shard is a
 //! checkpoint. Encodings: TFRecord framing with masked CRC-32C ([`tfrecord`]),
 //! `tf.train.Example` ([`example`]), episodes ([`record`]), metadata ([`features`]).

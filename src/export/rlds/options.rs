@@ -18,7 +18,7 @@ pub const SURGVLA_JSON: &str = "surgvla.json";
 
 /// Where another tool's feature goes in an RLDS step: `observation.images.X` ->
 /// `observation/X`, otherwise its dotted name as a path (`observation.state` ->
-/// `observation/state`, `action` -> `action`); [`foreign`] reads the names back.
+/// `observation/state`, `action` -> `action`); [`crate::export::rlds::foreign`] reads the names back.
 pub fn rlds_path(name: &str) -> Vec<String> {
     match name.strip_prefix("observation.images.") {
         Some(camera) => vec!["observation".into(), camera.replace('.', "_")],

@@ -390,19 +390,20 @@ fn decode_step_images(
 ) -> Result<Step, String> {
     let (w, h) = (layout.width_px, layout.height_px);
     let keys = &layout.keys;
-    let bad_image = |key: &str, i: usize, problem: String| format!("{key} step {i}: {problem}");
-    let image_key = StepLayout::observation(&keys.image);
-    let depth_key = StepLayout::observation(&keys.depth);
-    let mask_key = StepLayout::observation(&keys.mask);
+    // The feature's full key is made only for an error: this runs once a step.
+    let bad_image = |key: &String, i: usize, problem: String| {
+        format!("{} step {i}: {problem}", StepLayout::observation(key))
+    };
+    let (image_key, depth_key, mask_key) = (&keys.image, &keys.depth, &keys.mask);
     let decoded = if is_jpeg(rgb) {
         decode_jpeg_sized(rgb, (w, h))
     } else {
         decode_png_sized(rgb, Some((w, h)))
     };
-    let (rw, rh, channels, pixels) = decoded.map_err(|e| bad_image(&image_key, i, e))?;
+    let (rw, rh, channels, pixels) = decoded.map_err(|e| bad_image(image_key, i, e))?;
     if (rw as usize, rh as usize, channels) != (w, h, 3) {
         return Err(bad_image(
-            &image_key,
+            image_key,
             i,
             format!("a {rw}x{rh} image with {channels} channels where {w}x{h} RGB was declared"),
         ));
@@ -413,19 +414,19 @@ fn decode_step_images(
     };
     if layout.depth {
         let (dw, dh, mm) = decode_png16_sized(depth.map_or(&[][..], Vec::as_slice), Some((w, h)))
-            .map_err(|e| bad_image(&depth_key, i, e))?;
+            .map_err(|e| bad_image(depth_key, i, e))?;
         if (dw as usize, dh as usize) != (w, h) {
-            return Err(bad_image(&depth_key, i, format!("a {dw}x{dh} depth image")));
+            return Err(bad_image(depth_key, i, format!("a {dw}x{dh} depth image")));
         }
         step.depth_m = mm.iter().map(|&v| f32::from(v) / 1000.0).collect();
     }
     if layout.mask {
         let (mw, mh, channels, ids) =
             decode_png_sized(mask.map_or(&[][..], Vec::as_slice), Some((w, h)))
-                .map_err(|e| bad_image(&mask_key, i, e))?;
+                .map_err(|e| bad_image(mask_key, i, e))?;
         if (mw as usize, mh as usize, channels) != (w, h, 1) {
             return Err(bad_image(
-                &mask_key,
+                mask_key,
                 i,
                 format!("a {mw}x{mh} mask with {channels} channels"),
             ));

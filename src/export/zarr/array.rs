@@ -1,9 +1,8 @@
 //! A zarr v2 array written row by row (rows along the first axis), our own writer: the `zarrs`
-//! crate builds only v3 arrays through its API (`../shared/spec/crates.md`), and DP3's readers
-//! use zarr 2. A v2 array is a `.zarray` JSON and one file per chunk, named by chunk indices
-//! joined with '.', each a zstd frame (level 3, with its content size, which older numcodecs
-//! needs) of the chunk's C-order bytes; edge chunks are stored full size, padded with the
-//! fill value 0.
+//! crate builds only v3 arrays through its builder, and DP3's readers use zarr 2. A v2 array is
+//! a `.zarray` JSON and one file per chunk, named by chunk indices joined with '.', each a zstd
+//! frame (level 3, with its content size, which older numcodecs needs) of the chunk's C-order
+//! bytes; edge chunks are stored full size, padded with the fill value 0.
 
 use crate::export::dir::DatasetDir;
 use crate::export::error::ExportError;

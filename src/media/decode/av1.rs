@@ -204,14 +204,11 @@ pub fn decode_av1_each<E: From<MediaError>>(
     }
     decoder.drain(&mut out).map_err(failed)?;
     hand_over(&mut out)?;
-    if count != samples.len() {
-        return Err(MediaError::Decode {
-            what: what.to_string(),
-            source: format!("{} samples gave {count} pictures", samples.len()).into(),
-        }
-        .into());
-    }
-    Ok(count)
+    Ok(super::frame::every_sample_decoded(
+        count,
+        samples.len(),
+        what,
+    )?)
 }
 
 /// [`decode_av1_each`], the pictures collected.

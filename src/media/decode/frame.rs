@@ -1,6 +1,7 @@
-//! One decoded picture, as every decoder hands it over.
+//! One decoded picture, as every decoder hands it over, and the check that each sample gave one.
 
 use super::color::ColorSpace;
+use crate::media::MediaError;
 
 /// One decoded picture: 8-bit planar YUV 4:2:0, planes without padding.
 #[derive(Clone, Debug, PartialEq)]
@@ -14,4 +15,19 @@ pub struct YuvFrame {
     pub v: Vec<u8>,
     /// The matrix and range the stream signals.
     pub color: ColorSpace,
+}
+
+/// `count` pictures from `samples` samples: each sample must give one picture.
+pub(super) fn every_sample_decoded(
+    count: usize,
+    samples: usize,
+    what: &str,
+) -> Result<usize, MediaError> {
+    if count != samples {
+        return Err(MediaError::Decode {
+            what: what.to_string(),
+            source: format!("{samples} samples gave {count} pictures").into(),
+        });
+    }
+    Ok(count)
 }

@@ -142,14 +142,7 @@ pub fn decode_h264_each<E: From<MediaError>>(
         count += 1;
         on_picture(with_color(&picture))?;
     }
-    if count != samples.len() {
-        return Err(MediaError::Decode {
-            what: what.to_string(),
-            source: format!("{} samples gave {count} pictures", samples.len()).into(),
-        }
-        .into());
-    }
-    Ok(count)
+    Ok(frame::every_sample_decoded(count, samples.len(), what)?)
 }
 
 /// [`decode_h264_each`], the pictures collected.
