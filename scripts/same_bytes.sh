@@ -31,6 +31,17 @@ make() { # BINARY OUT
         "${bin}" collect "${small[@]}" --shard "${i}/2" --out "${out}/shard-${i}" >/dev/null
     done
     "${bin}" merge "${out}/shard-0" "${out}/shard-1" --out "${out}/merged" >/dev/null
+    # Every format's merge, of all shards and of some (the collection records "merged 0/3,2/3").
+    for format in lerobot rlds zarr mcap ply; do
+        for i in 0 2; do
+            "${bin}" collect "${small[@]}" --format "${format}" --shard "${i}/3" --out "${out}/${format}-third-${i}" >/dev/null
+        done
+        "${bin}" merge "${out}/${format}-third-0" "${out}/${format}-third-2" --out "${out}/${format}-some" >/dev/null
+    done
+    for i in 0 1; do
+        "${bin}" collect "${small[@]}" --format zarr --shard "${i}/2" --out "${out}/zarr-half-${i}" >/dev/null
+    done
+    "${bin}" merge "${out}/zarr-half-1" "${out}/zarr-half-0" --out "${out}/zarr-merged" >/dev/null
 }
 make "${old}" "${work}/old"
 make "${new}" "${work}/new"

@@ -234,7 +234,7 @@ pub fn scene_meshes(assets: &SceneAssets, sim: &Simulator) -> Vec<crate::episode
 pub fn dataset_info(
     camera: &Camera,
     features: crate::episode::FeatureSet,
-    collection: serde_json::Value,
+    collection: crate::export::collection::Collection,
 ) -> crate::export::DatasetInfo {
     let camera = camera_info(camera);
     let workspace = crate::sim::control::Workspace::reference();
@@ -248,7 +248,7 @@ pub fn dataset_info(
         ),
         camera,
         mask_ids: mask_ids(),
-        collection,
+        collection: Some(collection),
         generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
         tip_workspace: Some(crate::episode::Aabb {
             min_m: workspace.min_m,

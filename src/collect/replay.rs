@@ -4,14 +4,15 @@
 //! renders them; the replay must reach success and reproduce the recorded frames (state and
 //! object poses exactly, images pixel for pixel, depth to the format's precision).
 
-use crate::episode::{Episode, GripperEncoding};
+use crate::episode::Episode;
+use crate::export::check::Check;
+use crate::export::collection::Collection;
 use crate::export::convert::DEPTH_TOLERANCE_M;
 use crate::export::validate::Finding;
 use crate::export::{ExportError, open_source};
 use crate::task::success::RULE_SET;
 use crate::task::{InstructionChoice, TaskConfig, TaskId};
 use rayon::prelude::*;
-use serde_json::Value;
 use std::path::Path;
 
 use super::record::{RecordOptions, render_replay};
@@ -38,23 +39,19 @@ impl crate::error::HasKind for ReplayError {
 }
 
 /// The recording options a collection's metadata describes.
-fn record_options(collection: &Value) -> RecordOptions {
-    let instruction = match collection["instructions"].as_str() {
+fn record_options(collection: &Collection) -> RecordOptions {
+    let instruction = match collection.instructions() {
         Some("paraphrase") => InstructionChoice::Paraphrase,
         Some("mixed") => InstructionChoice::Mixed,
         _ => InstructionChoice::Canonical,
     };
     RecordOptions {
-        randomize_appearance: collection["randomize_appearance"] == true,
-        gripper: if collection["gripper_encoding"] == "pulse" {
-            GripperEncoding::Pulse
-        } else {
-            GripperEncoding::Continuous
-        },
+        randomize_appearance: collection.randomize_appearance(),
+        gripper: collection.gripper_encoding().unwrap_or_default(),
         task: TaskConfig {
-            distractors: collection["distractors"].as_u64().unwrap_or(1) as usize,
+            distractors: collection.distractors().unwrap_or(1),
             instruction,
-            spawn_scale: collection["spawn_scale"].as_f64().unwrap_or(1.0),
+            spawn_scale: collection.spawn_scale().unwrap_or(1.0),
             ..TaskConfig::default()
         },
         ..RecordOptions::default()
@@ -98,12 +95,12 @@ fn replay_episode(
     options: &RecordOptions,
     lossy: bool,
     judge: bool,
-) -> Option<(Option<u64>, &'static str, String)> {
+) -> Option<(Option<u64>, Check, String)> {
     let meta = &recorded.meta;
     let Ok(task) = meta.task_code.parse::<TaskId>() else {
         return Some((
             None,
-            "provenance",
+            Check::Provenance,
             format!("task id {:?} is not a surgvla task", meta.task_code),
         ));
     };
@@ -112,7 +109,7 @@ fn replay_episode(
         Err(error) => {
             return Some((
                 None,
-                "replay",
+                Check::Replay,
                 format!("seed {} does not spawn: {error}", meta.seed),
             ));
         }
@@ -122,7 +119,7 @@ fn replay_episode(
     if instance.instruction != meta.instruction {
         return Some((
             None,
-            "replay",
+            Check::Replay,
             format!(
                 "the instruction is {:?}; seed {} gives {:?}",
                 meta.instruction, meta.seed, instance.instruction
@@ -146,7 +143,7 @@ fn replay_episode(
         if let Some(what) = differs {
             return Some((
                 Some(frame as u64),
-                "replay",
+                Check::Replay,
                 format!(
                     "{what} differs from the replay of task {} seed {}",
                     meta.task_code, meta.seed
@@ -157,7 +154,7 @@ fn replay_episode(
     if judge && !replayed.verdict.success {
         return Some((
             None,
-            "replay",
+            Check::Replay,
             format!(
                 "the recorded actions do not succeed when replayed ({})",
                 replayed.verdict.reason
@@ -176,16 +173,16 @@ pub struct Replayed {
 }
 
 /// The warning for a dataset recorded under other success rules than [`RULE_SET`].
-fn other_rules(collection: &serde_json::Value) -> Finding {
+fn other_rules(collection: &Collection) -> Finding {
     Finding {
         file: None,
         episode: None,
         frame: None,
-        check: "replay".into(),
+        check: Check::Replay,
         message: format!(
             "the dataset records success rules {} where surgvla now judges by {RULE_SET}: frames and states were replayed, success was not judged",
-            collection["success_rules"]
-                .as_str()
+            collection
+                .success_rules()
                 .unwrap_or("from before they were named")
         ),
     }
@@ -203,17 +200,16 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
     if lossy {
         source = Box::new(crate::export::decoded::Decoded::new(source)?);
     }
-    let collection = source.info().collection.clone();
-    if collection.is_null() {
+    let Some(collection) = source.info().collection.clone() else {
         return Err(ReplayError::NotReplayable {
             path: path.to_path_buf(),
             problem:
                 "it has no surgvla collection metadata (its episodes carry no seeds to re-run)"
                     .into(),
         });
-    }
+    };
     let options = record_options(&collection);
-    let judge = collection["success_rules"] == RULE_SET;
+    let judge = collection.success_rules() == Some(RULE_SET);
     let warnings: Vec<Finding> = (!judge)
         .then(|| other_rules(&collection))
         .into_iter()
@@ -231,7 +227,7 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
                         file: None,
                         episode: None,
                         frame: None,
-                        check: "replay".into(),
+                        check: Check::Replay,
                         message: format!("reading stopped: {error}"),
                     });
                     return Ok(Replayed {
@@ -265,7 +261,7 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
                     file: None,
                     episode: Some(episode),
                     frame,
-                    check: check.into(),
+                    check,
                     message,
                 });
             }

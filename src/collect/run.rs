@@ -22,6 +22,7 @@ pub use crate::collect::slot::{
 use crate::episode::Episode;
 use crate::episode::FeatureSet;
 use crate::export::DatasetInfo;
+use crate::export::collection::{Collection, RecordedShard, RunRecord};
 use crate::export::{DetachedEncoder, Encoded, EpisodeSink, ExportError, Summary};
 use crate::policy::{ExpertLibrary, PlanError};
 use crate::task::TaskId;
@@ -304,27 +305,26 @@ pub fn measure_experts(
     ))
 }
 
-/// Writes consecutive recorded episodes to `sink`: what its detached encoder made of each
-/// when it has one (`encoded`), else the episodes in a batch on `pool`.
+/// Writes consecutive recorded episodes to `sink`: what its pipelined side's encoder made of
+/// each when every one was encoded, else the episodes in a batch on `pool`.
 fn write_ready(
     sink: &mut (dyn EpisodeSink + Send),
     pool: &rayon::ThreadPool,
-    encoded: bool,
     episodes: Vec<(Episode, Option<Encoded>)>,
 ) -> Result<(), CollectError> {
-    if encoded {
-        let encoded = episodes
-            .into_iter()
-            .map(|(episode, encoded)| {
-                encoded
-                    .map(|e| (episode, e))
-                    .ok_or_else(|| ExportError::Internal("an episode was not encoded".into()))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        sink.write_encoded(encoded)?;
-    } else {
-        let episodes: Vec<Episode> = episodes.into_iter().map(|(e, _)| e).collect();
-        pool.install(|| sink.write_batch(&episodes))?;
+    let all_encoded = episodes.iter().all(|(_, encoded)| encoded.is_some());
+    match sink.pipelined() {
+        Some(pipelined) if all_encoded => {
+            let encoded = episodes
+                .into_iter()
+                .filter_map(|(episode, encoded)| Some((episode, encoded?)))
+                .collect();
+            pipelined.sink.write_encoded(encoded)?;
+        }
+        _ => {
+            let episodes: Vec<Episode> = episodes.into_iter().map(|(e, _)| e).collect();
+            pool.install(|| sink.write_batch(&episodes))?;
+        }
     }
     Ok(())
 }
@@ -350,7 +350,7 @@ fn record_and_write(
     let stop = AtomicBool::new(false);
     // With a detached encoder, a worker encodes the episode it recorded and this thread only
     // appends; without one, the sink's batches run on the pool.
-    let encoder = sink.detached_encoder();
+    let encoder = sink.pipelined().map(|pipelined| pipelined.encoder);
     let (done, arrivals) = mpsc::channel::<(usize, Arrival)>();
     pool.in_place_scope(|scope| {
         let record = |i: usize| {
@@ -410,7 +410,7 @@ fn record_and_write(
                     }
                     ready.push(outcome);
                 }
-                write_ready(sink, pool, encoder.is_some(), episodes)?;
+                write_ready(sink, pool, episodes)?;
                 // The time since the last write goes to these episodes' tasks, shared by frames.
                 let secs = last_write.elapsed().as_secs_f64();
                 last_write = Instant::now();
@@ -478,23 +478,26 @@ pub fn dataset_info(
     library: &ExpertLibrary,
 ) -> DatasetInfo {
     let record = &options.record;
-    let mut collection = serde_json::json!({
-        "seed": options.seed,
-        "tasks": options.tasks.iter().map(|t| t.code()).collect::<Vec<_>>(),
-        "episodes_per_task": options.episodes_per_task,
-        "shard": options.shard.to_string(),
-        "gripper_encoding": record.gripper,
-        "distractors": record.task.distractors,
-        "instructions": record.task.instruction.name(),
-        "spawn_scale": record.task.spawn_scale,
-        "randomize_appearance": record.randomize_appearance,
-        "policies": if library.is_custom() { "custom" } else { "builtin" },
-        "success_rules": crate::task::success::RULE_SET,
-    });
-    if library.is_custom() {
-        collection["custom_plans"] = serde_json::json!(library.custom_plans());
-    }
-    crate::view::dataset_info(&record.camera, features, collection)
+    let custom = library.is_custom();
+    let run = RunRecord {
+        seed: options.seed,
+        tasks: options.tasks.iter().map(|t| t.code().to_string()).collect(),
+        episodes_per_task: options.episodes_per_task,
+        shard: RecordedShard::Part(options.shard),
+        gripper_encoding: record.gripper,
+        distractors: record.task.distractors,
+        instructions: record.task.instruction.name().into(),
+        spawn_scale: record.task.spawn_scale,
+        randomize_appearance: record.randomize_appearance,
+        policies: if custom { "custom" } else { "builtin" }.into(),
+        success_rules: crate::task::success::RULE_SET.into(),
+        custom_plans: custom.then(|| {
+            (library.custom_plans().into_iter())
+                .map(|(task, crc)| (task.to_string(), crc))
+                .collect()
+        }),
+    };
+    crate::view::dataset_info(&record.camera, features, Collection::of(&run))
 }
 
 /// The collection's report inside the dataset folder.

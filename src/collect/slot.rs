@@ -4,7 +4,7 @@
 
 use crate::collect::record::RecordOptions;
 use crate::episode::Episode;
-pub use crate::export::shard::{BadShard, Shard};
+pub use crate::export::collection::{BadShard, Shard};
 use crate::task::TaskId;
 use serde::Serialize;
 

@@ -14,7 +14,7 @@
 use super::numpy::{Request, decode_actions};
 use super::remote::RemotePolicy;
 use crate::env::EnvObservation;
-use crate::episode::{GripperEncoding, MAX_OBJECTS, POSE_VALUES};
+use crate::episode::{MAX_OBJECTS, POSE_VALUES};
 use crate::export::{ExportError, open_source};
 use crate::policy::{ExpertPolicy, Policy, RandomPolicy};
 use crate::sim::{NativeCommand, PhysicalAction};
@@ -126,12 +126,9 @@ impl ReplayLibrary {
     /// it).
     pub fn load(path: &Path) -> Result<ReplayLibrary, ExportError> {
         let source = open_source(path)?;
-        let pulse = source.info().collection["gripper_encoding"] == "pulse";
-        let encoding = if pulse {
-            GripperEncoding::Pulse
-        } else {
-            GripperEncoding::Continuous
-        };
+        let encoding = (source.info().collection.as_ref())
+            .and_then(|c| c.gripper_encoding())
+            .unwrap_or_default();
         let mut library = ReplayLibrary::default();
         for episode in source {
             let episode = episode?;

@@ -15,6 +15,7 @@ use super::remote::RemotePolicy;
 use super::results::{EvalReport, TaskResult, TrialResult};
 use crate::env::{Env, EnvObservation, EnvOptions, Images};
 use crate::episode::{Episode, EpisodeMeta, FeatureSet, Step};
+use crate::export::collection::{Collection, EvaluationRecord};
 use crate::export::mcap::{McapOptions, record_episode};
 use crate::policy::{ExpertLibrary, RandomPolicy};
 use crate::rng::SplitMix64;
@@ -542,7 +543,10 @@ fn save_recording(
         episode.meta.index,
         instance.seed
     );
-    let collection = serde_json::json!({"evaluation": true, "seed": instance.seed});
+    let collection = Collection::of(&EvaluationRecord {
+        evaluation: true,
+        seed: instance.seed,
+    });
     let features = FeatureSet {
         mask: true,
         ..FeatureSet::default()

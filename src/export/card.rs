@@ -10,6 +10,8 @@
 //! ([`check`]); an older dataset without one gets a warning, never a finding.
 
 use crate::episode::Episode;
+use crate::export::check::Check;
+use crate::export::collection::RecordedShard;
 use crate::export::findings::{At, Findings};
 use crate::export::info::DatasetInfo;
 use serde_json::{Value, json};
@@ -183,10 +185,10 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
     card.push_str(&task_rows(tally));
     card.push_str(&feature_rows(info, format));
     card.push_str("\n## How it was made\n\n");
-    match info.collection.as_object() {
+    match &info.collection {
         Some(collection) if !collection.is_empty() => {
             card.push_str("Recorded from surgvla's scripted experts in its simulator. The collection's options, as the dataset's surgvla metadata records them:\n\n");
-            for (key, value) in collection {
+            for (key, value) in collection.entries() {
                 let _ = writeln!(card, "- `{}`: `{}`", cell(key), cell(&value.to_string()));
             }
             card.push('\n');
@@ -299,7 +301,7 @@ pub fn parse(card: &str) -> Option<Tally> {
 /// render one from: zarr, point-cloud and MCAP folders take their first input's): the summary
 /// line, the tasks table, the `shard` option and the citation's counts replaced. None when the
 /// text is not a card of ours.
-pub fn retally(card: &str, tally: &Tally, shard: &Value) -> Option<String> {
+pub fn retally(card: &str, tally: &Tally, shard: Option<&RecordedShard>) -> Option<String> {
     let mut out = String::with_capacity(card.len());
     let mut lines = card.lines().peekable();
     let mut seen_summary = false;
@@ -320,8 +322,11 @@ pub fn retally(card: &str, tally: &Tally, shard: &Value) -> Option<String> {
                 lines.next();
             }
             out.push_str(&task_rows(tally));
-        } else if line.starts_with("- `shard`: ") && !shard.is_null() {
-            let _ = writeln!(out, "- `shard`: `{}`", cell(&shard.to_string()));
+        } else if line.starts_with("- `shard`: ")
+            && let Some(shard) = shard
+        {
+            let quoted = Value::from(shard.to_string()).to_string();
+            let _ = writeln!(out, "- `shard`: `{}`", cell(&quoted));
         } else if line.starts_with("  note = {") {
             let _ = writeln!(out, "{}", note(tally));
         } else {
@@ -366,21 +371,21 @@ pub fn check(folder: &std::path::Path, episodes: u64, frames: u64, findings: &Fi
     if !path.is_file() {
         findings.warning(
             at(),
-            "card",
+            Check::Card,
             "the dataset has no card (README.md): written by a surgvla before cards",
         );
         return;
     }
     let Ok(bytes) = crate::export::bounded::read_metadata(&path) else {
-        findings.error(at(), "card", "cannot be read");
+        findings.error(at(), Check::Card, "cannot be read");
         return;
     };
     let Some(tally) = parse(&String::from_utf8_lossy(&bytes)) else {
-        findings.error(at(), "card", "has no tasks table of surgvla's");
+        findings.error(at(), Check::Card, "has no tasks table of surgvla's");
         return;
     };
     for problem in disagreements(&tally, episodes, frames) {
-        findings.error(at(), "card", problem);
+        findings.error(at(), Check::Card, problem);
     }
 }
 
@@ -463,10 +468,13 @@ mod tests {
         let mut merged = first.clone();
         merged.extend(&second);
         let mut whole_info = info();
-        whole_info.collection["shard"] = json!("0/1");
+        let whole = RecordedShard::Part(crate::export::collection::Shard::default());
+        if let Some(collection) = &mut whole_info.collection {
+            collection.set_shard(&whole);
+        }
         let expected = render(&whole_info, &merged, &LEROBOT());
-        assert_eq!(retally(&part, &merged, &json!("0/1")), Some(expected));
-        assert_eq!(retally("not a card", &merged, &json!("0/1")), None);
+        assert_eq!(retally(&part, &merged, Some(&whole)), Some(expected));
+        assert_eq!(retally("not a card", &merged, Some(&whole)), None);
     }
 
     #[test]

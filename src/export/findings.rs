@@ -6,6 +6,8 @@
 
 use crate::episode::{Aabb, Episode, GripperEncoding};
 use crate::export::bounded::read_json;
+use crate::export::check::Check;
+use crate::export::collection::Collection;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -36,8 +38,8 @@ pub struct Finding {
     pub file: Option<String>,
     pub episode: Option<u64>,
     pub frame: Option<u64>,
-    /// The check that found it, e.g. "timestamps", "image", "crc".
-    pub check: String,
+    /// The check that found it.
+    pub check: Check,
     pub message: String,
 }
 
@@ -98,8 +100,8 @@ pub struct Facts {
     pub tasks: BTreeMap<String, u64>,
     /// The program that wrote it, when it says.
     pub generator: Option<String>,
-    /// How surgvla collected it (seed, tasks, options); null when not ours.
-    pub collection: serde_json::Value,
+    /// How surgvla collected it (seed, tasks, options); None (null in JSON) when not ours.
+    pub collection: Option<Collection>,
 }
 
 /// One feature as declared.
@@ -136,9 +138,9 @@ pub struct Findings {
 /// all, so that the report is the same whatever order the threads ran in.
 #[derive(Debug, Default)]
 struct Collected {
-    kept: BTreeMap<(String, bool), std::collections::BTreeSet<Finding>>,
+    kept: BTreeMap<(Check, bool), std::collections::BTreeSet<Finding>>,
     /// (check, is_error) -> findings seen.
-    counts: BTreeMap<(String, bool), usize>,
+    counts: BTreeMap<(Check, bool), usize>,
 }
 
 /// Where a finding is: file, episode, frame.
@@ -190,34 +192,31 @@ impl Findings {
             .into_owned()
     }
 
-    pub fn error(&self, at: At, check: &str, message: impl Into<String>) {
+    pub fn error(&self, at: At, check: Check, message: impl Into<String>) {
         self.add(true, at, check, message.into());
     }
 
-    pub fn warning(&self, at: At, check: &str, message: impl Into<String>) {
+    pub fn warning(&self, at: At, check: Check, message: impl Into<String>) {
         self.add(false, at, check, message.into());
     }
 
     /// An error about the file at `path`.
-    pub fn file_error(&self, path: &Path, check: &str, message: impl Into<String>) {
+    pub fn file_error(&self, path: &Path, check: Check, message: impl Into<String>) {
         self.error(At::file(self.relative(path)), check, message);
     }
 
-    fn add(&self, is_error: bool, at: At, check: &str, message: String) {
+    fn add(&self, is_error: bool, at: At, check: Check, message: String) {
         let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
-        let count = inner
-            .counts
-            .entry((check.to_string(), is_error))
-            .or_default();
+        let count = inner.counts.entry((check, is_error)).or_default();
         *count += 1;
         let finding = Finding {
             file: at.file,
             episode: at.episode,
             frame: at.frame,
-            check: check.into(),
+            check,
             message,
         };
-        let kept = inner.kept.entry((check.to_string(), is_error)).or_default();
+        let kept = inner.kept.entry((check, is_error)).or_default();
         kept.insert(finding);
         if kept.len() > FINDINGS_PER_CHECK {
             kept.pop_last();
@@ -234,10 +233,10 @@ impl Findings {
         let Counts { episodes, frames } = counts;
         let mut inner = self.inner.into_inner().unwrap_or_else(|e| e.into_inner());
         let (mut errors, mut warnings) = (Vec::new(), Vec::new());
-        let listed: BTreeMap<(String, bool), usize> = inner
+        let listed: BTreeMap<(Check, bool), usize> = inner
             .kept
             .iter()
-            .map(|(key, kept)| (key.clone(), kept.len()))
+            .map(|(key, kept)| (*key, kept.len()))
             .collect();
         for ((_, is_error), kept) in std::mem::take(&mut inner.kept) {
             if is_error {
@@ -250,13 +249,13 @@ impl Findings {
         warnings.sort();
         for ((check, is_error), count) in std::mem::take(&mut inner.counts) {
             // Identical findings are listed once; the rest of a check's are counted.
-            let shown = listed.get(&(check.clone(), is_error)).copied().unwrap_or(0);
+            let shown = listed.get(&(check, is_error)).copied().unwrap_or(0);
             if count > shown {
                 let finding = Finding {
                     file: None,
                     episode: None,
                     frame: None,
-                    check: check.clone(),
+                    check,
                     message: format!(
                         "{} more like the above not listed ({count} in all)",
                         count - shown
@@ -308,19 +307,23 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
     let manifest = match read_json(&path) {
         Ok(manifest) => manifest,
         Err(_) => {
-            findings.file_error(&path, "manifest", "is not valid JSON");
+            findings.file_error(&path, Check::Manifest, "is not valid JSON");
             return;
         }
     };
     let Some(files) = manifest["files"].as_array() else {
-        findings.file_error(&path, "manifest", "has no files list");
+        findings.file_error(&path, Check::Manifest, "has no files list");
         return;
     };
     for file in files {
         let record: crate::export::dir::FileRecord = match serde_json::from_value(file.clone()) {
             Ok(record) => record,
             Err(_) => {
-                findings.file_error(&path, "manifest", format!("has a malformed entry {file}"));
+                findings.file_error(
+                    &path,
+                    Check::Manifest,
+                    format!("has a malformed entry {file}"),
+                );
                 continue;
             }
         };
@@ -329,7 +332,7 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
             Err(problem) => {
                 findings.file_error(
                     &path,
-                    "manifest",
+                    Check::Manifest,
                     format!(
                         "lists {:?}, which cannot be a path inside the dataset: it {problem}",
                         record.path
@@ -342,10 +345,14 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
             Ok(None) => {}
             Ok(Some(problem)) => findings.error(
                 At::file(record.path.clone()),
-                "checksum",
+                Check::Checksum,
                 format!("{problem} (per {relative})"),
             ),
-            Err(_) => findings.error(At::file(record.path.clone()), "readable", "cannot be read"),
+            Err(_) => findings.error(
+                At::file(record.path.clone()),
+                Check::Readable,
+                "cannot be read",
+            ),
         }
     }
 }
@@ -367,11 +374,8 @@ impl Semantics {
         if surgvla.is_null() {
             return None;
         }
-        let gripper = match surgvla["collection"]["gripper_encoding"].as_str() {
-            Some("pulse") => Some(GripperEncoding::Pulse),
-            Some(_) => Some(GripperEncoding::Continuous),
-            None => None,
-        };
+        let collection = Collection::from_json(&surgvla["collection"]);
+        let gripper = collection.and_then(|c| c.gripper_encoding());
         let tip_workspace = serde_json::from_value::<Aabb>(serde_json::json!({
             "min_m": surgvla["tip_workspace_m"]["min"],
             "max_m": surgvla["tip_workspace_m"]["max"],
@@ -403,7 +407,7 @@ pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findin
             if !allowed.contains(&step.action[6]) {
                 findings.error(
                     here().frame(frame as u64),
-                    "gripper",
+                    Check::Gripper,
                     format!(
                         "action gripper value {} is not one of {allowed:?} ({encoding:?} encoding)",
                         step.action[6]
@@ -419,7 +423,7 @@ pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findin
             if !grown.contains(tip) {
                 findings.error(
                     here().frame(frame as u64),
-                    "workspace",
+                    Check::Workspace,
                     format!(
                         "the tool tip {tip:?} m is outside the workspace {:?}..{:?}",
                         workspace.min_m, workspace.max_m
@@ -431,14 +435,14 @@ pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findin
     if episode.meta.task_code.is_empty() {
         findings.error(
             here(),
-            "provenance",
+            Check::Provenance,
             "no task id (surgvla/task_id) recorded for the episode",
         );
     } else if let Some(&limit) = semantics.step_limits.get(&episode.meta.task_code) {
         if episode.steps.len() > limit {
             findings.error(
                 here(),
-                "step_limit",
+                Check::StepLimit,
                 format!(
                     "{} steps, more than {}'s limit of {limit}",
                     episode.steps.len(),
@@ -449,14 +453,14 @@ pub fn check_semantics(episode: &Episode, semantics: &Semantics, at: &At, findin
     } else if !semantics.step_limits.is_empty() {
         findings.error(
             here(),
-            "provenance",
+            Check::Provenance,
             format!("unknown task id {}", episode.meta.task_code),
         );
     }
     if episode.meta.attempts == 0 {
         findings.error(
             here(),
-            "provenance",
+            Check::Provenance,
             "no attempt count (surgvla/attempts) recorded for the episode",
         );
     }
@@ -472,8 +476,12 @@ mod tests {
             let findings = Findings::new(Path::new("/nowhere"));
             for &i in order {
                 let at = At::file(format!("data/file-{:03}.parquet", i % 7)).episode(i);
-                findings.error(at, "timestamps", format!("frame {i} is late"));
-                findings.warning(At::file("meta/info.json"), "video-decode", "not decoded");
+                findings.error(at, Check::Timestamps, format!("frame {i} is late"));
+                findings.warning(
+                    At::file("meta/info.json"),
+                    Check::VideoDecode,
+                    "not decoded",
+                );
             }
             let report = findings.into_report("lerobot-v3.0", Counts::default());
             serde_json::to_string(&(report.errors, report.warnings)).unwrap()

@@ -3,6 +3,7 @@
 //! made. A format derives its metadata files from it; a source returns one for what it read.
 
 use crate::episode::{Aabb, CameraInfo, Dtype, FeatureKind, FeatureSpec};
+use crate::export::collection::Collection;
 use crate::export::dir::RunOptions;
 use serde_json::{Value, json};
 
@@ -20,8 +21,8 @@ pub struct DatasetInfo {
     /// Segmentation mask id -> class name, in id order.
     pub mask_ids: Vec<(u8, String)>,
     /// How the episodes were made (seed, tasks, options), as written to `meta/surgvla.json`;
-    /// `Value::Null` when unknown (e.g. a dataset surgvla did not write).
-    pub collection: Value,
+    /// None when unknown (e.g. a dataset surgvla did not write).
+    pub collection: Option<Collection>,
     /// The program and version that made the episodes, e.g. "surgvla 0.1.0".
     pub generator: String,
     /// The box the robot's tool tip moves in, world frame (the default point-cloud crop, with
@@ -86,7 +87,9 @@ impl DatasetInfo {
         if let Some(workspace) = self.tip_workspace {
             options.set("tip_workspace_m", workspace_json(workspace));
         }
-        options.extend_from(&self.collection);
+        for (option, value) in self.collection.iter().flat_map(Collection::entries) {
+            options.set(option, value.clone());
+        }
         if let Some(input) = &self.input {
             options.set(RunOptions::INPUT, json!(input));
         }
@@ -116,7 +119,7 @@ impl DatasetInfo {
             camera: camera_of(surgvla, &features),
             features,
             mask_ids,
-            collection: surgvla["collection"].clone(),
+            collection: Collection::from_json(&surgvla["collection"]),
             generator: surgvla["generator"].as_str().unwrap_or_default().into(),
             tip_workspace: workspace_of(&surgvla["tip_workspace_m"]),
             input: None,
@@ -157,8 +160,8 @@ impl DatasetInfo {
         if let Some(workspace) = self.tip_workspace {
             metadata["tip_workspace_m"] = workspace_json(workspace);
         }
-        if !self.collection.is_null() {
-            metadata["collection"] = self.collection.clone();
+        if let Some(collection) = &self.collection {
+            metadata["collection"] = collection.to_json();
         }
         metadata
     }

@@ -7,12 +7,12 @@
 //! its chunks, point-cloud folders copy their files under new episode numbers.
 
 use crate::export::bounded::read_json;
+use crate::export::collection::{Collection, RecordedShard, SHARD_KEY, Shard};
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::dir::RunOptions;
 use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
-use crate::export::shard::{SHARD_KEY, Shard, recorded};
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::Summary;
 use crate::export::source::EpisodeSource;
@@ -27,8 +27,8 @@ pub const REPORT: &str = "collect_report.json";
 pub struct Part {
     /// The path the user gave.
     pub path: PathBuf,
-    /// How its episodes were made (`Value::Null` when it does not say).
-    pub collection: Value,
+    /// How its episodes were made (None when it does not say).
+    pub collection: Option<Collection>,
     /// What shaped its bytes, from its manifest.
     pub options: RunOptions,
 }
@@ -36,7 +36,11 @@ pub struct Part {
 impl Part {
     /// An input whose manifest is `manifest` (the file every surgvla dataset ends with); one
     /// without recorded options (written by an older surgvla) cannot be checked, so it is refused.
-    pub fn read(path: &Path, manifest: &Path, collection: Value) -> Result<Part, MergeError> {
+    pub fn read(
+        path: &Path,
+        manifest: &Path,
+        collection: Option<Collection>,
+    ) -> Result<Part, MergeError> {
         let read = |e| MergeError::Convert(crate::export::convert::ConvertError::Read(e));
         let options = RunOptions::from_manifest(&read_json(manifest).map_err(read)?);
         if options.get("format").is_none() {
@@ -55,7 +59,7 @@ impl Part {
     }
 
     fn shard(&self) -> Option<Shard> {
-        recorded(&self.collection)
+        self.collection.as_ref()?.shard()?.part()
     }
 }
 
@@ -64,9 +68,16 @@ impl Part {
 pub struct Plan {
     pub parts: Vec<Part>,
     /// The merged collection (its shard "0/1" when all N of N are merged).
-    pub collection: Value,
+    pub collection: Option<Collection>,
     /// The merged dataset's options (the inputs' with the merged shard).
     pub options: RunOptions,
+}
+
+impl Plan {
+    /// The shard the merged dataset records (None: its inputs record none).
+    pub fn shard(&self) -> Option<RecordedShard> {
+        self.collection.as_ref()?.shard()
+    }
 }
 
 /// Checks `parts` agree on every option but the shard (naming each that differs), puts shards
@@ -96,26 +107,21 @@ pub fn plan(mut parts: Vec<Part>) -> Result<Plan, MergeError> {
         parts.sort_by_key(|p| p.shard().map(|s| (s.count, s.index)));
         shards.sort_by_key(|s| (s.count, s.index));
         for pair in parts.windows(2) {
-            if pair[0].shard() == pair[1].shard() {
+            if let Some(shard) = pair[0].shard()
+                && pair[1].shard() == Some(shard)
+            {
                 return Err(MergeError::Incompatible {
                     path: pair[1].path.clone(),
                     first: pair[0].path.clone(),
-                    reasons: format!("both are shard {}", pair[0].collection[SHARD_KEY]),
+                    reasons: format!("both are shard \"{shard}\""),
                 });
             }
         }
-        let complete = shards
-            .iter()
-            .enumerate()
-            .all(|(k, s)| s.index as usize == k && s.count as usize == shards.len());
-        let merged = if complete {
-            Shard::default().to_string()
-        } else {
-            let list: Vec<String> = shards.iter().map(ToString::to_string).collect();
-            format!("merged {}", list.join(","))
-        };
-        collection[SHARD_KEY] = Value::from(merged.clone());
-        options.set(SHARD_KEY, Value::from(merged));
+        let merged = RecordedShard::merged(&shards);
+        if let Some(collection) = &mut collection {
+            collection.set_shard(&merged);
+        }
+        options.set(SHARD_KEY, Value::from(merged.to_string()));
     }
     Ok(Plan {
         parts,
@@ -132,7 +138,7 @@ pub fn write_through(
     sources: Vec<Box<dyn EpisodeSource + Send>>,
     sink: &mut (dyn EpisodeSink + Send),
     threads: usize,
-    reports: Option<(Vec<Value>, Value)>,
+    reports: Option<(Vec<Value>, Option<RecordedShard>)>,
     progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<Summary, MergeError> {
     let read = |e| MergeError::Convert(ConvertError::Read(e));
@@ -176,7 +182,7 @@ pub fn write_through(
     })?;
     match reports {
         Some((reports, shard)) => {
-            let mut sidecar = |summary: &Summary| report_bytes(&reports, summary, &shard);
+            let mut sidecar = |summary: &Summary| report_bytes(&reports, summary, shard.as_ref());
             sink.finish_with(Some(&mut sidecar))
         }
         None => sink.finish(),
@@ -300,7 +306,7 @@ pub fn finish_folder(
     summary.files += 1;
     if let Some(reports) = reports(roots) {
         let (relative, bytes) =
-            report_bytes(&reports, &summary, &plan.collection[SHARD_KEY]).map_err(write)?;
+            report_bytes(&reports, &summary, plan.shard().as_ref()).map_err(write)?;
         dir.write_unlisted(&relative, &bytes).map_err(write)?;
     }
     dir.complete().map_err(write)?;
@@ -329,9 +335,9 @@ pub fn merged_card(plan: &Plan) -> Result<Option<Vec<u8>>, MergeError> {
         tally.extend(&part_tally);
         first.get_or_insert(text);
     }
-    let shard = &plan.collection[SHARD_KEY];
+    let shard = plan.shard();
     Ok(first
-        .and_then(|card| retally(&card, &tally, shard))
+        .and_then(|card| retally(&card, &tally, shard.as_ref()))
         .map(String::into_bytes))
 }
 
@@ -347,7 +353,7 @@ pub fn reports(paths: &[&Path]) -> Option<Vec<Value>> {
 pub fn report_bytes(
     reports: &[Value],
     summary: &Summary,
-    shard: &Value,
+    shard: Option<&RecordedShard>,
 ) -> Result<(String, Vec<u8>), ExportError> {
     let report = merge_reports(reports, summary, shard);
     let bytes = serde_json::to_vec_pretty(&report).map_err(|source| ExportError::Json {
@@ -360,7 +366,7 @@ pub fn report_bytes(
 /// One collect report of several: counts summed per task (in order of first appearance),
 /// rates recomputed, failures concatenated, the slot range spanning them all, the merged
 /// dataset's summary, timings summed.
-pub fn merge_reports(reports: &[Value], summary: &Summary, shard: &Value) -> Value {
+pub fn merge_reports(reports: &[Value], summary: &Summary, shard: Option<&RecordedShard>) -> Value {
     let mut merged = reports.first().cloned().unwrap_or(Value::Null);
     let sum = |key: &str| -> u64 { reports.iter().filter_map(|r| r[key].as_u64()).sum() };
     let mut tasks: Vec<Value> = Vec::new();
@@ -402,7 +408,7 @@ pub fn merge_reports(reports: &[Value], summary: &Summary, shard: &Value) -> Val
             .iter()
             .filter_map(move |r| r["slot_range"][k].as_u64())
     };
-    merged["shard"] = shard.clone();
+    merged["shard"] = shard.map_or(Value::Null, |shard| shard.to_string().into());
     merged["slot_range"] = json!([range(0).min(), range(1).max()]);
     merged["episodes"] = sum("episodes").into();
     merged["frames"] = sum("frames").into();
@@ -424,10 +430,12 @@ mod tests {
     use super::*;
 
     fn part(name: &str, shard: &str, seed: u64) -> Part {
-        let collection = json!({"seed": seed, "shard": shard});
+        let collection = Collection::from_json(&json!({"seed": seed, "shard": shard}));
         let mut options = RunOptions::default();
         options.set("format", json!("zarr"));
-        options.extend_from(&collection);
+        for (option, value) in collection.iter().flat_map(Collection::entries) {
+            options.set(option, value.clone());
+        }
         Part {
             path: PathBuf::from(name),
             collection,
@@ -440,14 +448,17 @@ mod tests {
         let plan = plan(vec![part("b", "1/2", 0), part("a", "0/2", 0)]).expect("plan");
         let order: Vec<&Path> = plan.parts.iter().map(|p| p.path.as_path()).collect();
         assert_eq!(order, [Path::new("a"), Path::new("b")]);
-        assert_eq!(plan.collection["shard"], "0/1");
+        assert_eq!(plan.shard().map(|s| s.to_string()).as_deref(), Some("0/1"));
         assert_eq!(plan.options, part("x", "0/1", 0).options);
     }
 
     #[test]
     fn some_shards_say_which_and_repeats_or_other_options_are_refused() {
         let plan = plan(vec![part("a", "0/3", 0), part("c", "2/3", 0)]).expect("plan");
-        assert_eq!(plan.collection["shard"], "merged 0/3,2/3");
+        assert_eq!(
+            plan.shard().map(|s| s.to_string()).as_deref(),
+            Some("merged 0/3,2/3")
+        );
         let twice = super::plan(vec![part("a", "0/2", 0), part("b", "0/2", 0)]);
         assert!(twice.unwrap_err().to_string().contains("both are shard"));
         let seed = super::plan(vec![part("a", "0/2", 0), part("b", "1/2", 7)]);

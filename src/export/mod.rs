@@ -24,6 +24,8 @@
 
 pub mod bounded;
 pub mod card;
+pub mod check;
+pub mod collection;
 pub mod convert;
 pub mod decoded;
 pub mod dir;
@@ -60,5 +62,8 @@ pub use format::{DatasetFormat, Format, MergeError, SinkOptions};
 pub use info::DatasetInfo;
 pub use open::{decoding_needed, open_sink, open_source, open_source_with};
 pub use registry::{BUILTIN_FORMATS, merge};
-pub use sink::{DetachedEncoder, Encoded, EpisodeSink, FrameEncoder, Sidecar, SinkTiming, Summary};
+pub use sink::{
+    DetachedEncoder, Encoded, EpisodeSink, FrameEncoder, Pipelined, PipelinedSink, Sidecar,
+    SinkTiming, Summary,
+};
 pub use source::{EpisodeSource, SourceOptions};

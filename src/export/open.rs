@@ -4,6 +4,7 @@
 //! ([`decoding_needed`]) is asked of the options and their format.
 
 use crate::episode::FeatureKind;
+use crate::export::collection::Shard;
 use crate::export::convert::{ConvertError, Without};
 use crate::export::decoded::Decoded;
 use crate::export::dir::resumes;
@@ -12,7 +13,7 @@ use crate::export::format::SinkOptions;
 use crate::export::identity;
 use crate::export::info::DatasetInfo;
 use crate::export::registry;
-use crate::export::shard::{Shard, Sharded};
+use crate::export::shard::Sharded;
 use crate::export::sink::EpisodeSink;
 use crate::export::source::{EpisodeSource, SourceOptions};
 use std::path::{Path, PathBuf};

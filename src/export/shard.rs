@@ -1,6 +1,6 @@
-//! Splitting one run across machines: [`Shard`] ("I/N", the I-th of N contiguous ranges, what
-//! `collect --shard` and `convert --shard` take), and [`Sharded`], the source that reads one
-//! shard of a dataset's episodes. Shards in order hold exactly the episodes of the whole run,
+//! Splitting one run across machines: [`Sharded`], the source that reads one [`Shard`] ("I/N",
+//! the I-th of N contiguous ranges, what `collect --shard` and `convert --shard` take; defined
+//! with the collection record that stores it) of a dataset's episodes. Shards in order hold exactly the episodes of the whole run,
 //! and `merge` joins them back ([`crate::export::registry::merge`]).
 //!
 //! A shard records itself where the dataset records how it was made: the `shard` key of its
@@ -9,68 +9,10 @@
 //! has no collection: its shards record nothing, and a merge keeps the order it is given.
 
 use crate::episode::Episode;
+use crate::export::collection::{RecordedShard, Shard};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
-use std::fmt;
-use std::str::FromStr;
-
-/// One part of a collection split across machines: `index` of `count` (0-based).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Shard {
-    pub index: u32,
-    pub count: u32,
-}
-
-impl Default for Shard {
-    fn default() -> Self {
-        Shard { index: 0, count: 1 }
-    }
-}
-
-/// A shard written other than "I/N" with I < N.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error(
-    "shard '{0}': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
-)]
-pub struct BadShard(pub String);
-
-impl FromStr for Shard {
-    type Err = BadShard;
-
-    fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let bad = || BadShard(text.to_string());
-        let (i, n) = text.split_once('/').ok_or_else(bad)?;
-        let index: u32 = i.trim().parse().map_err(|_| bad())?;
-        let count: u32 = n.trim().parse().map_err(|_| bad())?;
-        if count == 0 || index >= count {
-            return Err(bad());
-        }
-        Ok(Shard { index, count })
-    }
-}
-
-impl fmt::Display for Shard {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl Shard {
-    /// This shard's contiguous part of `0..total`.
-    pub fn range(&self, total: usize) -> std::ops::Range<usize> {
-        let part = |i: u32| (total as u128 * u128::from(i) / u128::from(self.count)) as usize;
-        part(self.index)..part(self.index + 1)
-    }
-}
-
-/// The collection key a shard records itself under.
-pub const SHARD_KEY: &str = "shard";
-
-/// The shard a dataset's collection says it is (None: it says nothing, or not "I/N").
-pub fn recorded(collection: &serde_json::Value) -> Option<Shard> {
-    collection[SHARD_KEY].as_str()?.parse().ok()
-}
 
 /// One shard of a source's episodes, numbered from 0 again; its info's collection says which
 /// shard it is (when the dataset has a collection).
@@ -96,15 +38,15 @@ impl Sharded {
             )));
         }
         let mut info = inner.info().clone();
-        if let Some(collection) = info.collection.as_object_mut() {
-            if let Some(part) = collection.get(SHARD_KEY).and_then(|s| s.as_str())
+        if let Some(collection) = &mut info.collection {
+            if let Some(part) = collection.shard_text()
                 && part != Shard::default().to_string()
             {
                 return Err(ExportError::InvalidOptions(format!(
                     "the input is itself shard {part} of a larger run: merge its shards first, then shard the whole"
                 )));
             }
-            collection.insert(SHARD_KEY.into(), shard.to_string().into());
+            collection.set_shard(&RecordedShard::Part(shard));
         }
         // What a resume compares besides the options: another shard of the same input is
         // another input (a dataset another tool made has no collection to say it).
@@ -245,8 +187,9 @@ mod tests {
                 let inner = numbers(total, json!({"seed": 0, "shard": "0/1"}));
                 let (decoded, skipped) = (inner.decoded.clone(), inner.skipped.clone());
                 let mut sharded = Sharded::new(Box::new(inner), shard).expect("a shard");
-                assert_eq!(sharded.info().collection["shard"], shard.to_string());
-                assert_eq!(recorded(&sharded.info().collection), Some(shard));
+                let collection = sharded.info().collection.as_ref().expect("recorded");
+                assert_eq!(collection.shard_text(), Some(shard.to_string().as_str()));
+                assert_eq!(collection.shard(), Some(RecordedShard::Part(shard)));
                 let mut k = 0;
                 for episode in sharded.by_ref() {
                     let episode = episode.expect("episode");
@@ -265,7 +208,7 @@ mod tests {
         let shard = Shard { index: 2, count: 3 };
         let mut sharded = Sharded::new(Box::new(source), shard).expect("a shard");
         assert!(
-            sharded.info().collection.is_null(),
+            sharded.info().collection.is_none(),
             "another tool's: nothing recorded"
         );
         let seeds: Vec<u64> = std::iter::from_fn(|| sharded.next())

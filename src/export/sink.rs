@@ -1,6 +1,7 @@
 //! What a format's writer is to its callers: [`EpisodeSink`] (consecutive episodes in, a
-//! [`Summary`] out, `finish` safe twice), the detached encoders collect's pipeline uses, and the
-//! checks every sink makes before it writes an episode.
+//! [`Summary`] out, `finish` safe twice), its extension for collect's pipeline
+//! ([`PipelinedSink`]: encoders detached from the sink, whose [`Encoded`] tickets the sink
+//! redeems), and the checks every sink makes before it writes an episode.
 
 use crate::episode::{Episode, Pixels, Step};
 use crate::export::error::ExportError;
@@ -28,13 +29,20 @@ pub struct SinkTiming {
     pub write_secs: f64,
 }
 
-/// An episode encoded for one sink by its detached encoder, ahead of its turn (what
-/// [`EpisodeSink::write_encoded`] appends).
-pub struct Encoded(pub(crate) Box<dyn std::any::Any + Send>);
+/// An episode encoded for one sink by its detached encoder, ahead of its turn: a ticket for
+/// what the encoder made, which the sink that made the encoder holds until
+/// [`PipelinedSink::write_encoded`] redeems it (typed all the way: nothing is cast back).
+#[derive(Debug, PartialEq, Eq)]
+pub struct Encoded {
+    /// Which sink's encoder issued it (the address of what the two share).
+    pub(crate) issuer: usize,
+    /// The encoder's count of episodes encoded before it.
+    pub(crate) number: u64,
+}
 
 /// Encodes episodes for a sink on any thread, apart from the sink (see
-/// [`EpisodeSink::detached_encoder`]). It checks the sizes of the images it encodes, which
-/// [`EpisodeSink::write_encoded`] then leaves out of its checks.
+/// [`Pipelined::encoder`]). It checks the sizes of the images it encodes, which
+/// [`PipelinedSink::write_encoded`] then leaves out of its checks.
 pub trait DetachedEncoder: Send + Sync {
     fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError>;
     /// An encoder of one episode frame by frame while it is recorded, so that each frame is
@@ -61,34 +69,8 @@ pub trait EpisodeSink {
     /// they were written one by one). An episode out of order or not matching the dataset's
     /// features is rejected.
     fn write_batch(&mut self, episodes: &[Episode]) -> Result<(), ExportError>;
-    /// Writes one episode.
-    fn write_episode(&mut self, episode: &Episode) -> Result<(), ExportError> {
-        self.write_batch(std::slice::from_ref(episode))
-    }
-    /// An encoder that works apart from the sink: a producer encodes each episode on its own
-    /// threads as soon as it is made, and the sink's [`EpisodeSink::write_encoded`] only
-    /// appends. `None`: the sink encodes inside [`EpisodeSink::write_batch`].
-    fn detached_encoder(&self) -> Option<std::sync::Arc<dyn DetachedEncoder>> {
-        None
-    }
-    /// Writes consecutive episodes with what this sink's detached encoder made of each (the
-    /// same bytes as [`EpisodeSink::write_batch`] of the episodes).
-    fn write_encoded(&mut self, _episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
-        Err(ExportError::Internal(
-            "this sink has no detached encoder".into(),
-        ))
-    }
     /// Index of the next episode the sink expects (after a resume: the first one to rewrite).
     fn next_episode_index(&self) -> u64;
-    /// Whether the sink copies a source's stored still images of `encoding` (PNG, TIFF, JPEG)
-    /// instead of encoding the pixels again (see [`crate::export::writer::FormatWriter::reuses_stored`]).
-    fn reuses_stored(&self, _encoding: crate::episode::ImageEncoding) -> bool {
-        true
-    }
-    /// Time spent so far.
-    fn timing(&self) -> SinkTiming {
-        SinkTiming::default()
-    }
     /// Completes the dataset: after this returns Ok, it is consistent and loadable. Calling it
     /// again returns the same summary and writes nothing.
     fn finish(&mut self) -> Result<Summary, ExportError> {
@@ -99,6 +81,37 @@ pub trait EpisodeSink {
     /// complete, so an interrupted finish leaves a resumable dataset, never one without it.
     /// Sidecar files are not in the manifest.
     fn finish_with(&mut self, sidecar: Option<Sidecar<'_>>) -> Result<Summary, ExportError>;
+    /// Whether the sink copies a source's stored still images of `encoding` (PNG, TIFF, JPEG)
+    /// instead of encoding the pixels again (see [`crate::export::writer::FormatWriter::reuses_stored`]).
+    fn reuses_stored(&self, _encoding: crate::episode::ImageEncoding) -> bool {
+        true
+    }
+    /// Time spent so far.
+    fn timing(&self) -> SinkTiming {
+        SinkTiming::default()
+    }
+    /// The sink's pipelined side, when it can encode apart from itself (collect's pipeline);
+    /// `None`: it encodes inside [`EpisodeSink::write_batch`].
+    fn pipelined(&mut self) -> Option<Pipelined<'_>> {
+        None
+    }
+}
+
+/// A sink whose episodes can be encoded apart from it: a producer encodes each episode on its
+/// own threads as soon as it is made ([`Pipelined::encoder`]), and the sink only appends. The
+/// bytes are those of [`EpisodeSink::write_batch`].
+pub trait PipelinedSink: EpisodeSink {
+    /// Writes consecutive episodes with what the sink's encoder made of each.
+    fn write_encoded(&mut self, episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError>;
+}
+
+/// A sink's pipelined side (see [`EpisodeSink::pipelined`]).
+pub struct Pipelined<'a> {
+    /// Encodes episodes on any thread; the [`Encoded`] tickets it issues are `sink`'s to
+    /// redeem.
+    pub encoder: std::sync::Arc<dyn DetachedEncoder>,
+    /// Appends what `encoder` made.
+    pub sink: &'a mut (dyn PipelinedSink + Send),
 }
 
 /// What every sink checks before it writes an episode: that the dataset is not finished yet,

@@ -16,6 +16,8 @@ use crate::export::sink::DetachedEncoder;
 use crate::export::sink::Encoded;
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::FrameEncoder;
+use crate::export::sink::Pipelined;
+use crate::export::sink::PipelinedSink;
 use crate::export::sink::Sidecar;
 use crate::export::sink::SinkTiming;
 use crate::export::sink::Summary;
@@ -33,7 +35,7 @@ pub trait FormatWriter: Send + Sized {
     /// What a checkpoint records besides the files.
     type State: Serialize + DeserializeOwned;
     /// One episode made ready to append; made for a batch's episodes in parallel.
-    type Encoded: Send;
+    type Encoded: Send + 'static;
     /// What encodes episodes, shared by a batch's threads (a view of the writer).
     type Encoder<'a>: EpisodeEncoder<Self::Encoded>
     where
@@ -122,10 +124,56 @@ pub trait EpisodeFrames<T>: Send {
     fn finish(self: Box<Self>, episode: &Episode) -> Result<T, ExportError>;
 }
 
-/// A format's detached encoder as a sink's (its output boxed), with what it checks the
-/// episodes' images against.
+/// What a detached encoder made, held for its writer until an [`Encoded`] ticket redeems it.
+struct Held<T> {
+    encoded: std::sync::Mutex<std::collections::HashMap<u64, T>>,
+    /// Tickets issued so far (the next ticket's number).
+    issued: std::sync::atomic::AtomicU64,
+}
+
+impl<T> Held<T> {
+    fn new() -> std::sync::Arc<Self> {
+        std::sync::Arc::new(Held {
+            encoded: std::sync::Mutex::new(std::collections::HashMap::new()),
+            issued: std::sync::atomic::AtomicU64::new(0),
+        })
+    }
+
+    /// Who issues this store's tickets: its address.
+    fn issuer(self: &std::sync::Arc<Self>) -> usize {
+        std::sync::Arc::as_ptr(self).cast::<()>() as usize
+    }
+
+    /// Holds `encoded` and returns its ticket.
+    fn hold(self: &std::sync::Arc<Self>, encoded: T) -> Encoded {
+        let number = self
+            .issued
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let mut held = self.encoded.lock().unwrap_or_else(|e| e.into_inner());
+        held.insert(number, encoded);
+        Encoded {
+            issuer: self.issuer(),
+            number,
+        }
+    }
+
+    /// What `ticket` stands for; an error for another sink's ticket or one redeemed before.
+    fn redeem(self: &std::sync::Arc<Self>, ticket: &Encoded) -> Result<T, ExportError> {
+        let mut held = self.encoded.lock().unwrap_or_else(|e| e.into_inner());
+        (ticket.issuer == self.issuer())
+            .then(|| held.remove(&ticket.number))
+            .flatten()
+            .ok_or_else(|| {
+                ExportError::Internal("an episode encoded for another sink, or twice".into())
+            })
+    }
+}
+
+/// A format's detached encoder as a sink's (what it makes held for the writer), with what it
+/// checks the episodes' images against.
 struct Detached<T> {
     encoder: std::sync::Arc<dyn EpisodeEncoder<T> + Send>,
+    held: std::sync::Arc<Held<T>>,
     image_size: (usize, usize),
     features: Vec<crate::episode::FeatureSpec>,
 }
@@ -136,25 +184,32 @@ impl<T: Send + 'static> DetachedEncoder for Detached<T> {
         episode
             .validate_pixels(width, height, &self.features)
             .map_err(ExportError::InvalidEpisode)?;
-        Ok(Encoded(Box::new(self.encoder.encode(episode)?)))
+        Ok(self.held.hold(self.encoder.encode(episode)?))
     }
 
     fn frames(&self, expected_frames: usize) -> Option<Box<dyn FrameEncoder>> {
         let frames = self.encoder.frames(expected_frames)?;
-        Some(Box::new(DetachedFrames(frames)))
+        Some(Box::new(DetachedFrames {
+            frames,
+            held: self.held.clone(),
+        }))
     }
 }
 
-/// A format's frame-by-frame encoder as a sink's (its output boxed).
-struct DetachedFrames<T>(Box<dyn EpisodeFrames<T>>);
+/// A format's frame-by-frame encoder as a sink's (what it makes held for the writer).
+struct DetachedFrames<T> {
+    frames: Box<dyn EpisodeFrames<T>>,
+    held: std::sync::Arc<Held<T>>,
+}
 
 impl<T: Send + 'static> FrameEncoder for DetachedFrames<T> {
     fn push(&mut self, step: &mut Step) -> Result<Vec<Pixels>, ExportError> {
-        self.0.push(step)
+        self.frames.push(step)
     }
 
     fn finish(self: Box<Self>, episode: &Episode) -> Result<Encoded, ExportError> {
-        Ok(Encoded(Box::new(self.0.finish(episode)?)))
+        let DetachedFrames { frames, held } = *self;
+        Ok(held.hold(frames.finish(episode)?))
     }
 }
 
@@ -168,6 +223,10 @@ pub struct Writer<F: FormatWriter> {
     timing: SinkTiming,
     /// Set by the first successful finish.
     finished: Option<Summary>,
+    /// The format's detached encoder, made once, and what it encoded until appended; None
+    /// when the format encodes only in batches.
+    detached: Option<std::sync::Arc<dyn DetachedEncoder>>,
+    held: std::sync::Arc<Held<F::Encoded>>,
 }
 
 impl<F: FormatWriter> Writer<F> {
@@ -209,12 +268,25 @@ impl<F: FormatWriter> Writer<F> {
         } else {
             (DatasetDir::create(root, &run)?, None)
         };
+        let format = F::new(&dir, info, options, state)?;
+        let held = Held::new();
+        let detached = format.detached_encoder(info).map(|encoder| {
+            let detached: std::sync::Arc<dyn DetachedEncoder> = std::sync::Arc::new(Detached {
+                encoder,
+                held: held.clone(),
+                image_size: info.image_size(),
+                features: info.features.clone(),
+            });
+            detached
+        });
         Ok(Writer {
-            format: F::new(&dir, info, options, state)?,
+            format,
             dir,
             info: info.clone(),
             timing: SinkTiming::default(),
             finished: None,
+            detached,
+            held,
         })
     }
 
@@ -232,10 +304,7 @@ impl<F: FormatWriter> Writer<F> {
     }
 }
 
-impl<F: FormatWriter> EpisodeSink for Writer<F>
-where
-    F::Encoded: 'static,
-{
+impl<F: FormatWriter> EpisodeSink for Writer<F> {
     fn reuses_stored(&self, encoding: ImageEncoding) -> bool {
         self.format.reuses_stored(encoding)
     }
@@ -280,42 +349,12 @@ where
         Ok(())
     }
 
-    fn detached_encoder(&self) -> Option<std::sync::Arc<dyn DetachedEncoder>> {
-        let encoder = self.format.detached_encoder(&self.info)?;
-        Some(std::sync::Arc::new(Detached {
+    fn pipelined(&mut self) -> Option<Pipelined<'_>> {
+        let encoder = self.detached.clone()?;
+        Some(Pipelined {
             encoder,
-            image_size: self.info.image_size(),
-            features: self.info.features.clone(),
-        }))
-    }
-
-    /// Appends in order what the detached encoder made of each episode.
-    fn write_encoded(&mut self, episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
-        let (episodes, encoded): (Vec<Episode>, Vec<Encoded>) = episodes.into_iter().unzip();
-        // The detached encoder checked the images' sizes before it encoded them.
-        check_batch(
-            &self.info,
-            self.finished.is_some(),
-            &episodes,
-            self.format.episodes(),
-            false,
-        )?;
-        let appending = Instant::now();
-        let mut encoding_secs = 0.0;
-        for (episode, encoded) in episodes.iter().zip(encoded) {
-            let encoded = encoded
-                .0
-                .downcast::<F::Encoded>()
-                .map_err(|_| ExportError::Internal("an episode encoded for another sink".into()))?;
-            self.dir
-                .append(TALLY_JOURNAL, Tally::line(episode).as_bytes())?;
-            encoding_secs += self
-                .format
-                .append(&mut self.dir, &self.info, episode, *encoded)?;
-        }
-        self.timing.encode_secs += encoding_secs;
-        self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
-        Ok(())
+            sink: self,
+        })
     }
 
     fn next_episode_index(&self) -> u64 {
@@ -355,6 +394,34 @@ where
         self.dir.complete()?;
         self.finished = Some(summary.clone());
         Ok(summary)
+    }
+}
+
+impl<F: FormatWriter> PipelinedSink for Writer<F> {
+    /// Appends in order what the detached encoder made of each episode.
+    fn write_encoded(&mut self, episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
+        let (episodes, encoded): (Vec<Episode>, Vec<Encoded>) = episodes.into_iter().unzip();
+        // The detached encoder checked the images' sizes before it encoded them.
+        check_batch(
+            &self.info,
+            self.finished.is_some(),
+            &episodes,
+            self.format.episodes(),
+            false,
+        )?;
+        let appending = Instant::now();
+        let mut encoding_secs = 0.0;
+        for (episode, encoded) in episodes.iter().zip(encoded) {
+            let encoded = self.held.redeem(&encoded)?;
+            self.dir
+                .append(TALLY_JOURNAL, Tally::line(episode).as_bytes())?;
+            encoding_secs += self
+                .format
+                .append(&mut self.dir, &self.info, episode, encoded)?;
+        }
+        self.timing.encode_secs += encoding_secs;
+        self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
+        Ok(())
     }
 }
 

@@ -169,7 +169,9 @@ fn every_sink_keeps_the_contract() {
         // Episodes out of order and episodes that do not match the features are rejected.
         let bad = temp_root("contract-bad");
         let mut sink = open_sink(&bad, &info, options, false).expect("open");
-        let error = sink.write_episode(&recorded[1]).expect_err("out of order");
+        let error = sink
+            .write_batch(std::slice::from_ref(&recorded[1]))
+            .expect_err("out of order");
         assert!(
             error.to_string().contains("episode index 1"),
             "{name}: {error}"
@@ -177,7 +179,7 @@ fn every_sink_keeps_the_contract() {
         let mut broken = recorded[0].clone();
         broken.steps[2].mask.clear();
         assert!(
-            sink.write_episode(&broken).is_err(),
+            sink.write_batch(std::slice::from_ref(&broken)).is_err(),
             "{name}: a step without its mask"
         );
 

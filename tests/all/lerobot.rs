@@ -48,7 +48,9 @@ fn write_with(
     let mut writer: Box<dyn EpisodeSink> =
         Box::new(LeRobotWriter::create(root, info, options).expect("create"));
     for episode in episodes {
-        writer.write_episode(episode).expect("write episode");
+        writer
+            .write_batch(std::slice::from_ref(episode))
+            .expect("write episode");
     }
     let summary = writer.finish().expect("finish");
     assert_eq!(writer.finish().expect("finish twice"), summary);
@@ -247,7 +249,9 @@ fn an_unfinished_dataset_is_obviously_incomplete() {
     {
         let mut writer =
             LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).expect("create");
-        writer.write_episode(&episodes(1, 3)[0]).expect("write");
+        writer
+            .write_batch(std::slice::from_ref(&episodes(1, 3)[0]))
+            .expect("write");
         // Dropped without finish: the process "died" here.
     }
     assert!(root.join(INCOMPLETE_MARKER).exists());
@@ -280,12 +284,14 @@ fn bad_episodes_are_rejected_with_a_reason() {
     let mut episode = episodes(1, 3).remove(0);
     episode.steps[1].rgb.truncate(100);
     let error = writer
-        .write_episode(&episode)
+        .write_batch(std::slice::from_ref(&episode))
         .expect_err("wrong image size");
     assert!(error.to_string().contains("episode 0 step 1"), "{error}");
     let mut later = episodes(2, 2).remove(1);
     later.meta.index = 5;
-    let error = writer.write_episode(&later).expect_err("out of order");
+    let error = writer
+        .write_batch(std::slice::from_ref(&later))
+        .expect_err("out of order");
     assert!(error.to_string().contains("episode index 5"), "{error}");
 }
 
@@ -463,7 +469,7 @@ fn episodes_encoded_apart_write_the_same_bytes_as_batches() {
         write(&batched, &recorded, options.clone());
         let mut writer: Box<dyn EpisodeSink> =
             Box::new(LeRobotWriter::create(&apart, &info(false), options).expect("create"));
-        let encoder = writer.detached_encoder().expect("LeRobot encodes apart");
+        let encoder = writer.pipelined().expect("LeRobot encodes apart").encoder;
         let encoded: Vec<_> = std::thread::scope(|scope| {
             let jobs: Vec<_> = recorded
                 .iter()
@@ -479,8 +485,9 @@ fn episodes_encoded_apart_write_the_same_bytes_as_batches() {
         // Appended in two calls, as a producer hands them over when they are ready.
         let mut pairs: Vec<_> = recorded.iter().cloned().zip(encoded).collect();
         let rest = pairs.split_off(1);
-        writer.write_encoded(pairs).expect("first");
-        writer.write_encoded(rest).expect("rest");
+        let sink = writer.pipelined().expect("LeRobot encodes apart").sink;
+        sink.write_encoded(pairs).expect("first");
+        sink.write_encoded(rest).expect("rest");
         writer.finish().expect("finish");
         assert_eq!(
             crate::util::tree(&batched),
@@ -492,12 +499,19 @@ fn episodes_encoded_apart_write_the_same_bytes_as_batches() {
         let mut writer: Box<dyn EpisodeSink> = Box::new(
             LeRobotWriter::create(&other, &info(false), LeRobotOptions::default()).expect("create"),
         );
-        let encoded = encoder.encode(&recorded[1]).expect("encode");
-        assert!(
-            writer
-                .write_encoded(vec![(recorded[1].clone(), encoded)])
-                .is_err()
-        );
+        let own = writer.pipelined().expect("LeRobot encodes apart");
+        let encoded = own.encoder.encode(&recorded[1]).expect("encode");
+        let error = (own.sink)
+            .write_encoded(vec![(recorded[1].clone(), encoded)])
+            .expect_err("out of order");
+        assert!(error.to_string().contains("expected"), "{error}");
+        // What another sink's encoder made is refused: its ticket is not this sink's.
+        let foreign = encoder.encode(&recorded[0]).expect("encode");
+        let sink = writer.pipelined().expect("LeRobot encodes apart").sink;
+        let error = sink
+            .write_encoded(vec![(recorded[0].clone(), foreign)])
+            .expect_err("another sink's");
+        assert!(error.to_string().contains("another sink"), "{error}");
     }
 }
 
@@ -516,7 +530,7 @@ fn episodes_encoded_frame_by_frame_write_the_same_bytes_as_batches() {
     let mut writer: Box<dyn EpisodeSink> = Box::new(
         LeRobotWriter::create(&streamed, &info(false), LeRobotOptions::default()).expect("create"),
     );
-    let encoder = writer.detached_encoder().expect("LeRobot encodes apart");
+    let encoder = writer.pipelined().expect("LeRobot encodes apart").encoder;
     let mut pairs = Vec::new();
     let mut handed_back = 0;
     for episode in &recorded {
@@ -538,7 +552,8 @@ fn episodes_encoded_frame_by_frame_write_the_same_bytes_as_batches() {
         handed_back > 0,
         "a long episode's buffers come back to be drawn into"
     );
-    writer.write_encoded(pairs).expect("write");
+    let sink = writer.pipelined().expect("LeRobot encodes apart").sink;
+    sink.write_encoded(pairs).expect("write");
     writer.finish().expect("finish");
     assert_eq!(crate::util::tree(&batched), crate::util::tree(&streamed));
 
@@ -554,7 +569,7 @@ fn episodes_encoded_frame_by_frame_write_the_same_bytes_as_batches() {
 
     // Video mode encodes whole episodes only.
     let video = temp_root("video-stream");
-    let writer = LeRobotWriter::create(
+    let mut writer = LeRobotWriter::create(
         &video,
         &info(false),
         LeRobotOptions {
@@ -563,8 +578,8 @@ fn episodes_encoded_frame_by_frame_write_the_same_bytes_as_batches() {
         },
     )
     .expect("create");
-    let encoder = EpisodeSink::detached_encoder(&writer).expect("LeRobot encodes apart");
-    assert!(encoder.frames(6).is_none());
+    let pipelined = EpisodeSink::pipelined(&mut writer).expect("LeRobot encodes apart");
+    assert!(pipelined.encoder.frames(6).is_none());
 }
 
 #[test]
@@ -584,7 +599,9 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
             let mut writer =
                 LeRobotWriter::create(&interrupted, &info(false), options.clone()).expect("create");
             for episode in &recorded[..2] {
-                writer.write_episode(episode).expect("write");
+                writer
+                    .write_batch(std::slice::from_ref(episode))
+                    .expect("write");
             }
             // Killed here, plus a stray partial file from the episode in flight.
             std::fs::write(
@@ -607,7 +624,9 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
         }
         assert!(next <= 2);
         for episode in &recorded[next..] {
-            writer.write_episode(episode).expect("write");
+            writer
+                .write_batch(std::slice::from_ref(episode))
+                .expect("write");
         }
         writer.finish().expect("finish");
         let (a, b) = (crate::util::tree(&whole), crate::util::tree(&interrupted));

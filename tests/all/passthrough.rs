@@ -229,7 +229,9 @@ fn stored_png_bytes_are_copied_not_encoded_again() {
     let root = temp_root("pass-png");
     let mut writer =
         LeRobotWriter::create(&root, &dataset_info, LeRobotOptions::default()).expect("create");
-    writer.write_episode(&episode).expect("write");
+    writer
+        .write_batch(std::slice::from_ref(&episode))
+        .expect("write");
     writer.finish().expect("finish");
     let batch = &read_parquet(&data_files(&root).expect("files")[0]).expect("data")[0];
     let images = batch

@@ -116,7 +116,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
         spec("observation.images.wrist", Dtype::Image, vec![8, 10, 3]),
     ];
     dataset.generator = String::new();
-    dataset.collection = serde_json::Value::Null;
+    dataset.collection = None;
     let mut rng = surgvla::rng::SplitMix64::stream(3, "other-features");
     let episodes: Vec<surgvla::episode::Episode> = (0..3u64)
         .map(|index| surgvla::episode::Episode {

@@ -1125,3 +1125,34 @@ fn info_plot_draws_readable_datasets() {
     let (code, _, err) = surgvla(&["info", path(&c.zarr), "--plot", path(&plot.join("z.png"))]);
     assert_eq!(code, 2, "{err}");
 }
+
+/// docs/validate.md's table of checks is every [`Check`], with its name and what it verifies:
+/// a check added to the code is documented or this fails. After adding one:
+/// `SURGVLA_UPDATE_DOCS=1 cargo test --release --test all -- check_docs`.
+#[test]
+fn check_docs_list_every_check() {
+    use surgvla::export::check::Check;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/validate.md");
+    let text = std::fs::read_to_string(&path).expect("docs/validate.md");
+    let (begin, end) = (
+        "<!-- checks: generated from src/export/check.rs -->\n",
+        "<!-- end of checks -->",
+    );
+    let start = text.find(begin).expect("the checks' start marker") + begin.len();
+    let stop = start + text[start..].find(end).expect("the checks' end marker");
+    let mut table = String::from("\n| Check | What it verifies |\n|---|---|\n");
+    for check in Check::ALL {
+        table.push_str(&format!("| `{}` | {} |\n", check.name(), check.what()));
+    }
+    table.push('\n');
+    let mut fresh = text.clone();
+    fresh.replace_range(start..stop, &table);
+    if std::env::var_os("SURGVLA_UPDATE_DOCS").is_some() && fresh != text {
+        std::fs::write(&path, &fresh).expect("write docs/validate.md");
+        return;
+    }
+    assert!(
+        fresh == text,
+        "docs/validate.md's checks differ from Check::ALL: SURGVLA_UPDATE_DOCS=1 cargo test --release --test all -- check_docs"
+    );
+}

@@ -31,7 +31,7 @@ pub(crate) struct ConvertArgs {
     /// each convert the I-th contiguous range into its own complete dataset; `merge` joins them
     /// into what one conversion writes (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT).
     #[arg(long, default_value = "0/1")]
-    shard: surgvla::export::shard::Shard,
+    shard: surgvla::export::collection::Shard,
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,

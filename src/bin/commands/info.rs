@@ -64,8 +64,8 @@ pub(crate) fn run_info(args: &InfoArgs) -> Result<(), CliError> {
     if let Some(generator) = &facts.generator {
         say!("generator  {generator}");
     }
-    if !facts.collection.is_null() {
-        say!("collection {}", facts.collection);
+    if let Some(collection) = &facts.collection {
+        say!("collection {collection}");
     }
     say!("features");
     for feature in &facts.features {

@@ -11,6 +11,7 @@
 //! merged into the output's (counts summed, failures concatenated).
 
 use crate::export::bounded::read_json;
+use crate::export::collection::{Collection, RecordedShard, Shard};
 use crate::export::convert::ConvertError;
 use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
@@ -48,12 +49,7 @@ struct Input {
     path: PathBuf,
     source: LeRobotSource,
     layout: Layout,
-    shard: Option<(u64, u64)>,
-}
-
-fn shard_of(collection: &Value) -> Option<(u64, u64)> {
-    let (i, n) = collection["shard"].as_str()?.split_once('/')?;
-    Some((i.parse().ok()?, n.parse().ok()?))
+    shard: Option<Shard>,
 }
 
 fn open(path: &Path) -> Result<Input, MergeError> {
@@ -72,7 +68,11 @@ fn open(path: &Path) -> Result<Input, MergeError> {
         video_files_size_in_mb: info.video_files_size_in_mb,
         chunks_size: info.chunks_size,
     };
-    let shard = shard_of(&source.info().collection);
+    let shard = source
+        .info()
+        .collection
+        .as_ref()
+        .and_then(|c| c.shard()?.part());
     Ok(Input {
         path: path.to_path_buf(),
         source,
@@ -109,34 +109,16 @@ fn differences(a: &Input, b: &Input) -> Vec<String> {
     if x.tip_workspace != y.tip_workspace {
         differ.push("tool-tip workspace".into());
     }
-    let without_shard = |c: &Value| {
-        let mut c = c.clone();
-        if let Some(object) = c.as_object_mut() {
-            object.remove("shard");
-        }
-        c
-    };
-    let (cx, cy) = (without_shard(&x.collection), without_shard(&y.collection));
-    if cx != cy {
-        let keys: std::collections::BTreeSet<&String> = cx
-            .as_object()
+    let none = Collection::default();
+    let (cx, cy) = (
+        x.collection.as_ref().unwrap_or(&none),
+        y.collection.as_ref().unwrap_or(&none),
+    );
+    differ.extend(
+        cx.differences(cy)
             .into_iter()
-            .chain(cy.as_object())
-            .flat_map(|o| o.keys())
-            .collect();
-        let changed: Vec<String> = keys
-            .into_iter()
-            .filter(|k| cx[k.as_str()] != cy[k.as_str()])
-            .map(|k| {
-                format!(
-                    "collection option {k} ({} vs {})",
-                    cy[k.as_str()],
-                    cx[k.as_str()]
-                )
-            })
-            .collect();
-        differ.extend(changed);
-    }
+            .map(|(k, vx, vy)| format!("collection option {k} ({vy} vs {vx})")),
+    );
     if a.layout != b.layout {
         differ.push(format!("layout {} vs {}", b.layout, a.layout));
     }
@@ -160,15 +142,15 @@ fn order_inputs(opened: &mut [Input]) -> Result<(), MergeError> {
         }
     }
     if opened.iter().all(|i| i.shard.is_some()) {
-        opened.sort_by_key(|i| i.shard);
+        opened.sort_by_key(|i| i.shard.map(|s| (s.index, s.count)));
         for pair in opened.windows(2) {
             if pair[0].shard == pair[1].shard {
                 return Err(MergeError::Incompatible {
                     path: pair[1].path.clone(),
                     first: pair[0].path.clone(),
                     reasons: format!(
-                        "both are shard {}",
-                        pair[0].source.info().collection["shard"]
+                        "both are shard \"{}\"",
+                        pair[0].shard.map(|s| s.to_string()).unwrap_or_default()
                     ),
                 });
             }
@@ -180,27 +162,16 @@ fn order_inputs(opened: &mut [Input]) -> Result<(), MergeError> {
 /// Records in `info`'s collection which shards were merged: `0/1` when all N of N are, in
 /// order (the single run's dataset), else the list.
 fn mark_merged_shards(info: &mut crate::export::info::DatasetInfo, opened: &[Input]) {
-    let shards: Vec<Option<(u64, u64)>> = opened.iter().map(|i| i.shard).collect();
-    let complete = shards
-        .iter()
-        .enumerate()
-        .all(|(k, s)| *s == Some((k as u64, shards.len() as u64)));
-    if let Some(collection) = info
-        .collection
-        .as_object_mut()
-        .filter(|_| shards[0].is_some())
+    let shards: Vec<Shard> = opened.iter().filter_map(|i| i.shard).collect();
+    if opened.first().is_some_and(|i| i.shard.is_some())
+        && let Some(collection) = &mut info.collection
     {
-        let merged = if complete {
-            "0/1".to_string()
+        let merged = if shards.len() == opened.len() {
+            RecordedShard::merged(&shards)
         } else {
-            let list: Vec<String> = shards
-                .iter()
-                .flatten()
-                .map(|(i, n)| format!("{i}/{n}"))
-                .collect();
-            format!("merged {}", list.join(","))
+            RecordedShard::Merged(shards)
         };
-        collection.insert("shard".into(), Value::from(merged));
+        collection.set_shard(&merged);
     }
 }
 
@@ -298,11 +269,12 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         progress(next);
         Ok(())
     })?;
-    let shard = info.collection["shard"].clone();
+    let shard = info.collection.as_ref().and_then(Collection::shard);
     let summary = match reports {
         Some(reports) => {
-            let mut sidecar =
-                |summary: &Summary| crate::export::merge::report_bytes(&reports, summary, &shard);
+            let mut sidecar = |summary: &Summary| {
+                crate::export::merge::report_bytes(&reports, summary, shard.as_ref())
+            };
             sink.finish_with(Some(&mut sidecar))
         }
         None => sink.finish(),

@@ -4,6 +4,7 @@
 //! satisfies the channel's JSON Schema, and message counts matching the summary. An episode is a
 //! file; a frame is an `/endoscope/rgb` message.
 
+use crate::export::check::Check;
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
 use mcap::read::{MessageStream, Options, Summary};
@@ -16,7 +17,7 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
     let at = || At::file(findings.relative(path)).episode(episode);
     // A recording is one episode: far below 4 GiB.
     let Ok(bytes) = crate::export::bounded::read_capped(path, 4 << 30) else {
-        findings.error(at(), "readable", "cannot be read");
+        findings.error(at(), Check::Readable, "cannot be read");
         return 0;
     };
     let summary = check_summary(&bytes, &at, episode, findings);
@@ -25,13 +26,13 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
     }
     // The mcap reader reserves each chunk's claimed uncompressed size before decompressing it.
     if let Some(problem) = chunks_problem(&bytes) {
-        findings.error(at(), "chunk", problem);
+        findings.error(at(), Check::Chunk, problem);
         return 0;
     }
     let stream = match MessageStream::new_with_options(&bytes, Options::ValidateChunkCrcs.into()) {
         Ok(stream) => stream,
         Err(error) => {
-            findings.error(at(), "magic", format!("is not an MCAP file: {error}"));
+            findings.error(at(), Check::Magic, format!("is not an MCAP file: {error}"));
             return 0;
         }
     };
@@ -44,7 +45,7 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
             Err(error) => {
                 findings.error(
                     at(),
-                    "crc",
+                    Check::Crc,
                     format!(
                         "reading stops after {} messages: {error}",
                         counts.values().sum::<u64>()
@@ -68,7 +69,7 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
         {
             findings.error(
                 at(),
-                "schema_name",
+                Check::SchemaName,
                 format!("{} uses a schema not named foxglove.<Name>", channel.topic),
             );
         }
@@ -78,7 +79,7 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
         if stats.message_count != total {
             findings.error(
                 at(),
-                "summary",
+                Check::Summary,
                 format!(
                     "the statistics count {} messages, the file holds {total}",
                     stats.message_count
@@ -181,7 +182,7 @@ fn check_summary(
         Ok(None) => {
             findings.error(
                 at(),
-                "summary",
+                Check::Summary,
                 "has no summary section (no indexes or statistics)",
             );
             None
@@ -189,7 +190,7 @@ fn check_summary(
         Err(error) => {
             findings.error(
                 at(),
-                "summary",
+                Check::Summary,
                 format!("the summary cannot be read: {error}"),
             );
             None
@@ -216,16 +217,16 @@ fn check_summary(
     }
     if let Some(summary) = &summary {
         if summary.stats.is_none() {
-            findings.error(at(), "summary", "has no statistics record");
+            findings.error(at(), Check::Summary, "has no statistics record");
         }
         if summary.chunk_indexes.is_empty() {
-            findings.error(at(), "summary", "has no chunk indexes");
+            findings.error(at(), Check::Summary, "has no chunk indexes");
         }
         for schema in summary.schemas.values() {
             if schema.encoding == "protobuf" && !schema.name.starts_with("foxglove.") {
                 findings.error(
                     at(),
-                    "schema_name",
+                    Check::SchemaName,
                     format!(
                         "protobuf schema {} is not a foxglove.<Name> well-known schema",
                         schema.name
@@ -269,7 +270,7 @@ fn check_json_message(
         Err(_) => {
             findings.error(
                 at(),
-                "json",
+                Check::Json,
                 format!("a {} message is not JSON", channel.topic),
             );
             return;
@@ -297,7 +298,7 @@ fn check_json_message(
         for (pointer, problem) in schema::check(&value, schema) {
             findings.error(
                 at(),
-                "json_schema",
+                Check::JsonSchema,
                 format!("{} message {pointer} {problem}", channel.topic),
             );
         }
@@ -348,7 +349,7 @@ fn check_episode_lines(
     let lines = match crate::export::bounded::lines(&path) {
         Ok(lines) => lines,
         Err(error) => {
-            findings.file_error(&path, "episodes", error.to_string());
+            findings.file_error(&path, Check::Episodes, error.to_string());
             return;
         }
     };
@@ -358,12 +359,16 @@ fn check_episode_lines(
         let text = match line {
             Ok((_, text)) => text,
             Err(error) => {
-                findings.error(at(), "episodes", error.to_string());
+                findings.error(at(), Check::Episodes, error.to_string());
                 return;
             }
         };
         let Ok(value) = serde_json::from_str::<serde_json::Value>(&text) else {
-            findings.error(at(), "episodes", format!("line {} is not JSON", count + 1));
+            findings.error(
+                at(),
+                Check::Episodes,
+                format!("line {} is not JSON", count + 1),
+            );
             count += 1;
             continue;
         };
@@ -374,19 +379,19 @@ fn check_episode_lines(
         if value["episode_index"].as_u64() != Some(count as u64) {
             findings.error(
                 at(),
-                "episodes",
+                Check::Episodes,
                 format!("line {} does not say episode {count}", count + 1),
             );
         } else if value["file"].as_str() != name.as_deref() {
             findings.error(
                 at(),
-                "episodes",
+                Check::Episodes,
                 format!("names {}, the recording is {name:?}", value["file"]),
             );
         } else if !quick && value["frames"].as_u64() != frames.get(count).copied() {
             findings.error(
                 at(),
-                "episodes",
+                Check::Episodes,
                 format!(
                     "says {} frames, the recording holds {}",
                     value["frames"], frames[count]
@@ -398,7 +403,7 @@ fn check_episode_lines(
     if count != files.len() {
         findings.file_error(
             &path,
-            "episodes",
+            Check::Episodes,
             format!("has {count} lines for {} recordings", files.len()),
         );
     }

@@ -10,12 +10,12 @@
 use super::writer::{MANIFEST, mcap_error};
 use crate::export::bounded::read_capped;
 use crate::export::bounded::read_json;
+use crate::export::collection::{Collection, SHARD_KEY};
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, merge_episode_files, plan};
-use crate::export::shard::SHARD_KEY;
 use crate::export::sink::Summary;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
@@ -157,11 +157,8 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         // MCAP folders keep no surgvla metadata file: the shard is in the recorded options.
         let manifest = path.join(MANIFEST);
         let shard = read_json(&manifest).map_err(read)?["options"][SHARD_KEY].clone();
-        let collection = if shard.is_string() {
-            json!({ SHARD_KEY: shard })
-        } else {
-            Value::Null
-        };
+        let collection =
+            Collection::from_json(&json!({ SHARD_KEY: shard })).filter(|_| shard.is_string());
         parts.push(Part::read(path, &manifest, collection)?);
     }
     let plan = plan(parts)?;

@@ -4,6 +4,8 @@
 //! empty frame file, and the manifest. Returns what the folder holds, counted from the files.
 
 use crate::export::bounded::read_json;
+use crate::export::check::Check;
+use crate::export::collection::Collection;
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
 use std::path::Path;
@@ -20,7 +22,7 @@ pub fn check(
             findings.learn(|facts| {
                 facts.fps = surgvla["fps"].as_f64();
                 facts.generator = surgvla["generator"].as_str().map(String::from);
-                facts.collection = surgvla["collection"].clone();
+                facts.collection = Collection::from_json(&surgvla["collection"]);
                 let points = surgvla["point_cloud"]["points"].as_u64().unwrap_or(0) as usize;
                 facts.features.push(FeatureFact {
                     name: format!("{extension} point cloud"),
@@ -31,14 +33,14 @@ pub fn check(
             for (pointer, problem) in schema::check_text(&surgvla, schema::SURGVLA_META) {
                 findings.error(
                     At::file(super::files::SURGVLA_JSON),
-                    "schema",
+                    Check::Schema,
                     format!("{pointer} {problem}"),
                 );
             }
         }
         Err(_) => findings.error(
             At::file(super::files::SURGVLA_JSON),
-            "present",
+            Check::Present,
             "is missing or not JSON",
         ),
     }
@@ -47,7 +49,11 @@ pub fn check(
     let stated = match episodes.map(|bytes| String::from_utf8_lossy(&bytes).into_owned()) {
         Ok(text) => text,
         Err(_) => {
-            findings.error(At::file(super::files::EPISODES), "present", "is missing");
+            findings.error(
+                At::file(super::files::EPISODES),
+                Check::Present,
+                "is missing",
+            );
             String::new()
         }
     };
@@ -57,7 +63,7 @@ pub fn check(
         let Ok(line) = serde_json::from_str::<serde_json::Value>(line) else {
             findings.error(
                 at(),
-                "schema",
+                Check::Schema,
                 format!("line {} is not JSON", line_number + 1),
             );
             continue;
@@ -66,7 +72,7 @@ pub fn check(
         else {
             findings.error(
                 at(),
-                "schema",
+                Check::Schema,
                 format!("line {} lacks episode_index or frames", line_number + 1),
             );
             continue;
@@ -81,7 +87,7 @@ pub fn check(
         if files != count {
             findings.error(
                 At::file(folder).episode(index),
-                "frames",
+                Check::Frames,
                 format!("{files} {extension} files where episodes.jsonl states {count}"),
             );
         }
@@ -92,7 +98,7 @@ pub fn check(
 /// The non-empty `extension` files in an episode's folder; an empty one is a finding.
 fn frame_files(folder: &Path, extension: &str, findings: &Findings) -> u64 {
     let Ok(entries) = std::fs::read_dir(folder) else {
-        findings.file_error(folder, "present", "is missing");
+        findings.file_error(folder, Check::Present, "is missing");
         return 0;
     };
     let mut count = 0;
@@ -101,7 +107,7 @@ fn frame_files(folder: &Path, extension: &str, findings: &Findings) -> u64 {
         if path.extension().is_some_and(|e| e == extension) {
             count += 1;
             if entry.metadata().map_or(true, |m| m.len() == 0) {
-                findings.file_error(&path, "present", "is empty");
+                findings.file_error(&path, Check::Present, "is empty");
             }
         }
     }

@@ -8,6 +8,7 @@
 use super::files::{EPISODES, MANIFEST, SURGVLA_JSON};
 use crate::export::bounded::read_capped;
 use crate::export::bounded::read_json;
+use crate::export::collection::Collection;
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::error::ExportError;
@@ -33,7 +34,7 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         parts.push(Part::read(
             path,
             &path.join(MANIFEST),
-            surgvla["collection"].clone(),
+            Collection::from_json(&surgvla["collection"]),
         )?);
         first_surgvla.get_or_insert(surgvla);
     }
@@ -43,8 +44,8 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         _ => "ply",
     };
     let mut surgvla = first_surgvla.ok_or(MergeError::NoInput)?;
-    if !plan.collection.is_null() {
-        surgvla["collection"] = plan.collection.clone();
+    if let Some(collection) = &plan.collection {
+        surgvla["collection"] = collection.to_json();
     }
     let surgvla = serde_json::to_vec_pretty(&surgvla).map_err(|source| {
         write(ExportError::Json {

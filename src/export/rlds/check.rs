@@ -6,6 +6,8 @@
 //! the first episode of each shard only.
 
 use crate::export::bounded::read_json;
+use crate::export::check::Check;
+use crate::export::collection::Collection;
 use crate::export::error::ExportError;
 use crate::export::findings::{
     At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest, check_semantics,
@@ -25,18 +27,18 @@ use std::path::{Path, PathBuf};
 
 fn schema_check(path: &Path, schema_text: &str, findings: &Findings) -> Value {
     if !path.is_file() {
-        findings.file_error(path, "present", "is missing");
+        findings.file_error(path, Check::Present, "is missing");
         return Value::Null;
     }
     match read_json(path) {
         Ok(value) => {
             for (pointer, problem) in schema::check_text(&value, schema_text) {
-                findings.file_error(path, "schema", format!("{pointer} {problem}"));
+                findings.file_error(path, Check::Schema, format!("{pointer} {problem}"));
             }
             value
         }
         Err(_) => {
-            findings.file_error(path, "readable", "is not valid JSON");
+            findings.file_error(path, Check::Readable, "is not valid JSON");
             Value::Null
         }
     }
@@ -64,7 +66,7 @@ fn scan_shard(
                     Err(error) => {
                         findings.error(
                             at(count),
-                            "record",
+                            Check::Record,
                             format!("record {count} is not a tf.train.Example: {}", error.0),
                         );
                         count += 1;
@@ -90,13 +92,13 @@ fn scan_shard(
             Err(RecordError::Io { .. }) => {
                 findings.file_error(
                     path,
-                    "readable",
+                    Check::Readable,
                     format!("cannot be read after record {count}"),
                 );
                 return None;
             }
             Err(error) => {
-                findings.error(at(count), "crc", error.to_string());
+                findings.error(at(count), Check::Crc, error.to_string());
                 return None;
             }
         }
@@ -116,7 +118,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         Ok(leaves) if !features.is_null() => Some(leaves),
         Ok(_) => None,
         Err(problem) => {
-            findings.file_error(&root.join("features.json"), "schema", problem);
+            findings.file_error(&root.join("features.json"), Check::Schema, problem);
             None
         }
     };
@@ -141,7 +143,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             if !path.is_file() {
                 findings.file_error(
                     path,
-                    "present",
+                    Check::Present,
                     format!("is missing (dataset_info.json lists {count} shards)"),
                 );
                 return None;
@@ -153,14 +155,14 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         match (counted, listed) {
             (Some((counted, _)), Some(listed)) if counted != listed => findings.file_error(
                 path,
-                "shard_lengths",
+                Check::ShardLengths,
                 format!(
                     "holds {counted} episodes where dataset_info.json's shardLengths gives {listed}"
                 ),
             ),
             (_, None) => findings.file_error(
                 path,
-                "shard_lengths",
+                Check::ShardLengths,
                 "dataset_info.json gives no count for it",
             ),
             _ => {}
@@ -192,7 +194,7 @@ fn listed_shards(
     if let Err(problem) = paths::component(name) {
         findings.file_error(
             &root.join("dataset_info.json"),
-            "paths",
+            Check::Paths,
             format!("its name {name:?} cannot begin a shard's file name: it {problem}"),
         );
         return (Vec::new(), Vec::new());
@@ -215,7 +217,7 @@ fn listed_shards(
     if count > MAX_SHARDS {
         findings.file_error(
             &root.join("dataset_info.json"),
-            "shards",
+            Check::Shards,
             format!("lists {count} shards, more than the {MAX_SHARDS} a split may have"),
         );
         return (Vec::new(), Vec::new());
@@ -237,7 +239,7 @@ fn listed_shards(
         if !expected.contains(path) {
             findings.file_error(
                 path,
-                "shards",
+                Check::Shards,
                 format!("is not one of the {count} shards dataset_info.json's train split lists"),
             );
         }
@@ -245,7 +247,7 @@ fn listed_shards(
     if count == 0 && !dataset_info.is_null() {
         findings.file_error(
             &root.join("dataset_info.json"),
-            "shards",
+            Check::Shards,
             "the train split lists no shards",
         );
     }
@@ -279,7 +281,7 @@ fn learn_facts(leaves: Option<&BTreeMap<String, Leaf>>, surgvla: &Value, finding
         facts.fps = surgvla["fps"].as_f64();
         facts.robot_type = surgvla["robot_type"].as_str().map(String::from);
         facts.generator = surgvla["generator"].as_str().map(String::from);
-        facts.collection = surgvla["collection"].clone();
+        facts.collection = Collection::from_json(&surgvla["collection"]);
     });
 }
 
@@ -293,7 +295,7 @@ fn check_our_episodes(
     let source = match RldsSource::open(root) {
         Ok(source) => source,
         Err(error) => {
-            findings.error(At::default(), "open", error_text(&error));
+            findings.error(At::default(), Check::Open, error_text(&error));
             return;
         }
     };
@@ -316,7 +318,7 @@ fn check_our_episodes(
             Err(error) => {
                 findings.error(
                     At::default().episode(episode_index),
-                    "record",
+                    Check::Record,
                     error_text(&error),
                 );
                 break;

@@ -358,7 +358,7 @@ mod tests {
             },
             features: standard_features(224, 224, set),
             mask_ids: Vec::new(),
-            collection: Value::Null,
+            collection: None,
             generator: "surgvla test".into(),
             tip_workspace: None,
             input: None,

@@ -6,6 +6,7 @@
 //! floats, `is_first` / `is_last` / `is_terminal` as 0/1 on the right steps, and a non-empty
 //! language instruction.
 
+use crate::export::check::Check;
 use crate::export::rlds::example::Feature;
 use crate::media::image::{decode_png, decode_png16, png_size};
 use serde_json::Value;
@@ -106,14 +107,14 @@ pub fn check_record(
         if !leaves.contains_key(key) {
             problems.push((
                 None,
-                "features",
+                Check::Features,
                 format!("{key} is in the record but not in features.json"),
             ));
         }
     }
     let steps = step_count(leaves, record);
     if steps == 0 {
-        problems.push((None, "steps", "the episode has zero steps".into()));
+        problems.push((None, Check::Steps, "the episode has zero steps".into()));
         return problems;
     }
     for (key, leaf) in leaves {
@@ -124,7 +125,7 @@ pub fn check_record(
 }
 
 /// A record's problems: (step, check, what).
-type Problems = Vec<(Option<u64>, &'static str, String)>;
+type Problems = Vec<(Option<u64>, Check, String)>;
 
 /// The episode's steps: the length of `steps/is_first`, or of the first per-step feature.
 fn step_count(leaves: &BTreeMap<String, Leaf>, record: &BTreeMap<String, Feature>) -> usize {
@@ -157,7 +158,7 @@ fn check_leaf(
     let Some(value) = record.get(key) else {
         problems.push((
             None,
-            "features",
+            Check::Features,
             format!("{key} is declared in features.json but missing"),
         ));
         return;
@@ -174,7 +175,7 @@ fn check_leaf(
     if len != expected {
         problems.push((
             None,
-            "step_counts",
+            Check::StepCounts,
             format!("{key} holds {len} {kind} values where {count} steps need {expected}"),
         ));
         return;
@@ -183,7 +184,7 @@ fn check_leaf(
         (_, Feature::Float(values)) => {
             if let Some(i) = values.iter().position(|v| !v.is_finite()) {
                 let step = per_step.then_some((i / (len / count).max(1)) as u64);
-                problems.push((step, "finite", format!("{key} holds {}", values[i])));
+                problems.push((step, Check::Finite, format!("{key} holds {}", values[i])));
             }
         }
         (Leaf::Text, Feature::Bytes(texts)) if key.ends_with("language_instruction") => {
@@ -191,7 +192,11 @@ fn check_leaf(
                 .iter()
                 .position(|t| t.iter().all(u8::is_ascii_whitespace))
             {
-                problems.push((Some(i as u64), "instruction", format!("{key} is empty")));
+                problems.push((
+                    Some(i as u64),
+                    Check::Instruction,
+                    format!("{key} is empty"),
+                ));
             }
         }
         (Leaf::Image { shape, dtype }, Feature::Bytes(images)) if decode_images => {
@@ -202,7 +207,7 @@ fn check_leaf(
             if let Some((i, problem)) = first_bad {
                 problems.push((
                     per_step.then_some(i as u64),
-                    "image",
+                    Check::Image,
                     format!("{key} {problem}"),
                 ));
             }
@@ -222,14 +227,18 @@ fn check_flags(record: &BTreeMap<String, Feature>, steps: usize, problems: &mut 
         let key = format!("steps/{name}");
         let Some(Feature::Int64(flags)) = record.get(&key) else {
             if name != "is_terminal" {
-                problems.push((None, "flags", format!("{key} is missing or not a 0/1 list")));
+                problems.push((
+                    None,
+                    Check::Flags,
+                    format!("{key} is missing or not a 0/1 list"),
+                ));
             }
             continue;
         };
         if let Some(i) = flags.iter().position(|v| *v != 0 && *v != 1) {
             problems.push((
                 Some(i as u64),
-                "flags",
+                Check::Flags,
                 format!("{key} is {}, not 0 or 1", flags[i]),
             ));
             continue;
@@ -248,7 +257,7 @@ fn check_flags(record: &BTreeMap<String, Feature>, steps: usize, problems: &mut 
         if let Some(i) = wrong {
             problems.push((
                 Some(i as u64),
-                "flags",
+                Check::Flags,
                 format!("{key} is {} on step {i} of {steps}", flags[i]),
             ));
         }

@@ -5,6 +5,7 @@
 //! stored them (PNG, JPEG: copied, not encoded again), so N of N merged are the single run's
 //! bytes.
 
+use crate::export::collection::Collection;
 use crate::export::convert::ConvertError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, plan, reports, write_through};
@@ -28,9 +29,10 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         let manifest = data_dir.join(super::options::MANIFEST);
         let surgvla = folder.join(super::options::SURGVLA_JSON);
         let collection = if surgvla.is_file() {
-            crate::export::bounded::read_json(&surgvla).map_err(read)?["collection"].clone()
+            let metadata = crate::export::bounded::read_json(&surgvla).map_err(read)?;
+            Collection::from_json(&metadata["collection"])
         } else {
-            serde_json::Value::Null
+            None
         };
         parts.push((Part::read(path, &manifest, collection)?, folder, data_dir));
     }
@@ -82,7 +84,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let mut sink =
         super::writer::RldsWriter::boxed(request.out, &info, options, resuming).map_err(write)?;
     let dirs: Vec<&Path> = data_dirs.iter().map(|d| d.as_path()).collect();
-    let reports = reports(&dirs).map(|r| (r, plan.collection["shard"].clone()));
+    let reports = reports(&dirs).map(|r| (r, plan.shard()));
     write_through(
         sources,
         sink.as_mut(),

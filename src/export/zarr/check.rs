@@ -5,6 +5,8 @@
 //! arrays (every chunk; `quick` reads the metadata and the first chunk of each array).
 
 use crate::export::bounded::read_json;
+use crate::export::check::Check;
+use crate::export::collection::Collection;
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
 use rayon::prelude::*;
@@ -48,7 +50,7 @@ fn sizes_fit(
     if chunk_bytes.is_none_or(|b| b > MAX_CHUNK_BYTES) {
         findings.file_error(
             &path,
-            "schema",
+            Check::Schema,
             format!(
                 "chunks {chunks:?} are larger than the {} MiB surgvla reads",
                 MAX_CHUNK_BYTES >> 20
@@ -66,7 +68,7 @@ fn sizes_fit(
     if claimed.is_none_or(|n| n > 2 * present + 64) {
         findings.file_error(
             &path,
-            "chunk",
+            Check::Chunk,
             format!(
                 "shape {shape:?} in chunks of {chunks:?} needs {} chunks; the folder holds {present} files",
                 claimed.map_or("more than 2^64".to_string(), |n| n.to_string())
@@ -80,7 +82,7 @@ fn sizes_fit(
 fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta> {
     let path = root.join(name).join(".zarray");
     let Ok(meta) = read_json(&path) else {
-        findings.file_error(&path, "present", "is missing or not JSON");
+        findings.file_error(&path, Check::Present, "is missing or not JSON");
         return None;
     };
     let numbers = |key: &str| -> Option<Vec<usize>> {
@@ -91,20 +93,20 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
             .collect()
     };
     let (Some(shape), Some(chunks)) = (numbers("shape"), numbers("chunks")) else {
-        findings.file_error(&path, "schema", "lacks shape or chunks");
+        findings.file_error(&path, Check::Schema, "lacks shape or chunks");
         return None;
     };
     if meta["zarr_format"] != 2 {
         findings.file_error(
             &path,
-            "schema",
+            Check::Schema,
             format!("zarr_format is {}, not 2", meta["zarr_format"]),
         );
     }
     if shape.len() != chunks.len() || chunks.contains(&0) {
         findings.file_error(
             &path,
-            "schema",
+            Check::Schema,
             format!("chunks {chunks:?} do not fit shape {shape:?}"),
         );
         return None;
@@ -113,14 +115,14 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         return None;
     }
     if meta["order"] != "C" {
-        findings.file_error(&path, "schema", "order is not C");
+        findings.file_error(&path, Check::Schema, "order is not C");
     }
     let dtype = meta["dtype"].as_str().unwrap_or_default().to_string();
     let item_bytes = item_bytes_of(&meta);
     if item_bytes == 0 {
         findings.file_error(
             &path,
-            "schema",
+            Check::Schema,
             format!("dtype {dtype:?} is not a numpy type string"),
         );
         return None;
@@ -131,7 +133,7 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         c => {
             findings.file_error(
                 &path,
-                "schema",
+                Check::Schema,
                 format!(
                     "compressor {} is not one surgvla decodes (zstd or none)",
                     c["id"]
@@ -193,7 +195,7 @@ fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Finding
     let at = || At::file(findings.relative(&path));
     let chunk_bytes = array.chunks.iter().product::<usize>() * array.item_bytes;
     let Ok(stored) = crate::export::bounded::read_capped(&path, MAX_CHUNK_BYTES as u64 * 2) else {
-        findings.error(at(), "present", "chunk is missing");
+        findings.error(at(), Check::Present, "chunk is missing");
         return;
     };
     let bytes = if array.zstd {
@@ -201,7 +203,7 @@ fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Finding
         match zstd::bulk::decompress(&stored, chunk_bytes + 1) {
             Ok(bytes) => bytes,
             Err(_) => {
-                findings.error(at(), "chunk", "is not a zstd frame");
+                findings.error(at(), Check::Chunk, "is not a zstd frame");
                 return;
             }
         }
@@ -211,7 +213,7 @@ fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Finding
     if bytes.len() != chunk_bytes {
         findings.error(
             at(),
-            "chunk",
+            Check::Chunk,
             format!(
                 "decodes to {} bytes, a chunk of {:?} {} is {chunk_bytes}",
                 bytes.len(),
@@ -232,7 +234,7 @@ fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Finding
             + position * array.item_bytes / row_bytes.max(1);
         findings.error(
             at().frame(row as u64),
-            "finite",
+            Check::Finite,
             format!("{} holds NaN or Inf at row {row}", array.name),
         );
     }
@@ -283,7 +285,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
     if !root.join(".zgroup").is_file() {
         findings.error(
             At::file(".zgroup"),
-            "present",
+            Check::Present,
             "is missing: zarr cannot open the store",
         );
     }
@@ -293,12 +295,12 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         findings.learn(|facts| {
             facts.fps = surgvla["fps"].as_f64();
             facts.generator = surgvla["generator"].as_str().map(String::from);
-            facts.collection = surgvla["collection"].clone();
+            facts.collection = Collection::from_json(&surgvla["collection"]);
         });
         for (pointer, problem) in schema::check_text(surgvla, schema::SURGVLA_META) {
             findings.error(
                 At::file(".zattrs"),
-                "schema",
+                Check::Schema,
                 format!("/surgvla{pointer} {problem}"),
             );
         }
@@ -313,7 +315,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         .collect();
     for required in ["data/point_cloud", "data/state", "data/action"] {
         if !data_names.iter().any(|n| n == required) {
-            findings.error(At::file(required), "present", "array is missing");
+            findings.error(At::file(required), Check::Present, "array is missing");
         }
     }
     let arrays: Vec<ArrayMeta> = data_names
@@ -346,14 +348,14 @@ fn check_arrays(root: &Path, arrays: &[ArrayMeta], quick: bool, findings: &Findi
         {
             findings.error(
                 At::file("data/point_cloud/.zarray"),
-                "shape",
+                Check::Shape,
                 format!("shape {:?} is not (T, N, 6) or (T, N, 7)", array.shape),
             );
         }
         if matches!(array.name.as_str(), "data/state" | "data/action") && array.shape.len() != 2 {
             findings.error(
                 At::file(format!("{}/.zarray", array.name)),
-                "shape",
+                Check::Shape,
                 format!("shape {:?} is not (T, D)", array.shape),
             );
         }
@@ -367,7 +369,7 @@ fn check_arrays(root: &Path, arrays: &[ArrayMeta], quick: bool, findings: &Findi
         if array.shape.first().copied().unwrap_or(0) as u64 != frames {
             findings.error(
                 At::file(format!("{}/.zarray", array.name)),
-                "shape",
+                Check::Shape,
                 format!(
                     "{} rows where {} has {frames}",
                     array.shape[0], arrays[0].name
@@ -383,7 +385,7 @@ fn check_episode_ends(root: &Path, meta: &ArrayMeta, frames: u64, findings: &Fin
     let Some(ends) = read_ints(root, meta) else {
         findings.error(
             At::file("meta/episode_ends"),
-            "chunk",
+            Check::Chunk,
             "cannot be read whole",
         );
         return 0;
@@ -391,14 +393,14 @@ fn check_episode_ends(root: &Path, meta: &ArrayMeta, frames: u64, findings: &Fin
     let mut previous = 0i64;
     for (episode, &end) in ends.iter().enumerate() {
         if end <= previous {
-            findings.error(At::file("meta/episode_ends").episode(episode as u64), "episode_ends", format!("end {end} does not follow {previous} (episodes need at least one frame, ends increase)"));
+            findings.error(At::file("meta/episode_ends").episode(episode as u64), Check::EpisodeEnds, format!("end {end} does not follow {previous} (episodes need at least one frame, ends increase)"));
         }
         previous = end;
     }
     if ends.last().copied().unwrap_or(0) as u64 != frames {
         findings.error(
             At::file("meta/episode_ends"),
-            "episode_ends",
+            Check::EpisodeEnds,
             format!(
                 "the last end is {}, the data arrays hold {frames} frames",
                 ends.last().copied().unwrap_or(0)

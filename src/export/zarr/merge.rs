@@ -13,6 +13,7 @@ use super::array::{ArrayWriter, CHUNK_ROWS};
 use super::writer::MANIFEST;
 use crate::export::bounded::read_json;
 use crate::export::bounded::{read_capped, read_metadata};
+use crate::export::collection::Collection;
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::error::ExportError;
@@ -235,8 +236,8 @@ fn write_groups(
     plan: &crate::export::merge::Plan,
 ) -> Result<(), MergeError> {
     let mut attributes = first.attributes.clone();
-    if !plan.collection.is_null() {
-        attributes["surgvla"]["collection"] = plan.collection.clone();
+    if let Some(collection) = &plan.collection {
+        attributes["surgvla"]["collection"] = collection.to_json();
     }
     let group = json!({"zarr_format": 2});
     let files = [
@@ -270,7 +271,7 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
     let mut parts = Vec::new();
     for path in request.inputs {
         let store = open(path)?;
-        let collection = store.attributes["surgvla"]["collection"].clone();
+        let collection = Collection::from_json(&store.attributes["surgvla"]["collection"]);
         parts.push(Part::read(path, &path.join(MANIFEST), collection)?);
         stores.push(store);
     }

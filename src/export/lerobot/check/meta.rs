@@ -7,6 +7,7 @@ use super::parts::{
 };
 use crate::error::ErrorKind;
 use crate::export::bounded::read_json;
+use crate::export::check::Check;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
 use crate::export::paths::{self, Field};
@@ -26,7 +27,7 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
     };
     let path = root.join(relative);
     if !path.is_file() {
-        findings.file_error(&path, "present", "is missing");
+        findings.file_error(&path, Check::Present, "is missing");
         return Vec::new();
     }
     let tasks = if v21 {
@@ -38,7 +39,7 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
         if *index != position as i64 {
             findings.file_error(
                 &path,
-                "tasks",
+                Check::Tasks,
                 format!(
                     "row {position} has task_index {index}; task indices must be 0..n in order"
                 ),
@@ -47,7 +48,7 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
         if task.trim().is_empty() {
             findings.file_error(
                 &path,
-                "instruction",
+                Check::Instruction,
                 format!("task {index} is an empty language instruction"),
             );
         }
@@ -59,7 +60,7 @@ pub(super) fn read_tasks(root: &Path, v21: bool, findings: &Findings) -> Vec<Str
 /// ([`crate::export::bounded::lines`]); what stops the reading is a finding of `check`.
 fn bounded_lines(
     path: &Path,
-    check: &'static str,
+    check: Check,
     findings: &Findings,
 ) -> impl Iterator<Item = (usize, String)> {
     let lines = match crate::export::bounded::lines(path) {
@@ -98,7 +99,7 @@ fn error_text(error: &crate::export::error::ExportError) -> String {
 fn read_tasks_v21(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
     use crate::export::lerobot::meta::TaskLine;
     let mut tasks = Vec::new();
-    for line in bounded_lines(path, "readable", findings) {
+    for line in bounded_lines(path, Check::Readable, findings) {
         let (line_number, line) = line;
         match TaskLine::of(&line) {
             TaskLine {
@@ -107,7 +108,7 @@ fn read_tasks_v21(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
             } => tasks.push((index, task)),
             _ => findings.file_error(
                 path,
-                "tasks",
+                Check::Tasks,
                 format!("line {line_number} lacks task_index or task"),
             ),
         }
@@ -124,14 +125,14 @@ fn read_tasks_v30(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
             if pandas["index_columns"] != serde_json::json!(["task"]) {
                 findings.file_error(
                     path,
-                    "tasks",
+                    Check::Tasks,
                     "the pandas metadata does not index by \"task\" (lerobot then returns task indices as the task)",
                 );
             }
         }
         _ => findings.file_error(
             path,
-            "tasks",
+            Check::Tasks,
             "has no pandas schema metadata with index_columns [\"task\"] (lerobot then returns task indices as the task)",
         ),
     }
@@ -146,7 +147,7 @@ fn read_tasks_v30(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
         let (Some(index), Some(task)) = (index, task) else {
             findings.file_error(
                 path,
-                "tasks",
+                Check::Tasks,
                 "lacks an int64 task_index or a string task column",
             );
             break;
@@ -178,15 +179,15 @@ fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
     let mut entries = Vec::new();
     let path = root.join("meta/episodes.jsonl");
     if !path.is_file() {
-        findings.file_error(&path, "present", "is missing or unreadable");
+        findings.file_error(&path, Check::Present, "is missing or unreadable");
         return entries;
     }
-    for (row, (_, line)) in bounded_lines(&path, "episodes", findings).enumerate() {
+    for (row, (_, line)) in bounded_lines(&path, Check::Episodes, findings).enumerate() {
         let value: Value = serde_json::from_str(&line).unwrap_or(Value::Null);
         if value["episode_index"].as_i64() != Some(row as i64) {
             findings.error(
                 At::file("meta/episodes.jsonl").episode(row as u64),
-                "episodes",
+                Check::Episodes,
                 format!(
                     "line {} has episode_index {}; lines must be in episode order",
                     row + 1,
@@ -216,16 +217,16 @@ fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
     let stats_path = root.join("meta/episodes_stats.jsonl");
     match stats_path.is_file() {
         true => {
-            let lines = bounded_lines(&stats_path, "stats", findings).count();
+            let lines = bounded_lines(&stats_path, Check::Stats, findings).count();
             if lines != entries.len() {
                 findings.file_error(
                     &stats_path,
-                    "stats",
+                    Check::Stats,
                     format!("has {lines} lines for {} episodes", entries.len()),
                 );
             }
         }
-        false => findings.file_error(&stats_path, "stats", "is missing"),
+        false => findings.file_error(&stats_path, Check::Stats, "is missing"),
     }
     entries
 }
@@ -239,7 +240,7 @@ fn read_episodes_v30(root: &Path, features: &[Declared], findings: &Findings) ->
     if files.is_empty() {
         findings.error(
             At::file("meta/episodes"),
-            "present",
+            Check::Present,
             "no episodes table (meta/episodes/chunk-*/file-*.parquet)",
         );
     }
@@ -280,7 +281,7 @@ fn episode_entry(
     {
         findings.error(
             at.clone(),
-            "episodes",
+            Check::Episodes,
             format!("row {position} has episode_index {index}; lerobot looks episodes up by row"),
         );
     }
@@ -320,7 +321,7 @@ fn episode_entry(
             }
             _ => findings.error(
                 at.clone(),
-                "videos",
+                Check::Videos,
                 format!("lacks the videos/{key}/... columns of the video feature"),
             ),
         }
@@ -367,19 +368,19 @@ fn check_episode_columns(
         if ints(required).is_none() {
             findings.file_error(
                 path,
-                "episodes",
+                Check::Episodes,
                 format!("lacks the int64 column {required}"),
             );
         }
     }
     if batch.column_by_name("tasks").is_none() {
-        findings.file_error(path, "episodes", "lacks the tasks column");
+        findings.file_error(path, Check::Episodes, "lacks the tasks column");
     }
     for feature in features.iter().filter(|f| !is_index_column(&f.name)) {
         for stat in STATS_KEYS {
             let name = format!("stats/{}/{stat}", feature.name);
             if batch.column_by_name(&name).is_none() {
-                findings.file_error(path, "stats", format!("lacks the column {name}"));
+                findings.file_error(path, Check::Stats, format!("lacks the column {name}"));
             }
         }
     }
@@ -396,11 +397,11 @@ pub(super) fn check_stats(
 ) {
     let path = root.join("meta/stats.json");
     if !path.is_file() {
-        findings.file_error(&path, "stats", "is missing (normalisation needs it)");
+        findings.file_error(&path, Check::Stats, "is missing (normalisation needs it)");
         return;
     }
     let Ok(stats) = read_json(&path) else {
-        findings.file_error(&path, "stats", "is not valid JSON");
+        findings.file_error(&path, Check::Stats, "is not valid JSON");
         return;
     };
     // Leniently typed: a feature whose entry is not an object has no statistics.
@@ -419,7 +420,7 @@ pub(super) fn check_stats(
         let Some(entry) = stats.get(&feature.name) else {
             findings.file_error(
                 &path,
-                "stats",
+                Check::Stats,
                 format!("has no statistics for {}", feature.name),
             );
             continue;
@@ -427,7 +428,7 @@ pub(super) fn check_stats(
         // A statistic that is not numbers (or nested lists of them) counts as missing.
         for key in STATS_KEYS {
             if entry.get(key).is_none() {
-                findings.file_error(&path, "stats", format!("{} lacks {key}", feature.name));
+                findings.file_error(&path, Check::Stats, format!("{} lacks {key}", feature.name));
             }
         }
         let numeric = matches!(feature.dtype.as_str(), "float32" | "float64");
@@ -471,7 +472,7 @@ fn check_stat_lengths(
         {
             findings.file_error(
                 path,
-                "stats",
+                Check::Stats,
                 format!(
                     "{}.{key} has {len} values for shape {:?}",
                     feature.name, feature.shape
@@ -499,7 +500,7 @@ fn check_stats_against_data(
             if !close(stat, value) {
                 findings.file_error(
                     path,
-                    "stats",
+                    Check::Stats,
                     format!(
                         "{}.{key}[{i}] is {stat}, the data gives {value}",
                         feature.name
@@ -570,7 +571,7 @@ pub(super) fn check_videos(
         if let Err(problem) = paths::component(key) {
             findings.error(
                 At::file("meta/info.json"),
-                "paths",
+                Check::Paths,
                 format!("the video feature {key:?} cannot name a folder: it {problem}"),
             );
             continue;
@@ -587,7 +588,7 @@ pub(super) fn check_videos(
             let path = root.join(&relative);
             let at = At::file(relative).episode(i as u64);
             if !path.is_file() {
-                findings.error(at, "present", "is missing");
+                findings.error(at, Check::Present, "is missing");
                 continue;
             }
             let fresh = !readers.contains_key(&path);
@@ -616,10 +617,10 @@ pub(super) fn check_videos(
                 }
                 Err((problem, true)) if fresh => findings.warning(
                     at,
-                    "video-decode",
+                    Check::VideoDecode,
                     format!("{key}: {problem}; its frames are not checked"),
                 ),
-                Err((problem, false)) if fresh => findings.error(at, "video", problem.clone()),
+                Err((problem, false)) if fresh => findings.error(at, Check::Video, problem.clone()),
                 Err(_) => {}
             }
         }
@@ -695,7 +696,7 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
             {
                 findings.error(
                     At::file(file.clone()).episode(*episode),
-                    "video-stats",
+                    Check::VideoStats,
                     format!(
                         "the decoded frames' mean RGB is {decoded:.4?}; the episode's stored statistics say {stored:.4?} (more than {PIXEL_MEAN_TOLERANCE} apart)"
                     ),
@@ -714,12 +715,12 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
                     if first {
                         findings.warning(
                             At::file(file.clone()),
-                            "video-decode",
+                            Check::VideoDecode,
                             format!("{}; its frames are not checked", problem.message),
                         );
                     }
                 } else {
-                    findings.error(at, "video-decode", problem.message);
+                    findings.error(at, Check::VideoDecode, problem.message);
                 }
             }
         }
@@ -749,7 +750,7 @@ fn check_templates(info: &crate::export::lerobot::meta::InfoJson, v21: bool, fin
         if let Err(problem) = paths::fill(template, &fields) {
             findings.error(
                 At::file("meta/info.json"),
-                "paths",
+                Check::Paths,
                 format!("{name} {template:?} cannot be a path inside the dataset: it {problem}"),
             );
         }
@@ -768,7 +769,7 @@ fn check_video_file(
     if declared_codec.is_some_and(|c| c != reader.codec) {
         findings.error(
             at.clone(),
-            "video",
+            Check::Video,
             format!(
                 "holds {} video where info.json declares {:?}",
                 reader.codec.name(),
@@ -780,7 +781,7 @@ fn check_video_file(
     if feature.shape.len() == 3 && feature.shape[..2] != size {
         findings.error(
             at.clone(),
-            "video",
+            Check::Video,
             format!(
                 "holds {}x{} frames where {} is declared {:?}",
                 size[1], size[0], feature.name, feature.shape
@@ -812,13 +813,13 @@ fn check_episode_span(
         };
         findings.error(
             at.clone(),
-            "video",
+            Check::Video,
             format!("{place} {frames} frames; the episode has {length}"),
         );
     } else if !keyframe_first {
         findings.error(
             at.clone(),
-            "video",
+            Check::Video,
             "the episode's first frame is not a keyframe: it cannot be decoded or copied on its own",
         );
     }

@@ -11,6 +11,8 @@
 //! files (tasks, episodes, stats, videos); [`rows`] checks the rows of one row group.
 
 use crate::export::bounded::read_json;
+use crate::export::check::Check;
+use crate::export::collection::Collection;
 use crate::export::findings::{
     At, FeatureFact, Findings, Semantics, ValidateOptions, check_manifest,
 };
@@ -72,7 +74,7 @@ pub fn check(root: &Path, v21: bool, options: &ValidateOptions, findings: &Findi
     if files.is_empty() {
         findings.error(
             At::file("data"),
-            "present",
+            Check::Present,
             "no data files (data/chunk-*/*.parquet)",
         );
     }
@@ -151,7 +153,7 @@ fn read_info(root: &Path, findings: &Findings) -> (InfoJson, bool) {
     if !info_path.is_file() {
         findings.file_error(
             &info_path,
-            "present",
+            Check::Present,
             "is missing: the loader cannot open the dataset",
         );
         return (InfoJson::default(), false);
@@ -159,12 +161,12 @@ fn read_info(root: &Path, findings: &Findings) -> (InfoJson, bool) {
     match read_json(&info_path) {
         Ok(info) => {
             for (pointer, problem) in schema::check_text(&info, schema::LEROBOT_INFO) {
-                findings.file_error(&info_path, "schema", format!("{pointer} {problem}"));
+                findings.file_error(&info_path, Check::Schema, format!("{pointer} {problem}"));
             }
             (serde_json::from_value(info).unwrap_or_default(), true)
         }
         Err(_) => {
-            findings.file_error(&info_path, "readable", "is not valid JSON");
+            findings.file_error(&info_path, Check::Readable, "is not valid JSON");
             (InfoJson::default(), false)
         }
     }
@@ -178,7 +180,7 @@ fn check_our_metadata(root: &Path, findings: &Findings) -> Value {
         if !value.is_null() {
             let path = root.join(relative);
             for (pointer, problem) in schema::check_text(&value, schema) {
-                findings.file_error(&path, "schema", format!("{pointer} {problem}"));
+                findings.file_error(&path, Check::Schema, format!("{pointer} {problem}"));
             }
         }
         value
@@ -187,7 +189,7 @@ fn check_our_metadata(root: &Path, findings: &Findings) -> Value {
     checked("collect_report.json", schema::COLLECT_REPORT);
     findings.learn(|facts| {
         facts.generator = surgvla["generator"].as_str().map(String::from);
-        facts.collection = surgvla["collection"].clone();
+        facts.collection = Collection::from_json(&surgvla["collection"]);
     });
     surgvla
 }
@@ -213,7 +215,7 @@ fn check_provenance(entries: &[EpisodeEntry], v21: bool, findings: &Findings) {
             if !entry.provenance.contains_key(key) {
                 findings.error(
                     At::file(episodes_file(v21)).episode(i as u64),
-                    "provenance",
+                    Check::Provenance,
                     format!("the episodes table has no {key}"),
                 );
             }
@@ -235,7 +237,7 @@ fn read_optional_json(root: &Path, relative: &str, findings: &Findings) -> Value
         return Value::Null;
     }
     read_json(&path).unwrap_or_else(|_| {
-        findings.file_error(&path, "readable", "is not valid JSON");
+        findings.file_error(&path, Check::Readable, "is not valid JSON");
         Value::Null
     })
 }
@@ -256,7 +258,7 @@ fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata
         Err(problem) => {
             findings.file_error(
                 path,
-                "readable",
+                Check::Readable,
                 format!("is not a readable parquet file: {problem}"),
             );
             None
@@ -313,7 +315,7 @@ fn assemble_episodes(
                     if full && run.first_index != last.2 + 1 {
                         findings.error(
                             at(),
-                            "index",
+                            Check::Index,
                             format!("index {} follows {}", run.first_index, last.2),
                         );
                     }
@@ -326,7 +328,7 @@ fn assemble_episodes(
                     if run.episode != expected {
                         findings.error(
                             at(),
-                            "episode_index",
+                            Check::EpisodeIndex,
                             format!(
                                 "episode {} follows episode {} in row order",
                                 run.episode,
@@ -338,7 +340,7 @@ fn assemble_episodes(
                     if full && run.first_index != expected_index {
                         findings.error(
                             at(),
-                            "index",
+                            Check::Index,
                             format!(
                                 "the episode starts at index {} where {expected_index} was next",
                                 run.first_index
@@ -348,7 +350,7 @@ fn assemble_episodes(
                     if run.first_frame != 0 {
                         findings.error(
                             at(),
-                            "frame_index",
+                            Check::FrameIndex,
                             format!("the episode starts at frame_index {}", run.first_frame),
                         );
                     }
@@ -375,7 +377,7 @@ fn check_episodes_table(
     if entries.len() != episodes.len() && (full || entries.len() < episodes.len()) {
         findings.error(
             At::file(episodes_file),
-            "episodes",
+            Check::Episodes,
             format!(
                 "the episodes table has {} rows, the data {} episodes",
                 entries.len(),
@@ -391,7 +393,7 @@ fn check_episodes_table(
         if full && entry.length != Some(rows as i64) {
             findings.error(
                 at(),
-                "length",
+                Check::Length,
                 format!("length {:?}, the data holds {rows} frames", entry.length),
             );
         }
@@ -399,7 +401,7 @@ fn check_episodes_table(
             if entry.from != Some(first) {
                 findings.error(
                     at(),
-                    "from_to",
+                    Check::FromTo,
                     format!(
                         "dataset_from_index {:?}, the episode's first index is {first}",
                         entry.from
@@ -407,23 +409,23 @@ fn check_episodes_table(
                 );
             }
             if full && entry.to != Some(last + 1) {
-                findings.error(at(), "from_to", format!("dataset_to_index {:?}, the episode's last index is {last} (to is exclusive)", entry.to));
+                findings.error(at(), Check::FromTo, format!("dataset_to_index {:?}, the episode's last index is {last} (to is exclusive)", entry.to));
             }
             if let Some((chunk, data_file)) = entry.data_file {
                 let expected = format!("data/chunk-{chunk:03}/file-{data_file:03}.parquet");
                 if findings.relative(&files[file]) != expected {
-                    findings.error(at(), "location", format!("data/chunk_index, data/file_index name {expected}, the episode is in {}", findings.relative(&files[file])));
+                    findings.error(at(), Check::Location, format!("data/chunk_index, data/file_index name {expected}, the episode is in {}", findings.relative(&files[file])));
                 }
             }
         }
         if entry.tasks.is_empty() {
-            findings.error(at(), "tasks", "the episode lists no task");
+            findings.error(at(), Check::Tasks, "the episode lists no task");
         }
         for task in &entry.tasks {
             if !context.task_names.contains(task) {
                 findings.error(
                     at(),
-                    "tasks",
+                    Check::Tasks,
                     format!("task {task:?} is not in the tasks table"),
                 );
             }
@@ -447,7 +449,7 @@ fn check_table_files(context: &Context<'_>, episodes: &[EpisodeSpan], info: &Inf
             if !path.is_file() {
                 findings.error(
                     At::file(findings.relative(&path)).episode(i as u64),
-                    "present",
+                    Check::Present,
                     "is missing (the episodes table names it)",
                 );
             }
@@ -461,7 +463,7 @@ fn check_table_files(context: &Context<'_>, episodes: &[EpisodeSpan], info: &Inf
             if !path.is_file() {
                 findings.error(
                     At::file(findings.relative(&path)).episode(i as u64),
-                    "present",
+                    Check::Present,
                     "is missing",
                 );
             }
@@ -469,7 +471,7 @@ fn check_table_files(context: &Context<'_>, episodes: &[EpisodeSpan], info: &Inf
         if entry.length == Some(0) {
             findings.error(
                 At::file(episodes_file).episode(i as u64),
-                "steps",
+                Check::Steps,
                 "the episode has zero frames",
             );
         }
@@ -484,7 +486,7 @@ fn check_totals(context: &Context<'_>, info: &InfoJson, episodes: u64, frames: u
     {
         findings.error(
             At::file("meta/info.json"),
-            "totals",
+            Check::Totals,
             format!("total_episodes is {total}, the data holds {episodes}"),
         );
     }
@@ -493,7 +495,7 @@ fn check_totals(context: &Context<'_>, info: &InfoJson, episodes: u64, frames: u
     {
         findings.error(
             At::file("meta/info.json"),
-            "totals",
+            Check::Totals,
             format!("total_frames is {total}, the data holds {frames}"),
         );
     }
@@ -502,7 +504,7 @@ fn check_totals(context: &Context<'_>, info: &InfoJson, episodes: u64, frames: u
     {
         findings.error(
             At::file("meta/info.json"),
-            "totals",
+            Check::Totals,
             format!(
                 "total_tasks is {total}, the tasks table holds {}",
                 context.tasks

@@ -1,6 +1,7 @@
 //! What the LeRobot checks share: the declared features, the episodes table's entries, the
 //! parts (row groups) the data is checked in, and reading a parquet table for a check.
 
+use crate::export::check::Check;
 use crate::export::findings::{Findings, Semantics};
 use arrow_array::RecordBatch;
 use serde_json::Value;
@@ -69,7 +70,7 @@ pub(super) fn read_table(path: &Path, findings: &Findings) -> Option<Vec<RecordB
     match crate::export::lerobot::read::read_parquet(path) {
         Ok(batches) => Some(batches),
         Err(_) => {
-            findings.file_error(path, "readable", "is not a readable parquet file");
+            findings.file_error(path, Check::Readable, "is not a readable parquet file");
             None
         }
     }

@@ -4,6 +4,7 @@
 
 use super::parts::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
+use crate::export::check::Check;
 use crate::export::findings::{At, Semantics, check_semantics};
 use crate::media::image::{decode_png, png_size};
 use crate::media::tiff::decode_f32_tiff;
@@ -49,7 +50,7 @@ impl Context<'_> {
             Err(problem) => {
                 findings.error(
                     At::file(file),
-                    "readable",
+                    Check::Readable,
                     format!("row group {group}: {problem}"),
                 );
                 return part;
@@ -64,7 +65,7 @@ impl Context<'_> {
                 Err(problem) => {
                     findings.error(
                         At::file(file.clone()),
-                        "readable",
+                        Check::Readable,
                         format!("row group {group} cannot be decoded: {problem}"),
                     );
                     return part;
@@ -91,7 +92,7 @@ impl Context<'_> {
             let Some(field) = schema.field_with_name(&feature.name).ok() else {
                 self.findings.error(
                     At::file(file),
-                    "columns",
+                    Check::Columns,
                     format!("the declared feature {} has no column", feature.name),
                 );
                 continue;
@@ -99,7 +100,7 @@ impl Context<'_> {
             if let Some(problem) = type_problem(feature, field.data_type()) {
                 self.findings.error(
                     At::file(file),
-                    "types",
+                    Check::Types,
                     format!("{}: {problem}", feature.name),
                 );
             }
@@ -112,7 +113,7 @@ impl Context<'_> {
             if !declared {
                 self.findings.error(
                     At::file(file),
-                    "columns",
+                    Check::Columns,
                     format!(
                         "column {} is not a declared feature of meta/info.json",
                         field.name()
@@ -144,7 +145,7 @@ impl Context<'_> {
         else {
             findings.error(
                 At::file(file),
-                "columns",
+                Check::Columns,
                 "lacks an int64 index, episode_index or frame_index column",
             );
             return;
@@ -206,14 +207,14 @@ impl Context<'_> {
                     if !self.quick && columns.index[row] != run.last_index + 1 {
                         findings.error(
                             at(),
-                            "index",
+                            Check::Index,
                             format!("index {} follows {}", columns.index[row], run.last_index),
                         );
                     }
                     if !self.quick && columns.frame[row] != run.last_frame + 1 {
                         findings.error(
                             at(),
-                            "frame_index",
+                            Check::FrameIndex,
                             format!(
                                 "frame_index {} follows {}",
                                 columns.frame[row], run.last_frame
@@ -238,7 +239,7 @@ impl Context<'_> {
                 if (timestamps[row] - expected).abs() > TIMESTAMP_TOLERANCE_SECS {
                     findings.error(
                         at(),
-                        "timestamps",
+                        Check::Timestamps,
                         format!(
                             "timestamp {} s where frame_index / fps = {expected:.6} s",
                             timestamps[row]
@@ -251,7 +252,7 @@ impl Context<'_> {
             {
                 findings.error(
                     at(),
-                    "task_index",
+                    Check::TaskIndex,
                     format!(
                         "task_index {} is not in the tasks table ({} tasks)",
                         task[row], self.tasks
@@ -287,7 +288,7 @@ impl Context<'_> {
                 let at = At::file(file)
                     .episode(columns.episode[row].max(0) as u64)
                     .frame(columns.frame[row].max(0) as u64);
-                findings.error(at, "finite", format!("{} holds {bad}", feature.name));
+                findings.error(at, Check::Finite, format!("{} holds {bad}", feature.name));
                 continue;
             }
             for (m, &v) in moments.iter_mut().zip(chunk) {
@@ -348,7 +349,7 @@ impl Context<'_> {
             let Some(encoded) = encoded.filter(|e| !e.is_empty()) else {
                 findings.error(
                     at(),
-                    "image",
+                    Check::Image,
                     format!("{} has no image bytes", feature.name),
                 );
                 continue;
@@ -365,7 +366,7 @@ impl Context<'_> {
                 Err(problem) => {
                     findings.error(
                         at(),
-                        "image",
+                        Check::Image,
                         format!("{} does not decode: {problem}", feature.name),
                     );
                     continue;
@@ -374,7 +375,7 @@ impl Context<'_> {
             if (w, h) != (width, height) {
                 findings.error(
                     at(),
-                    "image",
+                    Check::Image,
                     format!("{} is {w}x{h}, declared {width}x{height}", feature.name),
                 );
             }
@@ -386,7 +387,7 @@ impl Context<'_> {
                 };
                 findings.error(
                     at(),
-                    "image",
+                    Check::Image,
                     format!(
                         "{} has {c} channels, declared {channels}{what}",
                         feature.name
