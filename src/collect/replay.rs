@@ -8,6 +8,7 @@ use crate::episode::Episode;
 use crate::export::check::Check;
 use crate::export::collection::Collection;
 use crate::export::convert::DEPTH_TOLERANCE_M;
+use crate::export::pipeline::{Episodes, in_order};
 use crate::export::validate::Finding;
 use crate::export::{ExportError, open_source};
 use crate::task::success::RULE_SET;
@@ -216,45 +217,14 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
         .collect();
     let pool = crate::threads::pool(threads).map_err(ExportError::from)?;
     let mut findings = Vec::new();
-    let batch_size = pool.current_num_threads().max(1);
-    loop {
-        let mut batch = Vec::with_capacity(batch_size);
-        while batch.len() < batch_size {
-            match source.next() {
-                Some(Ok(episode)) => batch.push(episode),
-                Some(Err(error)) => {
-                    findings.push(Finding {
-                        file: None,
-                        episode: None,
-                        frame: None,
-                        check: Check::Replay,
-                        message: format!("reading stopped: {error}"),
-                    });
-                    return Ok(Replayed {
-                        errors: findings,
-                        warnings,
-                    });
-                }
-                None => break,
-            }
-        }
-        if batch.is_empty() {
-            return Ok(Replayed {
-                errors: findings,
-                warnings,
-            });
-        }
-        let problems: Vec<_> = pool.install(|| {
-            batch
-                .par_iter()
-                .map(|episode| {
-                    (
-                        episode.meta.index,
-                        replay_episode(episode, &options, lossy, judge),
-                    )
-                })
-                .collect()
-        });
+    let mut replay = |batch: Vec<Episode>| {
+        let problems: Vec<_> = batch
+            .par_iter()
+            .map(|episode| {
+                let problem = replay_episode(episode, &options, lossy, judge);
+                (episode.meta.index, problem)
+            })
+            .collect();
         for (episode, problem) in problems {
             if let Some((frame, check, message)) = problem {
                 findings.push(Finding {
@@ -266,5 +236,21 @@ pub fn replay_dataset(path: &Path, threads: usize) -> Result<Replayed, ReplayErr
                 });
             }
         }
+        Ok(())
+    };
+    let mut episodes = Episodes::of(vec![&mut *source]);
+    let read = pool.install(|| in_order(&mut episodes, |e| e, &mut replay, &mut |_| {}));
+    if let Err(error) = read {
+        findings.push(Finding {
+            file: None,
+            episode: None,
+            frame: None,
+            check: Check::Replay,
+            message: format!("reading stopped: {error}"),
+        });
     }
+    Ok(Replayed {
+        errors: findings,
+        warnings,
+    })
 }

@@ -6,6 +6,7 @@
 use crate::episode::{Episode, FeatureKind, ImageEncoding, MAX_OBJECTS, POSE_VALUES};
 use crate::error::ErrorKind;
 use crate::export::error::ExportError;
+use crate::export::pipeline::{Episodes, in_order};
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::Summary;
 use crate::export::source::EpisodeSource;
@@ -59,58 +60,20 @@ fn copy(
     progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<Summary, ConvertError> {
     let skip = sink.next_episode_index();
-    let batch_size = rayon::current_num_threads().max(1);
     let unused: Vec<ImageEncoding> = [ImageEncoding::Png, ImageEncoding::Tiff, ImageEncoding::Jpeg]
         .into_iter()
         .filter(|e| !sink.reuses_stored(*e))
         .collect();
     source.drop_stored(&unused);
-    let read_batch = |source: &mut (dyn EpisodeSource + Send), done: &mut u64| {
-        let mut batch = read_batch(source, batch_size, skip, done)?;
+    let mut episodes = Episodes::of(vec![source]).skipping(skip);
+    let mut write = |mut batch: Vec<Episode>| {
         for episode in &mut batch {
             episode.encoded.retain(|e| !unused.contains(&e.encoding));
         }
-        Ok(batch)
+        sink.write_batch(&batch).map_err(ConvertError::Write)
     };
-    let mut done = 0u64;
-    let mut next = read_batch(source, &mut done)?;
-    // The next batch is read (and its video decoded) while this one is written: reading is
-    // partly serial (parquet rows, image decoding), so the two overlap on the pool's threads.
-    while !next.is_empty() {
-        let batch = std::mem::take(&mut next);
-        let read_so_far = done;
-        let (written, read) = rayon::join(
-            || sink.write_batch(&batch).map_err(ConvertError::Write),
-            || read_batch(source, &mut done),
-        );
-        written?;
-        progress(read_so_far);
-        next = read?;
-    }
-    progress(done);
+    in_order(&mut episodes, ConvertError::Read, &mut write, progress)?;
     sink.finish().map_err(ConvertError::Write)
-}
-
-/// Up to `size` episodes from `source` that a sink continuing at `skip` still needs; `done`
-/// counts every episode read.
-fn read_batch(
-    source: &mut (dyn EpisodeSource + Send),
-    size: usize,
-    skip: u64,
-    done: &mut u64,
-) -> Result<Vec<Episode>, ConvertError> {
-    let mut batch = Vec::with_capacity(size);
-    while batch.len() < size {
-        let Some(episode) = source.next() else {
-            break;
-        };
-        let episode = episode.map_err(ConvertError::Read)?;
-        *done += 1;
-        if episode.meta.index >= skip {
-            batch.push(episode);
-        }
-    }
-    Ok(batch)
 }
 
 /// A source with some optional features left out (`convert --without`): they leave the

@@ -24,6 +24,7 @@
 //!   number of episodes; a checkpoint records their length and checksum, resume cuts them back.
 //! - **Rolling.** [`FileCounter`] numbers rolled files `chunk/file` the LeRobot way.
 
+use crate::export::collection::{RecordedShard, SHARD_KEY};
 use crate::export::error::ExportError;
 use crate::export::error::OptionChange;
 use crate::export::paths;
@@ -125,6 +126,9 @@ pub(crate) fn checksum(mut file: impl Read, path: &Path) -> Result<(u64, u32), E
     }
 }
 
+/// The option every format records its name under (a field of each format's recorded options).
+pub const FORMAT: &str = "format";
+
 /// Everything a run's bytes depend on, by option name (e.g. `seed`, `video`, `features`): a
 /// dataset records it when it starts, and a resume must give the same.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -135,15 +139,50 @@ impl RunOptions {
     /// resume must read the same one; it is not part of the [`RunOptions::digest`].
     pub const INPUT: &'static str = "input";
 
-    /// Records `option` (a later value replaces an earlier one).
-    pub fn set(&mut self, option: impl Into<String>, value: Value) {
-        self.0.insert(option.into(), value);
+    /// The options `recorded` states: every field of a recorded-options struct (the dataset's
+    /// or a format's), by its name; a field the struct does not skip is recorded even when
+    /// `None` (as null).
+    pub fn recorded(recorded: &impl Serialize) -> RunOptions {
+        let mut options = RunOptions::default();
+        if let Ok(value) = serde_json::to_value(recorded) {
+            options.extend_from(&value);
+        }
+        options
     }
 
-    /// Every key of a JSON object, as options.
-    pub fn extend_from(&mut self, object: &Value) {
+    /// The options read back as `T`, a recorded-options struct (the other options ignored);
+    /// None when one it needs is missing or of another type.
+    pub fn read<T: DeserializeOwned>(&self) -> Option<T> {
+        let object = self.0.iter().map(|(k, v)| (k.clone(), v.clone()));
+        serde_json::from_value(Value::Object(object.collect())).ok()
+    }
+
+    /// The name of the format the dataset is written in (None: a dataset that records no
+    /// options, written by an older surgvla).
+    pub fn format(&self) -> Option<&str> {
+        self.0.get(FORMAT)?.as_str()
+    }
+
+    /// The run's shard as recorded (a collection's option; None when it records none).
+    pub fn shard(&self) -> Option<&str> {
+        self.0.get(SHARD_KEY)?.as_str()
+    }
+
+    /// Records the run's shard (None: as null, what a merge compares all but the shard with).
+    pub fn set_shard(&mut self, shard: Option<&RecordedShard>) {
+        let value = shard.map_or(Value::Null, |shard| shard.to_string().into());
+        self.0.insert(SHARD_KEY.into(), value);
+    }
+
+    /// Records the input's identity (see [`RunOptions::INPUT`]).
+    pub fn set_input(&mut self, input: &str) {
+        self.0.insert(Self::INPUT.into(), input.into());
+    }
+
+    /// Records every key of a JSON object.
+    fn extend_from(&mut self, object: &Value) {
         for (key, value) in object.as_object().into_iter().flatten() {
-            self.set(key.clone(), value.clone());
+            self.0.insert(key.clone(), value.clone());
         }
     }
 
@@ -981,10 +1020,7 @@ mod tests {
     }
 
     fn options(seed: u64) -> RunOptions {
-        let mut options = RunOptions::default();
-        options.set("seed", seed.into());
-        options.set("format", "lerobot".into());
-        options
+        RunOptions::recorded(&serde_json::json!({"seed": seed, "format": "lerobot"}))
     }
 
     #[test]
@@ -1047,7 +1083,7 @@ mod tests {
         drop(DatasetDir::create(&root, &options(1)).expect("create"));
         let marker = std::fs::read(root.join(INCOMPLETE_MARKER)).expect("marker");
         let mut other = options(2);
-        other.set("video", "h264".into());
+        other.merge(RunOptions::recorded(&serde_json::json!({"video": "h264"})));
         match DatasetDir::resume::<()>(&root, &other, &["meta"]) {
             Err(ExportError::OptionsChanged { changes, .. }) => {
                 let said: Vec<String> = changes.iter().map(ToString::to_string).collect();

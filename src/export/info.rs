@@ -5,6 +5,7 @@
 use crate::episode::{Aabb, CameraInfo, Dtype, FeatureKind, FeatureSpec};
 use crate::export::collection::Collection;
 use crate::export::dir::RunOptions;
+use serde::Serialize;
 use serde_json::{Value, json};
 
 /// What a dataset is, besides its episodes.
@@ -32,6 +33,21 @@ pub struct DatasetInfo {
     /// a conversion records and its resume compares; None for a collection. Never written into
     /// a dataset, and not part of its options digest.
     pub input: Option<String>,
+}
+
+/// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
+#[derive(Serialize)]
+struct RecordedDataset<'a> {
+    /// "name [shape]" per feature.
+    features: Vec<String>,
+    fps: u32,
+    robot_type: &'a str,
+    camera: CameraInfo,
+    mask_ids: &'a [(u8, String)],
+    generator: &'a str,
+    /// Only when known, so a dataset started before the key existed still resumes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tip_workspace_m: Option<Value>,
 }
 
 impl DatasetInfo {
@@ -68,30 +84,22 @@ impl DatasetInfo {
     /// each key of the collection (seed, tasks, ...), the features, fps, camera, robot, mask ids
     /// and generator.
     pub fn run_options(&self) -> RunOptions {
-        let mut options = RunOptions::default();
-        let features: Vec<String> = self
-            .features
-            .iter()
-            .map(|f| format!("{} {:?}", f.name, f.shape))
-            .collect();
-        options.set("features", json!(features));
-        options.set("fps", json!(self.fps));
-        options.set("robot_type", json!(self.robot_type));
-        options.set(
-            "camera",
-            serde_json::to_value(self.camera).unwrap_or(Value::Null),
-        );
-        options.set("mask_ids", json!(self.mask_ids));
-        options.set("generator", json!(self.generator));
-        // Only when known, so a dataset started before the key existed still resumes.
-        if let Some(workspace) = self.tip_workspace {
-            options.set("tip_workspace_m", workspace_json(workspace));
-        }
-        for (option, value) in self.collection.iter().flat_map(Collection::entries) {
-            options.set(option, value.clone());
+        let mut options = RunOptions::recorded(&RecordedDataset {
+            features: (self.features.iter())
+                .map(|f| format!("{} {:?}", f.name, f.shape))
+                .collect(),
+            fps: self.fps,
+            robot_type: &self.robot_type,
+            camera: self.camera,
+            mask_ids: &self.mask_ids,
+            generator: &self.generator,
+            tip_workspace_m: self.tip_workspace.map(workspace_json),
+        });
+        if let Some(collection) = &self.collection {
+            options.merge(RunOptions::recorded(collection));
         }
         if let Some(input) = &self.input {
-            options.set(RunOptions::INPUT, json!(input));
+            options.set_input(input);
         }
         options
     }

@@ -7,12 +7,13 @@
 //! its chunks, point-cloud folders copy their files under new episode numbers.
 
 use crate::export::bounded::read_json;
-use crate::export::collection::{Collection, RecordedShard, SHARD_KEY, Shard};
+use crate::export::collection::{Collection, RecordedShard, Shard};
 use crate::export::convert::ConvertError;
 use crate::export::dir::DatasetDir;
 use crate::export::dir::RunOptions;
 use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
+use crate::export::pipeline::{Episodes, in_order};
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::Summary;
 use crate::export::source::EpisodeSource;
@@ -43,7 +44,7 @@ impl Part {
     ) -> Result<Part, MergeError> {
         let read = |e| MergeError::Convert(crate::export::convert::ConvertError::Read(e));
         let options = RunOptions::from_manifest(&read_json(manifest).map_err(read)?);
-        if options.get("format").is_none() {
+        if options.format().is_none() {
             return Err(MergeError::Unsupported {
                 path: manifest.to_path_buf(),
                 problem:
@@ -86,7 +87,7 @@ pub fn plan(mut parts: Vec<Part>) -> Result<Plan, MergeError> {
     let first = parts.first().ok_or(MergeError::NoInput)?.clone();
     let without_shard = |options: &RunOptions| {
         let mut options = options.clone();
-        options.set(SHARD_KEY, Value::Null);
+        options.set_shard(None);
         options
     };
     for part in &parts[1..] {
@@ -121,7 +122,7 @@ pub fn plan(mut parts: Vec<Part>) -> Result<Plan, MergeError> {
         if let Some(collection) = &mut collection {
             collection.set_shard(&merged);
         }
-        options.set(SHARD_KEY, Value::from(merged.to_string()));
+        options.set_shard(Some(&merged));
     }
     Ok(Plan {
         parts,
@@ -144,42 +145,14 @@ pub fn write_through(
     let read = |e| MergeError::Convert(ConvertError::Read(e));
     let write = |e| MergeError::Convert(ConvertError::Write(e));
     let pool = crate::threads::pool(threads).map_err(|e| write(e.into()))?;
-    let mut skip = sink.next_episode_index();
-    pool.install(|| -> Result<(), MergeError> {
-        let batch_size = rayon::current_num_threads().max(1);
-        let mut batch = Vec::with_capacity(batch_size);
-        let mut next = 0u64;
-        for mut source in sources {
-            loop {
-                if skip > 0 {
-                    match source.skip_episode() {
-                        Some(skipped) => skipped.map_err(read)?,
-                        None => break,
-                    }
-                    skip -= 1;
-                    next += 1;
-                    continue;
-                }
-                let Some(episode) = source.next() else {
-                    break;
-                };
-                let mut episode = episode.map_err(read)?;
-                episode.meta.index = next;
-                next += 1;
-                batch.push(episode);
-                if batch.len() == batch_size {
-                    sink.write_batch(&batch).map_err(write)?;
-                    batch.clear();
-                    progress(next);
-                }
-            }
-        }
-        if !batch.is_empty() {
-            sink.write_batch(&batch).map_err(write)?;
-        }
-        progress(next);
-        Ok(())
-    })?;
+    let mut sources = sources;
+    let sources = sources.iter_mut().map(|s| &mut **s as _).collect();
+    let mut episodes = Episodes::of(sources)
+        .renumbered()
+        .skipping(sink.next_episode_index());
+    let mut write_batch =
+        |batch: Vec<crate::episode::Episode>| sink.write_batch(&batch).map_err(write);
+    pool.install(|| in_order(&mut episodes, read, &mut write_batch, progress))?;
     match reports {
         Some((reports, shard)) => {
             let mut sidecar = |summary: &Summary| report_bytes(&reports, summary, shard.as_ref());
@@ -431,10 +404,9 @@ mod tests {
 
     fn part(name: &str, shard: &str, seed: u64) -> Part {
         let collection = Collection::from_json(&json!({"seed": seed, "shard": shard}));
-        let mut options = RunOptions::default();
-        options.set("format", json!("zarr"));
-        for (option, value) in collection.iter().flat_map(Collection::entries) {
-            options.set(option, value.clone());
+        let mut options = RunOptions::recorded(&json!({"format": "zarr"}));
+        if let Some(collection) = &collection {
+            options.merge(RunOptions::recorded(collection));
         }
         Part {
             path: PathBuf::from(name),

@@ -39,6 +39,7 @@ pub mod mcap;
 pub mod merge;
 pub mod open;
 pub mod paths;
+pub mod pipeline;
 pub mod pointcloud;
 pub mod profile;
 pub mod registry;

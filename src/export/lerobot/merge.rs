@@ -20,6 +20,7 @@ use crate::export::lerobot::options::{LeRobotOptions, LeRobotVersion, VideoOptio
 use crate::export::lerobot::read::LeRobotSource;
 use crate::export::lerobot::writer::LeRobotWriter;
 pub use crate::export::merge::REPORT;
+use crate::export::pipeline::{Episodes, in_order};
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::Summary;
 use crate::export::source::EpisodeSource;
@@ -231,44 +232,20 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
     let resuming = crate::export::dir::resumes(out, request.resume);
     let mut sink = LeRobotWriter::open(out, &info, options, resuming).map_err(write)?;
     // A resumed merge skips the episodes already written.
-    let mut skip = sink.next_episode_index();
+    let sources = opened.iter_mut().map(|i| &mut i.source as _).collect();
+    let mut episodes = Episodes::of(sources)
+        .renumbered()
+        .skipping(sink.next_episode_index());
+    let mut write_batch = |mut batch: Vec<crate::episode::Episode>| {
+        if exact_stats {
+            exact(&mut batch, &info)?;
+        }
+        sink.write_batch(&batch).map_err(write)
+    };
+    let read = |e| MergeError::Convert(ConvertError::Read(e));
     let progress = &mut *request.progress;
     let pool = crate::threads::pool(threads).map_err(|e| write(e.into()))?;
-    pool.install(|| -> Result<(), MergeError> {
-        let batch_size = rayon::current_num_threads().max(1);
-        let mut batch = Vec::with_capacity(batch_size);
-        let mut next = 0u64;
-        for input in &mut opened {
-            for episode in input.source.by_ref() {
-                let mut episode =
-                    episode.map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
-                if skip > 0 {
-                    skip -= 1;
-                    next += 1;
-                    continue;
-                }
-                episode.meta.index = next;
-                next += 1;
-                batch.push(episode);
-                if batch.len() == batch_size {
-                    if exact_stats {
-                        exact(&mut batch, &info)?;
-                    }
-                    sink.write_batch(&batch).map_err(write)?;
-                    batch.clear();
-                    progress(next);
-                }
-            }
-        }
-        if !batch.is_empty() {
-            if exact_stats {
-                exact(&mut batch, &info)?;
-            }
-            sink.write_batch(&batch).map_err(write)?;
-        }
-        progress(next);
-        Ok(())
-    })?;
+    pool.install(|| in_order(&mut episodes, read, &mut write_batch, progress))?;
     let shard = info.collection.as_ref().and_then(Collection::shard);
     let summary = match reports {
         Some(reports) => {

@@ -4,7 +4,7 @@
 use crate::export::dir::RunOptions;
 use crate::media::image::PngLevel;
 use crate::media::video::Codec;
-use serde_json::{Value, json};
+use serde::Serialize;
 
 /// The codebase version written to info.json.
 pub const CODEBASE_VERSION: &str = "v3.0";
@@ -26,24 +26,42 @@ pub struct LeRobotOptions {
 impl LeRobotOptions {
     /// What these options change in the bytes, by option name (for resume).
     pub fn run_options(&self) -> RunOptions {
-        let mut options = RunOptions::default();
-        options.set("format", "lerobot".into());
-        let version = match self.version {
-            LeRobotVersion::V30 => "3.0",
-            LeRobotVersion::V21 => "2.1",
-        };
-        options.set("lerobot_version", version.into());
-        options.set(
-            "video",
-            self.video.map_or(Value::Null, |v| {
-                json!({"codec": v.codec.name(), "quality": v.quality, "file_mb": v.file_size_mb})
+        RunOptions::recorded(&Recorded {
+            format: "lerobot",
+            lerobot_version: match self.version {
+                LeRobotVersion::V30 => "3.0",
+                LeRobotVersion::V21 => "2.1",
+            },
+            video: self.video.map(|v| RecordedVideo {
+                codec: v.codec.name(),
+                quality: v.quality,
+                file_mb: v.file_size_mb,
             }),
-        );
-        options.set("data_file_mb", self.data_file_size_mb.into());
-        options.set("chunks_size", self.chunks_size.into());
-        options.set("png", format!("{:?}", self.png).into());
-        options
+            data_file_mb: self.data_file_size_mb,
+            chunks_size: self.chunks_size,
+            png: self.png,
+        })
     }
+}
+
+/// The options a LeRobot dataset records (see [`LeRobotOptions::run_options`]).
+#[derive(Serialize)]
+struct Recorded {
+    format: &'static str,
+    lerobot_version: &'static str,
+    /// Null in image mode.
+    video: Option<RecordedVideo>,
+    data_file_mb: u64,
+    chunks_size: u64,
+    png: PngLevel,
+}
+
+/// The video options a LeRobot dataset records.
+#[derive(Serialize)]
+struct RecordedVideo {
+    codec: &'static str,
+    quality: u32,
+    file_mb: u64,
 }
 
 impl Default for LeRobotOptions {

@@ -12,7 +12,7 @@ use crate::export::bounded::read_capped;
 use crate::export::bounded::read_json;
 use crate::export::collection::{Collection, SHARD_KEY};
 use crate::export::convert::ConvertError;
-use crate::export::dir::DatasetDir;
+use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::error::ExportError;
 use crate::export::format::{MergeError, MergeRequest};
 use crate::export::merge::{Part, merge_episode_files, plan};
@@ -156,9 +156,9 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
     for path in request.inputs {
         // MCAP folders keep no surgvla metadata file: the shard is in the recorded options.
         let manifest = path.join(MANIFEST);
-        let shard = read_json(&manifest).map_err(read)?["options"][SHARD_KEY].clone();
+        let options = RunOptions::from_manifest(&read_json(&manifest).map_err(read)?);
         let collection =
-            Collection::from_json(&json!({ SHARD_KEY: shard })).filter(|_| shard.is_string());
+            (options.shard()).and_then(|shard| Collection::from_json(&json!({ SHARD_KEY: shard })));
         parts.push(Part::read(path, &manifest, collection)?);
     }
     let plan = plan(parts)?;

@@ -5,7 +5,7 @@ use crate::episode::{Episode, FeatureKind, SceneMesh};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
-use crate::export::pointcloud::{CloudSettings, frame_cloud};
+use crate::export::pointcloud::{CloudSettings, RecordedCloud, frame_cloud};
 use crate::export::sink::Summary;
 use crate::export::writer::{EpisodeEncoder, EpisodeFiles, FormatWriter, Writer};
 use crate::media::image::{PngLevel, encode_png, stored_or};
@@ -32,9 +32,17 @@ pub struct McapOptions {
 
 impl McapOptions {
     pub fn run_options(&self) -> RunOptions {
-        let mut options = self.cloud.run_options();
-        options.set("format", json!("mcap"));
-        options
+        /// The options an MCAP dataset records.
+        #[derive(serde::Serialize)]
+        struct Recorded {
+            format: &'static str,
+            #[serde(flatten)]
+            cloud: RecordedCloud,
+        }
+        RunOptions::recorded(&Recorded {
+            format: "mcap",
+            cloud: self.cloud.recorded(),
+        })
     }
 }
 

@@ -84,12 +84,17 @@ impl CloudSettings {
 
     /// What these settings change in the bytes, by option name.
     pub fn run_options(&self) -> RunOptions {
-        let mut options = RunOptions::default();
-        options.set("cloud_points", json!(self.points));
-        options.set("cloud_crop_m", json!(self.crop));
-        options.set("cloud_margin_m", json!(self.margin_m));
-        options.set("cloud_voxel_m", json!(self.voxel_m));
-        options
+        RunOptions::recorded(&self.recorded())
+    }
+
+    /// The settings as a dataset's options record them.
+    pub fn recorded(&self) -> RecordedCloud {
+        RecordedCloud {
+            cloud_points: self.points,
+            cloud_crop_m: self.crop,
+            cloud_margin_m: self.margin_m,
+            cloud_voxel_m: self.voxel_m,
+        }
     }
 
     /// The settings as a dataset records them (the crop box resolved).
@@ -104,6 +109,16 @@ impl CloudSettings {
             "sampling": "crop, one point per voxel (first in pixel order), farthest point sampling from the first; zero-padded",
         }))
     }
+}
+
+/// The point-cloud settings a dataset's options record (PLY, PCD, zarr and MCAP datasets).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct RecordedCloud {
+    pub cloud_points: usize,
+    /// Null: the dataset's tool-tip workspace with margins.
+    pub cloud_crop_m: Option<Aabb>,
+    pub cloud_margin_m: f64,
+    pub cloud_voxel_m: f64,
 }
 
 /// A sampled cloud: exactly `points` entries, the first `valid` real, the rest zero padding.

@@ -83,9 +83,18 @@ impl FormatWriter for CloudFiles {
         (format, settings): &Self::Options,
     ) -> Result<RunOptions, ExportError> {
         settings.options(info)?;
+        /// The options a point-cloud dataset records.
+        #[derive(serde::Serialize)]
+        struct Recorded {
+            format: CloudFileFormat,
+            #[serde(flatten)]
+            cloud: super::cloud::RecordedCloud,
+        }
         let mut run = info.run_options();
-        run.set("format", json!(format));
-        run.merge(settings.run_options());
+        run.merge(RunOptions::recorded(&Recorded {
+            format: *format,
+            cloud: settings.recorded(),
+        }));
         Ok(run)
     }
 

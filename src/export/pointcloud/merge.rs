@@ -39,7 +39,7 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         first_surgvla.get_or_insert(surgvla);
     }
     let plan = plan(parts)?;
-    let extension = match plan.options.get("format").and_then(Value::as_str) {
+    let extension = match plan.options.format() {
         Some("pcd") => "pcd",
         _ => "ply",
     };

@@ -23,7 +23,7 @@ pub mod ply;
 
 pub use crate::episode::Aabb;
 pub use cloud::{
-    Cloud, CloudOptions, CloudSettings, back_project, candidates, farthest_point_sampling,
-    frame_cloud,
+    Cloud, CloudOptions, CloudSettings, RecordedCloud, back_project, candidates,
+    farthest_point_sampling, frame_cloud,
 };
 pub use format::{CloudFileOptions, CloudFilesFormat, PCD, PLY};

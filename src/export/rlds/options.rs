@@ -5,7 +5,6 @@ use crate::export::dir::RunOptions;
 use crate::export::error::ExportError;
 use crate::media::image::PngLevel;
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 
 /// Every file with its size and CRC-32C, at the top of the output folder.
 pub const MANIFEST: &str = "surgvla_manifest.json";
@@ -64,6 +63,21 @@ pub struct RldsOptions {
     /// The RGB camera as JPEG of this quality (1-100) instead of PNG: what Open X-Embodiment
     /// and OpenVLA's datasets store, a fraction of the size, lossy.
     pub jpeg_quality: Option<u8>,
+}
+
+/// The options an RLDS dataset records (see [`RldsOptions::run_options`]), read back by its
+/// merge.
+#[derive(Serialize, Deserialize)]
+struct Recorded {
+    format: String,
+    rlds_name: String,
+    rlds_version: String,
+    rlds_shard_mb: u64,
+    png: PngLevel,
+    rlds_keys: RldsKeys,
+    /// Only when the RGB camera is JPEG.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    rlds_jpeg_quality: Option<u8>,
 }
 
 impl Default for RldsOptions {
@@ -132,40 +146,28 @@ impl RldsOptions {
 
     /// What these options change in the bytes, by option name (for resume).
     pub fn run_options(&self) -> RunOptions {
-        let mut options = RunOptions::default();
-        options.set("format", "rlds".into());
-        options.set("rlds_name", self.name.clone().into());
-        options.set("rlds_version", self.version.clone().into());
-        options.set("rlds_shard_mb", self.shard_size_mb.into());
-        options.set("png", format!("{:?}", self.png).into());
-        options.set("rlds_keys", json!(self.keys));
-        if let Some(quality) = self.jpeg_quality {
-            options.set("rlds_jpeg_quality", quality.into());
-        }
-        options
+        RunOptions::recorded(&Recorded {
+            format: "rlds".into(),
+            rlds_name: self.name.clone(),
+            rlds_version: self.version.clone(),
+            rlds_shard_mb: self.shard_size_mb,
+            png: self.png,
+            rlds_keys: self.keys.clone(),
+            rlds_jpeg_quality: self.jpeg_quality,
+        })
     }
 
     /// The options a dataset recorded ([`RldsOptions::run_options`], in its manifest); None
     /// when an option is missing or not of its type.
     pub fn from_run_options(run: &RunOptions) -> Option<RldsOptions> {
-        let text = |key: &str| run.get(key)?.as_str().map(String::from);
-        let png = match text("png")?.as_str() {
-            "Fast" => PngLevel::Fast,
-            "Default" => PngLevel::Default,
-            "Best" => PngLevel::Best,
-            _ => return None,
-        };
-        let jpeg_quality = match run.get("rlds_jpeg_quality") {
-            None => None,
-            Some(quality) => Some(u8::try_from(quality.as_u64()?).ok()?),
-        };
+        let recorded: Recorded = run.read()?;
         Some(RldsOptions {
-            name: text("rlds_name")?,
-            version: text("rlds_version")?,
-            shard_size_mb: run.get("rlds_shard_mb")?.as_u64()?,
-            png,
-            keys: serde_json::from_value(run.get("rlds_keys")?.clone()).ok()?,
-            jpeg_quality,
+            name: recorded.rlds_name,
+            version: recorded.rlds_version,
+            shard_size_mb: recorded.rlds_shard_mb,
+            png: recorded.png,
+            keys: recorded.rlds_keys,
+            jpeg_quality: recorded.rlds_jpeg_quality,
         })
     }
 

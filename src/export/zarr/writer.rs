@@ -6,7 +6,7 @@ use crate::episode::Episode;
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
-use crate::export::pointcloud::{CloudSettings, frame_cloud};
+use crate::export::pointcloud::{CloudSettings, RecordedCloud, frame_cloud};
 use crate::export::sink::Summary;
 use crate::export::writer::{EpisodeEncoder, FormatWriter, Writer};
 use rayon::prelude::*;
@@ -32,11 +32,21 @@ pub struct ZarrOptions {
 impl ZarrOptions {
     /// What these options change in the bytes, by option name.
     pub fn run_options(&self) -> RunOptions {
-        let mut options = self.cloud.run_options();
-        options.set("format", json!("zarr"));
-        options.set("zarr_images", json!(self.images));
-        options.set("zarr_mask_channel", json!(self.mask_channel));
-        options
+        /// The options a zarr dataset records.
+        #[derive(serde::Serialize)]
+        struct Recorded {
+            format: &'static str,
+            #[serde(flatten)]
+            cloud: RecordedCloud,
+            zarr_images: bool,
+            zarr_mask_channel: bool,
+        }
+        RunOptions::recorded(&Recorded {
+            format: "zarr",
+            cloud: self.cloud.recorded(),
+            zarr_images: self.images,
+            zarr_mask_channel: self.mask_channel,
+        })
     }
 }
 
