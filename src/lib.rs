@@ -6,6 +6,8 @@
 //! - [`env`]: the environment API (reset, step, observe) that collection and evaluation share.
 //! - [`collect`]: verified expert collection into any dataset sink.
 //! - [`export`]: the dataset layer: `DatasetInfo`, every format's sink and source.
+//! - [`ingest`]: robot recordings in: ROS message definitions, ROS 1 and CDR decoding, ROS 1
+//!   bags.
 //! - [`media`]: image and video codecs (PNG, JPEG, TIFF, AV1, H.264, MP4), below any dataset.
 //! - [`chart`]: charts as PNG in pure Rust (success rates, dataset histograms).
 //! - [`error`]: the kinds of failure (user's input or the work), for exit codes.
@@ -22,6 +24,7 @@ pub mod error;
 pub mod eval;
 pub mod export;
 pub mod files;
+pub mod ingest;
 pub mod media;
 pub mod noise;
 pub mod policy;
