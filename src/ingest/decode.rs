@@ -120,7 +120,7 @@ pub enum DecodeError {
 /// Elements of a zero-size type a sequence may claim (no bytes bound them).
 const MAX_EMPTY_ELEMENTS: u64 = 1 << 16;
 
-/// Decodes `bytes`, a message of `type_name` (a full name, `pkg/Type`) in `wire`.
+/// Decodes `bytes`, a message of `type_name` (`pkg/Type` or ROS 2's `pkg/msg/Type`) in `wire`.
 pub fn decode(
     defs: &MessageDefs,
     type_name: &str,
@@ -156,7 +156,8 @@ pub fn decode(
         aligned: wire == Wire::Cdr,
         defs,
     };
-    reader.message(type_name, type_name, 0)
+    let type_name = crate::ingest::msgdef::full_name(type_name, "");
+    reader.message(&type_name, &type_name, 0)
 }
 
 struct Reader<'a> {

@@ -14,6 +14,8 @@
 //! left before anything is allocated, a chunk decompresses to at most the size it states (and
 //! [`MAX_CHUNK_BYTES`]), and a damaged record is an error naming the file and its offset.
 
+use crate::ingest::decode::Wire;
+use crate::ingest::recording::{BagError, Channel, RawMessage};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -26,45 +28,6 @@ pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
 /// The largest record header, and connection record's data, read.
 pub const MAX_HEADER_BYTES: u64 = 16 << 20;
 
-/// A bag that cannot be read.
-#[derive(Debug, thiserror::Error)]
-pub enum BagError {
-    #[error("reading {path}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{path}, byte {offset}: {problem}")]
-    Damaged {
-        path: PathBuf,
-        offset: u64,
-        problem: String,
-    },
-}
-
-/// What a connection carries: its topic and message type, with the type's definition.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Connection {
-    pub id: u32,
-    pub topic: String,
-    /// `pkg/Type`.
-    pub type_name: String,
-    pub md5sum: String,
-    /// The type's definition with its dependencies ([`crate::ingest::msgdef`]).
-    pub definition: String,
-}
-
-/// One message as stored: its connection, the time the recorder received it, its bytes (ROS 1
-/// serialisation).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct RawMessage {
-    pub connection: u32,
-    /// Receive time, nanoseconds since the epoch.
-    pub receive_ns: i64,
-    pub data: Vec<u8>,
-}
-
 /// A ROS 1 bag being read (see the module overview).
 pub struct Ros1Bag {
     path: PathBuf,
@@ -72,7 +35,7 @@ pub struct Ros1Bag {
     /// Offset of the next record in the file.
     offset: u64,
     len: u64,
-    connections: BTreeMap<u32, Connection>,
+    connections: BTreeMap<u32, Channel>,
     /// The chunk being read: its records and the offset of the next one in it, with the file
     /// offset it started at (for messages).
     chunk: Option<(Vec<u8>, usize, u64)>,
@@ -109,7 +72,7 @@ impl Ros1Bag {
     }
 
     /// The connections seen so far (every one before its first message).
-    pub fn connections(&self) -> &BTreeMap<u32, Connection> {
+    pub fn connections(&self) -> &BTreeMap<u32, Channel> {
         &self.connections
     }
 
@@ -209,12 +172,11 @@ impl Ros1Bag {
         let topic = fields.text("topic").map_err(|p| self.damaged(start, p))?;
         let details = Fields::parse(data).map_err(|p| self.damaged(start, p))?;
         let text = |name: &str| details.text(name).map_err(|p| self.damaged(start, p));
-        let connection = Connection {
-            id,
+        let connection = Channel {
             topic,
             type_name: text("type")?,
-            md5sum: text("md5sum").unwrap_or_default(),
-            definition: text("message_definition")?,
+            definition: Some(text("message_definition")?),
+            wire: Wire::Ros1,
         };
         self.connections.entry(id).or_insert(connection);
         Ok(())
@@ -506,7 +468,10 @@ pub(crate) mod tests {
                 .collect();
             assert_eq!(got, want, "{compression}");
             assert_eq!(bag.connections()[&1].topic, "/b");
-            assert_eq!(bag.connections()[&0].definition, "string data\n");
+            assert_eq!(
+                bag.connections()[&0].definition.as_deref(),
+                Some("string data\n")
+            );
             std::fs::remove_file(path).ok();
         }
     }

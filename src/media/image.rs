@@ -100,6 +100,29 @@ pub fn is_jpeg(bytes: &[u8]) -> bool {
     bytes.starts_with(&[0xff, 0xd8, 0xff])
 }
 
+/// The largest image, in pixels, a JPEG of unknown size may claim before it is decoded.
+pub const MAX_JPEG_PIXELS: usize = 8192 * 8192;
+
+/// Decodes a JPEG of any size up to [`MAX_JPEG_PIXELS`] (its header read first) to 8-bit RGB or
+/// grey: (width, height, channels, pixels).
+pub fn decode_jpeg(bytes: &[u8]) -> Result<DecodedPng, String> {
+    let mut decoder = jpeg_decoder::Decoder::new(bytes);
+    decoder
+        .read_info()
+        .map_err(|e| format!("not a readable JPEG: {e}"))?;
+    let info = decoder
+        .info()
+        .ok_or_else(|| "a JPEG without a frame header".to_string())?;
+    let size = (usize::from(info.width), usize::from(info.height));
+    if size.0 * size.1 > MAX_JPEG_PIXELS {
+        return Err(format!(
+            "a {}x{} JPEG, larger than surgvla reads",
+            size.0, size.1
+        ));
+    }
+    decode_jpeg_sized(bytes, size)
+}
+
 /// Decodes a JPEG of `expected` (width, height) to 8-bit RGB or grey: (width, height,
 /// channels, pixels). A size other than expected is refused from the header, before decoding.
 pub fn decode_jpeg_sized(bytes: &[u8], expected: (usize, usize)) -> Result<DecodedPng, String> {
