@@ -34,8 +34,8 @@ pub struct SinkTiming {
 /// [`PipelinedSink::write_encoded`] redeems it (typed all the way: nothing is cast back).
 #[derive(Debug, PartialEq, Eq)]
 pub struct Encoded {
-    /// Which sink's encoder issued it (the address of what the two share).
-    pub(crate) issuer: usize,
+    /// Which sink's encoder issued it (a number no other sink of the process has).
+    pub(crate) issuer: u64,
     /// The encoder's count of episodes encoded before it.
     pub(crate) number: u64,
 }

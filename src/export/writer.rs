@@ -126,41 +126,42 @@ pub trait EpisodeFrames<T>: Send {
 
 /// What a detached encoder made, held for its writer until an [`Encoded`] ticket redeems it.
 struct Held<T> {
+    /// This store's number among every writer's of the process (what its tickets carry).
+    issuer: u64,
     encoded: std::sync::Mutex<std::collections::HashMap<u64, T>>,
     /// Tickets issued so far (the next ticket's number).
     issued: std::sync::atomic::AtomicU64,
 }
 
+/// Stores made so far in the process: the next one's issuer number.
+static ISSUERS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
 impl<T> Held<T> {
     fn new() -> std::sync::Arc<Self> {
         std::sync::Arc::new(Held {
+            issuer: ISSUERS.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             encoded: std::sync::Mutex::new(std::collections::HashMap::new()),
             issued: std::sync::atomic::AtomicU64::new(0),
         })
     }
 
-    /// Who issues this store's tickets: its address.
-    fn issuer(self: &std::sync::Arc<Self>) -> usize {
-        std::sync::Arc::as_ptr(self).cast::<()>() as usize
-    }
-
     /// Holds `encoded` and returns its ticket.
-    fn hold(self: &std::sync::Arc<Self>, encoded: T) -> Encoded {
+    fn hold(&self, encoded: T) -> Encoded {
         let number = self
             .issued
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let mut held = self.encoded.lock().unwrap_or_else(|e| e.into_inner());
         held.insert(number, encoded);
         Encoded {
-            issuer: self.issuer(),
+            issuer: self.issuer,
             number,
         }
     }
 
     /// What `ticket` stands for; an error for another sink's ticket or one redeemed before.
-    fn redeem(self: &std::sync::Arc<Self>, ticket: &Encoded) -> Result<T, ExportError> {
+    fn redeem(&self, ticket: &Encoded) -> Result<T, ExportError> {
         let mut held = self.encoded.lock().unwrap_or_else(|e| e.into_inner());
-        (ticket.issuer == self.issuer())
+        (ticket.issuer == self.issuer)
             .then(|| held.remove(&ticket.number))
             .flatten()
             .ok_or_else(|| {
