@@ -127,8 +127,50 @@ pub fn decode(
     wire: Wire,
     bytes: &[u8],
 ) -> Result<RosValue, DecodeError> {
-    let (little, body) = match wire {
-        Wire::Ros1 => (true, bytes),
+    let (little, body) = body(wire, bytes)?;
+    let mut reader = Reader {
+        bytes: body,
+        at: 0,
+        little,
+        aligned: wire == Wire::Cdr,
+        defs,
+    };
+    let type_name = crate::ingest::msgdef::full_name(type_name, "");
+    reader.message(&type_name, &type_name, 0)
+}
+
+/// The first field of a message of `type_name` only (a `header`, say, without the image
+/// after it): what the first pass over a recording reads.
+pub fn decode_first_field(
+    defs: &MessageDefs,
+    type_name: &str,
+    wire: Wire,
+    bytes: &[u8],
+) -> Result<Option<RosValue>, DecodeError> {
+    let type_name = crate::ingest::msgdef::full_name(type_name, "");
+    let fields = defs
+        .fields(&type_name)
+        .ok_or_else(|| DecodeError::UnknownType {
+            type_name: type_name.clone(),
+        })?;
+    let Some(first) = fields.first() else {
+        return Ok(None);
+    };
+    let (little, body) = body(wire, bytes)?;
+    let mut reader = Reader {
+        bytes: body,
+        at: 0,
+        little,
+        aligned: wire == Wire::Cdr,
+        defs,
+    };
+    reader.field(first, &first.name, 1).map(Some)
+}
+
+/// The byte order and the bytes after the CDR header (all of them for ROS 1).
+fn body(wire: Wire, bytes: &[u8]) -> Result<(bool, &[u8]), DecodeError> {
+    match wire {
+        Wire::Ros1 => Ok((true, bytes)),
         Wire::Cdr => {
             let header: [u8; 2] = match bytes {
                 [a, b, _, _, ..] => [*a, *b],
@@ -141,23 +183,13 @@ pub fn decode(
                     });
                 }
             };
-            let little = match header {
-                [0, 1] => true,
-                [0, 0] => false,
-                other => return Err(DecodeError::Encapsulation(other)),
-            };
-            (little, &bytes[4..])
+            match header {
+                [0, 1] => Ok((true, &bytes[4..])),
+                [0, 0] => Ok((false, &bytes[4..])),
+                other => Err(DecodeError::Encapsulation(other)),
+            }
         }
-    };
-    let mut reader = Reader {
-        bytes: body,
-        at: 0,
-        little,
-        aligned: wire == Wire::Cdr,
-        defs,
-    };
-    let type_name = crate::ingest::msgdef::full_name(type_name, "");
-    reader.message(&type_name, &type_name, 0)
+    }
 }
 
 struct Reader<'a> {

@@ -3,7 +3,8 @@
 //! two wire formats decoded by definition ([`decode`]: ROS 1 and CDR), recordings read as
 //! streams of [`recording`]'s channels and messages (ROS 1 bags: [`ros1`]; MCAP: [`mcap`]),
 //! features taken from decoded messages ([`extract`]: poses, joints, images,
-//! depth), and the synchronisation rule that puts streams on frames ([`sync`]). Everything here
+//! depth), the first pass over a recording for each topic's times ([`stamps`], any file through
+//! [`open`]), and the synchronisation rule that puts them on frames ([`sync`]). Everything here
 //! reads untrusted files: sizes are checked before allocating, and a damaged input is an error
 //! naming the file and the offset.
 //!
@@ -11,9 +12,12 @@
 
 pub mod builtin;
 pub mod decode;
+pub mod error;
 pub mod extract;
 pub mod mcap;
 pub mod msgdef;
+pub mod open;
 pub mod recording;
 pub mod ros1;
+pub mod stamps;
 pub mod sync;

@@ -1,0 +1,52 @@
+//! [`IngestError`]: why a recording could not be ingested, naming the file, the topic and the
+//! message.
+
+use crate::ingest::decode::DecodeError;
+use crate::ingest::msgdef::DefinitionError;
+use crate::ingest::recording::BagError;
+use std::path::PathBuf;
+
+/// Why a recording could not be ingested.
+#[derive(Debug, thiserror::Error)]
+pub enum IngestError {
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    #[error("{path}: topic {topic}: the definition of {type_name}")]
+    Definition {
+        path: PathBuf,
+        topic: String,
+        type_name: String,
+        #[source]
+        source: Box<DefinitionError>,
+    },
+    #[error("{path}: topic {topic}, message {index}")]
+    Decode {
+        path: PathBuf,
+        topic: String,
+        index: usize,
+        #[source]
+        source: Box<DecodeError>,
+    },
+    #[error(
+        "{path}: topic {topic}, message {index}: no header stamp (zero, or no header): use --clock receive to synchronise on the bag's receive times"
+    )]
+    NoStamp {
+        path: PathBuf,
+        topic: String,
+        index: usize,
+    },
+    #[error("{path}: topic {topic} carries {first} and {second}: one type per topic")]
+    TwoTypes {
+        path: PathBuf,
+        topic: String,
+        first: String,
+        second: String,
+    },
+}
+
+impl crate::error::HasKind for IngestError {
+    /// A recording that cannot be read or decoded is invalid data (exit 1).
+    fn kind(&self) -> crate::error::ErrorKind {
+        crate::error::ErrorKind::Failed
+    }
+}

@@ -1,0 +1,71 @@
+//! One reader for any recording file: [`Recording`] opens a ROS 1 bag or an MCAP file by its
+//! first bytes and yields the same [`RawMessage`]s and [`Channel`]s either way.
+
+use crate::ingest::mcap::McapRecording;
+use crate::ingest::recording::{BagError, Channel, RawMessage};
+use crate::ingest::ros1::{MAGIC as ROS1_MAGIC, Ros1Bag};
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::Path;
+
+/// The first bytes of an MCAP file.
+const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
+
+/// A recording file being read.
+pub enum Recording {
+    Ros1(Ros1Bag),
+    Mcap(McapRecording),
+}
+
+impl Recording {
+    /// Opens `path` as the recording its first bytes say it is.
+    pub fn open(path: &Path) -> Result<Recording, BagError> {
+        let mut start = [0u8; 13];
+        let read = std::fs::File::open(path)
+            .and_then(|mut file| {
+                let mut read = 0;
+                while read < start.len() {
+                    match file.read(&mut start[read..])? {
+                        0 => break,
+                        n => read += n,
+                    }
+                }
+                Ok(read)
+            })
+            .map_err(|source| BagError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        let start = &start[..read];
+        if start.starts_with(ROS1_MAGIC) {
+            Ros1Bag::open(path).map(Recording::Ros1)
+        } else if start.starts_with(MCAP_MAGIC) {
+            McapRecording::open(path).map(Recording::Mcap)
+        } else {
+            Err(BagError::Damaged {
+                path: path.to_path_buf(),
+                offset: 0,
+                problem: "neither a ROS 1 bag (#ROSBAG V2.0) nor an MCAP file".into(),
+            })
+        }
+    }
+
+    /// The channels seen so far (every one before its first message).
+    pub fn channels(&self) -> &BTreeMap<u32, Channel> {
+        match self {
+            Recording::Ros1(bag) => bag.connections(),
+            Recording::Mcap(mcap) => mcap.channels(),
+        }
+    }
+}
+
+impl Iterator for Recording {
+    type Item = Result<RawMessage, BagError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        match self {
+            Recording::Ros1(bag) => bag.next(),
+            Recording::Mcap(mcap) => mcap.next(),
+        }
+    }
+}
