@@ -4,7 +4,8 @@
 //! streams of [`recording`]'s channels and messages (ROS 1 bags: [`ros1`]; MCAP: [`mcap`]),
 //! features taken from decoded messages ([`extract`]: poses, joints, images,
 //! depth), the first pass over a recording for each topic's times ([`stamps`], any file through
-//! [`open`]), and the synchronisation rule that puts them on frames ([`sync`]). Everything here
+//! [`open`]), the synchronisation rule that puts them on frames ([`sync`]), and the second pass
+//! that hands each episode's picked messages over ([`frames`]). Everything here
 //! reads untrusted files: sizes are checked before allocating, and a damaged input is an error
 //! naming the file and the offset.
 //!
@@ -14,6 +15,7 @@ pub mod builtin;
 pub mod decode;
 pub mod error;
 pub mod extract;
+pub mod frames;
 pub mod mcap;
 pub mod msgdef;
 pub mod open;
