@@ -5,7 +5,8 @@
 //! features taken from decoded messages ([`extract`]: poses, joints, images,
 //! depth), the first pass over a recording for each topic's times ([`stamps`], any file through
 //! [`open`]), the synchronisation rule that puts them on frames ([`sync`]), and the second pass
-//! that hands each episode's picked messages over ([`frames`]). Everything here
+//! that hands each episode's picked messages over ([`frames`]); [`dvrk`] maps a da Vinci
+//! Research Kit recording's topics to state, action, images and task. Everything here
 //! reads untrusted files: sizes are checked before allocating, and a damaged input is an error
 //! naming the file and the offset.
 //!
@@ -13,6 +14,7 @@
 
 pub mod builtin;
 pub mod decode;
+pub mod dvrk;
 pub mod error;
 pub mod extract;
 pub mod frames;

@@ -1,0 +1,246 @@
+//! The dVRK preset: which topics of a da Vinci Research Kit recording make which features,
+//! with the CRTK names of dVRK 2.x. Per arm (`PSM1`, or a full namespace such as `/dvrk/PSM1`
+//! for dVRK 1.x), `measured_cp` + `jaw/measured_js` are the state [x, y, z, qx, qy, qz, qw, jaw]
+//! (metres, radians) and `setpoint_cp` + `jaw/setpoint_js` the action (the same 8); arms are
+//! concatenated in the order given. Each camera (`NAME=TOPIC`) is an RGB image; a
+//! `std_msgs/String` on `/instruction`, when the recording has one, is the task.
+//!
+//! Measured streams and cameras are *sampled* (too old a message and the frame is not
+//! written); setpoints and the instruction are *events* (their last value holds).
+
+use crate::ingest::decode::RosValue;
+use crate::ingest::extract::{RgbImage, compressed_rgb, joint_positions, pose7, raw_rgb};
+use crate::ingest::stamps::TopicSpec;
+use crate::ingest::sync::StreamKind;
+
+/// The topic of the task's text.
+pub const INSTRUCTION_TOPIC: &str = "/instruction";
+
+/// A dVRK recording's mapping.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DvrkPreset {
+    /// Arm namespaces, e.g. `/PSM1`.
+    pub arms: Vec<String>,
+    /// (feature name, topic) per camera.
+    pub cameras: Vec<(String, String)>,
+}
+
+/// One frame's features.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DvrkFrame {
+    /// 8 per arm.
+    pub state: Vec<f32>,
+    /// 8 per arm.
+    pub action: Vec<f32>,
+    /// One per camera, in order.
+    pub images: Vec<RgbImage>,
+    /// The instruction topic's text, when it has one.
+    pub instruction: Option<String>,
+}
+
+/// The per-arm topics, in slot order, with their kinds.
+const ARM_TOPICS: [(&str, StreamKind); 4] = [
+    ("measured_cp", StreamKind::Sampled),
+    ("jaw/measured_js", StreamKind::Sampled),
+    ("setpoint_cp", StreamKind::Event),
+    ("jaw/setpoint_js", StreamKind::Event),
+];
+
+/// The names of one arm's 8 values.
+const ARM_VALUES: [&str; 8] = ["x", "y", "z", "qx", "qy", "qz", "qw", "jaw"];
+
+impl DvrkPreset {
+    /// `arms` as given on the command line (`PSM1`, or a namespace `/dvrk/PSM1`) and cameras.
+    pub fn new(arms: &[String], cameras: &[(String, String)]) -> DvrkPreset {
+        let arms = arms
+            .iter()
+            .map(|arm| {
+                let arm = arm.trim_end_matches('/');
+                if arm.starts_with('/') {
+                    arm.to_string()
+                } else {
+                    format!("/{arm}")
+                }
+            })
+            .collect();
+        DvrkPreset {
+            arms,
+            cameras: cameras.to_vec(),
+        }
+    }
+
+    /// Every topic the preset reads, in slot order: each arm's four, the cameras, then the
+    /// instruction (optional: left out when the recording has none).
+    pub fn topics(&self) -> Vec<TopicSpec> {
+        let spec = |topic: String, kind| TopicSpec {
+            topic,
+            kind,
+            offset_ns: 0,
+        };
+        let arms = self.arms.iter().flat_map(|arm| {
+            ARM_TOPICS
+                .iter()
+                .map(move |(name, kind)| spec(format!("{arm}/{name}"), *kind))
+        });
+        let cameras =
+            (self.cameras.iter()).map(|(_, topic)| spec(topic.clone(), StreamKind::Sampled));
+        arms.chain(cameras)
+            .chain([spec(INSTRUCTION_TOPIC.into(), StreamKind::Event)])
+            .collect()
+    }
+
+    /// The names of the state's (and the action's) values: `PSM1.x`, ..., `PSM1.jaw`, per arm.
+    pub fn value_names(&self) -> Vec<String> {
+        self.arms
+            .iter()
+            .flat_map(|arm| {
+                let arm = arm.rsplit('/').next().unwrap_or(arm).to_string();
+                ARM_VALUES.iter().map(move |v| format!("{arm}.{v}"))
+            })
+            .collect()
+    }
+
+    /// A frame's features from its messages, one per topic of [`DvrkPreset::topics`] (the
+    /// instruction's last, when present).
+    pub fn frame(&self, values: &[std::sync::Arc<RosValue>]) -> Result<DvrkFrame, String> {
+        let topics = self.topics();
+        let (mut state, mut action) = (Vec::new(), Vec::new());
+        for (a, arm) in self.arms.iter().enumerate() {
+            let at = |k: usize| {
+                values
+                    .get(a * 4 + k)
+                    .ok_or_else(|| format!("{arm}: no {} message", ARM_TOPICS[k].0))
+            };
+            let arm_values = |pose: &RosValue, jaw: &RosValue, what: &str| {
+                let pose = pose7(pose).map_err(|e| format!("{arm}/{what}_cp {e}"))?;
+                let jaw = joint_positions(jaw).map_err(|e| format!("{arm}/jaw/{what}_js {e}"))?;
+                let jaw = *jaw
+                    .first()
+                    .ok_or_else(|| format!("{arm}/jaw/{what}_js holds no position"))?;
+                Ok::<_, String>(pose.into_iter().chain([jaw]).map(|v| v as f32))
+            };
+            state.extend(arm_values(at(0)?, at(1)?, "measured")?);
+            action.extend(arm_values(at(2)?, at(3)?, "setpoint")?);
+        }
+        let first_camera = self.arms.len() * 4;
+        let mut images = Vec::with_capacity(self.cameras.len());
+        for (c, (name, topic)) in self.cameras.iter().enumerate() {
+            let message = values
+                .get(first_camera + c)
+                .ok_or_else(|| format!("camera {name}: no message on {topic}"))?;
+            let image = if message.field("format").is_some() {
+                compressed_rgb(message)
+            } else {
+                raw_rgb(message)
+            };
+            images.push(image.map_err(|e| format!("camera {name} ({topic}): {e}"))?);
+        }
+        let instruction = (values.len() == topics.len())
+            .then(|| values.last())
+            .flatten()
+            .and_then(|v| v.field("data"))
+            .and_then(RosValue::as_str)
+            .map(String::from);
+        Ok(DvrkFrame {
+            state,
+            action,
+            images,
+            instruction,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    fn message(fields: Vec<(&str, RosValue)>) -> RosValue {
+        RosValue::Message(
+            fields
+                .into_iter()
+                .map(|(n, v)| (n.to_string(), v))
+                .collect(),
+        )
+    }
+
+    fn pose(x: f64) -> RosValue {
+        let xyz = message(vec![
+            ("x", RosValue::Float(x)),
+            ("y", RosValue::Float(2.0)),
+            ("z", RosValue::Float(3.0)),
+        ]);
+        let q = message(vec![
+            ("x", RosValue::Float(0.0)),
+            ("y", RosValue::Float(0.0)),
+            ("z", RosValue::Float(0.0)),
+            ("w", RosValue::Float(1.0)),
+        ]);
+        message(vec![(
+            "pose",
+            message(vec![("position", xyz), ("orientation", q)]),
+        )])
+    }
+
+    fn jaw(angle: f64) -> RosValue {
+        message(vec![(
+            "position",
+            RosValue::Array(vec![RosValue::Float(angle)]),
+        )])
+    }
+
+    #[test]
+    fn topics_names_and_a_frame_of_one_arm_and_a_camera() {
+        let preset = DvrkPreset::new(
+            &["PSM1".into()],
+            &[("left".into(), "/cam/left/image_raw".into())],
+        );
+        let topics: Vec<String> = preset.topics().into_iter().map(|t| t.topic).collect();
+        assert_eq!(
+            topics,
+            [
+                "/PSM1/measured_cp",
+                "/PSM1/jaw/measured_js",
+                "/PSM1/setpoint_cp",
+                "/PSM1/jaw/setpoint_js",
+                "/cam/left/image_raw",
+                "/instruction"
+            ]
+        );
+        assert_eq!(preset.value_names()[7], "PSM1.jaw");
+        let image = message(vec![
+            ("height", RosValue::UInt(1)),
+            ("width", RosValue::UInt(1)),
+            ("encoding", RosValue::String("bgr8".into())),
+            ("step", RosValue::UInt(3)),
+            ("data", RosValue::Bytes(vec![1, 2, 3])),
+        ]);
+        let text = message(vec![("data", RosValue::String("pick up the gauze".into()))]);
+        let values: Vec<Arc<RosValue>> = [pose(1.0), jaw(0.5), pose(1.5), jaw(0.25), image, text]
+            .into_iter()
+            .map(Arc::new)
+            .collect();
+        let frame = preset.frame(&values).expect("frame");
+        assert_eq!(frame.state, [1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0, 0.5]);
+        assert_eq!(frame.action, [1.5, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0, 0.25]);
+        assert_eq!(frame.images[0].rgb, [3, 2, 1]);
+        assert_eq!(frame.instruction.as_deref(), Some("pick up the gauze"));
+        // Without the instruction topic.
+        let frame = preset.frame(&values[..5]).expect("frame");
+        assert_eq!(frame.instruction, None);
+        // A jaw without a position is named.
+        let mut broken = values.clone();
+        broken[1] = Arc::new(message(vec![("position", RosValue::Array(Vec::new()))]));
+        let error = preset.frame(&broken).expect_err("no jaw");
+        assert!(error.contains("/PSM1/jaw/measured_js"), "{error}");
+    }
+
+    #[test]
+    fn dvrk_1_namespaces_and_two_arms() {
+        let preset = DvrkPreset::new(&["/dvrk/PSM1/".into(), "PSM2".into()], &[]);
+        assert_eq!(preset.arms, ["/dvrk/PSM1", "/PSM2"]);
+        assert_eq!(preset.topics()[4].topic, "/PSM2/measured_cp");
+        let names = preset.value_names();
+        assert_eq!((names[0].as_str(), names[8].as_str()), ("PSM1.x", "PSM2.x"));
+    }
+}
