@@ -115,6 +115,8 @@ pub enum DecodeError {
     TooDeep { type_name: String },
     #[error("{field}: {count} elements of a type that takes no bytes")]
     Empty { field: String, count: u64 },
+    #[error("{field}: more values than the message's bytes can hold")]
+    TooManyValues { field: String },
 }
 
 /// Elements of a zero-size type a sequence may claim (no bytes bound them).
@@ -128,13 +130,7 @@ pub fn decode(
     bytes: &[u8],
 ) -> Result<RosValue, DecodeError> {
     let (little, body) = body(wire, bytes)?;
-    let mut reader = Reader {
-        bytes: body,
-        at: 0,
-        little,
-        aligned: wire == Wire::Cdr,
-        defs,
-    };
+    let mut reader = Reader::new(defs, wire, little, body);
     let type_name = crate::ingest::msgdef::full_name(type_name, "");
     reader.message(&type_name, &type_name, 0)
 }
@@ -157,13 +153,7 @@ pub fn decode_first_field(
         return Ok(None);
     };
     let (little, body) = body(wire, bytes)?;
-    let mut reader = Reader {
-        bytes: body,
-        at: 0,
-        little,
-        aligned: wire == Wire::Cdr,
-        defs,
-    };
+    let mut reader = Reader::new(defs, wire, little, body);
     reader.field(first, &first.name, 1).map(Some)
 }
 
@@ -199,6 +189,26 @@ struct Reader<'a> {
     /// CDR: primitives aligned to their size.
     aligned: bool,
     defs: &'a MessageDefs,
+    /// Values still allowed: every value but an empty message takes a byte, so a message of
+    /// `n` bytes holds at most `n` + [`MAX_EMPTY_ELEMENTS`] (nested arrays of empty types
+    /// cannot multiply past it).
+    values_left: u64,
+    /// The fewest bytes of each message type, computed once per type.
+    least: std::collections::HashMap<String, u64>,
+}
+
+impl<'a> Reader<'a> {
+    fn new(defs: &'a MessageDefs, wire: Wire, little: bool, bytes: &'a [u8]) -> Self {
+        Reader {
+            bytes,
+            at: 0,
+            little,
+            aligned: wire == Wire::Cdr,
+            defs,
+            values_left: bytes.len() as u64 + MAX_EMPTY_ELEMENTS,
+            least: std::collections::HashMap::new(),
+        }
+    }
 }
 
 impl Reader<'_> {
@@ -261,32 +271,42 @@ impl Reader<'_> {
         path: &str,
         depth: usize,
     ) -> Result<RosValue, DecodeError> {
+        self.values_left = self
+            .values_left
+            .checked_sub(1)
+            .ok_or_else(|| DecodeError::TooManyValues { field: path.into() })?;
         match element {
             Element::Message(name) => self.message(name, path, depth + 1),
             Element::Primitive(primitive) => self.primitive(*primitive, path),
         }
     }
 
-    /// The fewest bytes one element takes (what bounds a sequence's count); 0 past the
-    /// deepest nesting decoded.
-    fn least_size(&self, element: &Element, depth: usize) -> u64 {
-        match element {
-            Element::Primitive(p) => p.size() as u64,
-            Element::Message(_) if depth > MAX_DEPTH => 0,
-            Element::Message(name) => self.defs.fields(name).map_or(0, |fields| {
-                fields
-                    .iter()
-                    .map(|f| {
-                        let one = || self.least_size(&f.element, depth + 1);
-                        match f.count {
-                            Count::Sequence => 4,
-                            Count::Fixed(n) => (n as u64).saturating_mul(one()),
-                            Count::One => one(),
-                        }
-                    })
-                    .fold(0u64, u64::saturating_add)
-            }),
+    /// The fewest bytes one element takes (what bounds a sequence's count), each message type
+    /// computed once; 0 past the deepest nesting decoded.
+    fn least_size(&mut self, element: &Element, depth: usize) -> u64 {
+        let name = match element {
+            Element::Primitive(p) => return p.size() as u64,
+            Element::Message(_) if depth > MAX_DEPTH => return 0,
+            Element::Message(name) => name,
+        };
+        if let Some(&least) = self.least.get(name) {
+            return least;
         }
+        let defs = self.defs;
+        let least = defs.fields(name).map_or(0, |fields| {
+            fields
+                .iter()
+                .map(|f| match f.count {
+                    Count::Sequence => 4,
+                    Count::Fixed(n) => {
+                        (n as u64).saturating_mul(self.least_size(&f.element, depth + 1))
+                    }
+                    Count::One => self.least_size(&f.element, depth + 1),
+                })
+                .fold(0u64, u64::saturating_add)
+        });
+        self.least.insert(name.clone(), least);
+        least
     }
 
     fn primitive(&mut self, primitive: Primitive, path: &str) -> Result<RosValue, DecodeError> {
@@ -501,6 +521,33 @@ mod tests {
             decode(&text, "t/T", Wire::Ros1, &b),
             Err(DecodeError::NotText { .. })
         ));
+    }
+
+    #[test]
+    fn nested_arrays_of_empty_types_and_wide_type_trees_stay_bounded() {
+        // 60,000 x 60,000 empty elements: refused by the value budget, not looped through.
+        let sep =
+            "\n================================================================================\n";
+        let text = format!("t/Y[60000] y{sep}MSG: t/Y\nt/E[60000] e{sep}MSG: t/E\n");
+        let defs = MessageDefs::parse("t/Z", &text).expect("defs");
+        let error = decode(&defs, "t/Z", Wire::Ros1, &[]).expect_err("budget");
+        assert!(
+            matches!(error, DecodeError::TooManyValues { .. }),
+            "{error}"
+        );
+        // 30 types of 200 fields each naming the next: sizes are computed once per type.
+        let mut text = String::new();
+        for level in 0..30 {
+            if level > 0 {
+                text.push_str(&format!("{sep}MSG: t/L{level}\n"));
+            }
+            for f in 0..200 {
+                text.push_str(&format!("t/L{} f{f}\n", level + 1));
+            }
+        }
+        text.push_str(&format!("{sep}MSG: t/L30\nuint8 v\n"));
+        let defs = MessageDefs::parse("t/L0", &text).expect("defs");
+        assert!(decode(&defs, "t/L0", Wire::Ros1, &[0; 16]).is_err());
     }
 
     #[test]

@@ -204,10 +204,24 @@ impl MessageDefs {
 
     /// Checks that every type `type_name` uses is defined and none contains itself.
     pub fn check(&self, type_name: &str) -> Result<(), DefinitionError> {
-        self.check_from(type_name, &mut Vec::new())
+        self.check_from(
+            type_name,
+            &mut Vec::new(),
+            &mut std::collections::BTreeSet::new(),
+        )
     }
 
-    fn check_from(&self, name: &str, path: &mut Vec<String>) -> Result<(), DefinitionError> {
+    /// Checks `name` (reached through `path`); `done` holds the types already checked, so each
+    /// is walked once however many fields use it.
+    fn check_from(
+        &self,
+        name: &str,
+        path: &mut Vec<String>,
+        done: &mut std::collections::BTreeSet<String>,
+    ) -> Result<(), DefinitionError> {
+        if done.contains(name) {
+            return Ok(());
+        }
         let root = path.first().cloned().unwrap_or_else(|| name.to_string());
         if path.iter().any(|p| p == name) {
             return Err(DefinitionError::Recursive {
@@ -224,10 +238,11 @@ impl MessageDefs {
         path.push(name.to_string());
         for field in fields {
             if let Element::Message(inner) = &field.element {
-                self.check_from(inner, path)?;
+                self.check_from(inner, path, done)?;
             }
         }
         path.pop();
+        done.insert(name.to_string());
         Ok(())
     }
 }
