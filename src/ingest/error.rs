@@ -35,6 +35,14 @@ pub enum IngestError {
         topic: String,
         index: usize,
     },
+    #[error("{path}: the frame at {time_ns} ns: {problem}")]
+    Frame {
+        path: PathBuf,
+        time_ns: i64,
+        problem: String,
+    },
+    #[error("{path} has no message on {topic}")]
+    MissingTopic { path: PathBuf, topic: String },
     #[error("{path}: topic {topic} carries {first} and {second}: one type per topic")]
     TwoTypes {
         path: PathBuf,

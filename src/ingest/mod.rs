@@ -6,7 +6,8 @@
 //! depth), the first pass over a recording for each topic's times ([`stamps`], any file through
 //! [`open`]), the synchronisation rule that puts them on frames ([`sync`]), and the second pass
 //! that hands each episode's picked messages over ([`frames`]); [`dvrk`] maps a da Vinci
-//! Research Kit recording's topics to state, action, images and task. Everything here
+//! Research Kit recording's topics to state, action, images and task, and [`source`] reads
+//! recordings as episodes any sink takes. Everything here
 //! reads untrusted files: sizes are checked before allocating, and a damaged input is an error
 //! naming the file and the offset.
 //!
@@ -23,5 +24,6 @@ pub mod msgdef;
 pub mod open;
 pub mod recording;
 pub mod ros1;
+pub mod source;
 pub mod stamps;
 pub mod sync;

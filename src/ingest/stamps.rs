@@ -40,7 +40,8 @@ pub struct FirstPass {
     pub channels: Vec<Option<Channel>>,
 }
 
-/// The definitions a channel's messages decode by: its own, else the built-in ones.
+/// The definitions a channel's messages decode by: its own, else (none, or an empty schema) the
+/// built-in ones.
 pub fn definitions(
     path: &Path,
     channel: &Channel,
@@ -52,7 +53,11 @@ pub fn definitions(
         type_name: channel.type_name.clone(),
         source: Box::new(source),
     };
-    match &channel.definition {
+    match channel
+        .definition
+        .as_deref()
+        .filter(|text| !text.trim().is_empty())
+    {
         Some(text) => MessageDefs::parse(&channel.type_name, text).map_err(error),
         None => {
             let name = crate::ingest::msgdef::full_name(&channel.type_name, "");

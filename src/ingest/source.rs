@@ -1,0 +1,483 @@
+//! Recordings as an [`EpisodeSource`]: each input's first pass and synchronisation plan when
+//! opened, then its episodes (second pass, [`DvrkPreset::frame`]) as they are read, so any sink
+//! `convert` writes to takes them. Features: the first camera as the RGB image
+//! (`observation.images.<name>`), the state and action of every arm as float32 vectors of 8 per
+//! arm (`observation.state`, `action`, each value named), further cameras as images.
+//!
+//! An input's episodes are made together (memory follows one input's frames); the first
+//! input's are made when the source opens, for the images' size.
+
+use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
+use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use crate::export::source::EpisodeSource;
+use crate::ingest::builtin::ros2_types;
+use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, INSTRUCTION_TOPIC};
+use crate::ingest::error::IngestError;
+use crate::ingest::frames::second_pass;
+use crate::ingest::msgdef::MessageDefs;
+use crate::ingest::stamps::{Clock, FirstPass, TopicSpec, first_pass};
+use crate::ingest::sync::{SyncOptions, SyncPlan, SyncReport, plan};
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+
+/// How recordings are ingested.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IngestOptions {
+    pub preset: DvrkPreset,
+    pub clock: Clock,
+    pub sync: SyncOptions,
+    /// The task of every episode; None: the recording's `/instruction` topic.
+    pub task: Option<String>,
+}
+
+/// One input, planned.
+struct Input {
+    path: PathBuf,
+    topics: Vec<TopicSpec>,
+    first: FirstPass,
+    plan: SyncPlan,
+}
+
+/// Recordings read as episodes (see the module overview).
+pub struct IngestSource {
+    info: DatasetInfo,
+    options: IngestOptions,
+    builtin: MessageDefs,
+    inputs: Vec<Input>,
+    /// The next input whose episodes are to be made.
+    next_input: usize,
+    ready: VecDeque<Episode>,
+    next_index: u64,
+    total: u64,
+    /// The first camera's (height, width), from the first frame made.
+    image_size: Option<(usize, usize)>,
+    failed: bool,
+}
+
+impl IngestSource {
+    /// Plans every input (one read each, headers only) and makes the first one's episodes.
+    pub fn open(paths: &[PathBuf], options: IngestOptions) -> Result<IngestSource, IngestError> {
+        let builtin = ros2_types().map_err(|source| IngestError::Definition {
+            path: PathBuf::new(),
+            topic: String::new(),
+            type_name: "a built-in type".into(),
+            source: Box::new(source),
+        })?;
+        let mut inputs = Vec::with_capacity(paths.len());
+        for path in paths {
+            inputs.push(planned(path, &options, &builtin)?);
+        }
+        let total = inputs.iter().map(|i| i.plan.episodes.len() as u64).sum();
+        let mut source = IngestSource {
+            info: DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 0, "dvrk", Vec::new()),
+            options,
+            builtin,
+            inputs,
+            next_input: 0,
+            ready: VecDeque::new(),
+            next_index: 0,
+            total,
+            image_size: None,
+            failed: false,
+        };
+        source.make_next_input()?;
+        source.info = source.dataset_info();
+        Ok(source)
+    }
+
+    /// Each input's synchronisation report.
+    pub fn reports(&self) -> impl Iterator<Item = (&Path, &SyncReport)> {
+        self.inputs
+            .iter()
+            .map(|i| (i.path.as_path(), &i.plan.report))
+    }
+
+    fn dataset_info(&self) -> DatasetInfo {
+        let preset = &self.options.preset;
+        let (height, width) = self.image_size.unwrap_or((0, 0));
+        let image = |name: &str, kind| FeatureSpec {
+            name: format!("observation.images.{name}"),
+            dtype: Dtype::Image,
+            shape: vec![height, width, 3],
+            names: ["height", "width", "channels"].map(String::from).to_vec(),
+            kind,
+            video: None,
+        };
+        let vector = |name: &str| FeatureSpec {
+            name: name.into(),
+            dtype: Dtype::Float32,
+            shape: vec![preset.value_names().len()],
+            names: preset.value_names(),
+            kind: FeatureKind::Other,
+            video: None,
+        };
+        let mut features = Vec::new();
+        let mut cameras = preset.cameras.iter();
+        if let Some((name, _)) = cameras.next() {
+            features.push(image(name, FeatureKind::Rgb));
+        }
+        features.push(vector("observation.state"));
+        features.push(vector("action"));
+        features.extend(cameras.map(|(name, _)| image(name, FeatureKind::Other)));
+        let mut info = DatasetInfo::from_surgvla_json(
+            &serde_json::Value::Null,
+            self.options.sync.fps,
+            "dvrk",
+            features,
+        );
+        info.generator = format!("surgvla {} ingest", env!("CARGO_PKG_VERSION"));
+        info
+    }
+
+    /// Makes the next input's episodes.
+    fn make_next_input(&mut self) -> Result<(), IngestError> {
+        let Some(input) = self.inputs.get(self.next_input) else {
+            return Ok(());
+        };
+        self.next_input += 1;
+        let (preset, task) = (&self.options.preset, &self.options.task);
+        let mut made = Vec::new();
+        let mut index = self.next_index;
+        let mut size = self.image_size;
+        second_pass(
+            &input.path,
+            &input.topics,
+            &input.first,
+            &input.plan,
+            &self.builtin,
+            &mut |frames| {
+                let mut steps = Vec::with_capacity(frames.len());
+                let mut instruction = task.clone();
+                for frame in &frames {
+                    let bad = |problem| IngestError::Frame {
+                        path: input.path.clone(),
+                        time_ns: frame.time_ns,
+                        problem,
+                    };
+                    let features = preset.frame(&frame.values).map_err(bad)?;
+                    if instruction.is_none() {
+                        instruction.clone_from(&features.instruction);
+                    }
+                    let here = features.images.first().map(|i| (i.height, i.width));
+                    if size.is_none() {
+                        size = here;
+                    }
+                    if here != size {
+                        return Err(bad(format!(
+                            "the camera's image is {here:?} (height, width) where earlier frames are {size:?}"
+                        )));
+                    }
+                    steps.push(step(features).map_err(bad)?);
+                }
+                made.push(episode(index, instruction.unwrap_or_default(), steps));
+                index += 1;
+                Ok(())
+            },
+        )?;
+        self.image_size = size;
+        self.next_index = index;
+        self.ready.extend(made);
+        Ok(())
+    }
+}
+
+/// The topics of `options`' preset in `path`, read once and planned: the instruction topic is
+/// left out when the recording has none; any other topic it lacks is an error.
+fn planned(
+    path: &Path,
+    options: &IngestOptions,
+    builtin: &MessageDefs,
+) -> Result<Input, IngestError> {
+    let mut topics = options.preset.topics();
+    let mut first = first_pass(path, &topics, options.clock, builtin)?;
+    if first.channels.last().is_some_and(Option::is_none)
+        && topics.last().is_some_and(|t| t.topic == INSTRUCTION_TOPIC)
+    {
+        topics.pop();
+        first.channels.pop();
+        first.streams.pop();
+    }
+    if let Some((topic, _)) = (topics.iter())
+        .zip(&first.streams)
+        .find(|(_, stream)| stream.stamps_ns.is_empty())
+    {
+        return Err(IngestError::MissingTopic {
+            path: path.to_path_buf(),
+            topic: topic.topic.clone(),
+        });
+    }
+    let plan = plan(&first.streams, &options.sync);
+    Ok(Input {
+        path: path.to_path_buf(),
+        topics,
+        first,
+        plan,
+    })
+}
+
+/// A step of a frame's features: the first camera's pixels, then state, action and the other
+/// cameras (PNG) as the dataset's other features, in feature order.
+fn step(frame: DvrkFrame) -> Result<Step, String> {
+    let mut step = Step::empty();
+    let mut images = frame.images.into_iter();
+    if let Some(first) = images.next() {
+        step.rgb = first.rgb;
+    }
+    step.other.push(FeatureValue::Float32(frame.state));
+    step.other.push(FeatureValue::Float32(frame.action));
+    for image in images {
+        let png = crate::media::image::encode_png(
+            image.width,
+            image.height,
+            3,
+            &image.rgb,
+            crate::media::image::PngLevel::Fast,
+        )
+        .map_err(|e| e.to_string())?;
+        step.other.push(FeatureValue::Image(png));
+    }
+    Ok(step)
+}
+
+fn episode(index: u64, instruction: String, steps: Vec<Step>) -> Episode {
+    Episode {
+        meta: EpisodeMeta {
+            index,
+            task_code: String::new(),
+            task_name: String::new(),
+            level: 0,
+            instruction,
+            seed: 0,
+            attempts: 1,
+            success: true,
+        },
+        steps,
+        encoded: Vec::new(),
+    }
+}
+
+impl Iterator for IngestSource {
+    type Item = Result<Episode, ExportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        while self.ready.is_empty() && self.next_input < self.inputs.len() {
+            if let Err(error) = self.make_next_input() {
+                self.failed = true;
+                return Some(Err(ExportError::Internal(error.to_string())));
+            }
+        }
+        self.ready.pop_front().map(Ok)
+    }
+}
+
+impl EpisodeSource for IngestSource {
+    fn info(&self) -> &DatasetInfo {
+        &self.info
+    }
+
+    fn len(&self) -> u64 {
+        self.total
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ingest::sync::OnGap;
+    use std::collections::BTreeMap;
+
+    /// A little CDR writer (little-endian, aligned from after the 4-byte header).
+    struct Cdr(Vec<u8>);
+
+    impl Cdr {
+        fn new() -> Cdr {
+            Cdr(vec![0, 1, 0, 0])
+        }
+        fn align(&mut self, n: usize) {
+            while !(self.0.len() - 4).is_multiple_of(n) {
+                self.0.push(0);
+            }
+        }
+        fn u32(&mut self, v: u32) -> &mut Self {
+            self.align(4);
+            self.0.extend(v.to_le_bytes());
+            self
+        }
+        fn f64(&mut self, v: f64) -> &mut Self {
+            self.align(8);
+            self.0.extend(v.to_le_bytes());
+            self
+        }
+        fn string(&mut self, s: &str) -> &mut Self {
+            self.u32(s.len() as u32 + 1);
+            self.0.extend(s.as_bytes());
+            self.0.push(0);
+            self
+        }
+        fn header(&mut self, ns: i64) -> &mut Self {
+            self.u32((ns / 1_000_000_000) as u32)
+                .u32((ns % 1_000_000_000) as u32)
+                .string("world")
+        }
+    }
+
+    fn pose(ns: i64, x: f64) -> Vec<u8> {
+        let mut c = Cdr::new();
+        c.header(ns);
+        for v in [x, 0.5, -0.25, 0.0, 0.0, 0.0, 1.0] {
+            c.f64(v);
+        }
+        c.0
+    }
+
+    fn jaw(ns: i64, angle: f64) -> Vec<u8> {
+        let mut c = Cdr::new();
+        c.header(ns)
+            .u32(1)
+            .string("jaw")
+            .u32(1)
+            .f64(angle)
+            .u32(0)
+            .u32(0);
+        c.0
+    }
+
+    fn image(ns: i64, value: u8) -> Vec<u8> {
+        let mut c = Cdr::new();
+        c.header(ns).u32(2).u32(3).string("rgb8");
+        c.0.push(0);
+        c.u32(9).u32(18);
+        c.0.extend(std::iter::repeat_n(value, 18));
+        c.0
+    }
+
+    /// A recording: arm at 100 Hz, camera at 10 Hz, setpoints at 50 Hz, for 1 s.
+    fn recording() -> PathBuf {
+        let mut writer = mcap::WriteOptions::new()
+            .create(std::io::Cursor::new(Vec::new()))
+            .expect("writer");
+        let channel = |writer: &mut mcap::Writer<_>, topic: &str, ty: &str| {
+            let schema = writer.add_schema(ty, "ros2msg", b"").expect("schema");
+            writer
+                .add_channel(schema, topic, "cdr", &BTreeMap::new())
+                .expect("channel")
+        };
+        let topics = [
+            ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped"),
+            ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState"),
+            ("/PSM1/setpoint_cp", "geometry_msgs/msg/PoseStamped"),
+            ("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState"),
+            ("/camera/left", "sensor_msgs/msg/Image"),
+        ];
+        let ids: Vec<u16> = topics
+            .iter()
+            .map(|(topic, ty)| channel(&mut writer, topic, ty))
+            .collect();
+        let mut messages: Vec<(i64, u16, Vec<u8>)> = Vec::new();
+        let ms = 1_000_000i64;
+        for k in 0..100 {
+            let t = 1_000_000_000 + k * 10 * ms;
+            messages.push((t, ids[0], pose(t, k as f64)));
+            messages.push((t, ids[1], jaw(t, k as f64 / 100.0)));
+            if k % 2 == 0 {
+                messages.push((t, ids[2], pose(t, k as f64 + 0.5)));
+                messages.push((t, ids[3], jaw(t, 0.75)));
+            }
+            if k % 10 == 0 {
+                messages.push((t, ids[4], image(t, k as u8)));
+            }
+        }
+        for (sequence, (t, channel, data)) in messages.into_iter().enumerate() {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: sequence as u32,
+                log_time: t as u64,
+                publish_time: t as u64,
+            };
+            writer
+                .write_to_known_channel(&header, &data)
+                .expect("write");
+        }
+        writer.finish().expect("finish");
+        let path = std::env::temp_dir().join(format!("surgvla-ingest-{}.mcap", std::process::id()));
+        std::fs::write(&path, writer.into_inner().into_inner()).expect("write");
+        path
+    }
+
+    #[test]
+    fn a_dvrk_recording_becomes_episodes_of_the_rules_messages() {
+        let path = recording();
+        let options = IngestOptions {
+            preset: DvrkPreset::new(&["PSM1".into()], &[("left".into(), "/camera/left".into())]),
+            clock: Clock::Header,
+            sync: SyncOptions {
+                on_gap: OnGap::Split,
+                ..SyncOptions::at(10)
+            },
+            task: Some("cut the suture".into()),
+        };
+        let mut source = IngestSource::open(std::slice::from_ref(&path), options).expect("open");
+        assert_eq!(source.len(), 1);
+        let info = source.info().clone();
+        assert_eq!(info.fps, 10);
+        assert_eq!(info.image_size(), (3, 2));
+        let names: Vec<&str> = info.features.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["observation.images.left", "observation.state", "action"]
+        );
+        let episode = source.next().expect("an episode").expect("read");
+        assert!(source.next().is_none());
+        assert_eq!(episode.meta.instruction, "cut the suture");
+        // The grid: the camera's 1.0 s .. 1.9 s; frame k at 1.0 + 0.1 k s takes arm message 10 k.
+        assert_eq!(episode.steps.len(), 10);
+        for (k, step) in episode.steps.iter().enumerate() {
+            let FeatureValue::Float32(state) = &step.other[0] else {
+                panic!("state");
+            };
+            let FeatureValue::Float32(action) = &step.other[1] else {
+                panic!("action");
+            };
+            assert_eq!(state[0], (10 * k) as f32, "frame {k}");
+            assert_eq!(state[7], (10 * k) as f32 / 100.0);
+            assert_eq!(action[0], (10 * k) as f32 + 0.5);
+            assert_eq!(step.rgb, vec![(10 * k) as u8; 18]);
+        }
+        assert_eq!(source.reports().count(), 1);
+        std::fs::remove_file(path).ok();
+    }
+
+    #[test]
+    fn ingested_episodes_write_as_a_lerobot_dataset_that_reads_back() {
+        use crate::export::lerobot::{LeRobotOptions, LeRobotWriter};
+        let path = recording();
+        let options = IngestOptions {
+            preset: DvrkPreset::new(&["PSM1".into()], &[("left".into(), "/camera/left".into())]),
+            clock: Clock::Header,
+            sync: SyncOptions::at(10),
+            task: Some("cut the suture".into()),
+        };
+        let mut source = IngestSource::open(std::slice::from_ref(&path), options).expect("open");
+        let out = std::env::temp_dir().join(format!("surgvla-ingested-{}", std::process::id()));
+        std::fs::remove_dir_all(&out).ok();
+        let mut sink = LeRobotWriter::boxed(&out, source.info(), LeRobotOptions::default(), false)
+            .expect("sink");
+        let summary = crate::export::convert::convert(&mut source, sink.as_mut(), 1, &mut |_| {})
+            .expect("convert");
+        assert_eq!((summary.episodes, summary.frames), (1, 10));
+        let mut back = crate::export::lerobot::read::LeRobotSource::open(&out).expect("read back");
+        let episode = back.next().expect("an episode").expect("read");
+        assert_eq!(episode.meta.instruction, "cut the suture");
+        let FeatureValue::Float32(state) = &episode.steps[3].other[0] else {
+            panic!("state");
+        };
+        assert_eq!(state[0], 30.0);
+        assert_eq!(episode.steps[3].rgb, vec![30u8; 18]);
+        std::fs::remove_file(path).ok();
+        std::fs::remove_dir_all(out).ok();
+    }
+}
