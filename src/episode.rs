@@ -369,6 +369,23 @@ pub struct EpisodeMeta {
     pub success: bool,
 }
 
+impl EpisodeMeta {
+    /// The meta of an episode surgvla's experts did not make (another tool's dataset, a robot
+    /// recording): no task id, seed or attempts, success unknown (false).
+    pub fn foreign(index: u64, instruction: String) -> EpisodeMeta {
+        EpisodeMeta {
+            index,
+            task_code: String::new(),
+            task_name: String::new(),
+            level: 0,
+            instruction,
+            seed: 0,
+            attempts: 0,
+            success: false,
+        }
+    }
+}
+
 /// One control step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Step {

@@ -242,16 +242,7 @@ fn step(frame: DvrkFrame) -> Result<Step, String> {
 
 fn episode(index: u64, instruction: String, steps: Vec<Step>) -> Episode {
     Episode {
-        meta: EpisodeMeta {
-            index,
-            task_code: String::new(),
-            task_name: String::new(),
-            level: 0,
-            instruction,
-            seed: 0,
-            attempts: 1,
-            success: true,
-        },
+        meta: EpisodeMeta::foreign(index, instruction),
         steps,
         encoded: Vec::new(),
     }

@@ -160,16 +160,7 @@ impl ForeignRldsSource {
         }
         Ok(Episode {
             encoded: Vec::new(),
-            meta: EpisodeMeta {
-                index,
-                task_code: String::new(),
-                task_name: String::new(),
-                level: 0,
-                instruction,
-                seed: 0,
-                attempts: 0,
-                success: false,
-            },
+            meta: EpisodeMeta::foreign(index, instruction),
             steps: rows
                 .into_iter()
                 .map(|other| Step {
