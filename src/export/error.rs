@@ -126,6 +126,9 @@ pub enum ExportError {
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// An input another layer reads (a recording) could not be read; its error names the file.
+    #[error(transparent)]
+    Input(Box<dyn std::error::Error + Send + Sync + 'static>),
     #[error("internal error: {0}")]
     Internal(String),
     /// The worker threads could not be started.

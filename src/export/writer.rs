@@ -334,20 +334,8 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
                     .collect::<Result<_, _>>()?
             }
         };
-        let appending = Instant::now();
-        self.timing.encode_secs += (appending - started).as_secs_f64();
-        let mut encoding_secs = 0.0;
-        for (episode, encoded) in episodes.iter().zip(encoded) {
-            // The card's line first, so that a checkpoint the append makes holds it.
-            self.dir
-                .append(TALLY_JOURNAL, Tally::line(episode).as_bytes())?;
-            encoding_secs += self
-                .format
-                .append(&mut self.dir, &self.info, episode, encoded)?;
-        }
-        self.timing.encode_secs += encoding_secs;
-        self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
-        Ok(())
+        self.timing.encode_secs += started.elapsed().as_secs_f64();
+        self.append_all(episodes, encoded.into_iter().map(Ok))
     }
 
     fn pipelined(&mut self) -> Option<Pipelined<'_>> {
@@ -410,10 +398,23 @@ impl<F: FormatWriter> PipelinedSink for Writer<F> {
             self.format.episodes(),
             false,
         )?;
+        let held = self.held.clone();
+        self.append_all(&episodes, encoded.iter().map(|e| held.redeem(e)))
+    }
+}
+
+impl<F: FormatWriter> Writer<F> {
+    /// Appends each episode with what was encoded of it, in order: the card's line first, so
+    /// that a checkpoint the append makes holds it.
+    fn append_all(
+        &mut self,
+        episodes: &[Episode],
+        encoded: impl IntoIterator<Item = Result<F::Encoded, ExportError>>,
+    ) -> Result<(), ExportError> {
         let appending = Instant::now();
         let mut encoding_secs = 0.0;
         for (episode, encoded) in episodes.iter().zip(encoded) {
-            let encoded = self.held.redeem(&encoded)?;
+            let encoded = encoded?;
             self.dir
                 .append(TALLY_JOURNAL, Tally::line(episode).as_bytes())?;
             encoding_secs += self

@@ -132,7 +132,11 @@ pub fn decode(
     let (little, body) = body(wire, bytes)?;
     let mut reader = Reader::new(defs, wire, little, body);
     let type_name = crate::ingest::msgdef::full_name(type_name, "");
-    reader.message(&type_name, &type_name, 0)
+    let root = FieldPath {
+        parent: None,
+        name: &type_name,
+    };
+    reader.message(&type_name, &root, 0)
 }
 
 /// The first field of a message of `type_name` only (a `header`, say, without the image
@@ -154,7 +158,11 @@ pub fn decode_first_field(
     };
     let (little, body) = body(wire, bytes)?;
     let mut reader = Reader::new(defs, wire, little, body);
-    reader.field(first, &first.name, 1).map(Some)
+    let path = FieldPath {
+        parent: None,
+        name: &first.name,
+    };
+    reader.field(first, &path, 1).map(Some)
 }
 
 /// The byte order and the bytes after the CDR header (all of them for ROS 1).
@@ -179,6 +187,23 @@ fn body(wire: Wire, bytes: &[u8]) -> Result<(bool, &[u8]), DecodeError> {
                 other => Err(DecodeError::Encapsulation(other)),
             }
         }
+    }
+}
+
+/// Where a value is in its message (`header.stamp.sec`), for errors only: built on the stack as
+/// the reader descends, written out only when something is wrong.
+#[derive(Clone, Copy)]
+struct FieldPath<'p> {
+    parent: Option<&'p FieldPath<'p>>,
+    name: &'p str,
+}
+
+impl std::fmt::Display for FieldPath<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(parent) = self.parent {
+            write!(f, "{parent}.")?;
+        }
+        f.write_str(self.name)
     }
 }
 
@@ -215,7 +240,7 @@ impl Reader<'_> {
     fn message(
         &mut self,
         type_name: &str,
-        path: &str,
+        path: &FieldPath<'_>,
         depth: usize,
     ) -> Result<RosValue, DecodeError> {
         if depth > MAX_DEPTH {
@@ -231,17 +256,21 @@ impl Reader<'_> {
             })?;
         let mut values = Vec::with_capacity(fields.len());
         for field in fields {
-            let path = if depth == 0 {
-                field.name.clone()
-            } else {
-                format!("{path}.{}", field.name)
+            let path = FieldPath {
+                parent: (depth > 0).then_some(path),
+                name: &field.name,
             };
             values.push((field.name.clone(), self.field(field, &path, depth)?));
         }
         Ok(RosValue::Message(values))
     }
 
-    fn field(&mut self, field: &Field, path: &str, depth: usize) -> Result<RosValue, DecodeError> {
+    fn field(
+        &mut self,
+        field: &Field,
+        path: &FieldPath<'_>,
+        depth: usize,
+    ) -> Result<RosValue, DecodeError> {
         let count = match field.count {
             Count::One => return self.element(&field.element, path, depth),
             Count::Fixed(n) => n as u64,
@@ -253,7 +282,7 @@ impl Reader<'_> {
         let least = self.least_size(&field.element, 0);
         if least == 0 && count > MAX_EMPTY_ELEMENTS {
             return Err(DecodeError::Empty {
-                field: path.into(),
+                field: path.to_string(),
                 count,
             });
         }
@@ -268,13 +297,15 @@ impl Reader<'_> {
     fn element(
         &mut self,
         element: &Element,
-        path: &str,
+        path: &FieldPath<'_>,
         depth: usize,
     ) -> Result<RosValue, DecodeError> {
-        self.values_left = self
-            .values_left
-            .checked_sub(1)
-            .ok_or_else(|| DecodeError::TooManyValues { field: path.into() })?;
+        self.values_left =
+            self.values_left
+                .checked_sub(1)
+                .ok_or_else(|| DecodeError::TooManyValues {
+                    field: path.to_string(),
+                })?;
         match element {
             Element::Message(name) => self.message(name, path, depth + 1),
             Element::Primitive(primitive) => self.primitive(*primitive, path),
@@ -309,7 +340,11 @@ impl Reader<'_> {
         least
     }
 
-    fn primitive(&mut self, primitive: Primitive, path: &str) -> Result<RosValue, DecodeError> {
+    fn primitive(
+        &mut self,
+        primitive: Primitive,
+        path: &FieldPath<'_>,
+    ) -> Result<RosValue, DecodeError> {
         Ok(match primitive {
             Primitive::Bool => RosValue::Bool(self.fixed::<1>(path)?[0] != 0),
             Primitive::I8 => RosValue::Int(i64::from(self.fixed::<1>(path)?[0] as i8)),
@@ -342,7 +377,7 @@ impl Reader<'_> {
         })
     }
 
-    fn string(&mut self, path: &str) -> Result<String, DecodeError> {
+    fn string(&mut self, path: &FieldPath<'_>) -> Result<String, DecodeError> {
         let len = u64::from(self.u32(path)?);
         let cdr = self.aligned;
         let bytes = self.take(len, path)?;
@@ -352,15 +387,17 @@ impl Reader<'_> {
         } else {
             bytes
         };
-        String::from_utf8(text.to_vec()).map_err(|_| DecodeError::NotText { field: path.into() })
+        String::from_utf8(text.to_vec()).map_err(|_| DecodeError::NotText {
+            field: path.to_string(),
+        })
     }
 
-    fn u32(&mut self, path: &str) -> Result<u32, DecodeError> {
+    fn u32(&mut self, path: &FieldPath<'_>) -> Result<u32, DecodeError> {
         Ok(u32::from_le_bytes(self.ordered(path)?))
     }
 
     /// `N` bytes of a primitive of size `N`, aligned (CDR), as little-endian.
-    fn ordered<const N: usize>(&mut self, path: &str) -> Result<[u8; N], DecodeError> {
+    fn ordered<const N: usize>(&mut self, path: &FieldPath<'_>) -> Result<[u8; N], DecodeError> {
         if self.aligned {
             let pad = (N - self.at % N) % N;
             self.take(pad as u64, path)?;
@@ -372,18 +409,18 @@ impl Reader<'_> {
         Ok(bytes)
     }
 
-    fn fixed<const N: usize>(&mut self, path: &str) -> Result<[u8; N], DecodeError> {
+    fn fixed<const N: usize>(&mut self, path: &FieldPath<'_>) -> Result<[u8; N], DecodeError> {
         let bytes = self.take(N as u64, path)?;
         let mut out = [0u8; N];
         out.copy_from_slice(bytes);
         Ok(out)
     }
 
-    fn need(&self, count: u64, path: &str) -> Result<(), DecodeError> {
+    fn need(&self, count: u64, path: &FieldPath<'_>) -> Result<(), DecodeError> {
         let left = (self.bytes.len() - self.at) as u64;
         if count > left {
             return Err(DecodeError::Short {
-                field: path.into(),
+                field: path.to_string(),
                 needed: count,
                 offset: self.at,
                 len: self.bytes.len(),
@@ -392,7 +429,7 @@ impl Reader<'_> {
         Ok(())
     }
 
-    fn take(&mut self, count: u64, path: &str) -> Result<&[u8], DecodeError> {
+    fn take(&mut self, count: u64, path: &FieldPath<'_>) -> Result<&[u8], DecodeError> {
         self.need(count, path)?;
         let start = self.at;
         self.at += count as usize;
@@ -556,14 +593,7 @@ mod tests {
         let mut state = 0x2545_f491_4f6c_dd1du64;
         let good = cdr();
         for _ in 0..2000 {
-            let mut bytes = good.clone();
-            for _ in 0..4 {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                let i = (state % bytes.len() as u64) as usize;
-                bytes[i] = (state >> 32) as u8;
-            }
+            let bytes = crate::ingest::fixtures::corrupted(&good, &mut state, 4);
             let _ = decode(&defs, "t/Msg", Wire::Cdr, &bytes);
             let _ = decode(&defs, "t/Msg", Wire::Ros1, &bytes);
         }

@@ -9,7 +9,7 @@
 //! written); setpoints and the instruction are *events* (their last value holds).
 
 use crate::ingest::decode::RosValue;
-use crate::ingest::extract::{RgbImage, compressed_rgb, joint_positions, pose7, raw_rgb};
+use crate::ingest::extract::{RgbImage, joint_positions, pose7, rgb};
 use crate::ingest::stamps::TopicSpec;
 use crate::ingest::sync::StreamKind;
 
@@ -128,12 +128,7 @@ impl DvrkPreset {
             let message = values
                 .get(first_camera + c)
                 .ok_or_else(|| format!("camera {name}: no message on {topic}"))?;
-            let image = if message.field("format").is_some() {
-                compressed_rgb(message)
-            } else {
-                raw_rgb(message)
-            };
-            images.push(image.map_err(|e| format!("camera {name} ({topic}): {e}"))?);
+            images.push(rgb(message).map_err(|e| format!("camera {name} ({topic}): {e}"))?);
         }
         let instruction = (values.len() == topics.len())
             .then(|| values.last())
@@ -155,14 +150,7 @@ mod tests {
     use super::*;
     use std::sync::Arc;
 
-    fn message(fields: Vec<(&str, RosValue)>) -> RosValue {
-        RosValue::Message(
-            fields
-                .into_iter()
-                .map(|(n, v)| (n.to_string(), v))
-                .collect(),
-        )
-    }
+    use crate::ingest::fixtures::message;
 
     fn pose(x: f64) -> RosValue {
         let xyz = message(vec![

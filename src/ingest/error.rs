@@ -41,6 +41,12 @@ pub enum IngestError {
         time_ns: i64,
         problem: String,
     },
+    #[error("{path}")]
+    Sync {
+        path: PathBuf,
+        #[source]
+        source: crate::ingest::sync::TooManyFrames,
+    },
     #[error("{path} has no message on {topic}")]
     MissingTopic { path: PathBuf, topic: String },
     #[error("{path}: topic {topic} carries {first} and {second}: one type per topic")]

@@ -187,6 +187,16 @@ pub fn raw_depth(message: &RosValue) -> Result<DepthImage, String> {
     })
 }
 
+/// A camera message's pixels as RGB: a `sensor_msgs/CompressedImage` (it has a `format`) or a
+/// raw `sensor_msgs/Image`.
+pub fn rgb(message: &RosValue) -> Result<RgbImage, String> {
+    if message.field("format").is_some() {
+        compressed_rgb(message)
+    } else {
+        raw_rgb(message)
+    }
+}
+
 /// The RGB pixels of a `sensor_msgs/CompressedImage` (JPEG or PNG; the bytes say which, the
 /// format string must agree; `bgr8; jpeg compressed bgr8` is ROS's name for an ordinary
 /// colour JPEG).
@@ -225,14 +235,7 @@ pub fn compressed_rgb(message: &RosValue) -> Result<RgbImage, String> {
 mod tests {
     use super::*;
 
-    fn message(fields: Vec<(&str, RosValue)>) -> RosValue {
-        RosValue::Message(
-            fields
-                .into_iter()
-                .map(|(n, v)| (n.to_string(), v))
-                .collect(),
-        )
-    }
+    use crate::ingest::fixtures::message;
 
     fn image(encoding: &str, width: u64, height: u64, step: u64, data: Vec<u8>) -> RosValue {
         message(vec![

@@ -7,7 +7,7 @@ use crate::ingest::decode::{RosValue, decode};
 use crate::ingest::error::IngestError;
 use crate::ingest::msgdef::MessageDefs;
 use crate::ingest::open::Recording;
-use crate::ingest::stamps::{FirstPass, TopicSpec, definitions};
+use crate::ingest::stamps::{Decoders, TopicSpec};
 use crate::ingest::sync::SyncPlan;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -21,22 +21,16 @@ pub struct FrameValues {
 }
 
 /// Reads `path` again and calls `episode` with each episode's frames, in order (the plan's
-/// episodes; `first` is the first pass over the same file and `topics`).
+/// episodes, made from the first pass over the same file and `topics`).
 pub fn second_pass(
     path: &Path,
     topics: &[TopicSpec],
-    first: &FirstPass,
     plan: &SyncPlan,
     builtin: &MessageDefs,
     episode: &mut dyn FnMut(Vec<FrameValues>) -> Result<(), IngestError>,
 ) -> Result<(), IngestError> {
     let mut takers = Takers::of(plan);
-    let slot_of: BTreeMap<&str, usize> = topics
-        .iter()
-        .enumerate()
-        .map(|(i, t)| (t.topic.as_str(), i))
-        .collect();
-    let mut decoders: BTreeMap<u32, (usize, MessageDefs)> = BTreeMap::new();
+    let mut decoders = Decoders::new(topics);
     let mut counts = vec![0usize; topics.len()];
     let mut held: BTreeMap<(usize, usize), Arc<RosValue>> = BTreeMap::new();
     let mut next_episode = 0;
@@ -47,27 +41,13 @@ pub fn second_pass(
             break;
         }
         let message = message?;
-        if let std::collections::btree_map::Entry::Vacant(entry) =
-            decoders.entry(message.connection)
-        {
-            let Some(channel) = recording.channels().get(&message.connection) else {
-                continue;
-            };
-            let Some(&slot) = slot_of.get(channel.topic.as_str()) else {
-                continue;
-            };
-            entry.insert((slot, definitions(path, channel, builtin)?));
-        }
-        let Some((slot, defs)) = decoders.get(&message.connection) else {
+        let Some(decoder) = decoders.get(path, &recording, message.connection, builtin)? else {
             continue;
         };
-        let slot = *slot;
+        let (slot, channel, defs) = (decoder.slot, &decoder.channel, &decoder.defs);
         let index = counts[slot];
         counts[slot] += 1;
         let Some(episodes) = takers.by_message.get(&(slot, index)) else {
-            continue;
-        };
-        let Some(channel) = first.channels[slot].as_ref() else {
             continue;
         };
         let value =
@@ -155,51 +135,24 @@ mod tests {
 
     /// A ROS 2 MCAP: `/text` (std_msgs/String, receive times as given) and `/tick` at 10 Hz.
     fn recording(texts: &[(u64, &str)], ticks_ms: &[u64]) -> std::path::PathBuf {
-        let mut writer = mcap::WriteOptions::new()
-            .create(std::io::Cursor::new(Vec::new()))
-            .expect("writer");
-        let schema = writer
-            .add_schema("std_msgs/msg/String", "ros2msg", b"string data\n")
-            .expect("schema");
-        let text = writer
-            .add_channel(schema, "/text", "cdr", &BTreeMap::new())
-            .expect("channel");
-        let tick = writer
-            .add_channel(schema, "/tick", "cdr", &BTreeMap::new())
-            .expect("channel");
-        let mut all: Vec<(u64, u16, String)> = texts
+        use crate::ingest::fixtures::{cdr_string, mcap_bytes, temp_file};
+        let string = "string data\n";
+        let channels = [
+            ("/text", "std_msgs/msg/String", string),
+            ("/tick", "std_msgs/msg/String", string),
+        ];
+        let mut all: Vec<(u64, usize, String)> = texts
             .iter()
-            .map(|(t, s)| (*t, text, s.to_string()))
-            .chain(
-                ticks_ms
-                    .iter()
-                    .map(|t| (t * 1_000_000, tick, format!("t{t}"))),
-            )
+            .map(|(t, s)| (*t, 0, s.to_string()))
+            .chain(ticks_ms.iter().map(|t| (t * 1_000_000, 1, format!("t{t}"))))
             .collect();
         all.sort();
-        for (sequence, (time, channel, body)) in all.into_iter().enumerate() {
-            let mut data = vec![0, 1, 0, 0];
-            data.extend((body.len() as u32 + 1).to_le_bytes());
-            data.extend(body.as_bytes());
-            data.push(0);
-            let header = mcap::records::MessageHeader {
-                channel_id: channel,
-                sequence: sequence as u32,
-                log_time: time,
-                publish_time: time,
-            };
-            writer
-                .write_to_known_channel(&header, &data)
-                .expect("write");
-        }
-        writer.finish().expect("finish");
-        let path = std::env::temp_dir().join(format!(
-            "surgvla-frames-{}-{}.mcap",
-            ticks_ms.len(),
-            std::process::id()
-        ));
-        std::fs::write(&path, writer.into_inner().into_inner()).expect("write");
-        path
+        let messages: Vec<(usize, u64, Vec<u8>)> = all
+            .into_iter()
+            .map(|(time, channel, body)| (channel, time, cdr_string(&body)))
+            .collect();
+        let name = format!("frames-{}.mcap", ticks_ms.len());
+        temp_file(&name, &mcap_bytes(None, &channels, &messages))
     }
 
     #[test]
@@ -225,10 +178,10 @@ mod tests {
         ];
         let builtin = ros2_types().expect("builtin");
         let first = first_pass(&path, &topics, Clock::Receive, &builtin).expect("first");
-        let plan = plan(&first.streams, &SyncOptions::at(10));
+        let plan = plan(&first.streams, &SyncOptions::at(10)).expect("plan");
         assert_eq!(plan.report.episodes, [4, 4]);
         let mut episodes = Vec::new();
-        second_pass(&path, &topics, &first, &plan, &builtin, &mut |frames| {
+        second_pass(&path, &topics, &plan, &builtin, &mut |frames| {
             let texts: Vec<(String, String)> = frames
                 .iter()
                 .map(|f| {

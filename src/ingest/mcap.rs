@@ -9,7 +9,7 @@
 //! arrives, and a damaged or cut file is an error naming it and the byte reached.
 
 use crate::ingest::decode::Wire;
-use crate::ingest::recording::{BagError, Channel, RawMessage};
+use crate::ingest::recording::{BagError, Channel, MessageReader, RawMessage};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -29,7 +29,6 @@ pub struct McapRecording {
     /// Schema id -> (type name, encoding, definition).
     schemas: BTreeMap<u16, (String, String, String)>,
     channels: BTreeMap<u32, Channel>,
-    failed: bool,
 }
 
 impl McapRecording {
@@ -49,13 +48,7 @@ impl McapRecording {
             offset: 0,
             schemas: BTreeMap::new(),
             channels: BTreeMap::new(),
-            failed: false,
         })
-    }
-
-    /// The channels seen so far (every one before its first message).
-    pub fn channels(&self) -> &BTreeMap<u32, Channel> {
-        &self.channels
     }
 
     fn damaged(&self, problem: impl Into<String>) -> BagError {
@@ -94,7 +87,9 @@ impl McapRecording {
             wire,
         })
     }
+}
 
+impl MessageReader for McapRecording {
     fn next_message(&mut self) -> Result<Option<RawMessage>, BagError> {
         loop {
             let event = match self.reader.next_event() {
@@ -153,58 +148,28 @@ impl McapRecording {
             }
         }
     }
-}
-
-impl Iterator for McapRecording {
-    type Item = Result<RawMessage, BagError>;
-
-    /// The next message; after an error, nothing more.
-    fn next(&mut self) -> Option<Self::Item> {
-        if self.failed {
-            return None;
-        }
-        let next = self.next_message();
-        self.failed = next.is_err();
-        next.transpose()
+    fn channels(&self) -> &BTreeMap<u32, Channel> {
+        &self.channels
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ingest::recording::Messages;
+
+    use crate::ingest::fixtures::{corrupted, mcap_bytes, temp_file};
 
     /// An MCAP of `messages` (log time ns, CDR bytes) on one `std_msgs/String` channel.
     fn mcap_file(compression: Option<mcap::Compression>, messages: &[(u64, &[u8])]) -> Vec<u8> {
-        let mut writer = mcap::WriteOptions::new()
-            .compression(compression)
-            .create(std::io::Cursor::new(Vec::new()))
-            .expect("writer");
-        let schema = writer
-            .add_schema("std_msgs/msg/String", "ros2msg", b"string data\n")
-            .expect("schema");
-        let channel = writer
-            .add_channel(schema, "/instruction", "cdr", &BTreeMap::new())
-            .expect("channel");
-        for (sequence, (time, data)) in messages.iter().enumerate() {
-            let header = mcap::records::MessageHeader {
-                channel_id: channel,
-                sequence: sequence as u32,
-                log_time: *time,
-                publish_time: *time,
-            };
-            writer
-                .write_to_known_channel(&header, data)
-                .expect("message");
-        }
-        writer.finish().expect("finish");
-        writer.into_inner().into_inner()
+        let channels = [("/instruction", "std_msgs/msg/String", "string data\n")];
+        let messages: Vec<(usize, u64, Vec<u8>)> =
+            messages.iter().map(|(t, d)| (0, *t, d.to_vec())).collect();
+        mcap_bytes(compression, &channels, &messages)
     }
 
     fn write(name: &str, bytes: &[u8]) -> PathBuf {
-        let path =
-            std::env::temp_dir().join(format!("surgvla-mcap-{name}-{}.mcap", std::process::id()));
-        std::fs::write(&path, bytes).expect("write");
-        path
+        temp_file(&format!("mcap-{name}.mcap"), bytes)
     }
 
     const HELLO: &[u8] = b"\x00\x01\x00\x00\x06\x00\x00\x00hello\x00";
@@ -213,7 +178,7 @@ mod tests {
     fn ros2_messages_in_order_with_their_definitions() {
         for compression in [None, Some(mcap::Compression::Zstd)] {
             let path = write("read", &mcap_file(compression, &[(5, HELLO), (7, HELLO)]));
-            let mut recording = McapRecording::open(&path).expect("open");
+            let mut recording = Messages::new(McapRecording::open(&path).expect("open"));
             let messages: Vec<RawMessage> =
                 recording.by_ref().collect::<Result<_, _>>().expect("read");
             assert_eq!(messages.len(), 2);
@@ -244,24 +209,15 @@ mod tests {
         let good = mcap_file(Some(mcap::Compression::Zstd), &[(5, HELLO), (7, HELLO)]);
         let path = write("cut", &good);
         std::fs::write(&path, &good[..good.len() / 2]).expect("write");
-        let error = McapRecording::open(&path)
-            .expect("open")
+        let error = Messages::new(McapRecording::open(&path).expect("open"))
             .find_map(Result::err)
             .expect("an error");
         assert!(error.to_string().contains("byte"), "{error}");
         let mut state = 0x1234_5678_9abc_def1u64;
         for _ in 0..300 {
-            let mut bytes = good.clone();
-            for _ in 0..3 {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                let i = (state % bytes.len() as u64) as usize;
-                bytes[i] = (state >> 40) as u8;
-            }
-            std::fs::write(&path, &bytes).expect("write");
+            std::fs::write(&path, corrupted(&good, &mut state, 3)).expect("write");
             if let Ok(recording) = McapRecording::open(&path) {
-                assert!(recording.take(100).count() <= 100);
+                assert!(Messages::new(recording).take(100).count() <= 100);
             }
         }
         std::fs::remove_file(path).ok();

@@ -18,6 +18,8 @@ pub mod decode;
 pub mod dvrk;
 pub mod error;
 pub mod extract;
+#[cfg(test)]
+pub(crate) mod fixtures;
 pub mod frames;
 pub mod mcap;
 pub mod msgdef;

@@ -2,20 +2,16 @@
 //! first bytes and yields the same [`RawMessage`]s and [`Channel`]s either way.
 
 use crate::ingest::mcap::McapRecording;
-use crate::ingest::recording::{BagError, Channel, RawMessage};
+use crate::ingest::recording::{BagError, MessageReader, Messages};
 use crate::ingest::ros1::{MAGIC as ROS1_MAGIC, Ros1Bag};
-use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::Path;
 
 /// The first bytes of an MCAP file.
 const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
 
-/// A recording file being read.
-pub enum Recording {
-    Ros1(Ros1Bag),
-    Mcap(McapRecording),
-}
+/// A recording file being read, whatever its container.
+pub type Recording = Messages<Box<dyn MessageReader>>;
 
 impl Recording {
     /// Opens `path` as the recording its first bytes say it is.
@@ -37,35 +33,17 @@ impl Recording {
                 source,
             })?;
         let start = &start[..read];
-        if start.starts_with(ROS1_MAGIC) {
-            Ros1Bag::open(path).map(Recording::Ros1)
+        let reader: Box<dyn MessageReader> = if start.starts_with(ROS1_MAGIC) {
+            Box::new(Ros1Bag::open(path)?)
         } else if start.starts_with(MCAP_MAGIC) {
-            McapRecording::open(path).map(Recording::Mcap)
+            Box::new(McapRecording::open(path)?)
         } else {
-            Err(BagError::Damaged {
+            return Err(BagError::Damaged {
                 path: path.to_path_buf(),
                 offset: 0,
                 problem: "neither a ROS 1 bag (#ROSBAG V2.0) nor an MCAP file".into(),
-            })
-        }
-    }
-
-    /// The channels seen so far (every one before its first message).
-    pub fn channels(&self) -> &BTreeMap<u32, Channel> {
-        match self {
-            Recording::Ros1(bag) => bag.connections(),
-            Recording::Mcap(mcap) => mcap.channels(),
-        }
-    }
-}
-
-impl Iterator for Recording {
-    type Item = Result<RawMessage, BagError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        match self {
-            Recording::Ros1(bag) => bag.next(),
-            Recording::Mcap(mcap) => mcap.next(),
-        }
+            });
+        };
+        Ok(Messages::new(reader))
     }
 }

@@ -1,9 +1,11 @@
 //! What every recording reader yields, whatever the container: [`Channel`]s (a topic, its
 //! message type, the type's definition when the recording carries one, and the wire format of
 //! its messages) and [`RawMessage`]s in recording order; and [`BagError`], a recording that
-//! cannot be read, naming the file and the byte.
+//! cannot be read, naming the file and the byte. Readers implement [`MessageReader`];
+//! [`Messages`] makes any of them an iterator that stops after an error.
 
 use crate::ingest::decode::Wire;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 /// A recording that cannot be read.
@@ -43,4 +45,55 @@ pub struct RawMessage {
     /// Receive (log) time, nanoseconds since the epoch.
     pub receive_ns: i64,
     pub data: Vec<u8>,
+}
+
+/// A recording reader: its messages in recording order, and the channels seen so far.
+pub trait MessageReader: Send {
+    /// The next message; None at the end.
+    fn next_message(&mut self) -> Result<Option<RawMessage>, BagError>;
+    /// The channels seen so far (every one before its first message).
+    fn channels(&self) -> &BTreeMap<u32, Channel>;
+}
+
+impl<R: MessageReader + ?Sized> MessageReader for Box<R> {
+    fn next_message(&mut self) -> Result<Option<RawMessage>, BagError> {
+        (**self).next_message()
+    }
+
+    fn channels(&self) -> &BTreeMap<u32, Channel> {
+        (**self).channels()
+    }
+}
+
+/// A reader's messages as an iterator: after an error, nothing more.
+pub struct Messages<R> {
+    reader: R,
+    failed: bool,
+}
+
+impl<R: MessageReader> Messages<R> {
+    pub fn new(reader: R) -> Messages<R> {
+        Messages {
+            reader,
+            failed: false,
+        }
+    }
+
+    /// The channels seen so far (every one before its first message).
+    pub fn channels(&self) -> &BTreeMap<u32, Channel> {
+        self.reader.channels()
+    }
+}
+
+impl<R: MessageReader> Iterator for Messages<R> {
+    type Item = Result<RawMessage, BagError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        let next = self.reader.next_message();
+        self.failed = next.is_err();
+        next.transpose()
+    }
 }

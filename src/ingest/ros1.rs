@@ -15,7 +15,7 @@
 //! [`MAX_CHUNK_BYTES`]), and a damaged record is an error naming the file and its offset.
 
 use crate::ingest::decode::Wire;
-use crate::ingest::recording::{BagError, Channel, RawMessage};
+use crate::ingest::recording::{BagError, Channel, MessageReader, RawMessage};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -39,7 +39,6 @@ pub struct Ros1Bag {
     /// The chunk being read: its records and the offset of the next one in it, with the file
     /// offset it started at (for messages).
     chunk: Option<(Vec<u8>, usize, u64)>,
-    failed: bool,
 }
 
 impl Ros1Bag {
@@ -67,13 +66,7 @@ impl Ros1Bag {
             len,
             connections: BTreeMap::new(),
             chunk: None,
-            failed: false,
         })
-    }
-
-    /// The connections seen so far (every one before its first message).
-    pub fn connections(&self) -> &BTreeMap<u32, Channel> {
-        &self.connections
     }
 
     fn damaged(&self, offset: u64, problem: impl Into<String>) -> BagError {
@@ -108,8 +101,8 @@ impl Ros1Bag {
         Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]))
     }
 
-    /// The next record of the file: (its offset, header fields, data).
-    fn file_record(&mut self) -> Result<Option<(u64, Fields, Vec<u8>)>, BagError> {
+    /// The next record of the file.
+    fn file_record(&mut self) -> Result<Option<FileRecord>, BagError> {
         if self.offset >= self.len {
             return Ok(None);
         }
@@ -130,11 +123,21 @@ impl Ros1Bag {
             return Err(self.damaged(start, format!("a record of {data_len} bytes")));
         }
         let data = self.read_file(data_len, "a record's data")?;
-        Ok(Some((start, fields, data)))
+        Ok(Some(FileRecord {
+            start,
+            op,
+            header,
+            data,
+        }))
     }
 
     /// The records of a chunk, decompressed.
-    fn open_chunk(&self, start: u64, fields: &Fields, data: Vec<u8>) -> Result<Vec<u8>, BagError> {
+    fn open_chunk(
+        &self,
+        start: u64,
+        fields: &Fields<'_>,
+        data: Vec<u8>,
+    ) -> Result<Vec<u8>, BagError> {
         let size = u64::from(fields.u32("size").map_err(|p| self.damaged(start, p))?);
         if size > MAX_CHUNK_BYTES {
             return Err(self.damaged(start, format!("a chunk of {size} bytes")));
@@ -167,7 +170,7 @@ impl Ros1Bag {
     }
 
     /// Records a connection (its data is a header of `type`, `md5sum`, `message_definition`).
-    fn connection(&mut self, start: u64, fields: &Fields, data: &[u8]) -> Result<(), BagError> {
+    fn connection(&mut self, start: u64, fields: &Fields<'_>, data: &[u8]) -> Result<(), BagError> {
         let id = fields.u32("conn").map_err(|p| self.damaged(start, p))?;
         let topic = fields.text("topic").map_err(|p| self.damaged(start, p))?;
         let details = Fields::parse(data).map_err(|p| self.damaged(start, p))?;
@@ -190,21 +193,28 @@ impl Ros1Bag {
             }
             let (fields, data, next) =
                 chunk_record(&records, at).map_err(|p| self.damaged(chunk_start, p))?;
-            let (data, op) = (data.to_vec(), fields.op());
-            self.chunk = Some((records, next, chunk_start));
-            match op.map_err(|p| self.damaged(chunk_start, p))? {
-                OP_CONNECTION => self.connection(chunk_start, &fields, &data)?,
-                OP_MESSAGE => {
-                    let message = self.message(chunk_start, &fields, data)?;
-                    return Ok(Some(message));
+            let message = match fields.op().map_err(|p| self.damaged(chunk_start, p))? {
+                OP_CONNECTION => {
+                    self.connection(chunk_start, &fields, data)?;
+                    None
                 }
-                _ => {}
+                OP_MESSAGE => Some(self.message(chunk_start, &fields, data.to_vec())?),
+                _ => None,
+            };
+            self.chunk = Some((records, next, chunk_start));
+            if message.is_some() {
+                return Ok(message);
             }
         }
         Ok(None)
     }
 
-    fn message(&self, start: u64, fields: &Fields, data: Vec<u8>) -> Result<RawMessage, BagError> {
+    fn message(
+        &self,
+        start: u64,
+        fields: &Fields<'_>,
+        data: Vec<u8>,
+    ) -> Result<RawMessage, BagError> {
         let connection = fields.u32("conn").map_err(|p| self.damaged(start, p))?;
         if !self.connections.contains_key(&connection) {
             return Err(self.damaged(
@@ -224,43 +234,16 @@ impl Ros1Bag {
             data,
         })
     }
-
-    fn next_message(&mut self) -> Result<Option<RawMessage>, BagError> {
-        loop {
-            if let Some(message) = self.chunk_message()? {
-                return Ok(Some(message));
-            }
-            let Some((start, fields, data)) = self.file_record()? else {
-                return Ok(None);
-            };
-            match fields.op().map_err(|p| self.damaged(start, p))? {
-                OP_CHUNK => {
-                    let records = self.open_chunk(start, &fields, data)?;
-                    self.chunk = Some((records, 0, start));
-                }
-                OP_CONNECTION => self.connection(start, &fields, &data)?,
-                OP_MESSAGE => return self.message(start, &fields, data).map(Some),
-                OP_BAG_HEADER | OP_INDEX | OP_CHUNK_INFO => {}
-                other => {
-                    return Err(self.damaged(start, format!("a record of unknown op {other:#04x}")));
-                }
-            }
-        }
-    }
 }
 
-impl Iterator for Ros1Bag {
-    type Item = Result<RawMessage, BagError>;
-
-    /// The next message; after an error, nothing more.
-    fn next(&mut self) -> Option<Self::Item> {
-        if self.failed {
-            return None;
-        }
-        let next = self.next_message();
-        self.failed = next.is_err();
-        next.transpose()
-    }
+/// A record read from the file (not from a chunk).
+struct FileRecord {
+    /// Its offset in the file.
+    start: u64,
+    op: u8,
+    /// Its header, checked by [`Fields::parse`].
+    header: Vec<u8>,
+    data: Vec<u8>,
 }
 
 const OP_MESSAGE: u8 = 0x02;
@@ -281,7 +264,7 @@ fn bounded(reader: impl Read, size: u64) -> Result<Vec<u8>, String> {
 }
 
 /// The record at `at` in a chunk's bytes: its header fields, its data and the next offset.
-fn chunk_record(records: &[u8], at: usize) -> Result<(Fields, &[u8], usize), String> {
+fn chunk_record(records: &[u8], at: usize) -> Result<(Fields<'_>, &[u8], usize), String> {
     let take = |at: usize, len: usize, what: &str| -> Result<&[u8], String> {
         (at.checked_add(len))
             .and_then(|end| records.get(at..end))
@@ -299,37 +282,53 @@ fn chunk_record(records: &[u8], at: usize) -> Result<(Fields, &[u8], usize), Str
     Ok((Fields::parse(header)?, data, data_at + 4 + data_len))
 }
 
-/// A record header's fields, `name=value` (values are binary).
-#[derive(Debug, Default)]
-struct Fields(BTreeMap<String, Vec<u8>>);
+/// A record header's fields, `name=value` (values are binary), read in place: a header holds
+/// a handful of fields, so a lookup walks them (no map per record).
+#[derive(Clone, Copy, Debug)]
+struct Fields<'a>(&'a [u8]);
 
-impl Fields {
-    fn parse(mut bytes: &[u8]) -> Result<Fields, String> {
-        let mut fields = BTreeMap::new();
-        while !bytes.is_empty() {
+impl<'a> Fields<'a> {
+    /// Checks that `bytes` is a sequence of length-prefixed `name=value` fields.
+    fn parse(bytes: &'a [u8]) -> Result<Fields<'a>, String> {
+        let fields = Fields(bytes);
+        for field in fields.iter() {
+            field?;
+        }
+        Ok(fields)
+    }
+
+    /// Each field's (name, value).
+    fn iter(self) -> impl Iterator<Item = Result<(&'a [u8], &'a [u8]), String>> {
+        let mut bytes = self.0;
+        std::iter::from_fn(move || {
+            if bytes.is_empty() {
+                return None;
+            }
             let Some((len, rest)) = bytes.split_first_chunk::<4>() else {
-                return Err("a header field's length is cut short".into());
+                bytes = &[];
+                return Some(Err("a header field's length is cut short".into()));
             };
             let len = u32::from_le_bytes(*len) as usize;
             let Some(field) = rest.get(..len) else {
-                return Err(format!(
+                bytes = &[];
+                return Some(Err(format!(
                     "a header field of {len} bytes runs past its header"
-                ));
+                )));
             };
-            let Some(equals) = field.iter().position(|&b| b == b'=') else {
-                return Err("a header field without '='".into());
-            };
-            let name = String::from_utf8_lossy(&field[..equals]).into_owned();
-            fields.insert(name, field[equals + 1..].to_vec());
             bytes = &rest[len..];
-        }
-        Ok(Fields(fields))
+            Some(match field.iter().position(|&b| b == b'=') {
+                Some(equals) => Ok((&field[..equals], &field[equals + 1..])),
+                None => Err("a header field without '='".into()),
+            })
+        })
     }
 
-    fn bytes(&self, name: &str) -> Result<&[u8], String> {
-        self.0
-            .get(name)
-            .map(Vec::as_slice)
+    /// The value of the first field called `name` (a checked header: see [`Fields::parse`]).
+    fn bytes(&self, name: &str) -> Result<&'a [u8], String> {
+        self.iter()
+            .filter_map(Result::ok)
+            .find(|(n, _)| *n == name.as_bytes())
+            .map(|(_, value)| value)
             .ok_or_else(|| format!("a record without its {name} field"))
     }
 
@@ -353,9 +352,45 @@ impl Fields {
     }
 }
 
+impl MessageReader for Ros1Bag {
+    fn next_message(&mut self) -> Result<Option<RawMessage>, BagError> {
+        loop {
+            if let Some(message) = self.chunk_message()? {
+                return Ok(Some(message));
+            }
+            let Some(FileRecord {
+                start,
+                op,
+                header,
+                data,
+            }) = self.file_record()?
+            else {
+                return Ok(None);
+            };
+            let fields = Fields(&header);
+            match op {
+                OP_CHUNK => {
+                    let records = self.open_chunk(start, &fields, data)?;
+                    self.chunk = Some((records, 0, start));
+                }
+                OP_CONNECTION => self.connection(start, &fields, &data)?,
+                OP_MESSAGE => return self.message(start, &fields, data).map(Some),
+                OP_BAG_HEADER | OP_INDEX | OP_CHUNK_INFO => {}
+                other => {
+                    return Err(self.damaged(start, format!("a record of unknown op {other:#04x}")));
+                }
+            }
+        }
+    }
+    fn channels(&self) -> &BTreeMap<u32, Channel> {
+        &self.connections
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::ingest::recording::Messages;
 
     /// A header of `fields`.
     fn header(fields: &[(&str, &[u8])]) -> Vec<u8> {
@@ -456,7 +491,7 @@ pub(crate) mod tests {
         ];
         for compression in ["none", "lz4", "bz2"] {
             let path = write(compression, &bag(compression, &messages));
-            let mut bag = Ros1Bag::open(&path).expect("open");
+            let mut bag = Messages::new(Ros1Bag::open(&path).expect("open"));
             let read: Vec<RawMessage> = bag.by_ref().collect::<Result<_, _>>().expect("read");
             let got: Vec<(u32, i64, &[u8])> = read
                 .iter()
@@ -467,9 +502,9 @@ pub(crate) mod tests {
                 .map(|(c, t, d)| (*c, *t as i64, *d))
                 .collect();
             assert_eq!(got, want, "{compression}");
-            assert_eq!(bag.connections()[&1].topic, "/b");
+            assert_eq!(bag.channels()[&1].topic, "/b");
             assert_eq!(
-                bag.connections()[&0].definition.as_deref(),
+                bag.channels()[&0].definition.as_deref(),
                 Some("string data\n")
             );
             std::fs::remove_file(path).ok();
@@ -483,7 +518,7 @@ pub(crate) mod tests {
         let path = write("cut", &good);
         for cut in [good.len() - 1, good.len() / 2, MAGIC.len() + 3] {
             std::fs::write(&path, &good[..cut]).expect("write");
-            let results: Vec<_> = Ros1Bag::open(&path).expect("open").collect();
+            let results: Vec<_> = Messages::new(Ros1Bag::open(&path).expect("open")).collect();
             let error = results.into_iter().find_map(Result::err).expect("an error");
             let text = error.to_string();
             assert!(
@@ -504,17 +539,10 @@ pub(crate) mod tests {
             let good = bag(compression, &messages);
             let path = write(&format!("fuzz-{compression}"), &good);
             for _ in 0..300 {
-                let mut bytes = good.clone();
-                for _ in 0..3 {
-                    state ^= state << 13;
-                    state ^= state >> 7;
-                    state ^= state << 17;
-                    let i = (state % bytes.len() as u64) as usize;
-                    bytes[i] = (state >> 40) as u8;
-                }
+                let bytes = crate::ingest::fixtures::corrupted(&good, &mut state, 3);
                 std::fs::write(&path, &bytes).expect("write");
                 if let Ok(bag) = Ros1Bag::open(&path) {
-                    assert!(bag.take(100).count() <= 100);
+                    assert!(Messages::new(bag).take(100).count() <= 100);
                 }
             }
             std::fs::remove_file(path).ok();

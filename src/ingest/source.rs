@@ -16,7 +16,7 @@ use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, INSTRUCTION_TOPIC};
 use crate::ingest::error::IngestError;
 use crate::ingest::frames::second_pass;
 use crate::ingest::msgdef::MessageDefs;
-use crate::ingest::stamps::{Clock, FirstPass, TopicSpec, first_pass};
+use crate::ingest::stamps::{Clock, TopicSpec, first_pass};
 use crate::ingest::sync::{SyncOptions, SyncPlan, SyncReport, plan};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -31,11 +31,16 @@ pub struct IngestOptions {
     pub task: Option<String>,
 }
 
-/// One input, planned.
+/// One input, planned: what is kept of it until its episodes are made (its plan is made
+/// again then, so memory does not grow with the number of inputs).
 struct Input {
     path: PathBuf,
+    report: SyncReport,
+}
+
+/// One input's topics and plan.
+struct Planned {
     topics: Vec<TopicSpec>,
-    first: FirstPass,
     plan: SyncPlan,
 }
 
@@ -66,9 +71,13 @@ impl IngestSource {
         })?;
         let mut inputs = Vec::with_capacity(paths.len());
         for path in paths {
-            inputs.push(planned(path, &options, &builtin)?);
+            let planned = planned(path, &options, &builtin)?;
+            inputs.push(Input {
+                path: path.clone(),
+                report: planned.plan.report,
+            });
         }
-        let total = inputs.iter().map(|i| i.plan.episodes.len() as u64).sum();
+        let total = inputs.iter().map(|i| i.report.episodes.len() as u64).sum();
         let mut source = IngestSource {
             info: DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 0, "dvrk", Vec::new()),
             options,
@@ -88,9 +97,7 @@ impl IngestSource {
 
     /// Each input's synchronisation report.
     pub fn reports(&self) -> impl Iterator<Item = (&Path, &SyncReport)> {
-        self.inputs
-            .iter()
-            .map(|i| (i.path.as_path(), &i.plan.report))
+        self.inputs.iter().map(|i| (i.path.as_path(), &i.report))
     }
 
     fn dataset_info(&self) -> DatasetInfo {
@@ -136,45 +143,39 @@ impl IngestSource {
             return Ok(());
         };
         self.next_input += 1;
+        let Planned { topics, plan } = planned(&input.path, &self.options, &self.builtin)?;
         let (preset, task) = (&self.options.preset, &self.options.task);
         let mut made = Vec::new();
         let mut index = self.next_index;
         let mut size = self.image_size;
-        second_pass(
-            &input.path,
-            &input.topics,
-            &input.first,
-            &input.plan,
-            &self.builtin,
-            &mut |frames| {
-                let mut steps = Vec::with_capacity(frames.len());
-                let mut instruction = task.clone();
-                for frame in &frames {
-                    let bad = |problem| IngestError::Frame {
-                        path: input.path.clone(),
-                        time_ns: frame.time_ns,
-                        problem,
-                    };
-                    let features = preset.frame(&frame.values).map_err(bad)?;
-                    if instruction.is_none() {
-                        instruction.clone_from(&features.instruction);
-                    }
-                    let here = features.images.first().map(|i| (i.height, i.width));
-                    if size.is_none() {
-                        size = here;
-                    }
-                    if here != size {
-                        return Err(bad(format!(
-                            "the camera's image is {here:?} (height, width) where earlier frames are {size:?}"
-                        )));
-                    }
-                    steps.push(step(features).map_err(bad)?);
+        second_pass(&input.path, &topics, &plan, &self.builtin, &mut |frames| {
+            let mut steps = Vec::with_capacity(frames.len());
+            let mut instruction = task.clone();
+            for frame in &frames {
+                let bad = |problem| IngestError::Frame {
+                    path: input.path.clone(),
+                    time_ns: frame.time_ns,
+                    problem,
+                };
+                let features = preset.frame(&frame.values).map_err(bad)?;
+                if instruction.is_none() {
+                    instruction.clone_from(&features.instruction);
                 }
-                made.push(episode(index, instruction.unwrap_or_default(), steps));
-                index += 1;
-                Ok(())
-            },
-        )?;
+                let here = features.images.first().map(|i| (i.height, i.width));
+                if size.is_none() {
+                    size = here;
+                }
+                if here != size {
+                    return Err(bad(format!(
+                        "the camera's image is {here:?} (height, width) where earlier frames are {size:?}"
+                    )));
+                }
+                steps.push(step(features).map_err(bad)?);
+            }
+            made.push(episode(index, instruction.unwrap_or_default(), steps));
+            index += 1;
+            Ok(())
+        })?;
         self.image_size = size;
         self.next_index = index;
         self.ready.extend(made);
@@ -188,7 +189,7 @@ fn planned(
     path: &Path,
     options: &IngestOptions,
     builtin: &MessageDefs,
-) -> Result<Input, IngestError> {
+) -> Result<Planned, IngestError> {
     let mut topics = options.preset.topics();
     let mut first = first_pass(path, &topics, options.clock, builtin)?;
     if first.channels.last().is_some_and(Option::is_none)
@@ -207,13 +208,11 @@ fn planned(
             topic: topic.topic.clone(),
         });
     }
-    let plan = plan(&first.streams, &options.sync);
-    Ok(Input {
+    let plan = plan(&first.streams, &options.sync).map_err(|source| IngestError::Sync {
         path: path.to_path_buf(),
-        topics,
-        first,
-        plan,
-    })
+        source,
+    })?;
+    Ok(Planned { topics, plan })
 }
 
 /// A step of a frame's features: the first camera's pixels, then state, action and the other
@@ -258,7 +257,7 @@ impl Iterator for IngestSource {
         while self.ready.is_empty() && self.next_input < self.inputs.len() {
             if let Err(error) = self.make_next_input() {
                 self.failed = true;
-                return Some(Err(ExportError::Internal(error.to_string())));
+                return Some(Err(ExportError::Input(Box::new(error))));
             }
         }
         self.ready.pop_front().map(Ok)
@@ -279,7 +278,6 @@ impl EpisodeSource for IngestSource {
 mod tests {
     use super::*;
     use crate::ingest::sync::OnGap;
-    use std::collections::BTreeMap;
 
     /// A little CDR writer (little-endian, aligned from after the 4-byte header).
     struct Cdr(Vec<u8>);
@@ -346,63 +344,37 @@ mod tests {
         c.0
     }
 
-    /// A recording: arm at 100 Hz, camera at 10 Hz, setpoints at 50 Hz, for 1 s.
+    /// A recording: arm at 100 Hz, camera at 10 Hz, setpoints at 50 Hz, for 1 s (no schema:
+    /// the built-in definitions).
     fn recording() -> PathBuf {
-        let mut writer = mcap::WriteOptions::new()
-            .create(std::io::Cursor::new(Vec::new()))
-            .expect("writer");
-        let channel = |writer: &mut mcap::Writer<_>, topic: &str, ty: &str| {
-            let schema = writer.add_schema(ty, "ros2msg", b"").expect("schema");
-            writer
-                .add_channel(schema, topic, "cdr", &BTreeMap::new())
-                .expect("channel")
-        };
-        let topics = [
-            ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped"),
-            ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState"),
-            ("/PSM1/setpoint_cp", "geometry_msgs/msg/PoseStamped"),
-            ("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState"),
-            ("/camera/left", "sensor_msgs/msg/Image"),
+        let channels = [
+            ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped", ""),
+            ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState", ""),
+            ("/PSM1/setpoint_cp", "geometry_msgs/msg/PoseStamped", ""),
+            ("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState", ""),
+            ("/camera/left", "sensor_msgs/msg/Image", ""),
         ];
-        let ids: Vec<u16> = topics
-            .iter()
-            .map(|(topic, ty)| channel(&mut writer, topic, ty))
-            .collect();
-        let mut messages: Vec<(i64, u16, Vec<u8>)> = Vec::new();
+        let mut messages: Vec<(usize, u64, Vec<u8>)> = Vec::new();
         let ms = 1_000_000i64;
         for k in 0..100 {
             let t = 1_000_000_000 + k * 10 * ms;
-            messages.push((t, ids[0], pose(t, k as f64)));
-            messages.push((t, ids[1], jaw(t, k as f64 / 100.0)));
+            messages.push((0, t as u64, pose(t, k as f64)));
+            messages.push((1, t as u64, jaw(t, k as f64 / 100.0)));
             if k % 2 == 0 {
-                messages.push((t, ids[2], pose(t, k as f64 + 0.5)));
-                messages.push((t, ids[3], jaw(t, 0.75)));
+                messages.push((2, t as u64, pose(t, k as f64 + 0.5)));
+                messages.push((3, t as u64, jaw(t, 0.75)));
             }
             if k % 10 == 0 {
-                messages.push((t, ids[4], image(t, k as u8)));
+                messages.push((4, t as u64, image(t, k as u8)));
             }
         }
-        for (sequence, (t, channel, data)) in messages.into_iter().enumerate() {
-            let header = mcap::records::MessageHeader {
-                channel_id: channel,
-                sequence: sequence as u32,
-                log_time: t as u64,
-                publish_time: t as u64,
-            };
-            writer
-                .write_to_known_channel(&header, &data)
-                .expect("write");
-        }
-        writer.finish().expect("finish");
-        let path = std::env::temp_dir().join(format!("surgvla-ingest-{}.mcap", std::process::id()));
-        std::fs::write(&path, writer.into_inner().into_inner()).expect("write");
-        path
+        let bytes = crate::ingest::fixtures::mcap_bytes(None, &channels, &messages);
+        crate::ingest::fixtures::temp_file("ingest.mcap", &bytes)
     }
 
-    #[test]
-    fn a_dvrk_recording_becomes_episodes_of_the_rules_messages() {
-        let path = recording();
-        let options = IngestOptions {
+    /// One arm, the left camera, 10 fps, split at gaps, a given task.
+    fn options() -> IngestOptions {
+        IngestOptions {
             preset: DvrkPreset::new(&["PSM1".into()], &[("left".into(), "/camera/left".into())]),
             clock: Clock::Header,
             sync: SyncOptions {
@@ -410,8 +382,13 @@ mod tests {
                 ..SyncOptions::at(10)
             },
             task: Some("cut the suture".into()),
-        };
-        let mut source = IngestSource::open(std::slice::from_ref(&path), options).expect("open");
+        }
+    }
+
+    #[test]
+    fn a_dvrk_recording_becomes_episodes_of_the_rules_messages() {
+        let path = recording();
+        let mut source = IngestSource::open(std::slice::from_ref(&path), options()).expect("open");
         assert_eq!(source.len(), 1);
         let info = source.info().clone();
         assert_eq!(info.fps, 10);
@@ -446,13 +423,7 @@ mod tests {
     fn ingested_episodes_write_as_a_lerobot_dataset_that_reads_back() {
         use crate::export::lerobot::{LeRobotOptions, LeRobotWriter};
         let path = recording();
-        let options = IngestOptions {
-            preset: DvrkPreset::new(&["PSM1".into()], &[("left".into(), "/camera/left".into())]),
-            clock: Clock::Header,
-            sync: SyncOptions::at(10),
-            task: Some("cut the suture".into()),
-        };
-        let mut source = IngestSource::open(std::slice::from_ref(&path), options).expect("open");
+        let mut source = IngestSource::open(std::slice::from_ref(&path), options()).expect("open");
         let out = std::env::temp_dir().join(format!("surgvla-ingested-{}", std::process::id()));
         std::fs::remove_dir_all(&out).ok();
         let mut sink = LeRobotWriter::boxed(&out, source.info(), LeRobotOptions::default(), false)

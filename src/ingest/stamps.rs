@@ -10,7 +10,8 @@ use crate::ingest::msgdef::MessageDefs;
 use crate::ingest::open::Recording;
 use crate::ingest::recording::Channel;
 use crate::ingest::sync::{StreamKind, StreamStamps};
-use std::collections::BTreeMap;
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 use std::path::Path;
 
 /// Which time a message is put on the grid by.
@@ -67,6 +68,58 @@ pub fn definitions(
     }
 }
 
+/// What a channel's messages decode by: its topic's slot among those asked for, its
+/// definitions and the channel itself.
+pub(crate) struct Decoder {
+    pub slot: usize,
+    pub defs: MessageDefs,
+    pub channel: Channel,
+}
+
+/// Each channel's [`Decoder`], settled on its first message, for both passes; a channel whose
+/// topic was not asked for is remembered as such (looked up once).
+pub(crate) struct Decoders<'t> {
+    slot_of: HashMap<&'t str, usize>,
+    by_channel: HashMap<u32, Option<Decoder>>,
+}
+
+impl<'t> Decoders<'t> {
+    pub(crate) fn new(topics: &'t [TopicSpec]) -> Decoders<'t> {
+        Decoders {
+            slot_of: (topics.iter().enumerate())
+                .map(|(i, t)| (t.topic.as_str(), i))
+                .collect(),
+            by_channel: HashMap::new(),
+        }
+    }
+
+    /// The decoder of channel `connection` of `recording` (`path`); None for a topic not asked
+    /// for.
+    pub(crate) fn get(
+        &mut self,
+        path: &Path,
+        recording: &Recording,
+        connection: u32,
+        builtin: &MessageDefs,
+    ) -> Result<Option<&Decoder>, IngestError> {
+        if let Entry::Vacant(entry) = self.by_channel.entry(connection) {
+            let decoder = match recording.channels().get(&connection) {
+                Some(channel) => match self.slot_of.get(channel.topic.as_str()) {
+                    Some(&slot) => Some(Decoder {
+                        slot,
+                        defs: definitions(path, channel, builtin)?,
+                        channel: channel.clone(),
+                    }),
+                    None => None,
+                },
+                None => None,
+            };
+            entry.insert(decoder);
+        }
+        Ok(self.by_channel.get(&connection).and_then(Option::as_ref))
+    }
+}
+
 /// Reads `path` once for the times of `topics`' messages.
 pub fn first_pass(
     path: &Path,
@@ -74,11 +127,6 @@ pub fn first_pass(
     clock: Clock,
     builtin: &MessageDefs,
 ) -> Result<FirstPass, IngestError> {
-    let slot_of: BTreeMap<&str, usize> = topics
-        .iter()
-        .enumerate()
-        .map(|(i, t)| (t.topic.as_str(), i))
-        .collect();
     let mut streams: Vec<StreamStamps> = topics
         .iter()
         .map(|t| StreamStamps {
@@ -88,24 +136,18 @@ pub fn first_pass(
         })
         .collect();
     let mut channels: Vec<Option<Channel>> = vec![None; topics.len()];
-    // Channel id -> (slot, its definitions).
-    let mut decoders: BTreeMap<u32, (usize, MessageDefs)> = BTreeMap::new();
+    let mut decoders = Decoders::new(topics);
     let mut recording = Recording::open(path)?;
     // Not a `for` loop: the recording's channels are looked up while it is read.
     while let Some(message) = recording.next() {
         let message = message?;
-        if let std::collections::btree_map::Entry::Vacant(entry) =
-            decoders.entry(message.connection)
-        {
-            let Some(channel) = recording.channels().get(&message.connection) else {
-                continue;
-            };
-            let Some(&slot) = slot_of.get(channel.topic.as_str()) else {
-                continue;
-            };
-            if let Some(known) = &channels[slot]
-                && known.type_name != channel.type_name
-            {
+        let Some(decoder) = decoders.get(path, &recording, message.connection, builtin)? else {
+            continue;
+        };
+        let (slot, channel) = (decoder.slot, &decoder.channel);
+        match &channels[slot] {
+            None => channels[slot] = Some(channel.clone()),
+            Some(known) if known.type_name != channel.type_name => {
                 return Err(IngestError::TwoTypes {
                     path: path.to_path_buf(),
                     topic: channel.topic.clone(),
@@ -113,30 +155,20 @@ pub fn first_pass(
                     second: channel.type_name.clone(),
                 });
             }
-            let defs = definitions(path, channel, builtin)?;
-            channels[slot].get_or_insert_with(|| channel.clone());
-            entry.insert((slot, defs));
+            Some(_) => {}
         }
-        let Some((slot, defs)) = decoders.get(&message.connection) else {
-            continue;
-        };
-        let (spec, stream) = (&topics[*slot], &mut streams[*slot]);
+        let (spec, stream) = (&topics[slot], &mut streams[slot]);
         let index = stream.stamps_ns.len();
         let time_ns = match clock {
             Clock::Receive => message.receive_ns,
             Clock::Header => {
-                let channel = channels[*slot]
-                    .as_ref()
-                    .map(|c| (c.type_name.as_str(), c.wire));
-                let (type_name, wire) = channel.unwrap_or(("", crate::ingest::decode::Wire::Ros1));
-                let first =
-                    decode_first_field(defs, type_name, wire, &message.data).map_err(|source| {
-                        IngestError::Decode {
-                            path: path.to_path_buf(),
-                            topic: spec.topic.clone(),
-                            index,
-                            source: Box::new(source),
-                        }
+                let (defs, wire) = (&decoder.defs, channel.wire);
+                let first = decode_first_field(defs, &channel.type_name, wire, &message.data)
+                    .map_err(|source| IngestError::Decode {
+                        path: path.to_path_buf(),
+                        topic: spec.topic.clone(),
+                        index,
+                        source: Box::new(source),
                     })?;
                 header_stamp(first.as_ref()).ok_or_else(|| IngestError::NoStamp {
                     path: path.to_path_buf(),
@@ -167,43 +199,27 @@ mod tests {
 
     /// A ROS 2 MCAP of `std_msgs/Header`-first messages: (topic, type, stamp ns, log ns).
     fn recording(messages: &[(&str, &str, i64, u64)]) -> std::path::PathBuf {
-        let mut writer = mcap::WriteOptions::new()
-            .create(std::io::Cursor::new(Vec::new()))
-            .expect("writer");
+        use crate::ingest::fixtures::{mcap_bytes, temp_file};
         let header_type = "std_msgs/Header header\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
-        let mut channels = BTreeMap::new();
-        for (sequence, (topic, type_name, stamp, log)) in messages.iter().enumerate() {
-            let channel = *channels.entry(*topic).or_insert_with(|| {
-                let schema = writer
-                    .add_schema(type_name, "ros2msg", header_type.as_bytes())
-                    .expect("schema");
-                writer
-                    .add_channel(schema, topic, "cdr", &BTreeMap::new())
-                    .expect("channel")
-            });
+        let mut channels: Vec<(&str, &str, &str)> = Vec::new();
+        let mut written = Vec::new();
+        for (topic, type_name, stamp, log) in messages {
+            let channel = match channels.iter().position(|(t, _, _)| t == topic) {
+                Some(channel) => channel,
+                None => {
+                    channels.push((topic, type_name, header_type));
+                    channels.len() - 1
+                }
+            };
             let mut data = vec![0, 1, 0, 0];
             data.extend(((stamp / 1_000_000_000) as i32).to_le_bytes());
             data.extend(((stamp % 1_000_000_000) as u32).to_le_bytes());
             data.extend(1u32.to_le_bytes());
             data.push(0);
-            let header = mcap::records::MessageHeader {
-                channel_id: channel,
-                sequence: sequence as u32,
-                log_time: *log,
-                publish_time: *log,
-            };
-            writer
-                .write_to_known_channel(&header, &data)
-                .expect("write");
+            written.push((channel, *log, data));
         }
-        writer.finish().expect("finish");
-        let path = std::env::temp_dir().join(format!(
-            "surgvla-stamps-{}-{}.mcap",
-            messages.len(),
-            std::process::id()
-        ));
-        std::fs::write(&path, writer.into_inner().into_inner()).expect("write");
-        path
+        let name = format!("stamps-{}.mcap", messages.len());
+        temp_file(&name, &mcap_bytes(None, &channels, &written))
     }
 
     fn spec(topic: &str, kind: StreamKind, offset_ns: i64) -> TopicSpec {

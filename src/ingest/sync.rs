@@ -112,7 +112,7 @@ pub struct SyncReport {
     pub grid: Option<(i64, i64)>,
     pub streams: Vec<StreamReport>,
     /// Grid times not written (a sampled stream too old, or an event stream not started).
-    pub dropped_frames: usize,
+    pub dropped_frames: u64,
     /// Frames written per episode.
     pub episodes: Vec<usize>,
 }
@@ -124,25 +124,36 @@ pub struct SyncPlan {
     pub report: SyncReport,
 }
 
-/// Puts `streams` on frames by the rule of the module overview.
-pub fn plan(streams: &[StreamStamps], options: &SyncOptions) -> SyncPlan {
+/// The most frames one input may make: 10 million, 93 hours at 30 fps (a grid this long comes
+/// from stamps on different clocks, or forged ones).
+pub const MAX_FRAMES: usize = 10_000_000;
+
+/// Why streams could not be put on frames.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the streams would make more than {limit} frames at {fps} fps (their stamps span {span_secs} s): are they on one clock? (--clock receive, --time-offset)"
+)]
+pub struct TooManyFrames {
+    pub limit: usize,
+    pub fps: u32,
+    pub span_secs: i64,
+}
+
+/// Puts `streams` on frames by the rule of the module overview. Time goes straight to the next
+/// frame that can be written (a stream's next message), so a long gap costs nothing; more than
+/// [`MAX_FRAMES`] written frames is an error.
+pub fn plan(streams: &[StreamStamps], options: &SyncOptions) -> Result<SyncPlan, TooManyFrames> {
     let sorted: Vec<Vec<usize>> = streams.iter().map(|s| by_stamp(&s.stamps_ns)).collect();
-    let grid = grid_span(streams);
+    let fps = options.fps.max(1);
+    let grid = grid_span(streams).map(|(start, end)| Grid::new(start, end, fps));
     let mut episodes: Vec<Vec<Frame>> = Vec::new();
     let mut current: Vec<Frame> = Vec::new();
-    let mut dropped = 0;
-    if let Some((start, end)) = grid {
+    let (mut dropped, mut written) = (0u64, 0usize);
+    if let Some(grid) = &grid {
         let mut cursors = vec![0usize; streams.len()];
-        let fps = i64::from(options.fps.max(1));
-        for k in 0i64.. {
-            let Some(time_ns) = k
-                .checked_mul(1_000_000_000)
-                .map(|t| t / fps)
-                .and_then(|t| start.checked_add(t))
-                .filter(|t| *t <= end)
-            else {
-                break;
-            };
+        let mut k = 0;
+        while k <= grid.last {
+            let time_ns = grid.time(k);
             match frame_at(
                 streams,
                 &sorted,
@@ -150,9 +161,23 @@ pub fn plan(streams: &[StreamStamps], options: &SyncOptions) -> SyncPlan {
                 time_ns,
                 options.tolerance_ns,
             ) {
-                Some(picks) => current.push(Frame { time_ns, picks }),
-                None => {
-                    dropped += 1;
+                Ok(picks) => {
+                    written += 1;
+                    if written > MAX_FRAMES {
+                        return Err(TooManyFrames {
+                            limit: MAX_FRAMES,
+                            fps,
+                            span_secs: (grid.end - grid.start) / 1_000_000_000,
+                        });
+                    }
+                    current.push(Frame { time_ns, picks });
+                    k += 1;
+                }
+                Err(next_ns) => {
+                    let next = next_ns.map_or(grid.last + 1, |t| grid.first_at_or_after(t));
+                    let next = next.clamp(k + 1, grid.last + 1);
+                    dropped += next - k;
+                    k = next;
                     if options.on_gap == OnGap::Split && !current.is_empty() {
                         episodes.push(std::mem::take(&mut current));
                     }
@@ -167,11 +192,7 @@ pub fn plan(streams: &[StreamStamps], options: &SyncOptions) -> SyncPlan {
         fps: options.fps,
         tolerance_ms: options.tolerance_ns as f64 / 1e6,
         on_gap: options.on_gap,
-        grid: grid.and_then(|(start, end)| {
-            let fps = i64::from(options.fps.max(1));
-            let last = (end - start).checked_mul(fps)? / 1_000_000_000;
-            Some((start, start + last * 1_000_000_000 / fps))
-        }),
+        grid: grid.map(|g| (g.start, g.time(g.last))),
         streams: streams
             .iter()
             .map(|s| stream_report(s, options.tolerance_ns))
@@ -179,7 +200,46 @@ pub fn plan(streams: &[StreamStamps], options: &SyncOptions) -> SyncPlan {
         dropped_frames: dropped,
         episodes: episodes.iter().map(Vec::len).collect(),
     };
-    SyncPlan { episodes, report }
+    Ok(SyncPlan { episodes, report })
+}
+
+/// The frame grid: frame k at `start + floor(k * 1e9 / fps)` ns, k from 0 to `last`.
+struct Grid {
+    start: i64,
+    end: i64,
+    fps: i128,
+    last: u64,
+}
+
+impl Grid {
+    fn new(start: i64, end: i64, fps: u32) -> Grid {
+        let fps = i128::from(fps);
+        // The largest k with floor(k * 1e9 / fps) <= end - start.
+        let span = i128::from(end) - i128::from(start);
+        let last = ceil_div((span + 1) * fps, 1_000_000_000) - 1;
+        Grid {
+            start,
+            end,
+            fps,
+            last: u64::try_from(last).unwrap_or(0),
+        }
+    }
+
+    fn time(&self, k: u64) -> i64 {
+        let offset = i128::from(k) * 1_000_000_000 / self.fps;
+        i64::try_from(i128::from(self.start) + offset).unwrap_or(i64::MAX)
+    }
+
+    /// The first k whose time is at or after `time_ns`.
+    fn first_at_or_after(&self, time_ns: i64) -> u64 {
+        let span = i128::from(time_ns) - i128::from(self.start);
+        u64::try_from(ceil_div(span * self.fps, 1_000_000_000)).unwrap_or(0)
+    }
+}
+
+/// `a / b` rounded up, for `b` > 0.
+fn ceil_div(a: i128, b: i128) -> i128 {
+    a / b + i128::from(a % b > 0)
 }
 
 /// Message indices in (stamp, recording order) order.
@@ -204,31 +264,41 @@ fn grid_span(streams: &[StreamStamps]) -> Option<(i64, i64)> {
     span.filter(|(start, end)| start <= end)
 }
 
-/// Each stream's pick at `time_ns` (cursors advance with time), or None when the frame is not
-/// written.
+/// Each stream's pick at `time_ns` (cursors advance with time); when the frame is not written,
+/// the earliest time one could be (None: never again).
 fn frame_at(
     streams: &[StreamStamps],
     sorted: &[Vec<usize>],
     cursors: &mut [usize],
     time_ns: i64,
     tolerance_ns: i64,
-) -> Option<Vec<usize>> {
+) -> Result<Vec<usize>, Option<i64>> {
     let mut picks = Vec::with_capacity(streams.len());
-    let mut written = true;
+    // Not written: the time the slowest stream is fit again (None: never).
+    let mut next: Option<Option<i64>> = None;
     for ((stream, order), cursor) in streams.iter().zip(sorted).zip(cursors.iter_mut()) {
         while *cursor < order.len() && stream.stamps_ns[order[*cursor]] <= time_ns {
             *cursor += 1;
         }
-        let Some(&pick) = cursor.checked_sub(1).and_then(|c| order.get(c)) else {
-            written = false;
+        let pick = cursor.checked_sub(1).and_then(|c| order.get(c));
+        let fit = pick.is_some_and(|&pick| {
+            stream.kind == StreamKind::Event || time_ns - stream.stamps_ns[pick] <= tolerance_ns
+        });
+        if fit {
+            picks.extend(pick);
             continue;
-        };
-        if stream.kind == StreamKind::Sampled && time_ns - stream.stamps_ns[pick] > tolerance_ns {
-            written = false;
         }
-        picks.push(pick);
+        let again = order.get(*cursor).map(|&i| stream.stamps_ns[i]);
+        next = Some(match (next, again) {
+            (Some(None), _) | (_, None) => None,
+            (Some(Some(a)), Some(b)) => Some(a.max(b)),
+            (None, Some(b)) => Some(b),
+        });
     }
-    written.then_some(picks)
+    match next {
+        None => Ok(picks),
+        Some(again) => Err(again),
+    }
 }
 
 fn stream_report(stream: &StreamStamps, tolerance_ns: i64) -> StreamReport {
@@ -298,7 +368,7 @@ mod tests {
 
     #[test]
     fn the_grid_spans_the_overlap_and_each_frame_takes_the_latest_message_at_or_before_it() {
-        let plan = plan(&streams(), &SyncOptions::at(10));
+        let plan = plan(&streams(), &SyncOptions::at(10)).expect("plan");
         assert_eq!(plan.report.grid, Some((5 * MS, 905 * MS)));
         assert_eq!(plan.episodes.len(), 1);
         let frames = &plan.episodes[0];
@@ -320,7 +390,7 @@ mod tests {
         streams[0]
             .stamps_ns
             .retain(|t| *t != 300 * MS && *t != 400 * MS);
-        let split = plan(&streams, &SyncOptions::at(10));
+        let split = plan(&streams, &SyncOptions::at(10)).expect("plan");
         let gaps = &split.report.streams[0].gaps;
         assert_eq!(
             gaps,
@@ -339,7 +409,8 @@ mod tests {
                 on_gap: OnGap::Drop,
                 ..SyncOptions::at(10)
             },
-        );
+        )
+        .expect("plan");
         assert_eq!(dropped.report.episodes, [9]);
         let strict = plan(
             &streams,
@@ -347,7 +418,8 @@ mod tests {
                 tolerance_ns: 50 * MS,
                 ..SyncOptions::at(10)
             },
-        );
+        )
+        .expect("plan");
         assert_eq!(strict.report.dropped_frames, 2, "305 and 405 ms");
     }
 
@@ -357,7 +429,7 @@ mod tests {
             stream("/camera", StreamKind::Sampled, &[0, 100, 100, 50, 200]),
             stream("/state", StreamKind::Sampled, &[0, 200]),
         ];
-        let plan = plan(&streams, &SyncOptions::at(10));
+        let plan = plan(&streams, &SyncOptions::at(10)).expect("plan");
         let frames = &plan.episodes[0];
         assert_eq!(frames[1].time_ns, 100 * MS);
         assert_eq!(
@@ -371,7 +443,7 @@ mod tests {
     fn events_hold_however_old_but_not_before_they_start() {
         let mut streams = streams();
         streams.push(stream("/setpoint", StreamKind::Event, &[250]));
-        let plan = plan(&streams, &SyncOptions::at(10));
+        let plan = plan(&streams, &SyncOptions::at(10)).expect("plan");
         // 5, 105 and 205 ms come before the first command.
         assert_eq!(plan.report.dropped_frames, 3);
         assert_eq!(plan.report.episodes, [7]);
@@ -385,13 +457,52 @@ mod tests {
             stream("/a", StreamKind::Sampled, &[0, 100]),
             stream("/b", StreamKind::Sampled, &[200, 300]),
         ];
-        let plan = plan(&streams, &SyncOptions::at(10));
+        let plan = plan(&streams, &SyncOptions::at(10)).expect("plan");
         assert!(plan.episodes.is_empty() && plan.report.grid.is_none());
         let empty = vec![stream("/a", StreamKind::Sampled, &[])];
         assert!(
             super::plan(&empty, &SyncOptions::at(10))
+                .expect("plan")
                 .episodes
                 .is_empty()
+        );
+    }
+
+    #[test]
+    fn a_gap_of_centuries_is_stepped_over_and_a_grid_too_long_is_refused() {
+        const YEAR_2262: i64 = 9_000_000_000_000_000_000;
+        let streams = vec![
+            stream("/camera", StreamKind::Sampled, &[0, 100]),
+            stream("/state", StreamKind::Sampled, &[0, 100]),
+        ];
+        let mut far = streams.clone();
+        for s in &mut far {
+            s.stamps_ns.push(YEAR_2262);
+        }
+        let started = std::time::Instant::now();
+        let plan = plan(&far, &SyncOptions::at(30)).expect("plan");
+        assert!(
+            started.elapsed().as_secs() < 5,
+            "no frame-by-frame walk over the gap"
+        );
+        // 0, 33, 100 and 133 ms (66 ms is 66 ms old), then the frame at the far stamps.
+        assert_eq!(plan.report.episodes, [2, 2, 1]);
+        let grid = Grid::new(0, YEAR_2262, 30);
+        assert_eq!(plan.report.grid, Some((0, grid.time(grid.last))));
+        assert_eq!(plan.report.dropped_frames, grid.last + 1 - 5);
+        // Messages every 10 ms over 100 hours at 30 fps: too many frames.
+        let dense: Vec<i64> = (0..=36_000_000).map(|k| k * 10).collect();
+        let long = vec![stream("/camera", StreamKind::Sampled, &dense)];
+        let error = super::plan(&long, &SyncOptions::at(30)).expect_err("too long");
+        assert_eq!(error.limit, MAX_FRAMES);
+        assert!(error.to_string().contains("--clock receive"), "{error}");
+        // Within the limit, the same rule as before.
+        assert_eq!(
+            super::plan(&streams, &SyncOptions::at(10))
+                .expect("plan")
+                .report
+                .episodes,
+            [2]
         );
     }
 }

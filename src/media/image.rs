@@ -106,26 +106,21 @@ pub const MAX_JPEG_PIXELS: usize = 8192 * 8192;
 /// Decodes a JPEG of any size up to [`MAX_JPEG_PIXELS`] (its header read first) to 8-bit RGB or
 /// grey: (width, height, channels, pixels).
 pub fn decode_jpeg(bytes: &[u8]) -> Result<DecodedPng, String> {
-    let mut decoder = jpeg_decoder::Decoder::new(bytes);
-    decoder
-        .read_info()
-        .map_err(|e| format!("not a readable JPEG: {e}"))?;
-    let info = decoder
-        .info()
-        .ok_or_else(|| "a JPEG without a frame header".to_string())?;
-    let size = (usize::from(info.width), usize::from(info.height));
-    if size.0 * size.1 > MAX_JPEG_PIXELS {
-        return Err(format!(
-            "a {}x{} JPEG, larger than surgvla reads",
-            size.0, size.1
-        ));
-    }
-    decode_jpeg_sized(bytes, size)
+    decode_jpeg_checked(bytes, None)
 }
 
 /// Decodes a JPEG of `expected` (width, height) to 8-bit RGB or grey: (width, height,
 /// channels, pixels). A size other than expected is refused from the header, before decoding.
 pub fn decode_jpeg_sized(bytes: &[u8], expected: (usize, usize)) -> Result<DecodedPng, String> {
+    decode_jpeg_checked(bytes, Some(expected))
+}
+
+/// Reads the header, refuses a size other than `expected` (None: larger than
+/// [`MAX_JPEG_PIXELS`]), then decodes.
+fn decode_jpeg_checked(
+    bytes: &[u8],
+    expected: Option<(usize, usize)>,
+) -> Result<DecodedPng, String> {
     let mut decoder = jpeg_decoder::Decoder::new(bytes);
     decoder
         .read_info()
@@ -134,11 +129,19 @@ pub fn decode_jpeg_sized(bytes: &[u8], expected: (usize, usize)) -> Result<Decod
         .info()
         .ok_or_else(|| "a JPEG without a frame header".to_string())?;
     let (width, height) = (usize::from(info.width), usize::from(info.height));
-    if (width, height) != expected {
-        return Err(format!(
-            "a {width}x{height} JPEG where {}x{} was declared",
-            expected.0, expected.1
-        ));
+    match expected {
+        Some(expected) if (width, height) != expected => {
+            return Err(format!(
+                "a {width}x{height} JPEG where {}x{} was declared",
+                expected.0, expected.1
+            ));
+        }
+        None if width * height > MAX_JPEG_PIXELS => {
+            return Err(format!(
+                "a {width}x{height} JPEG, larger than surgvla reads"
+            ));
+        }
+        _ => {}
     }
     let channels = match info.pixel_format {
         jpeg_decoder::PixelFormat::RGB24 => 3,
