@@ -255,5 +255,6 @@ pub fn dataset_info(
             max_m: workspace.max_m,
         }),
         input: None,
+        provenance: Vec::new(),
     }
 }

@@ -68,6 +68,18 @@ pub(crate) fn episode_bar(total: u64, what: &str) -> ProgressBar {
     bar
 }
 
+/// A spinner saying `what` is under way (work of unknown length).
+pub(crate) fn spinner(what: &str) -> ProgressBar {
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg}  {elapsed_precise}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    bar.set_message(what.to_string());
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}
+
 /// One bar of trials per task (`eval`).
 pub(crate) struct TrialBars {
     multi: MultiProgress,

@@ -46,6 +46,9 @@ enum Command {
     Collect(commands::collect::CollectArgs),
     /// Convert a dataset into another format: `convert INPUT --to rlds --out DIR`.
     Convert(commands::convert::ConvertArgs),
+    /// Turn robot recordings (ROS 1 bags, ROS 2 MCAP files) into a dataset, synchronised by a
+    /// stated rule with a report per input: `ingest A.bag B.mcap --camera left=/camera/left/image_raw --out DIR`.
+    Ingest(commands::ingest::IngestArgs),
     /// Simulate one expert episode and record it as MCAP for Foxglove: images, depth, point
     /// cloud, the instrument's frames, the scene's meshes, state and action.
     Record(commands::record::RecordArgs),
@@ -121,6 +124,7 @@ fn main() -> ExitCode {
         Command::ContactSheet(args) => commands::contact_sheet::run_contact_sheet(&args),
         Command::Collect(args) => commands::collect::run_collect(&args),
         Command::Convert(args) => commands::convert::run_convert(&args),
+        Command::Ingest(args) => commands::ingest::run_ingest(&args),
         Command::Record(args) => commands::record::run_record(&args),
         Command::Experts(args) => commands::experts::run_experts(&args),
         Command::Merge(args) => commands::merge::run_merge(&args),

@@ -542,7 +542,7 @@ pub fn collect(
     // dataset is marked complete: an interrupted finish resumes, and never loses the report.
     let mut tally = Some(report);
     let mut made = None;
-    let mut sidecar = |summary: &Summary| -> Result<(String, Vec<u8>), ExportError> {
+    let mut sidecar = |summary: &Summary| -> Result<Vec<(String, Vec<u8>)>, ExportError> {
         let tally = tally
             .take()
             .ok_or_else(|| ExportError::Internal("the report was made twice".into()))?;
@@ -567,7 +567,7 @@ pub fn collect(
             source,
         })?;
         made = Some(report);
-        Ok((REPORT.to_string(), bytes))
+        Ok(vec![(REPORT.to_string(), bytes)])
     };
     sink.finish_with(Some(&mut sidecar))?;
     made.ok_or_else(|| CollectError::Export(ExportError::Internal("no report was made".into())))

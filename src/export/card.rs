@@ -166,10 +166,15 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
         "Robot episodes"
     };
     let _ = writeln!(card, "# {title}\n");
-    let generator = if info.generator.is_empty() {
-        "surgvla (converted from another tool's dataset)".to_string()
-    } else {
+    let generator = if !info.generator.is_empty() {
         info.generator.clone()
+    } else if !info.provenance.is_empty() {
+        format!(
+            "surgvla {} ingest from robot recordings",
+            env!("CARGO_PKG_VERSION")
+        )
+    } else {
+        "surgvla (converted from another tool's dataset)".to_string()
     };
     let _ = writeln!(
         card,
@@ -192,6 +197,11 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
                 let _ = writeln!(card, "- `{}`: `{}`", cell(key), cell(&value.to_string()));
             }
             card.push('\n');
+        }
+        _ if !info.provenance.is_empty() => {
+            for paragraph in &info.provenance {
+                let _ = writeln!(card, "{paragraph}\n");
+            }
         }
         _ => card.push_str("The dataset does not say how its episodes were made.\n\n"),
     }

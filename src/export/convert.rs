@@ -8,7 +8,7 @@ use crate::error::ErrorKind;
 use crate::export::error::ExportError;
 use crate::export::pipeline::{Episodes, in_order};
 use crate::export::sink::EpisodeSink;
-use crate::export::sink::Summary;
+use crate::export::sink::{Sidecar, Summary};
 use crate::export::source::EpisodeSource;
 
 /// Which side of a conversion failed.
@@ -50,14 +50,27 @@ pub fn convert(
     threads: usize,
     progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<Summary, ConvertError> {
+    convert_with(source, sink, threads, progress, None)
+}
+
+/// [`convert`], finishing with `sidecar`'s files beside the dataset (see
+/// [`EpisodeSink::finish_with`]).
+pub fn convert_with(
+    source: &mut (dyn EpisodeSource + Send),
+    sink: &mut (dyn EpisodeSink + Send),
+    threads: usize,
+    progress: &mut (dyn FnMut(u64) + Send),
+    sidecar: Option<Sidecar<'_>>,
+) -> Result<Summary, ConvertError> {
     let pool = crate::threads::pool(threads).map_err(|e| ConvertError::Write(e.into()))?;
-    pool.install(|| copy(source, sink, progress))
+    pool.install(|| copy(source, sink, progress, sidecar))
 }
 
 fn copy(
     source: &mut (dyn EpisodeSource + Send),
     sink: &mut (dyn EpisodeSink + Send),
     progress: &mut (dyn FnMut(u64) + Send),
+    sidecar: Option<Sidecar<'_>>,
 ) -> Result<Summary, ConvertError> {
     let skip = sink.next_episode_index();
     let unused: Vec<ImageEncoding> = [ImageEncoding::Png, ImageEncoding::Tiff, ImageEncoding::Jpeg]
@@ -73,7 +86,7 @@ fn copy(
         sink.write_batch(&batch).map_err(ConvertError::Write)
     };
     in_order(&mut episodes, ConvertError::Read, &mut write, progress)?;
-    sink.finish().map_err(ConvertError::Write)
+    sink.finish_with(sidecar).map_err(ConvertError::Write)
 }
 
 /// A source with some optional features left out (`convert --without`): they leave the

@@ -33,6 +33,10 @@ pub struct DatasetInfo {
     /// a conversion records and its resume compares; None for a collection. Never written into
     /// a dataset, and not part of its options digest.
     pub input: Option<String>,
+    /// Paragraphs (Markdown) the dataset card's "How it was made" gives of episodes made
+    /// elsewhere, e.g. how `ingest` synchronised a robot's recordings; not part of the options
+    /// digest.
+    pub provenance: Vec<String>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -131,6 +135,7 @@ impl DatasetInfo {
             generator: surgvla["generator"].as_str().unwrap_or_default().into(),
             tip_workspace: workspace_of(&surgvla["tip_workspace_m"]),
             input: None,
+            provenance: Vec::new(),
         }
     }
 

@@ -155,7 +155,9 @@ pub fn write_through(
     pool.install(|| in_order(&mut episodes, read, &mut write_batch, progress))?;
     match reports {
         Some((reports, shard)) => {
-            let mut sidecar = |summary: &Summary| report_bytes(&reports, summary, shard.as_ref());
+            let mut sidecar = |summary: &Summary| {
+                report_bytes(&reports, summary, shard.as_ref()).map(|file| vec![file])
+            };
             sink.finish_with(Some(&mut sidecar))
         }
         None => sink.finish(),

@@ -173,5 +173,7 @@ pub(crate) fn check_batch(
         .try_for_each(|(index, episode)| check_episode(info, finished, episode, index, pixels))
 }
 
-/// Makes a file to write beside a finished dataset from its summary: (relative path, bytes).
-pub type Sidecar<'a> = &'a mut dyn FnMut(&Summary) -> Result<(String, Vec<u8>), ExportError>;
+/// Makes the files to write beside a finished dataset from its summary: (relative path, bytes)
+/// each.
+pub type Sidecar<'a> =
+    &'a mut (dyn FnMut(&Summary) -> Result<Vec<(String, Vec<u8>)>, ExportError> + Send);

@@ -377,8 +377,9 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         summary.bytes += self.dir.write_manifest(F::MANIFEST)?;
         summary.files += 1;
         if let Some(make) = sidecar {
-            let (relative, bytes) = make(&summary)?;
-            self.dir.write_unlisted(&relative, &bytes)?;
+            for (relative, bytes) in make(&summary)? {
+                self.dir.write_unlisted(&relative, &bytes)?;
+            }
         }
         self.dir.complete()?;
         self.finished = Some(summary.clone());

@@ -9,6 +9,9 @@ use std::path::PathBuf;
 /// Why a recording could not be ingested.
 #[derive(Debug, thiserror::Error)]
 pub enum IngestError {
+    /// What was asked cannot be done (an offset for a topic the preset does not read).
+    #[error("{0}")]
+    Usage(String),
     #[error(transparent)]
     Bag(#[from] BagError),
     #[error("{path}: topic {topic}: the definition of {type_name}")]
@@ -59,8 +62,12 @@ pub enum IngestError {
 }
 
 impl crate::error::HasKind for IngestError {
-    /// A recording that cannot be read or decoded is invalid data (exit 1).
+    /// A recording that cannot be read or decoded is invalid data (exit 1); a usage error
+    /// (exit 2) is what was asked.
     fn kind(&self) -> crate::error::ErrorKind {
-        crate::error::ErrorKind::Failed
+        match self {
+            IngestError::Usage(_) => crate::error::ErrorKind::Usage,
+            _ => crate::error::ErrorKind::Failed,
+        }
     }
 }

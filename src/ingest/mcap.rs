@@ -22,7 +22,7 @@ pub const MAX_RECORD_BYTES: usize = 1 << 30;
 /// An MCAP file of ROS messages being read.
 pub struct McapRecording {
     path: PathBuf,
-    file: File,
+    file: Box<dyn Read + Send>,
     reader: LinearReader,
     /// Bytes fed to the reader so far.
     offset: u64,
@@ -38,17 +38,22 @@ impl McapRecording {
             path: path.to_path_buf(),
             source,
         })?;
+        Ok(McapRecording::from_reader(path, Box::new(file)))
+    }
+
+    /// Reads an MCAP file from `bytes` (a decompressing stream, say), naming `path` in errors.
+    pub fn from_reader(path: &Path, file: Box<dyn Read + Send>) -> McapRecording {
         let options = LinearReaderOptions::default()
             .with_validate_chunk_crcs(true)
             .with_record_length_limit(MAX_RECORD_BYTES);
-        Ok(McapRecording {
+        McapRecording {
             path: path.to_path_buf(),
             file,
             reader: LinearReader::new_with_options(options),
             offset: 0,
             schemas: BTreeMap::new(),
             channels: BTreeMap::new(),
-        })
+        }
     }
 
     fn damaged(&self, problem: impl Into<String>) -> BagError {

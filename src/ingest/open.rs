@@ -1,9 +1,10 @@
-//! One reader for any recording file: [`Recording`] opens a ROS 1 bag or an MCAP file by its
-//! first bytes and yields the same [`RawMessage`]s and [`Channel`]s either way.
+//! One reader for any recording: [`Recording`] opens a ROS 2 bag folder, or a ROS 1 bag or an
+//! MCAP file by its first bytes and yields the same [`RawMessage`]s and [`Channel`]s either way.
 
 use crate::ingest::mcap::McapRecording;
 use crate::ingest::recording::{BagError, MessageReader, Messages};
 use crate::ingest::ros1::{MAGIC as ROS1_MAGIC, Ros1Bag};
+use crate::ingest::rosbag2::Rosbag2;
 use std::io::Read;
 use std::path::Path;
 
@@ -16,6 +17,10 @@ pub type Recording = Messages<Box<dyn MessageReader>>;
 impl Recording {
     /// Opens `path` as the recording its first bytes say it is.
     pub fn open(path: &Path) -> Result<Recording, BagError> {
+        if path.is_dir() {
+            let bag: Box<dyn MessageReader> = Box::new(Rosbag2::open(path)?);
+            return Ok(Messages::new(bag));
+        }
         let mut start = [0u8; 13];
         let read = std::fs::File::open(path)
             .and_then(|mut file| {

@@ -1,8 +1,9 @@
 //! Recordings as an [`EpisodeSource`]: each input's first pass and synchronisation plan when
 //! opened, then its episodes (second pass, [`DvrkPreset::frame`]) as they are read, so any sink
-//! `convert` writes to takes them. Features: the first camera as the RGB image
-//! (`observation.images.<name>`), the state and action of every arm as float32 vectors of 8 per
-//! arm (`observation.state`, `action`, each value named), further cameras as images.
+//! `convert` writes to takes them. Features: each camera as an image
+//! (`observation.images.<name>`, PNG), the state and action of every arm as float32 vectors of
+//! 8 per arm (`observation.state`, `action`, each value named): a dataset of the robot's own
+//! features, as every format reads one another tool made.
 //!
 //! An input's episodes are made together (memory follows one input's frames); the first
 //! input's are made when the source opens, for the images' size.
@@ -29,6 +30,38 @@ pub struct IngestOptions {
     pub sync: SyncOptions,
     /// The task of every episode; None: the recording's `/instruction` topic.
     pub task: Option<String>,
+    /// (topic, ns) added to a topic's times (`--time-offset`); every topic one the preset reads.
+    pub offsets_ns: Vec<(String, i64)>,
+}
+
+impl IngestOptions {
+    /// Refuses an offset for a topic the preset does not read.
+    pub fn check(&self) -> Result<(), IngestError> {
+        let topics = self.preset.topics();
+        for (topic, _) in &self.offsets_ns {
+            if !topics.iter().any(|t| &t.topic == topic) {
+                let read: Vec<&str> = topics.iter().map(|t| t.topic.as_str()).collect();
+                return Err(IngestError::Usage(format!(
+                    "--time-offset names {topic}, which is not read (the topics read: {})",
+                    read.join(", ")
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The preset's topics with their offsets.
+    fn topics(&self) -> Vec<TopicSpec> {
+        let mut topics = self.preset.topics();
+        for topic in &mut topics {
+            for (name, offset_ns) in &self.offsets_ns {
+                if *name == topic.topic {
+                    topic.offset_ns = topic.offset_ns.saturating_add(*offset_ns);
+                }
+            }
+        }
+        topics
+    }
 }
 
 /// One input, planned: what is kept of it until its episodes are made (its plan is made
@@ -55,14 +88,17 @@ pub struct IngestSource {
     ready: VecDeque<Episode>,
     next_index: u64,
     total: u64,
-    /// The first camera's (height, width), from the first frame made.
-    image_size: Option<(usize, usize)>,
+    /// Each camera's (height, width), from the first frame made.
+    image_sizes: Option<Vec<(usize, usize)>>,
+    /// Episodes of the next input skipped (a resume): made, then dropped.
+    skipped: usize,
     failed: bool,
 }
 
 impl IngestSource {
     /// Plans every input (one read each, headers only) and makes the first one's episodes.
     pub fn open(paths: &[PathBuf], options: IngestOptions) -> Result<IngestSource, IngestError> {
+        options.check()?;
         let builtin = ros2_types().map_err(|source| IngestError::Definition {
             path: PathBuf::new(),
             topic: String::new(),
@@ -87,7 +123,8 @@ impl IngestSource {
             ready: VecDeque::new(),
             next_index: 0,
             total,
-            image_size: None,
+            image_sizes: None,
+            skipped: 0,
             failed: false,
         };
         source.make_next_input()?;
@@ -96,20 +133,55 @@ impl IngestSource {
     }
 
     /// Each input's synchronisation report.
-    pub fn reports(&self) -> impl Iterator<Item = (&Path, &SyncReport)> {
-        self.inputs.iter().map(|i| (i.path.as_path(), &i.report))
+    pub fn reports(&self) -> Vec<(&Path, &SyncReport)> {
+        (self.inputs.iter())
+            .map(|i| (i.path.as_path(), &i.report))
+            .collect()
+    }
+
+    /// The reports as files to write into a dataset of `format` (see
+    /// [`crate::ingest::report`]).
+    pub fn sync_files(
+        &self,
+        format: crate::export::Format,
+    ) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+        let dir = crate::ingest::report::sync_dir(format);
+        crate::ingest::report::sync_files(&self.reports(), dir).map_err(|source| {
+            ExportError::Json {
+                path: dir.into(),
+                source,
+            }
+        })
+    }
+
+    /// What a resume compares: every input's name and size, and the options.
+    fn identity(&self) -> String {
+        let mut crc = crc32c::crc32c(format!("{:?}", self.options).as_bytes());
+        for input in &self.inputs {
+            let size = std::fs::metadata(&input.path).map_or(0, |m| m.len());
+            let name = input.path.file_name().unwrap_or_default();
+            let line = format!("{}\0{size}\0", name.to_string_lossy());
+            crc = crc32c::crc32c_append(crc, line.as_bytes());
+        }
+        format!(
+            "{} recordings ingested, crc32c {crc:08x}",
+            self.inputs.len()
+        )
     }
 
     fn dataset_info(&self) -> DatasetInfo {
         let preset = &self.options.preset;
-        let (height, width) = self.image_size.unwrap_or((0, 0));
-        let image = |name: &str, kind| FeatureSpec {
-            name: format!("observation.images.{name}"),
-            dtype: Dtype::Image,
-            shape: vec![height, width, 3],
-            names: ["height", "width", "channels"].map(String::from).to_vec(),
-            kind,
-            video: None,
+        let sizes = self.image_sizes.clone().unwrap_or_default();
+        let image = |c: usize, name: &str| {
+            let (height, width) = sizes.get(c).copied().unwrap_or((0, 0));
+            FeatureSpec {
+                name: format!("observation.images.{name}"),
+                dtype: Dtype::Image,
+                shape: vec![height, width, 3],
+                names: ["height", "width", "channels"].map(String::from).to_vec(),
+                kind: FeatureKind::Other,
+                video: None,
+            }
         };
         let vector = |name: &str| FeatureSpec {
             name: name.into(),
@@ -119,21 +191,21 @@ impl IngestSource {
             kind: FeatureKind::Other,
             video: None,
         };
-        let mut features = Vec::new();
-        let mut cameras = preset.cameras.iter();
-        if let Some((name, _)) = cameras.next() {
-            features.push(image(name, FeatureKind::Rgb));
-        }
+        let mut features: Vec<FeatureSpec> = (preset.cameras.iter().enumerate())
+            .map(|(c, (name, _))| image(c, name))
+            .collect();
         features.push(vector("observation.state"));
         features.push(vector("action"));
-        features.extend(cameras.map(|(name, _)| image(name, FeatureKind::Other)));
         let mut info = DatasetInfo::from_surgvla_json(
             &serde_json::Value::Null,
             self.options.sync.fps,
             "dvrk",
             features,
         );
-        info.generator = format!("surgvla {} ingest", env!("CARGO_PKG_VERSION"));
+        // Not surgvla's own episodes: the generator stays empty (a foreign dataset to every
+        // format), the card says where they came from.
+        info.provenance = crate::ingest::report::provenance(&self.reports());
+        info.input = Some(self.identity());
         info
     }
 
@@ -147,7 +219,7 @@ impl IngestSource {
         let (preset, task) = (&self.options.preset, &self.options.task);
         let mut made = Vec::new();
         let mut index = self.next_index;
-        let mut size = self.image_size;
+        let mut sizes = self.image_sizes.clone();
         second_pass(&input.path, &topics, &plan, &self.builtin, &mut |frames| {
             let mut steps = Vec::with_capacity(frames.len());
             let mut instruction = task.clone();
@@ -161,13 +233,19 @@ impl IngestSource {
                 if instruction.is_none() {
                     instruction.clone_from(&features.instruction);
                 }
-                let here = features.images.first().map(|i| (i.height, i.width));
-                if size.is_none() {
-                    size = here;
-                }
-                if here != size {
+                let here: Vec<(usize, usize)> = features
+                    .images
+                    .iter()
+                    .map(|i| (i.height, i.width))
+                    .collect();
+                let known = sizes.get_or_insert_with(|| here.clone());
+                if let Some((c, (now, before))) = (here.iter().zip(known.iter()).enumerate())
+                    .find(|(_, (now, before))| now != before)
+                {
+                    let name = preset.cameras.get(c).map_or("?", |(name, _)| name.as_str());
                     return Err(bad(format!(
-                        "the camera's image is {here:?} (height, width) where earlier frames are {size:?}"
+                        "camera {name} is {}x{} where earlier frames are {}x{} (width x height)",
+                        now.1, now.0, before.1, before.0
                     )));
                 }
                 steps.push(step(features).map_err(bad)?);
@@ -176,9 +254,10 @@ impl IngestSource {
             index += 1;
             Ok(())
         })?;
-        self.image_size = size;
+        self.image_sizes = sizes;
         self.next_index = index;
-        self.ready.extend(made);
+        self.ready
+            .extend(made.into_iter().skip(std::mem::take(&mut self.skipped)));
         Ok(())
     }
 }
@@ -190,9 +269,11 @@ fn planned(
     options: &IngestOptions,
     builtin: &MessageDefs,
 ) -> Result<Planned, IngestError> {
-    let mut topics = options.preset.topics();
+    let mut topics = options.topics();
     let mut first = first_pass(path, &topics, options.clock, builtin)?;
-    if first.channels.last().is_some_and(Option::is_none)
+    // The instruction topic is read only when no --task is given, and left out when the
+    // recording has none.
+    if (options.task.is_some() || first.channels.last().is_some_and(Option::is_none))
         && topics.last().is_some_and(|t| t.topic == INSTRUCTION_TOPIC)
     {
         topics.pop();
@@ -215,17 +296,12 @@ fn planned(
     Ok(Planned { topics, plan })
 }
 
-/// A step of a frame's features: the first camera's pixels, then state, action and the other
-/// cameras (PNG) as the dataset's other features, in feature order.
+/// A step of a frame's features, in feature order: each camera (PNG), then state and action.
+/// Every feature is one of the dataset's own (not surgvla's simulated ones), as any format
+/// reads a dataset another tool made.
 fn step(frame: DvrkFrame) -> Result<Step, String> {
     let mut step = Step::empty();
-    let mut images = frame.images.into_iter();
-    if let Some(first) = images.next() {
-        step.rgb = first.rgb;
-    }
-    step.other.push(FeatureValue::Float32(frame.state));
-    step.other.push(FeatureValue::Float32(frame.action));
-    for image in images {
+    for image in frame.images {
         let png = crate::media::image::encode_png(
             image.width,
             image.height,
@@ -236,6 +312,8 @@ fn step(frame: DvrkFrame) -> Result<Step, String> {
         .map_err(|e| e.to_string())?;
         step.other.push(FeatureValue::Image(png));
     }
+    step.other.push(FeatureValue::Float32(frame.state));
+    step.other.push(FeatureValue::Float32(frame.action));
     Ok(step)
 }
 
@@ -267,6 +345,24 @@ impl Iterator for IngestSource {
 impl EpisodeSource for IngestSource {
     fn info(&self) -> &DatasetInfo {
         &self.info
+    }
+
+    /// Skips an episode without reading its messages where a whole input is skipped.
+    fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+        if self.failed {
+            return None;
+        }
+        if self.ready.pop_front().is_some() {
+            return Some(Ok(()));
+        }
+        let input = self.inputs.get(self.next_input)?;
+        self.skipped += 1;
+        if self.skipped == input.report.episodes.len() {
+            self.next_input += 1;
+            self.next_index += self.skipped as u64;
+            self.skipped = 0;
+        }
+        Some(Ok(()))
     }
 
     fn len(&self) -> u64 {
@@ -382,6 +478,7 @@ mod tests {
                 ..SyncOptions::at(10)
             },
             task: Some("cut the suture".into()),
+            offsets_ns: Vec::new(),
         }
     }
 
@@ -392,7 +489,8 @@ mod tests {
         assert_eq!(source.len(), 1);
         let info = source.info().clone();
         assert_eq!(info.fps, 10);
-        assert_eq!(info.image_size(), (3, 2));
+        assert_eq!(info.features[0].shape, [2, 3, 3], "height 2, width 3");
+        assert!(!info.is_ours(), "the robot's episodes, not surgvla's");
         let names: Vec<&str> = info.features.iter().map(|f| f.name.as_str()).collect();
         assert_eq!(
             names,
@@ -404,18 +502,21 @@ mod tests {
         // The grid: the camera's 1.0 s .. 1.9 s; frame k at 1.0 + 0.1 k s takes arm message 10 k.
         assert_eq!(episode.steps.len(), 10);
         for (k, step) in episode.steps.iter().enumerate() {
-            let FeatureValue::Float32(state) = &step.other[0] else {
-                panic!("state");
-            };
-            let FeatureValue::Float32(action) = &step.other[1] else {
-                panic!("action");
+            let [
+                FeatureValue::Image(png),
+                FeatureValue::Float32(state),
+                FeatureValue::Float32(action),
+            ] = &step.other[..]
+            else {
+                panic!("an image, the state and the action");
             };
             assert_eq!(state[0], (10 * k) as f32, "frame {k}");
             assert_eq!(state[7], (10 * k) as f32 / 100.0);
             assert_eq!(action[0], (10 * k) as f32 + 0.5);
-            assert_eq!(step.rgb, vec![(10 * k) as u8; 18]);
+            let pixels = crate::media::image::decode_png(png).expect("png").3;
+            assert_eq!(pixels, vec![(10 * k) as u8; 18]);
         }
-        assert_eq!(source.reports().count(), 1);
+        assert_eq!(source.reports().len(), 1);
         std::fs::remove_file(path).ok();
     }
 
@@ -434,11 +535,14 @@ mod tests {
         let mut back = crate::export::lerobot::read::LeRobotSource::open(&out).expect("read back");
         let episode = back.next().expect("an episode").expect("read");
         assert_eq!(episode.meta.instruction, "cut the suture");
-        let FeatureValue::Float32(state) = &episode.steps[3].other[0] else {
-            panic!("state");
+        let [FeatureValue::Image(png), FeatureValue::Float32(state), _] =
+            &episode.steps[3].other[..]
+        else {
+            panic!("an image, the state and the action");
         };
         assert_eq!(state[0], 30.0);
-        assert_eq!(episode.steps[3].rgb, vec![30u8; 18]);
+        let pixels = crate::media::image::decode_png(png).expect("png").3;
+        assert_eq!(pixels, vec![30u8; 18]);
         std::fs::remove_file(path).ok();
         std::fs::remove_dir_all(out).ok();
     }

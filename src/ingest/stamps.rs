@@ -170,11 +170,18 @@ pub fn first_pass(
                         index,
                         source: Box::new(source),
                     })?;
-                header_stamp(first.as_ref()).ok_or_else(|| IngestError::NoStamp {
-                    path: path.to_path_buf(),
-                    topic: spec.topic.clone(),
-                    index,
-                })?
+                match header_stamp(first.as_ref()) {
+                    Stamp::At(stamp) => stamp,
+                    // A type without a header (std_msgs/String): when it was received.
+                    Stamp::NoHeader => message.receive_ns,
+                    Stamp::Zero => {
+                        return Err(IngestError::NoStamp {
+                            path: path.to_path_buf(),
+                            topic: spec.topic.clone(),
+                            index,
+                        });
+                    }
+                }
             }
         };
         stream
@@ -184,12 +191,24 @@ pub fn first_pass(
     Ok(FirstPass { streams, channels })
 }
 
-/// A decoded `header` field's stamp, when it is one and not zero.
-fn header_stamp(first: Option<&RosValue>) -> Option<i64> {
-    first?
-        .field("stamp")?
-        .as_time_ns()
-        .filter(|&stamp| stamp != 0)
+/// What a message's first field says of its time.
+enum Stamp {
+    At(i64),
+    /// A header whose stamp is zero (or unreadable).
+    Zero,
+    /// The type has no header first.
+    NoHeader,
+}
+
+/// A decoded first field's stamp, when it is a header (a message with a `stamp`).
+fn header_stamp(first: Option<&RosValue>) -> Stamp {
+    match first.and_then(|f| f.field("stamp")) {
+        None => Stamp::NoHeader,
+        Some(stamp) => match stamp.as_time_ns() {
+            Some(ns) if ns != 0 => Stamp::At(ns),
+            _ => Stamp::Zero,
+        },
+    }
 }
 
 #[cfg(test)]

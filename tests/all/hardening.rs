@@ -264,11 +264,12 @@ fn an_interrupted_finish_resumes_to_the_same_bytes_with_its_report() {
         LeRobotWriter::create(&root, &cli_info(), checkpoint_every_episode()).expect("create");
     writer.write_batch(&episodes).expect("write");
     // The report cannot be written (a kill or a full disk at that moment).
-    let mut failing = |_: &surgvla::export::Summary| -> Result<(String, Vec<u8>), ExportError> {
-        Err(ExportError::Internal(
-            "killed while writing the report".into(),
-        ))
-    };
+    let mut failing =
+        |_: &surgvla::export::Summary| -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+            Err(ExportError::Internal(
+                "killed while writing the report".into(),
+            ))
+        };
     assert!(writer.finish_with(Some(&mut failing)).is_err());
     drop(writer);
     assert!(
@@ -280,11 +281,11 @@ fn an_interrupted_finish_resumes_to_the_same_bytes_with_its_report() {
     })
     .expect("resume");
     assert_eq!(writer.next_episode_index(), 3, "nothing is written again");
-    let mut report = |s: &surgvla::export::Summary| -> Result<(String, Vec<u8>), ExportError> {
-        Ok((
+    let mut report = |s: &surgvla::export::Summary| -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+        Ok(vec![(
             "collect_report.json".into(),
             format!("{}\n", s.episodes).into_bytes(),
-        ))
+        )])
     };
     let summary = writer.finish_with(Some(&mut report)).expect("finish");
     assert_eq!(summary.episodes, 3);

@@ -1,5 +1,6 @@
 //! The one integration test binary: kinematics, physics, grasping, determinism, tasks and
-//! experts, collection, the LeRobot, RLDS and point-cloud formats, rendering and the CLI.
+//! experts, collection, the LeRobot, RLDS and point-cloud formats, recordings ingested,
+//! rendering and the CLI.
 
 // Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -15,6 +16,7 @@ mod fidelity;
 mod grasping;
 mod hardening;
 mod hostile;
+mod ingest;
 mod kinematics;
 mod layers;
 mod lerobot;

@@ -9,6 +9,7 @@ pub(crate) mod convert;
 pub(crate) mod eval;
 pub(crate) mod experts;
 pub(crate) mod info;
+pub(crate) mod ingest;
 pub(crate) mod merge;
 pub(crate) mod record;
 pub(crate) mod render;

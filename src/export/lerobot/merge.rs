@@ -251,6 +251,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         Some(reports) => {
             let mut sidecar = |summary: &Summary| {
                 crate::export::merge::report_bytes(&reports, summary, shard.as_ref())
+                    .map(|file| vec![file])
             };
             sink.finish_with(Some(&mut sidecar))
         }

@@ -151,25 +151,40 @@ impl ImageColumn {
     }
 }
 
+/// What the parquet's columns are: its schema, its features, and where each of its
+/// [`FeatureKind::Other`] features is among a step's other values (video features have values
+/// in steps but no column).
+pub(super) struct ParquetColumns<'a> {
+    pub schema: &'a Arc<Schema>,
+    pub features: &'a [FeatureSpec],
+    pub other_positions: &'a [usize],
+}
+
 /// The rows of one episode.
 pub(super) fn frame_batch(
-    schema: &Arc<Schema>,
-    features: &[FeatureSpec],
+    columns_of: &ParquetColumns<'_>,
     episode: &Episode,
     mut images: EncodedImages,
     first_index: u64,
     task_index: u64,
     fps: u32,
 ) -> Result<RecordBatch, ExportError> {
+    let (schema, features, other_positions) = (
+        columns_of.schema,
+        columns_of.features,
+        columns_of.other_positions,
+    );
     let n = episode.steps.len();
     let mut columns: Vec<ArrayRef> = Vec::with_capacity(features.len() + 5);
     let mut other = 0usize;
     for feature in features {
         let column: ArrayRef = match feature.kind {
             FeatureKind::Other => {
-                let column = other_column(feature, episode, other)?;
+                let position = other_positions.get(other).copied().ok_or_else(|| {
+                    ExportError::Internal(format!("no step value for {}", feature.name))
+                })?;
                 other += 1;
-                column
+                other_column(feature, episode, position)?
             }
             FeatureKind::Rgb | FeatureKind::Depth | FeatureKind::Mask => {
                 let encoded = images.remove(&feature.name).ok_or_else(|| {

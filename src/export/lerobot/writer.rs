@@ -68,6 +68,8 @@ pub struct LeRobotFiles {
     options: LeRobotOptions,
     /// The features stored in the parquet (all but the video ones).
     parquet_features: Vec<FeatureSpec>,
+    /// Where each parquet [`FeatureKind::Other`] feature's value is in a step's other values.
+    other_positions: Vec<usize>,
     /// The features stored as video (the RGB camera in video mode, and every feature that
     /// arrives as video), with their codec, in feature order.
     video_features: Vec<(String, VideoCodec)>,
@@ -245,10 +247,19 @@ impl LeRobotFiles {
             .filter(|f| !video_features.iter().any(|(key, _)| *key == f.name))
             .cloned()
             .collect();
+        let in_steps: Vec<&str> = (info.features.iter())
+            .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
+            .map(|f| f.name.as_str())
+            .collect();
+        let other_positions = (parquet_features.iter())
+            .filter(|f| f.kind == FeatureKind::Other)
+            .filter_map(|f| in_steps.iter().position(|name| *name == f.name))
+            .collect();
         let counter = FileCounter::new(options.chunks_size);
         LeRobotFiles {
             schema: frame_schema(&parquet_features),
             parquet_features,
+            other_positions,
             video_features,
             open: None,
             videos: Vec::new(),
@@ -490,15 +501,12 @@ impl LeRobotFiles {
         } else {
             self.append_videos(dir, info, &video_frames)?
         };
-        let batch = frame_batch(
-            &self.schema,
-            &self.parquet_features,
-            episode,
-            images,
-            first_index,
-            task_index,
-            info.fps,
-        )?;
+        let columns = super::table::ParquetColumns {
+            schema: &self.schema,
+            features: &self.parquet_features,
+            other_positions: &self.other_positions,
+        };
+        let batch = frame_batch(&columns, episode, images, first_index, task_index, info.fps)?;
         let limit = self.options.data_file_size_mb * 1024 * 1024;
         let version = self.options.version;
         let open = self.open_file(dir)?;

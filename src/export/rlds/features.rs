@@ -362,6 +362,7 @@ mod tests {
             generator: "surgvla test".into(),
             tip_workspace: None,
             input: None,
+            provenance: Vec::new(),
         }
     }
 

@@ -1,0 +1,287 @@
+//! `surgvla ingest INPUT... --out DIR`: robot recordings (ROS 1 bags, ROS 2 MCAP files) into
+//! any format surgvla writes, synchronised by the stated rule, with a report per input (the
+//! library reads, plans, converts and verifies; here are the flags and the printing).
+
+use crate::error::CliError;
+use crate::formats::{Format, FormatArgs};
+use clap::{Args, ValueEnum};
+use std::path::PathBuf;
+use surgvla::export::collection::Shard;
+use surgvla::export::convert::ConvertError;
+use surgvla::export::dir::after_failure;
+use surgvla::export::{EpisodeSink, EpisodeSource, Summary, open_sink, resumes};
+use surgvla::ingest::dvrk::DvrkPreset;
+use surgvla::ingest::source::{IngestOptions, IngestSource};
+use surgvla::ingest::stamps::Clock;
+use surgvla::ingest::sync::{OnGap, SyncOptions};
+
+#[derive(Args, Debug)]
+pub(crate) struct IngestArgs {
+    /// The recordings, each read as one session in the order given: ROS 1 bags (.bag) and
+    /// ROS 2 MCAP files (.mcap).
+    #[arg(required = true)]
+    inputs: Vec<PathBuf>,
+    /// Output folder (must not exist or be empty); for RLDS the TFDS data directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// The format to write.
+    #[arg(long, value_enum, default_value = "lerobot")]
+    to: Format,
+    /// How topics become features: dvrk (the da Vinci Research Kit's CRTK topics per arm).
+    #[arg(long, value_enum, default_value = "dvrk")]
+    preset: Preset,
+    /// An arm's namespace, repeatable for bimanual recordings (state and action concatenated
+    /// in this order): PSM1, or a full namespace such as /dvrk/PSM1 (dVRK 1.x).
+    #[arg(long = "arm", default_value = "PSM1")]
+    arms: Vec<String>,
+    /// A camera as NAME=TOPIC, repeatable: the first is the dataset's RGB image
+    /// (observation.images.NAME), the others further image features.
+    #[arg(long = "camera", required = true, value_parser = parse_camera)]
+    cameras: Vec<(String, String)>,
+    /// The task of every episode (wins over an /instruction topic in the recording).
+    #[arg(long)]
+    task: Option<String>,
+    /// Frames per second of the dataset (the synchronisation grid).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    fps: u32,
+    /// A sampled stream's message older than this misses the frame, ms (default 1.5 / fps).
+    #[arg(long, value_parser = parse_tolerance)]
+    tolerance_ms: Option<f64>,
+    /// Where frames are not written: split (a new episode after the gap) or drop (one episode,
+    /// frames numbered on).
+    #[arg(long, value_enum, default_value = "split")]
+    on_gap: GapArg,
+    /// The time a message is put on the grid by: header (its header.stamp) or receive (when the
+    /// recorder received it: for stamps that are zero or on another clock).
+    #[arg(long, value_enum, default_value = "header")]
+    clock: ClockArg,
+    /// Shift a topic's times, TOPIC=MS (repeatable; negative for earlier).
+    #[arg(long = "time-offset", value_parser = parse_offset)]
+    offsets: Vec<(String, i64)>,
+    /// Continue an interrupted ingest into --out (same inputs and options).
+    #[arg(long)]
+    resume: bool,
+    /// This machine's part of the inputs, I/N (0-based): the I-th contiguous range of the
+    /// inputs given, into its own complete dataset; `merge` joins the parts.
+    #[arg(long, default_value = "0/1")]
+    shard: Shard,
+    /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
+    #[arg(long, value_parser = crate::threads_arg)]
+    threads: Option<usize>,
+    /// Afterwards read the recordings and the output again and compare every frame; a
+    /// difference exits 1.
+    #[arg(long)]
+    verify: bool,
+    #[command(flatten)]
+    formats: FormatArgs,
+}
+
+/// How a recording's topics become features.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Preset {
+    /// The da Vinci Research Kit: measured_cp + jaw/measured_js as the state, setpoint_cp +
+    /// jaw/setpoint_js as the action, [x, y, z, qx, qy, qz, qw, jaw] per arm.
+    Dvrk,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum GapArg {
+    /// A new episode after each gap: every episode continuous at --fps.
+    Split,
+    /// One episode per input; the written frames numbered on.
+    Drop,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ClockArg {
+    /// Each message's header.stamp.
+    Header,
+    /// The time the recorder received each message.
+    Receive,
+}
+
+fn parse_camera(text: &str) -> Result<(String, String), String> {
+    let (name, topic) = text
+        .split_once('=')
+        .ok_or_else(|| format!("{text:?} is not NAME=TOPIC"))?;
+    let valid = !name.is_empty()
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if !valid {
+        return Err(format!(
+            "camera name {name:?}: letters, digits, _ and - only (it names a feature)"
+        ));
+    }
+    if !topic.starts_with('/') {
+        return Err(format!("camera topic {topic:?} must start with /"));
+    }
+    Ok((name.to_string(), topic.to_string()))
+}
+
+fn parse_offset(text: &str) -> Result<(String, i64), String> {
+    let (topic, ms) = text
+        .rsplit_once('=')
+        .ok_or_else(|| format!("{text:?} is not TOPIC=MS"))?;
+    let ms: f64 = ms
+        .parse()
+        .map_err(|_| format!("{ms:?} is not a number of milliseconds"))?;
+    if !ms.is_finite() || ms.abs() > 3.6e6 {
+        return Err(format!("{ms} ms: an offset is at most an hour either way"));
+    }
+    Ok((topic.to_string(), (ms * 1e6).round() as i64))
+}
+
+fn parse_tolerance(text: &str) -> Result<f64, String> {
+    let ms: f64 = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of milliseconds"))?;
+    if !(ms > 0.0 && ms <= 60_000.0) {
+        return Err(format!(
+            "{ms} ms: the tolerance is above 0 and at most 60000"
+        ));
+    }
+    Ok(ms)
+}
+
+impl IngestArgs {
+    fn options(&self) -> IngestOptions {
+        let Preset::Dvrk = self.preset;
+        let mut sync = SyncOptions::at(self.fps);
+        if let Some(ms) = self.tolerance_ms {
+            sync.tolerance_ns = (ms * 1e6).round() as i64;
+        }
+        sync.on_gap = match self.on_gap {
+            GapArg::Split => OnGap::Split,
+            GapArg::Drop => OnGap::Drop,
+        };
+        IngestOptions {
+            preset: DvrkPreset::new(&self.arms, &self.cameras),
+            clock: match self.clock {
+                ClockArg::Header => Clock::Header,
+                ClockArg::Receive => Clock::Receive,
+            },
+            sync,
+            task: self.task.clone(),
+            offsets_ns: self.offsets.clone(),
+        }
+    }
+
+    /// The inputs of this shard.
+    fn inputs(&self) -> Result<&[PathBuf], CliError> {
+        let range = self.shard.range(self.inputs.len());
+        if range.is_empty() {
+            return Err(CliError::usage(format!(
+                "shard {} would hold no input: {} were given",
+                self.shard,
+                self.inputs.len()
+            )));
+        }
+        for input in &self.inputs[range.clone()] {
+            if !input.exists() {
+                return Err(CliError::usage(format!(
+                    "{} does not exist",
+                    input.display()
+                )));
+            }
+        }
+        Ok(&self.inputs[range])
+    }
+
+    fn open(&self) -> Result<IngestSource, CliError> {
+        let bar = crate::progress::spinner("reading the recordings' times");
+        let source = IngestSource::open(self.inputs()?, self.options());
+        bar.finish_and_clear();
+        Ok(source?)
+    }
+}
+
+/// `--verify`: what the output holds against the recordings.
+fn verify(args: &IngestArgs, summary: &Summary) -> Result<(), CliError> {
+    let mut source = args.open()?;
+    let differences = surgvla::export::verify::verify_output(&mut source, &args.out, summary)?;
+    if differences.is_empty() {
+        say!("verified: the output holds what was read");
+        return Ok(());
+    }
+    for difference in &differences {
+        say!("difference: {difference}");
+    }
+    Err(CliError::invalid(format!(
+        "{} does not hold what the recordings hold ({} differences)",
+        args.out.display(),
+        differences.len()
+    )))
+}
+
+/// `surgvla ingest INPUT... --out DIR`.
+pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
+    let options = args.formats.sink_options(args.to, "--to")?;
+    let mut source = args.open()?;
+    for (path, report) in source.reports() {
+        let gaps: usize = report.streams.iter().map(|s| s.gaps.len()).sum();
+        eprintln!(
+            "{}: {} episodes, {} frames, {} frames not written, {gaps} gaps",
+            path.display(),
+            report.episodes.len(),
+            report.episodes.iter().sum::<usize>(),
+            report.dropped_frames
+        );
+    }
+    let files = source.sync_files(args.to.0)?;
+    let info = source.info().clone();
+    let resuming = resumes(&args.out, args.resume);
+    let created = !args.out.exists();
+    let mut sink = open_sink(&args.out, &info, options.as_ref(), args.resume)?;
+    if resuming {
+        eprintln!(
+            "resuming {} at episode {}",
+            args.out.display(),
+            sink.next_episode_index()
+        );
+    }
+    let summary = write(args, &mut source, sink.as_mut(), files).map_err(|e| {
+        let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
+        let write = matches!(e, ConvertError::Write(_));
+        let resumable = after_failure(&args.out, created, resuming, usage, write);
+        CliError::from(e).resumable(resumable)
+    })?;
+    say!(
+        "ingested {} episodes, {} frames from {} recordings into {} ({} files, {:.1} MB)",
+        summary.episodes,
+        summary.frames,
+        args.inputs().map_or(0, <[PathBuf]>::len),
+        args.out.display(),
+        summary.files,
+        summary.bytes as f64 / 1e6
+    );
+    if args.verify {
+        verify(args, &summary)?;
+    }
+    Ok(())
+}
+
+/// Writes every episode, then finishes with the reports beside the dataset.
+fn write(
+    args: &IngestArgs,
+    source: &mut IngestSource,
+    sink: &mut (dyn EpisodeSink + Send),
+    files: Vec<(String, Vec<u8>)>,
+) -> Result<Summary, ConvertError> {
+    let bar = crate::progress::episode_bar(source.len(), "ingesting");
+    let mut trimmed = crate::memory::Trimmer::default();
+    let mut files = Some(files);
+    let mut sidecar = |_: &Summary| Ok(files.take().unwrap_or_default());
+    let summary = surgvla::export::convert::convert_with(
+        source,
+        sink,
+        args.threads.unwrap_or(0),
+        &mut |done| {
+            bar.set_position(done);
+            trimmed.after_episodes(done);
+        },
+        Some(&mut sidecar),
+    )?;
+    bar.finish_and_clear();
+    Ok(summary)
+}

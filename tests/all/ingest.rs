@@ -1,0 +1,314 @@
+//! `surgvla ingest` end to end on recordings the real writers made (tests/fixtures/ingest): the
+//! datasets, their reports and cards, the same bytes twice, a resume after an interruption,
+//! shards, and what bad input gets.
+
+use crate::util::{surgvla, temp_root, tree};
+use std::path::{Path, PathBuf};
+use surgvla::episode::FeatureValue;
+use surgvla::export::{EpisodeSource, INCOMPLETE_MARKER};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/ingest")
+        .join(name)
+}
+
+fn ingest(out: &Path, extra: &[&str]) -> (i32, String, String) {
+    let (bag, mcap) = (fixture("ros1_raw_lz4.bag"), fixture("single_png.mcap"));
+    let mut args = vec![
+        "ingest",
+        bag.to_str().expect("utf-8"),
+        mcap.to_str().expect("utf-8"),
+        "--camera",
+        "left=/camera/left/image",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ];
+    args.extend_from_slice(extra);
+    surgvla(&args)
+}
+
+#[test]
+fn ingest_writes_a_dataset_with_a_report_per_input_and_the_same_bytes_twice() {
+    let root = temp_root("ingest-twice");
+    let (first, second) = (root.join("a"), root.join("b"));
+    let (code, stdout, stderr) = ingest(&first, &["--verify"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("ingested 4 episodes") && stdout.contains("verified"),
+        "{stdout}"
+    );
+    assert!(stderr.contains("ros1_raw_lz4.bag: 2 episodes"), "{stderr}");
+    let files = tree(&first);
+    for report in [
+        "meta/sync/ros1_raw_lz4.bag.json",
+        "meta/sync/single_png.mcap.json",
+    ] {
+        let json: serde_json::Value =
+            serde_json::from_slice(&files[report]).expect("a JSON report");
+        let camera = &json["streams"][4];
+        assert_eq!(camera["topic"], "/camera/left/image");
+        assert_eq!(
+            camera["gaps"].as_array().map(Vec::len),
+            Some(1),
+            "the dropout"
+        );
+        assert_eq!(camera["out_of_order"], 1);
+        assert!(json["dropped_frames"].as_u64() > Some(0));
+    }
+    let card = String::from_utf8_lossy(&files["README.md"]).into_owned();
+    assert!(card.contains("Synchronisation") && card.contains("`ros1_raw_lz4.bag` | 2 |"));
+    assert!(
+        !card.contains("- surgvla\n"),
+        "not tagged as surgvla's simulated data"
+    );
+    let mut source = surgvla::export::open_source(&first).expect("read back");
+    assert_eq!(source.len(), 4);
+    let episode = source.next().expect("an episode").expect("read");
+    assert_eq!(episode.meta.instruction, "grasp the needle");
+    let [
+        FeatureValue::Image(_),
+        FeatureValue::Float32(state),
+        FeatureValue::Float32(action),
+    ] = &episode.steps[0].other[..]
+    else {
+        panic!("the camera, the state and the action");
+    };
+    assert_eq!((state.len(), action.len()), (8, 8));
+    let (code, _, stderr) = ingest(&second, &[]);
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        files,
+        tree(&second),
+        "same recordings and options, same bytes"
+    );
+    let (code, _, stderr) = surgvla(&["validate", first.to_str().expect("utf-8")]);
+    assert_eq!(code, 0, "{stderr}");
+}
+
+#[test]
+fn every_format_that_holds_the_robots_features_takes_them() {
+    let root = temp_root("ingest-formats");
+    for extra in [
+        &["--to", "rlds"][..],
+        &["--lerobot-version", "2.1"],
+        &["--video", "h264"],
+    ] {
+        let out = root.join(extra.join("-"));
+        let mut args = extra.to_vec();
+        args.push("--verify");
+        let (code, stdout, stderr) = ingest(&out, &args);
+        assert_eq!(code, 0, "{extra:?}: {stderr}");
+        assert!(stdout.contains("verified"), "{extra:?}: {stdout}");
+    }
+    assert!(root.join("--to-rlds/sync/ros1_raw_lz4.bag.json").is_file());
+    // Formats of surgvla's own features refuse, before anything is written.
+    let out = root.join("zarr");
+    let (code, _, stderr) = ingest(&out, &["--to", "zarr"]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("LeRobot or RLDS"), "{stderr}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn an_interrupted_ingest_resumes_to_the_same_bytes() {
+    use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
+    use surgvla::ingest::dvrk::DvrkPreset;
+    use surgvla::ingest::source::{IngestOptions, IngestSource};
+    let root = temp_root("ingest-resume");
+    let inputs = [fixture("ros1_raw_lz4.bag"), fixture("single_png.mcap")];
+    let options = IngestOptions {
+        preset: DvrkPreset::new(
+            &["PSM1".into()],
+            &[("left".into(), "/camera/left/image".into())],
+        ),
+        clock: surgvla::ingest::stamps::Clock::Header,
+        sync: surgvla::ingest::sync::SyncOptions::at(30),
+        task: None,
+        offsets_ns: Vec::new(),
+    };
+    let every_episode = LeRobotOptions {
+        data_file_size_mb: 0,
+        ..LeRobotOptions::default()
+    };
+    let run = |out: &Path, resume: bool| {
+        let mut source = IngestSource::open(&inputs, options.clone()).expect("open");
+        let mut sink = crate::util::unless_briefly_locked(|| {
+            LeRobotWriter::boxed(out, source.info(), every_episode.clone(), resume)
+        })
+        .expect("sink");
+        surgvla::export::convert::convert(&mut source, sink.as_mut(), 1, &mut |_| {})
+            .expect("convert");
+    };
+    let whole = root.join("whole");
+    run(&whole, false);
+    // Killed after three episodes: the third is the first input's... of the second input.
+    let resumed = root.join("resumed");
+    {
+        let mut source = IngestSource::open(&inputs, options.clone()).expect("open");
+        let episodes: Vec<_> = source
+            .by_ref()
+            .take(3)
+            .collect::<Result<_, _>>()
+            .expect("read");
+        let mut writer =
+            LeRobotWriter::create(&resumed, source.info(), every_episode.clone()).expect("create");
+        surgvla::export::EpisodeSink::write_batch(&mut writer, &episodes).expect("write");
+    }
+    assert!(resumed.join(INCOMPLETE_MARKER).exists());
+    run(&resumed, true);
+    assert_eq!(tree(&whole), tree(&resumed));
+}
+
+#[test]
+fn shards_take_contiguous_inputs() {
+    let root = temp_root("ingest-shards");
+    let (code, stdout, stderr) = ingest(&root.join("0"), &["--shard", "0/2"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("ingested 2 episodes") && stdout.contains("from 1 recordings"));
+    assert!(root.join("0/meta/sync/ros1_raw_lz4.bag.json").is_file());
+    assert!(!root.join("0/meta/sync/single_png.mcap.json").exists());
+    // 2 inputs over 3 shards: the first holds none.
+    let (code, _, stderr) = ingest(&root.join("3"), &["--shard", "0/3"]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("would hold no input"), "{stderr}");
+}
+
+#[test]
+fn bad_input_is_named_and_leaves_no_dataset_that_looks_complete() {
+    let root = temp_root("ingest-bad");
+    std::fs::create_dir_all(&root).expect("root");
+    // A topic the recording lacks: the data is not what was asked (exit 1).
+    let out = root.join("missing");
+    let bag = fixture("ros1_raw_lz4.bag");
+    let (code, _, stderr) = surgvla(&[
+        "ingest",
+        bag.to_str().expect("utf-8"),
+        "--camera",
+        "left=/camera/right/image",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("ros1_raw_lz4.bag has no message on /camera/right/image"),
+        "{stderr}"
+    );
+    assert!(!out.exists());
+    // A bag cut short, and bytes that are no recording.
+    let bytes = std::fs::read(&bag).expect("read");
+    for (name, content) in [
+        ("cut.bag", &bytes[..bytes.len() / 2]),
+        ("noise.bag", &b"hello"[..]),
+    ] {
+        let input = root.join(name);
+        std::fs::write(&input, content).expect("write");
+        let out = root.join(format!("{name}-out"));
+        let (code, _, stderr) = surgvla(&[
+            "ingest",
+            input.to_str().expect("utf-8"),
+            "--camera",
+            "left=/camera/left/image",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ]);
+        assert_eq!(code, 1, "{name}: {stderr}");
+        assert!(
+            stderr.contains(name) && stderr.contains("byte"),
+            "{name}: {stderr}"
+        );
+        assert!(!out.exists() || out.join(INCOMPLETE_MARKER).exists());
+    }
+    // What the user gave: exit 2.
+    let out = root.join("usage");
+    let out_text = out.to_str().expect("utf-8");
+    let bag_text = bag.to_str().expect("utf-8");
+    for args in [
+        vec![
+            "ingest",
+            bag_text,
+            "--camera",
+            "left=/camera/left/image",
+            "--out",
+            out_text,
+            "--time-offset",
+            "/nope=5",
+        ],
+        vec!["ingest", bag_text, "--camera", "left", "--out", out_text],
+        vec![
+            "ingest",
+            bag_text,
+            "--camera",
+            "a/b=/camera/left/image",
+            "--out",
+            out_text,
+        ],
+        vec![
+            "ingest",
+            "/no/such.bag",
+            "--camera",
+            "left=/camera/left/image",
+            "--out",
+            out_text,
+        ],
+        vec![
+            "ingest",
+            bag_text,
+            "--camera",
+            "left=/camera/left/image",
+            "--out",
+            out_text,
+            "--tolerance-ms",
+            "0",
+        ],
+    ] {
+        let (code, _, stderr) = surgvla(&args);
+        assert_eq!(code, 2, "{args:?}: {stderr}");
+        assert!(!out.exists());
+    }
+}
+
+#[test]
+fn a_time_offset_and_the_receive_clock_move_the_grid() {
+    let root = temp_root("ingest-clock");
+    let report = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(
+            &std::fs::read(out.join("meta/sync/ros1_raw_lz4.bag.json")).expect("report"),
+        )
+        .expect("json")
+    };
+    let bag = fixture("ros1_raw_lz4.bag");
+    let run = |name: &str, extra: &[&str]| {
+        let out = root.join(name);
+        let mut args = vec![
+            "ingest",
+            bag.to_str().expect("utf-8"),
+            "--camera",
+            "left=/camera/left/image",
+            "--task",
+            "suture",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ];
+        args.extend_from_slice(extra);
+        let (code, _, stderr) = surgvla(&args);
+        assert_eq!(code, 0, "{stderr}");
+        report(&out)
+    };
+    let header = run("header", &[]);
+    let shifted = run("shifted", &["--time-offset", "/camera/left/image=100"]);
+    let receive = run("receive", &["--clock", "receive"]);
+    let start = |r: &serde_json::Value| r["grid"][0].as_i64().expect("a grid");
+    assert_ne!(start(&header), start(&receive));
+    assert_eq!(
+        start(&shifted),
+        start(&header) + 100_000_000,
+        "the camera starts last"
+    );
+    let mut source = surgvla::export::open_source(&root.join("header")).expect("read");
+    let episode = source.next().expect("an episode").expect("read");
+    assert_eq!(
+        episode.meta.instruction, "suture",
+        "--task wins over /instruction"
+    );
+}

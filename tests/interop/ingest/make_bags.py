@@ -1,0 +1,263 @@
+"""Writes the ingest test corpus with the real writers of bags: rosbags (ROS 1 bags, ROS 2 bags
+in sqlite3 and mcap storage) and mcap-ros2-support (a single ROS 2 MCAP file).
+
+Usage: make_bags.py OUT_DIR. Writes OUT_DIR/<name>(.bag|.mcap|/) and OUT_DIR/<name>.json: every
+planted message per topic (header stamp, receive time, the values it carries), from which the
+check (test_ingest.py) works out the synchronisation rule's frames on its own.
+
+The sessions: a dVRK arm at ~100 Hz with jitter (measured and setpoint poses and jaws), cameras
+at ~30 Hz (raw rgb8 / bgr8 / mono8, JPEG and PNG compressed), a camera dropout of 0.4 s, two
+out-of-order stamps, an unmapped topic, an /instruction topic, a session split over two files.
+"""
+
+import json
+import random
+import sys
+from io import BytesIO
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.rosbag2 import StoragePlugin, Writer as Ros2Writer
+from rosbags.typesys import Stores, get_typestore
+
+WIDTH, HEIGHT = 32, 24
+START_NS = 1_700_000_000_000_000_000
+SECONDS = 3.0
+
+
+def pattern(k):
+    """The camera's k-th image: smooth blocks (JPEG keeps them within a few levels)."""
+    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
+    r = (k * 9 + (x // 8) * 40) % 256
+    g = (k * 5 + (y // 8) * 60) % 256
+    b = np.full_like(r, (k * 13) % 256)
+    return np.stack([r, g, b], axis=-1).astype(np.uint8)
+
+
+def plan_session(seed, dropout=True, out_of_order=True):
+    """Message times per stream: (stamp ns, receive ns, index) lists."""
+    rng = random.Random(seed)
+    streams = {}
+
+    def stream(rate, jitter_ms, lag_ms=2.0):
+        times, t = [], 0.0
+        while t < SECONDS:
+            stamp = START_NS + int(t * 1e9) + int(rng.uniform(-jitter_ms, jitter_ms) * 1e6)
+            receive = stamp + int((lag_ms + rng.uniform(0, 1)) * 1e6)
+            times.append([stamp, receive])
+            t += 1.0 / rate
+        return times
+
+    streams["arm"] = stream(100, 1.0)
+    streams["setpoint"] = stream(50, 1.0)
+    camera = stream(30, 3.0, lag_ms=8.0)
+    if dropout:
+        camera = [m for m in camera if not (1.2e9 <= m[0] - START_NS < 1.6e9)]
+    if out_of_order:
+        # Two camera messages recorded with their stamps swapped.
+        i = len(camera) // 4
+        camera[i][0], camera[i + 1][0] = camera[i + 1][0], camera[i][0]
+    streams["camera"] = camera
+    return streams
+
+
+def time_msg(ts, ns):
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def header(ts, ros1, ns, frame):
+    Header = ts.types["std_msgs/msg/Header"]
+    if ros1:
+        return Header(seq=0, stamp=time_msg(ts, ns), frame_id=frame)
+    return Header(stamp=time_msg(ts, ns), frame_id=frame)
+
+
+def pose_values(k, offset):
+    return [0.01 * k + offset, -0.02 + 0.001 * k, 0.05 + offset, 0.0, 0.0, np.sin(0.01 * k), np.cos(0.01 * k)]
+
+
+def pose_msg(ts, ros1, ns, values, transform):
+    Point = ts.types["geometry_msgs/msg/Point"]
+    Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
+    q = Quaternion(x=values[3], y=values[4], z=values[5], w=values[6])
+    if transform:
+        Vector3 = ts.types["geometry_msgs/msg/Vector3"]
+        Transform = ts.types["geometry_msgs/msg/Transform"]
+        TransformStamped = ts.types["geometry_msgs/msg/TransformStamped"]
+        t = Vector3(x=values[0], y=values[1], z=values[2])
+        return TransformStamped(header=header(ts, ros1, ns, "world"), child_frame_id="PSM1", transform=Transform(translation=t, rotation=q))
+    Pose = ts.types["geometry_msgs/msg/Pose"]
+    PoseStamped = ts.types["geometry_msgs/msg/PoseStamped"]
+    p = Point(x=values[0], y=values[1], z=values[2])
+    return PoseStamped(header=header(ts, ros1, ns, "world"), pose=Pose(position=p, orientation=q))
+
+
+def joint_msg(ts, ros1, ns, angle):
+    JointState = ts.types["sensor_msgs/msg/JointState"]
+    return JointState(header=header(ts, ros1, ns, ""), name=["jaw"], position=np.array([angle]), velocity=np.array([], dtype=np.float64), effort=np.array([], dtype=np.float64))
+
+
+def image_msg(ts, ros1, ns, k, encoding):
+    rgb = pattern(k)
+    if encoding in ("jpeg", "png"):
+        buffer = BytesIO()
+        Image.fromarray(rgb).save(buffer, format=encoding.upper(), quality=95)
+        CompressedImage = ts.types["sensor_msgs/msg/CompressedImage"]
+        fmt = "rgb8; jpeg compressed bgr8" if encoding == "jpeg" else "png"
+        return CompressedImage(header=header(ts, ros1, ns, "camera"), format=fmt, data=np.frombuffer(buffer.getvalue(), dtype=np.uint8))
+    if encoding == "bgr8":
+        pixels, step = rgb[:, :, ::-1], WIDTH * 3
+    elif encoding == "mono8":
+        pixels, step = rgb[:, :, 0], WIDTH
+    else:
+        pixels, step = rgb, WIDTH * 3
+    Img = ts.types["sensor_msgs/msg/Image"]
+    return Img(header=header(ts, ros1, ns, "camera"), height=HEIGHT, width=WIDTH, encoding=encoding, is_bigendian=0, step=step, data=np.ascontiguousarray(pixels).reshape(-1))
+
+
+def session_messages(ts, ros1, seed, encoding, transform=False, **kwargs):
+    """Every message of a session, in receive order: (topic, type, receive ns, msg) and the
+    expected record."""
+    streams = plan_session(seed, **kwargs)
+    out, expected = [], {"camera_encoding": encoding, "streams": {}}
+
+    def add(topic, msgtype, times, make, value):
+        expected["streams"][topic] = []
+        for k, (stamp, receive) in enumerate(times):
+            out.append((receive, topic, msgtype, make(k, stamp)))
+            expected["streams"][topic].append({"stamp": stamp, "receive": receive, "value": value(k)})
+
+    pose_type = "geometry_msgs/msg/TransformStamped" if transform else "geometry_msgs/msg/PoseStamped"
+    add("/PSM1/measured_cp", pose_type, streams["arm"], lambda k, s: pose_msg(ts, ros1, s, pose_values(k, 0.0), transform), lambda k: pose_values(k, 0.0))
+    add("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState", streams["arm"], lambda k, s: joint_msg(ts, ros1, s, 0.3 + 0.001 * k), lambda k: 0.3 + 0.001 * k)
+    add("/PSM1/setpoint_cp", pose_type, streams["setpoint"], lambda k, s: pose_msg(ts, ros1, s, pose_values(k, 0.5), transform), lambda k: pose_values(k, 0.5))
+    add("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState", streams["setpoint"], lambda k, s: joint_msg(ts, ros1, s, 0.7 - 0.002 * k), lambda k: 0.7 - 0.002 * k)
+    msgtype = "sensor_msgs/msg/CompressedImage" if encoding in ("jpeg", "png") else "sensor_msgs/msg/Image"
+    add("/camera/left/image", msgtype, streams["camera"], lambda k, s: image_msg(ts, ros1, s, k, encoding), lambda k: k)
+    String = ts.types["std_msgs/msg/String"]
+    out.append((START_NS, "/instruction", "std_msgs/msg/String", String(data="grasp the needle")))
+    # A type without a header: its time is when it was received.
+    expected["streams"]["/instruction"] = [{"stamp": START_NS, "receive": START_NS, "value": "grasp the needle"}]
+    out.append((START_NS + 5, "/unrelated", "std_msgs/msg/String", String(data="not mapped")))
+    out.sort(key=lambda m: m[0])
+    return out, expected
+
+
+def write_ros1(path, seed, encoding, compression):
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    messages, expected = session_messages(ts, True, seed, encoding)
+    writer = Ros1Writer(path)
+    if compression:
+        writer.set_compression(getattr(Ros1Writer.CompressionFormat, compression))
+    with writer:
+        connections = {}
+        for receive, topic, msgtype, msg in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic], receive, ts.serialize_ros1(msg, msgtype))
+    return expected
+
+
+def write_ros2(path, seed, encoding, storage, split=False, transform=False):
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    messages, expected = session_messages(ts, False, seed, encoding, transform=transform)
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    parts = [messages[: len(messages) // 2], messages[len(messages) // 2:]] if split else [messages]
+    names = []
+    for p, part in enumerate(parts):
+        folder = Path(f"{path}-part{p}") if split else Path(path)
+        with Ros2Writer(folder, version=8, storage_plugin=plugin) as writer:
+            connections = {}
+            for receive, topic, msgtype, msg in part if p == 0 else messages:
+                if topic not in connections:
+                    connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+                if (receive, topic) in {(m[0], m[1]) for m in part}:
+                    writer.write(connections[topic], receive, ts.serialize_cdr(msg, msgtype))
+        names.append(folder)
+    if split:
+        # One session over two files, as `ros2 bag record --max-bag-size` leaves it.
+        target = Path(path)
+        target.mkdir()
+        files = []
+        for p, folder in enumerate(names):
+            storage_file = next(f for f in folder.iterdir() if f.name != "metadata.yaml")
+            name = f"{target.name}_{p}{storage_file.suffix}"
+            storage_file.rename(target / name)
+            files.append(name)
+            if p == 0:
+                metadata = (folder / "metadata.yaml").read_text()
+            (folder / "metadata.yaml").unlink()
+            folder.rmdir()
+        lines, out, skipping = metadata.splitlines(), [], False
+        for line in lines:
+            if line.strip().startswith("relative_file_paths:"):
+                out.append(line)
+                out.extend(f"  - {f}" for f in files)
+                skipping = True
+                continue
+            if skipping and line.strip().startswith("- "):
+                continue
+            skipping = False
+            out.append(line)
+        (target / "metadata.yaml").write_text("\n".join(out) + "\n")
+        if storage == "sqlite3":
+            # As Humble and older write them: no definitions (built-in ones must serve).
+            import sqlite3
+            for name in files:
+                db = sqlite3.connect(target / name)
+                db.execute("DROP TABLE IF EXISTS message_definitions")
+                db.commit()
+                db.close()
+    return expected
+
+
+def write_single_mcap(path, seed, encoding):
+    from mcap_ros2.writer import Writer as McapWriter
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    messages, expected = session_messages(ts, False, seed, encoding)
+    schemas = {}
+    with open(path, "wb") as f:
+        writer = McapWriter(f)
+        for receive, topic, msgtype, msg in messages:
+            if msgtype not in schemas:
+                schemas[msgtype] = writer.register_msgdef(msgtype, ts.generate_msgdef(msgtype, ros_version=2)[0])
+            writer.write_message(topic, schemas[msgtype], to_dict(msg), log_time=receive, publish_time=receive)
+        writer.finish()
+    return expected
+
+
+def to_dict(msg):
+    """A rosbags message as the plain values mcap-ros2-support serialises."""
+    if hasattr(msg, "__dataclass_fields__"):
+        return {name: to_dict(getattr(msg, name)) for name in msg.__dataclass_fields__ if name != "__msgtype__"}
+    if isinstance(msg, np.ndarray):
+        return msg.tobytes() if msg.dtype == np.uint8 else msg.tolist()
+    if isinstance(msg, list):
+        return [to_dict(m) for m in msg]
+    return msg
+
+
+SESSIONS = {
+    # name: (writer, kwargs)
+    "ros1_raw_lz4.bag": (write_ros1, dict(seed=1, encoding="rgb8", compression="LZ4")),
+    "ros1_mono_bz2.bag": (write_ros1, dict(seed=2, encoding="mono8", compression="BZ2")),
+    "ros2_sqlite_split": (write_ros2, dict(seed=3, encoding="bgr8", storage="sqlite3", split=True, transform=True)),
+    "ros2_mcap_jpeg": (write_ros2, dict(seed=4, encoding="jpeg", storage="mcap")),
+    "single_png.mcap": (write_single_mcap, dict(seed=5, encoding="png")),
+}
+
+
+def main(out):
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, (writer, kwargs) in SESSIONS.items():
+        expected = writer(str(out / name), **kwargs)
+        (out / f"{name}.json").write_text(json.dumps(expected))
+        print(f"wrote {out / name}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])

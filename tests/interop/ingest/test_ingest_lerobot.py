@@ -1,0 +1,110 @@
+"""Recordings ingested by `surgvla ingest` read with the real lerobot loader: every frame's
+state, action and image are those of the message the synchronisation rule selects, worked out
+here on its own from the messages make_bags.py planted; each report names the planted dropout.
+
+Environment: SURGVLA_INGEST_CORPUS (make_bags.py's folder), SURGVLA_INGEST_OUT (a folder of
+one dataset per recording, named like it), SURGVLA_INGEST_FPS.
+"""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+CORPUS = Path(os.environ["SURGVLA_INGEST_CORPUS"])
+OUT = Path(os.environ["SURGVLA_INGEST_OUT"])
+FPS = int(os.environ.get("SURGVLA_INGEST_FPS", "30"))
+TOLERANCE_NS = 1_500_000_000 // FPS
+WIDTH, HEIGHT = 32, 24
+NAMES = sorted(p.name[: -len(".json")] for p in CORPUS.glob("*.json"))
+SAMPLED = ["/PSM1/measured_cp", "/PSM1/jaw/measured_js", "/camera/left/image"]
+# The instruction is an event too (the datasets are made without --task).
+EVENTS = ["/PSM1/setpoint_cp", "/PSM1/jaw/setpoint_js", "/instruction"]
+
+
+def pattern(k):
+    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
+    r = (k * 9 + (x // 8) * 40) % 256
+    g = (k * 5 + (y // 8) * 60) % 256
+    b = np.full_like(r, (k * 13) % 256)
+    return np.stack([r, g, b], axis=-1).astype(np.uint8)
+
+
+def rule(streams):
+    """The frames the stated rule makes: episodes of {topic: message} per frame."""
+    start = max(min(m["stamp"] for m in streams[t]) for t in SAMPLED)
+    end = min(max(m["stamp"] for m in streams[t]) for t in SAMPLED)
+    episodes, current, k = [], [], 0
+    while True:
+        time = start + k * 1_000_000_000 // FPS
+        if time > end:
+            break
+        k += 1
+        frame, written = {}, True
+        for topic in SAMPLED + EVENTS:
+            # The greatest stamp at or before the frame; equal stamps: the later message.
+            best = None
+            for message in streams[topic]:
+                if message["stamp"] <= time and (best is None or message["stamp"] >= best["stamp"]):
+                    best = message
+            if best is None or (topic in SAMPLED and time - best["stamp"] > TOLERANCE_NS):
+                written = False
+                break
+            frame[topic] = best
+        if written:
+            current.append(frame)
+        elif current:
+            episodes.append(current)
+            current = []
+    if current:
+        episodes.append(current)
+    return episodes
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_frame_is_the_rules_message(name):
+    expected = json.loads((CORPUS / f"{name}.json").read_text())
+    episodes = rule(expected["streams"])
+    dataset = LeRobotDataset(repo_id=f"local/{name}", root=OUT / name)
+    assert dataset.meta.total_episodes == len(episodes)
+    assert dataset.num_frames == sum(len(e) for e in episodes)
+    names = dataset.meta.features["observation.state"]["names"]
+    assert names == ["PSM1.x", "PSM1.y", "PSM1.z", "PSM1.qx", "PSM1.qy", "PSM1.qz", "PSM1.qw", "PSM1.jaw"]
+    encoding = expected["camera_encoding"]
+    index = 0
+    for e, frames in enumerate(episodes):
+        for f, frame in enumerate(frames):
+            item = dataset[index]
+            index += 1
+            assert int(item["episode_index"]) == e and int(item["frame_index"]) == f
+            assert abs(float(item["timestamp"]) - f / FPS) < 1e-4
+            state = frame["/PSM1/measured_cp"]["value"] + [frame["/PSM1/jaw/measured_js"]["value"]]
+            action = frame["/PSM1/setpoint_cp"]["value"] + [frame["/PSM1/jaw/setpoint_js"]["value"]]
+            np.testing.assert_allclose(item["observation.state"].numpy(), np.float32(state), rtol=0, atol=0)
+            np.testing.assert_allclose(item["action"].numpy(), np.float32(action), rtol=0, atol=0)
+            image = (item["observation.images.left"].numpy().transpose(1, 2, 0) * 255).round().astype(np.int32)
+            want = pattern(frame["/camera/left/image"]["value"]).astype(np.int32)
+            if encoding == "mono8":
+                want = np.repeat(want[:, :, :1], 3, axis=2)
+            if encoding == "jpeg":
+                assert np.abs(image - want).mean() < 6, f"episode {e} frame {f}"
+            else:
+                assert (image == want).all(), f"episode {e} frame {f}"
+            assert item["task"] == "grasp the needle"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_report_names_the_dropout(name):
+    reports = list((OUT / name / "meta" / "sync").glob("*.json"))
+    assert len(reports) == 1
+    report = json.loads(reports[0].read_text())
+    camera = next(s for s in report["streams"] if s["topic"] == "/camera/left/image")
+    start = 1_700_000_000_000_000_000
+    assert any(g["start"] < start + 1_200_000_000 and g["end"] >= start + 1_600_000_000 for g in camera["gaps"]), camera["gaps"]
+    assert camera["out_of_order"] == 1
+    assert report["episodes"] == [len(e) for e in rule(json.loads((CORPUS / f"{name}.json").read_text())["streams"])]
+    card = (OUT / name / "README.md").read_text()
+    assert "Synchronisation" in card and "/camera/left/image" in card
