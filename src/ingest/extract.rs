@@ -141,7 +141,13 @@ pub fn raw_rgb(message: &RosValue) -> Result<RgbImage, String> {
     let (width, height, step, data) = raw(message, channels)?;
     let mut rgb = Vec::with_capacity(width * height * 3);
     for row in data.chunks(step).take(height) {
-        for pixel in row[..width * channels].chunks_exact(channels) {
+        let row = &row[..width * channels];
+        if encoding == "rgb8" {
+            // Already RGB: the row as it is.
+            rgb.extend_from_slice(row);
+            continue;
+        }
+        for pixel in row.chunks_exact(channels) {
             rgb.extend(order.map(|c| pixel[c]));
         }
     }

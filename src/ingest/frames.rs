@@ -1,7 +1,8 @@
 //! The second pass over a recording: the messages the synchronisation plan picked, decoded,
-//! handed over one episode at a time ([`second_pass`]). A message is kept only from when it is
-//! read until the last episode that takes it is handed over, so memory follows one episode (and
-//! the recording's reordering), not the recording.
+//! handed over frame by frame ([`second_pass`]), each frame as soon as every message it takes
+//! has been read, with a mark at each episode's end. A message is kept only from when it is
+//! read until the last frame that takes it is handed over, so memory follows the recording's
+//! reordering (how far a message's place in the file is from its stamp's), not the recording.
 
 use crate::ingest::decode::{RosValue, decode};
 use crate::ingest::error::IngestError;
@@ -9,7 +10,7 @@ use crate::ingest::msgdef::MessageDefs;
 use crate::ingest::open::Recording;
 use crate::ingest::stamps::{Decoders, TopicSpec};
 use crate::ingest::sync::SyncPlan;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -20,24 +21,33 @@ pub struct FrameValues {
     pub values: Vec<Arc<RosValue>>,
 }
 
-/// Reads `path` again and calls `episode` with each episode's frames, in order (the plan's
-/// episodes, made from the first pass over the same file and `topics`).
+/// What the second pass hands over, in order.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Handed {
+    /// The next frame of the current episode.
+    Frame(FrameValues),
+    /// The current episode has no more frames.
+    EpisodeEnd,
+}
+
+/// Reads `path` again and hands over each frame of the plan's episodes, in order, then each
+/// episode's end (the plan made from the first pass over the same file and `topics`).
 pub fn second_pass(
     path: &Path,
     topics: &[TopicSpec],
     plan: &SyncPlan,
     builtin: &MessageDefs,
-    episode: &mut dyn FnMut(Vec<FrameValues>) -> Result<(), IngestError>,
+    hand: &mut dyn FnMut(Handed) -> Result<(), IngestError>,
 ) -> Result<(), IngestError> {
     let mut takers = Takers::of(plan);
     let mut decoders = Decoders::new(topics);
     let mut counts = vec![0usize; topics.len()];
-    let mut held: BTreeMap<(usize, usize), Arc<RosValue>> = BTreeMap::new();
-    let mut next_episode = 0;
+    let mut held: HashMap<(usize, usize), Arc<RosValue>> = HashMap::new();
+    let mut handing = Handing::default();
     let mut recording = Recording::open(path)?;
     // Not a `for` loop: the recording's channels are looked up while it is read.
     while let Some(message) = recording.next() {
-        if next_episode == plan.episodes.len() {
+        if handing.frame == takers.frames.len() {
             break;
         }
         let message = message?;
@@ -47,7 +57,7 @@ pub fn second_pass(
         let (slot, channel, defs) = (decoder.slot, &decoder.channel, &decoder.defs);
         let index = counts[slot];
         counts[slot] += 1;
-        let Some(episodes) = takers.by_message.get(&(slot, index)) else {
+        let Some(&(first, last)) = takers.by_message.get(&(slot, index)) else {
             continue;
         };
         let value =
@@ -60,70 +70,90 @@ pub fn second_pass(
                 }
             })?;
         held.insert((slot, index), Arc::new(value));
-        for &e in episodes {
-            takers.missing[e] -= 1;
+        for missing in &mut takers.missing[first..=last] {
+            *missing -= 1;
         }
-        next_episode = hand_over(plan, &takers, &mut held, next_episode, episode)?;
+        handing.hand_over(plan, &takers, &mut held, hand)?;
     }
     Ok(())
 }
 
-/// Which episodes take each picked message ((topic slot, message index) -> episodes), and how
-/// many picked messages each episode still lacks.
+/// Every written frame in order, as (episode, frame in episode); which frames take each picked
+/// message ((topic slot, message index) -> the first and last frame: a stream's picks only move
+/// forward, so they are a run); how many picked messages each frame still lacks.
 struct Takers {
-    by_message: BTreeMap<(usize, usize), BTreeSet<usize>>,
+    frames: Vec<(usize, usize)>,
+    by_message: HashMap<(usize, usize), (usize, usize)>,
     missing: Vec<usize>,
 }
 
 impl Takers {
     fn of(plan: &SyncPlan) -> Takers {
-        let mut by_message: BTreeMap<(usize, usize), BTreeSet<usize>> = BTreeMap::new();
-        for (e, frames) in plan.episodes.iter().enumerate() {
-            for frame in frames {
+        let mut frames = Vec::new();
+        let mut by_message: HashMap<(usize, usize), (usize, usize)> = HashMap::new();
+        let mut missing = Vec::new();
+        for (e, episode) in plan.episodes.iter().enumerate() {
+            for (f, frame) in episode.iter().enumerate() {
+                let global = frames.len();
+                frames.push((e, f));
+                missing.push(0);
                 for (slot, &pick) in frame.picks.iter().enumerate() {
-                    by_message.entry((slot, pick)).or_default().insert(e);
+                    by_message.entry((slot, pick)).or_insert((global, global)).1 = global;
                 }
             }
         }
-        let mut missing = vec![0; plan.episodes.len()];
-        for &e in by_message.values().flatten() {
-            missing[e] += 1;
+        // Each frame lacks one message per stream (its runs cover it).
+        for &(first, last) in by_message.values() {
+            for missing in &mut missing[first..=last] {
+                *missing += 1;
+            }
         }
         Takers {
+            frames,
             by_message,
             missing,
         }
     }
 }
 
-/// Hands over every episode from `next` on that lacks nothing, letting go of what no later
-/// episode takes; returns the next episode to hand over.
-fn hand_over(
-    plan: &SyncPlan,
-    takers: &Takers,
-    held: &mut BTreeMap<(usize, usize), Arc<RosValue>>,
-    mut next: usize,
-    episode: &mut dyn FnMut(Vec<FrameValues>) -> Result<(), IngestError>,
-) -> Result<usize, IngestError> {
-    while next < plan.episodes.len() && takers.missing[next] == 0 {
-        let frames = plan.episodes[next]
-            .iter()
-            .map(|frame| FrameValues {
+/// Where the hand-over is: the next frame (a global number) to hand over.
+#[derive(Default)]
+struct Handing {
+    frame: usize,
+}
+
+impl Handing {
+    /// Hands over every frame from the next on that lacks nothing (and each episode's end),
+    /// letting go of what no later frame takes.
+    fn hand_over(
+        &mut self,
+        plan: &SyncPlan,
+        takers: &Takers,
+        held: &mut HashMap<(usize, usize), Arc<RosValue>>,
+        hand: &mut dyn FnMut(Handed) -> Result<(), IngestError>,
+    ) -> Result<(), IngestError> {
+        while self.frame < takers.frames.len() && takers.missing[self.frame] == 0 {
+            let (e, f) = takers.frames[self.frame];
+            let frame = &plan.episodes[e][f];
+            let values = (frame.picks.iter().enumerate())
+                .filter_map(|(slot, &pick)| held.get(&(slot, pick)).cloned())
+                .collect();
+            hand(Handed::Frame(FrameValues {
                 time_ns: frame.time_ns,
-                values: (frame.picks.iter().enumerate())
-                    .filter_map(|(slot, &pick)| held.get(&(slot, pick)).cloned())
-                    .collect(),
-            })
-            .collect();
-        episode(frames)?;
-        held.retain(|key, _| {
-            (takers.by_message.get(key))
-                .and_then(|e| e.last())
-                .is_some_and(|&last| last > next)
-        });
-        next += 1;
+                values,
+            }))?;
+            for (slot, &pick) in frame.picks.iter().enumerate() {
+                if takers.by_message.get(&(slot, pick)).map(|r| r.1) == Some(self.frame) {
+                    held.remove(&(slot, pick));
+                }
+            }
+            if f + 1 == plan.episodes[e].len() {
+                hand(Handed::EpisodeEnd)?;
+            }
+            self.frame += 1;
+        }
+        Ok(())
     }
-    Ok(next)
 }
 
 #[cfg(test)]
@@ -180,24 +210,25 @@ mod tests {
         let first = first_pass(&path, &topics, Clock::Receive, &builtin).expect("first");
         let plan = plan(&first.streams, &SyncOptions::at(10)).expect("plan");
         assert_eq!(plan.report.episodes, [4, 4]);
-        let mut episodes = Vec::new();
-        second_pass(&path, &topics, &plan, &builtin, &mut |frames| {
-            let texts: Vec<(String, String)> = frames
-                .iter()
-                .map(|f| {
+        let mut episodes = vec![Vec::new()];
+        second_pass(&path, &topics, &plan, &builtin, &mut |handed| {
+            match handed {
+                Handed::Frame(f) => {
                     let text = |v: &RosValue| {
                         v.at("data")
                             .and_then(RosValue::as_str)
                             .unwrap_or("")
                             .to_string()
                     };
-                    (text(&f.values[0]), text(&f.values[1]))
-                })
-                .collect();
-            episodes.push(texts);
+                    let current = episodes.last_mut().expect("an episode");
+                    current.push((text(&f.values[0]), text(&f.values[1])));
+                }
+                Handed::EpisodeEnd => episodes.push(Vec::new()),
+            }
             Ok(())
         })
         .expect("second");
+        assert_eq!(episodes.pop(), Some(Vec::new()), "the last episode ended");
         let pair = |a: &str, b: &str| (a.to_string(), b.to_string());
         assert_eq!(
             episodes,

@@ -5,15 +5,17 @@
 //! 8 per arm (`observation.state`, `action`, each value named): a dataset of the robot's own
 //! features, as every format reads one another tool made.
 //!
-//! An input's episodes are made together (memory follows one input's frames); the first
-//! input's are made when the source opens, for the images' size.
+//! An input's episodes are made together from its frames as they are handed over (memory
+//! follows one input's encoded episodes); the first input's are made when the source opens,
+//! for the images' size.
 
-use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
 use crate::ingest::builtin::ros2_types;
-use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, INSTRUCTION_TOPIC};
+use crate::ingest::dvrk::{DvrkPreset, INSTRUCTION_TOPIC};
+use crate::ingest::episodes::Making;
 use crate::ingest::error::IngestError;
 use crate::ingest::frames::second_pass;
 use crate::ingest::msgdef::MessageDefs;
@@ -65,10 +67,12 @@ impl IngestOptions {
 }
 
 /// One input, planned: what is kept of it until its episodes are made (its plan is made
-/// again then, so memory does not grow with the number of inputs).
+/// again then, so memory does not grow with the number of inputs; the first input's, made
+/// when the source opens, is used as it is).
 struct Input {
     path: PathBuf,
     report: SyncReport,
+    plan: Option<Planned>,
 }
 
 /// One input's topics and plan.
@@ -108,9 +112,11 @@ impl IngestSource {
         let mut inputs = Vec::with_capacity(paths.len());
         for path in paths {
             let planned = planned(path, &options, &builtin)?;
+            let first = inputs.is_empty();
             inputs.push(Input {
                 path: path.clone(),
-                report: planned.plan.report,
+                report: planned.plan.report.clone(),
+                plan: first.then_some(planned),
             });
         }
         let total = inputs.iter().map(|i| i.report.episodes.len() as u64).sum();
@@ -211,51 +217,29 @@ impl IngestSource {
 
     /// Makes the next input's episodes.
     fn make_next_input(&mut self) -> Result<(), IngestError> {
-        let Some(input) = self.inputs.get(self.next_input) else {
+        let Some(input) = self.inputs.get_mut(self.next_input) else {
             return Ok(());
         };
         self.next_input += 1;
-        let Planned { topics, plan } = planned(&input.path, &self.options, &self.builtin)?;
-        let (preset, task) = (&self.options.preset, &self.options.task);
-        let mut made = Vec::new();
-        let mut index = self.next_index;
-        let mut sizes = self.image_sizes.clone();
-        second_pass(&input.path, &topics, &plan, &self.builtin, &mut |frames| {
-            let mut steps = Vec::with_capacity(frames.len());
-            let mut instruction = task.clone();
-            for frame in &frames {
-                let bad = |problem| IngestError::Frame {
-                    path: input.path.clone(),
-                    time_ns: frame.time_ns,
-                    problem,
-                };
-                let features = preset.frame(&frame.values).map_err(bad)?;
-                if instruction.is_none() {
-                    instruction.clone_from(&features.instruction);
-                }
-                let here: Vec<(usize, usize)> = features
-                    .images
-                    .iter()
-                    .map(|i| (i.height, i.width))
-                    .collect();
-                let known = sizes.get_or_insert_with(|| here.clone());
-                if let Some((c, (now, before))) = (here.iter().zip(known.iter()).enumerate())
-                    .find(|(_, (now, before))| now != before)
-                {
-                    let name = preset.cameras.get(c).map_or("?", |(name, _)| name.as_str());
-                    return Err(bad(format!(
-                        "camera {name} is {}x{} where earlier frames are {}x{} (width x height)",
-                        now.1, now.0, before.1, before.0
-                    )));
-                }
-                steps.push(step(features).map_err(bad)?);
-            }
-            made.push(episode(index, instruction.unwrap_or_default(), steps));
-            index += 1;
-            Ok(())
+        let kept = input.plan.take();
+        let input = &*input;
+        let Planned { topics, plan } = match kept {
+            Some(planned) => planned,
+            None => planned(&input.path, &self.options, &self.builtin)?,
+        };
+        let mut making = Making::new(
+            &input.path,
+            &self.options.preset,
+            self.options.task.as_deref(),
+            self.image_sizes.take(),
+            self.next_index,
+        );
+        second_pass(&input.path, &topics, &plan, &self.builtin, &mut |handed| {
+            making.take(handed)
         })?;
+        let (made, sizes) = making.finish();
         self.image_sizes = sizes;
-        self.next_index = index;
+        self.next_index += made.len() as u64;
         self.ready
             .extend(made.into_iter().skip(std::mem::take(&mut self.skipped)));
         Ok(())
@@ -294,35 +278,6 @@ fn planned(
         source,
     })?;
     Ok(Planned { topics, plan })
-}
-
-/// A step of a frame's features, in feature order: each camera (PNG), then state and action.
-/// Every feature is one of the dataset's own (not surgvla's simulated ones), as any format
-/// reads a dataset another tool made.
-fn step(frame: DvrkFrame) -> Result<Step, String> {
-    let mut step = Step::empty();
-    for image in frame.images {
-        let png = crate::media::image::encode_png(
-            image.width,
-            image.height,
-            3,
-            &image.rgb,
-            crate::media::image::PngLevel::Fast,
-        )
-        .map_err(|e| e.to_string())?;
-        step.other.push(FeatureValue::Image(png));
-    }
-    step.other.push(FeatureValue::Float32(frame.state));
-    step.other.push(FeatureValue::Float32(frame.action));
-    Ok(step)
-}
-
-fn episode(index: u64, instruction: String, steps: Vec<Step>) -> Episode {
-    Episode {
-        meta: EpisodeMeta::foreign(index, instruction),
-        steps,
-        encoded: Vec::new(),
-    }
 }
 
 impl Iterator for IngestSource {
@@ -373,6 +328,7 @@ impl EpisodeSource for IngestSource {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::episode::FeatureValue;
     use crate::ingest::sync::OnGap;
 
     /// A little CDR writer (little-endian, aligned from after the 4-byte header).

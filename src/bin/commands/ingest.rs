@@ -34,8 +34,8 @@ pub(crate) struct IngestArgs {
     /// in this order): PSM1, or a full namespace such as /dvrk/PSM1 (dVRK 1.x).
     #[arg(long = "arm", default_value = "PSM1")]
     arms: Vec<String>,
-    /// A camera as NAME=TOPIC, repeatable: the first is the dataset's RGB image
-    /// (observation.images.NAME), the others further image features.
+    /// A camera as NAME=TOPIC, repeatable: each an image feature, observation.images.NAME
+    /// (sensor_msgs/Image or CompressedImage).
     #[arg(long = "camera", required = true, value_parser = parse_camera)]
     cameras: Vec<(String, String)>,
     /// The task of every episode (wins over an /instruction topic in the recording).

@@ -1,7 +1,7 @@
 """Writes the ingest test corpus with the real writers of bags: rosbags (ROS 1 bags, ROS 2 bags
 in sqlite3 and mcap storage) and mcap-ros2-support (a single ROS 2 MCAP file).
 
-Usage: make_bags.py OUT_DIR. Writes OUT_DIR/<name>(.bag|.mcap|/) and OUT_DIR/<name>.json: every
+Usage: make_bags.py OUT_DIR [--bench SECONDS]. Writes OUT_DIR/<name>(.bag|.mcap|/) and OUT_DIR/<name>.json: every
 planted message per topic (header stamp, receive time, the values it carries), from which the
 check (test_ingest.py) works out the synchronisation rule's frames on its own.
 
@@ -23,6 +23,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
 
 WIDTH, HEIGHT = 32, 24
+# The benchmark's images carry sensor noise (PNG then works as on a real endoscope's frames).
+NOISE = 0
 START_NS = 1_700_000_000_000_000_000
 SECONDS = 3.0
 
@@ -33,7 +35,10 @@ def pattern(k):
     r = (k * 9 + (x // 8) * 40) % 256
     g = (k * 5 + (y // 8) * 60) % 256
     b = np.full_like(r, (k * 13) % 256)
-    return np.stack([r, g, b], axis=-1).astype(np.uint8)
+    rgb = np.stack([r, g, b], axis=-1)
+    if NOISE:
+        rgb = rgb + np.random.default_rng(k).integers(-NOISE, NOISE + 1, rgb.shape)
+    return np.clip(rgb, 0, 255).astype(np.uint8)
 
 
 def plan_session(seed, dropout=True, out_of_order=True):
@@ -250,9 +255,28 @@ SESSIONS = {
 }
 
 
-def main(out):
+def write_bench(out, seconds):
+    """One long uncompressed ROS 1 bag for the benchmark: 320 x 240 rgb8 at 30 Hz, the arm at
+    100 Hz, no faults, images with sensor noise (scripts/bench_ingest.sh)."""
+    global WIDTH, HEIGHT, SECONDS, NOISE
+    WIDTH, HEIGHT, SECONDS, NOISE = 320, 240, seconds, 6
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    messages, _ = session_messages(ts, True, 7, "rgb8", dropout=False, out_of_order=False)
+    with Ros1Writer(out / "bench.bag") as writer:
+        connections = {}
+        for receive, topic, msgtype, msg in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(connections[topic], receive, ts.serialize_ros1(msg, msgtype))
+    print(f"wrote {out / 'bench.bag'}")
+
+
+def main(out, bench=None):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if bench is not None:
+        write_bench(out, bench)
+        return
     for name, (writer, kwargs) in SESSIONS.items():
         expected = writer(str(out / name), **kwargs)
         (out / f"{name}.json").write_text(json.dumps(expected))
@@ -260,4 +284,7 @@ def main(out):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    if len(sys.argv) == 4 and sys.argv[2] == "--bench":
+        main(sys.argv[1], float(sys.argv[3]))
+    else:
+        main(sys.argv[1])

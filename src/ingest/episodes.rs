@@ -1,0 +1,154 @@
+//! Episodes made from the frames the second pass hands over ([`Making`]): each frame's
+//! messages turned into features by the preset as it arrives (raw pixels held only until their
+//! batch is encoded), images encoded as PNG in parallel batches, an episode closed at each end
+//! mark. Every camera must keep its size.
+
+use crate::episode::{Episode, EpisodeMeta, FeatureValue, Step};
+use crate::ingest::dvrk::{DvrkFrame, DvrkPreset};
+use crate::ingest::error::IngestError;
+use crate::ingest::frames::Handed;
+use rayon::prelude::*;
+use std::path::Path;
+
+/// Frames whose pixels are gathered before they are encoded together.
+const BATCH_FRAMES: usize = 32;
+
+/// An input's episodes being made (see the module overview).
+pub struct Making<'a> {
+    path: &'a Path,
+    preset: &'a DvrkPreset,
+    /// The task given; None: each episode's first instruction.
+    task: Option<&'a str>,
+    /// Each camera's (height, width), from the first frame.
+    sizes: Option<Vec<(usize, usize)>>,
+    /// Frames not yet encoded: (time, features).
+    pending: Vec<(i64, DvrkFrame)>,
+    steps: Vec<Step>,
+    instruction: Option<String>,
+    made: Vec<Episode>,
+    next_index: u64,
+}
+
+impl<'a> Making<'a> {
+    /// Episodes of `path`, the first numbered `next_index`; `sizes` as earlier inputs had them.
+    pub fn new(
+        path: &'a Path,
+        preset: &'a DvrkPreset,
+        task: Option<&'a str>,
+        sizes: Option<Vec<(usize, usize)>>,
+        next_index: u64,
+    ) -> Making<'a> {
+        Making {
+            path,
+            preset,
+            task,
+            sizes,
+            pending: Vec::with_capacity(BATCH_FRAMES),
+            steps: Vec::new(),
+            instruction: None,
+            made: Vec::new(),
+            next_index,
+        }
+    }
+
+    fn bad(&self, time_ns: i64, problem: String) -> IngestError {
+        IngestError::Frame {
+            path: self.path.to_path_buf(),
+            time_ns,
+            problem,
+        }
+    }
+
+    /// Takes what the second pass hands over.
+    pub fn take(&mut self, handed: Handed) -> Result<(), IngestError> {
+        match handed {
+            Handed::Frame(frame) => {
+                let time_ns = frame.time_ns;
+                let features = (self.preset.frame(&frame.values))
+                    .map_err(|problem| self.bad(time_ns, problem))?;
+                self.check_sizes(time_ns, &features)?;
+                if self.instruction.is_none() {
+                    self.instruction.clone_from(&features.instruction);
+                }
+                self.pending.push((time_ns, features));
+                if self.pending.len() == BATCH_FRAMES {
+                    self.encode()?;
+                }
+            }
+            Handed::EpisodeEnd => {
+                self.encode()?;
+                let instruction = match self.task {
+                    Some(task) => task.to_string(),
+                    None => self.instruction.take().unwrap_or_default(),
+                };
+                self.instruction = None;
+                self.made.push(Episode {
+                    meta: EpisodeMeta::foreign(self.next_index, instruction),
+                    steps: std::mem::take(&mut self.steps),
+                    encoded: Vec::new(),
+                });
+                self.next_index += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// The episodes made, and the cameras' sizes.
+    pub fn finish(self) -> (Vec<Episode>, Option<Vec<(usize, usize)>>) {
+        (self.made, self.sizes)
+    }
+
+    fn check_sizes(&mut self, time_ns: i64, frame: &DvrkFrame) -> Result<(), IngestError> {
+        let here: Vec<(usize, usize)> = frame.images.iter().map(|i| (i.height, i.width)).collect();
+        let known = self.sizes.get_or_insert_with(|| here.clone());
+        let changed = (here.iter().zip(known.iter()).enumerate())
+            .find(|(_, (now, before))| now != before)
+            .map(|(c, (now, before))| (c, *now, *before));
+        if let Some((c, now, before)) = changed {
+            let name = (self.preset.cameras.get(c)).map_or("?", |(name, _)| name.as_str());
+            return Err(self.bad(
+                time_ns,
+                format!(
+                    "camera {name} is {}x{} where earlier frames are {}x{} (width x height)",
+                    now.1, now.0, before.1, before.0
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Encodes the pending frames' images in parallel into steps.
+    fn encode(&mut self) -> Result<(), IngestError> {
+        let pending = std::mem::take(&mut self.pending);
+        let steps: Vec<Result<Step, (i64, String)>> = pending
+            .into_par_iter()
+            .map(|(time_ns, frame)| step(frame).map_err(|problem| (time_ns, problem)))
+            .collect();
+        for step in steps {
+            let step = step.map_err(|(time_ns, problem)| self.bad(time_ns, problem))?;
+            self.steps.push(step);
+        }
+        Ok(())
+    }
+}
+
+/// A step of a frame's features, in feature order: each camera (PNG), then state and action.
+/// Every feature is one of the dataset's own (not surgvla's simulated ones), as any format
+/// reads a dataset another tool made.
+fn step(frame: DvrkFrame) -> Result<Step, String> {
+    let mut step = Step::empty();
+    for image in frame.images {
+        let png = crate::media::image::encode_png(
+            image.width,
+            image.height,
+            3,
+            &image.rgb,
+            crate::media::image::PngLevel::Fast,
+        )
+        .map_err(|e| e.to_string())?;
+        step.other.push(FeatureValue::Image(png));
+    }
+    step.other.push(FeatureValue::Float32(frame.state));
+    step.other.push(FeatureValue::Float32(frame.action));
+    Ok(step)
+}
