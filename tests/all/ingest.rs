@@ -13,19 +13,24 @@ fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
-fn ingest(out: &Path, extra: &[&str]) -> (i32, String, String) {
-    let (bag, mcap) = (fixture("ros1_raw_lz4.bag"), fixture("single_png.mcap"));
-    let mut args = vec![
-        "ingest",
-        bag.to_str().expect("utf-8"),
-        mcap.to_str().expect("utf-8"),
-        "--camera",
-        "left=/camera/left/image",
-        "--out",
-        out.to_str().expect("utf-8"),
-    ];
+/// `surgvla ingest INPUTS --camera CAMERA --out OUT EXTRA...`.
+fn ingest_with(
+    inputs: &[&Path],
+    camera: &str,
+    out: &Path,
+    extra: &[&str],
+) -> (i32, String, String) {
+    let mut args = vec!["ingest"];
+    args.extend(inputs.iter().map(|p| p.to_str().expect("utf-8")));
+    args.extend(["--camera", camera, "--out", out.to_str().expect("utf-8")]);
     args.extend_from_slice(extra);
     surgvla(&args)
+}
+
+/// Both fixtures, the left camera.
+fn ingest(out: &Path, extra: &[&str]) -> (i32, String, String) {
+    let (bag, mcap) = (fixture("ros1_raw_lz4.bag"), fixture("single_png.mcap"));
+    ingest_with(&[&bag, &mcap], "left=/camera/left/image", out, extra)
 }
 
 #[test]
@@ -181,14 +186,7 @@ fn bad_input_is_named_and_leaves_no_dataset_that_looks_complete() {
     // A topic the recording lacks: the data is not what was asked (exit 1).
     let out = root.join("missing");
     let bag = fixture("ros1_raw_lz4.bag");
-    let (code, _, stderr) = surgvla(&[
-        "ingest",
-        bag.to_str().expect("utf-8"),
-        "--camera",
-        "left=/camera/right/image",
-        "--out",
-        out.to_str().expect("utf-8"),
-    ]);
+    let (code, _, stderr) = ingest_with(&[&bag], "left=/camera/right/image", &out, &[]);
     assert_eq!(code, 1, "{stderr}");
     assert!(
         stderr.contains("ros1_raw_lz4.bag has no message on /camera/right/image"),
@@ -204,14 +202,7 @@ fn bad_input_is_named_and_leaves_no_dataset_that_looks_complete() {
         let input = root.join(name);
         std::fs::write(&input, content).expect("write");
         let out = root.join(format!("{name}-out"));
-        let (code, _, stderr) = surgvla(&[
-            "ingest",
-            input.to_str().expect("utf-8"),
-            "--camera",
-            "left=/camera/left/image",
-            "--out",
-            out.to_str().expect("utf-8"),
-        ]);
+        let (code, _, stderr) = ingest_with(&[&input], "left=/camera/left/image", &out, &[]);
         assert_eq!(code, 1, "{name}: {stderr}");
         assert!(
             stderr.contains(name) && stderr.contains("byte"),
@@ -221,48 +212,17 @@ fn bad_input_is_named_and_leaves_no_dataset_that_looks_complete() {
     }
     // What the user gave: exit 2.
     let out = root.join("usage");
-    let out_text = out.to_str().expect("utf-8");
-    let bag_text = bag.to_str().expect("utf-8");
-    for args in [
-        vec![
-            "ingest",
-            bag_text,
-            "--camera",
-            "left=/camera/left/image",
-            "--out",
-            out_text,
-            "--time-offset",
-            "/nope=5",
-        ],
-        vec!["ingest", bag_text, "--camera", "left", "--out", out_text],
-        vec![
-            "ingest",
-            bag_text,
-            "--camera",
-            "a/b=/camera/left/image",
-            "--out",
-            out_text,
-        ],
-        vec![
-            "ingest",
-            "/no/such.bag",
-            "--camera",
-            "left=/camera/left/image",
-            "--out",
-            out_text,
-        ],
-        vec![
-            "ingest",
-            bag_text,
-            "--camera",
-            "left=/camera/left/image",
-            "--out",
-            out_text,
-            "--tolerance-ms",
-            "0",
-        ],
+    let left = "left=/camera/left/image";
+    let nowhere = Path::new("/no/such.bag");
+    for (input, camera, extra) in [
+        (bag.as_path(), left, &["--time-offset", "/nope=5"][..]),
+        (&bag, "left", &[]),
+        (&bag, "a/b=/camera/left/image", &[]),
+        (nowhere, left, &[]),
+        (&bag, left, &["--tolerance-ms", "0"]),
     ] {
-        let (code, _, stderr) = surgvla(&args);
+        let (code, _, stderr) = ingest_with(&[input], camera, &out, extra);
+        let args = (input, camera, extra);
         assert_eq!(code, 2, "{args:?}: {stderr}");
         assert!(!out.exists());
     }
@@ -280,18 +240,9 @@ fn a_time_offset_and_the_receive_clock_move_the_grid() {
     let bag = fixture("ros1_raw_lz4.bag");
     let run = |name: &str, extra: &[&str]| {
         let out = root.join(name);
-        let mut args = vec![
-            "ingest",
-            bag.to_str().expect("utf-8"),
-            "--camera",
-            "left=/camera/left/image",
-            "--task",
-            "suture",
-            "--out",
-            out.to_str().expect("utf-8"),
-        ];
+        let mut args = vec!["--task", "suture"];
         args.extend_from_slice(extra);
-        let (code, _, stderr) = surgvla(&args);
+        let (code, _, stderr) = ingest_with(&[&bag], "left=/camera/left/image", &out, &args);
         assert_eq!(code, 0, "{stderr}");
         report(&out)
     };

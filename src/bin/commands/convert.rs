@@ -6,12 +6,12 @@ use crate::error::CliError;
 use crate::formats::Format;
 use crate::formats::FormatArgs;
 use clap::{Args, ValueEnum};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use surgvla::episode::FeatureKind;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::dir::after_failure;
 use surgvla::export::open::ConvertInput;
-use surgvla::export::{SinkOptions, open_sink, resumes};
+use surgvla::export::{EpisodeSink, SinkOptions, open_sink, resumes};
 
 #[derive(Args, Debug)]
 pub(crate) struct ConvertArgs {
@@ -104,19 +104,63 @@ fn verify(
 ) -> Result<(), CliError> {
     let mut source = args.input().open(options)?;
     let differences = surgvla::export::verify::verify_output(source.as_mut(), &args.out, summary)?;
+    verified(&differences, &args.out, &args.input.display().to_string())
+}
+
+/// Prints `--verify`'s outcome: any difference is invalid data, naming `out` and `input`.
+pub(crate) fn verified(differences: &[String], out: &Path, input: &str) -> Result<(), CliError> {
     if differences.is_empty() {
         say!("verified: the output holds what was read");
         return Ok(());
     }
-    for difference in &differences {
+    for difference in differences {
         say!("difference: {difference}");
     }
     Err(CliError::invalid(format!(
-        "{} does not hold what {} holds ({} differences)",
-        args.out.display(),
-        args.input.display(),
+        "{} does not hold what {input} holds ({} differences)",
+        out.display(),
         differences.len()
     )))
+}
+
+/// The output of a conversion (or ingest) of `info` into `out`, started or resumed, saying
+/// where a resume starts; with whether `out` was made here and whether it resumes.
+pub(crate) fn open_output(
+    out: &Path,
+    info: &surgvla::export::DatasetInfo,
+    options: &dyn SinkOptions,
+    resume: bool,
+) -> Result<(Box<dyn EpisodeSink + Send>, Output), CliError> {
+    let output = Output {
+        resuming: resumes(out, resume),
+        created: !out.exists(),
+    };
+    let sink = open_sink(out, info, options, resume)?;
+    if output.resuming {
+        eprintln!(
+            "resuming {} at episode {}",
+            out.display(),
+            sink.next_episode_index()
+        );
+    }
+    Ok((sink, output))
+}
+
+/// How an output was opened: what a failure leaves of it depends on it.
+#[derive(Clone, Copy)]
+pub(crate) struct Output {
+    pub resuming: bool,
+    pub created: bool,
+}
+
+impl Output {
+    /// The error of a failed conversion into `out`, saying whether `--resume` continues it.
+    pub(crate) fn failed(self, error: ConvertError, out: &Path) -> CliError {
+        let usage = surgvla::error::HasKind::kind(&error) == surgvla::error::ErrorKind::Usage;
+        let write = matches!(error, ConvertError::Write(_));
+        let resumable = after_failure(out, self.created, self.resuming, usage, write);
+        CliError::from(error).resumable(resumable)
+    }
 }
 
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
@@ -124,16 +168,7 @@ pub(crate) fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
     let mut source = args.input().open(options.as_ref())?;
     let info = source.info().clone();
-    let resuming = resumes(&args.out, args.resume);
-    let created = !args.out.exists();
-    let mut sink = open_sink(&args.out, &info, options.as_ref(), args.resume)?;
-    if resuming {
-        eprintln!(
-            "resuming {} at episode {}",
-            args.out.display(),
-            sink.next_episode_index()
-        );
-    }
+    let (mut sink, output) = open_output(&args.out, &info, options.as_ref(), args.resume)?;
     let bar = crate::progress::episode_bar(source.len(), "converting");
     let threads = args.threads.unwrap_or(0);
     let mut trimmed = crate::memory::Trimmer::default();
@@ -142,12 +177,7 @@ pub(crate) fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
             bar.set_position(done);
             trimmed.after_episodes(done);
         })
-        .map_err(|e| {
-            let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
-            let write = matches!(e, ConvertError::Write(_));
-            let resumable = after_failure(&args.out, created, resuming, usage, write);
-            CliError::from(e).resumable(resumable)
-        })?;
+        .map_err(|e| output.failed(e, &args.out))?;
     bar.finish_and_clear();
     say!(
         "converted {} episodes, {} frames from {} to {} ({} files, {:.1} MB)",

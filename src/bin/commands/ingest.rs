@@ -2,14 +2,14 @@
 //! any format surgvla writes, synchronised by the stated rule, with a report per input (the
 //! library reads, plans, converts and verifies; here are the flags and the printing).
 
+use crate::commands::convert::open_output;
 use crate::error::CliError;
 use crate::formats::{Format, FormatArgs};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surgvla::export::collection::Shard;
 use surgvla::export::convert::ConvertError;
-use surgvla::export::dir::after_failure;
-use surgvla::export::{EpisodeSink, EpisodeSource, Summary, open_sink, resumes};
+use surgvla::export::{EpisodeSink, EpisodeSource, Summary};
 use surgvla::ingest::dvrk::DvrkPreset;
 use surgvla::ingest::source::{IngestOptions, IngestSource};
 use surgvla::ingest::stamps::Clock;
@@ -200,18 +200,7 @@ impl IngestArgs {
 fn verify(args: &IngestArgs, summary: &Summary) -> Result<(), CliError> {
     let mut source = args.open()?;
     let differences = surgvla::export::verify::verify_output(&mut source, &args.out, summary)?;
-    if differences.is_empty() {
-        say!("verified: the output holds what was read");
-        return Ok(());
-    }
-    for difference in &differences {
-        say!("difference: {difference}");
-    }
-    Err(CliError::invalid(format!(
-        "{} does not hold what the recordings hold ({} differences)",
-        args.out.display(),
-        differences.len()
-    )))
+    crate::commands::convert::verified(&differences, &args.out, "the recordings")
 }
 
 /// `surgvla ingest INPUT... --out DIR`.
@@ -230,22 +219,9 @@ pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
     }
     let files = source.sync_files(args.to.0)?;
     let info = source.info().clone();
-    let resuming = resumes(&args.out, args.resume);
-    let created = !args.out.exists();
-    let mut sink = open_sink(&args.out, &info, options.as_ref(), args.resume)?;
-    if resuming {
-        eprintln!(
-            "resuming {} at episode {}",
-            args.out.display(),
-            sink.next_episode_index()
-        );
-    }
-    let summary = write(args, &mut source, sink.as_mut(), files).map_err(|e| {
-        let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
-        let write = matches!(e, ConvertError::Write(_));
-        let resumable = after_failure(&args.out, created, resuming, usage, write);
-        CliError::from(e).resumable(resumable)
-    })?;
+    let (mut sink, output) = open_output(&args.out, &info, options.as_ref(), args.resume)?;
+    let summary =
+        write(args, &mut source, sink.as_mut(), files).map_err(|e| output.failed(e, &args.out))?;
     say!(
         "ingested {} episodes, {} frames from {} recordings into {} ({} files, {:.1} MB)",
         summary.episodes,
