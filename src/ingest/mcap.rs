@@ -1,8 +1,8 @@
 //! ROS recordings in MCAP (rosbag2's default storage since Iron, and single `.mcap` files),
 //! read as a stream with the `mcap` crate's sans-io linear reader: channels of message encoding
 //! `cdr` with `ros2msg` schemas (ROS 2) or `ros1` with `ros1msg` (ROS 1 data in MCAP), their
-//! messages in file order. Chunks may be uncompressed or zstd; lz4 chunks are refused by name
-//! (the crate's lz4 decoder compiles C).
+//! messages in file order. Chunks may be uncompressed, zstd or lz4 (decoded in pure Rust by
+//! [`crate::ingest::lz4chunk`]; the crate's own lz4 decoder compiles C).
 //!
 //! The file is untrusted: records are limited to [`MAX_RECORD_BYTES`] before they are buffered,
 //! chunk CRCs are checked, a channel of another encoding is refused when its first message
@@ -46,10 +46,13 @@ impl McapRecording {
         let options = LinearReaderOptions::default()
             .with_validate_chunk_crcs(true)
             .with_record_length_limit(MAX_RECORD_BYTES);
+        let mut reader = LinearReader::new_with_options(options);
+        // Registering a named, non-empty decompressor cannot fail.
+        let _ = reader.add_decompressor(crate::ingest::lz4chunk::Lz4Chunks::default());
         McapRecording {
             path: path.to_path_buf(),
             file,
-            reader: LinearReader::new_with_options(options),
+            reader,
             offset: 0,
             schemas: BTreeMap::new(),
             channels: BTreeMap::new(),

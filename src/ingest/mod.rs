@@ -1,7 +1,7 @@
 //! Robot recordings in: the readers `surgvla ingest` builds on. ROS message definitions
 //! ([`msgdef`], with [`builtin`] definitions of the common types for bags that carry none), the
 //! two wire formats decoded by definition ([`decode`]: ROS 1 and CDR), recordings read as
-//! streams of [`recording`]'s channels and messages (ROS 1 bags: [`ros1`]; MCAP: [`mcap`]; ROS 2
+//! streams of [`recording`]'s channels and messages (ROS 1 bags: [`ros1`]; MCAP: [`mcap`], lz4 chunks by [`lz4chunk`]; ROS 2
 //! bag folders: [`rosbag2`]; any of them through [`open`]), features taken from decoded messages
 //! ([`extract`]: poses, joints, images, depth), the first pass over a recording for each
 //! topic's times ([`stamps`]), the synchronisation rule that puts them on frames ([`sync`]),
@@ -22,6 +22,7 @@ pub mod extract;
 #[cfg(test)]
 pub(crate) mod fixtures;
 pub mod frames;
+pub mod lz4chunk;
 pub mod mcap;
 pub mod msgdef;
 pub mod open;

@@ -1,13 +1,17 @@
 """Writes the ingest test corpus with the real writers of bags: rosbags (ROS 1 bags, ROS 2 bags
 in sqlite3 and mcap storage) and mcap-ros2-support (a single ROS 2 MCAP file).
 
-Usage: make_bags.py OUT_DIR [--bench SECONDS]. Writes OUT_DIR/<name>(.bag|.mcap|/) and OUT_DIR/<name>.json: every
-planted message per topic (header stamp, receive time, the values it carries), from which the
-check (test_ingest.py) works out the synchronisation rule's frames on its own.
+Usage: make_bags.py OUT_DIR [--bench SECONDS]. Writes OUT_DIR/<name>(.bag|.mcap|/) and
+OUT_DIR/<name>.json: every planted message per topic (header stamp, receive time, the values it
+carries), from which the check (test_ingest_lerobot.py) works out the synchronisation rule's
+frames on its own.
 
-The sessions: a dVRK arm at ~100 Hz with jitter (measured and setpoint poses and jaws), cameras
-at ~30 Hz (raw rgb8 / bgr8 / mono8, JPEG and PNG compressed), a camera dropout of 0.4 s, two
-out-of-order stamps, an unmapped topic, an /instruction topic, a session split over two files.
+The sessions: ROS 1 bags with lz4 and bz2 chunks, a ROS 2 sqlite3 bag split over two files
+without definitions, a ROS 2 bag in mcap storage, a single MCAP file with lz4 chunks, a
+bimanual ROS 1 bag (PSM1 and PSM2, two cameras). Each has
+a dVRK arm at ~100 Hz with jitter (measured and setpoint poses and jaws), a camera at ~30 Hz
+(raw rgb8 / bgr8 / mono8, JPEG and PNG compressed) with a dropout of 0.4 s and two out-of-order
+stamps, an unmapped topic and an /instruction topic.
 """
 
 import json
@@ -123,11 +127,21 @@ def image_msg(ts, ros1, ns, k, encoding):
     return Img(header=header(ts, ros1, ns, "camera"), height=HEIGHT, width=WIDTH, encoding=encoding, is_bigendian=0, step=step, data=np.ascontiguousarray(pixels).reshape(-1))
 
 
-def session_messages(ts, ros1, seed, encoding, transform=False, **kwargs):
+def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, **kwargs):
     """Every message of a session, in receive order: (topic, type, receive ns, msg) and the
-    expected record."""
+    expected record, with the arguments `surgvla ingest` takes for it. A bimanual session has
+    PSM2 too (its values offset by 1) and a second camera (mono8, its pattern 100 frames on)."""
     streams = plan_session(seed, **kwargs)
-    out, expected = [], {"camera_encoding": encoding, "streams": {}}
+    arms = ["PSM1", "PSM2"] if bimanual else ["PSM1"]
+    cameras = [["left", "/camera/left/image", encoding, 0]]
+    if bimanual:
+        cameras.append(["right", "/camera/right/image", "mono8", 100])
+    out = []
+    expected = {"arms": arms, "cameras": cameras, "streams": {}, "ingest_args": []}
+    for arm in arms if bimanual else []:
+        expected["ingest_args"] += ["--arm", arm]
+    for name, topic, _, _ in cameras:
+        expected["ingest_args"] += ["--camera", f"{name}={topic}"]
 
     def add(topic, msgtype, times, make, value):
         expected["streams"][topic] = []
@@ -136,12 +150,14 @@ def session_messages(ts, ros1, seed, encoding, transform=False, **kwargs):
             expected["streams"][topic].append({"stamp": stamp, "receive": receive, "value": value(k)})
 
     pose_type = "geometry_msgs/msg/TransformStamped" if transform else "geometry_msgs/msg/PoseStamped"
-    add("/PSM1/measured_cp", pose_type, streams["arm"], lambda k, s: pose_msg(ts, ros1, s, pose_values(k, 0.0), transform), lambda k: pose_values(k, 0.0))
-    add("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState", streams["arm"], lambda k, s: joint_msg(ts, ros1, s, 0.3 + 0.001 * k), lambda k: 0.3 + 0.001 * k)
-    add("/PSM1/setpoint_cp", pose_type, streams["setpoint"], lambda k, s: pose_msg(ts, ros1, s, pose_values(k, 0.5), transform), lambda k: pose_values(k, 0.5))
-    add("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState", streams["setpoint"], lambda k, s: joint_msg(ts, ros1, s, 0.7 - 0.002 * k), lambda k: 0.7 - 0.002 * k)
-    msgtype = "sensor_msgs/msg/CompressedImage" if encoding in ("jpeg", "png") else "sensor_msgs/msg/Image"
-    add("/camera/left/image", msgtype, streams["camera"], lambda k, s: image_msg(ts, ros1, s, k, encoding), lambda k: k)
+    for a, arm in enumerate(arms):
+        add(f"/{arm}/measured_cp", pose_type, streams["arm"], lambda k, s, a=a: pose_msg(ts, ros1, s, pose_values(k, a), transform), lambda k, a=a: pose_values(k, a))
+        add(f"/{arm}/jaw/measured_js", "sensor_msgs/msg/JointState", streams["arm"], lambda k, s, a=a: joint_msg(ts, ros1, s, 0.3 + 0.001 * k + a), lambda k, a=a: 0.3 + 0.001 * k + a)
+        add(f"/{arm}/setpoint_cp", pose_type, streams["setpoint"], lambda k, s, a=a: pose_msg(ts, ros1, s, pose_values(k, 0.5 + a), transform), lambda k, a=a: pose_values(k, 0.5 + a))
+        add(f"/{arm}/jaw/setpoint_js", "sensor_msgs/msg/JointState", streams["setpoint"], lambda k, s, a=a: joint_msg(ts, ros1, s, 0.7 - 0.002 * k + a), lambda k, a=a: 0.7 - 0.002 * k + a)
+    for _, topic, camera_encoding, shift in cameras:
+        msgtype = "sensor_msgs/msg/CompressedImage" if camera_encoding in ("jpeg", "png") else "sensor_msgs/msg/Image"
+        add(topic, msgtype, streams["camera"], lambda k, s, e=camera_encoding, d=shift: image_msg(ts, ros1, s, k + d, e), lambda k, d=shift: k + d)
     String = ts.types["std_msgs/msg/String"]
     out.append((START_NS, "/instruction", "std_msgs/msg/String", String(data="grasp the needle")))
     # A type without a header: its time is when it was received.
@@ -151,9 +167,9 @@ def session_messages(ts, ros1, seed, encoding, transform=False, **kwargs):
     return out, expected
 
 
-def write_ros1(path, seed, encoding, compression):
+def write_ros1(path, seed, encoding, compression, bimanual=False):
     ts = get_typestore(Stores.ROS1_NOETIC)
-    messages, expected = session_messages(ts, True, seed, encoding)
+    messages, expected = session_messages(ts, True, seed, encoding, bimanual=bimanual)
     writer = Ros1Writer(path)
     if compression:
         writer.set_compression(getattr(Ros1Writer.CompressionFormat, compression))
@@ -224,8 +240,10 @@ def write_single_mcap(path, seed, encoding):
     ts = get_typestore(Stores.ROS2_HUMBLE)
     messages, expected = session_messages(ts, False, seed, encoding)
     schemas = {}
+    from mcap.writer import CompressionType
     with open(path, "wb") as f:
-        writer = McapWriter(f)
+        # lz4 chunks (the Python writer links blocks, as lz4.frame does by default).
+        writer = McapWriter(f, compression=CompressionType.LZ4)
         for receive, topic, msgtype, msg in messages:
             if msgtype not in schemas:
                 schemas[msgtype] = writer.register_msgdef(msgtype, ts.generate_msgdef(msgtype, ros_version=2)[0])
@@ -252,6 +270,7 @@ SESSIONS = {
     "ros2_sqlite_split": (write_ros2, dict(seed=3, encoding="bgr8", storage="sqlite3", split=True, transform=True)),
     "ros2_mcap_jpeg": (write_ros2, dict(seed=4, encoding="jpeg", storage="mcap")),
     "single_png.mcap": (write_single_mcap, dict(seed=5, encoding="png")),
+    "ros1_bimanual.bag": (write_ros1, dict(seed=6, encoding="rgb8", compression=None, bimanual=True)),
 }
 
 

@@ -20,9 +20,16 @@ FPS = int(os.environ.get("SURGVLA_INGEST_FPS", "30"))
 TOLERANCE_NS = 1_500_000_000 // FPS
 WIDTH, HEIGHT = 32, 24
 NAMES = sorted(p.name[: -len(".json")] for p in CORPUS.glob("*.json"))
-SAMPLED = ["/PSM1/measured_cp", "/PSM1/jaw/measured_js", "/camera/left/image"]
-# The instruction is an event too (the datasets are made without --task).
-EVENTS = ["/PSM1/setpoint_cp", "/PSM1/jaw/setpoint_js", "/instruction"]
+
+
+def topics(expected):
+    """The sampled and the event streams of a session."""
+    arms, cameras = expected["arms"], expected["cameras"]
+    sampled = [t for arm in arms for t in (f"/{arm}/measured_cp", f"/{arm}/jaw/measured_js")]
+    sampled += [topic for _, topic, _, _ in cameras]
+    # The instruction is an event too (the datasets are made without --task).
+    events = [t for arm in arms for t in (f"/{arm}/setpoint_cp", f"/{arm}/jaw/setpoint_js")]
+    return sampled, events + ["/instruction"]
 
 
 def pattern(k):
@@ -33,8 +40,10 @@ def pattern(k):
     return np.stack([r, g, b], axis=-1).astype(np.uint8)
 
 
-def rule(streams):
+def rule(expected):
     """The frames the stated rule makes: episodes of {topic: message} per frame."""
+    streams = expected["streams"]
+    SAMPLED, EVENTS = topics(expected)
     start = max(min(m["stamp"] for m in streams[t]) for t in SAMPLED)
     end = min(max(m["stamp"] for m in streams[t]) for t in SAMPLED)
     episodes, current, k = [], [], 0
@@ -67,13 +76,13 @@ def rule(streams):
 @pytest.mark.parametrize("name", NAMES)
 def test_every_frame_is_the_rules_message(name):
     expected = json.loads((CORPUS / f"{name}.json").read_text())
-    episodes = rule(expected["streams"])
+    episodes = rule(expected)
+    arms, cameras = expected["arms"], expected["cameras"]
     dataset = LeRobotDataset(repo_id=f"local/{name}", root=OUT / name)
     assert dataset.meta.total_episodes == len(episodes)
     assert dataset.num_frames == sum(len(e) for e in episodes)
     names = dataset.meta.features["observation.state"]["names"]
-    assert names == ["PSM1.x", "PSM1.y", "PSM1.z", "PSM1.qx", "PSM1.qy", "PSM1.qz", "PSM1.qw", "PSM1.jaw"]
-    encoding = expected["camera_encoding"]
+    assert names == [f"{arm}.{v}" for arm in arms for v in ("x", "y", "z", "qx", "qy", "qz", "qw", "jaw")]
     index = 0
     for e, frames in enumerate(episodes):
         for f, frame in enumerate(frames):
@@ -81,18 +90,19 @@ def test_every_frame_is_the_rules_message(name):
             index += 1
             assert int(item["episode_index"]) == e and int(item["frame_index"]) == f
             assert abs(float(item["timestamp"]) - f / FPS) < 1e-4
-            state = frame["/PSM1/measured_cp"]["value"] + [frame["/PSM1/jaw/measured_js"]["value"]]
-            action = frame["/PSM1/setpoint_cp"]["value"] + [frame["/PSM1/jaw/setpoint_js"]["value"]]
+            state = [v for arm in arms for v in frame[f"/{arm}/measured_cp"]["value"] + [frame[f"/{arm}/jaw/measured_js"]["value"]]]
+            action = [v for arm in arms for v in frame[f"/{arm}/setpoint_cp"]["value"] + [frame[f"/{arm}/jaw/setpoint_js"]["value"]]]
             np.testing.assert_allclose(item["observation.state"].numpy(), np.float32(state), rtol=0, atol=0)
             np.testing.assert_allclose(item["action"].numpy(), np.float32(action), rtol=0, atol=0)
-            image = (item["observation.images.left"].numpy().transpose(1, 2, 0) * 255).round().astype(np.int32)
-            want = pattern(frame["/camera/left/image"]["value"]).astype(np.int32)
-            if encoding == "mono8":
-                want = np.repeat(want[:, :, :1], 3, axis=2)
-            if encoding == "jpeg":
-                assert np.abs(image - want).mean() < 6, f"episode {e} frame {f}"
-            else:
-                assert (image == want).all(), f"episode {e} frame {f}"
+            for camera, topic, encoding, _ in cameras:
+                image = (item[f"observation.images.{camera}"].numpy().transpose(1, 2, 0) * 255).round().astype(np.int32)
+                want = pattern(frame[topic]["value"]).astype(np.int32)
+                if encoding == "mono8":
+                    want = np.repeat(want[:, :, :1], 3, axis=2)
+                if encoding == "jpeg":
+                    assert np.abs(image - want).mean() < 6, f"{camera}: episode {e} frame {f}"
+                else:
+                    assert (image == want).all(), f"{camera}: episode {e} frame {f}"
             assert item["task"] == "grasp the needle"
 
 
@@ -105,6 +115,6 @@ def test_the_report_names_the_dropout(name):
     start = 1_700_000_000_000_000_000
     assert any(g["start"] < start + 1_200_000_000 and g["end"] >= start + 1_600_000_000 for g in camera["gaps"]), camera["gaps"]
     assert camera["out_of_order"] == 1
-    assert report["episodes"] == [len(e) for e in rule(json.loads((CORPUS / f"{name}.json").read_text())["streams"])]
+    assert report["episodes"] == [len(e) for e in rule(json.loads((CORPUS / f"{name}.json").read_text()))]
     card = (OUT / name / "README.md").read_text()
     assert "Synchronisation" in card and "/camera/left/image" in card
