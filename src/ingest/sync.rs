@@ -479,12 +479,9 @@ mod tests {
         for s in &mut far {
             s.stamps_ns.push(YEAR_2262);
         }
-        let started = std::time::Instant::now();
+        // 2.7e11 grid times: a frame-by-frame walk would not return (no timed assertion; the
+        // counts below are what the step over the gap must get right).
         let plan = plan(&far, &SyncOptions::at(30)).expect("plan");
-        assert!(
-            started.elapsed().as_secs() < 5,
-            "no frame-by-frame walk over the gap"
-        );
         // 0, 33, 100 and 133 ms (66 ms is 66 ms old), then the frame at the far stamps.
         assert_eq!(plan.report.episodes, [2, 2, 1]);
         let grid = Grid::new(0, YEAR_2262, 30);
