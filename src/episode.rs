@@ -24,6 +24,8 @@ pub enum Dtype {
     Int64,
     /// An RGB or grey image stored as encoded bytes (PNG, or TIFF for float depth).
     Image,
+    /// One UTF-8 text per step (e.g. Open-H's per-frame `instruction.text`), shape `[1]`.
+    String,
 }
 
 /// What a feature holds and how it is stored.
@@ -59,6 +61,10 @@ pub struct FeatureSpec {
     /// An image feature its source stores as video in this codec: its frames travel encoded in
     /// [`Episode::encoded`], not as pixels in the steps (nothing here decodes video).
     pub video: Option<VideoCodec>,
+    /// Facts about the feature beyond its values, kept by formats that have room for them
+    /// (LeRobot: the feature's `info` in `info.json`): a pose's `frame_id`, a camera's
+    /// intrinsics, a depth map's unit. Empty for most features.
+    pub info: serde_json::Map<String, serde_json::Value>,
 }
 
 impl FeatureSpec {
@@ -199,6 +205,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
         names: names(&["height", "width", "channels"]),
         kind,
         video: None,
+        info: Default::default(),
     };
     let mut features = vec![image("observation.images.endoscope", 3, FeatureKind::Rgb)];
     if set.depth {
@@ -227,6 +234,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
         ]),
         kind: FeatureKind::State,
         video: None,
+        info: Default::default(),
     });
     if set.environment_state {
         features.push(FeatureSpec {
@@ -236,6 +244,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
             names: environment_names,
             kind: FeatureKind::EnvironmentState,
             video: None,
+            info: Default::default(),
         });
     }
     features.push(FeatureSpec {
@@ -253,6 +262,7 @@ pub fn standard_features(height_px: usize, width_px: usize, set: FeatureSet) -> 
         ]),
         kind: FeatureKind::Action,
         video: None,
+        info: Default::default(),
     });
     features
 }
@@ -446,6 +456,8 @@ pub enum FeatureValue {
     Int64(Vec<i64>),
     /// An encoded image (PNG or JPEG), passed through as stored.
     Image(Vec<u8>),
+    /// A [`Dtype::String`] feature's text.
+    Text(String),
 }
 
 /// Per-step facts the simulator knows beyond the dataset features, for formats that have room
@@ -550,6 +562,7 @@ impl Episode {
                     (Dtype::Float32, FeatureValue::Float32(v)) => v.len() == elements,
                     (Dtype::Int64, FeatureValue::Int64(v)) => v.len() == elements,
                     (Dtype::Image, FeatureValue::Image(bytes)) => !bytes.is_empty(),
+                    (Dtype::String, FeatureValue::Text(_)) => elements == 1,
                     _ => false,
                 };
                 if !fits {

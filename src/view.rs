@@ -256,5 +256,6 @@ pub fn dataset_info(
         }),
         input: None,
         provenance: Vec::new(),
+        splits: Vec::new(),
     }
 }

@@ -360,6 +360,29 @@ impl FormatArgs {
         options.check()?;
         Ok(options)
     }
+
+    /// The LeRobot options Open-H asks for (`--profile open-h`): layout 2.1 in video mode
+    /// (H.264 unless `--video` names another codec); layout 3.0 or another format's option is
+    /// a usage error.
+    pub(crate) fn open_h_options(&self, format: Format) -> Result<Box<dyn SinkOptions>, CliError> {
+        if format.0.name() != "lerobot" {
+            return Err(CliError::usage(format!(
+                "--profile open-h writes LeRobot (Open-H's format), not {}",
+                format.0.name()
+            )));
+        }
+        self.sink_options(format, "--to")?;
+        if matches!(self.lerobot.lerobot_version, Some(LayoutVersion::V30)) {
+            return Err(CliError::usage(
+                "--profile open-h writes LeRobot 2.1 (Open-H's validator loads it with lerobot 0.3.3), not --lerobot-version 3.0",
+            ));
+        }
+        let mut options = self.lerobot.options();
+        options.version = LeRobotVersion::V21;
+        options.video.get_or_insert_with(VideoOptions::h264);
+        options.check()?;
+        Ok(Box::new(options))
+    }
 }
 
 #[cfg(test)]

@@ -415,6 +415,7 @@ mod tests {
             dtype: Dtype::Float32,
             shape: vec![7],
             video: None,
+            info: Default::default(),
             names: Vec::new(),
         }];
         DatasetInfo::from_surgvla_json(&surgvla, 5, "dvrk_psm", features)

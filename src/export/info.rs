@@ -37,6 +37,10 @@ pub struct DatasetInfo {
     /// elsewhere, e.g. how `ingest` synchronised a robot's recordings; not part of the options
     /// digest.
     pub provenance: Vec<String>,
+    /// Named ranges of episode indices (`train`, `val`, `recovery`, ...) as the user stated
+    /// them, e.g. for Open-H; empty: every episode is `train`. Written where a format has room
+    /// (LeRobot's `splits` in info.json).
+    pub splits: Vec<(String, std::ops::Range<u64>)>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -63,6 +67,11 @@ impl DatasetInfo {
     /// Whether the dataset has a feature of `kind`.
     pub fn has(&self, kind: FeatureKind) -> bool {
         self.feature(kind).is_some()
+    }
+
+    /// Whether `name` is a text feature ([`Dtype::String`]), which has no statistics.
+    pub fn is_text(&self, name: &str) -> bool {
+        (self.features.iter()).any(|f| f.name == name && f.dtype == Dtype::String)
     }
 
     /// Whether surgvla made the episodes (it says which program did); a dataset read from
@@ -136,6 +145,7 @@ impl DatasetInfo {
             tip_workspace: workspace_of(&surgvla["tip_workspace_m"]),
             input: None,
             provenance: Vec::new(),
+            splits: Vec::new(),
         }
     }
 

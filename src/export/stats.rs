@@ -1190,6 +1190,10 @@ impl FeatureStats {
                     feature.shape.get(2).copied().unwrap_or(1),
                 ))
             }
+            // Text has no statistics: no elements to gather (and none written).
+            FeatureKind::Other if feature.dtype == crate::episode::Dtype::String => {
+                FeatureStats::Vector(VectorStats::new(0))
+            }
             _ => FeatureStats::Vector(VectorStats::new(feature.shape.iter().product())),
         }
     }

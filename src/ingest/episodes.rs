@@ -19,6 +19,8 @@ pub struct Making<'a> {
     preset: &'a DvrkPreset,
     /// The task given; None: each episode's first instruction.
     task: Option<&'a str>,
+    /// Each frame's instruction as a text feature after the action.
+    text: bool,
     /// Each camera's (height, width), from the first frame.
     sizes: Option<Vec<(usize, usize)>>,
     /// Frames not yet encoded: (time, features).
@@ -35,6 +37,7 @@ impl<'a> Making<'a> {
         path: &'a Path,
         preset: &'a DvrkPreset,
         task: Option<&'a str>,
+        text: bool,
         sizes: Option<Vec<(usize, usize)>>,
         next_index: u64,
     ) -> Making<'a> {
@@ -42,6 +45,7 @@ impl<'a> Making<'a> {
             path,
             preset,
             task,
+            text,
             sizes,
             pending: Vec::with_capacity(BATCH_FRAMES),
             steps: Vec::new(),
@@ -120,9 +124,10 @@ impl<'a> Making<'a> {
     /// Encodes the pending frames' images in parallel into steps.
     fn encode(&mut self) -> Result<(), IngestError> {
         let pending = std::mem::take(&mut self.pending);
+        let text = self.text.then_some(self.task);
         let steps: Vec<Result<Step, (i64, String)>> = pending
             .into_par_iter()
-            .map(|(time_ns, frame)| step(frame).map_err(|problem| (time_ns, problem)))
+            .map(|(time_ns, frame)| step(frame, text).map_err(|problem| (time_ns, problem)))
             .collect();
         for step in steps {
             let step = step.map_err(|(time_ns, problem)| self.bad(time_ns, problem))?;
@@ -132,10 +137,11 @@ impl<'a> Making<'a> {
     }
 }
 
-/// A step of a frame's features, in feature order: each camera (PNG), then state and action.
-/// Every feature is one of the dataset's own (not surgvla's simulated ones), as any format
-/// reads a dataset another tool made.
-fn step(frame: DvrkFrame) -> Result<Step, String> {
+/// A step of a frame's features, in feature order: each camera (PNG), then state and action,
+/// then with `text` (Some(the task given)) the frame's instruction. Every feature is one of
+/// the dataset's own (not surgvla's simulated ones), as any format reads a dataset another
+/// tool made.
+fn step(frame: DvrkFrame, text: Option<Option<&str>>) -> Result<Step, String> {
     let mut step = Step::empty();
     for image in frame.images {
         let png = crate::media::image::encode_png(
@@ -150,5 +156,10 @@ fn step(frame: DvrkFrame) -> Result<Step, String> {
     }
     step.other.push(FeatureValue::Float32(frame.state));
     step.other.push(FeatureValue::Float32(frame.action));
+    if let Some(task) = text {
+        let instruction = task.map(String::from).or(frame.instruction);
+        step.other
+            .push(FeatureValue::Text(instruction.unwrap_or_default()));
+    }
     Ok(step)
 }

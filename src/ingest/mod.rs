@@ -7,8 +7,9 @@
 //! topic's times ([`stamps`]), the synchronisation rule that puts them on frames ([`sync`]),
 //! the second pass that hands each frame's picked messages over ([`frames`]), made into
 //! episodes ([`episodes`]) and reported in the dataset ([`report`]); [`dvrk`] maps a da Vinci
-//! Research Kit recording's topics to state, action, images and task, and [`source`] reads
-//! recordings as episodes any sink takes. Everything here reads untrusted files: sizes are
+//! Research Kit recording's topics to state, action, images and task, [`source`] reads
+//! recordings as episodes any sink takes, and [`openh`] writes what Open-H asks of a
+//! contribution besides the files (its README). Everything here reads untrusted files: sizes are
 //! checked before allocating, and a damaged input is an error naming the file and the offset.
 //!
 //! This file only declares the modules.
@@ -26,6 +27,7 @@ pub mod lz4chunk;
 pub mod mcap;
 pub mod msgdef;
 pub mod open;
+pub mod openh;
 pub mod recording;
 pub mod report;
 pub mod ros1;

@@ -34,6 +34,13 @@ pub struct IngestOptions {
     pub task: Option<String>,
     /// (topic, ns) added to a topic's times (`--time-offset`); every topic one the preset reads.
     pub offsets_ns: Vec<(String, i64)>,
+    /// Each frame's instruction as a text feature, `instruction.text` (Open-H's per-frame
+    /// instruction): the task given, else the latest instruction message at or before the
+    /// frame ("" before the first).
+    pub instruction_text: bool,
+    /// Named ranges of the dataset's episode indices (`--split`), checked against the episodes
+    /// the inputs make.
+    pub splits: Vec<(String, std::ops::Range<u64>)>,
 }
 
 impl IngestOptions {
@@ -120,6 +127,7 @@ impl IngestSource {
             });
         }
         let total = inputs.iter().map(|i| i.report.episodes.len() as u64).sum();
+        check_splits(&options.splits, total)?;
         let mut source = IngestSource {
             info: DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 0, "dvrk", Vec::new()),
             options,
@@ -136,6 +144,11 @@ impl IngestSource {
         source.make_next_input()?;
         source.info = source.dataset_info();
         Ok(source)
+    }
+
+    /// The options the recordings are read with.
+    pub fn options(&self) -> &IngestOptions {
+        &self.options
     }
 
     /// Each input's synchronisation report.
@@ -187,6 +200,7 @@ impl IngestSource {
                 names: ["height", "width", "channels"].map(String::from).to_vec(),
                 kind: FeatureKind::Other,
                 video: None,
+                info: Default::default(),
             }
         };
         let vector = |name: &str| FeatureSpec {
@@ -196,12 +210,24 @@ impl IngestSource {
             names: preset.value_names(),
             kind: FeatureKind::Other,
             video: None,
+            info: Default::default(),
         };
         let mut features: Vec<FeatureSpec> = (preset.cameras.iter().enumerate())
             .map(|(c, (name, _))| image(c, name))
             .collect();
         features.push(vector("observation.state"));
         features.push(vector("action"));
+        if self.options.instruction_text {
+            features.push(FeatureSpec {
+                name: INSTRUCTION_FEATURE.into(),
+                dtype: Dtype::String,
+                shape: vec![1],
+                names: Vec::new(),
+                kind: FeatureKind::Other,
+                video: None,
+                info: Default::default(),
+            });
+        }
         let mut info = DatasetInfo::from_surgvla_json(
             &serde_json::Value::Null,
             self.options.sync.fps,
@@ -212,6 +238,7 @@ impl IngestSource {
         // format), the card says where they came from.
         info.provenance = crate::ingest::report::provenance(&self.reports());
         info.input = Some(self.identity());
+        info.splits.clone_from(&self.options.splits);
         info
     }
 
@@ -231,6 +258,7 @@ impl IngestSource {
             &input.path,
             &self.options.preset,
             self.options.task.as_deref(),
+            self.options.instruction_text,
             self.image_sizes.take(),
             self.next_index,
         );
@@ -244,6 +272,37 @@ impl IngestSource {
             .extend(made.into_iter().skip(std::mem::take(&mut self.skipped)));
         Ok(())
     }
+}
+
+/// The per-frame instruction's feature name (Open-H's).
+pub const INSTRUCTION_FEATURE: &str = "instruction.text";
+
+/// Refuses a split that is empty, reaches past the `total` episodes, overlaps another or
+/// repeats a name.
+fn check_splits(splits: &[(String, std::ops::Range<u64>)], total: u64) -> Result<(), IngestError> {
+    for (i, (name, range)) in splits.iter().enumerate() {
+        let problem = if range.start >= range.end {
+            Some(format!("{}:{} holds no episode", range.start, range.end))
+        } else if range.end > total {
+            Some(format!(
+                "{}:{} reaches past the {total} episodes the inputs make",
+                range.start, range.end
+            ))
+        } else {
+            splits[..i].iter().find_map(|(other, earlier)| {
+                if other == name {
+                    Some("is given twice".to_string())
+                } else {
+                    (earlier.start < range.end && range.start < earlier.end)
+                        .then(|| format!("overlaps {other} ({}:{})", earlier.start, earlier.end))
+                }
+            })
+        };
+        if let Some(problem) = problem {
+            return Err(IngestError::Usage(format!("--split {name}: {problem}")));
+        }
+    }
+    Ok(())
 }
 
 /// The topics of `options`' preset in `path`, read once and planned: the instruction topic is
@@ -435,7 +494,59 @@ mod tests {
             },
             task: Some("cut the suture".into()),
             offsets_ns: Vec::new(),
+            instruction_text: false,
+            splits: Vec::new(),
         }
+    }
+
+    #[test]
+    fn splits_are_checked_against_the_episodes_made() {
+        let split = |name: &str, range: std::ops::Range<u64>| (name.to_string(), range);
+        assert!(check_splits(&[split("train", 0..8), split("recovery", 8..10)], 10).is_ok());
+        for (splits, problem) in [
+            (vec![split("train", 0..11)], "reaches past the 10 episodes"),
+            (vec![split("train", 4..4)], "holds no episode"),
+            (
+                vec![split("train", 0..5), split("val", 4..6)],
+                "overlaps train (0:5)",
+            ),
+            (
+                vec![split("train", 0..5), split("train", 5..6)],
+                "is given twice",
+            ),
+        ] {
+            let error = check_splits(&splits, 10).expect_err(problem).to_string();
+            assert!(error.contains(problem), "{error}");
+        }
+    }
+
+    #[test]
+    fn each_frame_carries_its_instruction_as_text_when_asked() {
+        let path = recording();
+        let mut with_text = options();
+        with_text.instruction_text = true;
+        with_text.splits = vec![("train".into(), 0..1)];
+        let mut source = IngestSource::open(std::slice::from_ref(&path), with_text).expect("open");
+        let info = source.info().clone();
+        let text = info.features.last().expect("features");
+        assert_eq!(
+            (text.name.as_str(), text.dtype),
+            (INSTRUCTION_FEATURE, Dtype::String)
+        );
+        assert_eq!(info.splits, [("train".to_string(), 0..1)]);
+        let episode = source.next().expect("an episode").expect("read");
+        for step in &episode.steps {
+            assert_eq!(
+                step.other.last(),
+                Some(&FeatureValue::Text("cut the suture".into()))
+            );
+        }
+        // A split past the episodes made is refused when the source opens.
+        let mut too_far = options();
+        too_far.splits = vec![("val".into(), 1..2)];
+        let error = IngestSource::open(std::slice::from_ref(&path), too_far).err();
+        assert!(error.is_some_and(|e| e.to_string().contains("reaches past")));
+        std::fs::remove_file(path).ok();
     }
 
     #[test]

@@ -131,6 +131,8 @@ fn an_interrupted_ingest_resumes_to_the_same_bytes() {
         sync: surgvla::ingest::sync::SyncOptions::at(30),
         task: None,
         offsets_ns: Vec::new(),
+        instruction_text: true,
+        splits: vec![("train".into(), 0..3), ("recovery".into(), 3..4)],
     };
     let every_episode = LeRobotOptions {
         data_file_size_mb: 0,
@@ -262,4 +264,86 @@ fn a_time_offset_and_the_receive_clock_move_the_grid() {
         episode.meta.instruction, "suture",
         "--task wins over /instruction"
     );
+}
+
+#[test]
+fn the_open_h_profile_writes_lerobot_2_1_video_with_its_readme_splits_and_instructions() {
+    let root = temp_root("ingest-open-h");
+    let out = root.join("suturing");
+    let splits = ["--split", "train=0:3", "--split", "recovery=3:4"];
+    let mut extra = vec!["--profile", "open-h", "--verify"];
+    extra.extend(splits);
+    let (code, stdout, stderr) = ingest(&out, &extra);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("verified"), "{stdout}");
+    let files = tree(&out);
+    let info: serde_json::Value =
+        serde_json::from_slice(&files["meta/info.json"]).expect("info.json");
+    assert_eq!(info["codebase_version"], "v2.1");
+    assert_eq!(
+        info["splits"],
+        serde_json::json!({"train": "0:3", "recovery": "3:4"})
+    );
+    assert_eq!(
+        info["features"]["observation.images.left"]["dtype"],
+        "video"
+    );
+    assert_eq!(
+        info["features"]["observation.images.left"]["info"]["video.codec"],
+        "h264"
+    );
+    assert_eq!(info["features"]["instruction.text"]["dtype"], "string");
+    assert!(
+        files
+            .keys()
+            .any(|f| f.starts_with("videos/") && f.ends_with(".mp4"))
+    );
+    // Text has no statistics.
+    let stats: serde_json::Value =
+        serde_json::from_slice(&files["meta/stats.json"]).expect("stats");
+    assert!(stats.get("instruction.text").is_none() && stats.get("action").is_some());
+    let readme = String::from_utf8(files["meta/README.md"].clone()).expect("utf-8");
+    for wanted in [
+        "# suturing - README",
+        "| **Total Trajectories** | `4` |",
+        "## ⏱️ Data Synchronization Approach",
+        "| `ros1_raw_lz4.bag` | `/camera/left/image` |",
+        "`recovery` 3:4",
+        "- [x] **Surgical Robotics**",
+    ] {
+        assert!(readme.contains(wanted), "{wanted:?} not in\n{readme}");
+    }
+    // Every frame's instruction, read back.
+    let mut back = surgvla::export::lerobot::read::LeRobotSource::open(&out).expect("read");
+    let episode = back.next().expect("an episode").expect("read");
+    assert_eq!(
+        episode.steps[0].other.last(),
+        Some(&FeatureValue::Text("grasp the needle".into()))
+    );
+    let (code, _, stderr) = surgvla(&["validate", out.to_str().expect("utf-8")]);
+    assert_eq!(code, 0, "{stderr}");
+    // What the profile cannot write is refused before anything is written.
+    for (extra, problem) in [
+        (
+            vec!["--profile", "open-h", "--to", "rlds"],
+            "writes LeRobot",
+        ),
+        (
+            vec!["--profile", "open-h", "--lerobot-version", "3.0"],
+            "not --lerobot-version 3.0",
+        ),
+        (vec!["--split", "train=0:5"], "reaches past the 4 episodes"),
+        (vec!["--split", "train=3"], "is not START:END"),
+        (
+            vec!["--split", "val=0:1", "--to", "rlds"],
+            "LeRobot's info.json",
+        ),
+    ] {
+        let refused = root.join("refused");
+        let (code, _, stderr) = ingest(&refused, &extra);
+        assert_eq!(code, 2, "{extra:?}: {stderr}");
+        assert!(stderr.contains(problem), "{extra:?}: {stderr}");
+        assert!(!refused.join("meta/info.json").exists());
+    }
+    std::fs::remove_dir_all(root).ok();
 }

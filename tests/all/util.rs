@@ -108,13 +108,19 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
         names: Vec::new(),
         kind: FeatureKind::Other,
         video: None,
+        info: Default::default(),
     };
     let mut dataset = info(false);
     dataset.features = vec![
         spec("observation.state", Dtype::Float32, vec![14]),
         spec("observation.gripper_count", Dtype::Int64, vec![1]),
         spec("observation.images.wrist", Dtype::Image, vec![8, 10, 3]),
+        spec("instruction.text", Dtype::String, vec![1]),
     ];
+    // A feature's own facts travel with it.
+    dataset.features[0]
+        .info
+        .insert("frame_id".into(), serde_json::json!("PSM1_base"));
     dataset.generator = String::new();
     dataset.collection = None;
     let mut rng = surgvla::rng::SplitMix64::stream(3, "other-features");
@@ -132,7 +138,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
                 success: true,
             },
             steps: (0..4 + index)
-                .map(|_| {
+                .map(|k| {
                     let pixels: Vec<u8> = (0..8 * 10 * 3).map(|_| rng.next_u64() as u8).collect();
                     Step {
                         other: vec![
@@ -145,6 +151,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
                             FeatureValue::Image(
                                 encode_png(10, 8, 3, &pixels, PngLevel::Best).expect("png"),
                             ),
+                            FeatureValue::Text(format!("step {k} of task {}", index % 2)),
                         ],
                         ..Step::empty()
                     }

@@ -11,6 +11,7 @@ use surgvla::export::collection::Shard;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::{EpisodeSink, EpisodeSource, Summary};
 use surgvla::ingest::dvrk::DvrkPreset;
+use surgvla::ingest::openh;
 use surgvla::ingest::source::{IngestOptions, IngestSource};
 use surgvla::ingest::stamps::Clock;
 use surgvla::ingest::sync::{OnGap, SyncOptions};
@@ -58,6 +59,21 @@ pub(crate) struct IngestArgs {
     /// Shift a topic's times, TOPIC=MS (repeatable; negative for earlier).
     #[arg(long = "time-offset", value_parser = parse_offset)]
     offsets: Vec<(String, i64)>,
+    /// Write what a contribution to a collection asks for. open-h: LeRobot 2.1 in video mode
+    /// (H.264 unless --video names another codec), each frame's instruction as
+    /// instruction.text, and meta/README.md from Open-H's dataset template with the
+    /// synchronisation section filled from the reports.
+    #[arg(long, value_enum)]
+    profile: Option<Profile>,
+    /// Name a range of episode indices, NAME=START:END (end excluded; repeatable), written
+    /// into LeRobot's info.json splits, e.g. --split train=0:8 --split recovery=8:10 (Open-H
+    /// asks for recovery and failure splits). Default: every episode is train.
+    #[arg(long = "split", value_parser = parse_split)]
+    splits: Vec<(String, std::ops::Range<u64>)>,
+    /// Each frame's instruction as a text feature, instruction.text: the --task, else the
+    /// latest /instruction message at or before the frame (on with --profile open-h).
+    #[arg(long)]
+    instruction_text: bool,
     /// Continue an interrupted ingest into --out (same inputs and options).
     #[arg(long)]
     resume: bool,
@@ -82,6 +98,14 @@ pub(crate) enum Preset {
     /// The da Vinci Research Kit: measured_cp + jaw/measured_js as the state, setpoint_cp +
     /// jaw/setpoint_js as the action, [x, y, z, qx, qy, qz, qw, jaw] per arm.
     Dvrk,
+}
+
+/// A collection's conventions for the output.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Profile {
+    /// Open-H-Embodiment: LeRobot 2.1 video, instruction.text, meta/README.md from its
+    /// template; its validator (scripts/validation/validate_formatting.py) passes it.
+    OpenH,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -132,6 +156,27 @@ fn parse_offset(text: &str) -> Result<(String, i64), String> {
     Ok((topic.to_string(), (ms * 1e6).round() as i64))
 }
 
+fn parse_split(text: &str) -> Result<(String, std::ops::Range<u64>), String> {
+    let (name, range) = text
+        .split_once('=')
+        .ok_or_else(|| format!("{text:?} is not NAME=START:END"))?;
+    let valid = !name.is_empty()
+        && (name.chars()).all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if !valid {
+        return Err(format!(
+            "split name {name:?}: letters, digits, _ and - only"
+        ));
+    }
+    let (start, end) = range
+        .split_once(':')
+        .ok_or_else(|| format!("{range:?} is not START:END (episode indices, end excluded)"))?;
+    let index = |v: &str| {
+        v.parse::<u64>()
+            .map_err(|_| format!("{v:?} is not an episode index"))
+    };
+    Ok((name.to_string(), index(start)?..index(end)?))
+}
+
 fn parse_tolerance(text: &str) -> Result<f64, String> {
     let ms: f64 = text
         .parse()
@@ -164,6 +209,8 @@ impl IngestArgs {
             sync,
             task: self.task.clone(),
             offsets_ns: self.offsets.clone(),
+            instruction_text: self.instruction_text || self.profile == Some(Profile::OpenH),
+            splits: self.splits.clone(),
         }
     }
 
@@ -205,7 +252,20 @@ fn verify(args: &IngestArgs, summary: &Summary) -> Result<(), CliError> {
 
 /// `surgvla ingest INPUT... --out DIR`.
 pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
-    let options = args.formats.sink_options(args.to, "--to")?;
+    let options = match args.profile {
+        Some(Profile::OpenH) => args.formats.open_h_options(args.to)?,
+        None => args.formats.sink_options(args.to, "--to")?,
+    };
+    if !args.splits.is_empty() && args.to.0.name() != "lerobot" {
+        return Err(CliError::usage(
+            "--split is written into LeRobot's info.json; --to names another format",
+        ));
+    }
+    if !args.splits.is_empty() && args.shard.count > 1 {
+        return Err(CliError::usage(
+            "--split names indices of the whole dataset: give it to the ingest of all inputs, not to a --shard",
+        ));
+    }
     let mut source = args.open()?;
     for (path, report) in source.reports() {
         let gaps: usize = report.streams.iter().map(|s| s.gaps.len()).sum();
@@ -217,8 +277,20 @@ pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
             report.dropped_frames
         );
     }
-    let files = source.sync_files(args.to.0)?;
+    let mut files = source.sync_files(args.to.0)?;
     let info = source.info().clone();
+    if args.profile == Some(Profile::OpenH) {
+        let name = (args.out.file_name()).map_or("dataset".into(), |n| n.to_string_lossy());
+        let reports = source.reports();
+        let readme = openh::readme(&openh::ReadmeFacts {
+            name: &name,
+            info: &info,
+            preset: &source.options().preset,
+            task: args.task.as_deref(),
+            reports: &reports,
+        });
+        files.push((openh::README_PATH.into(), readme.into_bytes()));
+    }
     let (mut sink, output) = open_output(&args.out, &info, options.as_ref(), args.resume)?;
     let summary =
         write(args, &mut source, sink.as_mut(), files).map_err(|e| output.failed(e, &args.out))?;

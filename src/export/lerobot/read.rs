@@ -18,11 +18,11 @@ use crate::media::demux::VideoReader;
 use crate::media::image::decode_png_sized;
 use crate::media::tiff::decode_f32_tiff;
 use arrow_array::{
-    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
-    StructArray,
+    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    LargeStringArray, RecordBatch, StringArray, StructArray,
 };
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
-use serde_json::Value;
+use serde_json::{Map, Value};
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
@@ -277,11 +277,47 @@ fn features_of(
         } else {
             None
         };
-        let (dtype, kind) = match dtype {
-            "image" if named(camera_key) && shape.last() == Some(&3) => {
-                (Dtype::Image, FeatureKind::Rgb)
-            }
-            "image" if named(depth_key) => (Dtype::Image, FeatureKind::Depth),
+        let role = Role {
+            ours,
+            camera: named(camera_key),
+            depth: named(depth_key),
+        };
+        let (dtype, kind) = role.of(name, dtype, &shape).ok_or_else(|| {
+            invalid(
+                path,
+                format!(
+                    "feature {name} ({dtype}, shape {shape:?}) is not one surgvla reads yet (float32 and int64 vectors, images, one string per frame)"
+                ),
+            )
+        })?;
+        specs.push(FeatureSpec {
+            name: name.clone(),
+            dtype,
+            shape,
+            names,
+            kind,
+            video,
+            info: kept_info(kind, f.info.as_ref()),
+        });
+    }
+    Ok(specs)
+}
+
+/// What our metadata says of a feature: whether the dataset is surgvla's, and whether it names
+/// the feature as its camera or its depth.
+struct Role {
+    ours: bool,
+    camera: bool,
+    depth: bool,
+}
+
+impl Role {
+    /// The feature's dtype and role in surgvla's model, None for one it does not read.
+    fn of(&self, name: &str, dtype: &str, shape: &[usize]) -> Option<(Dtype, FeatureKind)> {
+        let ours = self.ours;
+        Some(match dtype {
+            "image" if self.camera && shape.last() == Some(&3) => (Dtype::Image, FeatureKind::Rgb),
+            "image" if self.depth => (Dtype::Image, FeatureKind::Depth),
             "image" if ours && name == "observation.images.mask" => {
                 (Dtype::Image, FeatureKind::Mask)
             }
@@ -301,25 +337,25 @@ fn features_of(
             "image" if shape.len() == 3 => (Dtype::Image, FeatureKind::Other),
             "float32" if shape.len() == 1 => (Dtype::Float32, FeatureKind::Other),
             "int64" if shape.len() == 1 => (Dtype::Int64, FeatureKind::Other),
-            dtype => {
-                return Err(invalid(
-                    path,
-                    format!(
-                        "feature {name} ({dtype}, shape {shape:?}) is not one surgvla reads yet (float32 and int64 vectors, images)"
-                    ),
-                ));
-            }
-        };
-        specs.push(FeatureSpec {
-            name: name.clone(),
-            dtype,
-            shape,
-            names,
-            kind,
-            video,
-        });
+            "string" if shape == [1] => (Dtype::String, FeatureKind::Other),
+            _ => return None,
+        })
     }
-    Ok(specs)
+}
+
+/// What another tool's feature says of itself in its `info` (a pose's frame, a camera's
+/// intrinsics, a depth map's unit), kept to travel with it; the keys a writer derives from the
+/// stored data (`video.*`, `has_audio`, `audio.*`) are left out, to be written again.
+fn kept_info(kind: FeatureKind, info: Option<&Map<String, Value>>) -> Map<String, Value> {
+    let derived =
+        |key: &str| key.starts_with("video.") || key.starts_with("audio.") || key == "has_audio";
+    match (kind, info) {
+        (FeatureKind::Other, Some(info)) => (info.iter())
+            .filter(|(key, _)| !derived(key))
+            .map(|(key, value)| (key.clone(), value.clone()))
+            .collect(),
+        _ => Map::new(),
+    }
 }
 
 /// Each row's value of an [`FeatureKind::Other`] feature, as stored.
@@ -350,7 +386,7 @@ fn other_values(
         }
         Some(_) => return Err(bad()),
         None if n == 1 => (column.as_ref(), 0),
-        None if feature.dtype == Dtype::Image => (column.as_ref(), 0),
+        None if matches!(feature.dtype, Dtype::Image | Dtype::String) => (column.as_ref(), 0),
         None => return Err(bad()),
     };
     let chunk = |row: usize| offset + row * n..offset + (row + 1) * n;
@@ -392,6 +428,19 @@ fn other_values(
             (0..rows)
                 .map(|r| FeatureValue::Int64(a.values()[chunk(r)].to_vec()))
                 .collect()
+        }
+        Dtype::String => {
+            let text = |r: usize| {
+                if let Some(a) = any.downcast_ref::<StringArray>() {
+                    Some(a.value(r).to_string())
+                } else {
+                    let a = any.downcast_ref::<LargeStringArray>()?;
+                    Some(a.value(r).to_string())
+                }
+            };
+            (0..rows)
+                .map(|r| text(r).map(FeatureValue::Text).ok_or_else(bad))
+                .collect::<Result<_, _>>()?
         }
     })
 }

@@ -51,6 +51,7 @@ pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
         .iter()
         .map(|f| match f.dtype {
             Dtype::Image => Field::new(&f.name, DataType::Struct(image_fields()), true),
+            Dtype::String => Field::new(&f.name, DataType::Utf8, true),
             // Another robot's one-value feature is a plain column, as lerobot writes it.
             Dtype::Float32 if is_scalar(f) => Field::new(&f.name, DataType::Float32, true),
             Dtype::Int64 if is_scalar(f) => Field::new(&f.name, DataType::Int64, true),
@@ -304,6 +305,16 @@ fn other_column(
                 }
             }
             vector(Arc::new(Int64Array::from(flat)), DataType::Int64)
+        }
+        Dtype::String => {
+            let mut texts = Vec::with_capacity(episode.steps.len());
+            for value in values {
+                match value {
+                    Some(FeatureValue::Text(text)) => texts.push(text.as_str()),
+                    _ => return Err(wrong()),
+                }
+            }
+            Arc::new(StringArray::from(texts))
         }
     })
 }

@@ -373,7 +373,13 @@ impl LeRobotFiles {
             data_files_size_in_mb: Some(self.options.data_file_size_mb),
             video_files_size_in_mb: Some(self.video_file_size_mb()),
             fps: Some(info.fps.into()),
-            splits: Some([("train".to_string(), format!("0:{episodes}"))].into()),
+            splits: Some(if info.splits.is_empty() {
+                [("train".to_string(), format!("0:{episodes}"))].into()
+            } else {
+                (info.splits.iter())
+                    .map(|(name, range)| (name.clone(), format!("{}:{}", range.start, range.end)))
+                    .collect()
+            }),
             data_path: Some("data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet".into()),
             video_path: (!self.video_features.is_empty()).then(|| {
                 "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into()
@@ -590,7 +596,9 @@ impl LeRobotFiles {
                 };
                 pixel_stats.push((name.clone(), exact));
             }
-            stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
+            if !info.is_text(name) {
+                stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
+            }
             total.merge(&this);
         }
         (stats_json, pixel_stats)
@@ -622,6 +630,8 @@ impl LeRobotFiles {
             .state
             .stats
             .iter()
+            // Text has no statistics (lerobot leaves string features out of them too).
+            .filter(|(name, _)| !info.is_text(name))
             .map(|(name, s)| (name.clone(), FeatureStatsJson::from_value(s.to_json())))
             .collect();
         let video_keys: Vec<String> = self.video_features.iter().map(|(k, _)| k.clone()).collect();
@@ -666,12 +676,14 @@ fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> 
     let mut features = serde_json::Map::new();
     for f in feature_specs {
         let mut entry = json!({
-            "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64" },
+            "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64", Dtype::String => "string" },
             "shape": f.shape,
-            "names": f.names,
+            "names": if f.names.is_empty() && f.dtype == Dtype::String { Value::Null } else { json!(f.names) },
         });
         if f.kind == FeatureKind::Depth {
             entry["info"] = json!({"is_depth_map": true, "depth_unit": "m"});
+        } else if !f.info.is_empty() {
+            entry["info"] = Value::Object(f.info.clone());
         }
         features.insert(f.name.clone(), entry);
     }

@@ -304,6 +304,7 @@ pub fn foreign_features_json(info: &DatasetInfo) -> Value {
             }
             Dtype::Float32 => tensor(elements, &feature.name),
             Dtype::Int64 => int_tensor(elements, &feature.name),
+            Dtype::String => text(&format!("{} (one text per step).", feature.name)),
         };
         insert_at(
             &mut step,
@@ -363,6 +364,7 @@ mod tests {
             tip_workspace: None,
             input: None,
             provenance: Vec::new(),
+            splits: Vec::new(),
         }
     }
 

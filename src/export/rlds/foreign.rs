@@ -72,7 +72,8 @@ fn columns(features: &Value, path: &Path) -> Result<Vec<Column>, ExportError> {
                     ));
                 }
             },
-            Leaf::Text => continue,
+            // One text per step: a string feature (e.g. instruction.text).
+            Leaf::Text => (Dtype::String, vec![1]),
         };
         columns.push(Column {
             spec: FeatureSpec {
@@ -82,6 +83,7 @@ fn columns(features: &Value, path: &Path) -> Result<Vec<Column>, ExportError> {
                 names: Vec::new(),
                 kind: FeatureKind::Other,
                 video: None,
+                info: Default::default(),
             },
             key,
         });
@@ -153,6 +155,9 @@ impl ForeignRldsSource {
                     (Dtype::Int64, Feature::Int64(v)) => {
                         FeatureValue::Int64(v.get(i * n..(i + 1) * n).ok_or_else(wrong)?.to_vec())
                     }
+                    (Dtype::String, Feature::Bytes(texts)) => FeatureValue::Text(
+                        String::from_utf8_lossy(texts.get(i).ok_or_else(wrong)?).into_owned(),
+                    ),
                     _ => return Err(wrong()),
                 };
                 row.push(value);

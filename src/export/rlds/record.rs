@@ -89,6 +89,71 @@ fn text(value: &str) -> Feature {
     Feature::Bytes(vec![value.as_bytes().to_vec()])
 }
 
+/// One feature's values over an episode of another tool's dataset, as RLDS stores them.
+fn foreign_feature(
+    feature: &crate::episode::FeatureSpec,
+    position: usize,
+    episode: &Episode,
+) -> Result<Feature, ExportError> {
+    let steps = &episode.steps;
+    let wrong = || {
+        ExportError::InvalidEpisode(format!(
+            "episode {}: {} does not hold {:?} values",
+            episode.meta.index, feature.name, feature.dtype
+        ))
+    };
+    Ok(match feature.dtype {
+        Dtype::Image => Feature::Bytes(
+            steps
+                .iter()
+                .map(|s| match s.other.get(position) {
+                    // features.json declares PNG (or JPEG); a float TIFF of another tool's
+                    // is not necessarily depth in metres, so it is not turned into one.
+                    Some(FeatureValue::Image(bytes))
+                        if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") =>
+                    {
+                        Err(ExportError::InvalidOptions(format!(
+                            "{} holds float TIFF images, which RLDS has no image type for (a float image of another tool's is not necessarily depth in metres, so it is not made one): convert it to LeRobot instead",
+                            feature.name
+                        )))
+                    }
+                    Some(FeatureValue::Image(bytes)) => Ok(bytes.clone()),
+                    _ => Err(wrong()),
+                })
+                .collect::<Result<_, _>>()?,
+        ),
+        Dtype::Float32 => {
+            let mut flat = Vec::new();
+            for step in steps {
+                match step.other.get(position) {
+                    Some(FeatureValue::Float32(v)) => flat.extend_from_slice(v),
+                    _ => return Err(wrong()),
+                }
+            }
+            Feature::Float(flat)
+        }
+        Dtype::Int64 => {
+            let mut flat = Vec::new();
+            for step in steps {
+                match step.other.get(position) {
+                    Some(FeatureValue::Int64(v)) => flat.extend_from_slice(v),
+                    _ => return Err(wrong()),
+                }
+            }
+            Feature::Int64(flat)
+        }
+        Dtype::String => Feature::Bytes(
+            steps
+                .iter()
+                .map(|step| match step.other.get(position) {
+                    Some(FeatureValue::Text(text)) => Ok(text.as_bytes().to_vec()),
+                    _ => Err(wrong()),
+                })
+                .collect::<Result<_, _>>()?,
+        ),
+    })
+}
+
 /// The serialized Example of an episode of a dataset another tool made (features all
 /// [`FeatureKind::Other`](crate::episode::FeatureKind::Other)): each feature under
 /// `steps/<its rlds_path>` as stored (images byte for byte), the instruction on every step,
@@ -105,53 +170,7 @@ pub fn encode_foreign_episode(
             "steps/{}",
             crate::export::rlds::options::rlds_path(&feature.name).join("/")
         );
-        let wrong = || {
-            ExportError::InvalidEpisode(format!(
-                "episode {}: {} does not hold {:?} values",
-                episode.meta.index, feature.name, feature.dtype
-            ))
-        };
-        let value = match feature.dtype {
-            Dtype::Image => Feature::Bytes(
-                steps
-                    .iter()
-                    .map(|s| match s.other.get(position) {
-                        // features.json declares PNG (or JPEG); a float TIFF of another tool's
-                        // is not necessarily depth in metres, so it is not turned into one.
-                        Some(FeatureValue::Image(bytes))
-                            if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") =>
-                        {
-                            Err(ExportError::InvalidOptions(format!(
-                                "{} holds float TIFF images, which RLDS has no image type for (a float image of another tool's is not necessarily depth in metres, so it is not made one): convert it to LeRobot instead",
-                                feature.name
-                            )))
-                        }
-                        Some(FeatureValue::Image(bytes)) => Ok(bytes.clone()),
-                        _ => Err(wrong()),
-                    })
-                    .collect::<Result<_, _>>()?,
-            ),
-            Dtype::Float32 => {
-                let mut flat = Vec::new();
-                for step in steps {
-                    match step.other.get(position) {
-                        Some(FeatureValue::Float32(v)) => flat.extend_from_slice(v),
-                        _ => return Err(wrong()),
-                    }
-                }
-                Feature::Float(flat)
-            }
-            Dtype::Int64 => {
-                let mut flat = Vec::new();
-                for step in steps {
-                    match step.other.get(position) {
-                        Some(FeatureValue::Int64(v)) => flat.extend_from_slice(v),
-                        _ => return Err(wrong()),
-                    }
-                }
-                Feature::Int64(flat)
-            }
-        };
+        let value = foreign_feature(feature, position, episode)?;
         features.insert(key, value);
     }
     features.insert(

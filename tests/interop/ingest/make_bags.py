@@ -11,7 +11,7 @@ without definitions, a ROS 2 bag in mcap storage, a single MCAP file with lz4 ch
 bimanual ROS 1 bag (PSM1 and PSM2, two cameras). Each has
 a dVRK arm at ~100 Hz with jitter (measured and setpoint poses and jaws), a camera at ~30 Hz
 (raw rgb8 / bgr8 / mono8, JPEG and PNG compressed) with a dropout of 0.4 s and two out-of-order
-stamps, an unmapped topic and an /instruction topic.
+stamps, an unmapped topic and an /instruction topic whose text changes mid-episode.
 """
 
 import json
@@ -159,9 +159,15 @@ def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, 
         msgtype = "sensor_msgs/msg/CompressedImage" if camera_encoding in ("jpeg", "png") else "sensor_msgs/msg/Image"
         add(topic, msgtype, streams["camera"], lambda k, s, e=camera_encoding, d=shift: image_msg(ts, ros1, s, k + d, e), lambda k, d=shift: k + d)
     String = ts.types["std_msgs/msg/String"]
-    out.append((START_NS, "/instruction", "std_msgs/msg/String", String(data="grasp the needle")))
-    # A type without a header: its time is when it was received.
-    expected["streams"]["/instruction"] = [{"stamp": START_NS, "receive": START_NS, "value": "grasp the needle"}]
+    # The instruction changes mid-episode (before the camera's dropout). A type without a
+    # header: its time is when it was received.
+    expected["streams"]["/instruction"] = []
+    for at, text in ((START_NS, "grasp the needle"), (START_NS + 700_000_000, "lift the needle")):
+        out.append((at, "/instruction", "std_msgs/msg/String", String(data=text)))
+        expected["streams"]["/instruction"].append({"stamp": at, "receive": at, "value": text})
+    if bimanual:
+        # Each frame's instruction as a feature too, read by the loader.
+        expected["ingest_args"].append("--instruction-text")
     out.append((START_NS + 5, "/unrelated", "std_msgs/msg/String", String(data="not mapped")))
     out.sort(key=lambda m: m[0])
     return out, expected

@@ -2,8 +2,12 @@
 state, action and image are those of the message the synchronisation rule selects, worked out
 here on its own from the messages make_bags.py planted; each report names the planted dropout.
 
+Each episode's task is its first frame's instruction; where the dataset has Open-H's
+`instruction.text`, every frame's is the latest instruction at or before it.
+
 Environment: SURGVLA_INGEST_CORPUS (make_bags.py's folder), SURGVLA_INGEST_OUT (a folder of
-one dataset per recording, named like it), SURGVLA_INGEST_FPS.
+one dataset per recording, named like it), SURGVLA_INGEST_FPS, SURGVLA_INGEST_VIDEO=1 for
+datasets whose cameras are lossy video (`--profile open-h`: H.264), compared within a bound.
 """
 
 import json
@@ -20,6 +24,7 @@ FPS = int(os.environ.get("SURGVLA_INGEST_FPS", "30"))
 TOLERANCE_NS = 1_500_000_000 // FPS
 WIDTH, HEIGHT = 32, 24
 NAMES = sorted(p.name[: -len(".json")] for p in CORPUS.glob("*.json"))
+VIDEO = os.environ.get("SURGVLA_INGEST_VIDEO") == "1"
 
 
 def topics(expected):
@@ -83,6 +88,8 @@ def test_every_frame_is_the_rules_message(name):
     assert dataset.num_frames == sum(len(e) for e in episodes)
     names = dataset.meta.features["observation.state"]["names"]
     assert names == [f"{arm}.{v}" for arm in arms for v in ("x", "y", "z", "qx", "qy", "qz", "qw", "jaw")]
+    text = "instruction.text" in dataset.meta.features
+    assert text == (VIDEO or "--instruction-text" in expected["ingest_args"])
     index = 0
     for e, frames in enumerate(episodes):
         for f, frame in enumerate(frames):
@@ -99,11 +106,16 @@ def test_every_frame_is_the_rules_message(name):
                 want = pattern(frame[topic]["value"]).astype(np.int32)
                 if encoding == "mono8":
                     want = np.repeat(want[:, :, :1], 3, axis=2)
-                if encoding == "jpeg":
+                if VIDEO:
+                    # H.264 of sharp 8-pixel blocks at 32 x 24: near, not equal.
+                    assert np.abs(image - want).mean() < 12, f"{camera}: episode {e} frame {f}"
+                elif encoding == "jpeg":
                     assert np.abs(image - want).mean() < 6, f"{camera}: episode {e} frame {f}"
                 else:
                     assert (image == want).all(), f"{camera}: episode {e} frame {f}"
-            assert item["task"] == "grasp the needle"
+            assert item["task"] == frames[0]["/instruction"]["value"]
+            if text:
+                assert item["instruction.text"] == frame["/instruction"]["value"]
 
 
 @pytest.mark.parametrize("name", NAMES)

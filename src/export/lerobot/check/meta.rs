@@ -376,7 +376,10 @@ fn check_episode_columns(
     if batch.column_by_name("tasks").is_none() {
         findings.file_error(path, Check::Episodes, "lacks the tasks column");
     }
-    for feature in features.iter().filter(|f| !is_index_column(&f.name)) {
+    for feature in features
+        .iter()
+        .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
+    {
         for stat in STATS_KEYS {
             let name = format!("stats/{}/{stat}", feature.name);
             if batch.column_by_name(&name).is_none() {
