@@ -9,7 +9,10 @@
 //! written); setpoints and the instruction are *events* (their last value holds).
 
 use crate::ingest::decode::RosValue;
-use crate::ingest::extract::{RgbImage, joint_positions, pose7, rgb};
+use crate::ingest::extract::{RgbImage, joint_positions, pose_frames, pose7, rgb};
+
+/// A feature's own facts (its `info`).
+pub type FeatureInfo = serde_json::Map<String, serde_json::Value>;
 use crate::ingest::stamps::TopicSpec;
 use crate::ingest::sync::StreamKind;
 
@@ -98,6 +101,43 @@ impl DvrkPreset {
                 ARM_VALUES.iter().map(move |v| format!("{arm}.{v}"))
             })
             .collect()
+    }
+
+    /// Where each camera's `sensor_msgs/CameraInfo` may be, beside its image topic:
+    /// `.../camera_info` next to it, and for an image transport's `.../compressed` topic next
+    /// to the image topic it compresses; per camera, in order of preference.
+    pub fn camera_info_topics(&self) -> Vec<Vec<String>> {
+        let sibling = |topic: &str| {
+            topic
+                .rsplit_once('/')
+                .map(|(parent, _)| format!("{parent}/camera_info"))
+        };
+        (self.cameras.iter())
+            .map(|(_, topic)| {
+                let mut candidates: Vec<String> = sibling(topic).into_iter().collect();
+                if let Some(base) = topic.strip_suffix("/compressed") {
+                    candidates.extend(sibling(base));
+                }
+                candidates.retain(|c| c != topic && c != "/camera_info");
+                candidates
+            })
+            .collect()
+    }
+
+    /// The frames the state's and the action's poses are in, from a frame's messages (see
+    /// [`crate::ingest::extract::pose_frames`]): the `info` of `observation.state` and of
+    /// `action`.
+    pub fn pose_info(&self, values: &[std::sync::Arc<RosValue>]) -> (FeatureInfo, FeatureInfo) {
+        let (mut state, mut action) = (FeatureInfo::new(), FeatureInfo::new());
+        for (a, arm) in self.arms.iter().enumerate() {
+            let name = arm.rsplit('/').next().unwrap_or(arm);
+            for (slot, info) in [(0, &mut state), (2, &mut action)] {
+                if let Some(message) = values.get(a * 4 + slot) {
+                    info.extend(pose_frames(name, message));
+                }
+            }
+        }
+        (state, action)
     }
 
     /// A frame's features from its messages, one per topic of [`DvrkPreset::topics`] (the
@@ -213,6 +253,15 @@ mod tests {
         assert_eq!(frame.action, [1.5, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0, 0.25]);
         assert_eq!(frame.images[0].rgb, [3, 2, 1]);
         assert_eq!(frame.instruction.as_deref(), Some("pick up the gauze"));
+        // The fixture's poses name no frame.
+        assert!(preset.pose_info(&values).0.is_empty());
+        assert_eq!(preset.camera_info_topics(), [["/cam/left/camera_info"]]);
+        let compressed =
+            DvrkPreset::new(&[], &[("l".into(), "/cam/l/image_raw/compressed".into())]);
+        assert_eq!(
+            compressed.camera_info_topics(),
+            [["/cam/l/image_raw/camera_info", "/cam/l/camera_info"]]
+        );
         // Without the instruction topic.
         let frame = preset.frame(&values[..5]).expect("frame");
         assert_eq!(frame.instruction, None);

@@ -4,7 +4,7 @@
 //! mark. Every camera must keep its size.
 
 use crate::episode::{Episode, EpisodeMeta, FeatureValue, Step};
-use crate::ingest::dvrk::{DvrkFrame, DvrkPreset};
+use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, FeatureInfo};
 use crate::ingest::error::IngestError;
 use crate::ingest::frames::Handed;
 use rayon::prelude::*;
@@ -29,6 +29,17 @@ pub struct Making<'a> {
     instruction: Option<String>,
     made: Vec<Episode>,
     next_index: u64,
+    /// The frames of the first frame's poses (state, action `info`).
+    pose_info: Option<(FeatureInfo, FeatureInfo)>,
+}
+
+/// What an input's episodes came to.
+pub struct Made {
+    pub episodes: Vec<Episode>,
+    /// Each camera's (height, width).
+    pub sizes: Option<Vec<(usize, usize)>>,
+    /// The frames the first frame's poses are in (state, action `info`).
+    pub pose_info: Option<(FeatureInfo, FeatureInfo)>,
 }
 
 impl<'a> Making<'a> {
@@ -52,6 +63,7 @@ impl<'a> Making<'a> {
             instruction: None,
             made: Vec::new(),
             next_index,
+            pose_info: None,
         }
     }
 
@@ -71,6 +83,9 @@ impl<'a> Making<'a> {
                 let features = (self.preset.frame(&frame.values))
                     .map_err(|problem| self.bad(time_ns, problem))?;
                 self.check_sizes(time_ns, &features)?;
+                if self.pose_info.is_none() {
+                    self.pose_info = Some(self.preset.pose_info(&frame.values));
+                }
                 if self.instruction.is_none() {
                     self.instruction.clone_from(&features.instruction);
                 }
@@ -97,9 +112,13 @@ impl<'a> Making<'a> {
         Ok(())
     }
 
-    /// The episodes made, and the cameras' sizes.
-    pub fn finish(self) -> (Vec<Episode>, Option<Vec<(usize, usize)>>) {
-        (self.made, self.sizes)
+    /// The episodes made, the cameras' sizes and the poses' frames.
+    pub fn finish(self) -> Made {
+        Made {
+            episodes: self.made,
+            sizes: self.sizes,
+            pose_info: self.pose_info,
+        }
     }
 
     fn check_sizes(&mut self, time_ns: i64, frame: &DvrkFrame) -> Result<(), IngestError> {

@@ -39,6 +39,53 @@ pub fn frame_id(message: &RosValue) -> Option<&str> {
     message.at("header.frame_id")?.as_str()
 }
 
+/// What a `sensor_msgs/CameraInfo` states of its camera, as a feature's `info` keys:
+/// `camera.frame_id`, `camera.width`, `camera.height`, `camera.distortion_model` and the
+/// matrices `camera.k` (3x3), `camera.d`, `camera.r` (3x3) and `camera.p` (3x4), row-major
+/// (ROS 1 spells them `K`, `D`, `R`, `P`).
+pub fn camera_intrinsics(message: &RosValue) -> serde_json::Map<String, serde_json::Value> {
+    use serde_json::{Value, json};
+    let mut info = serde_json::Map::new();
+    if let Some(frame) = frame_id(message) {
+        info.insert("camera.frame_id".into(), json!(frame));
+    }
+    for key in ["width", "height"] {
+        if let Some(v) = message.field(key).and_then(RosValue::as_i64) {
+            info.insert(format!("camera.{key}"), json!(v));
+        }
+    }
+    if let Some(model) = message.field("distortion_model").and_then(RosValue::as_str) {
+        info.insert("camera.distortion_model".into(), json!(model));
+    }
+    for key in ["k", "d", "r", "p"] {
+        let field = (message.field(key)).or_else(|| message.field(&key.to_uppercase()));
+        if let Some(RosValue::Array(values)) = field {
+            let numbers: Vec<Value> = (values.iter())
+                .filter_map(RosValue::as_f64)
+                .filter(|v| v.is_finite())
+                .map(|v| json!(v))
+                .collect();
+            info.insert(format!("camera.{key}"), Value::Array(numbers));
+        }
+    }
+    info
+}
+
+/// A pose's frames as a feature's `info` keys for `arm`: `ARM.frame_id` (its header's) and,
+/// for a `TransformStamped`, `ARM.child_frame_id`.
+pub fn pose_frames(arm: &str, message: &RosValue) -> Vec<(String, serde_json::Value)> {
+    let mut out = Vec::new();
+    if let Some(frame) = frame_id(message).filter(|f| !f.is_empty()) {
+        out.push((format!("{arm}.frame_id"), frame.into()));
+    }
+    if let Some(child) =
+        (message.field("child_frame_id").and_then(RosValue::as_str)).filter(|f| !f.is_empty())
+    {
+        out.push((format!("{arm}.child_frame_id"), child.into()));
+    }
+    out
+}
+
 /// A pose as [x, y, z, qx, qy, qz, qw] (metres, unit quaternion as recorded).
 pub fn pose7(message: &RosValue) -> Result<[f64; 7], String> {
     let (position, orientation) = if let Some(pose) = message.field("pose") {
@@ -242,6 +289,54 @@ mod tests {
     use super::*;
 
     use crate::ingest::fixtures::message;
+
+    #[test]
+    fn camera_info_in_either_spelling_and_pose_frames_become_feature_info() {
+        let floats = |v: &[f64]| RosValue::Array(v.iter().map(|&x| RosValue::Float(x)).collect());
+        let header = message(vec![("frame_id", RosValue::String("left_optical".into()))]);
+        for (k, d) in [("K", "D"), ("k", "d")] {
+            let info = camera_intrinsics(&message(vec![
+                ("header", header.clone()),
+                ("height", RosValue::UInt(480)),
+                ("width", RosValue::UInt(640)),
+                ("distortion_model", RosValue::String("plumb_bob".into())),
+                (d, floats(&[0.1, f64::NAN])),
+                (
+                    k,
+                    floats(&[500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]),
+                ),
+            ]));
+            assert_eq!(info["camera.frame_id"], "left_optical");
+            assert_eq!(
+                (
+                    info["camera.width"].as_i64(),
+                    info["camera.height"].as_i64()
+                ),
+                (Some(640), Some(480))
+            );
+            assert_eq!(info["camera.k"][2], 320.0);
+            assert_eq!(
+                info["camera.d"],
+                serde_json::json!([0.1]),
+                "non-finite values left out"
+            );
+            assert!(!info.contains_key("camera.p"));
+        }
+        let transform = message(vec![
+            (
+                "header",
+                message(vec![("frame_id", RosValue::String("PSM1_base".into()))]),
+            ),
+            ("child_frame_id", RosValue::String("PSM1_tip".into())),
+        ]);
+        let frames = pose_frames("PSM1", &transform);
+        assert_eq!(frames[0], ("PSM1.frame_id".to_string(), "PSM1_base".into()));
+        assert_eq!(
+            frames[1],
+            ("PSM1.child_frame_id".to_string(), "PSM1_tip".into())
+        );
+        assert!(pose_frames("PSM1", &message(vec![])).is_empty());
+    }
 
     fn image(encoding: &str, width: u64, height: u64, step: u64, data: Vec<u8>) -> RosValue {
         message(vec![

@@ -14,12 +14,13 @@ use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
 use crate::ingest::builtin::ros2_types;
-use crate::ingest::dvrk::{DvrkPreset, INSTRUCTION_TOPIC};
+use crate::ingest::dvrk::{DvrkPreset, FeatureInfo, INSTRUCTION_TOPIC};
 use crate::ingest::episodes::Making;
 use crate::ingest::error::IngestError;
+use crate::ingest::extract::camera_intrinsics;
 use crate::ingest::frames::second_pass;
 use crate::ingest::msgdef::MessageDefs;
-use crate::ingest::stamps::{Clock, TopicSpec, first_pass};
+use crate::ingest::stamps::{Clock, TopicSpec, first_pass_keeping};
 use crate::ingest::sync::{SyncOptions, SyncPlan, SyncReport, plan};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -86,6 +87,8 @@ struct Input {
 struct Planned {
     topics: Vec<TopicSpec>,
     plan: SyncPlan,
+    /// Per camera, what its `CameraInfo` states (empty without one).
+    camera_info: Vec<FeatureInfo>,
 }
 
 /// Recordings read as episodes (see the module overview).
@@ -101,6 +104,9 @@ pub struct IngestSource {
     total: u64,
     /// Each camera's (height, width), from the first frame made.
     image_sizes: Option<Vec<(usize, usize)>>,
+    /// The first input's cameras' `CameraInfo` and poses' frames, for the features' `info`.
+    camera_info: Vec<FeatureInfo>,
+    pose_info: Option<(FeatureInfo, FeatureInfo)>,
     /// Episodes of the next input skipped (a resume): made, then dropped.
     skipped: usize,
     failed: bool,
@@ -138,6 +144,8 @@ impl IngestSource {
             next_index: 0,
             total,
             image_sizes: None,
+            camera_info: Vec::new(),
+            pose_info: None,
             skipped: 0,
             failed: false,
         };
@@ -193,6 +201,11 @@ impl IngestSource {
         let sizes = self.image_sizes.clone().unwrap_or_default();
         let image = |c: usize, name: &str| {
             let (height, width) = sizes.get(c).copied().unwrap_or((0, 0));
+            let mut info = FeatureInfo::new();
+            if let Some((_, topic)) = preset.cameras.get(c) {
+                info.insert("camera.topic".into(), topic.as_str().into());
+            }
+            info.extend(self.camera_info.get(c).cloned().unwrap_or_default());
             FeatureSpec {
                 name: format!("observation.images.{name}"),
                 dtype: Dtype::Image,
@@ -200,23 +213,24 @@ impl IngestSource {
                 names: ["height", "width", "channels"].map(String::from).to_vec(),
                 kind: FeatureKind::Other,
                 video: None,
-                info: Default::default(),
+                info,
             }
         };
-        let vector = |name: &str| FeatureSpec {
+        let (state_info, action_info) = self.pose_info.clone().unwrap_or_default();
+        let vector = |name: &str, info: FeatureInfo| FeatureSpec {
             name: name.into(),
             dtype: Dtype::Float32,
             shape: vec![preset.value_names().len()],
             names: preset.value_names(),
             kind: FeatureKind::Other,
             video: None,
-            info: Default::default(),
+            info,
         };
         let mut features: Vec<FeatureSpec> = (preset.cameras.iter().enumerate())
             .map(|(c, (name, _))| image(c, name))
             .collect();
-        features.push(vector("observation.state"));
-        features.push(vector("action"));
+        features.push(vector("observation.state", state_info));
+        features.push(vector("action", action_info));
         if self.options.instruction_text {
             features.push(FeatureSpec {
                 name: INSTRUCTION_FEATURE.into(),
@@ -250,10 +264,18 @@ impl IngestSource {
         self.next_input += 1;
         let kept = input.plan.take();
         let input = &*input;
-        let Planned { topics, plan } = match kept {
+        let first = self.next_input == 1;
+        let Planned {
+            topics,
+            plan,
+            camera_info,
+        } = match kept {
             Some(planned) => planned,
             None => planned(&input.path, &self.options, &self.builtin)?,
         };
+        if first {
+            self.camera_info = camera_info;
+        }
         let mut making = Making::new(
             &input.path,
             &self.options.preset,
@@ -265,11 +287,14 @@ impl IngestSource {
         second_pass(&input.path, &topics, &plan, &self.builtin, &mut |handed| {
             making.take(handed)
         })?;
-        let (made, sizes) = making.finish();
-        self.image_sizes = sizes;
-        self.next_index += made.len() as u64;
+        let made = making.finish();
+        self.image_sizes = made.sizes;
+        if self.pose_info.is_none() {
+            self.pose_info = made.pose_info;
+        }
+        self.next_index += made.episodes.len() as u64;
         self.ready
-            .extend(made.into_iter().skip(std::mem::take(&mut self.skipped)));
+            .extend((made.episodes.into_iter()).skip(std::mem::take(&mut self.skipped)));
         Ok(())
     }
 }
@@ -313,7 +338,18 @@ fn planned(
     builtin: &MessageDefs,
 ) -> Result<Planned, IngestError> {
     let mut topics = options.topics();
-    let mut first = first_pass(path, &topics, options.clock, builtin)?;
+    let candidates = options.preset.camera_info_topics();
+    let keep: Vec<String> = candidates.iter().flatten().cloned().collect();
+    let mut first = first_pass_keeping(path, &topics, options.clock, builtin, &keep)?;
+    // Each camera's first CameraInfo found among its candidates.
+    let mut kept = first.first_messages.iter();
+    let camera_info = (candidates.iter())
+        .map(|topics| {
+            let mine: Vec<&Option<_>> = kept.by_ref().take(topics.len()).collect();
+            let found = mine.into_iter().flatten().next();
+            found.map(camera_intrinsics).unwrap_or_default()
+        })
+        .collect();
     // The instruction topic is read only when no --task is given, and left out when the
     // recording has none.
     if (options.task.is_some() || first.channels.last().is_some_and(Option::is_none))
@@ -336,7 +372,11 @@ fn planned(
         path: path.to_path_buf(),
         source,
     })?;
-    Ok(Planned { topics, plan })
+    Ok(Planned {
+        topics,
+        plan,
+        camera_info,
+    })
 }
 
 impl Iterator for IngestSource {

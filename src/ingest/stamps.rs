@@ -4,7 +4,7 @@
 //! ([`Clock::Header`]) or the time the recorder received it ([`Clock::Receive`], for stamps that
 //! are zero or on another clock), plus the topic's offset (`--time-offset`).
 
-use crate::ingest::decode::{RosValue, decode_first_field};
+use crate::ingest::decode::{RosValue, decode, decode_first_field};
 use crate::ingest::error::IngestError;
 use crate::ingest::msgdef::MessageDefs;
 use crate::ingest::open::Recording;
@@ -39,6 +39,9 @@ pub struct TopicSpec {
 pub struct FirstPass {
     pub streams: Vec<StreamStamps>,
     pub channels: Vec<Option<Channel>>,
+    /// Per topic kept ([`first_pass_keeping`]), its first message decoded whole (None: the
+    /// recording has none).
+    pub first_messages: Vec<Option<RosValue>>,
 }
 
 /// The definitions a channel's messages decode by: its own, else (none, or an empty schema) the
@@ -127,6 +130,26 @@ pub fn first_pass(
     clock: Clock,
     builtin: &MessageDefs,
 ) -> Result<FirstPass, IngestError> {
+    first_pass_keeping(path, topics, clock, builtin, &[])
+}
+
+/// [`first_pass`], also keeping the first message of each topic of `keep` decoded whole
+/// (what a recording states once, such as a camera's `CameraInfo`; the rest of its messages
+/// are skipped undecoded).
+pub fn first_pass_keeping(
+    path: &Path,
+    topics: &[TopicSpec],
+    clock: Clock,
+    builtin: &MessageDefs,
+    keep: &[String],
+) -> Result<FirstPass, IngestError> {
+    let kept_specs = keep.iter().map(|topic| TopicSpec {
+        topic: topic.clone(),
+        kind: StreamKind::Event,
+        offset_ns: 0,
+    });
+    let all: Vec<TopicSpec> = topics.iter().cloned().chain(kept_specs).collect();
+    let mut first_messages: Vec<Option<RosValue>> = vec![None; keep.len()];
     let mut streams: Vec<StreamStamps> = topics
         .iter()
         .map(|t| StreamStamps {
@@ -136,7 +159,7 @@ pub fn first_pass(
         })
         .collect();
     let mut channels: Vec<Option<Channel>> = vec![None; topics.len()];
-    let mut decoders = Decoders::new(topics);
+    let mut decoders = Decoders::new(&all);
     let mut recording = Recording::open(path)?;
     // Not a `for` loop: the recording's channels are looked up while it is read.
     while let Some(message) = recording.next() {
@@ -145,6 +168,24 @@ pub fn first_pass(
             continue;
         };
         let (slot, channel) = (decoder.slot, &decoder.channel);
+        if let Some(kept) = slot.checked_sub(topics.len()) {
+            if first_messages[kept].is_none() {
+                let value = decode(
+                    &decoder.defs,
+                    &channel.type_name,
+                    channel.wire,
+                    &message.data,
+                )
+                .map_err(|source| IngestError::Decode {
+                    path: path.to_path_buf(),
+                    topic: channel.topic.clone(),
+                    index: 0,
+                    source: Box::new(source),
+                })?;
+                first_messages[kept] = Some(value);
+            }
+            continue;
+        }
         match &channels[slot] {
             None => channels[slot] = Some(channel.clone()),
             Some(known) if known.type_name != channel.type_name => {
@@ -161,34 +202,50 @@ pub fn first_pass(
         let index = stream.stamps_ns.len();
         let time_ns = match clock {
             Clock::Receive => message.receive_ns,
-            Clock::Header => {
-                let (defs, wire) = (&decoder.defs, channel.wire);
-                let first = decode_first_field(defs, &channel.type_name, wire, &message.data)
-                    .map_err(|source| IngestError::Decode {
-                        path: path.to_path_buf(),
-                        topic: spec.topic.clone(),
-                        index,
-                        source: Box::new(source),
-                    })?;
-                match header_stamp(first.as_ref()) {
-                    Stamp::At(stamp) => stamp,
-                    // A type without a header (std_msgs/String): when it was received.
-                    Stamp::NoHeader => message.receive_ns,
-                    Stamp::Zero => {
-                        return Err(IngestError::NoStamp {
-                            path: path.to_path_buf(),
-                            topic: spec.topic.clone(),
-                            index,
-                        });
-                    }
-                }
-            }
+            Clock::Header => header_time(path, decoder, index, &message)?,
         };
         stream
             .stamps_ns
             .push(time_ns.saturating_add(spec.offset_ns));
     }
-    Ok(FirstPass { streams, channels })
+    Ok(FirstPass {
+        streams,
+        channels,
+        first_messages,
+    })
+}
+
+/// A message's `header.stamp` (the `index`-th of its topic), or when it was received for a
+/// type without a header; a zero stamp is an error.
+fn header_time(
+    path: &Path,
+    decoder: &Decoder,
+    index: usize,
+    message: &crate::ingest::recording::RawMessage,
+) -> Result<i64, IngestError> {
+    let channel = &decoder.channel;
+    let first = decode_first_field(
+        &decoder.defs,
+        &channel.type_name,
+        channel.wire,
+        &message.data,
+    )
+    .map_err(|source| IngestError::Decode {
+        path: path.to_path_buf(),
+        topic: channel.topic.clone(),
+        index,
+        source: Box::new(source),
+    })?;
+    match header_stamp(first.as_ref()) {
+        Stamp::At(stamp) => Ok(stamp),
+        // A type without a header (std_msgs/String): when it was received.
+        Stamp::NoHeader => Ok(message.receive_ns),
+        Stamp::Zero => Err(IngestError::NoStamp {
+            path: path.to_path_buf(),
+            topic: channel.topic.clone(),
+            index,
+        }),
+    }
 }
 
 /// What a message's first field says of its time.

@@ -351,6 +351,8 @@ impl LeRobotFiles {
             let dimension = |i: usize| shape.get(i).copied().unwrap_or(0);
             let entry = features.entry(key.clone()).or_insert_with(|| json!({}));
             entry["dtype"] = json!("video");
+            // The feature's own facts (a camera's intrinsics) stay beside the video's.
+            let own = entry.get("info").cloned();
             entry["info"] = json!({
                 "video.height": dimension(0),
                 "video.width": dimension(1),
@@ -361,6 +363,11 @@ impl LeRobotFiles {
                 "video.channels": dimension(2),
                 "has_audio": false,
             });
+            if let (Some(Value::Object(own)), Some(info)) = (own, entry["info"].as_object_mut()) {
+                for (key, value) in own {
+                    info.entry(key).or_insert(value);
+                }
+            }
         }
         let episodes = self.state.episodes;
         InfoJson {

@@ -158,6 +158,18 @@ def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, 
     for _, topic, camera_encoding, shift in cameras:
         msgtype = "sensor_msgs/msg/CompressedImage" if camera_encoding in ("jpeg", "png") else "sensor_msgs/msg/Image"
         add(topic, msgtype, streams["camera"], lambda k, s, e=camera_encoding, d=shift: image_msg(ts, ros1, s, k + d, e), lambda k, d=shift: k + d)
+    # Each camera's intrinsics beside it, stated once (ROS 1 spells the matrices K, D, R, P).
+    CameraInfo, RegionOfInterest = ts.types["sensor_msgs/msg/CameraInfo"], ts.types["sensor_msgs/msg/RegionOfInterest"]
+    expected["camera_info"] = {}
+    for c, (name, topic, _, _) in enumerate(cameras):
+        k = [400.0 + c, 0.0, WIDTH / 2, 0.0, 401.0 + c, HEIGHT / 2, 0.0, 0.0, 1.0]
+        d = [0.1, -0.05, 0.0, 0.0, 0.01]
+        matrices = {"D": np.array(d), "K": np.array(k), "R": np.eye(3).reshape(-1), "P": np.array(k[:3] + [0.0] + k[3:6] + [0.0] + k[6:] + [0.0])}
+        if not ros1:
+            matrices = {key.lower(): value for key, value in matrices.items()}
+        info = CameraInfo(header=header(ts, ros1, START_NS, f"{name}_optical"), height=HEIGHT, width=WIDTH, distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False), **matrices)
+        out.append((START_NS + 1, topic.rsplit("/", 1)[0] + "/camera_info", "sensor_msgs/msg/CameraInfo", info))
+        expected["camera_info"][name] = {"frame_id": f"{name}_optical", "k": k, "d": d}
     String = ts.types["std_msgs/msg/String"]
     # The instruction changes mid-episode (before the camera's dropout). A type without a
     # header: its time is when it was received.

@@ -88,6 +88,17 @@ def test_every_frame_is_the_rules_message(name):
     assert dataset.num_frames == sum(len(e) for e in episodes)
     names = dataset.meta.features["observation.state"]["names"]
     assert names == [f"{arm}.{v}" for arm in arms for v in ("x", "y", "z", "qx", "qy", "qz", "qw", "jaw")]
+    # The features' own facts: each camera's topic and intrinsics, each pose's frame.
+    for camera, topic, _, _ in cameras:
+        info = dataset.meta.features[f"observation.images.{camera}"]["info"]
+        want = expected["camera_info"][camera]
+        assert info["camera.topic"] == topic
+        assert info["camera.frame_id"] == want["frame_id"] and info["camera.distortion_model"] == "plumb_bob"
+        np.testing.assert_allclose(info["camera.k"], want["k"])
+        np.testing.assert_allclose(info["camera.d"], want["d"])
+    for key in ("observation.state", "action"):
+        info = dataset.meta.features[key]["info"]
+        assert all(info[f"{arm}.frame_id"] == "world" for arm in arms), info
     text = "instruction.text" in dataset.meta.features
     assert text == (VIDEO or "--instruction-text" in expected["ingest_args"])
     index = 0
