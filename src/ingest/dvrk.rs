@@ -13,6 +13,7 @@ use crate::ingest::extract::{RgbImage, joint_positions, pose_frames, pose7, rgb}
 
 /// A feature's own facts (its `info`).
 pub type FeatureInfo = serde_json::Map<String, serde_json::Value>;
+use crate::ingest::map::MappedFeature;
 use crate::ingest::stamps::TopicSpec;
 use crate::ingest::sync::StreamKind;
 
@@ -26,6 +27,8 @@ pub struct DvrkPreset {
     pub arms: Vec<String>,
     /// (feature name, topic) per camera.
     pub cameras: Vec<(String, String)>,
+    /// Features of topics the preset does not cover (`--map`), after the cameras' topics.
+    pub mapped: Vec<MappedFeature>,
 }
 
 /// One frame's features.
@@ -37,6 +40,8 @@ pub struct DvrkFrame {
     pub action: Vec<f32>,
     /// One per camera, in order.
     pub images: Vec<RgbImage>,
+    /// Each mapped feature's values, in order.
+    pub mapped: Vec<Vec<f32>>,
     /// The instruction topic's text, when it has one.
     pub instruction: Option<String>,
 }
@@ -69,7 +74,14 @@ impl DvrkPreset {
         DvrkPreset {
             arms,
             cameras: cameras.to_vec(),
+            mapped: Vec::new(),
         }
+    }
+
+    /// The preset with features of more topics (`--map`).
+    pub fn with_mapped(mut self, mapped: Vec<MappedFeature>) -> DvrkPreset {
+        self.mapped = mapped;
+        self
     }
 
     /// Every topic the preset reads, in slot order: each arm's four, the cameras, then the
@@ -87,7 +99,9 @@ impl DvrkPreset {
         });
         let cameras =
             (self.cameras.iter()).map(|(_, topic)| spec(topic.clone(), StreamKind::Sampled));
+        let mapped = (self.mapped.iter()).map(|m| spec(m.topic.clone(), m.stream_kind()));
         arms.chain(cameras)
+            .chain(mapped)
             .chain([spec(INSTRUCTION_TOPIC.into(), StreamKind::Event)])
             .collect()
     }
@@ -170,6 +184,14 @@ impl DvrkPreset {
                 .ok_or_else(|| format!("camera {name}: no message on {topic}"))?;
             images.push(rgb(message).map_err(|e| format!("camera {name} ({topic}): {e}"))?);
         }
+        let first_mapped = first_camera + self.cameras.len();
+        let mut mapped = Vec::with_capacity(self.mapped.len());
+        for (m, feature) in self.mapped.iter().enumerate() {
+            let message = (values.get(first_mapped + m))
+                .ok_or_else(|| format!("{}: no message on {}", feature.name, feature.topic))?;
+            let got = feature.extract(message);
+            mapped.push(got.map_err(|e| format!("{} ({}) {e}", feature.name, feature.topic))?);
+        }
         let instruction = (values.len() == topics.len())
             .then(|| values.last())
             .flatten()
@@ -180,6 +202,7 @@ impl DvrkPreset {
             state,
             action,
             images,
+            mapped,
             instruction,
         })
     }

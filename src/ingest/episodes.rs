@@ -157,7 +157,7 @@ impl<'a> Making<'a> {
 }
 
 /// A step of a frame's features, in feature order: each camera (PNG), then state and action,
-/// then with `text` (Some(the task given)) the frame's instruction. Every feature is one of
+/// each mapped feature, then with `text` (Some(the task given)) the frame's instruction. Every feature is one of
 /// the dataset's own (not surgvla's simulated ones), as any format reads a dataset another
 /// tool made.
 fn step(frame: DvrkFrame, text: Option<Option<&str>>) -> Result<Step, String> {
@@ -175,6 +175,9 @@ fn step(frame: DvrkFrame, text: Option<Option<&str>>) -> Result<Step, String> {
     }
     step.other.push(FeatureValue::Float32(frame.state));
     step.other.push(FeatureValue::Float32(frame.action));
+    for values in frame.mapped {
+        step.other.push(FeatureValue::Float32(values));
+    }
     if let Some(task) = text {
         let instruction = task.map(String::from).or(frame.instruction);
         step.other

@@ -7,7 +7,8 @@
 //! topic's times ([`stamps`]), the synchronisation rule that puts them on frames ([`sync`]),
 //! the second pass that hands each frame's picked messages over ([`frames`]), made into
 //! episodes ([`episodes`]) and reported in the dataset ([`report`]); [`dvrk`] maps a da Vinci
-//! Research Kit recording's topics to state, action, images and task, [`source`] reads
+//! Research Kit recording's topics to state, action, images and task ([`map`]: more topics
+//! as features from a user's map file), [`source`] reads
 //! recordings as episodes any sink takes, and [`openh`] writes what Open-H asks of a
 //! contribution besides the files (its README). Everything here reads untrusted files: sizes are
 //! checked before allocating, and a damaged input is an error naming the file and the offset.
@@ -24,6 +25,7 @@ pub mod extract;
 pub(crate) mod fixtures;
 pub mod frames;
 pub mod lz4chunk;
+pub mod map;
 pub mod mcap;
 pub mod msgdef;
 pub mod open;

@@ -37,7 +37,7 @@ pub struct IngestOptions {
     pub offsets_ns: Vec<(String, i64)>,
     /// Each frame's instruction as a text feature, `instruction.text` (Open-H's per-frame
     /// instruction): the task given, else the latest instruction message at or before the
-    /// frame ("" before the first).
+    /// frame (an event stream: no frame is written before its first message).
     pub instruction_text: bool,
     /// Named ranges of the dataset's episode indices (`--split`), checked against the episodes
     /// the inputs make.
@@ -45,9 +45,18 @@ pub struct IngestOptions {
 }
 
 impl IngestOptions {
-    /// Refuses an offset for a topic the preset does not read.
+    /// Refuses an offset for a topic the preset does not read, and a topic read twice (a
+    /// mapped feature on a camera's topic, say).
     pub fn check(&self) -> Result<(), IngestError> {
         let topics = self.preset.topics();
+        for (i, topic) in topics.iter().enumerate() {
+            if topics[..i].iter().any(|t| t.topic == topic.topic) {
+                return Err(IngestError::Usage(format!(
+                    "{} is read twice (by the preset, a camera or --map): each topic makes one feature",
+                    topic.topic
+                )));
+            }
+        }
         for (topic, _) in &self.offsets_ns {
             if !topics.iter().any(|t| &t.topic == topic) {
                 let read: Vec<&str> = topics.iter().map(|t| t.topic.as_str()).collect();
@@ -231,6 +240,19 @@ impl IngestSource {
             .collect();
         features.push(vector("observation.state", state_info));
         features.push(vector("action", action_info));
+        for mapped in &preset.mapped {
+            let mut info = FeatureInfo::new();
+            info.insert("ros.topic".into(), mapped.topic.as_str().into());
+            features.push(FeatureSpec {
+                name: mapped.name.clone(),
+                dtype: Dtype::Float32,
+                shape: vec![mapped.len()],
+                names: mapped.value_names(),
+                kind: FeatureKind::Other,
+                video: None,
+                info,
+            });
+        }
         if self.options.instruction_text {
             features.push(FeatureSpec {
                 name: INSTRUCTION_FEATURE.into(),
@@ -504,6 +526,7 @@ mod tests {
             ("/PSM1/setpoint_cp", "geometry_msgs/msg/PoseStamped", ""),
             ("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState", ""),
             ("/camera/left", "sensor_msgs/msg/Image", ""),
+            ("/ECM/measured_cp", "geometry_msgs/msg/PoseStamped", ""),
         ];
         let mut messages: Vec<(usize, u64, Vec<u8>)> = Vec::new();
         let ms = 1_000_000i64;
@@ -518,6 +541,7 @@ mod tests {
             if k % 10 == 0 {
                 messages.push((4, t as u64, image(t, k as u8)));
             }
+            messages.push((5, t as u64, pose(t, -(k as f64))));
         }
         let bytes = crate::ingest::fixtures::mcap_bytes(None, &channels, &messages);
         crate::ingest::fixtures::temp_file("ingest.mcap", &bytes)
@@ -537,6 +561,41 @@ mod tests {
             instruction_text: false,
             splits: Vec::new(),
         }
+    }
+
+    #[test]
+    fn mapped_topics_become_features_after_the_action() {
+        let path = recording();
+        let mut mapped = options();
+        let map = "[[feature]]\nname = \"observation.meta.ecm_pose\"\ntopic = \"/ECM/measured_cp\"\nvalues = \"pose\"\n";
+        let features = crate::ingest::map::parse(map).expect("map");
+        mapped.preset = mapped.preset.with_mapped(features);
+        let mut source =
+            IngestSource::open(std::slice::from_ref(&path), mapped.clone()).expect("open");
+        let info = source.info().clone();
+        let ecm = &info.features[3];
+        assert_eq!(
+            (ecm.name.as_str(), ecm.shape.as_slice()),
+            ("observation.meta.ecm_pose", &[7][..])
+        );
+        assert_eq!(ecm.info["ros.topic"], "/ECM/measured_cp");
+        assert_eq!(
+            info.features[1].info["PSM1.frame_id"], "world",
+            "the poses' frame"
+        );
+        let episode = source.next().expect("an episode").expect("read");
+        for (k, step) in episode.steps.iter().enumerate() {
+            let Some(FeatureValue::Float32(values)) = step.other.get(3) else {
+                panic!("the ECM's pose after the action");
+            };
+            assert_eq!(values[..3], [-((10 * k) as f32), 0.5, -0.25], "frame {k}");
+        }
+        // A topic read twice is refused before the recording is read.
+        let mut twice = mapped;
+        twice.preset.mapped[0].topic = "/camera/left".into();
+        let error = IngestSource::open(std::slice::from_ref(&path), twice).err();
+        assert!(error.is_some_and(|e| e.to_string().contains("/camera/left is read twice")));
+        std::fs::remove_file(path).ok();
     }
 
     #[test]

@@ -347,3 +347,36 @@ fn the_open_h_profile_writes_lerobot_2_1_video_with_its_readme_splits_and_instru
     }
     std::fs::remove_dir_all(root).ok();
 }
+
+#[test]
+fn a_map_file_is_checked_and_its_topics_must_be_recorded() {
+    let root = temp_root("ingest-map");
+    std::fs::create_dir_all(&root).expect("root");
+    let map = root.join("map.toml");
+    let out = root.join("out");
+    let map_arg = map.to_str().expect("utf-8");
+    std::fs::write(
+        &map,
+        "[[feature]]\nname = \"action\"\ntopic = \"/ECM/measured_cp\"\nvalues = \"pose\"\n",
+    )
+    .expect("write");
+    let (code, _, stderr) = ingest(&out, &["--map", map_arg]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains(map_arg) && stderr.contains("the preset writes"),
+        "{stderr}"
+    );
+    std::fs::write(
+        &map,
+        "[[feature]]\nname = \"observation.meta.ecm\"\ntopic = \"/ECM/measured_cp\"\nvalues = \"pose\"\n",
+    )
+    .expect("write");
+    let (code, _, stderr) = ingest(&out, &["--map", map_arg]);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("/ECM/measured_cp") && stderr.contains("ros1_raw_lz4.bag"),
+        "{stderr}"
+    );
+    assert!(!out.join("meta/info.json").exists());
+    std::fs::remove_dir_all(root).ok();
+}

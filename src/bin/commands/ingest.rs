@@ -39,6 +39,11 @@ pub(crate) struct IngestArgs {
     /// (sensor_msgs/Image or CompressedImage).
     #[arg(long = "camera", required = true, value_parser = parse_camera)]
     cameras: Vec<(String, String)>,
+    /// More topics as features, a TOML file of [[feature]] tables (name, topic, kind, values
+    /// = pose | joints | fields, fields, count, names): a second instrument, the ECM's pose,
+    /// a force sensor as observation.meta.*; see docs/ingest.md.
+    #[arg(long)]
+    map: Option<PathBuf>,
     /// The task of every episode (wins over an /instruction topic in the recording).
     #[arg(long)]
     task: Option<String>,
@@ -190,8 +195,12 @@ fn parse_tolerance(text: &str) -> Result<f64, String> {
 }
 
 impl IngestArgs {
-    fn options(&self) -> IngestOptions {
+    fn options(&self) -> Result<IngestOptions, CliError> {
         let Preset::Dvrk = self.preset;
+        let mapped = match &self.map {
+            Some(path) => surgvla::ingest::map::load(path)?,
+            None => Vec::new(),
+        };
         let mut sync = SyncOptions::at(self.fps);
         if let Some(ms) = self.tolerance_ms {
             sync.tolerance_ns = (ms * 1e6).round() as i64;
@@ -200,8 +209,8 @@ impl IngestArgs {
             GapArg::Split => OnGap::Split,
             GapArg::Drop => OnGap::Drop,
         };
-        IngestOptions {
-            preset: DvrkPreset::new(&self.arms, &self.cameras),
+        Ok(IngestOptions {
+            preset: DvrkPreset::new(&self.arms, &self.cameras).with_mapped(mapped),
             clock: match self.clock {
                 ClockArg::Header => Clock::Header,
                 ClockArg::Receive => Clock::Receive,
@@ -211,7 +220,7 @@ impl IngestArgs {
             offsets_ns: self.offsets.clone(),
             instruction_text: self.instruction_text || self.profile == Some(Profile::OpenH),
             splits: self.splits.clone(),
-        }
+        })
     }
 
     /// The inputs of this shard.
@@ -237,7 +246,7 @@ impl IngestArgs {
 
     fn open(&self) -> Result<IngestSource, CliError> {
         let bar = crate::progress::spinner("reading the recordings' times");
-        let source = IngestSource::open(self.inputs()?, self.options());
+        let source = IngestSource::open(self.inputs()?, self.options()?);
         bar.finish_and_clear();
         Ok(source?)
     }

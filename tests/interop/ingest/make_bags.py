@@ -127,7 +127,7 @@ def image_msg(ts, ros1, ns, k, encoding):
     return Img(header=header(ts, ros1, ns, "camera"), height=HEIGHT, width=WIDTH, encoding=encoding, is_bigendian=0, step=step, data=np.ascontiguousarray(pixels).reshape(-1))
 
 
-def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, **kwargs):
+def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, mapped=False, **kwargs):
     """Every message of a session, in receive order: (topic, type, receive ns, msg) and the
     expected record, with the arguments `surgvla ingest` takes for it. A bimanual session has
     PSM2 too (its values offset by 1) and a second camera (mono8, its pattern 100 frames on)."""
@@ -158,6 +158,21 @@ def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, 
     for _, topic, camera_encoding, shift in cameras:
         msgtype = "sensor_msgs/msg/CompressedImage" if camera_encoding in ("jpeg", "png") else "sensor_msgs/msg/Image"
         add(topic, msgtype, streams["camera"], lambda k, s, e=camera_encoding, d=shift: image_msg(ts, ros1, s, k + d, e), lambda k, d=shift: k + d)
+    if mapped:
+        # Topics the preset does not cover, read through a --map file (written by main): the
+        # ECM's pose and a force sensor, both sampled at the arm's times.
+        Wrench, WrenchStamped, Vector3 = ts.types["geometry_msgs/msg/Wrench"], ts.types["geometry_msgs/msg/WrenchStamped"], ts.types["geometry_msgs/msg/Vector3"]
+
+        def wrench(k, s):
+            force, torque = Vector3(x=0.1 * k, y=0.0, z=-1.0), Vector3(x=0.0, y=0.0, z=-0.01 * k)
+            return WrenchStamped(header=header(ts, ros1, s, "force_sensor"), wrench=Wrench(force=force, torque=torque))
+
+        add("/ECM/measured_cp", pose_type, streams["arm"], lambda k, s: pose_msg(ts, ros1, s, pose_values(k, 2.0), transform), lambda k: pose_values(k, 2.0))
+        add("/force/wrench", "geometry_msgs/msg/WrenchStamped", streams["arm"], wrench, lambda k: [0.1 * k, -0.01 * k])
+        expected["mapped"] = [
+            {"name": "observation.meta.ecm_pose", "topic": "/ECM/measured_cp", "toml": 'values = "pose"'},
+            {"name": "observation.meta.force", "topic": "/force/wrench", "toml": 'values = "fields"\nfields = ["wrench.force.x", "wrench.torque.z"]\nnames = ["fx", "tz"]'},
+        ]
     # Each camera's intrinsics beside it, stated once (ROS 1 spells the matrices K, D, R, P).
     CameraInfo, RegionOfInterest = ts.types["sensor_msgs/msg/CameraInfo"], ts.types["sensor_msgs/msg/RegionOfInterest"]
     expected["camera_info"] = {}
@@ -185,9 +200,9 @@ def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, 
     return out, expected
 
 
-def write_ros1(path, seed, encoding, compression, bimanual=False):
+def write_ros1(path, seed, encoding, compression, bimanual=False, mapped=False):
     ts = get_typestore(Stores.ROS1_NOETIC)
-    messages, expected = session_messages(ts, True, seed, encoding, bimanual=bimanual)
+    messages, expected = session_messages(ts, True, seed, encoding, bimanual=bimanual, mapped=mapped)
     writer = Ros1Writer(path)
     if compression:
         writer.set_compression(getattr(Ros1Writer.CompressionFormat, compression))
@@ -283,7 +298,7 @@ def to_dict(msg):
 
 SESSIONS = {
     # name: (writer, kwargs)
-    "ros1_raw_lz4.bag": (write_ros1, dict(seed=1, encoding="rgb8", compression="LZ4")),
+    "ros1_raw_lz4.bag": (write_ros1, dict(seed=1, encoding="rgb8", compression="LZ4", mapped=True)),
     "ros1_mono_bz2.bag": (write_ros1, dict(seed=2, encoding="mono8", compression="BZ2")),
     "ros2_sqlite_split": (write_ros2, dict(seed=3, encoding="bgr8", storage="sqlite3", split=True, transform=True)),
     "ros2_mcap_jpeg": (write_ros2, dict(seed=4, encoding="jpeg", storage="mcap")),
@@ -316,6 +331,10 @@ def main(out, bench=None):
         return
     for name, (writer, kwargs) in SESSIONS.items():
         expected = writer(str(out / name), **kwargs)
+        if "mapped" in expected:
+            map_file = (out / f"{name}.map.toml").resolve()
+            map_file.write_text("".join(f'[[feature]]\nname = "{m["name"]}"\ntopic = "{m["topic"]}"\n{m["toml"]}\n\n' for m in expected["mapped"]))
+            expected["ingest_args"] += ["--map", str(map_file)]
         (out / f"{name}.json").write_text(json.dumps(expected))
         print(f"wrote {out / name}")
 

@@ -32,6 +32,8 @@ def topics(expected):
     arms, cameras = expected["arms"], expected["cameras"]
     sampled = [t for arm in arms for t in (f"/{arm}/measured_cp", f"/{arm}/jaw/measured_js")]
     sampled += [topic for _, topic, _, _ in cameras]
+    # Topics a --map file adds are sampled too.
+    sampled += [m["topic"] for m in expected.get("mapped", [])]
     # The instruction is an event too (the datasets are made without --task).
     events = [t for arm in arms for t in (f"/{arm}/setpoint_cp", f"/{arm}/jaw/setpoint_js")]
     return sampled, events + ["/instruction"]
@@ -127,6 +129,8 @@ def test_every_frame_is_the_rules_message(name):
             assert item["task"] == frames[0]["/instruction"]["value"]
             if text:
                 assert item["instruction.text"] == frame["/instruction"]["value"]
+            for m in expected.get("mapped", []):
+                np.testing.assert_allclose(item[m["name"]].numpy(), np.float32(frame[m["topic"]]["value"]), rtol=0, atol=0)
 
 
 @pytest.mark.parametrize("name", NAMES)
