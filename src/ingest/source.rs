@@ -194,9 +194,12 @@ impl IngestSource {
     fn identity(&self) -> String {
         let mut crc = crc32c::crc32c(format!("{:?}", self.options).as_bytes());
         for input in &self.inputs {
-            let size = std::fs::metadata(&input.path).map_or(0, |m| m.len());
             let name = input.path.file_name().unwrap_or_default();
-            let line = format!("{}\0{size}\0", name.to_string_lossy());
+            let line = format!(
+                "{}\0{}\0",
+                name.to_string_lossy(),
+                content_sizes(&input.path)
+            );
             crc = crc32c::crc32c_append(crc, line.as_bytes());
         }
         format!(
@@ -319,6 +322,35 @@ impl IngestSource {
             .extend((made.episodes.into_iter()).skip(std::mem::take(&mut self.skipped)));
         Ok(())
     }
+}
+
+/// What a resume compares of an input's content: a file's size; a bag folder's files' names
+/// and sizes in name order (a folder entry's own size says nothing of its files; a folder of
+/// more than 100,000 entries is compared by its first ones read).
+fn content_sizes(path: &Path) -> String {
+    let Ok(metadata) = std::fs::metadata(path) else {
+        return String::new();
+    };
+    if !metadata.is_dir() {
+        return metadata.len().to_string();
+    }
+    let mut files: Vec<(String, u64)> = std::fs::read_dir(path)
+        .map(|entries| {
+            entries
+                .flatten()
+                .take(100_000)
+                .filter_map(|e| {
+                    let size = e.metadata().ok().filter(|m| m.is_file())?.len();
+                    Some((e.file_name().to_string_lossy().into_owned(), size))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    files.sort();
+    (files.iter())
+        .map(|(name, size)| format!("{name}:{size}"))
+        .collect::<Vec<_>>()
+        .join("/")
 }
 
 /// The per-frame instruction's feature name (Open-H's).

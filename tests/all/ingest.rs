@@ -380,3 +380,54 @@ fn a_map_file_is_checked_and_its_topics_must_be_recorded() {
     assert!(!out.join("meta/info.json").exists());
     std::fs::remove_dir_all(root).ok();
 }
+
+#[test]
+fn an_ingest_killed_mid_run_resumes_through_the_cli_to_the_same_bytes() {
+    let root = temp_root("ingest-kill");
+    let bag = fixture("ros1_raw_lz4.bag");
+    let bag = bag.to_str().expect("utf-8");
+    // 200 sessions (the same recording again and again), long enough to be killed mid-run.
+    let args = |out: &Path| {
+        let mut args = vec!["ingest"];
+        args.extend(std::iter::repeat_n(bag, 200));
+        let out = out.to_str().expect("utf-8").to_string();
+        args.extend([
+            "--camera",
+            "left=/camera/left/image",
+            "--lerobot-version",
+            "2.1",
+        ]);
+        args.extend(["--threads", "1", "--out"]);
+        let mut args: Vec<String> = args.into_iter().map(String::from).collect();
+        args.push(out);
+        args
+    };
+    let (reference, killed) = (root.join("reference"), root.join("killed"));
+    let reference_args = args(&reference);
+    let (code, _, stderr) = surgvla(
+        &reference_args
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let killed_args = args(&killed);
+    let killed_args: Vec<&str> = killed_args.iter().map(String::as_str).collect();
+    crate::util::kill_after_checkpoint(&killed_args, &killed);
+    assert!(
+        killed.join(INCOMPLETE_MARKER).exists(),
+        "a killed run is marked incomplete"
+    );
+    let mut resume = killed_args.clone();
+    resume.push("--resume");
+    let (code, stdout, stderr) = surgvla(&resume);
+    assert_eq!(code, 0, "{stderr}");
+    let said = format!("{stdout}{stderr}");
+    assert!(said.contains("resum"), "{said}");
+    let (a, b) = (tree(&reference), tree(&killed));
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (name, bytes) in &a {
+        assert!(b[name] == *bytes, "{name} differs after the resume");
+    }
+    std::fs::remove_dir_all(root).ok();
+}
