@@ -9,7 +9,9 @@
 //! written); setpoints and the instruction are *events* (their last value holds).
 
 use crate::ingest::decode::RosValue;
-use crate::ingest::extract::{RgbImage, joint_positions, pose_frames, pose7, rgb};
+use crate::ingest::extract::{
+    DepthImage, RgbImage, joint_positions, pose_frames, pose7, raw_depth, rgb,
+};
 
 /// A feature's own facts (its `info`).
 pub type FeatureInfo = serde_json::Map<String, serde_json::Value>;
@@ -27,6 +29,8 @@ pub struct DvrkPreset {
     pub arms: Vec<String>,
     /// (feature name, topic) per camera.
     pub cameras: Vec<(String, String)>,
+    /// (feature name, topic) per depth camera (16UC1 or 32FC1), after the cameras.
+    pub depths: Vec<(String, String)>,
     /// Features of topics the preset does not cover (`--map`), after the cameras' topics.
     pub mapped: Vec<MappedFeature>,
 }
@@ -40,6 +44,8 @@ pub struct DvrkFrame {
     pub action: Vec<f32>,
     /// One per camera, in order.
     pub images: Vec<RgbImage>,
+    /// One per depth camera, in order.
+    pub depths: Vec<DepthImage>,
     /// Each mapped feature's values, in order.
     pub mapped: Vec<Vec<f32>>,
     /// The instruction topic's text, when it has one.
@@ -74,8 +80,20 @@ impl DvrkPreset {
         DvrkPreset {
             arms,
             cameras: cameras.to_vec(),
+            depths: Vec::new(),
             mapped: Vec::new(),
         }
+    }
+
+    /// The preset with depth cameras (`--depth NAME=TOPIC`).
+    pub fn with_depths(mut self, depths: &[(String, String)]) -> DvrkPreset {
+        self.depths = depths.to_vec();
+        self
+    }
+
+    /// Every image feature's (name, topic): the cameras, then the depth cameras.
+    pub fn image_topics(&self) -> impl Iterator<Item = &(String, String)> {
+        self.cameras.iter().chain(&self.depths)
     }
 
     /// The preset with features of more topics (`--map`).
@@ -98,7 +116,7 @@ impl DvrkPreset {
                 .map(move |(name, kind)| spec(format!("{arm}/{name}"), *kind))
         });
         let cameras =
-            (self.cameras.iter()).map(|(_, topic)| spec(topic.clone(), StreamKind::Sampled));
+            (self.image_topics()).map(|(_, topic)| spec(topic.clone(), StreamKind::Sampled));
         let mapped = (self.mapped.iter()).map(|m| spec(m.topic.clone(), m.stream_kind()));
         arms.chain(cameras)
             .chain(mapped)
@@ -117,7 +135,7 @@ impl DvrkPreset {
             .collect()
     }
 
-    /// Where each camera's `sensor_msgs/CameraInfo` may be, beside its image topic:
+    /// Where each camera's (then each depth camera's) `sensor_msgs/CameraInfo` may be, beside its image topic:
     /// `.../camera_info` next to it, and for an image transport's `.../compressed` topic next
     /// to the image topic it compresses; per camera, in order of preference.
     pub fn camera_info_topics(&self) -> Vec<Vec<String>> {
@@ -126,7 +144,7 @@ impl DvrkPreset {
                 .rsplit_once('/')
                 .map(|(parent, _)| format!("{parent}/camera_info"))
         };
-        (self.cameras.iter())
+        (self.image_topics())
             .map(|(_, topic)| {
                 let mut candidates: Vec<String> = sibling(topic).into_iter().collect();
                 if let Some(base) = topic.strip_suffix("/compressed") {
@@ -184,7 +202,17 @@ impl DvrkPreset {
                 .ok_or_else(|| format!("camera {name}: no message on {topic}"))?;
             images.push(rgb(message).map_err(|e| format!("camera {name} ({topic}): {e}"))?);
         }
-        let first_mapped = first_camera + self.cameras.len();
+        let first_depth = first_camera + self.cameras.len();
+        let mut depths = Vec::with_capacity(self.depths.len());
+        for (d, (name, topic)) in self.depths.iter().enumerate() {
+            let message = values
+                .get(first_depth + d)
+                .ok_or_else(|| format!("depth camera {name}: no message on {topic}"))?;
+            depths.push(
+                raw_depth(message).map_err(|e| format!("depth camera {name} ({topic}): {e}"))?,
+            );
+        }
+        let first_mapped = first_depth + self.depths.len();
         let mut mapped = Vec::with_capacity(self.mapped.len());
         for (m, feature) in self.mapped.iter().enumerate() {
             let message = (values.get(first_mapped + m))
@@ -202,6 +230,7 @@ impl DvrkPreset {
             state,
             action,
             images,
+            depths,
             mapped,
             instruction,
         })

@@ -122,13 +122,15 @@ impl<'a> Making<'a> {
     }
 
     fn check_sizes(&mut self, time_ns: i64, frame: &DvrkFrame) -> Result<(), IngestError> {
-        let here: Vec<(usize, usize)> = frame.images.iter().map(|i| (i.height, i.width)).collect();
+        let cameras = frame.images.iter().map(|i| (i.height, i.width));
+        let depths = frame.depths.iter().map(|d| (d.height, d.width));
+        let here: Vec<(usize, usize)> = cameras.chain(depths).collect();
         let known = self.sizes.get_or_insert_with(|| here.clone());
         let changed = (here.iter().zip(known.iter()).enumerate())
             .find(|(_, (now, before))| now != before)
             .map(|(c, (now, before))| (c, *now, *before));
         if let Some((c, now, before)) = changed {
-            let name = (self.preset.cameras.get(c)).map_or("?", |(name, _)| name.as_str());
+            let name = (self.preset.image_topics().nth(c)).map_or("?", |(name, _)| name.as_str());
             return Err(self.bad(
                 time_ns,
                 format!(
@@ -156,7 +158,8 @@ impl<'a> Making<'a> {
     }
 }
 
-/// A step of a frame's features, in feature order: each camera (PNG), then state and action,
+/// A step of a frame's features, in feature order: each camera (PNG), each depth camera (16-bit
+/// PNG, millimetres), then state and action,
 /// each mapped feature, then with `text` (Some(the task given)) the frame's instruction. Every feature is one of
 /// the dataset's own (not surgvla's simulated ones), as any format reads a dataset another
 /// tool made.
@@ -168,6 +171,16 @@ fn step(frame: DvrkFrame, text: Option<Option<&str>>) -> Result<Step, String> {
             image.height,
             3,
             &image.rgb,
+            crate::media::image::PngLevel::Fast,
+        )
+        .map_err(|e| e.to_string())?;
+        step.other.push(FeatureValue::Image(png));
+    }
+    for depth in frame.depths {
+        let png = crate::media::image::encode_png16(
+            depth.width,
+            depth.height,
+            &depth.depth_mm,
             crate::media::image::PngLevel::Fast,
         )
         .map_err(|e| e.to_string())?;

@@ -18,12 +18,12 @@ pub struct RgbImage {
     pub rgb: Vec<u8>,
 }
 
-/// A depth image in metres (0: no depth).
+/// A depth image in whole millimetres (0: no depth), as a 16-bit PNG keeps it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DepthImage {
     pub width: usize,
     pub height: usize,
-    pub depth_m: Vec<f32>,
+    pub depth_mm: Vec<u16>,
 }
 
 /// The largest raw image read, in pixels.
@@ -201,7 +201,9 @@ pub fn raw_rgb(message: &RosValue) -> Result<RgbImage, String> {
     Ok(RgbImage { width, height, rgb })
 }
 
-/// The depth of a `sensor_msgs/Image` in 16UC1 (millimetres) or 32FC1 (metres), in metres.
+/// The depth of a `sensor_msgs/Image` in millimetres: 16UC1 (and mono16) as recorded, exactly;
+/// 32FC1 (metres) rounded to the millimetre, with no depth (NaN, infinite, zero or negative) and
+/// depth beyond 65.535 m as 0.
 pub fn raw_depth(message: &RosValue) -> Result<DepthImage, String> {
     let encoding = message
         .field("encoding")
@@ -221,22 +223,30 @@ pub fn raw_depth(message: &RosValue) -> Result<DepthImage, String> {
         }
     };
     let (width, height, step, data) = raw(message, size)?;
-    let mut depth_m = Vec::with_capacity(width * height);
+    let metres = |m: f32| {
+        let mm = (f64::from(m) * 1000.0).round();
+        if mm.is_finite() && mm > 0.0 && mm <= f64::from(u16::MAX) {
+            mm as u16
+        } else {
+            0
+        }
+    };
+    let mut depth_mm = Vec::with_capacity(width * height);
     for row in data.chunks(step).take(height) {
         for sample in row[..width * size].chunks_exact(size) {
-            depth_m.push(match *sample {
-                [a, b] if big => f32::from(u16::from_be_bytes([a, b])) / 1000.0,
-                [a, b] => f32::from(u16::from_le_bytes([a, b])) / 1000.0,
-                [a, b, c, d] if big => f32::from_be_bytes([a, b, c, d]),
-                [a, b, c, d] => f32::from_le_bytes([a, b, c, d]),
-                _ => 0.0,
+            depth_mm.push(match *sample {
+                [a, b] if big => u16::from_be_bytes([a, b]),
+                [a, b] => u16::from_le_bytes([a, b]),
+                [a, b, c, d] if big => metres(f32::from_be_bytes([a, b, c, d])),
+                [a, b, c, d] => metres(f32::from_le_bytes([a, b, c, d])),
+                _ => 0,
             });
         }
     }
     Ok(DepthImage {
         width,
         height,
-        depth_m,
+        depth_mm,
     })
 }
 
@@ -363,8 +373,20 @@ mod tests {
         assert!(short.contains("11 bytes"), "{short}");
         let huge = raw_rgb(&image("rgb8", 1 << 20, 1 << 20, 3 << 20, Vec::new()));
         assert!(huge.is_err());
-        let depth = raw_depth(&image("16UC1", 2, 1, 4, vec![0xe8, 0x03, 0, 0])).expect("16UC1");
-        assert_eq!(depth.depth_m, [1.0, 0.0]);
+        let depth = raw_depth(&image("16UC1", 2, 1, 4, vec![0xe9, 0x03, 0, 0])).expect("16UC1");
+        assert_eq!(depth.depth_mm, [1001, 0]);
+        let metres: Vec<u8> = [1.0016f32, f32::NAN, -1.0, 70.0]
+            .iter()
+            .flat_map(|m| m.to_le_bytes())
+            .collect();
+        let depth = raw_depth(&image("32FC1", 4, 1, 16, metres)).expect("32FC1");
+        assert_eq!(
+            depth.depth_mm,
+            [1002, 0, 0, 0],
+            "rounded; no depth and too far as 0"
+        );
+        let error = raw_depth(&image("rgb8", 1, 1, 3, vec![0; 3])).expect_err("rgb8");
+        assert!(error.contains("\"rgb8\""), "{error}");
     }
 
     #[test]

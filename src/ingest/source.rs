@@ -48,6 +48,16 @@ impl IngestOptions {
     /// Refuses an offset for a topic the preset does not read, and a topic read twice (a
     /// mapped feature on a camera's topic, say).
     pub fn check(&self) -> Result<(), IngestError> {
+        let names: Vec<&str> = (self.preset.image_topics().map(|(name, _)| name.as_str()))
+            .chain(self.preset.mapped.iter().map(|m| m.name.as_str()))
+            .collect();
+        for (i, name) in names.iter().enumerate() {
+            if names[..i].contains(name) {
+                return Err(IngestError::Usage(format!(
+                    "{name} is given twice (a camera, a depth camera or a mapped feature): each names one feature"
+                )));
+            }
+        }
         let topics = self.preset.topics();
         for (i, topic) in topics.iter().enumerate() {
             if topics[..i].iter().any(|t| t.topic == topic.topic) {
@@ -211,17 +221,21 @@ impl IngestSource {
     fn dataset_info(&self) -> DatasetInfo {
         let preset = &self.options.preset;
         let sizes = self.image_sizes.clone().unwrap_or_default();
-        let image = |c: usize, name: &str| {
+        // Cameras (RGB), then depth cameras (one channel, millimetres), by index.
+        let image = |c: usize, (name, topic): &(String, String)| {
             let (height, width) = sizes.get(c).copied().unwrap_or((0, 0));
+            let depth = c >= preset.cameras.len();
             let mut info = FeatureInfo::new();
-            if let Some((_, topic)) = preset.cameras.get(c) {
-                info.insert("camera.topic".into(), topic.as_str().into());
+            if depth {
+                info.insert("is_depth_map".into(), true.into());
+                info.insert("depth_unit".into(), "mm".into());
             }
+            info.insert("camera.topic".into(), topic.as_str().into());
             info.extend(self.camera_info.get(c).cloned().unwrap_or_default());
             FeatureSpec {
                 name: format!("observation.images.{name}"),
                 dtype: Dtype::Image,
-                shape: vec![height, width, 3],
+                shape: vec![height, width, if depth { 1 } else { 3 }],
                 names: ["height", "width", "channels"].map(String::from).to_vec(),
                 kind: FeatureKind::Other,
                 video: None,
@@ -238,8 +252,8 @@ impl IngestSource {
             video: None,
             info,
         };
-        let mut features: Vec<FeatureSpec> = (preset.cameras.iter().enumerate())
-            .map(|(c, (name, _))| image(c, name))
+        let mut features: Vec<FeatureSpec> = (preset.image_topics().enumerate())
+            .map(|(c, camera)| image(c, camera))
             .collect();
         features.push(vector("observation.state", state_info));
         features.push(vector("action", action_info));

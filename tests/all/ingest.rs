@@ -335,6 +335,11 @@ fn the_open_h_profile_writes_lerobot_2_1_video_with_its_readme_splits_and_instru
         (vec!["--split", "train=0:5"], "reaches past the 4 episodes"),
         (vec!["--split", "train=3"], "is not START:END"),
         (
+            vec!["--profile", "open-h", "--depth", "d=/camera/depth"],
+            "three channels only",
+        ),
+        (vec!["--depth", "left=/camera/depth"], "left is given twice"),
+        (
             vec!["--split", "val=0:1", "--to", "rlds"],
             "LeRobot's info.json",
         ),

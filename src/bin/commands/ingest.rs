@@ -39,6 +39,10 @@ pub(crate) struct IngestArgs {
     /// (sensor_msgs/Image or CompressedImage).
     #[arg(long = "camera", required = true, value_parser = parse_camera)]
     cameras: Vec<(String, String)>,
+    /// A depth camera as NAME=TOPIC, repeatable: observation.images.NAME, H x W x 1, a 16-bit
+    /// PNG in millimetres (sensor_msgs/Image 16UC1 as recorded; 32FC1 metres rounded to mm).
+    #[arg(long = "depth", value_parser = parse_camera)]
+    depths: Vec<(String, String)>,
     /// More topics as features, a TOML file of [[feature]] tables (name, topic, kind, values
     /// = pose | joints | fields, fields, count, names): a second instrument, the ECM's pose,
     /// a force sensor as observation.meta.*; see docs/ingest.md.
@@ -210,7 +214,9 @@ impl IngestArgs {
             GapArg::Drop => OnGap::Drop,
         };
         Ok(IngestOptions {
-            preset: DvrkPreset::new(&self.arms, &self.cameras).with_mapped(mapped),
+            preset: DvrkPreset::new(&self.arms, &self.cameras)
+                .with_depths(&self.depths)
+                .with_mapped(mapped),
             clock: match self.clock {
                 ClockArg::Header => Clock::Header,
                 ClockArg::Receive => Clock::Receive,
@@ -265,6 +271,11 @@ pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
         Some(Profile::OpenH) => args.formats.open_h_options(args.to)?,
         None => args.formats.sink_options(args.to, "--to")?,
     };
+    if args.profile == Some(Profile::OpenH) && !args.depths.is_empty() {
+        return Err(CliError::usage(
+            "--depth with --profile open-h: lerobot 0.3.3, which Open-H's validator loads with, takes image statistics of three channels only; ingest depth cameras without the profile",
+        ));
+    }
     if !args.splits.is_empty() && args.to.0.name() != "lerobot" {
         return Err(CliError::usage(
             "--split is written into LeRobot's info.json; --to names another format",

@@ -300,7 +300,10 @@ pub fn foreign_features_json(info: &DatasetInfo) -> Value {
                 for (s, v) in shape.iter_mut().zip(&feature.shape) {
                     *s = *v;
                 }
-                image(shape, "uint8", &format!("{} (as stored).", feature.name))
+                // A depth map in millimetres is a 16-bit PNG (TFDS decodes it as uint16).
+                let millimetres = feature.info.get("depth_unit").is_some_and(|u| u == "mm");
+                let dtype = if millimetres { "uint16" } else { "uint8" };
+                image(shape, dtype, &format!("{} (as stored).", feature.name))
             }
             Dtype::Float32 => tensor(elements, &feature.name),
             Dtype::Int64 => int_tensor(elements, &feature.name),

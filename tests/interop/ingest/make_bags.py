@@ -109,6 +109,18 @@ def joint_msg(ts, ros1, ns, angle):
     return JointState(header=header(ts, ros1, ns, ""), name=["jaw"], position=np.array([angle]), velocity=np.array([], dtype=np.float64), effort=np.array([], dtype=np.float64))
 
 
+def depth_pattern(k):
+    """A depth camera's k-th image, millimetres."""
+    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
+    return (300 + k * 7 + x * 100 + y * 1000).astype(np.uint16)
+
+
+def depth_msg(ts, ros1, ns, k):
+    Img = ts.types["sensor_msgs/msg/Image"]
+    data = np.frombuffer(depth_pattern(k).astype("<u2").tobytes(), dtype=np.uint8)
+    return Img(header=header(ts, ros1, ns, "depth"), height=HEIGHT, width=WIDTH, encoding="16UC1", is_bigendian=0, step=WIDTH * 2, data=data)
+
+
 def image_msg(ts, ros1, ns, k, encoding):
     rgb = pattern(k)
     if encoding in ("jpeg", "png"):
@@ -167,6 +179,10 @@ def session_messages(ts, ros1, seed, encoding, transform=False, bimanual=False, 
             force, torque = Vector3(x=0.1 * k, y=0.0, z=-1.0), Vector3(x=0.0, y=0.0, z=-0.01 * k)
             return WrenchStamped(header=header(ts, ros1, s, "force_sensor"), wrench=Wrench(force=force, torque=torque))
 
+        # A depth camera (16UC1) at the camera's times, read with --depth.
+        add("/camera/depth/image", "sensor_msgs/msg/Image", streams["camera"], lambda k, s: depth_msg(ts, ros1, s, k), lambda k: k)
+        expected["depths"] = [["depth", "/camera/depth/image"]]
+        expected["ingest_args"] += ["--depth", "depth=/camera/depth/image"]
         add("/ECM/measured_cp", pose_type, streams["arm"], lambda k, s: pose_msg(ts, ros1, s, pose_values(k, 2.0), transform), lambda k: pose_values(k, 2.0))
         add("/force/wrench", "geometry_msgs/msg/WrenchStamped", streams["arm"], wrench, lambda k: [0.1 * k, -0.01 * k])
         expected["mapped"] = [
@@ -335,6 +351,10 @@ def main(out, bench=None):
             map_file = (out / f"{name}.map.toml").resolve()
             map_file.write_text("".join(f'[[feature]]\nname = "{m["name"]}"\ntopic = "{m["topic"]}"\n{m["toml"]}\n\n' for m in expected["mapped"]))
             expected["ingest_args"] += ["--map", str(map_file)]
+        if "depths" in expected:
+            # lerobot 0.3.3 (Open-H's) takes three-channel image statistics only: no depth there.
+            depth_args = {"--depth"} | {f"{name}={topic}" for name, topic in expected["depths"]}
+            expected["open_h_args"] = [a for a in expected["ingest_args"] if a not in depth_args]
         (out / f"{name}.json").write_text(json.dumps(expected))
         print(f"wrote {out / name}")
 

@@ -34,6 +34,7 @@ def topics(expected):
     sampled += [topic for _, topic, _, _ in cameras]
     # Topics a --map file adds are sampled too.
     sampled += [m["topic"] for m in expected.get("mapped", [])]
+    sampled += [topic for _, topic in depths(expected)]
     # The instruction is an event too (the datasets are made without --task).
     events = [t for arm in arms for t in (f"/{arm}/setpoint_cp", f"/{arm}/jaw/setpoint_js")]
     return sampled, events + ["/instruction"]
@@ -45,6 +46,16 @@ def pattern(k):
     g = (k * 5 + (y // 8) * 60) % 256
     b = np.full_like(r, (k * 13) % 256)
     return np.stack([r, g, b], axis=-1).astype(np.uint8)
+
+
+def depths(expected):
+    """The depth cameras ingested: none into the open-h profile's video datasets."""
+    return [] if VIDEO else expected.get("depths", [])
+
+
+def depth_pattern(k):
+    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
+    return (300 + k * 7 + x * 100 + y * 1000).astype(np.int64)
 
 
 def rule(expected):
@@ -98,6 +109,9 @@ def test_every_frame_is_the_rules_message(name):
         assert info["camera.frame_id"] == want["frame_id"] and info["camera.distortion_model"] == "plumb_bob"
         np.testing.assert_allclose(info["camera.k"], want["k"])
         np.testing.assert_allclose(info["camera.d"], want["d"])
+    for name, topic in depths(expected):
+        info = dataset.meta.features[f"observation.images.{name}"]["info"]
+        assert info["is_depth_map"] is True and info["depth_unit"] == "mm" and info["camera.topic"] == topic
     for key in ("observation.state", "action"):
         info = dataset.meta.features[key]["info"]
         assert all(info[f"{arm}.frame_id"] == "world" for arm in arms), info
@@ -129,6 +143,10 @@ def test_every_frame_is_the_rules_message(name):
             assert item["task"] == frames[0]["/instruction"]["value"]
             if text:
                 assert item["instruction.text"] == frame["/instruction"]["value"]
+            for name, topic in depths(expected):
+                # A 16-bit PNG of millimetres, exact (the loader keeps the integers).
+                depth = item[f"observation.images.{name}"].numpy().astype(np.int64).reshape(HEIGHT, WIDTH)
+                assert (depth == depth_pattern(frame[topic]["value"])).all(), f"{name}: episode {e} frame {f}"
             for m in expected.get("mapped", []):
                 np.testing.assert_allclose(item[m["name"]].numpy(), np.float32(frame[m["topic"]]["value"]), rtol=0, atol=0)
 
