@@ -39,6 +39,12 @@ pub fn frame_id(message: &RosValue) -> Option<&str> {
     message.at("header.frame_id")?.as_str()
 }
 
+/// The most characters of a frame or model name kept (a forged one cannot swell info.json).
+const MAX_NAME_CHARS: usize = 256;
+
+/// The most values of a `CameraInfo` matrix kept.
+const MAX_MATRIX_VALUES: usize = 64;
+
 /// What a `sensor_msgs/CameraInfo` states of its camera, as a feature's `info` keys:
 /// `camera.frame_id`, `camera.width`, `camera.height`, `camera.distortion_model` and the
 /// matrices `camera.k` (3x3), `camera.d`, `camera.r` (3x3) and `camera.p` (3x4), row-major
@@ -47,7 +53,10 @@ pub fn camera_intrinsics(message: &RosValue) -> serde_json::Map<String, serde_js
     use serde_json::{Value, json};
     let mut info = serde_json::Map::new();
     if let Some(frame) = frame_id(message) {
-        info.insert("camera.frame_id".into(), json!(frame));
+        info.insert(
+            "camera.frame_id".into(),
+            json!(frame.chars().take(MAX_NAME_CHARS).collect::<String>()),
+        );
     }
     for key in ["width", "height"] {
         if let Some(v) = message.field(key).and_then(RosValue::as_i64) {
@@ -55,12 +64,17 @@ pub fn camera_intrinsics(message: &RosValue) -> serde_json::Map<String, serde_js
         }
     }
     if let Some(model) = message.field("distortion_model").and_then(RosValue::as_str) {
-        info.insert("camera.distortion_model".into(), json!(model));
+        info.insert(
+            "camera.distortion_model".into(),
+            json!(model.chars().take(MAX_NAME_CHARS).collect::<String>()),
+        );
     }
     for key in ["k", "d", "r", "p"] {
         let field = (message.field(key)).or_else(|| message.field(&key.to_uppercase()));
+        // A matrix of a recording is short (D has 5 to 14 values); a longer one is cut, so a
+        // forged message cannot swell info.json.
         if let Some(RosValue::Array(values)) = field {
-            let numbers: Vec<Value> = (values.iter())
+            let numbers: Vec<Value> = (values.iter().take(MAX_MATRIX_VALUES))
                 .filter_map(RosValue::as_f64)
                 .filter(|v| v.is_finite())
                 .map(|v| json!(v))
@@ -75,14 +89,17 @@ pub fn camera_intrinsics(message: &RosValue) -> serde_json::Map<String, serde_js
 /// for a `TransformStamped`, `ARM.child_frame_id`.
 pub fn pose_frames(arm: &str, message: &RosValue) -> Vec<(String, serde_json::Value)> {
     let mut out = Vec::new();
-    if let Some(frame) = frame_id(message).filter(|f| !f.is_empty()) {
-        out.push((format!("{arm}.frame_id"), frame.into()));
-    }
-    if let Some(child) =
-        (message.field("child_frame_id").and_then(RosValue::as_str)).filter(|f| !f.is_empty())
-    {
-        out.push((format!("{arm}.child_frame_id"), child.into()));
-    }
+    let mut keep = |key: String, name: Option<&str>| {
+        if let Some(name) = name.filter(|n| !n.is_empty()) {
+            out.push((
+                key,
+                name.chars().take(MAX_NAME_CHARS).collect::<String>().into(),
+            ));
+        }
+    };
+    keep(format!("{arm}.frame_id"), frame_id(message));
+    let child = message.field("child_frame_id").and_then(RosValue::as_str);
+    keep(format!("{arm}.child_frame_id"), child);
     out
 }
 
@@ -332,6 +349,15 @@ mod tests {
             );
             assert!(!info.contains_key("camera.p"));
         }
+        let long = camera_intrinsics(&message(vec![
+            ("d", floats(&[0.5; 100])),
+            ("distortion_model", RosValue::String("x".repeat(1000))),
+        ]));
+        assert_eq!(long["camera.d"].as_array().map(Vec::len), Some(64), "cut");
+        assert_eq!(
+            long["camera.distortion_model"].as_str().map(str::len),
+            Some(256)
+        );
         let transform = message(vec![
             (
                 "header",
