@@ -377,6 +377,17 @@ pub struct EpisodeMeta {
     pub attempts: u32,
     /// The task's success predicate held at the end of the episode.
     pub success: bool,
+    /// Where the instruction changes during the episode (a recording whose instruction topic
+    /// moves on mid-episode), in step order; empty: `instruction` holds throughout.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub task_changes: Vec<TaskChange>,
+}
+
+/// From step `first_step` of an episode on, its instruction is `instruction`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TaskChange {
+    pub first_step: u64,
+    pub instruction: String,
 }
 
 impl EpisodeMeta {
@@ -392,7 +403,44 @@ impl EpisodeMeta {
             seed: 0,
             attempts: 0,
             success: false,
+            task_changes: Vec::new(),
         }
+    }
+
+    /// The instruction of step `step`: the last change at or before it, else `instruction`.
+    pub fn instruction_at(&self, step: usize) -> &str {
+        (self.task_changes.iter())
+            .rev()
+            .find(|c| c.first_step <= step as u64)
+            .map_or(&self.instruction, |c| &c.instruction)
+    }
+
+    /// The episode's instructions, each once, in the order they first hold.
+    pub fn instructions(&self) -> Vec<&str> {
+        let mut all = vec![self.instruction.as_str()];
+        for change in &self.task_changes {
+            if !all.contains(&change.instruction.as_str()) {
+                all.push(&change.instruction);
+            }
+        }
+        all
+    }
+
+    /// The changes of per-step instructions (`instruction` being step 0's): one per step whose
+    /// instruction differs from the step before.
+    pub fn changes_of<'a>(per_step: impl IntoIterator<Item = &'a str>) -> Vec<TaskChange> {
+        let mut changes = Vec::new();
+        let mut previous: Option<&str> = None;
+        for (step, instruction) in per_step.into_iter().enumerate() {
+            if previous.is_some_and(|p| p != instruction) {
+                changes.push(TaskChange {
+                    first_step: step as u64,
+                    instruction: instruction.to_string(),
+                });
+            }
+            previous = Some(instruction);
+        }
+        changes
     }
 }
 

@@ -259,6 +259,7 @@ pub fn render_replay_with<E>(
                 seed: instance.seed,
                 attempts,
                 success: verdict.success,
+                task_changes: Vec::new(),
             },
             steps,
         },

@@ -153,6 +153,7 @@ fn run_trial(
             seed: instance.seed,
             attempts: 1,
             success: verdict.success,
+            task_changes: Vec::new(),
         },
         steps,
     });

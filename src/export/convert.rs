@@ -334,6 +334,11 @@ fn meta_differences(a: &Episode, b: &Episode) -> Vec<String> {
             a.meta.instruction, b.meta.instruction
         ));
     }
+    if a.meta.task_changes != b.meta.task_changes {
+        found.push(format!(
+            "episode {index}: the instruction's changes during the episode differ"
+        ));
+    }
     if (a.meta.seed, &a.meta.task_code) != (b.meta.seed, &b.meta.task_code) {
         found.push(format!(
             "episode {index}: provenance (task id, seed) differs"

@@ -152,6 +152,7 @@ mod tests {
                         seed: 100 + self.next - 1,
                         attempts: 1,
                         success: true,
+                        task_changes: Vec::new(),
                     },
                     steps: Vec::new(),
                     encoded: Vec::new(),

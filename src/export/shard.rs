@@ -147,6 +147,7 @@ mod tests {
                         seed: self.next - 1,
                         attempts: 1,
                         success: true,
+                        task_changes: Vec::new(),
                     },
                     steps: Vec::new(),
                     encoded: Vec::new(),

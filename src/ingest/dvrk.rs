@@ -124,6 +124,15 @@ impl DvrkPreset {
             .collect()
     }
 
+    /// How many topics [`DvrkPreset::topics`] lists, without building them.
+    pub fn topic_count(&self) -> usize {
+        self.arms.len() * ARM_TOPICS.len()
+            + self.cameras.len()
+            + self.depths.len()
+            + self.mapped.len()
+            + 1
+    }
+
     /// The names of the state's (and the action's) values: `PSM1.x`, ..., `PSM1.jaw`, per arm.
     pub fn value_names(&self) -> Vec<String> {
         self.arms
@@ -175,7 +184,6 @@ impl DvrkPreset {
     /// A frame's features from its messages, one per topic of [`DvrkPreset::topics`] (the
     /// instruction's last, when present).
     pub fn frame(&self, values: &[std::sync::Arc<RosValue>]) -> Result<DvrkFrame, String> {
-        let topics = self.topics();
         let (mut state, mut action) = (Vec::new(), Vec::new());
         for (a, arm) in self.arms.iter().enumerate() {
             let at = |k: usize| {
@@ -220,7 +228,7 @@ impl DvrkPreset {
             let got = feature.extract(message);
             mapped.push(got.map_err(|e| format!("{} ({}) {e}", feature.name, feature.topic))?);
         }
-        let instruction = (values.len() == topics.len())
+        let instruction = (values.len() == self.topic_count())
             .then(|| values.last())
             .flatten()
             .and_then(|v| v.field("data"))
@@ -275,6 +283,7 @@ mod tests {
             &["PSM1".into()],
             &[("left".into(), "/cam/left/image_raw".into())],
         );
+        assert_eq!(preset.topic_count(), preset.topics().len());
         let topics: Vec<String> = preset.topics().into_iter().map(|t| t.topic).collect();
         assert_eq!(
             topics,

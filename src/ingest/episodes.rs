@@ -1,9 +1,9 @@
 //! Episodes made from the frames the second pass hands over ([`Making`]): each frame's
 //! messages turned into features by the preset as it arrives (raw pixels held only until their
-//! batch is encoded), images encoded as PNG in parallel batches, an episode closed at each end
-//! mark. Every camera must keep its size.
+//! batch is encoded), images encoded as PNG in parallel batches, an episode handed on at each
+//! end mark. Every camera must keep its size.
 
-use crate::episode::{Episode, EpisodeMeta, FeatureValue, Step};
+use crate::episode::{Episode, EpisodeMeta, FeatureValue, Step, TaskChange};
 use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, FeatureInfo};
 use crate::ingest::error::IngestError;
 use crate::ingest::frames::Handed;
@@ -17,7 +17,7 @@ const BATCH_FRAMES: usize = 32;
 pub struct Making<'a> {
     path: &'a Path,
     preset: &'a DvrkPreset,
-    /// The task given; None: each episode's first instruction.
+    /// The task given; None: each frame's latest instruction.
     task: Option<&'a str>,
     /// Each frame's instruction as a text feature after the action.
     text: bool,
@@ -26,16 +26,19 @@ pub struct Making<'a> {
     /// Frames not yet encoded: (time, features).
     pending: Vec<(i64, DvrkFrame)>,
     steps: Vec<Step>,
+    /// The episode's first instruction, the latest, and where it changed since (without a
+    /// task given).
     instruction: Option<String>,
-    made: Vec<Episode>,
+    latest: Option<String>,
+    changes: Vec<TaskChange>,
     next_index: u64,
     /// The frames of the first frame's poses (state, action `info`).
     pose_info: Option<(FeatureInfo, FeatureInfo)>,
 }
 
-/// What an input's episodes came to.
+/// An episode made, with what its input's frames showed so far.
 pub struct Made {
-    pub episodes: Vec<Episode>,
+    pub episode: Episode,
     /// Each camera's (height, width).
     pub sizes: Option<Vec<(usize, usize)>>,
     /// The frames the first frame's poses are in (state, action `info`).
@@ -61,7 +64,8 @@ impl<'a> Making<'a> {
             pending: Vec::with_capacity(BATCH_FRAMES),
             steps: Vec::new(),
             instruction: None,
-            made: Vec::new(),
+            latest: None,
+            changes: Vec::new(),
             next_index,
             pose_info: None,
         }
@@ -75,8 +79,8 @@ impl<'a> Making<'a> {
         }
     }
 
-    /// Takes what the second pass hands over.
-    pub fn take(&mut self, handed: Handed) -> Result<(), IngestError> {
+    /// Takes what the second pass hands over; an episode's end gives the episode.
+    pub fn take(&mut self, handed: Handed) -> Result<Option<Made>, IngestError> {
         match handed {
             Handed::Frame(frame) => {
                 let time_ns = frame.time_ns;
@@ -86,8 +90,9 @@ impl<'a> Making<'a> {
                 if self.pose_info.is_none() {
                     self.pose_info = Some(self.preset.pose_info(&frame.values));
                 }
-                if self.instruction.is_none() {
-                    self.instruction.clone_from(&features.instruction);
+                if self.task.is_none() {
+                    let step = self.steps.len() + self.pending.len();
+                    self.note_instruction(step, features.instruction.as_deref());
                 }
                 self.pending.push((time_ns, features));
                 if self.pending.len() == BATCH_FRAMES {
@@ -100,25 +105,41 @@ impl<'a> Making<'a> {
                     Some(task) => task.to_string(),
                     None => self.instruction.take().unwrap_or_default(),
                 };
-                self.instruction = None;
-                self.made.push(Episode {
-                    meta: EpisodeMeta::foreign(self.next_index, instruction),
+                self.latest = None;
+                let episode = Episode {
+                    meta: EpisodeMeta {
+                        task_changes: std::mem::take(&mut self.changes),
+                        ..EpisodeMeta::foreign(self.next_index, instruction)
+                    },
                     steps: std::mem::take(&mut self.steps),
                     encoded: Vec::new(),
-                });
+                };
                 self.next_index += 1;
+                return Ok(Some(Made {
+                    episode,
+                    sizes: self.sizes.clone(),
+                    pose_info: self.pose_info.clone(),
+                }));
             }
         }
-        Ok(())
+        Ok(None)
     }
 
-    /// The episodes made, the cameras' sizes and the poses' frames.
-    pub fn finish(self) -> Made {
-        Made {
-            episodes: self.made,
-            sizes: self.sizes,
-            pose_info: self.pose_info,
+    /// Notes step `step`'s instruction (the latest instruction message, if any yet): the
+    /// episode's first, or a change. Steps before the first message take the first.
+    fn note_instruction(&mut self, step: usize, instruction: Option<&str>) {
+        let Some(instruction) = instruction else {
+            return;
+        };
+        match &self.latest {
+            Some(latest) if latest == instruction => return,
+            Some(_) => self.changes.push(TaskChange {
+                first_step: step as u64,
+                instruction: instruction.to_string(),
+            }),
+            None => self.instruction = Some(instruction.to_string()),
         }
+        self.latest = Some(instruction.to_string());
     }
 
     fn check_sizes(&mut self, time_ns: i64, frame: &DvrkFrame) -> Result<(), IngestError> {

@@ -61,6 +61,18 @@ pub enum IngestError {
     },
 }
 
+impl IngestError {
+    /// The `index`-th message of `topic` in `path` could not be decoded.
+    pub fn decode(path: &std::path::Path, topic: &str, index: usize, source: DecodeError) -> Self {
+        IngestError::Decode {
+            path: path.to_path_buf(),
+            topic: topic.to_string(),
+            index,
+            source: Box::new(source),
+        }
+    }
+}
+
 impl crate::error::HasKind for IngestError {
     /// A recording that cannot be read or decoded is invalid data (exit 1); a usage error
     /// (exit 2) is what was asked.

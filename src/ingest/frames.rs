@@ -7,11 +7,10 @@
 use crate::ingest::decode::{RosValue, decode};
 use crate::ingest::error::IngestError;
 use crate::ingest::msgdef::MessageDefs;
-use crate::ingest::open::Recording;
+use crate::ingest::open::{BagInput, Recording};
 use crate::ingest::stamps::{Decoders, TopicSpec};
 use crate::ingest::sync::SyncPlan;
 use std::collections::HashMap;
-use std::path::Path;
 use std::sync::Arc;
 
 /// One frame's messages: per topic (in the order given) the decoded message it takes.
@@ -33,7 +32,7 @@ pub enum Handed {
 /// Reads `path` again and hands over each frame of the plan's episodes, in order, then each
 /// episode's end (the plan made from the first pass over the same file and `topics`).
 pub fn second_pass(
-    path: &Path,
+    input: BagInput<'_>,
     topics: &[TopicSpec],
     plan: &SyncPlan,
     builtin: &MessageDefs,
@@ -44,7 +43,8 @@ pub fn second_pass(
     let mut counts = vec![0usize; topics.len()];
     let mut held: HashMap<(usize, usize), Arc<RosValue>> = HashMap::new();
     let mut handing = Handing::default();
-    let mut recording = Recording::open(path)?;
+    let mut recording = Recording::open(input)?;
+    let path = input.path;
     // Not a `for` loop: the recording's channels are looked up while it is read.
     while let Some(message) = recording.next() {
         if handing.frame == takers.frames.len() {
@@ -60,15 +60,8 @@ pub fn second_pass(
         let Some(&(first, last)) = takers.by_message.get(&(slot, index)) else {
             continue;
         };
-        let value =
-            decode(defs, &channel.type_name, channel.wire, &message.data).map_err(|source| {
-                IngestError::Decode {
-                    path: path.to_path_buf(),
-                    topic: topics[slot].topic.clone(),
-                    index,
-                    source: Box::new(source),
-                }
-            })?;
+        let value = decode(defs, &channel.type_name, channel.wire, &message.data)
+            .map_err(|source| IngestError::decode(path, &topics[slot].topic, index, source))?;
         held.insert((slot, index), Arc::new(value));
         for missing in &mut takers.missing[first..=last] {
             *missing -= 1;
@@ -211,22 +204,28 @@ mod tests {
         let plan = plan(&first.streams, &SyncOptions::at(10)).expect("plan");
         assert_eq!(plan.report.episodes, [4, 4]);
         let mut episodes = vec![Vec::new()];
-        second_pass(&path, &topics, &plan, &builtin, &mut |handed| {
-            match handed {
-                Handed::Frame(f) => {
-                    let text = |v: &RosValue| {
-                        v.at("data")
-                            .and_then(RosValue::as_str)
-                            .unwrap_or("")
-                            .to_string()
-                    };
-                    let current = episodes.last_mut().expect("an episode");
-                    current.push((text(&f.values[0]), text(&f.values[1])));
+        second_pass(
+            BagInput::new(&path, None),
+            &topics,
+            &plan,
+            &builtin,
+            &mut |handed| {
+                match handed {
+                    Handed::Frame(f) => {
+                        let text = |v: &RosValue| {
+                            v.at("data")
+                                .and_then(RosValue::as_str)
+                                .unwrap_or("")
+                                .to_string()
+                        };
+                        let current = episodes.last_mut().expect("an episode");
+                        current.push((text(&f.values[0]), text(&f.values[1])));
+                    }
+                    Handed::EpisodeEnd => episodes.push(Vec::new()),
                 }
-                Handed::EpisodeEnd => episodes.push(Vec::new()),
-            }
-            Ok(())
-        })
+                Ok(())
+            },
+        )
         .expect("second");
         assert_eq!(episodes.pop(), Some(Vec::new()), "the last episode ended");
         let pair = |a: &str, b: &str| (a.to_string(), b.to_string());

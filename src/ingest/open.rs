@@ -14,11 +14,27 @@ const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
 /// A recording file being read, whatever its container.
 pub type Recording = Messages<Box<dyn MessageReader>>;
 
+/// A recording to open: its path, and where a file SQLite must read uncompressed may be
+/// decompressed (see [`Rosbag2::open_with`]).
+#[derive(Clone, Copy, Debug)]
+pub struct BagInput<'a> {
+    pub path: &'a Path,
+    pub scratch: Option<&'a Path>,
+}
+
+impl<'a> BagInput<'a> {
+    pub fn new(path: &'a Path, scratch: Option<&'a Path>) -> Self {
+        BagInput { path, scratch }
+    }
+}
+
 impl Recording {
-    /// Opens `path` as the recording its first bytes say it is.
-    pub fn open(path: &Path) -> Result<Recording, BagError> {
+    /// Opens the input as the recording its first bytes say it is.
+    pub fn open(input: BagInput<'_>) -> Result<Recording, BagError> {
+        let path = input.path;
         if path.is_dir() {
-            let bag: Box<dyn MessageReader> = Box::new(Rosbag2::open(path)?);
+            let bag = Rosbag2::open_with(path, input.scratch.map(Path::to_path_buf))?;
+            let bag: Box<dyn MessageReader> = Box::new(bag);
             return Ok(Messages::new(bag));
         }
         let mut start = [0u8; 13];

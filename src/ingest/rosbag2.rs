@@ -43,11 +43,20 @@ pub struct Rosbag2 {
     next_file: usize,
     current: Option<Box<dyn MessageReader>>,
     channels: BTreeMap<u32, Channel>,
+    /// Where zstd-compressed sqlite3 files are decompressed ([`decompressed_sqlite`]).
+    scratch: Option<PathBuf>,
 }
 
 impl Rosbag2 {
-    /// Opens the bag folder `folder` (its `metadata.yaml` read and checked).
+    /// Opens the bag folder `folder` (its `metadata.yaml` read and checked); zstd-compressed
+    /// sqlite3 files are refused.
     pub fn open(folder: &Path) -> Result<Rosbag2, BagError> {
+        Rosbag2::open_with(folder, None)
+    }
+
+    /// [`Rosbag2::open`], decompressing zstd-compressed sqlite3 files into `scratch` as they
+    /// are reached ([`decompressed_sqlite`]).
+    pub fn open_with(folder: &Path, scratch: Option<PathBuf>) -> Result<Rosbag2, BagError> {
         let path = folder.join("metadata.yaml");
         let damaged = |problem: String| BagError::Damaged {
             path: path.clone(),
@@ -100,6 +109,7 @@ impl Rosbag2 {
             next_file: 0,
             current: None,
             channels: BTreeMap::new(),
+            scratch,
         })
     }
 
@@ -125,13 +135,16 @@ impl Rosbag2 {
                 Box::new(McapRecording::from_reader(&path, Box::new(decoder)))
             }
             ("mcap", _) => Box::new(McapRecording::open(&path)?),
-            (_, "file") => {
-                return Err(BagError::Damaged {
-                    path,
-                    offset: 0,
-                    problem: "a zstd-compressed sqlite3 file: decompress the bag first (ros2 bag decompress, or zstd -d and an edited metadata.yaml)".into(),
-                });
-            }
+            (_, "file") => match &self.scratch {
+                Some(scratch) => Box::new(decompressed_sqlite(&path, scratch, file_limit)?),
+                None => {
+                    return Err(BagError::Damaged {
+                        path,
+                        offset: 0,
+                        problem: "a zstd-compressed sqlite3 file: decompress the bag first (ros2 bag decompress, or zstd -d and an edited metadata.yaml)".into(),
+                    });
+                }
+            },
             _ => Box::new(Sqlite::open(&path)?),
         };
         self.current = Some(if per_message {
@@ -225,6 +238,73 @@ impl MessageReader for Decompressing {
     fn channels(&self) -> &BTreeMap<u32, Channel> {
         self.inner.channels()
     }
+}
+
+/// The most a zstd-compressed sqlite3 file of `compressed` bytes may decompress to: 64 times
+/// its size plus 1 GiB (a decompression bomb stops there, naming the file).
+fn file_limit(compressed: u64) -> u64 {
+    compressed.saturating_mul(64).saturating_add(1 << 30)
+}
+
+/// A zstd-compressed sqlite3 file (`compression_mode: file`) opened for SQLite, which reads
+/// files only: decompressed into `scratch` (streamed, bounded) under a temporary name, opened,
+/// and unlinked at once (the connection keeps reading it), so nothing stays behind; `scratch`
+/// is removed again when this made it and it is left empty.
+fn decompressed_sqlite(
+    path: &Path,
+    scratch: &Path,
+    limit_of: fn(u64) -> u64,
+) -> Result<Sqlite, BagError> {
+    let io = |at: &Path| {
+        let at = at.to_path_buf();
+        move |source| BagError::Io { path: at, source }
+    };
+    let file = std::fs::File::open(path).map_err(io(path))?;
+    let limit = limit_of(file.metadata().map_err(io(path))?.len());
+    let made = !scratch.exists();
+    std::fs::create_dir_all(scratch).map_err(io(scratch))?;
+    let name = path
+        .file_name()
+        .map_or("bag".into(), |n| n.to_string_lossy());
+    let plain = scratch.join(format!(".surgvla-{}-{name}.partial", std::process::id()));
+    let opened = (|| {
+        let mut decoder = zstd::stream::read::Decoder::new(file).map_err(io(path))?;
+        let mut out = std::fs::File::create(&plain).map_err(io(&plain))?;
+        let copied = std::io::copy(&mut (&mut decoder).take(limit + 1), &mut out);
+        let copied = copied.map_err(|e| BagError::Damaged {
+            path: path.to_path_buf(),
+            offset: 0,
+            problem: format!("a zstd file that does not decompress: {e}"),
+        })?;
+        if copied > limit {
+            return Err(BagError::Damaged {
+                path: path.to_path_buf(),
+                offset: 0,
+                problem: format!("decompresses to more than {limit} bytes"),
+            });
+        }
+        drop(out);
+        match Sqlite::open(&plain) {
+            Ok(sqlite) => Ok(Sqlite {
+                path: path.to_path_buf(),
+                ..sqlite
+            }),
+            // Name the bag's file, not the decompressed copy.
+            Err(BagError::Damaged {
+                offset, problem, ..
+            }) => Err(BagError::Damaged {
+                path: path.to_path_buf(),
+                offset,
+                problem,
+            }),
+            Err(other) => Err(other),
+        }
+    })();
+    std::fs::remove_file(&plain).ok();
+    if made {
+        std::fs::remove_dir(scratch).ok();
+    }
+    opened
 }
 
 /// One sqlite3 file of a bag, read in row order a page at a time.
@@ -534,6 +614,70 @@ mod tests {
         );
         std::fs::write(folder.join("metadata.yaml"), metadata).expect("metadata");
         (folder, texts)
+    }
+
+    /// `folder`'s sqlite3 files zstd-compressed whole, as `--compression-mode file` leaves them.
+    fn compress_files(folder: &Path) {
+        let metadata = std::fs::read_to_string(folder.join("metadata.yaml")).expect("metadata");
+        for entry in std::fs::read_dir(folder).expect("list") {
+            let path = entry.expect("entry").path();
+            if path.extension().is_some_and(|e| e == "db3") {
+                let plain = std::fs::read(&path).expect("read");
+                let packed = zstd::encode_all(plain.as_slice(), 3).expect("zstd");
+                std::fs::write(path.with_extension("db3.zstd"), packed).expect("write");
+                std::fs::remove_file(path).expect("remove");
+            }
+        }
+        let metadata = (metadata.replace(".db3", ".db3.zstd"))
+            .replace("compression_format: ''", "compression_format: zstd")
+            .replace("compression_mode: ''", "compression_mode: FILE");
+        std::fs::write(folder.join("metadata.yaml"), metadata).expect("metadata");
+    }
+
+    #[test]
+    fn zstd_compressed_sqlite3_files_are_read_through_a_scratch_copy_that_does_not_stay() {
+        use crate::ingest::recording::Messages;
+        let (folder, texts) = sqlite_bag("rosbag2-zstd", 2);
+        compress_files(&folder);
+        let error = Messages::new(Rosbag2::open(&folder).expect("open")).next();
+        let error = error.expect("an item").expect_err("no scratch: refused");
+        assert!(
+            error.to_string().contains("decompress the bag first"),
+            "{error}"
+        );
+        let scratch = folder.with_extension("out");
+        std::fs::remove_dir_all(&scratch).ok();
+        let bag = Rosbag2::open_with(&folder, Some(scratch.clone())).expect("open");
+        let messages: Vec<RawMessage> = Messages::new(bag).collect::<Result<_, _>>().expect("read");
+        assert_eq!(messages.len(), texts.len());
+        assert!(!scratch.exists(), "the scratch folder this made is gone");
+        // A file that decompresses past its bound is refused, naming it, leaving nothing.
+        std::fs::create_dir_all(&scratch).expect("scratch");
+        let file = folder.join("bag_0.db3.zstd");
+        let error = decompressed_sqlite(&file, &scratch, |_| 1000)
+            .err()
+            .expect("a bomb");
+        assert!(error.to_string().contains("bag_0.db3.zstd"), "{error}");
+        assert!(
+            error.to_string().contains("more than 1000 bytes"),
+            "{error}"
+        );
+        assert_eq!(std::fs::read_dir(&scratch).expect("list").count(), 0);
+        // Bytes that are no zstd, and zstd that is no sqlite3, name the bag's file too.
+        std::fs::write(&file, b"not zstd").expect("write");
+        let error = decompressed_sqlite(&file, &scratch, file_limit)
+            .err()
+            .expect("bad");
+        assert!(error.to_string().contains("bag_0.db3.zstd"), "{error}");
+        let packed = zstd::encode_all(&b"not sqlite"[..], 3).expect("zstd");
+        std::fs::write(&file, packed).expect("write");
+        let error = decompressed_sqlite(&file, &scratch, file_limit)
+            .err()
+            .expect("bad");
+        assert!(error.to_string().contains("bag_0.db3.zstd"), "{error}");
+        assert_eq!(std::fs::read_dir(&scratch).expect("list").count(), 0);
+        std::fs::remove_dir_all(folder).ok();
+        std::fs::remove_dir_all(scratch).ok();
     }
 
     #[test]

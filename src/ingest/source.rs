@@ -5,9 +5,10 @@
 //! 8 per arm (`observation.state`, `action`, each value named): a dataset of the robot's own
 //! features, as every format reads one another tool made.
 //!
-//! An input's episodes are made together from its frames as they are handed over (memory
-//! follows one input's encoded episodes); the first input's are made when the source opens,
-//! for the images' size.
+//! An input's episodes are made on a thread of their own as its frames are handed over, and
+//! handed on one at a time as they are read ([`Producing`]): memory follows the episodes being
+//! written, not the input's length or the number of inputs. The first input's reading starts
+//! when the source opens, and its first episode is made then, for the images' size.
 
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
 use crate::export::error::ExportError;
@@ -15,15 +16,19 @@ use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
 use crate::ingest::builtin::ros2_types;
 use crate::ingest::dvrk::{DvrkPreset, FeatureInfo, INSTRUCTION_TOPIC};
+use crate::ingest::episodes::Made;
 use crate::ingest::episodes::Making;
 use crate::ingest::error::IngestError;
 use crate::ingest::extract::camera_intrinsics;
 use crate::ingest::frames::second_pass;
 use crate::ingest::msgdef::MessageDefs;
+use crate::ingest::open::BagInput;
 use crate::ingest::stamps::{Clock, TopicSpec, first_pass_keeping};
 use crate::ingest::sync::{SyncOptions, SyncPlan, SyncReport, plan};
-use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, sync_channel};
 
 /// How recordings are ingested.
 #[derive(Clone, Debug, PartialEq)]
@@ -42,6 +47,9 @@ pub struct IngestOptions {
     /// Named ranges of the dataset's episode indices (`--split`), checked against the episodes
     /// the inputs make.
     pub splits: Vec<(String, std::ops::Range<u64>)>,
+    /// Where a zstd-compressed sqlite3 file of a ROS 2 bag is decompressed for the moment it
+    /// is opened (the output folder); None refuses such bags.
+    pub scratch: Option<std::path::PathBuf>,
 }
 
 impl IngestOptions {
@@ -118,7 +126,9 @@ pub struct IngestSource {
     inputs: Vec<Input>,
     /// The next input whose episodes are to be made.
     next_input: usize,
-    ready: VecDeque<Episode>,
+    /// The input whose episodes are being made, and the next of them, already received.
+    producing: Option<Producing>,
+    ready: Option<Episode>,
     next_index: u64,
     total: u64,
     /// Each camera's (height, width), from the first frame made.
@@ -159,7 +169,8 @@ impl IngestSource {
             builtin,
             inputs,
             next_input: 0,
-            ready: VecDeque::new(),
+            producing: None,
+            ready: None,
             next_index: 0,
             total,
             image_sizes: None,
@@ -168,7 +179,8 @@ impl IngestSource {
             skipped: 0,
             failed: false,
         };
-        source.make_next_input()?;
+        source.start_next_input()?;
+        source.ready = source.receive()?;
         source.info = source.dataset_info();
         Ok(source)
     }
@@ -295,46 +307,185 @@ impl IngestSource {
         info
     }
 
-    /// Makes the next input's episodes.
-    fn make_next_input(&mut self) -> Result<(), IngestError> {
+    /// Starts making the next input's episodes on a thread of their own.
+    fn start_next_input(&mut self) -> Result<(), IngestError> {
         let Some(input) = self.inputs.get_mut(self.next_input) else {
             return Ok(());
         };
         self.next_input += 1;
         let kept = input.plan.take();
         let input = &*input;
-        let first = self.next_input == 1;
-        let Planned {
-            topics,
-            plan,
-            camera_info,
-        } = match kept {
+        let planned = match kept {
             Some(planned) => planned,
             None => planned(&input.path, &self.options, &self.builtin)?,
         };
-        if first {
-            self.camera_info = camera_info;
+        if self.next_input == 1 {
+            self.camera_info.clone_from(&planned.camera_info);
         }
-        let mut making = Making::new(
-            &input.path,
-            &self.options.preset,
-            self.options.task.as_deref(),
-            self.options.instruction_text,
-            self.image_sizes.take(),
-            self.next_index,
-        );
-        second_pass(&input.path, &topics, &plan, &self.builtin, &mut |handed| {
-            making.take(handed)
-        })?;
-        let made = making.finish();
-        self.image_sizes = made.sizes;
-        if self.pose_info.is_none() {
-            self.pose_info = made.pose_info;
-        }
-        self.next_index += made.episodes.len() as u64;
-        self.ready
-            .extend((made.episodes.into_iter()).skip(std::mem::take(&mut self.skipped)));
+        let episodes = input.report.episodes.len();
+        let task = Producer {
+            path: input.path.clone(),
+            options: self.options.clone(),
+            builtin: self.builtin.clone(),
+            planned,
+            sizes: self.image_sizes.clone(),
+            first_index: self.next_index,
+        };
+        self.next_index += episodes as u64;
+        self.producing = Some(task.start(episodes, std::mem::take(&mut self.skipped)));
         Ok(())
+    }
+
+    /// The next episode made, the sizes and frames it showed noted; None after the last.
+    fn receive(&mut self) -> Result<Option<Episode>, IngestError> {
+        loop {
+            let Some(producing) = &mut self.producing else {
+                if self.next_input == self.inputs.len() {
+                    return Ok(None);
+                }
+                self.start_next_input()?;
+                continue;
+            };
+            let Some(made) = producing.next()? else {
+                self.producing = None;
+                continue;
+            };
+            self.image_sizes = made.sizes;
+            if self.pose_info.is_none() {
+                self.pose_info = made.pose_info;
+            }
+            return Ok(Some(made.episode));
+        }
+    }
+}
+
+/// What the thread making an input's episodes owns.
+struct Producer {
+    path: PathBuf,
+    options: IngestOptions,
+    builtin: MessageDefs,
+    planned: Planned,
+    /// Each camera's size as earlier inputs had it.
+    sizes: Option<Vec<(usize, usize)>>,
+    first_index: u64,
+}
+
+/// An input's episodes being made on their own thread and handed over one at a time (the
+/// thread waits until each is taken): `episodes` are to come, the first `skip` dropped.
+struct Producing {
+    receiver: Option<Receiver<Result<Made, IngestError>>>,
+    /// Asks the thread to stop (the source dropped before its last episode).
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    episodes: usize,
+    skip: usize,
+    path: PathBuf,
+}
+
+impl Producer {
+    fn start(self, episodes: usize, skip: usize) -> Producing {
+        let (sender, receiver) = sync_channel(0);
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopping = Arc::clone(&stop);
+        let path = self.path.clone();
+        // As many workers as the pool this is started from (`--threads`).
+        let threads = rayon::current_num_threads();
+        let thread = std::thread::spawn(move || {
+            let stopped = || IngestError::Usage("stopped".into());
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build();
+            let run = |hand: &mut (dyn FnMut(Option<Made>) -> Result<(), IngestError> + Send)| {
+                match &pool {
+                    Ok(pool) => pool.install(|| self.run(hand)),
+                    Err(_) => self.run(hand),
+                }
+            };
+            let made = run(&mut |made| {
+                if stopping.load(Ordering::Relaxed) {
+                    return Err(stopped());
+                }
+                match made {
+                    Some(made) => sender.send(Ok(made)).map_err(|_| stopped()),
+                    None => Ok(()),
+                }
+            });
+            if let Err(error) = made {
+                sender.send(Err(error)).ok();
+            }
+        });
+        Producing {
+            receiver: Some(receiver),
+            stop,
+            thread: Some(thread),
+            episodes,
+            skip,
+            path,
+        }
+    }
+
+    /// Reads the input again, handing on each episode made (and None after every frame, to
+    /// stop early when asked).
+    fn run(
+        &self,
+        hand: &mut (dyn FnMut(Option<Made>) -> Result<(), IngestError> + Send),
+    ) -> Result<(), IngestError> {
+        let options = &self.options;
+        let mut making = Making::new(
+            &self.path,
+            &options.preset,
+            options.task.as_deref(),
+            options.instruction_text,
+            self.sizes.clone(),
+            self.first_index,
+        );
+        let at = BagInput::new(&self.path, options.scratch.as_deref());
+        let (topics, plan) = (&self.planned.topics, &self.planned.plan);
+        second_pass(at, topics, plan, &self.builtin, &mut |handed| {
+            let made = making.take(handed)?;
+            hand(made)
+        })
+    }
+}
+
+impl Producing {
+    /// The next episode to hand on; None after the last.
+    fn next(&mut self) -> Result<Option<Made>, IngestError> {
+        loop {
+            if self.episodes == 0 {
+                return Ok(None);
+            }
+            let received = self.receiver.as_ref().map(Receiver::recv);
+            let made = match received {
+                Some(Ok(made)) => made?,
+                _ => {
+                    return Err(IngestError::Frame {
+                        path: self.path.clone(),
+                        time_ns: 0,
+                        problem: format!(
+                            "the reading stopped with {} episodes to come",
+                            self.episodes
+                        ),
+                    });
+                }
+            };
+            self.episodes -= 1;
+            if self.skip > 0 {
+                self.skip -= 1;
+                continue;
+            }
+            return Ok(Some(made));
+        }
+    }
+}
+
+impl Drop for Producing {
+    /// Stops the thread (it ends at its next frame, or at once when waiting to hand over an
+    /// episode) and waits for it.
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        drop(self.receiver.take());
+        if let Some(thread) = self.thread.take() {
+            thread.join().ok();
+        }
     }
 }
 
@@ -408,7 +559,8 @@ fn planned(
     let mut topics = options.topics();
     let candidates = options.preset.camera_info_topics();
     let keep: Vec<String> = candidates.iter().flatten().cloned().collect();
-    let mut first = first_pass_keeping(path, &topics, options.clock, builtin, &keep)?;
+    let at = BagInput::new(path, options.scratch.as_deref());
+    let mut first = first_pass_keeping(at, &topics, options.clock, builtin, &keep)?;
     // Each camera's first CameraInfo found among its candidates.
     let mut kept = first.first_messages.iter();
     let camera_info = (candidates.iter())
@@ -454,13 +606,16 @@ impl Iterator for IngestSource {
         if self.failed {
             return None;
         }
-        while self.ready.is_empty() && self.next_input < self.inputs.len() {
-            if let Err(error) = self.make_next_input() {
+        if let Some(ready) = self.ready.take() {
+            return Some(Ok(ready));
+        }
+        match self.receive() {
+            Ok(episode) => episode.map(Ok),
+            Err(error) => {
                 self.failed = true;
-                return Some(Err(ExportError::Input(Box::new(error))));
+                Some(Err(ExportError::Input(Box::new(error))))
             }
         }
-        self.ready.pop_front().map(Ok)
     }
 }
 
@@ -474,9 +629,13 @@ impl EpisodeSource for IngestSource {
         if self.failed {
             return None;
         }
-        if self.ready.pop_front().is_some() {
+        if self.ready.take().is_some() {
             return Some(Ok(()));
         }
+        if self.producing.as_ref().is_some_and(|p| p.episodes > 0) {
+            return self.next().map(|episode| episode.map(|_| ()));
+        }
+        self.producing = None;
         let input = self.inputs.get(self.next_input)?;
         self.skipped += 1;
         if self.skipped == input.report.episodes.len() {
@@ -566,6 +725,11 @@ mod tests {
     /// A recording: arm at 100 Hz, camera at 10 Hz, setpoints at 50 Hz, for 1 s (no schema:
     /// the built-in definitions).
     fn recording() -> PathBuf {
+        crate::ingest::fixtures::temp_file("ingest.mcap", &recording_bytes())
+    }
+
+    /// The bytes of [`recording`].
+    fn recording_bytes() -> Vec<u8> {
         let channels = [
             ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped", ""),
             ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState", ""),
@@ -589,8 +753,128 @@ mod tests {
             }
             messages.push((5, t as u64, pose(t, -(k as f64))));
         }
+        crate::ingest::fixtures::mcap_bytes(None, &channels, &messages)
+    }
+
+    /// [`recording`] with an instruction topic that moves on at 1.45 s.
+    fn recording_with_instructions() -> PathBuf {
+        rewritten(true, &[])
+    }
+
+    /// [`recording`] with the instruction topic when `instructions`, without the camera's
+    /// messages at `drop_ns`.
+    fn rewritten(instructions: bool, drop_ns: &[u64]) -> PathBuf {
+        let bytes = recording_bytes();
+        let mut channels: Vec<(&str, &str, &str)> = [
+            ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped"),
+            ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState"),
+            ("/PSM1/setpoint_cp", "geometry_msgs/msg/PoseStamped"),
+            ("/PSM1/jaw/setpoint_js", "sensor_msgs/msg/JointState"),
+            ("/camera/left", "sensor_msgs/msg/Image"),
+            ("/ECM/measured_cp", "geometry_msgs/msg/PoseStamped"),
+        ]
+        .map(|(topic, kind)| (topic, kind, ""))
+        .to_vec();
+        let mut messages: Vec<(usize, u64, Vec<u8>)> = Vec::new();
+        for message in mcap::MessageStream::new(&bytes).expect("mcap") {
+            let message = message.expect("message");
+            let at = (channels.iter())
+                .position(|c| c.0 == message.channel.topic)
+                .expect("a known topic");
+            if at == 4 && drop_ns.contains(&message.log_time) {
+                continue;
+            }
+            messages.push((at, message.log_time, message.data.to_vec()));
+        }
+        if instructions {
+            channels.push(("/instruction", "std_msgs/msg/String", ""));
+            let string = crate::ingest::fixtures::cdr_string;
+            messages.push((6, 900_000_000, string("grasp the needle")));
+            messages.push((6, 1_450_000_000, string("pass the needle")));
+        }
+        messages.sort_by_key(|m| m.1);
         let bytes = crate::ingest::fixtures::mcap_bytes(None, &channels, &messages);
-        crate::ingest::fixtures::temp_file("ingest.mcap", &bytes)
+        let name = format!("rewritten-{instructions}-{}.mcap", drop_ns.len());
+        crate::ingest::fixtures::temp_file(&name, &bytes)
+    }
+
+    #[test]
+    fn an_instruction_that_moves_on_gives_per_step_tasks_in_every_format() {
+        let path = recording_with_instructions();
+        let options = IngestOptions {
+            task: None,
+            ..options()
+        };
+        let mut source = IngestSource::open(std::slice::from_ref(&path), options).expect("open");
+        let info = source.info().clone();
+        let episode = source.next().expect("an episode").expect("read");
+        // Frames at 1.0 .. 1.9 s: 1.0 .. 1.4 s hold the first instruction, 1.5 s on the second.
+        assert_eq!(episode.meta.instruction, "grasp the needle");
+        let changes = &episode.meta.task_changes;
+        assert_eq!(changes.len(), 1);
+        assert_eq!(
+            (changes[0].first_step, changes[0].instruction.as_str()),
+            (5, "pass the needle")
+        );
+        assert_eq!(episode.meta.instruction_at(4), "grasp the needle");
+        assert_eq!(episode.meta.instruction_at(9), "pass the needle");
+        for format in ["lerobot", "rlds"] {
+            let out =
+                std::env::temp_dir().join(format!("surgvla-tasks-{format}-{}", std::process::id()));
+            std::fs::remove_dir_all(&out).ok();
+            let mut sink: Box<dyn crate::export::EpisodeSink + Send> = if format == "lerobot" {
+                use crate::export::lerobot::{LeRobotOptions, LeRobotWriter};
+                LeRobotWriter::boxed(&out, &info, LeRobotOptions::default(), false).expect("sink")
+            } else {
+                use crate::export::rlds::{RldsOptions, RldsWriter};
+                RldsWriter::boxed(&out, &info, RldsOptions::default(), false).expect("sink")
+            };
+            sink.write_batch(std::slice::from_ref(&episode))
+                .expect("write");
+            sink.finish().expect("finish");
+            let fps = crate::export::source::SourceOptions {
+                fps: Some(10),
+                robot_type: None,
+            };
+            let mut back = crate::export::open::open_source_with(&out, &fps).expect("read back");
+            let read = back.next().expect("an episode").expect("read");
+            assert_eq!(read.meta.instruction, episode.meta.instruction, "{format}");
+            assert_eq!(
+                read.meta.task_changes, episode.meta.task_changes,
+                "{format}"
+            );
+            std::fs::remove_dir_all(out).ok();
+        }
+        std::fs::remove_file(path).ok();
+    }
+
+    #[test]
+    fn episodes_come_one_at_a_time_across_inputs_and_a_source_dropped_midway_stops() {
+        let path = recording();
+        let inputs = [path.clone(), path.clone(), path.clone()];
+        let mut source = IngestSource::open(&inputs, options()).expect("open");
+        assert_eq!(source.len(), 3);
+        // The first input's episode is made when the source opens; the second is skipped
+        // (a resume); the third is made on its own thread.
+        assert!(matches!(source.skip_episode(), Some(Ok(()))));
+        assert!(matches!(source.skip_episode(), Some(Ok(()))));
+        let third = source.next().expect("an episode").expect("read");
+        assert_eq!((third.meta.index, third.steps.len()), (2, 10));
+        assert!(source.next().is_none());
+        // A recording of two episodes (the camera's 1.4 and 1.5 s images missing: the 1.5 s
+        // frame's newest image is older than the tolerance): dropped while its
+        // reading thread waits to hand over the second, the source stops it (no hang).
+        let gap = rewritten(false, &[1_400_000_000, 1_500_000_000]);
+        let source = IngestSource::open(std::slice::from_ref(&gap), options()).expect("open");
+        assert_eq!(source.len(), 2);
+        drop(source);
+        let mut source = IngestSource::open(std::slice::from_ref(&gap), options()).expect("open");
+        let lengths: Vec<usize> = (source.by_ref())
+            .map(|e| e.expect("read").steps.len())
+            .collect();
+        assert_eq!(lengths, [5, 4], "1.0-1.4 s, then 1.6-1.9 s");
+        std::fs::remove_file(path).ok();
+        std::fs::remove_file(gap).ok();
     }
 
     /// One arm, the left camera, 10 fps, split at gaps, a given task.
@@ -606,6 +890,7 @@ mod tests {
             offsets_ns: Vec::new(),
             instruction_text: false,
             splits: Vec::new(),
+            scratch: None,
         }
     }
 

@@ -7,7 +7,7 @@
 use crate::ingest::decode::{RosValue, decode, decode_first_field};
 use crate::ingest::error::IngestError;
 use crate::ingest::msgdef::MessageDefs;
-use crate::ingest::open::Recording;
+use crate::ingest::open::{BagInput, Recording};
 use crate::ingest::recording::Channel;
 use crate::ingest::sync::{StreamKind, StreamStamps};
 use std::collections::HashMap;
@@ -130,14 +130,14 @@ pub fn first_pass(
     clock: Clock,
     builtin: &MessageDefs,
 ) -> Result<FirstPass, IngestError> {
-    first_pass_keeping(path, topics, clock, builtin, &[])
+    first_pass_keeping(BagInput::new(path, None), topics, clock, builtin, &[])
 }
 
 /// [`first_pass`], also keeping the first message of each topic of `keep` decoded whole
 /// (what a recording states once, such as a camera's `CameraInfo`; the rest of its messages
 /// are skipped undecoded).
 pub fn first_pass_keeping(
-    path: &Path,
+    input: BagInput<'_>,
     topics: &[TopicSpec],
     clock: Clock,
     builtin: &MessageDefs,
@@ -160,7 +160,8 @@ pub fn first_pass_keeping(
         .collect();
     let mut channels: Vec<Option<Channel>> = vec![None; topics.len()];
     let mut decoders = Decoders::new(&all);
-    let mut recording = Recording::open(path)?;
+    let mut recording = Recording::open(input)?;
+    let path = input.path;
     // Not a `for` loop: the recording's channels are looked up while it is read.
     while let Some(message) = recording.next() {
         let message = message?;
@@ -176,12 +177,7 @@ pub fn first_pass_keeping(
                     channel.wire,
                     &message.data,
                 )
-                .map_err(|source| IngestError::Decode {
-                    path: path.to_path_buf(),
-                    topic: channel.topic.clone(),
-                    index: 0,
-                    source: Box::new(source),
-                })?;
+                .map_err(|source| IngestError::decode(path, &channel.topic, 0, source))?;
                 first_messages[kept] = Some(value);
             }
             continue;
@@ -230,12 +226,7 @@ fn header_time(
         channel.wire,
         &message.data,
     )
-    .map_err(|source| IngestError::Decode {
-        path: path.to_path_buf(),
-        topic: channel.topic.clone(),
-        index,
-        source: Box::new(source),
-    })?;
+    .map_err(|source| IngestError::decode(path, &channel.topic, index, source))?;
     match header_stamp(first.as_ref()) {
         Stamp::At(stamp) => Ok(stamp),
         // A type without a header (std_msgs/String): when it was received.

@@ -133,6 +133,7 @@ fn an_interrupted_ingest_resumes_to_the_same_bytes() {
         offsets_ns: Vec::new(),
         instruction_text: true,
         splits: vec![("train".into(), 0..3), ("recovery".into(), 3..4)],
+        scratch: None,
     };
     let every_episode = LeRobotOptions {
         data_file_size_mb: 0,

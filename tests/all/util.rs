@@ -136,6 +136,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
                 seed: 0,
                 attempts: 1,
                 success: true,
+                task_changes: Vec::new(),
             },
             steps: (0..4 + index)
                 .map(|k| {

@@ -226,6 +226,7 @@ impl IngestArgs {
             offsets_ns: self.offsets.clone(),
             instruction_text: self.instruction_text || self.profile == Some(Profile::OpenH),
             splits: self.splits.clone(),
+            scratch: Some(self.out.clone()),
         })
     }
 

@@ -240,7 +240,7 @@ fn write_episodes_jsonl(
     for row in rows {
         let e = row?;
         let mut line =
-            json!({"episode_index": e.episode_index, "tasks": [e.task], "length": e.length});
+            json!({"episode_index": e.episode_index, "tasks": e.tasks, "length": e.length});
         for (key, value) in e.provenance.columns() {
             line[key] = value;
         }

@@ -1071,10 +1071,11 @@ impl Iterator for LeRobotSource {
     type Item = Result<Episode, ExportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        let (index, task, rows, row) = match self.take_episode()? {
+        let (index, _, rows, row) = match self.take_episode()? {
             Ok(taken) => taken,
             Err(error) => return Some(Err(error)),
         };
+        let row_tasks: Vec<i64> = rows.iter().map(|r| r.task).collect();
         let stored_keys: Vec<(String, FeatureKind)> = step_images(&self.info)
             .filter(|f| !self.unused_stored.contains(&ImageEncoding::of_kind(f.kind)))
             .map(|f| (f.name.clone(), f.kind))
@@ -1128,12 +1129,9 @@ impl Iterator for LeRobotSource {
                 Err(error) => return Some(Err(error)),
             }
         }
-        let instruction = self.tasks.get(task as usize).cloned();
-        let Some(instruction) = instruction else {
-            return Some(Err(invalid(
-                &self.root,
-                format!("episode {index} names task_index {task}, which the tasks table lacks"),
-            )));
+        let (instruction, task_changes) = match self.instructions(index, &row_tasks) {
+            Ok(found) => found,
+            Err(error) => return Some(Err(error)),
         };
         Some(Ok(Episode {
             encoded,
@@ -1146,9 +1144,34 @@ impl Iterator for LeRobotSource {
                 seed: provenance.seed,
                 attempts: provenance.attempts,
                 success: provenance.success,
+                task_changes,
             },
             steps,
         }))
+    }
+}
+
+impl LeRobotSource {
+    /// Episode `index`'s instruction and its changes, from its rows' task indices.
+    fn instructions(
+        &self,
+        index: i64,
+        row_tasks: &[i64],
+    ) -> Result<(String, Vec<crate::episode::TaskChange>), ExportError> {
+        let mut instructions = Vec::with_capacity(row_tasks.len());
+        for &task in row_tasks {
+            let Some(instruction) = usize::try_from(task).ok().and_then(|t| self.tasks.get(t))
+            else {
+                return Err(invalid(
+                    &self.root,
+                    format!("episode {index} names task_index {task}, which the tasks table lacks"),
+                ));
+            };
+            instructions.push(instruction.as_str());
+        }
+        let changes = EpisodeMeta::changes_of(instructions.iter().copied());
+        let first = instructions.first().copied().unwrap_or_default();
+        Ok((first.to_string(), changes))
     }
 }
 

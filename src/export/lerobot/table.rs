@@ -167,7 +167,7 @@ pub(super) fn frame_batch(
     episode: &Episode,
     mut images: EncodedImages,
     first_index: u64,
-    task_index: u64,
+    task_indices: &[u64],
     fps: u32,
 ) -> Result<RecordBatch, ExportError> {
     let (schema, features, other_positions) = (
@@ -238,10 +238,15 @@ pub(super) fn frame_batch(
     columns.push(Arc::new(Int64Array::from_iter_values(
         (0..n).map(|i| (first_index + i as u64) as i64),
     )));
-    columns.push(Arc::new(Int64Array::from_iter_values(std::iter::repeat_n(
-        task_index as i64,
-        n,
-    ))));
+    if task_indices.len() != n {
+        return Err(ExportError::Internal(format!(
+            "{} task indices for {n} steps",
+            task_indices.len()
+        )));
+    }
+    columns.push(Arc::new(Int64Array::from_iter_values(
+        task_indices.iter().map(|&t| t as i64),
+    )));
     Ok(RecordBatch::try_new(schema.clone(), columns)?)
 }
 
@@ -349,7 +354,8 @@ pub(super) fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> 
 #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub(super) struct EpisodeRow {
     pub episode_index: u64,
-    pub task: String,
+    /// The episode's instructions, each once, in the order they first hold.
+    pub tasks: Vec<String>,
     pub length: u64,
     pub data_chunk: u64,
     pub data_file: u64,
@@ -472,6 +478,16 @@ pub struct Provenance {
 }
 
 impl Provenance {
+    /// An episode's provenance as its metadata says it.
+    pub fn of(meta: &crate::episode::EpisodeMeta) -> Self {
+        Provenance {
+            seed: meta.seed,
+            task_id: meta.task_code.clone(),
+            level: meta.level,
+            attempts: meta.attempts,
+            success: meta.success,
+        }
+    }
     /// The columns' keys, in column order.
     pub const KEYS: [&'static str; 5] = [
         "surgvla/seed",
@@ -618,7 +634,9 @@ pub(super) fn episodes_batch(
     };
     let mut tasks = ListBuilder::new(StringBuilder::new());
     for row in rows {
-        tasks.values().append_value(&row.task);
+        for task in &row.tasks {
+            tasks.values().append_value(task);
+        }
         tasks.append(true);
     }
     let mut columns: Vec<(String, ArrayRef)> = vec![

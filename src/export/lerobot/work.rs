@@ -486,11 +486,12 @@ impl StatsFold {
 }
 
 /// Statistics of the default columns (timestamp, frame, episode and dataset indices, task) of
-/// an episode whose first frame is the dataset's `first_index`-th.
+/// an episode whose first frame is the dataset's `first_index`-th, its steps' task indices
+/// `task_indices`.
 pub(super) fn default_stats(
     episode: &Episode,
     fps: f64,
-    task_index: u64,
+    task_indices: &[u64],
     first_index: u64,
 ) -> EpisodeStats {
     let mut stats: Vec<VectorStats> = DEFAULT_COLUMNS
@@ -498,7 +499,7 @@ pub(super) fn default_stats(
         .map(|_| VectorStats::new(1))
         .collect();
     let episode_index = episode.meta.index as f64;
-    for i in 0..episode.steps.len() {
+    for (i, &task_index) in task_indices.iter().enumerate().take(episode.steps.len()) {
         let values = [
             i as f64 / fps,
             i as f64,

@@ -476,6 +476,13 @@ impl LeRobotFiles {
         i
     }
 
+    /// Each step's task index (see [`crate::episode::EpisodeMeta::instruction_at`]).
+    fn task_indices(&mut self, episode: &Episode) -> Vec<u64> {
+        (0..episode.steps.len())
+            .map(|step| self.task_index(episode.meta.instruction_at(step)))
+            .collect()
+    }
+
     /// Writes one episode with what was made of it ahead (its video features' frames, and
     /// perhaps its images and statistics); returns the seconds spent encoding its images and
     /// statistics here.
@@ -486,7 +493,8 @@ impl LeRobotFiles {
         episode: &Episode,
         prepared: super::work::Prepared,
     ) -> Result<f64, ExportError> {
-        let task_index = self.task_index(&episode.meta.instruction);
+        let meta = &episode.meta;
+        let task_indices = self.task_indices(episode);
         let first_index = self.state.total_frames;
         let encode_started = std::time::Instant::now();
         let work = self.work(info);
@@ -504,7 +512,7 @@ impl LeRobotFiles {
         episode_stats.extend(super::work::default_stats(
             episode,
             f64::from(info.fps),
-            task_index,
+            &task_indices,
             first_index,
         ));
         let images = images?;
@@ -519,7 +527,14 @@ impl LeRobotFiles {
             features: &self.parquet_features,
             other_positions: &self.other_positions,
         };
-        let batch = frame_batch(&columns, episode, images, first_index, task_index, info.fps)?;
+        let batch = frame_batch(
+            &columns,
+            episode,
+            images,
+            first_index,
+            &task_indices,
+            info.fps,
+        )?;
         let limit = self.options.data_file_size_mb * 1024 * 1024;
         let version = self.options.version;
         let open = self.open_file(dir)?;
@@ -531,10 +546,9 @@ impl LeRobotFiles {
 
         let (stats_json, pixel_stats) = self.fold_stats(info, episode_stats);
         let length = episode.steps.len() as u64;
-        let meta = &episode.meta;
         let row = EpisodeRow {
             episode_index: meta.index,
-            task: meta.instruction.clone(),
+            tasks: meta.instructions().into_iter().map(String::from).collect(),
             length,
             data_chunk: chunk,
             data_file: file,
@@ -543,13 +557,7 @@ impl LeRobotFiles {
             stats: stats_json,
             videos,
             pixel_stats,
-            provenance: Provenance {
-                seed: meta.seed,
-                task_id: meta.task_code.clone(),
-                level: meta.level,
-                attempts: meta.attempts,
-                success: meta.success,
-            },
+            provenance: Provenance::of(meta),
         };
         self.journal(dir, &row)?;
         if full {

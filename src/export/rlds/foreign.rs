@@ -3,8 +3,8 @@
 //! from the dataset's own `features.json`. Every step-level tensor and image becomes a
 //! [`FeatureKind::Other`] feature named the LeRobot way (`steps/observation/state` ->
 //! `observation.state`, `steps/observation/image` -> `observation.images.image`, `steps/action`
-//! -> `action`); `steps/language_instruction` (its first step) is the episode's instruction;
-//! `is_first` / `is_last` are structure, not features; other texts and the episode metadata are
+//! -> `action`); `steps/language_instruction` is each step's instruction (the first step's
+//! the episode's); `is_first` / `is_last` are structure, not features; other texts and the episode metadata are
 //! left out. RLDS has no frame rate: the caller gives one.
 
 use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
@@ -127,13 +127,14 @@ impl ForeignRldsSource {
         if steps == 0 {
             return Err("the episode has zero steps".into());
         }
-        let instruction = match example.get("steps/language_instruction") {
-            Some(Feature::Bytes(texts)) => texts
-                .first()
+        let texts: Vec<String> = match example.get("steps/language_instruction") {
+            Some(Feature::Bytes(texts)) => (texts.iter())
                 .map(|t| String::from_utf8_lossy(t).into_owned())
-                .unwrap_or_default(),
-            _ => String::new(),
+                .collect(),
+            _ => Vec::new(),
         };
+        let task_changes = EpisodeMeta::changes_of(texts.iter().map(String::as_str));
+        let instruction = texts.into_iter().next().unwrap_or_default();
         let mut rows: Vec<Vec<FeatureValue>> = vec![Vec::new(); steps];
         for column in columns {
             let n: usize = column.spec.shape.iter().product();
@@ -165,7 +166,10 @@ impl ForeignRldsSource {
         }
         Ok(Episode {
             encoded: Vec::new(),
-            meta: EpisodeMeta::foreign(index, instruction),
+            meta: EpisodeMeta {
+                task_changes,
+                ..EpisodeMeta::foreign(index, instruction)
+            },
             steps: rows
                 .into_iter()
                 .map(|other| Step {

@@ -5,7 +5,7 @@
 
 use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureValue,
-    ImageEncoding, MAX_OBJECTS, POSE_VALUES, Step,
+    ImageEncoding, MAX_OBJECTS, POSE_VALUES, Step, TaskChange,
 };
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
@@ -156,6 +156,28 @@ fn foreign_feature(
 
 /// The serialized Example of an episode of a dataset another tool made (features all
 /// [`FeatureKind::Other`](crate::episode::FeatureKind::Other)): each feature under
+/// Every step's `language_instruction` (see [`EpisodeMeta::instruction_at`]).
+fn step_instructions(meta: &EpisodeMeta, steps: usize) -> Feature {
+    Feature::Bytes(
+        (0..steps)
+            .map(|step| meta.instruction_at(step).as_bytes().to_vec())
+            .collect(),
+    )
+}
+
+/// The first step's instruction and its changes, from every step's `language_instruction`.
+fn step_instructions_read(texts: &[Vec<u8>]) -> Result<(String, Vec<TaskChange>), String> {
+    let texts = (texts.iter())
+        .map(|t| std::str::from_utf8(t))
+        .collect::<Result<Vec<&str>, _>>()
+        .map_err(|_| "steps/language_instruction is not UTF-8".to_string())?;
+    let changes = EpisodeMeta::changes_of(texts.iter().copied());
+    Ok((
+        texts.first().copied().unwrap_or_default().to_string(),
+        changes,
+    ))
+}
+
 /// `steps/<its rlds_path>` as stored (images byte for byte), the instruction on every step,
 /// `is_first` / `is_last` / `is_terminal` (the last step), `episode_metadata/file_path`.
 pub fn encode_foreign_episode(
@@ -175,10 +197,7 @@ pub fn encode_foreign_episode(
     }
     features.insert(
         "steps/language_instruction".into(),
-        Feature::Bytes(vec![
-            episode.meta.instruction.as_bytes().to_vec();
-            steps.len()
-        ]),
+        step_instructions(&episode.meta, steps.len()),
     );
     let flags = |on: &dyn Fn(usize) -> bool| {
         Feature::Int64((0..steps.len()).map(|i| i64::from(on(i))).collect())
@@ -312,7 +331,7 @@ pub fn encode_episode(
     features.insert("steps/action".into(), floats(&|s| &s.action));
     features.insert(
         "steps/language_instruction".into(),
-        Feature::Bytes(vec![meta.instruction.as_bytes().to_vec(); steps.len()]),
+        step_instructions(meta, steps.len()),
     );
     let flags = |on: &dyn Fn(usize) -> bool| {
         Feature::Int64((0..steps.len()).map(|i| i64::from(on(i))).collect())
@@ -532,8 +551,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     fields.floats("steps/reward", count)?;
     fields.floats("steps/discount", count)?;
     check_flags(&is_first, &is_last, &is_terminal)?;
-    let instruction = String::from_utf8(instructions[0].clone())
-        .map_err(|_| "steps/language_instruction is not UTF-8".to_string())?;
+    let (instruction, task_changes) = step_instructions_read(&instructions)?;
     let steps = (0..count)
         .into_par_iter()
         .map(|i| {
@@ -559,6 +577,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
         seed: fields.int("episode_metadata/seed")? as u64,
         attempts: fields.int("episode_metadata/attempts")? as u32,
         success: fields.int("episode_metadata/success")? == 1,
+        task_changes,
     };
     let encoded = stored_jpeg(layout, &rgb);
     Ok(Episode {
@@ -615,6 +634,7 @@ mod tests {
                 seed: u64::MAX - seed,
                 attempts: 2,
                 success,
+                task_changes: Vec::new(),
             },
             steps,
         }

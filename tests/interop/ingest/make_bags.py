@@ -7,8 +7,9 @@ carries), from which the check (test_ingest_lerobot.py) works out the synchronis
 frames on its own.
 
 The sessions: ROS 1 bags with lz4 and bz2 chunks, a ROS 2 sqlite3 bag split over two files
-without definitions, a ROS 2 bag in mcap storage, a single MCAP file with lz4 chunks, a
-bimanual ROS 1 bag (PSM1 and PSM2, two cameras). Each has
+without definitions, a ROS 2 sqlite3 bag whose file is zstd-compressed whole, a ROS 2 bag in
+mcap storage, a single MCAP file with lz4 chunks, a bimanual ROS 1 bag (PSM1 and PSM2, two
+cameras). Each has
 a dVRK arm at ~100 Hz with jitter (measured and setpoint poses and jaws), a camera at ~30 Hz
 (raw rgb8 / bgr8 / mono8, JPEG and PNG compressed) with a dropout of 0.4 s and two out-of-order
 stamps, an unmapped topic and an /instruction topic whose text changes mid-episode.
@@ -24,6 +25,7 @@ import numpy as np
 from PIL import Image
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin, Writer as Ros2Writer
+from rosbags.rosbag2.writer import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 
 WIDTH, HEIGHT = 32, 24
@@ -231,7 +233,7 @@ def write_ros1(path, seed, encoding, compression, bimanual=False, mapped=False):
     return expected
 
 
-def write_ros2(path, seed, encoding, storage, split=False, transform=False):
+def write_ros2(path, seed, encoding, storage, split=False, transform=False, zstd_file=False):
     ts = get_typestore(Stores.ROS2_HUMBLE)
     messages, expected = session_messages(ts, False, seed, encoding, transform=transform)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
@@ -239,7 +241,11 @@ def write_ros2(path, seed, encoding, storage, split=False, transform=False):
     names = []
     for p, part in enumerate(parts):
         folder = Path(f"{path}-part{p}") if split else Path(path)
-        with Ros2Writer(folder, version=8, storage_plugin=plugin) as writer:
+        writer = Ros2Writer(folder, version=8, storage_plugin=plugin)
+        if zstd_file:
+            # Each storage file zstd-compressed whole, as `ros2 bag record --compression-mode file` does.
+            writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+        with writer:
             connections = {}
             for receive, topic, msgtype, msg in part if p == 0 else messages:
                 if topic not in connections:
@@ -320,6 +326,7 @@ SESSIONS = {
     "ros2_mcap_jpeg": (write_ros2, dict(seed=4, encoding="jpeg", storage="mcap")),
     "single_png.mcap": (write_single_mcap, dict(seed=5, encoding="png")),
     "ros1_bimanual.bag": (write_ros1, dict(seed=6, encoding="rgb8", compression=None, bimanual=True)),
+    "ros2_sqlite_zstd": (write_ros2, dict(seed=7, encoding="rgb8", storage="sqlite3", zstd_file=True)),
 }
 
 

@@ -2,8 +2,9 @@
 state, action and image are those of the message the synchronisation rule selects, worked out
 here on its own from the messages make_bags.py planted; each report names the planted dropout.
 
-Each episode's task is its first frame's instruction; where the dataset has Open-H's
-`instruction.text`, every frame's is the latest instruction at or before it.
+Every frame's task (its task_index) is the latest instruction at or before it, as is Open-H's
+`instruction.text` where the dataset has it; each episode lists its tasks in the order they
+first hold.
 
 Environment: SURGVLA_INGEST_CORPUS (make_bags.py's folder), SURGVLA_INGEST_OUT (a folder of
 one dataset per recording, named like it), SURGVLA_INGEST_FPS, SURGVLA_INGEST_VIDEO=1 for
@@ -119,6 +120,8 @@ def test_every_frame_is_the_rules_message(name):
     assert text == (VIDEO or "--instruction-text" in expected["ingest_args"])
     index = 0
     for e, frames in enumerate(episodes):
+        tasks = list(dict.fromkeys(frame["/instruction"]["value"] for frame in frames))
+        assert list(dataset.meta.episodes[e]["tasks"]) == tasks, f"episode {e}"
         for f, frame in enumerate(frames):
             item = dataset[index]
             index += 1
@@ -140,7 +143,7 @@ def test_every_frame_is_the_rules_message(name):
                     assert np.abs(image - want).mean() < 6, f"{camera}: episode {e} frame {f}"
                 else:
                     assert (image == want).all(), f"{camera}: episode {e} frame {f}"
-            assert item["task"] == frames[0]["/instruction"]["value"]
+            assert item["task"] == frame["/instruction"]["value"], f"episode {e} frame {f}"
             if text:
                 assert item["instruction.text"] == frame["/instruction"]["value"]
             for name, topic in depths(expected):
