@@ -558,6 +558,11 @@ pub struct Episode {
     /// Image features' frames as the source stored them (empty for a fresh recording): every
     /// video feature's, and PNG / TIFF bytes a reader already had beside the decoded pixels.
     pub encoded: Vec<EncodedFeature>,
+    /// Per image feature held in the steps as encoded bytes, the exact statistics accumulator
+    /// of its pixels over the episode, when the source had the pixels before it encoded them
+    /// (a recording ingested): a writer takes it instead of decoding every image again.
+    /// Empty for most sources.
+    pub image_stats: Vec<(String, PixelStats)>,
 }
 
 impl Episode {

@@ -250,6 +250,7 @@ pub fn render_replay_with<E>(
     Ok(Recorded {
         episode: Episode {
             encoded: Vec::new(),
+            image_stats: Vec::new(),
             meta: EpisodeMeta {
                 index,
                 task_code: task.code().into(),

@@ -144,6 +144,7 @@ fn run_trial(
     };
     let episode = record.then(|| Episode {
         encoded: Vec::new(),
+        image_stats: Vec::new(),
         meta: EpisodeMeta {
             index: u64::from(trial),
             task_code: task.code().into(),

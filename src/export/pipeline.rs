@@ -156,6 +156,7 @@ mod tests {
                     },
                     steps: Vec::new(),
                     encoded: Vec::new(),
+                    image_stats: Vec::new(),
                 })
             })
         }

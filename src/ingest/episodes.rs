@@ -3,7 +3,8 @@
 //! batch is encoded), images encoded as PNG in parallel batches, an episode handed on at each
 //! end mark. Every camera must keep its size.
 
-use crate::episode::{Episode, EpisodeMeta, FeatureValue, Step, TaskChange};
+use crate::episode::{Episode, EpisodeMeta, FeatureValue, PixelStats, Step, TaskChange};
+use crate::export::stats::{ImageStats, LastFrame};
 use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, FeatureInfo};
 use crate::ingest::error::IngestError;
 use crate::ingest::frames::Handed;
@@ -26,6 +27,9 @@ pub struct Making<'a> {
     /// Frames not yet encoded: (time, features).
     pending: Vec<(i64, DvrkFrame)>,
     steps: Vec<Step>,
+    /// Each camera's pixel statistics over the episode's frames so far, folded in frame
+    /// order as a writer would from the images (see [`frame_stats`]).
+    camera_stats: Vec<ImageStats>,
     /// The episode's first instruction, the latest, and where it changed since (without a
     /// task given).
     instruction: Option<String>,
@@ -63,6 +67,7 @@ impl<'a> Making<'a> {
             sizes,
             pending: Vec::with_capacity(BATCH_FRAMES),
             steps: Vec::new(),
+            camera_stats: Vec::new(),
             instruction: None,
             latest: None,
             changes: Vec::new(),
@@ -106,6 +111,16 @@ impl<'a> Making<'a> {
                     None => self.instruction.take().unwrap_or_default(),
                 };
                 self.latest = None;
+                let image_stats = (self.preset.cameras.iter())
+                    .zip(std::mem::take(&mut self.camera_stats))
+                    .filter_map(|((name, _), stats)| {
+                        let exact = serde_json::to_value(stats).ok()?;
+                        Some((
+                            format!("observation.images.{name}"),
+                            PixelStats::Exact(exact),
+                        ))
+                    })
+                    .collect();
                 let episode = Episode {
                     meta: EpisodeMeta {
                         task_changes: std::mem::take(&mut self.changes),
@@ -113,6 +128,7 @@ impl<'a> Making<'a> {
                     },
                     steps: std::mem::take(&mut self.steps),
                     encoded: Vec::new(),
+                    image_stats,
                 };
                 self.next_index += 1;
                 return Ok(Some(Made {
@@ -167,16 +183,43 @@ impl<'a> Making<'a> {
     fn encode(&mut self) -> Result<(), IngestError> {
         let pending = std::mem::take(&mut self.pending);
         let text = self.text.then_some(self.task);
-        let steps: Vec<Result<Step, (i64, String)>> = pending
+        let steps: Vec<Result<EncodedFrame, (i64, String)>> = pending
             .into_par_iter()
-            .map(|(time_ns, frame)| step(frame, text).map_err(|problem| (time_ns, problem)))
+            .map(|(time_ns, frame)| {
+                let stats = frame.images.iter().map(|i| frame_stats(&i.rgb)).collect();
+                let step = step(frame, text).map_err(|problem| (time_ns, problem))?;
+                Ok((step, stats))
+            })
             .collect();
         for step in steps {
-            let step = step.map_err(|(time_ns, problem)| self.bad(time_ns, problem))?;
+            let (step, stats) = step.map_err(|(time_ns, problem)| self.bad(time_ns, problem))?;
+            if self.camera_stats.is_empty() {
+                self.camera_stats = vec![ImageStats::unit_scaled(3); stats.len()];
+            }
+            for (total, (frame, histograms)) in self.camera_stats.iter_mut().zip(stats) {
+                total.merge(&frame);
+                total.add_histograms(&histograms);
+            }
             self.steps.push(step);
         }
         Ok(())
     }
+}
+
+/// One frame's statistics of an RGB image's pixels and its pixel counts.
+type FrameStats = (ImageStats, Vec<Vec<u64>>);
+
+/// A frame's step, and its cameras' [`FrameStats`].
+type EncodedFrame = (Step, Vec<FrameStats>);
+
+/// What a writer's statistics take from one frame's RGB pixels (a frame's sums, its counts
+/// apart), so that folding them in frame order gives exactly the writer's accumulator.
+fn frame_stats(rgb: &[u8]) -> FrameStats {
+    let fresh = ImageStats::unit_scaled(3);
+    let mut histograms = fresh.empty_histograms();
+    let mut frame = fresh.without_histograms();
+    frame.push_u8_counting_since(rgb, &mut histograms, &mut LastFrame::default());
+    (frame, histograms)
 }
 
 /// A step of a frame's features, in feature order: each camera (PNG), each depth camera (16-bit

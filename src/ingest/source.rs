@@ -849,6 +849,41 @@ mod tests {
     }
 
     #[test]
+    fn image_statistics_carried_from_the_pixels_equal_those_of_the_decoded_images() {
+        use crate::export::lerobot::{LeRobotOptions, LeRobotWriter};
+        let path = recording();
+        let mut source = IngestSource::open(std::slice::from_ref(&path), options()).expect("open");
+        let info = source.info().clone();
+        let carried = source.next().expect("an episode").expect("read");
+        assert_eq!(carried.image_stats.len(), 1, "the camera's");
+        assert_eq!(carried.image_stats[0].0, "observation.images.left");
+        let decoded = Episode {
+            image_stats: Vec::new(),
+            ..carried.clone()
+        };
+        let mut written = Vec::new();
+        for (name, episode) in [("carried", &carried), ("decoded", &decoded)] {
+            let out =
+                std::env::temp_dir().join(format!("surgvla-carried-{name}-{}", std::process::id()));
+            std::fs::remove_dir_all(&out).ok();
+            let mut sink =
+                LeRobotWriter::boxed(&out, &info, LeRobotOptions::default(), false).expect("sink");
+            sink.write_batch(std::slice::from_ref(episode))
+                .expect("write");
+            sink.finish().expect("finish");
+            let stats = std::fs::read(out.join("meta/stats.json")).expect("stats");
+            let episodes = out.join("meta/episodes/chunk-000/file-000.parquet");
+            written.push((stats, std::fs::read(episodes).expect("episodes")));
+            std::fs::remove_dir_all(out).ok();
+        }
+        assert!(
+            written[0] == written[1],
+            "the same statistics, byte for byte"
+        );
+        std::fs::remove_file(path).ok();
+    }
+
+    #[test]
     fn episodes_come_one_at_a_time_across_inputs_and_a_source_dropped_midway_stops() {
         let path = recording();
         let inputs = [path.clone(), path.clone(), path.clone()];

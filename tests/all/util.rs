@@ -127,6 +127,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
     let episodes: Vec<surgvla::episode::Episode> = (0..3u64)
         .map(|index| surgvla::episode::Episode {
             encoded: Vec::new(),
+            image_stats: Vec::new(),
             meta: EpisodeMeta {
                 index,
                 task_code: String::new(),

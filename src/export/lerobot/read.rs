@@ -1135,6 +1135,7 @@ impl Iterator for LeRobotSource {
         };
         Some(Ok(Episode {
             encoded,
+            image_stats: Vec::new(),
             meta: EpisodeMeta {
                 index: index as u64,
                 task_code: provenance.task_id,

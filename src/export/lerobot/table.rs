@@ -250,6 +250,16 @@ pub(super) fn frame_batch(
     Ok(RecordBatch::try_new(schema.clone(), columns)?)
 }
 
+/// `values` as one binary array, its buffer sized once (images: hundreds of MB an episode).
+fn binary_array(values: &[&[u8]]) -> BinaryArray {
+    let total = values.iter().map(|v| v.len()).sum();
+    let mut builder = arrow_array::builder::BinaryBuilder::with_capacity(values.len(), total);
+    for value in values {
+        builder.append_value(value);
+    }
+    builder.finish()
+}
+
 /// The column of the `position`-th [`FeatureKind::Other`] feature: its values as they came.
 fn other_column(
     feature: &FeatureSpec,
@@ -285,7 +295,7 @@ fn other_column(
             Arc::new(StructArray::new(
                 image_fields(),
                 vec![
-                    Arc::new(BinaryArray::from_iter_values(bytes)),
+                    Arc::new(binary_array(&bytes)),
                     Arc::new(StringArray::new_null(episode.steps.len())),
                 ],
                 None,

@@ -176,7 +176,8 @@ impl EpisodeWork<'_> {
     /// [`EpisodeWork::encode_images`] and [`EpisodeWork::feature_stats`] on one thread, frame
     /// by frame (see [`FrameWork`]; the same bytes and statistics).
     pub fn encode_with_stats(&self, episode: &Episode) -> Result<Finished, ExportError> {
-        let mut frames = FrameWork::new(self, self.image_plans(episode)?, episode.steps.len());
+        let plans = self.image_plans(episode)?;
+        let mut frames = FrameWork::new(self, plans, episode.steps.len(), Some(episode));
         for step in &episode.steps {
             frames.push(self, step)?;
         }
@@ -188,6 +189,7 @@ impl EpisodeWork<'_> {
     pub fn feature_stats(&self, episode: &Episode) -> EpisodeStats {
         let kinds = self.step_kinds();
         let mut total = fresh_feature_stats(&self.info.features);
+        skip_carried(episode, &mut total);
         // Frames in chunks in parallel: each frame's statistics on their own (their sums are
         // folded in frame order below), its images' pixel counts into its chunk's histograms
         // (integers: any order).
@@ -247,16 +249,18 @@ impl EpisodeWork<'_> {
 
     /// The statistics of features whose pixels are not in the steps (video): the RGB camera
     /// encoded here from its pixels had them in the steps; a copied video brings its source's
-    /// statistics.
+    /// statistics. Images in the steps whose statistics the episode carries
+    /// ([`Episode::image_stats`]) take them too.
     fn carried_stats(&self, episode: &Episode, total: &mut EpisodeStats) {
         let features = &self.info.features;
         for (feature, (_, t)) in features.iter().zip(total.iter_mut()) {
-            if feature.in_steps() {
-                continue;
-            }
-            let carried = episode
-                .encoded_video(&feature.name)
-                .and_then(|e| e.pixel_stats.as_ref());
+            let carried = if feature.in_steps() {
+                carried_image_stats(episode, &feature.name)
+            } else {
+                episode
+                    .encoded_video(&feature.name)
+                    .and_then(|e| e.pixel_stats.as_ref())
+            };
             match carried {
                 Some(PixelStats::Exact(value)) => {
                     if let Ok(exact) = serde_json::from_value::<ImageStats>(value.clone()) {
@@ -350,6 +354,23 @@ fn fold_frame(
     }
 }
 
+/// The exact statistics `episode` carries for its image feature `name`, if any.
+fn carried_image_stats<'a>(episode: &'a Episode, name: &str) -> Option<&'a PixelStats> {
+    (episode.image_stats.iter())
+        .find(|(n, stats)| n == name && matches!(stats, PixelStats::Exact(_)))
+        .map(|(_, stats)| stats)
+}
+
+/// Leaves out of the frame-by-frame statistics (no image decoded) the images whose exact
+/// statistics `episode` carries: [`EpisodeWork::carried_stats`] puts them in afterwards.
+fn skip_carried(episode: &Episode, total: &mut EpisodeStats) {
+    for (name, stats) in total.iter_mut() {
+        if carried_image_stats(episode, name).is_some() {
+            *stats = FeatureStats::Vector(VectorStats::new(0));
+        }
+    }
+}
+
 /// Empty statistics of `features`.
 fn fresh_feature_stats(features: &[FeatureSpec]) -> EpisodeStats {
     features
@@ -388,8 +409,14 @@ pub struct FrameWork {
 }
 
 impl FrameWork {
-    /// For an episode of about `frames` frames (the columns' room).
-    fn new(work: &EpisodeWork<'_>, plans: Vec<(String, ImagePlan)>, frames: usize) -> Self {
+    /// For an episode of about `frames` frames (the columns' room); `episode` when it is
+    /// known ahead, for the statistics it carries.
+    fn new(
+        work: &EpisodeWork<'_>,
+        plans: Vec<(String, ImagePlan)>,
+        frames: usize,
+        episode: Option<&Episode>,
+    ) -> Self {
         let features = plans
             .into_iter()
             .map(|(name, plan)| match plan {
@@ -399,7 +426,7 @@ impl FrameWork {
             .collect();
         FrameWork {
             features,
-            fold: StatsFold::new(work),
+            fold: StatsFold::new(work, episode),
             encode_secs: 0.0,
             stats_secs: 0.0,
         }
@@ -447,8 +474,11 @@ struct StatsFold {
 }
 
 impl StatsFold {
-    fn new(work: &EpisodeWork<'_>) -> Self {
-        let total = fresh_feature_stats(&work.info.features);
+    fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
+        let mut total = fresh_feature_stats(&work.info.features);
+        if let Some(episode) = episode {
+            skip_carried(episode, &mut total);
+        }
         let histograms = total
             .iter()
             .map(|(_, s)| match s {
@@ -611,7 +641,7 @@ impl crate::export::writer::EpisodeEncoder<Prepared> for SharedWork {
             .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
             .map(|f| (f.name.clone(), ImagePlan::Encode(f.kind)))
             .collect();
-        let frames = FrameWork::new(&work, plans, expected_frames);
+        let frames = FrameWork::new(&work, plans, expected_frames, None);
         Some(Box::new(FrameStream {
             owned: self.0.clone(),
             frames,

@@ -166,6 +166,7 @@ impl ForeignRldsSource {
         }
         Ok(Episode {
             encoded: Vec::new(),
+            image_stats: Vec::new(),
             meta: EpisodeMeta {
                 task_changes,
                 ..EpisodeMeta::foreign(index, instruction)

@@ -581,6 +581,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     };
     let encoded = stored_jpeg(layout, &rgb);
     Ok(Episode {
+        image_stats: Vec::new(),
         meta,
         steps,
         encoded,
@@ -625,6 +626,7 @@ mod tests {
             .collect();
         Episode {
             encoded: Vec::new(),
+            image_stats: Vec::new(),
             meta: EpisodeMeta {
                 index: 3,
                 task_code: "T1-1".into(),

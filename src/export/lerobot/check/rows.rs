@@ -441,6 +441,7 @@ impl Context<'_> {
                 meta,
                 steps,
                 encoded: Vec::new(),
+                image_stats: Vec::new(),
             };
             check_semantics(&episode, &semantics, &At::file(file), self.findings);
         }
