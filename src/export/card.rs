@@ -43,11 +43,15 @@ pub struct Tally {
 impl Tally {
     /// The journal line of one episode.
     pub fn line(episode: &Episode) -> String {
-        let meta = &episode.meta;
+        Tally::line_of(&episode.meta, episode.steps.len())
+    }
+
+    /// The journal line of an episode of `frames` frames.
+    pub fn line_of(meta: &crate::episode::EpisodeMeta, frames: usize) -> String {
         json!({
             "task": task_key(&meta.task_code, &meta.instruction),
             "level": meta.level,
-            "frames": episode.steps.len(),
+            "frames": frames,
             "instruction": meta.instruction,
         })
         .to_string()

@@ -9,7 +9,7 @@ use crate::export::error::ExportError;
 use crate::export::pipeline::{Episodes, in_order};
 use crate::export::sink::EpisodeSink;
 use crate::export::sink::{Sidecar, Summary};
-use crate::export::source::EpisodeSource;
+use crate::export::source::{EpisodePart, EpisodeSource};
 
 /// Which side of a conversion failed.
 #[derive(Debug, thiserror::Error)]
@@ -78,6 +78,10 @@ fn copy(
         .filter(|e| !sink.reuses_stored(*e))
         .collect();
     source.drop_stored(&unused);
+    if source.makes_parts() && sink.writes_parts() {
+        copy_parts(source, sink, skip, &unused, progress)?;
+        return sink.finish_with(sidecar).map_err(ConvertError::Write);
+    }
     let mut episodes = Episodes::of(vec![source]).skipping(skip);
     let mut write = |mut batch: Vec<Episode>| {
         for episode in &mut batch {
@@ -87,6 +91,36 @@ fn copy(
     };
     in_order(&mut episodes, ConvertError::Read, &mut write, progress)?;
     sink.finish_with(sidecar).map_err(ConvertError::Write)
+}
+
+/// Copies episodes part by part into a sink that writes them so (see [`EpisodePart`]): no
+/// episode is held whole. The first `skip` episodes are passed over (a resume), stored images
+/// of the `unused` encodings dropped; `progress` is told the episodes done after each one's
+/// last part.
+fn copy_parts(
+    source: &mut (dyn EpisodeSource + Send),
+    sink: &mut (dyn EpisodeSink + Send),
+    skip: u64,
+    unused: &[ImageEncoding],
+    progress: &mut (dyn FnMut(u64) + Send),
+) -> Result<(), ConvertError> {
+    for _ in 0..skip {
+        match source.skip_episode() {
+            Some(skipped) => skipped.map_err(ConvertError::Read)?,
+            None => break,
+        }
+    }
+    let mut done = skip;
+    while let Some(part) = source.next_part() {
+        let mut part: EpisodePart = part.map_err(ConvertError::Read)?;
+        (part.episode.encoded).retain(|e| !unused.contains(&e.encoding));
+        sink.write_part(&part).map_err(ConvertError::Write)?;
+        if part.last {
+            done += 1;
+            progress(done);
+        }
+    }
+    Ok(())
 }
 
 /// A source with some optional features left out (`convert --without`): they leave the

@@ -67,4 +67,4 @@ pub use sink::{
     DetachedEncoder, Encoded, EpisodeSink, FrameEncoder, Pipelined, PipelinedSink, Sidecar,
     SinkTiming, Summary,
 };
-pub use source::{EpisodeSource, SourceOptions};
+pub use source::{EpisodePart, EpisodeSource, Gathering, SourceOptions};

@@ -86,6 +86,21 @@ pub trait EpisodeSink {
     fn reuses_stored(&self, _encoding: crate::episode::ImageEncoding) -> bool {
         true
     }
+    /// Whether the sink writes an episode part by part as it comes
+    /// ([`EpisodeSink::write_part`]), holding none of it whole: LeRobot does; the others take
+    /// whole episodes ([`crate::export::source::Gathering`] makes them of parts).
+    fn writes_parts(&self) -> bool {
+        false
+    }
+    /// Writes the next part of an episode (see [`crate::export::source::EpisodePart`]): the first part
+    /// of the episode the sink expects, then the rest of it in order. A sink that does not
+    /// write parts ([`EpisodeSink::writes_parts`]) refuses them.
+    fn write_part(&mut self, part: &crate::export::source::EpisodePart) -> Result<(), ExportError> {
+        Err(ExportError::Internal(format!(
+            "episode {}: this format takes whole episodes, not parts",
+            part.episode.meta.index
+        )))
+    }
     /// Time spent so far.
     fn timing(&self) -> SinkTiming {
         SinkTiming::default()

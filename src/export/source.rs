@@ -1,5 +1,6 @@
 //! What a format's reader is to its callers: [`EpisodeSource`], a dataset's [`DatasetInfo`] and
-//! its episodes in order, one at a time; and what a reader needs that a dataset may not say
+//! its episodes in order, one at a time, or in parts ([`EpisodePart`]) where a source makes
+//! long episodes as it reads them; and what a reader needs that a dataset may not say
 //! ([`SourceOptions`]).
 
 use crate::episode::Episode;
@@ -25,6 +26,87 @@ pub trait EpisodeSource: Iterator<Item = Result<Episode, ExportError>> {
     /// without decoding does so.
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
         self.next().map(|e| e.map(|_| ()))
+    }
+    /// Whether the source makes its episodes in parts as it reads them
+    /// ([`EpisodeSource::next_part`]); a conversion into a sink that writes parts then takes
+    /// them so.
+    fn makes_parts(&self) -> bool {
+        false
+    }
+    /// The next part of the episode being read (see [`EpisodePart`]), for a sink that writes
+    /// episodes in parts ([`crate::export::EpisodeSink::writes_parts`]); None after the last.
+    /// By default each episode is one part. Parts and whole episodes are not to be mixed
+    /// within an episode.
+    fn next_part(&mut self) -> Option<Result<EpisodePart, ExportError>> {
+        self.next().map(|e| e.map(EpisodePart::whole))
+    }
+}
+
+/// A stretch of consecutive steps of an episode, as a source that makes long episodes while it
+/// reads them hands them on (a recording), so that no one holds a whole episode: `episode`'s
+/// steps are the episode's from `first_step` on; its metadata is what is known so far (index,
+/// instruction, task changes numbered in the whole episode's steps, and each image feature's
+/// statistics over the steps so far where the source carries them); the last part's is the
+/// episode's.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EpisodePart {
+    pub episode: Episode,
+    pub first_step: usize,
+    pub last: bool,
+}
+
+impl EpisodePart {
+    /// A whole episode as its only part.
+    pub fn whole(episode: Episode) -> EpisodePart {
+        EpisodePart {
+            episode,
+            first_step: 0,
+            last: true,
+        }
+    }
+
+    /// The episode's steps up to the end of this part.
+    pub fn steps_so_far(&self) -> usize {
+        self.first_step + self.episode.steps.len()
+    }
+}
+
+/// Gathers an episode's parts into the whole episode (for a sink that writes whole episodes).
+#[derive(Default)]
+pub struct Gathering {
+    episode: Option<Episode>,
+}
+
+impl Gathering {
+    /// Takes the next part; the last gives the whole episode. A part that does not continue
+    /// the episode gathered so far is an internal error.
+    pub fn take(&mut self, part: EpisodePart) -> Result<Option<Episode>, ExportError> {
+        let EpisodePart {
+            episode: mut piece,
+            first_step,
+            last,
+        } = part;
+        let so_far = self.episode.as_ref().map_or(0, |e| e.steps.len());
+        if first_step != so_far
+            || self
+                .episode
+                .as_ref()
+                .is_some_and(|e| e.meta.index != piece.meta.index)
+        {
+            return Err(ExportError::Internal(format!(
+                "episode {}: a part from step {first_step} arrived after {so_far} steps",
+                piece.meta.index
+            )));
+        }
+        if let Some(mut gathered) = self.episode.take() {
+            gathered.steps.append(&mut piece.steps);
+            piece.steps = gathered.steps;
+        }
+        if last {
+            return Ok(Some(piece));
+        }
+        self.episode = Some(piece);
+        Ok(None)
     }
 }
 

@@ -97,6 +97,26 @@ pub trait FormatWriter: Send + Sized {
         encoded: Self::Encoded,
     ) -> Result<f64, ExportError>;
 
+    /// Whether [`FormatWriter::append_part`] writes episodes part by part.
+    fn appends_parts(&self) -> bool {
+        false
+    }
+
+    /// Appends the next part of an episode (see [`crate::export::source::EpisodePart`]; checked by the
+    /// caller: the first part is the episode expected, the rest follow in order); returns
+    /// the seconds spent encoding. Only where [`FormatWriter::appends_parts`].
+    fn append_part(
+        &mut self,
+        _dir: &mut DatasetDir,
+        _info: &DatasetInfo,
+        part: &crate::export::source::EpisodePart,
+    ) -> Result<f64, ExportError> {
+        Err(ExportError::Internal(format!(
+            "episode {}: this format takes whole episodes, not parts",
+            part.episode.meta.index
+        )))
+    }
+
     /// Thread-seconds its detached encoder spent so far encoding, and computing statistics
     /// (counted apart from encoding).
     fn apart_secs(&self) -> (f64, f64) {
@@ -336,6 +356,32 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         };
         self.timing.encode_secs += started.elapsed().as_secs_f64();
         self.append_all(episodes, encoded.into_iter().map(Ok))
+    }
+
+    fn writes_parts(&self) -> bool {
+        self.format.appends_parts()
+    }
+
+    /// Each part is checked as an episode (the one the format expects: it counts an episode
+    /// when its last part is appended); the card's line goes with the last part.
+    fn write_part(&mut self, part: &crate::export::source::EpisodePart) -> Result<(), ExportError> {
+        check_batch(
+            &self.info,
+            self.finished.is_some(),
+            std::slice::from_ref(&part.episode),
+            self.format.episodes(),
+            true,
+        )?;
+        let appending = Instant::now();
+        if part.last {
+            let meta = &part.episode.meta;
+            let line = crate::export::card::Tally::line_of(meta, part.steps_so_far());
+            self.dir.append(TALLY_JOURNAL, line.as_bytes())?;
+        }
+        let encoding_secs = self.format.append_part(&mut self.dir, &self.info, part)?;
+        self.timing.encode_secs += encoding_secs;
+        self.timing.write_secs += appending.elapsed().as_secs_f64() - encoding_secs;
+        Ok(())
     }
 
     fn pipelined(&mut self) -> Option<Pipelined<'_>> {

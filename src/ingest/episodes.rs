@@ -1,9 +1,11 @@
 //! Episodes made from the frames the second pass hands over ([`Making`]): each frame's
 //! messages turned into features by the preset as it arrives (raw pixels held only until their
-//! batch is encoded), images encoded as PNG in parallel batches, an episode handed on at each
-//! end mark. Every camera must keep its size.
+//! batch is encoded), images encoded as PNG in parallel batches, and the episode handed on in
+//! parts of about [`PART_BYTES`] of images (an [`EpisodePart`]), the last at its end mark: a
+//! long recording is never held whole. Every camera must keep its size.
 
 use crate::episode::{Episode, EpisodeMeta, FeatureValue, PixelStats, Step, TaskChange};
+use crate::export::source::EpisodePart;
 use crate::export::stats::{ImageStats, LastFrame};
 use crate::ingest::dvrk::{DvrkFrame, DvrkPreset, FeatureInfo};
 use crate::ingest::error::IngestError;
@@ -12,7 +14,30 @@ use rayon::prelude::*;
 use std::path::Path;
 
 /// Frames whose pixels are gathered before they are encoded together.
-const BATCH_FRAMES: usize = 32;
+pub const BATCH_FRAMES: usize = 32;
+
+/// Encoded image bytes after which the steps held are handed on as a part of their episode
+/// (at the next frame, so that no part is empty); a part is a row group of a LeRobot data
+/// file.
+pub const PART_BYTES: usize = 32 << 20;
+
+/// How an episode's frames are encoded and handed on: images encoded in parallel batches of
+/// `batch_frames` frames, the steps held handed on as a part of their episode once their
+/// images reach `part_bytes` (see the module overview). The default outside tests.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Parting {
+    pub batch_frames: usize,
+    pub part_bytes: usize,
+}
+
+impl Default for Parting {
+    fn default() -> Self {
+        Parting {
+            batch_frames: BATCH_FRAMES,
+            part_bytes: PART_BYTES,
+        }
+    }
+}
 
 /// An input's episodes being made (see the module overview).
 pub struct Making<'a> {
@@ -26,7 +51,16 @@ pub struct Making<'a> {
     sizes: Option<Vec<(usize, usize)>>,
     /// Frames not yet encoded: (time, features).
     pending: Vec<(i64, DvrkFrame)>,
+    /// Steps encoded and not handed on yet: the episode's from `first_step` on, and their
+    /// images' bytes.
     steps: Vec<Step>,
+    first_step: usize,
+    held_bytes: usize,
+    /// Whether the recording has instruction messages to wait for (no task given): until the
+    /// first one, the episode's task is unknown and nothing is handed on.
+    awaits_instruction: bool,
+    has_instructions: bool,
+    parting: Parting,
     /// Each camera's pixel statistics over the episode's frames so far, folded in frame
     /// order as a writer would from the images (see [`frame_stats`]).
     camera_stats: Vec<ImageStats>,
@@ -40,9 +74,9 @@ pub struct Making<'a> {
     pose_info: Option<(FeatureInfo, FeatureInfo)>,
 }
 
-/// An episode made, with what its input's frames showed so far.
+/// A part of an episode made, with what its input's frames showed so far.
 pub struct Made {
-    pub episode: Episode,
+    pub part: EpisodePart,
     /// Each camera's (height, width).
     pub sizes: Option<Vec<(usize, usize)>>,
     /// The frames the first frame's poses are in (state, action `info`).
@@ -51,10 +85,12 @@ pub struct Made {
 
 impl<'a> Making<'a> {
     /// Episodes of `path`, the first numbered `next_index`; `sizes` as earlier inputs had them.
+    /// `instructions`: the recording has instruction messages (read without a task given).
     pub fn new(
         path: &'a Path,
         preset: &'a DvrkPreset,
-        task: Option<&'a str>,
+        (task, instructions): (Option<&'a str>, bool),
+        parting: Parting,
         text: bool,
         sizes: Option<Vec<(usize, usize)>>,
         next_index: u64,
@@ -65,8 +101,13 @@ impl<'a> Making<'a> {
             task,
             text,
             sizes,
-            pending: Vec::with_capacity(BATCH_FRAMES),
+            pending: Vec::with_capacity(parting.batch_frames),
+            parting,
             steps: Vec::new(),
+            first_step: 0,
+            held_bytes: 0,
+            awaits_instruction: task.is_none() && instructions,
+            has_instructions: instructions,
             camera_stats: Vec::new(),
             instruction: None,
             latest: None,
@@ -84,10 +125,13 @@ impl<'a> Making<'a> {
         }
     }
 
-    /// Takes what the second pass hands over; an episode's end gives the episode.
+    /// Takes what the second pass hands over: a part of the episode when enough is held and
+    /// a frame continues it, the last part at the episode's end.
     pub fn take(&mut self, handed: Handed) -> Result<Option<Made>, IngestError> {
         match handed {
             Handed::Frame(frame) => {
+                let due = self.held_bytes >= self.parting.part_bytes;
+                let part = (due && !self.awaits_instruction).then(|| self.made(false));
                 let time_ns = frame.time_ns;
                 let features = (self.preset.frame(&frame.values))
                     .map_err(|problem| self.bad(time_ns, problem))?;
@@ -96,49 +140,78 @@ impl<'a> Making<'a> {
                     self.pose_info = Some(self.preset.pose_info(&frame.values));
                 }
                 if self.task.is_none() {
-                    let step = self.steps.len() + self.pending.len();
+                    let step = self.first_step + self.steps.len() + self.pending.len();
                     self.note_instruction(step, features.instruction.as_deref());
                 }
                 self.pending.push((time_ns, features));
-                if self.pending.len() == BATCH_FRAMES {
+                if self.pending.len() >= self.parting.batch_frames {
                     self.encode()?;
                 }
+                Ok(part)
             }
             Handed::EpisodeEnd => {
                 self.encode()?;
-                let instruction = match self.task {
-                    Some(task) => task.to_string(),
-                    None => self.instruction.take().unwrap_or_default(),
-                };
-                self.latest = None;
-                let image_stats = (self.preset.cameras.iter())
-                    .zip(std::mem::take(&mut self.camera_stats))
-                    .filter_map(|((name, _), stats)| {
-                        let exact = serde_json::to_value(stats).ok()?;
-                        Some((
-                            format!("observation.images.{name}"),
-                            PixelStats::Exact(exact),
-                        ))
-                    })
-                    .collect();
-                let episode = Episode {
-                    meta: EpisodeMeta {
-                        task_changes: std::mem::take(&mut self.changes),
-                        ..EpisodeMeta::foreign(self.next_index, instruction)
-                    },
-                    steps: std::mem::take(&mut self.steps),
-                    encoded: Vec::new(),
-                    image_stats,
-                };
-                self.next_index += 1;
-                return Ok(Some(Made {
-                    episode,
-                    sizes: self.sizes.clone(),
-                    pose_info: self.pose_info.clone(),
-                }));
+                Ok(Some(self.made(true)))
             }
         }
-        Ok(None)
+    }
+
+    /// The steps held as a part of the episode (its last: the episode's end), with the
+    /// episode's task so far and each camera's statistics over the episode so far.
+    fn made(&mut self, last: bool) -> Made {
+        let instruction = match self.task {
+            Some(task) => task.to_string(),
+            None => self.instruction.clone().unwrap_or_default(),
+        };
+        let stats = if last {
+            std::mem::take(&mut self.camera_stats)
+        } else {
+            self.camera_stats.clone()
+        };
+        let image_stats = (self.preset.cameras.iter())
+            .zip(stats)
+            .filter_map(|((name, _), stats)| {
+                let exact = serde_json::to_value(stats).ok()?;
+                Some((
+                    format!("observation.images.{name}"),
+                    PixelStats::Exact(exact),
+                ))
+            })
+            .collect();
+        let task_changes = if last {
+            std::mem::take(&mut self.changes)
+        } else {
+            self.changes.clone()
+        };
+        let steps = std::mem::take(&mut self.steps);
+        let first_step = self.first_step;
+        self.first_step += steps.len();
+        self.held_bytes = 0;
+        let episode = Episode {
+            meta: EpisodeMeta {
+                task_changes,
+                ..EpisodeMeta::foreign(self.next_index, instruction)
+            },
+            steps,
+            encoded: Vec::new(),
+            image_stats,
+        };
+        if last {
+            self.instruction = None;
+            self.latest = None;
+            self.first_step = 0;
+            self.awaits_instruction = self.task.is_none() && self.has_instructions;
+            self.next_index += 1;
+        }
+        Made {
+            part: EpisodePart {
+                episode,
+                first_step,
+                last,
+            },
+            sizes: self.sizes.clone(),
+            pose_info: self.pose_info.clone(),
+        }
     }
 
     /// Notes step `step`'s instruction (the latest instruction message, if any yet): the
@@ -153,7 +226,10 @@ impl<'a> Making<'a> {
                 first_step: step as u64,
                 instruction: instruction.to_string(),
             }),
-            None => self.instruction = Some(instruction.to_string()),
+            None => {
+                self.instruction = Some(instruction.to_string());
+                self.awaits_instruction = false;
+            }
         }
         self.latest = Some(instruction.to_string());
     }
@@ -200,6 +276,12 @@ impl<'a> Making<'a> {
                 total.merge(&frame);
                 total.add_histograms(&histograms);
             }
+            self.held_bytes += (step.other.iter())
+                .map(|value| match value {
+                    FeatureValue::Image(bytes) => bytes.len(),
+                    _ => 0,
+                })
+                .sum::<usize>();
             self.steps.push(step);
         }
         Ok(())

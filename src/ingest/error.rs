@@ -52,6 +52,12 @@ pub enum IngestError {
     },
     #[error("{path} has no message on {topic}")]
     MissingTopic { path: PathBuf, topic: String },
+    /// The reading thread was asked to stop (the source dropped early); never shown.
+    #[error("the reading was stopped")]
+    Stopped,
+    /// The reading thread ended without a word before the input's last episode (it panicked).
+    #[error("{path}: the reading stopped with {episodes} episodes to come")]
+    ReadingEnded { path: PathBuf, episodes: usize },
     #[error("{path}: topic {topic} carries {first} and {second}: one type per topic")]
     TwoTypes {
         path: PathBuf,

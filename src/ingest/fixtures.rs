@@ -47,7 +47,10 @@ pub(crate) fn mcap_bytes(
 
 /// Writes `bytes` to a file of the temporary folder named after `name` and this process.
 pub(crate) fn temp_file(name: &str, bytes: &[u8]) -> PathBuf {
-    let path = std::env::temp_dir().join(format!("surgvla-{name}-{}", std::process::id()));
+    // Each call its own file: tests running at once write and remove theirs.
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let path = std::env::temp_dir().join(format!("surgvla-{call}-{name}-{}", std::process::id()));
     std::fs::write(&path, bytes).expect("write");
     path
 }

@@ -6,18 +6,23 @@
 //! features, as every format reads one another tool made.
 //!
 //! An input's episodes are made on a thread of their own as its frames are handed over, and
-//! handed on one at a time as they are read ([`Producing`]): memory follows the episodes being
-//! written, not the input's length or the number of inputs. The first input's reading starts
-//! when the source opens, and its first episode is made then, for the images' size.
+//! handed on in parts ([`crate::export::source::EpisodePart`], about
+//! [`crate::ingest::episodes::PART_BYTES`] of images each) one at a time as they are read
+//! ([`Producing`]): a sink that writes parts (LeRobot) holds a part, not an episode, so memory
+//! follows neither the inputs' length nor their number; for the others the parts are gathered
+//! into episodes. The first input's reading starts when the source opens, and its first part is
+//! made then, for the images' size.
 
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::source::EpisodeSource;
+use crate::export::source::{EpisodePart, Gathering};
 use crate::ingest::builtin::ros2_types;
 use crate::ingest::dvrk::{DvrkPreset, FeatureInfo, INSTRUCTION_TOPIC};
 use crate::ingest::episodes::Made;
 use crate::ingest::episodes::Making;
+pub use crate::ingest::episodes::Parting;
 use crate::ingest::error::IngestError;
 use crate::ingest::extract::camera_intrinsics;
 use crate::ingest::frames::second_pass;
@@ -50,6 +55,8 @@ pub struct IngestOptions {
     /// Where a zstd-compressed sqlite3 file of a ROS 2 bag is decompressed for the moment it
     /// is opened (the output folder); None refuses such bags.
     pub scratch: Option<std::path::PathBuf>,
+    /// How an episode's frames are encoded and handed on in parts.
+    pub parting: Parting,
 }
 
 impl IngestOptions {
@@ -128,7 +135,7 @@ pub struct IngestSource {
     next_input: usize,
     /// The input whose episodes are being made, and the next of them, already received.
     producing: Option<Producing>,
-    ready: Option<Episode>,
+    ready: Option<EpisodePart>,
     next_index: u64,
     total: u64,
     /// Each camera's (height, width), from the first frame made.
@@ -336,8 +343,8 @@ impl IngestSource {
         Ok(())
     }
 
-    /// The next episode made, the sizes and frames it showed noted; None after the last.
-    fn receive(&mut self) -> Result<Option<Episode>, IngestError> {
+    /// The next part made, the sizes and frames it showed noted; None after the last.
+    fn receive(&mut self) -> Result<Option<EpisodePart>, IngestError> {
         loop {
             let Some(producing) = &mut self.producing else {
                 if self.next_input == self.inputs.len() {
@@ -354,7 +361,7 @@ impl IngestSource {
             if self.pose_info.is_none() {
                 self.pose_info = made.pose_info;
             }
-            return Ok(Some(made.episode));
+            return Ok(Some(made.part));
         }
     }
 }
@@ -370,7 +377,7 @@ struct Producer {
     first_index: u64,
 }
 
-/// An input's episodes being made on their own thread and handed over one at a time (the
+/// An input's episodes being made on their own thread and handed over a part at a time (the
 /// thread waits until each is taken): `episodes` are to come, the first `skip` dropped.
 struct Producing {
     receiver: Option<Receiver<Result<Made, IngestError>>>,
@@ -391,7 +398,7 @@ impl Producer {
         // As many workers as the pool this is started from (`--threads`).
         let threads = rayon::current_num_threads();
         let thread = std::thread::spawn(move || {
-            let stopped = || IngestError::Usage("stopped".into());
+            let stopped = || IngestError::Stopped;
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build();
             let run = |hand: &mut (dyn FnMut(Option<Made>) -> Result<(), IngestError> + Send)| {
                 match &pool {
@@ -429,16 +436,18 @@ impl Producer {
         hand: &mut (dyn FnMut(Option<Made>) -> Result<(), IngestError> + Send),
     ) -> Result<(), IngestError> {
         let options = &self.options;
+        let (topics, plan) = (&self.planned.topics, &self.planned.plan);
+        let instructions = topics.last().is_some_and(|t| t.topic == INSTRUCTION_TOPIC);
         let mut making = Making::new(
             &self.path,
             &options.preset,
-            options.task.as_deref(),
+            (options.task.as_deref(), instructions),
+            options.parting,
             options.instruction_text,
             self.sizes.clone(),
             self.first_index,
         );
         let at = BagInput::new(&self.path, options.scratch.as_deref());
-        let (topics, plan) = (&self.planned.topics, &self.planned.plan);
         second_pass(at, topics, plan, &self.builtin, &mut |handed| {
             let made = making.take(handed)?;
             hand(made)
@@ -447,7 +456,7 @@ impl Producer {
 }
 
 impl Producing {
-    /// The next episode to hand on; None after the last.
+    /// The next part to hand on; None after the last episode's last.
     fn next(&mut self) -> Result<Option<Made>, IngestError> {
         loop {
             if self.episodes == 0 {
@@ -457,19 +466,20 @@ impl Producing {
             let made = match received {
                 Some(Ok(made)) => made?,
                 _ => {
-                    return Err(IngestError::Frame {
+                    return Err(IngestError::ReadingEnded {
                         path: self.path.clone(),
-                        time_ns: 0,
-                        problem: format!(
-                            "the reading stopped with {} episodes to come",
-                            self.episodes
-                        ),
+                        episodes: self.episodes,
                     });
                 }
             };
-            self.episodes -= 1;
+            let last = made.part.last;
+            if last {
+                self.episodes -= 1;
+            }
             if self.skip > 0 {
-                self.skip -= 1;
+                if last {
+                    self.skip -= 1;
+                }
                 continue;
             }
             return Ok(Some(made));
@@ -599,21 +609,22 @@ fn planned(
     })
 }
 
+/// Whole episodes: each one's parts gathered (for sinks that take whole episodes, and
+/// `--verify`).
 impl Iterator for IngestSource {
     type Item = Result<Episode, ExportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        if self.failed {
-            return None;
-        }
-        if let Some(ready) = self.ready.take() {
-            return Some(Ok(ready));
-        }
-        match self.receive() {
-            Ok(episode) => episode.map(Ok),
-            Err(error) => {
-                self.failed = true;
-                Some(Err(ExportError::Input(Box::new(error))))
+        let mut gathering = Gathering::default();
+        loop {
+            let part = match self.next_part()? {
+                Ok(part) => part,
+                Err(error) => return Some(Err(error)),
+            };
+            match gathering.take(part) {
+                Ok(Some(episode)) => return Some(Ok(episode)),
+                Ok(None) => {}
+                Err(error) => return Some(Err(error)),
             }
         }
     }
@@ -624,16 +635,40 @@ impl EpisodeSource for IngestSource {
         &self.info
     }
 
+    fn makes_parts(&self) -> bool {
+        true
+    }
+
+    fn next_part(&mut self) -> Option<Result<EpisodePart, ExportError>> {
+        if self.failed {
+            return None;
+        }
+        if let Some(ready) = self.ready.take() {
+            return Some(Ok(ready));
+        }
+        match self.receive() {
+            Ok(part) => part.map(Ok),
+            Err(error) => {
+                self.failed = true;
+                Some(Err(ExportError::Input(Box::new(error))))
+            }
+        }
+    }
+
     /// Skips an episode without reading its messages where a whole input is skipped.
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
         if self.failed {
             return None;
         }
-        if self.ready.take().is_some() {
-            return Some(Ok(()));
-        }
-        if self.producing.as_ref().is_some_and(|p| p.episodes > 0) {
-            return self.next().map(|episode| episode.map(|_| ()));
+        if self.ready.is_some() || self.producing.as_ref().is_some_and(|p| p.episodes > 0) {
+            // The episode being read: its parts up to its last.
+            loop {
+                match self.next_part()? {
+                    Ok(part) if part.last => return Some(Ok(())),
+                    Ok(_) => {}
+                    Err(error) => return Some(Err(error)),
+                }
+            }
         }
         self.producing = None;
         let input = self.inputs.get(self.next_input)?;
@@ -713,23 +748,28 @@ mod tests {
         c.0
     }
 
-    fn image(ns: i64, value: u8) -> Vec<u8> {
+    fn image(ns: i64, value: u8, (width, height): (u32, u32)) -> Vec<u8> {
         let mut c = Cdr::new();
-        c.header(ns).u32(2).u32(3).string("rgb8");
+        c.header(ns).u32(height).u32(width).string("rgb8");
         c.0.push(0);
-        c.u32(9).u32(18);
-        c.0.extend(std::iter::repeat_n(value, 18));
+        let bytes = width * height * 3;
+        c.u32(width * 3).u32(bytes);
+        (c.0).extend(std::iter::repeat_n(value, bytes as usize));
         c.0
     }
 
     /// A recording: arm at 100 Hz, camera at 10 Hz, setpoints at 50 Hz, for 1 s (no schema:
     /// the built-in definitions).
     fn recording() -> PathBuf {
-        crate::ingest::fixtures::temp_file("ingest.mcap", &recording_bytes())
+        crate::ingest::fixtures::temp_file("ingest.mcap", &recording_bytes(SMALL))
     }
 
     /// The bytes of [`recording`].
-    fn recording_bytes() -> Vec<u8> {
+    /// The camera's (width, height) in most tests.
+    const SMALL: (u32, u32) = (3, 2);
+
+    /// The bytes of [`recording`], the camera's images `size` (width, height).
+    fn recording_bytes(size: (u32, u32)) -> Vec<u8> {
         let channels = [
             ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped", ""),
             ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState", ""),
@@ -749,7 +789,7 @@ mod tests {
                 messages.push((3, t as u64, jaw(t, 0.75)));
             }
             if k % 10 == 0 {
-                messages.push((4, t as u64, image(t, k as u8)));
+                messages.push((4, t as u64, image(t, k as u8, size)));
             }
             messages.push((5, t as u64, pose(t, -(k as f64))));
         }
@@ -758,13 +798,13 @@ mod tests {
 
     /// [`recording`] with an instruction topic that moves on at 1.45 s.
     fn recording_with_instructions() -> PathBuf {
-        rewritten(true, &[])
+        rewritten(true, &[], SMALL)
     }
 
     /// [`recording`] with the instruction topic when `instructions`, without the camera's
     /// messages at `drop_ns`.
-    fn rewritten(instructions: bool, drop_ns: &[u64]) -> PathBuf {
-        let bytes = recording_bytes();
+    fn rewritten(instructions: bool, drop_ns: &[u64], size: (u32, u32)) -> PathBuf {
+        let bytes = recording_bytes(size);
         let mut channels: Vec<(&str, &str, &str)> = [
             ("/PSM1/measured_cp", "geometry_msgs/msg/PoseStamped"),
             ("/PSM1/jaw/measured_js", "sensor_msgs/msg/JointState"),
@@ -848,6 +888,123 @@ mod tests {
         std::fs::remove_file(path).ok();
     }
 
+    /// Every file of the dataset in `dir` but its data parquet (which a part writes as a row
+    /// group of its own) and the card, by relative path.
+    fn files_but_data(dir: &Path) -> Vec<(String, Vec<u8>)> {
+        let mut files = Vec::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(at) = stack.pop() {
+            for entry in std::fs::read_dir(&at).expect("read dir").flatten() {
+                let path = entry.path();
+                let name = path
+                    .strip_prefix(dir)
+                    .expect("inside")
+                    .to_string_lossy()
+                    .into_owned();
+                if path.is_dir() {
+                    stack.push(path);
+                } else if !name.starts_with("data/") && !name.ends_with("manifest.json") {
+                    files.push((name, std::fs::read(&path).expect("read")));
+                }
+            }
+        }
+        files.sort();
+        files
+    }
+
+    #[test]
+    fn a_long_episode_is_written_in_parts_and_reads_back_as_the_whole_one() {
+        use crate::export::lerobot::{LeRobotOptions, LeRobotWriter};
+        // A camera of a size video encoders take.
+        let path = rewritten(true, &[], (32, 16));
+        let whole_options = IngestOptions {
+            task: None,
+            ..options()
+        };
+        // Parts of two frames: the instruction moves on inside the third.
+        let parted = IngestOptions {
+            parting: Parting {
+                batch_frames: 2,
+                part_bytes: 1,
+            },
+            ..whole_options.clone()
+        };
+        let mut source =
+            IngestSource::open(std::slice::from_ref(&path), parted.clone()).expect("open");
+        let mut parts = Vec::new();
+        while let Some(part) = source.next_part() {
+            let part = part.expect("read");
+            parts.push((part.first_step, part.episode.steps.len(), part.last));
+        }
+        assert_eq!(
+            parts,
+            [
+                (0, 2, false),
+                (2, 2, false),
+                (4, 2, false),
+                (6, 2, false),
+                (8, 2, true)
+            ]
+        );
+        let mut source =
+            IngestSource::open(std::slice::from_ref(&path), whole_options).expect("open");
+        let whole = source.next().expect("an episode").expect("read");
+        let mut gathered =
+            IngestSource::open(std::slice::from_ref(&path), parted.clone()).expect("open");
+        assert_eq!(
+            gathered.next().expect("an episode").expect("read"),
+            whole,
+            "gathered"
+        );
+        for video in [None, Some("av1")] {
+            let lerobot = LeRobotOptions {
+                video: video.map(|_| crate::export::lerobot::VideoOptions::default()),
+                ..LeRobotOptions::default()
+            };
+            let mut written = Vec::new();
+            for (name, options) in [("whole", options_whole(&parted)), ("parts", parted.clone())] {
+                let out = std::env::temp_dir().join(format!(
+                    "surgvla-parts-{name}-{}-{}",
+                    video.is_some(),
+                    std::process::id()
+                ));
+                std::fs::remove_dir_all(&out).ok();
+                let mut source =
+                    IngestSource::open(std::slice::from_ref(&path), options).expect("open");
+                let info = source.info().clone();
+                let mut sink =
+                    LeRobotWriter::boxed(&out, &info, lerobot.clone(), false).expect("sink");
+                crate::export::convert::convert(&mut source, sink.as_mut(), 2, &mut |_| {})
+                    .expect("convert");
+                let mut back = crate::export::open::open_source(&out).expect("read back");
+                let read = back.next().expect("an episode").expect("read");
+                assert_eq!(read.meta.task_changes, whole.meta.task_changes, "{name}");
+                assert_eq!(read.steps.len(), whole.steps.len(), "{name}");
+                if video.is_none() {
+                    for (a, b) in read.steps.iter().zip(&whole.steps) {
+                        assert_eq!(a.other, b.other, "{name}");
+                    }
+                }
+                written.push(files_but_data(&out));
+                std::fs::remove_dir_all(out).ok();
+            }
+            // Statistics, episodes table, tasks, info and videos: the same bytes.
+            assert!(written[0] == written[1], "video {video:?}");
+        }
+        std::fs::remove_file(path).ok();
+    }
+
+    /// `options` with parts too large to come before an episode's end.
+    fn options_whole(options: &IngestOptions) -> IngestOptions {
+        IngestOptions {
+            parting: Parting {
+                batch_frames: 2,
+                part_bytes: usize::MAX,
+            },
+            ..options.clone()
+        }
+    }
+
     #[test]
     fn image_statistics_carried_from_the_pixels_equal_those_of_the_decoded_images() {
         use crate::export::lerobot::{LeRobotOptions, LeRobotWriter};
@@ -899,10 +1056,16 @@ mod tests {
         // A recording of two episodes (the camera's 1.4 and 1.5 s images missing: the 1.5 s
         // frame's newest image is older than the tolerance): dropped while its
         // reading thread waits to hand over the second, the source stops it (no hang).
-        let gap = rewritten(false, &[1_400_000_000, 1_500_000_000]);
+        let gap = rewritten(false, &[1_400_000_000, 1_500_000_000], SMALL);
         let source = IngestSource::open(std::slice::from_ref(&gap), options()).expect("open");
         assert_eq!(source.len(), 2);
-        drop(source);
+        let (dropped, done) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            drop(source);
+            dropped.send(()).ok();
+        });
+        let waited = done.recv_timeout(std::time::Duration::from_secs(60));
+        assert!(waited.is_ok(), "dropping the source hangs");
         let mut source = IngestSource::open(std::slice::from_ref(&gap), options()).expect("open");
         let lengths: Vec<usize> = (source.by_ref())
             .map(|e| e.expect("read").steps.len())
@@ -926,6 +1089,7 @@ mod tests {
             instruction_text: false,
             splits: Vec::new(),
             scratch: None,
+            parting: Parting::default(),
         }
     }
 

@@ -105,77 +105,184 @@ pub fn strip_temporal_delimiters(data: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Encodes an episode's RGB frames as AV1 (8-bit 4:2:0) with one encoder thread.
-pub fn encode_av1(
-    frames: &[&[u8]],
+/// An episode's video encoder fed frame by frame ([`VideoEncoder::push`]), so that an episode
+/// need not be held whole: the same packets as [`encode`] of all its frames.
+pub struct VideoEncoder {
+    inner: Inner,
     width: usize,
     height: usize,
-    fps: u32,
-    quantizer: usize,
-) -> Result<Vec<EncodedFrame>, MediaError> {
-    use rav1e::prelude::*;
-    let encode_error = |source: Box<dyn std::error::Error + Send + Sync>| MediaError::Encode {
-        what: "AV1".into(),
-        source,
-    };
-    let config = EncoderConfig {
-        width,
-        height,
-        time_base: Rational::new(1, u64::from(fps.max(1))),
-        bit_depth: 8,
-        chroma_sampling: ChromaSampling::Cs420,
-        low_latency: true,
-        min_key_frame_interval: 0,
-        max_key_frame_interval: u64::from(fps.max(1)) * 2,
-        quantizer,
-        speed_settings: SpeedSettings::from_preset(10),
-        ..Default::default()
-    };
-    let mut context: Context<u8> = Config::new()
-        .with_encoder_config(config)
-        .with_threads(1)
-        .new_context()
-        .map_err(|e| encode_error(Box::new(e)))?;
-    let mut out = Vec::with_capacity(frames.len());
-    let drain =
-        |context: &mut Context<u8>, out: &mut Vec<EncodedFrame>| -> Result<bool, MediaError> {
-            loop {
-                match context.receive_packet() {
-                    Ok(packet) => out.push(EncodedFrame {
-                        data: strip_temporal_delimiters(&packet.data),
-                        keyframe: packet.frame_type == FrameType::KEY,
-                    }),
-                    Err(EncoderStatus::Encoded) => continue,
-                    Err(EncoderStatus::NeedMoreData) => return Ok(false),
-                    Err(EncoderStatus::LimitReached) => return Ok(true),
-                    Err(e) => return Err(encode_error(Box::new(e))),
-                }
-            }
-        };
-    for rgb in frames {
-        let (y, u, v) = rgb_to_yuv420(rgb, width, height);
-        let mut frame = context.new_frame();
-        let cw = width.div_ceil(2);
-        frame.planes[0].copy_from_raw_u8(&y, width, 1);
-        frame.planes[1].copy_from_raw_u8(&u, cw, 1);
-        frame.planes[2].copy_from_raw_u8(&v, cw, 1);
-        context
-            .send_frame(frame)
-            .map_err(|e| encode_error(Box::new(e)))?;
-        drain(&mut context, &mut out)?;
-    }
-    context.flush();
-    while !drain(&mut context, &mut out)? {}
-    if out.len() != frames.len() {
-        return Err(encode_error(
-            format!("{} frames in, {} packets out", frames.len(), out.len()).into(),
-        ));
-    }
-    Ok(out)
+    /// Frames pushed and packets handed out, to check that every frame made one.
+    pushed: usize,
+    handed: usize,
 }
 
-/// Encodes an episode's RGB frames with `codec` at the quality setting `quality` (H.264: largest
-/// quantiser 0..51; AV1: quantizer 0..255).
+enum Inner {
+    Av1(Box<rav1e::Context<u8>>),
+    H264(Box<Encoder>),
+}
+
+fn av1_error(source: Box<dyn std::error::Error + Send + Sync>) -> MediaError {
+    MediaError::Encode {
+        what: "AV1".into(),
+        source,
+    }
+}
+
+fn h264_error(e: openh264::Error) -> MediaError {
+    MediaError::Encode {
+        what: "H.264".into(),
+        source: Box::new(e),
+    }
+}
+
+impl VideoEncoder {
+    /// An encoder of `width` x `height` RGB frames at `fps` with `codec` at the quality setting
+    /// `quality` (H.264: largest quantiser 0..51; AV1: quantizer 0..255). AV1 runs one encoder
+    /// thread (rav1e, low latency); H.264 has rate control off, so quality is steady. Both
+    /// start with a key frame and put one every two seconds.
+    pub fn new(
+        codec: Codec,
+        (width, height): (usize, usize),
+        fps: u32,
+        quality: u32,
+    ) -> Result<VideoEncoder, MediaError> {
+        if codec == Codec::H264 && (width % 2 == 1 || height % 2 == 1) {
+            return Err(MediaError::Encode {
+                what: "H.264".into(),
+                source: format!("{width}x{height} pixels: 4:2:0 needs an even width and height")
+                    .into(),
+            });
+        }
+        let inner = match codec {
+            Codec::Av1 => {
+                use rav1e::prelude::*;
+                let config = EncoderConfig {
+                    width,
+                    height,
+                    time_base: Rational::new(1, u64::from(fps.max(1))),
+                    bit_depth: 8,
+                    chroma_sampling: ChromaSampling::Cs420,
+                    low_latency: true,
+                    min_key_frame_interval: 0,
+                    max_key_frame_interval: u64::from(fps.max(1)) * 2,
+                    quantizer: quality.min(255) as usize,
+                    speed_settings: SpeedSettings::from_preset(10),
+                    ..Default::default()
+                };
+                let context: Context<u8> = Config::new()
+                    .with_encoder_config(config)
+                    .with_threads(1)
+                    .new_context()
+                    .map_err(|e| av1_error(Box::new(e)))?;
+                Inner::Av1(Box::new(context))
+            }
+            Codec::H264 => {
+                let max_qp = quality.min(51) as u8;
+                let config = EncoderConfig::new()
+                    .rate_control_mode(RateControlMode::Off)
+                    .qp(QpRange::new(max_qp.saturating_sub(8), max_qp))
+                    .max_frame_rate(FrameRate::from_hz(fps as f32))
+                    .skip_frames(false)
+                    .scene_change_detect(false)
+                    .intra_frame_period(IntraFramePeriod::from_num_frames(fps.max(1) * 2));
+                let encoder = Encoder::with_api_config(OpenH264API::from_source(), config)
+                    .map_err(h264_error)?;
+                Inner::H264(Box::new(encoder))
+            }
+        };
+        Ok(VideoEncoder {
+            inner,
+            width,
+            height,
+            pushed: 0,
+            handed: 0,
+        })
+    }
+
+    /// Encodes the next frame (row-major RGB, 3 bytes a pixel); returns the packets ready
+    /// (AV1 may hold a few frames back until [`VideoEncoder::finish`]).
+    pub fn push(&mut self, rgb: &[u8]) -> Result<Vec<EncodedFrame>, MediaError> {
+        let (width, height) = (self.width, self.height);
+        self.pushed += 1;
+        let mut out = Vec::new();
+        match &mut self.inner {
+            Inner::Av1(context) => {
+                let (y, u, v) = rgb_to_yuv420(rgb, width, height);
+                let mut frame = context.new_frame();
+                let cw = width.div_ceil(2);
+                frame.planes[0].copy_from_raw_u8(&y, width, 1);
+                frame.planes[1].copy_from_raw_u8(&u, cw, 1);
+                frame.planes[2].copy_from_raw_u8(&v, cw, 1);
+                context
+                    .send_frame(frame)
+                    .map_err(|e| av1_error(Box::new(e)))?;
+                drain_av1(context, &mut out)?;
+            }
+            Inner::H264(encoder) => {
+                let yuv = YUVBuffer::from_rgb8_source(RgbSliceU8::new(rgb, (width, height)));
+                let bitstream = encoder.encode(&yuv).map_err(h264_error)?;
+                let keyframe = matches!(
+                    bitstream.frame_type(),
+                    openh264::encoder::FrameType::IDR | openh264::encoder::FrameType::I
+                );
+                let data = bitstream.to_vec();
+                if data.is_empty() {
+                    return Err(MediaError::Encode {
+                        what: "H.264".into(),
+                        source: "the encoder skipped a frame".into(),
+                    });
+                }
+                out.push(EncodedFrame { data, keyframe });
+            }
+        }
+        self.handed += out.len();
+        Ok(out)
+    }
+
+    /// The packets still held; an error unless every frame pushed made one.
+    pub fn finish(mut self) -> Result<Vec<EncodedFrame>, MediaError> {
+        let mut out = Vec::new();
+        if let Inner::Av1(context) = &mut self.inner {
+            context.flush();
+            while !drain_av1(context, &mut out)? {}
+        }
+        self.handed += out.len();
+        if self.handed != self.pushed {
+            return Err(MediaError::Encode {
+                what: match self.inner {
+                    Inner::Av1(_) => "AV1",
+                    Inner::H264(_) => "H.264",
+                }
+                .into(),
+                source: format!("{} frames in, {} packets out", self.pushed, self.handed).into(),
+            });
+        }
+        Ok(out)
+    }
+}
+
+/// Takes the AV1 packets ready; true once the encoder has nothing more to give.
+fn drain_av1(
+    context: &mut rav1e::Context<u8>,
+    out: &mut Vec<EncodedFrame>,
+) -> Result<bool, MediaError> {
+    use rav1e::prelude::*;
+    loop {
+        match context.receive_packet() {
+            Ok(packet) => out.push(EncodedFrame {
+                data: strip_temporal_delimiters(&packet.data),
+                keyframe: packet.frame_type == FrameType::KEY,
+            }),
+            Err(EncoderStatus::Encoded) => continue,
+            Err(EncoderStatus::NeedMoreData) => return Ok(false),
+            Err(EncoderStatus::LimitReached) => return Ok(true),
+            Err(e) => return Err(av1_error(Box::new(e))),
+        }
+    }
+}
+
+/// Encodes an episode's RGB frames with `codec` at the quality setting `quality` (see
+/// [`VideoEncoder::new`]).
 pub fn encode(
     codec: Codec,
     frames: &[&[u8]],
@@ -184,14 +291,28 @@ pub fn encode(
     fps: u32,
     quality: u32,
 ) -> Result<Vec<EncodedFrame>, MediaError> {
-    match codec {
-        Codec::H264 => encode_h264(frames, width, height, fps, quality.min(51) as u8),
-        Codec::Av1 => encode_av1(frames, width, height, fps, quality.min(255) as usize),
+    let mut encoder = VideoEncoder::new(codec, (width, height), fps, quality)?;
+    let mut out = Vec::with_capacity(frames.len());
+    for rgb in frames {
+        out.extend(encoder.push(rgb)?);
     }
+    out.extend(encoder.finish()?);
+    Ok(out)
 }
 
-/// Encodes an episode's RGB frames (row-major, 3 bytes a pixel) as H.264.
-/// `max_qp` bounds the quantiser (0 best .. 51 worst): rate control is off, quality is steady.
+/// Encodes an episode's RGB frames as AV1 (8-bit 4:2:0) with one encoder thread.
+pub fn encode_av1(
+    frames: &[&[u8]],
+    width: usize,
+    height: usize,
+    fps: u32,
+    quantizer: usize,
+) -> Result<Vec<EncodedFrame>, MediaError> {
+    encode(Codec::Av1, frames, width, height, fps, quantizer as u32)
+}
+
+/// Encodes an episode's RGB frames (row-major, 3 bytes a pixel) as H.264; `max_qp` bounds the
+/// quantiser (0 best .. 51 worst).
 pub fn encode_h264(
     frames: &[&[u8]],
     width: usize,
@@ -199,38 +320,7 @@ pub fn encode_h264(
     fps: u32,
     max_qp: u8,
 ) -> Result<Vec<EncodedFrame>, MediaError> {
-    let encode_error = |e: openh264::Error| MediaError::Encode {
-        what: "H.264".into(),
-        source: Box::new(e),
-    };
-    let max_qp = max_qp.min(51);
-    let config = EncoderConfig::new()
-        .rate_control_mode(RateControlMode::Off)
-        .qp(QpRange::new(max_qp.saturating_sub(8), max_qp))
-        .max_frame_rate(FrameRate::from_hz(fps as f32))
-        .skip_frames(false)
-        .scene_change_detect(false)
-        .intra_frame_period(IntraFramePeriod::from_num_frames(fps.max(1) * 2));
-    let mut encoder =
-        Encoder::with_api_config(OpenH264API::from_source(), config).map_err(encode_error)?;
-    let mut out = Vec::with_capacity(frames.len());
-    for rgb in frames {
-        let yuv = YUVBuffer::from_rgb8_source(RgbSliceU8::new(rgb, (width, height)));
-        let bitstream = encoder.encode(&yuv).map_err(encode_error)?;
-        let keyframe = matches!(
-            bitstream.frame_type(),
-            openh264::encoder::FrameType::IDR | openh264::encoder::FrameType::I
-        );
-        let data = bitstream.to_vec();
-        if data.is_empty() {
-            return Err(MediaError::Encode {
-                what: "H.264".into(),
-                source: "the encoder skipped a frame".into(),
-            });
-        }
-        out.push(EncodedFrame { data, keyframe });
-    }
-    Ok(out)
+    encode(Codec::H264, frames, width, height, fps, u32::from(max_qp))
 }
 
 /// An MP4 file being appended to: the muxer over an open file, and the presentation clock.
@@ -300,6 +390,11 @@ impl Mp4Writer {
         Ok((from, self.frames as f64 / f64::from(self.fps)))
     }
 
+    /// The presentation time after the frames written so far, seconds.
+    pub fn time_secs(&self) -> f64 {
+        self.frames as f64 / f64::from(self.fps)
+    }
+
     /// Completes the file (the moov box at the end).
     pub fn finish(self) -> Result<(), MediaError> {
         self.muxer.finish().map_err(mp4_error(&self.path))
@@ -309,6 +404,17 @@ impl Mp4Writer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_an_encoder_cannot_take_are_refused_instead_of_aborting() {
+        let odd = VideoEncoder::new(Codec::H264, (3, 2), 10, 24).err();
+        assert!(odd.is_some_and(|e| e.to_string().contains("H.264")));
+        assert!(VideoEncoder::new(Codec::Av1, (3, 2), 10, 80).is_err());
+        let mut h264 = VideoEncoder::new(Codec::H264, (16, 16), 10, 24).expect("even");
+        let mut packets = h264.push(&[7; 768]).expect("encode");
+        packets.extend(h264.finish().expect("finish"));
+        assert_eq!(packets.len(), 1);
+    }
 
     #[test]
     fn av1_encodes_every_frame_without_temporal_delimiters() {

@@ -119,7 +119,7 @@ fn every_format_that_holds_the_robots_features_takes_them() {
 fn an_interrupted_ingest_resumes_to_the_same_bytes() {
     use surgvla::export::lerobot::{LeRobotOptions, LeRobotWriter};
     use surgvla::ingest::dvrk::DvrkPreset;
-    use surgvla::ingest::source::{IngestOptions, IngestSource};
+    use surgvla::ingest::source::{IngestOptions, IngestSource, Parting};
     let root = temp_root("ingest-resume");
     let inputs = [fixture("ros1_raw_lz4.bag"), fixture("single_png.mcap")];
     let options = IngestOptions {
@@ -134,6 +134,11 @@ fn an_interrupted_ingest_resumes_to_the_same_bytes() {
         instruction_text: true,
         splits: vec![("train".into(), 0..3), ("recovery".into(), 3..4)],
         scratch: None,
+        // Episodes written in parts of 8 frames.
+        parting: Parting {
+            batch_frames: 8,
+            part_bytes: 1,
+        },
     };
     let every_episode = LeRobotOptions {
         data_file_size_mb: 0,
@@ -150,18 +155,22 @@ fn an_interrupted_ingest_resumes_to_the_same_bytes() {
     };
     let whole = root.join("whole");
     run(&whole, false);
-    // Killed after three episodes: the third is the first input's... of the second input.
+    // Killed in the fourth episode (the second input's first), after its first part.
     let resumed = root.join("resumed");
     {
+        use surgvla::export::{EpisodeSink, EpisodeSource};
         let mut source = IngestSource::open(&inputs, options.clone()).expect("open");
-        let episodes: Vec<_> = source
-            .by_ref()
-            .take(3)
-            .collect::<Result<_, _>>()
-            .expect("read");
         let mut writer =
             LeRobotWriter::create(&resumed, source.info(), every_episode.clone()).expect("create");
-        surgvla::export::EpisodeSink::write_batch(&mut writer, &episodes).expect("write");
+        let mut ended = 0;
+        while ended < 3 {
+            let part = source.next_part().expect("a part").expect("read");
+            ended += usize::from(part.last);
+            writer.write_part(&part).expect("write");
+        }
+        let part = source.next_part().expect("a part").expect("read");
+        assert!(!part.last, "the fourth episode comes in parts");
+        writer.write_part(&part).expect("write");
     }
     assert!(resumed.join(INCOMPLETE_MARKER).exists());
     run(&resumed, true);
@@ -402,6 +411,9 @@ fn an_ingest_killed_mid_run_resumes_through_the_cli_to_the_same_bytes() {
             "left=/camera/left/image",
             "--lerobot-version",
             "2.1",
+            // Episodes in parts (of 32 frames here): a kill may come within one.
+            "--part-mib",
+            "0.001",
         ]);
         args.extend(["--threads", "1", "--out"]);
         let mut args: Vec<String> = args.into_iter().map(String::from).collect();

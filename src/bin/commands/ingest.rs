@@ -12,7 +12,7 @@ use surgvla::export::convert::ConvertError;
 use surgvla::export::{EpisodeSink, EpisodeSource, Summary};
 use surgvla::ingest::dvrk::DvrkPreset;
 use surgvla::ingest::openh;
-use surgvla::ingest::source::{IngestOptions, IngestSource};
+use surgvla::ingest::source::{IngestOptions, IngestSource, Parting};
 use surgvla::ingest::stamps::Clock;
 use surgvla::ingest::sync::{OnGap, SyncOptions};
 
@@ -90,6 +90,11 @@ pub(crate) struct IngestArgs {
     /// inputs given, into its own complete dataset; `merge` joins the parts.
     #[arg(long, default_value = "0/1")]
     shard: Shard,
+    /// An episode goes to the writer in parts of about this many MiB of encoded images (LeRobot
+    /// appends each part as it comes, so memory does not follow the episode's length; each is
+    /// a row group of the data file): lower holds less, higher makes fewer row groups.
+    #[arg(long, default_value_t = 32.0, value_parser = parse_part_mib)]
+    part_mib: f64,
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
@@ -198,6 +203,18 @@ fn parse_tolerance(text: &str) -> Result<f64, String> {
     Ok(ms)
 }
 
+fn parse_part_mib(text: &str) -> Result<f64, String> {
+    let mib: f64 = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of MiB"))?;
+    if !(mib > 0.0 && mib <= 65_536.0) {
+        return Err(format!(
+            "{mib} MiB: a part is above 0 and at most 65536 MiB"
+        ));
+    }
+    Ok(mib)
+}
+
 impl IngestArgs {
     fn options(&self) -> Result<IngestOptions, CliError> {
         let Preset::Dvrk = self.preset;
@@ -227,6 +244,10 @@ impl IngestArgs {
             instruction_text: self.instruction_text || self.profile == Some(Profile::OpenH),
             splits: self.splits.clone(),
             scratch: Some(self.out.clone()),
+            parting: Parting {
+                part_bytes: (self.part_mib * 1_048_576.0).ceil() as usize,
+                ..Parting::default()
+            },
         })
     }
 

@@ -22,6 +22,7 @@ mod layout;
 pub mod merge;
 pub mod meta;
 mod options;
+mod parts;
 pub mod read;
 mod table;
 pub mod work;

@@ -1011,24 +1011,25 @@ impl LeRobotSource {
     }
 }
 
+/// An episode's index, its rows and its row of the episodes table (see
+/// [`LeRobotSource::take_episode`]).
+type TakenEpisode = (i64, Vec<Row>, Option<StoredEpisode>);
+
 impl LeRobotSource {
-    /// The next episode's rows (images still encoded), its index and task, and its row of the
-    /// episodes table; None after the last.
-    #[allow(clippy::type_complexity)] // (index, task index, rows, its episodes-table row): used once
-    fn take_episode(
-        &mut self,
-    ) -> Option<Result<(i64, i64, Vec<Row>, Option<StoredEpisode>), ExportError>> {
+    /// The next episode's index, its rows (images still encoded; each its task) and its row of
+    /// the episodes table; None after the last.
+    fn take_episode(&mut self) -> Option<Result<TakenEpisode, ExportError>> {
         if self.ended {
             return None;
         }
         let mut rows = Vec::new();
-        let mut current: Option<(i64, i64)> = None;
+        let mut current: Option<i64> = None;
         loop {
-            if let Some(Row { episode, task, .. }) = self.pending.front() {
-                if current.is_some_and(|(e, _)| e != *episode) {
+            if let Some(Row { episode, .. }) = self.pending.front() {
+                if current.is_some_and(|e| e != *episode) {
                     break;
                 }
-                current = Some((*episode, *task));
+                current = Some(*episode);
                 if let Some(row) = self.pending.pop_front() {
                     rows.push(row);
                 }
@@ -1043,7 +1044,7 @@ impl LeRobotSource {
                 }
             }
         }
-        let Some((index, task)) = current else {
+        let Some(index) = current else {
             return self.end();
         };
         if index < 0 || index as u64 != self.returned {
@@ -1059,7 +1060,7 @@ impl LeRobotSource {
         self.returned += 1;
         // The episodes table's rows come in the data's order: this episode's is the next.
         match self.episodes.next_row() {
-            Ok(row) => Some(Ok((index, task, rows, row))),
+            Ok(row) => Some(Ok((index, rows, row))),
             Err(error) => {
                 self.ended = true;
                 Some(Err(error))
@@ -1071,7 +1072,7 @@ impl Iterator for LeRobotSource {
     type Item = Result<Episode, ExportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        let (index, _, rows, row) = match self.take_episode()? {
+        let (index, rows, row) = match self.take_episode()? {
             Ok(taken) => taken,
             Err(error) => return Some(Err(error)),
         };

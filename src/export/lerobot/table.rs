@@ -161,12 +161,14 @@ pub(super) struct ParquetColumns<'a> {
     pub other_positions: &'a [usize],
 }
 
-/// The rows of one episode.
+/// The rows of one episode, or of a part of one whose first step is the episode's
+/// `first_step`-th (frame indices and timestamps count from the episode's start); the first
+/// row's dataset index is `first_index`.
 pub(super) fn frame_batch(
     columns_of: &ParquetColumns<'_>,
     episode: &Episode,
     mut images: EncodedImages,
-    first_index: u64,
+    (first_index, first_step): (u64, usize),
     task_indices: &[u64],
     fps: u32,
 ) -> Result<RecordBatch, ExportError> {
@@ -226,28 +228,49 @@ pub(super) fn frame_batch(
         };
         columns.push(column);
     }
-    let timestamps: Vec<f32> = (0..n).map(|i| (i as f64 / f64::from(fps)) as f32).collect();
-    columns.push(Arc::new(Float32Array::from(timestamps)));
-    columns.push(Arc::new(Int64Array::from_iter_values(
-        (0..n).map(|i| i as i64),
-    )));
-    columns.push(Arc::new(Int64Array::from_iter_values(std::iter::repeat_n(
-        episode.meta.index as i64,
-        n,
-    ))));
-    columns.push(Arc::new(Int64Array::from_iter_values(
-        (0..n).map(|i| (first_index + i as u64) as i64),
-    )));
     if task_indices.len() != n {
         return Err(ExportError::Internal(format!(
             "{} task indices for {n} steps",
             task_indices.len()
         )));
     }
-    columns.push(Arc::new(Int64Array::from_iter_values(
-        task_indices.iter().map(|&t| t as i64),
-    )));
+    columns.extend(default_columns(
+        episode.meta.index,
+        (first_index, first_step),
+        task_indices,
+        fps,
+    ));
     Ok(RecordBatch::try_new(schema.clone(), columns)?)
+}
+
+/// The default columns (timestamp, frame, episode and dataset indices, task) of rows of
+/// episode `episode_index` from its `first_step`-th step, the dataset's `first_index`-th frame
+/// on, one per task index.
+fn default_columns(
+    episode_index: u64,
+    (first_index, first_step): (u64, usize),
+    task_indices: &[u64],
+    fps: u32,
+) -> [ArrayRef; 5] {
+    let n = task_indices.len();
+    let steps = first_step..first_step + n;
+    let timestamps: Vec<f32> = (steps.clone())
+        .map(|i| (i as f64 / f64::from(fps)) as f32)
+        .collect();
+    [
+        Arc::new(Float32Array::from(timestamps)),
+        Arc::new(Int64Array::from_iter_values(steps.map(|i| i as i64))),
+        Arc::new(Int64Array::from_iter_values(std::iter::repeat_n(
+            episode_index as i64,
+            n,
+        ))),
+        Arc::new(Int64Array::from_iter_values(
+            (0..n).map(|i| (first_index + i as u64) as i64),
+        )),
+        Arc::new(Int64Array::from_iter_values(
+            task_indices.iter().map(|&t| t as i64),
+        )),
+    ]
 }
 
 /// `values` as one binary array, its buffer sized once (images: hundreds of MB an episode).

@@ -45,6 +45,10 @@ pub struct EpisodeWork<'a> {
     pub options: &'a LeRobotOptions,
 }
 
+/// A video feature's frames as RGB pixels (borrowed from the steps, or decoded), and its
+/// (width, height).
+pub type VideoRgb<'e> = (Vec<std::borrow::Cow<'e, [u8]>>, (usize, usize));
+
 impl EpisodeWork<'_> {
     /// Each video feature's frames, in [`EpisodeWork::video_features`] order: copied when the
     /// episode brings them in the feature's codec, else (the RGB camera in video mode) encoded
@@ -65,29 +69,38 @@ impl EpisodeWork<'_> {
                     return Ok(stored.frames.clone());
                 }
                 let quality = self.options.video.map_or(0, |v| v.quality);
-                // Another dataset's camera: its PNGs decoded (they came from decoded video, or
-                // an image-mode dataset), then encoded.
-                let others = self
-                    .info
-                    .features
-                    .iter()
-                    .filter(|f| f.kind == FeatureKind::Other && f.in_steps());
-                if let Some((at, feature)) = others.enumerate().find(|(_, f)| f.name == *key) {
-                    let (height, width) = (feature.shape[0], feature.shape[1]);
-                    let pixels = episode
-                        .steps
-                        .iter()
-                        .enumerate()
-                        .map(|(i, step)| other_rgb(step, at, width, height, key, i))
-                        .collect::<Result<Vec<Vec<u8>>, ExportError>>()?;
-                    let frames: Vec<&[u8]> = pixels.iter().map(Vec::as_slice).collect();
-                    return Ok(encode(*codec, &frames, width, height, self.info.fps, quality)?);
-                }
-                let (width, height) = self.info.image_size();
-                let frames: Vec<&[u8]> = episode.steps.iter().map(|s| s.rgb.as_slice()).collect();
+                let (pixels, (width, height)) = self.video_rgb(episode, key)?;
+                let frames: Vec<&[u8]> = pixels.iter().map(|p| p.as_ref()).collect();
                 Ok(encode(*codec, &frames, width, height, self.info.fps, quality)?)
             })
             .collect()
+    }
+
+    /// Each step's RGB pixels of the video feature `key`, and the feature's (width, height):
+    /// another dataset's camera decoded from its PNGs (they came from decoded video, or an
+    /// image-mode dataset; frames in parallel), else the RGB camera's pixels.
+    pub fn video_rgb<'e>(
+        &self,
+        episode: &'e Episode,
+        key: &str,
+    ) -> Result<VideoRgb<'e>, ExportError> {
+        use std::borrow::Cow;
+        let others = self
+            .info
+            .features
+            .iter()
+            .filter(|f| f.kind == FeatureKind::Other && f.in_steps());
+        if let Some((at, feature)) = others.enumerate().find(|(_, f)| f.name == *key) {
+            let (height, width) = (feature.shape[0], feature.shape[1]);
+            let pixels = (episode.steps.par_iter().enumerate())
+                .map(|(i, step)| other_rgb(step, at, width, height, key, i).map(Cow::Owned))
+                .collect::<Result<Vec<_>, ExportError>>()?;
+            return Ok((pixels, (width, height)));
+        }
+        let pixels = (episode.steps.iter())
+            .map(|s| Cow::Borrowed(s.rgb.as_slice()))
+            .collect();
+        Ok((pixels, self.info.image_size()))
     }
 
     /// Encodes every image stored in the parquet (frames in parallel, order kept).
@@ -462,10 +475,30 @@ impl FrameWork {
     }
 }
 
+/// The episode being appended part by part.
+pub(super) struct OpenEpisode {
+    pub(super) index: u64,
+    /// The dataset index of its first frame.
+    pub(super) first_index: u64,
+    /// Its steps' task indices so far (one per step appended).
+    pub(super) task_indices: Vec<u64>,
+    pub(super) fold: StatsFold,
+    /// Per video feature, its encoder, and where the episode starts in its file (seconds).
+    pub(super) encoders: Vec<crate::media::video::VideoEncoder>,
+    pub(super) video_from: Vec<f64>,
+}
+
+impl OpenEpisode {
+    /// The episode's index.
+    pub(super) fn index(&self) -> u64 {
+        self.index
+    }
+}
+
 /// An episode's feature statistics taken frame by frame on one thread: each frame's sums
 /// folded into the episode's in frame order, its pixel counts into one set of histograms (as
 /// [`EpisodeWork::feature_stats`] does in chunks).
-struct StatsFold {
+pub(super) struct StatsFold {
     kinds: Vec<Option<FeatureKind>>,
     total: EpisodeStats,
     histograms: Vec<Vec<Vec<u64>>>,
@@ -474,7 +507,7 @@ struct StatsFold {
 }
 
 impl StatsFold {
-    fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
+    pub(super) fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
         let mut total = fresh_feature_stats(&work.info.features);
         if let Some(episode) = episode {
             skip_carried(episode, &mut total);
@@ -494,7 +527,7 @@ impl StatsFold {
         }
     }
 
-    fn push(&mut self, step: &Step) {
+    pub(super) fn push(&mut self, step: &Step) {
         fold_frame(
             &mut self.total,
             &self.kinds,
@@ -504,7 +537,7 @@ impl StatsFold {
         );
     }
 
-    fn finish(mut self, work: &EpisodeWork<'_>, episode: &Episode) -> EpisodeStats {
+    pub(super) fn finish(mut self, work: &EpisodeWork<'_>, episode: &Episode) -> EpisodeStats {
         for ((_, t), h) in self.total.iter_mut().zip(&self.histograms) {
             if let FeatureStats::Image(t) = t {
                 t.add_histograms(h);
@@ -516,10 +549,10 @@ impl StatsFold {
 }
 
 /// Statistics of the default columns (timestamp, frame, episode and dataset indices, task) of
-/// an episode whose first frame is the dataset's `first_index`-th, its steps' task indices
-/// `task_indices`.
+/// episode `episode_index`, whose first frame is the dataset's `first_index`-th, its steps'
+/// task indices `task_indices` (one per step).
 pub(super) fn default_stats(
-    episode: &Episode,
+    episode_index: u64,
     fps: f64,
     task_indices: &[u64],
     first_index: u64,
@@ -528,8 +561,8 @@ pub(super) fn default_stats(
         .iter()
         .map(|_| VectorStats::new(1))
         .collect();
-    let episode_index = episode.meta.index as f64;
-    for (i, &task_index) in task_indices.iter().enumerate().take(episode.steps.len()) {
+    let episode_index = episode_index as f64;
+    for (i, &task_index) in task_indices.iter().enumerate() {
         let values = [
             i as f64 / fps,
             i as f64,

@@ -24,6 +24,13 @@ use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::fs::File;
 
+/// Where rows were written: the data file's place, and whether it is full.
+pub(super) struct Written {
+    chunk: u64,
+    file: u64,
+    full: bool,
+}
+
 /// The data file being written.
 struct OpenFile {
     writer: ArrowWriter<File>,
@@ -81,6 +88,8 @@ pub struct LeRobotFiles {
     task_lookup: HashMap<String, u64>,
     /// Thread-seconds the detached encoder spent encoding, and on statistics.
     apart_secs: (f64, f64),
+    /// The episode being appended part by part, after its first part.
+    pub(super) parts: Option<super::work::OpenEpisode>,
 }
 
 impl FormatWriter for LeRobotFiles {
@@ -175,9 +184,35 @@ impl FormatWriter for LeRobotFiles {
         self.apart_secs
     }
 
+    /// A recording's long episodes are written as they are read (see [`super::parts`]).
+    fn appends_parts(&self) -> bool {
+        true
+    }
+
+    fn append_part(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+        part: &crate::export::source::EpisodePart,
+    ) -> Result<f64, ExportError> {
+        self.write_part(dir, info, part)
+    }
+
     fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
         self.finish_dataset(dir, info)
     }
+}
+
+/// The (width, height) of the video feature `key`: its shape's, or the RGB camera's.
+pub(super) fn video_size(info: &DatasetInfo, key: &str) -> (usize, usize) {
+    (info.features.iter())
+        .find(|f| f.name == key)
+        .map_or(info.image_size(), |f| {
+            (
+                f.shape.get(1).copied().unwrap_or(0),
+                f.shape.first().copied().unwrap_or(0),
+            )
+        })
 }
 
 /// Whether video mode stores `feature` as video: the RGB camera, and another dataset's
@@ -220,6 +255,16 @@ impl LeRobotFiles {
                     "{} arrive as video in another codec than {}: decode them first (convert does: it re-encodes them), or leave the codec out to copy them as they are",
                     other.join(", "),
                     video.codec.name()
+                )));
+            }
+            let odd = (info.features.iter())
+                .filter(|f| f.in_steps() && encodes_as_video(f))
+                .map(|f| (f, video_size(info, &f.name)))
+                .find(|(_, (width, height))| width % 2 == 1 || height % 2 == 1);
+            if let (VideoCodec::H264, Some((feature, (width, height)))) = (video.codec, odd) {
+                return Err(ExportError::InvalidOptions(format!(
+                    "{} is {width}x{height} pixels, and H.264 (4:2:0) needs an even width and height: give --video av1",
+                    feature.name
                 )));
             }
         }
@@ -275,6 +320,7 @@ impl LeRobotFiles {
             options,
             task_lookup: HashMap::new(),
             apart_secs: (0.0, 0.0),
+            parts: None,
         }
     }
 
@@ -396,6 +442,29 @@ impl LeRobotFiles {
         }
     }
 
+    /// The features stored as video, with their codec.
+    pub(super) fn video_features(&self) -> &[(String, VideoCodec)] {
+        &self.video_features
+    }
+
+    pub(super) fn options(&self) -> &LeRobotOptions {
+        &self.options
+    }
+
+    /// Frames written so far: the dataset index of the next one.
+    pub(super) fn frames_written(&self) -> u64 {
+        self.state.total_frames
+    }
+
+    /// What [`frame_batch`] needs of the parquet's layout.
+    pub(super) fn parquet_columns(&self) -> super::table::ParquetColumns<'_> {
+        super::table::ParquetColumns {
+            schema: &self.schema,
+            features: &self.parquet_features,
+            other_positions: &self.other_positions,
+        }
+    }
+
     /// Appends an episode's frames, one list per video feature, to the open video files
     /// (opening them, or rolling them all when one is full).
     fn append_videos(
@@ -404,6 +473,20 @@ impl LeRobotFiles {
         info: &DatasetInfo,
         frames: &[Vec<EncodedFrame>],
     ) -> Result<Vec<KeyedSpan>, ExportError> {
+        let from = self.ready_videos(dir, info)?;
+        for (video, frames) in self.videos.iter_mut().zip(frames) {
+            video.mp4.append(frames)?;
+        }
+        Ok(self.video_spans(&from))
+    }
+
+    /// Makes the video files ready for an episode: rolled all together when one is full,
+    /// opened when none is; returns where the episode starts in each, seconds.
+    pub(super) fn ready_videos(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+    ) -> Result<Vec<f64>, ExportError> {
         let version = self.options.version;
         let limit = self.video_file_size_mb() * 1024 * 1024;
         if self
@@ -417,16 +500,7 @@ impl LeRobotFiles {
             let episode = self.state.episodes;
             let location = version.next_location(&mut self.state.video_files, episode);
             for (key, codec) in self.video_features.clone() {
-                let size =
-                    info.features
-                        .iter()
-                        .find(|f| f.name == key)
-                        .map_or(info.image_size(), |f| {
-                            (
-                                f.shape.get(1).copied().unwrap_or(0),
-                                f.shape.first().copied().unwrap_or(0),
-                            )
-                        });
+                let size = video_size(info, &key);
                 let relative = version.video_path(&key, location.0, location.1);
                 let (handle, pending) = dir.create_file(&relative)?;
                 self.videos.push(VideoFile {
@@ -437,24 +511,35 @@ impl LeRobotFiles {
                 });
             }
         }
-        let mut spans = Vec::with_capacity(frames.len());
-        for ((key, _), (video, frames)) in self
-            .video_features
-            .iter()
-            .zip(self.videos.iter_mut().zip(frames))
-        {
-            let (from, to) = video.mp4.append(frames)?;
-            spans.push(KeyedSpan {
+        Ok(self.videos.iter().map(|v| v.mp4.time_secs()).collect())
+    }
+
+    /// Each video feature's span of an episode that started at `from` (seconds, per feature)
+    /// in the open video files and ends where they end now.
+    pub(super) fn video_spans(&self, from: &[f64]) -> Vec<KeyedSpan> {
+        (self.video_features.iter())
+            .zip(self.videos.iter().zip(from))
+            .map(|((key, _), (video, &from_secs))| KeyedSpan {
                 key: key.clone(),
                 span: VideoSpan {
                     chunk: video.chunk,
                     file: video.file,
-                    from_secs: from,
-                    to_secs: to,
+                    from_secs,
+                    to_secs: video.mp4.time_secs(),
                 },
-            });
+            })
+            .collect()
+    }
+
+    /// Appends a part's packets, one list per video feature, to the open video files.
+    pub(super) fn append_video_packets(
+        &mut self,
+        packets: &[Vec<EncodedFrame>],
+    ) -> Result<(), ExportError> {
+        for (video, packets) in self.videos.iter_mut().zip(packets) {
+            video.mp4.append(packets)?;
         }
-        Ok(spans)
+        Ok(())
     }
 
     fn close_videos(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
@@ -466,7 +551,7 @@ impl LeRobotFiles {
         Ok(())
     }
 
-    fn task_index(&mut self, instruction: &str) -> u64 {
+    pub(super) fn task_index(&mut self, instruction: &str) -> u64 {
         if let Some(i) = self.task_lookup.get(instruction) {
             return *i;
         }
@@ -486,7 +571,7 @@ impl LeRobotFiles {
     /// Writes one episode with what was made of it ahead (its video features' frames, and
     /// perhaps its images and statistics); returns the seconds spent encoding its images and
     /// statistics here.
-    fn write_prepared(
+    pub(super) fn write_prepared(
         &mut self,
         dir: &mut DatasetDir,
         info: &DatasetInfo,
@@ -510,7 +595,7 @@ impl LeRobotFiles {
             || stats.unwrap_or_else(|| work.feature_stats(episode)),
         );
         episode_stats.extend(super::work::default_stats(
-            episode,
+            meta.index,
             f64::from(info.fps),
             &task_indices,
             first_index,
@@ -522,36 +607,72 @@ impl LeRobotFiles {
         } else {
             self.append_videos(dir, info, &video_frames)?
         };
-        let columns = super::table::ParquetColumns {
-            schema: &self.schema,
-            features: &self.parquet_features,
-            other_positions: &self.other_positions,
-        };
         let batch = frame_batch(
-            &columns,
+            &self.parquet_columns(),
             episode,
             images,
-            first_index,
+            (first_index, 0),
             &task_indices,
             info.fps,
         )?;
+        let written = self.write_rows(dir, &batch)?;
+        let length = episode.steps.len() as u64;
+        self.episode_done(
+            dir,
+            info,
+            meta,
+            (first_index, length),
+            written,
+            episode_stats,
+            videos,
+        )?;
+        self.apart_secs.0 += encoded_ahead_secs;
+        self.apart_secs.1 += stats_secs;
+        Ok(encode_secs)
+    }
+
+    /// Appends rows to the open data file (opening one) as a row group of their own; returns
+    /// the file's (chunk, file) and whether it is full.
+    pub(super) fn write_rows(
+        &mut self,
+        dir: &mut DatasetDir,
+        batch: &arrow_array::RecordBatch,
+    ) -> Result<Written, ExportError> {
         let limit = self.options.data_file_size_mb * 1024 * 1024;
         let version = self.options.version;
         let open = self.open_file(dir)?;
-        let (chunk, file, path) = (open.chunk, open.file, open.pending.path.clone());
-        let parquet_error = ExportError::parquet(&path);
-        open.writer.write(&batch).map_err(&parquet_error)?;
+        let parquet_error = ExportError::parquet(&open.pending.path);
+        open.writer.write(batch).map_err(&parquet_error)?;
         open.writer.flush().map_err(&parquet_error)?;
-        let full = version.file_is_full(open.writer.bytes_written() as u64, limit);
+        Ok(Written {
+            chunk: open.chunk,
+            file: open.file,
+            full: version.file_is_full(open.writer.bytes_written() as u64, limit),
+        })
+    }
 
+    /// Records an episode whose rows (the dataset's frames `first_index` on, `length` of them)
+    /// and videos are written, the last rows as `written`: its statistics folded in, its row
+    /// journaled; the data and video files close together when the data file is full (a
+    /// checkpoint).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn episode_done(
+        &mut self,
+        dir: &mut DatasetDir,
+        info: &DatasetInfo,
+        meta: &crate::episode::EpisodeMeta,
+        (first_index, length): (u64, u64),
+        written: Written,
+        episode_stats: Vec<(String, crate::export::stats::FeatureStats)>,
+        videos: Vec<KeyedSpan>,
+    ) -> Result<(), ExportError> {
         let (stats_json, pixel_stats) = self.fold_stats(info, episode_stats);
-        let length = episode.steps.len() as u64;
         let row = EpisodeRow {
             episode_index: meta.index,
             tasks: meta.instructions().into_iter().map(String::from).collect(),
             length,
-            data_chunk: chunk,
-            data_file: file,
+            data_chunk: written.chunk,
+            data_file: written.file,
             from_index: first_index,
             to_index: first_index + length,
             stats: stats_json,
@@ -560,18 +681,16 @@ impl LeRobotFiles {
             provenance: Provenance::of(meta),
         };
         self.journal(dir, &row)?;
-        if full {
+        if written.full {
             // Close the video file at the same moment, so that everything written so far is
             // complete, and record the state.
             self.close_file(dir)?;
             self.close_videos(dir)?;
-            if version.checkpoint_due(self.state.episodes) {
+            if self.options.version.checkpoint_due(self.state.episodes) {
                 dir.save_checkpoint(&self.state)?;
             }
         }
-        self.apart_secs.0 += encoded_ahead_secs;
-        self.apart_secs.1 += stats_secs;
-        Ok(encode_secs)
+        Ok(())
     }
 
     /// Appends an episode's row to the journal and counts the episode.
@@ -620,7 +739,7 @@ impl LeRobotFiles {
     }
 
     /// The per-episode work's view of this writer.
-    fn work<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
+    pub(super) fn work<'a>(&'a self, info: &'a DatasetInfo) -> EpisodeWork<'a> {
         EpisodeWork {
             parallel: true,
             info,
@@ -638,6 +757,12 @@ impl LeRobotFiles {
         dir: &mut DatasetDir,
         info: &DatasetInfo,
     ) -> Result<Summary, ExportError> {
+        if let Some(open) = &self.parts {
+            return Err(ExportError::Internal(format!(
+                "episode {}'s last part never came",
+                open.index()
+            )));
+        }
         self.close_file(dir)?;
         self.close_videos(dir)?;
         dir.save_checkpoint(&self.state)?;

@@ -362,6 +362,12 @@ def main(out, bench=None):
             # lerobot 0.3.3 (Open-H's) takes three-channel image statistics only: no depth there.
             depth_args = {"--depth"} | {f"{name}={topic}" for name, topic in expected["depths"]}
             expected["open_h_args"] = [a for a in expected["ingest_args"] if a not in depth_args]
+        if kwargs["seed"] % 2 == 1:
+            # Episodes handed to the writer in parts of one batch of frames (about 32 frames;
+            # the default parts are 32 MiB): the readers see the parts' row groups.
+            expected["ingest_args"] += ["--part-mib", "0.001"]
+            if "open_h_args" in expected:
+                expected["open_h_args"] += ["--part-mib", "0.001"]
         (out / f"{name}.json").write_text(json.dumps(expected))
         print(f"wrote {out / name}")
 
