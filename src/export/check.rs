@@ -53,6 +53,7 @@ checks! {
     Image = "image": "stored images decode to the declared size and channels",
     Index = "index": "the global index starts where the previous episode ended and rises",
     Instruction = "instruction": "every task's language instruction is non-empty",
+    Interrupted = "interrupted": "the dataset was finished: no writer left it interrupted (its marker)",
     Json = "json": "an MCAP JSON message parses",
     JsonSchema = "json_schema": "an MCAP JSON message matches its Foxglove schema",
     Length = "length": "an episode's recorded length is its number of rows",

@@ -298,23 +298,25 @@ fn disk_bytes(path: &Path) -> u64 {
 }
 
 /// Verifies the manifest `relative` when the dataset has one: every listed file present with
-/// its recorded size and CRC-32C, and no listed path outside the root.
-pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
+/// its recorded size and CRC-32C, and no listed path outside the root. Returns whether another
+/// tool rewrote the dataset since (its own metadata changed: the manifest is stale, a warning).
+pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) -> bool {
     let path = root.join(relative);
     if !path.is_file() {
-        return;
+        return false;
     }
     let manifest = match read_json(&path) {
         Ok(manifest) => manifest,
         Err(_) => {
             findings.file_error(&path, Check::Manifest, "is not valid JSON");
-            return;
+            return false;
         }
     };
     let Some(files) = manifest["files"].as_array() else {
         findings.file_error(&path, Check::Manifest, "has no files list");
-        return;
+        return false;
     };
+    let mut changed: Vec<(String, String)> = Vec::new();
     for file in files {
         let record: crate::export::dir::FileRecord = match serde_json::from_value(file.clone()) {
             Ok(record) => record,
@@ -343,11 +345,7 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
         };
         match record.problem(&root.join(listed)) {
             Ok(None) => {}
-            Ok(Some(problem)) => findings.error(
-                At::file(record.path.clone()),
-                Check::Checksum,
-                format!("{problem} (per {relative})"),
-            ),
+            Ok(Some(problem)) => changed.push((record.path.clone(), problem)),
             Err(_) => findings.error(
                 At::file(record.path.clone()),
                 Check::Readable,
@@ -355,7 +353,55 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) {
             ),
         }
     }
+    report_changed(root, relative, changed, findings)
 }
+
+/// The files that no longer match the manifest `relative`: checksum errors, or, when the
+/// dataset's own metadata is among them (another tool rewrote it), one warning that the
+/// manifest is stale; returns whether it is.
+fn report_changed(
+    root: &Path,
+    relative: &str,
+    changed: Vec<(String, String)>,
+    findings: &Findings,
+) -> bool {
+    // A dataset whose metadata another tool rewrote (lerobot-edit-dataset edits in place): the
+    // manifest is stale, not the files damaged; their content is judged by the other checks.
+    // Rewritten, not broken: the metadata is a readable JSON file still.
+    let rewritten = (changed.iter()).any(|(path, _)| {
+        REWRITTEN_BY_OTHERS.contains(&path.as_str()) && read_json(&root.join(path)).is_ok()
+    });
+    if rewritten {
+        let names: Vec<&str> = changed
+            .iter()
+            .map(|(path, _)| path.as_str())
+            .take(5)
+            .collect();
+        findings.warning(
+            At::file(relative),
+            Check::Manifest,
+            format!(
+                "is stale: {} of the files it lists changed since surgvla wrote them ({}{}), the dataset's own metadata among them: another tool rewrote the dataset, and its files are judged on their content",
+                changed.len(),
+                names.join(", "),
+                if changed.len() > names.len() { ", ..." } else { "" }
+            ),
+        );
+        return true;
+    }
+    for (path, problem) in changed {
+        findings.error(
+            At::file(path),
+            Check::Checksum,
+            format!("{problem} (per {relative})"),
+        );
+    }
+    false
+}
+
+/// The metadata a tool that edits a dataset in place rewrites (lerobot's `info.json`): when it
+/// no longer matches our manifest, the manifest is stale rather than the files damaged.
+const REWRITTEN_BY_OTHERS: [&str; 1] = ["meta/info.json"];
 
 /// What our own datasets promise beyond their format, from their surgvla metadata.
 #[derive(Clone, Debug, Default)]

@@ -129,6 +129,17 @@ fn render_into_a_missing_directory_exits_2_naming_the_path() {
 }
 
 #[test]
+fn validate_json_reports_on_every_exit_code() {
+    let (code, stdout, stderr) = surgvla(&["validate", "/nonexistent-dataset", "--json"]);
+    assert_eq!(code, 2, "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&stdout).expect("a JSON report");
+    assert_eq!(report["valid"], false);
+    assert!(report["format"].is_null());
+    let error = report["error"].as_str().expect("the reason");
+    assert!(error.contains("/nonexistent-dataset"), "{error}");
+}
+
+#[test]
 fn collect_writes_a_lerobot_dataset_and_refuses_to_overwrite_it() {
     let out = temp_root("collect");
     let path = out.to_str().expect("utf-8");

@@ -263,6 +263,25 @@ fn an_unfinished_dataset_is_obviously_incomplete() {
         data_files(&root).expect("list").is_empty(),
         "no data file under its final name"
     );
+    // validate and info say so in one finding, with the command that finishes it.
+    let options = surgvla::export::validate::ValidateOptions::default();
+    for quick in [false, true] {
+        let options = surgvla::export::validate::ValidateOptions {
+            quick,
+            ..options.clone()
+        };
+        let report = surgvla::export::validate::validate(&root, &options).expect("validate");
+        assert!(!report.valid);
+        assert_eq!(report.errors.len(), 1, "{:?}", report.errors);
+        let finding = &report.errors[0];
+        assert_eq!(finding.check, "interrupted");
+        assert!(finding.message.contains("--resume"), "{}", finding.message);
+        assert!(
+            finding.message.contains("meta/info.json"),
+            "{}",
+            finding.message
+        );
+    }
     // And a new dataset will not be written over it (once the dropped writer's lock is gone).
     let attempt = crate::util::unless_briefly_locked(|| {
         LeRobotWriter::create(&root, &info(false), LeRobotOptions::default())
@@ -750,4 +769,45 @@ fn a_reader_takes_the_episodes_table_a_batch_at_a_time_and_keeps_each_row_with_i
         assert_eq!(video.frames.len(), expected.steps.len());
     }
     assert!(source.next().is_none());
+}
+
+#[test]
+fn a_manifest_made_stale_by_another_tools_rewrite_is_a_warning_and_damage_stays_an_error() {
+    let root = temp_root("stale-manifest");
+    let mut writer =
+        LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).expect("create");
+    writer.write_batch(&episodes(2, 3)).expect("write");
+    writer.finish().expect("finish");
+    let options = surgvla::export::validate::ValidateOptions::default();
+    let validate = || surgvla::export::validate::validate(&root, &options).expect("validate");
+    // Another tool rewrites the metadata (lerobot-edit-dataset's modify_tasks edits in place).
+    let info_path = root.join("meta/info.json");
+    let info_json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&info_path).expect("read")).expect("json");
+    std::fs::write(&info_path, serde_json::to_vec(&info_json).expect("json")).expect("write");
+    let report = validate();
+    assert!(report.valid, "{:?}", report.errors);
+    assert!(
+        (report.warnings.iter()).any(|w| w.check == "manifest" && w.message.contains("stale")),
+        "{:?}",
+        report.warnings
+    );
+    // Without the metadata rewritten, a changed file is damage.
+    let mut writer = {
+        std::fs::remove_dir_all(&root).ok();
+        LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).expect("create")
+    };
+    writer.write_batch(&episodes(2, 3)).expect("write");
+    writer.finish().expect("finish");
+    let stats = root.join("meta/stats.json");
+    let mut bytes = std::fs::read(&stats).expect("read");
+    bytes.push(b' ');
+    std::fs::write(&stats, bytes).expect("write");
+    let report = validate();
+    assert!(!report.valid);
+    assert!(
+        report.errors.iter().any(|e| e.check == "checksum"),
+        "{:?}",
+        report.errors
+    );
 }

@@ -16,7 +16,8 @@ pub(crate) struct ValidateArgs {
     /// zarr store, an MCAP file or a folder of them.
     pub path: PathBuf,
     /// Print the report as JSON: {"valid", "format", "errors": [{"file", "episode", "frame",
-    /// "check", "message"}], "warnings": [...], ...}.
+    /// "check", "message"}], "warnings": [...], ...}; when the check cannot run (exit 2),
+    /// {"valid": false, "format": null, "error": "why", "errors": [], "warnings": []}.
     #[arg(long)]
     pub json: bool,
     /// Metadata and one frame per episode instead of every frame.
@@ -48,7 +49,25 @@ pub(crate) fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
         step_limits: step_limits(),
         threads: args.threads,
     };
-    let mut report = validate(&args.path, &options)?;
+    let mut report = match validate(&args.path, &options) {
+        Ok(report) => report,
+        Err(error) => {
+            let error = CliError::from(error);
+            if args.json {
+                // A report on every exit: why the check could not run, as its error.
+                let json = serde_json::json!({
+                    "valid": false,
+                    "format": null,
+                    "path": args.path,
+                    "error": error.message(),
+                    "errors": [],
+                    "warnings": [],
+                });
+                say!("{}", serde_json::to_string_pretty(&json)?);
+            }
+            return Err(error);
+        }
+    };
     if args.replay {
         let reads = surgvla::export::registry::of_layout(report.format)
             .is_some_and(|format| format.capabilities().reads);

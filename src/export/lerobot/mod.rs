@@ -32,5 +32,5 @@ pub use crate::media::video::Codec;
 pub use format::LeRobotFormat;
 pub use meta::{FeatureJson, InfoJson};
 pub use options::{CODEBASE_VERSION, LeRobotOptions, LeRobotVersion, VideoOptions};
-pub use table::{DEFAULT_COLUMNS, Provenance, frame_schema, image_fields};
+pub use table::{DEFAULT_COLUMNS, Provenance, fixed_size_lists, frame_schema, image_fields};
 pub use writer::{LeRobotFiles, LeRobotWriter, State, features_json};

@@ -858,7 +858,7 @@ impl LeRobotSource {
             };
             match reader.next() {
                 Some(batch) => {
-                    let batch = batch.map_err(ExportError::Arrow)?;
+                    let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
                     return rows_of(&batch, path, &self.info).map(Some);
                 }
                 None => self.batches = None,

@@ -1,13 +1,13 @@
-//! Arrow tables of a LeRobot dataset: the frame table (one row per step, one row group per
-//! episode), `tasks.parquet` with its pandas index metadata, and the episodes table.
+//! Arrow tables of a LeRobot dataset: the frame table (one row per step, a row group per
+//! episode or per part of one), `tasks.parquet` with its pandas index metadata, and the episodes table.
 
 use super::meta::{StatValue, StatsJson};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, FeatureValue};
 use crate::export::error::ExportError;
 use arrow_array::builder::{Float64Builder, Int64Builder, ListBuilder, StringBuilder};
 use arrow_array::{
-    ArrayRef, BinaryArray, BooleanArray, FixedSizeListArray, Float32Array, Int64Array, RecordBatch,
-    StringArray, StructArray,
+    Array, ArrayRef, BinaryArray, BooleanArray, FixedSizeListArray, Float32Array, Int64Array,
+    RecordBatch, StringArray, StructArray,
 };
 use arrow_schema::{DataType, Field, Fields, Schema};
 use serde_json::Value;
@@ -271,6 +271,76 @@ fn default_columns(
             task_indices.iter().map(|&t| t as i64),
         )),
     ]
+}
+
+/// `batch` with each variable-length list column (`List`, `LargeList`: what pandas and
+/// lerobot's edit tool write where lerobot's own writer writes fixed-size lists) as the
+/// fixed-size list its rows' common length makes, so that every reader sees one shape. A
+/// column whose rows differ in length, or hold a null, is left as it is (a type check names
+/// it).
+pub fn fixed_size_lists(batch: RecordBatch) -> RecordBatch {
+    let schema = batch.schema();
+    let mut changed = false;
+    let mut fields = Vec::with_capacity(schema.fields().len());
+    let mut columns = Vec::with_capacity(schema.fields().len());
+    for (field, column) in schema.fields().iter().zip(batch.columns()) {
+        match fixed_size(column.as_ref()) {
+            Some(fixed) => {
+                changed = true;
+                fields.push(Arc::new(Field::new(
+                    field.name(),
+                    fixed.data_type().clone(),
+                    field.is_nullable(),
+                )));
+                columns.push(Arc::new(fixed) as ArrayRef);
+            }
+            None => {
+                fields.push(field.clone());
+                columns.push(column.clone());
+            }
+        }
+    }
+    if !changed {
+        return batch;
+    }
+    let schema = Arc::new(Schema::new_with_metadata(fields, schema.metadata().clone()));
+    RecordBatch::try_new(schema, columns).unwrap_or(batch)
+}
+
+/// A variable-length list column whose rows all hold the same number of values (and no
+/// null) as a fixed-size list; None for any other column.
+fn fixed_size(column: &dyn Array) -> Option<FixedSizeListArray> {
+    let any = column.as_any();
+    let (offsets, values, item): (Vec<usize>, ArrayRef, Arc<Field>) =
+        if let Some(list) = any.downcast_ref::<arrow_array::ListArray>() {
+            let DataType::List(item) = list.data_type() else {
+                return None;
+            };
+            let offsets = list.value_offsets().iter().map(|&o| o as usize).collect();
+            (offsets, list.values().clone(), item.clone())
+        } else if let Some(list) = any.downcast_ref::<arrow_array::LargeListArray>() {
+            let DataType::LargeList(item) = list.data_type() else {
+                return None;
+            };
+            let offsets = list.value_offsets().iter().map(|&o| o as usize).collect();
+            (offsets, list.values().clone(), item.clone())
+        } else {
+            return None;
+        };
+    let numeric = matches!(
+        item.data_type(),
+        DataType::Float32 | DataType::Float64 | DataType::Int64 | DataType::Int32
+    );
+    if !numeric || column.null_count() > 0 || offsets.len() < 2 {
+        return None;
+    }
+    let n = offsets[1] - offsets[0];
+    if n == 0 || offsets.windows(2).any(|w| w[1] - w[0] != n) {
+        return None;
+    }
+    let (first, last) = (offsets[0], offsets[offsets.len() - 1]);
+    let values = values.slice(first, last - first);
+    FixedSizeListArray::try_new(item, i32::try_from(n).ok()?, values, None).ok()
 }
 
 /// `values` as one binary array, its buffer sized once (images: hundreds of MB an episode).

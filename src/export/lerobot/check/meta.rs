@@ -160,16 +160,19 @@ fn read_tasks_v30(path: &Path, findings: &Findings) -> Vec<(i64, String)> {
 }
 
 /// The episodes metadata, in row order.
+/// `as_written`: a dataset surgvla wrote, unedited since, whose episodes table must hold
+/// everything our writer writes.
 pub(super) fn read_episodes(
     root: &Path,
     v21: bool,
     features: &[Declared],
+    as_written: bool,
     findings: &Findings,
 ) -> Vec<EpisodeEntry> {
     if v21 {
         read_episodes_v21(root, findings)
     } else {
-        read_episodes_v30(root, features, findings)
+        read_episodes_v30(root, features, as_written, findings)
     }
 }
 
@@ -233,7 +236,12 @@ fn read_episodes_v21(root: &Path, findings: &Findings) -> Vec<EpisodeEntry> {
 
 /// v3.0's episodes table (`meta/episodes/chunk-*/file-*.parquet`): rows in episode order, with
 /// their spans, data and video files, tasks and provenance.
-fn read_episodes_v30(root: &Path, features: &[Declared], findings: &Findings) -> Vec<EpisodeEntry> {
+fn read_episodes_v30(
+    root: &Path,
+    features: &[Declared],
+    as_written: bool,
+    findings: &Findings,
+) -> Vec<EpisodeEntry> {
     let mut entries = Vec::new();
     let folder = root.join("meta/episodes");
     let files = crate::export::lerobot::read::parquet_files(&folder).unwrap_or_default();
@@ -246,7 +254,7 @@ fn read_episodes_v30(root: &Path, features: &[Declared], findings: &Findings) ->
     }
     for path in files {
         for batch in read_table(&path, findings).unwrap_or_default() {
-            check_episode_columns(&batch, &path, features, findings);
+            check_episode_columns(&batch, &path, features, as_written, findings);
             for row in 0..batch.num_rows() {
                 let at = At::file(findings.relative(&path)).episode(entries.len() as u64);
                 entries.push(episode_entry(&batch, row, at, features, findings));
@@ -345,11 +353,14 @@ fn episode_entry(
 }
 
 /// The columns an episodes table needs: indices and spans, tasks, and every statistic of every
-/// feature.
+/// feature. Tasks and per-episode statistics are errors to lack only `as_written` (surgvla's
+/// writer writes them); lerobot's own tools may leave them out (its `convert_image_to_video`
+/// does, and its loader needs neither): a warning each.
 fn check_episode_columns(
     batch: &arrow_array::RecordBatch,
     path: &Path,
     features: &[Declared],
+    as_written: bool,
     findings: &Findings,
 ) {
     let ints = |name: &str| {
@@ -373,29 +384,48 @@ fn check_episode_columns(
             );
         }
     }
+    let at = || At::file(findings.relative(path));
     if batch.column_by_name("tasks").is_none() {
-        findings.file_error(path, Check::Episodes, "lacks the tasks column");
-    }
-    for feature in features
-        .iter()
-        .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
-    {
-        for stat in STATS_KEYS {
-            let name = format!("stats/{}/{stat}", feature.name);
-            if batch.column_by_name(&name).is_none() {
-                findings.file_error(path, Check::Stats, format!("lacks the column {name}"));
-            }
+        let message = "lacks the tasks column";
+        match as_written {
+            true => findings.error(at(), Check::Episodes, message),
+            false => findings.warning(
+                at(),
+                Check::Episodes,
+                format!("{message} (each frame's task_index still names its task)"),
+            ),
         }
+    }
+    let missing: Vec<String> = (features.iter())
+        .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
+        .flat_map(|f| STATS_KEYS.map(|stat| format!("stats/{}/{stat}", f.name)))
+        .filter(|name| batch.column_by_name(name).is_none())
+        .collect();
+    if as_written {
+        for name in &missing {
+            findings.error(at(), Check::Stats, format!("lacks the column {name}"));
+        }
+    } else if !missing.is_empty() {
+        findings.warning(
+            at(),
+            Check::Stats,
+            format!(
+                "has no per-episode statistics for {} columns (e.g. {}): meta/stats.json holds the dataset's",
+                missing.len(),
+                missing[0]
+            ),
+        );
     }
 }
 
 /// `meta/stats.json`: every feature with every statistic, vectors of the right length, and for
-/// numeric features (on a full pass) min, max and mean matching the data.
+/// numeric features min, max and mean matching the data (quick or not: every row's numbers are
+/// read).
 pub(super) fn check_stats(
     root: &Path,
     features: &[Declared],
     parts: &[Part],
-    full: bool,
+    as_written: bool,
     findings: &Findings,
 ) {
     let path = root.join("meta/stats.json");
@@ -421,11 +451,16 @@ pub(super) fn check_stats(
         .filter(|f| !is_index_column(&f.name) && f.dtype != "string")
     {
         let Some(entry) = stats.get(&feature.name) else {
-            findings.file_error(
-                &path,
-                Check::Stats,
-                format!("has no statistics for {}", feature.name),
-            );
+            let message = format!("has no statistics for {}", feature.name);
+            match as_written {
+                true => findings.file_error(&path, Check::Stats, message),
+                // lerobot's convert_image_to_video leaves the images' out.
+                false => findings.warning(
+                    At::file(findings.relative(&path)),
+                    Check::Stats,
+                    format!("{message} (a policy that normalises it needs them: lerobot-edit-dataset's recompute_stats writes them)"),
+                ),
+            }
             continue;
         };
         // A statistic that is not numbers (or nested lists of them) counts as missing.
@@ -439,7 +474,7 @@ pub(super) fn check_stats(
             continue;
         }
         check_stat_lengths(&path, feature, entry, findings);
-        if let Some(moments) = data.get(feature.name.as_str()).filter(|_| full) {
+        if let Some(moments) = data.get(feature.name.as_str()) {
             check_stats_against_data(&path, feature, entry, moments, findings);
         }
     }
@@ -560,7 +595,7 @@ pub(super) fn check_videos(
     info: &crate::export::lerobot::meta::InfoJson,
     features: &[Declared],
     entries: &[EpisodeEntry],
-    quick: bool,
+    (quick, as_written): (bool, bool),
     findings: &Findings,
 ) {
     let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
@@ -603,7 +638,8 @@ pub(super) fn check_videos(
                     if fresh {
                         check_video_file(&at, reader, feature, declared_name, findings);
                     }
-                    check_episode_span(&at, reader, span, entry.length, findings);
+                    let length = entry.length;
+                    check_episode_span(&at, reader, (span, length), as_written, findings);
                     if let Some(size_px) = size_px {
                         spans.push(SpanToDecode {
                             video: Arc::clone(reader),
@@ -795,11 +831,14 @@ fn check_video_file(
 
 /// An episode's span of a video file (v2.1: the whole file) holds exactly its frames and starts
 /// on a keyframe.
+/// A later keyframe is a defect of a dataset `as_written` by surgvla (every episode of ours
+/// starts on one) and a warning in others' (lerobot's loader decodes from the keyframe before,
+/// as does surgvla's; only a stream copy cannot cut there).
 fn check_episode_span(
     at: &At,
     reader: &VideoReader,
-    span: Option<(f64, f64)>,
-    length: Option<i64>,
+    (span, length): (Option<(f64, f64)>, Option<i64>),
+    as_written: bool,
     findings: &Findings,
 ) {
     let (frames, keyframe_first) = match span {
@@ -819,11 +858,17 @@ fn check_episode_span(
             Check::Video,
             format!("{place} {frames} frames; the episode has {length}"),
         );
-    } else if !keyframe_first {
+    } else if !keyframe_first && as_written {
         findings.error(
             at.clone(),
             Check::Video,
             "the episode's first frame is not a keyframe: it cannot be decoded or copied on its own",
+        );
+    } else if !keyframe_first {
+        findings.warning(
+            at.clone(),
+            Check::Video,
+            "the episode's first frame is not a keyframe: decoding starts at the keyframe before it, and a stream copy cannot cut here",
         );
     }
 }

@@ -63,9 +63,11 @@ pub fn check(root: &Path, v21: bool, options: &ValidateOptions, findings: &Findi
     });
     let surgvla = check_our_metadata(root, findings);
     let semantics = Semantics::of(&surgvla, options);
-    check_manifest(root, crate::export::dir::MANIFEST, findings);
+    let rewritten = check_manifest(root, crate::export::dir::MANIFEST, findings);
+    // As surgvla wrote it: what our writer always writes is required.
+    let as_written = !surgvla.is_null() && !rewritten;
     let tasks = read_tasks(root, v21, findings);
-    let entries = read_episodes(root, v21, &features, findings);
+    let entries = read_episodes(root, v21, &features, as_written, findings);
     learn_tasks(&tasks, &entries, findings);
     if !surgvla.is_null() {
         check_provenance(&entries, v21, findings);
@@ -89,16 +91,17 @@ pub fn check(root: &Path, v21: bool, options: &ValidateOptions, findings: &Findi
         semantics: semantics.as_ref(),
         findings,
         info_known,
+        as_written,
     };
     let (episodes, frames, parts) = check_data_files(&context, &files, &info, v21);
-    check_stats(root, &features, &parts, !options.quick, findings);
+    check_stats(root, &features, &parts, as_written, findings);
     check_videos(
         root,
         v21,
         &info,
         &features,
         &entries,
-        options.quick,
+        (options.quick, as_written),
         findings,
     );
     (episodes, frames)
@@ -129,20 +132,7 @@ fn check_data_files(
         .par_iter()
         .filter_map(|&(f, g)| Some(context.check_row_group(&files[f], metadata[f].as_ref()?, g)))
         .collect();
-    let rows_in_files: u64 = metadata
-        .iter()
-        .flatten()
-        .map(|m| m.metadata().file_metadata().num_rows() as u64)
-        .sum();
-    let (episodes, frames) = stitch(
-        context,
-        files,
-        &groups,
-        &parts,
-        info,
-        v21,
-        context.quick.then_some(rows_in_files),
-    );
+    let (episodes, frames) = stitch(context, files, &groups, &parts, info, v21);
     (episodes, frames, parts)
 }
 
@@ -270,7 +260,8 @@ fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata
 type EpisodeSpan = (i64, i64, i64, u64, usize);
 
 /// The cross-row-group checks: indices contiguous across groups and files, episodes contiguous,
-/// the episodes table and the totals against the data. Returns (episodes, frames).
+/// the episodes table and the totals against the data (every row's indices are read, quick or
+/// not). Returns (episodes, frames).
 fn stitch(
     context: &Context<'_>,
     files: &[PathBuf],
@@ -278,15 +269,9 @@ fn stitch(
     parts: &[Part],
     info: &InfoJson,
     v21: bool,
-    // Quick: the rows the files hold (only one per row group was read).
-    quick_rows: Option<u64>,
 ) -> (u64, u64) {
-    let full = quick_rows.is_none();
-    let (episodes, mut frames) = assemble_episodes(context, files, groups, parts, full);
-    if let Some(rows) = quick_rows {
-        frames = rows;
-    }
-    check_episodes_table(context, files, &episodes, v21, full);
+    let (episodes, frames) = assemble_episodes(context, files, groups, parts);
+    check_episodes_table(context, files, &episodes, v21);
     check_table_files(context, &episodes, info, v21);
     check_totals(context, info, episodes.len() as u64, frames);
     (episodes.len() as u64, frames)
@@ -299,7 +284,6 @@ fn assemble_episodes(
     files: &[PathBuf],
     groups: &[(usize, usize)],
     parts: &[Part],
-    full: bool,
 ) -> (Vec<EpisodeSpan>, u64) {
     let findings = context.findings;
     // Whole episodes: (episode, first_index, last_index, rows, file).
@@ -312,7 +296,7 @@ fn assemble_episodes(
             let at = || At::file(relative.clone()).episode(run.episode.max(0) as u64);
             match episodes.last_mut() {
                 Some(last) if last.0 == run.episode => {
-                    if full && run.first_index != last.2 + 1 {
+                    if run.first_index != last.2 + 1 {
                         findings.error(
                             at(),
                             Check::Index,
@@ -337,7 +321,7 @@ fn assemble_episodes(
                         );
                     }
                     let expected_index = previous.map_or(0, |p| p.1 + 1);
-                    if full && run.first_index != expected_index {
+                    if run.first_index != expected_index {
                         findings.error(
                             at(),
                             Check::Index,
@@ -369,12 +353,11 @@ fn check_episodes_table(
     files: &[PathBuf],
     episodes: &[EpisodeSpan],
     v21: bool,
-    full: bool,
 ) {
     let findings = context.findings;
     let entries = context.entries;
     let episodes_file = episodes_file(v21);
-    if entries.len() != episodes.len() && (full || entries.len() < episodes.len()) {
+    if entries.len() != episodes.len() {
         findings.error(
             At::file(episodes_file),
             Check::Episodes,
@@ -390,7 +373,7 @@ fn check_episodes_table(
             continue;
         };
         let at = || At::file(episodes_file).episode(episode.max(0) as u64);
-        if full && entry.length != Some(rows as i64) {
+        if entry.length != Some(rows as i64) {
             findings.error(
                 at(),
                 Check::Length,
@@ -408,7 +391,7 @@ fn check_episodes_table(
                     ),
                 );
             }
-            if full && entry.to != Some(last + 1) {
+            if entry.to != Some(last + 1) {
                 findings.error(at(), Check::FromTo, format!("dataset_to_index {:?}, the episode's last index is {last} (to is exclusive)", entry.to));
             }
             if let Some((chunk, data_file)) = entry.data_file {
@@ -418,7 +401,8 @@ fn check_episodes_table(
                 }
             }
         }
-        if entry.tasks.is_empty() {
+        // Others' tables may lack the column (a warning has said so).
+        if entry.tasks.is_empty() && context.as_written {
             findings.error(at(), Check::Tasks, "the episode lists no task");
         }
         for task in &entry.tasks {

@@ -92,6 +92,9 @@ pub(super) struct Context<'a> {
     pub(super) semantics: Option<&'a Semantics>,
     pub(super) findings: &'a Findings,
     pub(super) info_known: bool,
+    /// A dataset surgvla wrote, unedited since (see `check_manifest`): what our writer always
+    /// writes is required.
+    pub(super) as_written: bool,
 }
 
 /// The columns every LeRobot frame has besides its features.

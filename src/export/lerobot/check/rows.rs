@@ -13,6 +13,7 @@ use arrow_array::{
     LargeBinaryArray, RecordBatch, StructArray,
 };
 use arrow_schema::DataType;
+use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{
     ArrowReaderMetadata, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
 };
@@ -28,42 +29,38 @@ impl Context<'_> {
         metadata: &ArrowReaderMetadata,
         group: usize,
     ) -> Part {
-        let findings = self.findings;
-        let file = findings.relative(path);
+        let file = self.findings.relative(path);
         let mut part = Part::default();
-        let reader = File::open(path)
-            .map_err(|e| e.to_string())
-            .map(|f| ParquetRecordBatchReaderBuilder::new_with_metadata(f, metadata.clone()))
-            .and_then(|builder| {
-                let rows = builder.metadata().row_group(group).num_rows() as usize;
-                let mut builder = builder.with_row_groups(vec![group]).with_batch_size(256);
-                if self.quick && rows > 1 {
-                    builder = builder.with_row_selection(RowSelection::from(vec![
-                        RowSelector::select(1),
-                        RowSelector::skip(rows - 1),
-                    ]));
-                }
-                builder.build().map_err(|e| e.to_string())
-            });
-        let reader = match reader {
-            Ok(reader) => reader,
-            Err(problem) => {
-                findings.error(
-                    At::file(file),
-                    Check::Readable,
-                    format!("row group {group}: {problem}"),
-                );
-                return part;
-            }
+        if group == 0 && self.info_known {
+            self.check_columns(metadata.schema(), &file);
+        }
+        // Quick: every row of every column but the images (indices, timestamps, numbers: what
+        // the full pass reads of them, so the two never disagree on them), and the images of
+        // the row group's first row.
+        let schema = metadata.schema();
+        let is_image =
+            |name: &str| (self.features.iter()).any(|f| f.name == name && f.dtype == "image");
+        let roots = |keep: &dyn Fn(&str) -> bool| {
+            let indices = (schema.fields().iter().enumerate())
+                .filter(|(_, field)| keep(field.name()))
+                .map(|(i, _)| i);
+            ProjectionMask::roots(metadata.metadata().file_metadata().schema_descr(), indices)
         };
-        let mut schema_checked = false;
+        let quick = self.quick;
+        let main = quick.then(|| roots(&|name| !is_image(name)));
+        let has_images = schema.fields().iter().any(|f| is_image(f.name()));
+        let first_images =
+            (quick && has_images).then(|| roots(&|name| is_image(name) || is_index_column(name)));
+        let Some(reader) = self.row_group_reader(path, metadata, group, main, false) else {
+            return part;
+        };
         // Our datasets' episodes, as far as the semantic checks need them (full pass only).
         let mut semantic_rows: Vec<(i64, Step)> = Vec::new();
         for batch in reader {
             let batch = match batch {
                 Ok(batch) => batch,
                 Err(problem) => {
-                    findings.error(
+                    self.findings.error(
                         At::file(file.clone()),
                         Check::Readable,
                         format!("row group {group} cannot be decoded: {problem}"),
@@ -71,13 +68,21 @@ impl Context<'_> {
                     return part;
                 }
             };
-            if !schema_checked {
-                schema_checked = true;
-                if group == 0 && self.info_known {
-                    self.check_columns(&batch, &file);
+            let batch = crate::export::lerobot::table::fixed_size_lists(batch);
+            self.check_batch(&batch, &file, &mut part, &mut semantic_rows);
+        }
+        if let Some(projection) = first_images {
+            let reader = self.row_group_reader(path, metadata, group, Some(projection), true);
+            for batch in reader.into_iter().flatten() {
+                match batch {
+                    Ok(batch) => self.check_first_images(&batch, &file),
+                    Err(problem) => self.findings.error(
+                        At::file(file.clone()),
+                        Check::Readable,
+                        format!("row group {group} cannot be decoded: {problem}"),
+                    ),
                 }
             }
-            self.check_batch(&batch, &file, &mut part, &mut semantic_rows);
         }
         if let Some(semantics) = self.semantics.filter(|_| !self.quick) {
             self.check_episodes_semantics(&file, semantics, semantic_rows);
@@ -85,9 +90,64 @@ impl Context<'_> {
         part
     }
 
+    /// A reader of row group `group` of `path`: the `projection`'s columns (all: None), its
+    /// first row only when `first_row`; None (a finding made) when it cannot be read.
+    fn row_group_reader(
+        &self,
+        path: &Path,
+        metadata: &ArrowReaderMetadata,
+        group: usize,
+        projection: Option<ProjectionMask>,
+        first_row: bool,
+    ) -> Option<parquet::arrow::arrow_reader::ParquetRecordBatchReader> {
+        let reader = File::open(path)
+            .map_err(|e| e.to_string())
+            .map(|f| ParquetRecordBatchReaderBuilder::new_with_metadata(f, metadata.clone()))
+            .and_then(|builder| {
+                let rows = builder.metadata().row_group(group).num_rows() as usize;
+                let mut builder = builder.with_row_groups(vec![group]).with_batch_size(256);
+                if let Some(projection) = projection {
+                    builder = builder.with_projection(projection);
+                }
+                if first_row && rows > 1 {
+                    builder = builder.with_row_selection(RowSelection::from(vec![
+                        RowSelector::select(1),
+                        RowSelector::skip(rows - 1),
+                    ]));
+                }
+                builder.build().map_err(|e| e.to_string())
+            });
+        match reader {
+            Ok(reader) => Some(reader),
+            Err(problem) => {
+                self.findings.error(
+                    At::file(self.findings.relative(path)),
+                    Check::Readable,
+                    format!("row group {group}: {problem}"),
+                );
+                None
+            }
+        }
+    }
+
+    /// Quick: the images of a row group's first row (`batch`: its image and index columns).
+    fn check_first_images(&self, batch: &RecordBatch, file: &str) {
+        let ints = |name: &str| -> Vec<i64> {
+            (batch.column_by_name(name))
+                .and_then(|c| c.as_any().downcast_ref::<Int64Array>())
+                .map(|a| a.values().to_vec())
+                .unwrap_or_else(|| vec![0; batch.num_rows()])
+        };
+        let (episode, frame) = (ints("episode_index"), ints("frame_index"));
+        for feature in self.features.iter().filter(|f| f.dtype == "image") {
+            if let Some(column) = batch.column_by_name(&feature.name) {
+                self.check_images(feature, column.as_ref(), &episode, &frame, file);
+            }
+        }
+    }
+
     /// The columns are exactly the declared features (video features live in MP4 files).
-    fn check_columns(&self, batch: &RecordBatch, file: &str) {
-        let schema = batch.schema();
+    fn check_columns(&self, schema: &arrow_schema::Schema, file: &str) {
         for feature in self.features.iter().filter(|f| f.dtype != "video") {
             let Some(field) = schema.field_with_name(&feature.name).ok() else {
                 self.findings.error(
@@ -204,14 +264,14 @@ impl Context<'_> {
             };
             match part.runs.last_mut() {
                 Some(run) if run.episode == columns.episode[row] => {
-                    if !self.quick && columns.index[row] != run.last_index + 1 {
+                    if columns.index[row] != run.last_index + 1 {
                         findings.error(
                             at(),
                             Check::Index,
                             format!("index {} follows {}", columns.index[row], run.last_index),
                         );
                     }
-                    if !self.quick && columns.frame[row] != run.last_frame + 1 {
+                    if columns.frame[row] != run.last_frame + 1 {
                         findings.error(
                             at(),
                             Check::FrameIndex,
@@ -489,6 +549,13 @@ fn type_problem(feature: &Declared, data_type: &DataType) -> Option<String> {
                 None
             }
             t if t == wanted && n == 1 => None,
+            // Variable-length lists (pandas, lerobot's edit tool): each row's length is
+            // checked where the values are read.
+            DataType::List(item) | DataType::LargeList(item)
+                if item.data_type() == wanted && n > 1 =>
+            {
+                None
+            }
             DataType::FixedSizeList(item, len) => Some(format!(
                 "stored as {len} x {}, declared {} x {n}",
                 item.data_type(),
