@@ -266,7 +266,7 @@ fn learn_facts(leaves: Option<&BTreeMap<String, Leaf>>, surgvla: &Value, finding
                     dtype: dtype.clone(),
                     shape: vec![*elements],
                 },
-                Leaf::Image { shape, dtype } => FeatureFact {
+                Leaf::Image { shape, dtype, .. } => FeatureFact {
                     name: key.clone(),
                     dtype: format!("image {dtype}"),
                     shape: shape.iter().map(|d| d.unwrap_or(0)).collect(),

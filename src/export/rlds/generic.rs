@@ -24,6 +24,8 @@ pub enum Leaf {
     Image {
         shape: [Option<usize>; 3],
         dtype: String,
+        /// The declared `encodingFormat` ("png", "jpeg"), when stated.
+        format: Option<String>,
     },
     Text,
 }
@@ -71,6 +73,7 @@ fn walk(node: &Value, prefix: &str, out: &mut BTreeMap<String, Leaf>) -> Result<
             Leaf::Image {
                 shape: [dim(0), dim(1), dim(2)],
                 dtype: node["image"]["dtype"].as_str().unwrap_or("uint8").into(),
+                format: node["image"]["encodingFormat"].as_str().map(String::from),
             },
         );
         return Ok(());
@@ -199,11 +202,19 @@ fn check_leaf(
                 ));
             }
         }
-        (Leaf::Image { shape, dtype }, Feature::Bytes(images)) if decode_images => {
-            let first_bad = images
-                .iter()
-                .enumerate()
-                .find_map(|(i, bytes)| Some((i, image_problem(bytes, *shape, dtype)?)));
+        (
+            Leaf::Image {
+                shape,
+                dtype,
+                format,
+            },
+            Feature::Bytes(images),
+        ) if decode_images => {
+            let first_bad = images.iter().enumerate().find_map(|(i, bytes)| {
+                let problem = (format_problem(bytes, format.as_deref()))
+                    .or_else(|| image_problem(bytes, *shape, dtype))?;
+                Some((i, problem))
+            });
             if let Some((i, problem)) = first_bad {
                 problems.push((
                     per_step.then_some(i as u64),
@@ -265,6 +276,23 @@ fn check_flags(record: &BTreeMap<String, Feature>, steps: usize, problems: &mut 
 }
 
 /// What is wrong with one encoded image, if anything.
+/// Bytes of another encoding than the `declared` one (JPEG under `png`, say): a reader that
+/// decodes by the declared format (TFDS) fails on them, or worse.
+fn format_problem(bytes: &[u8], declared: Option<&str>) -> Option<String> {
+    let found = if bytes.starts_with(&[0xff, 0xd8, 0xff]) {
+        "jpeg"
+    } else if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        "png"
+    } else {
+        return None;
+    };
+    let declared = declared?.to_ascii_lowercase();
+    let same = declared == found || (found == "jpeg" && declared == "jpg");
+    (!same).then(|| {
+        format!("holds {found} bytes where features.json declares encodingFormat {declared:?}")
+    })
+}
+
 fn image_problem(bytes: &[u8], shape: [Option<usize>; 3], dtype: &str) -> Option<String> {
     if bytes.starts_with(&[0xff, 0xd8]) {
         return None; // JPEG: not decoded here.
@@ -305,4 +333,27 @@ fn image_problem(bytes: &[u8], shape: [Option<usize>; 3], dtype: &str) -> Option
         return Some(format!("has {c} channels, declared {:?}{rgba}", shape[2]));
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bytes_of_another_encoding_than_declared_are_named() {
+        let jpeg = [0xff, 0xd8, 0xff, 0xe0, 0, 0];
+        let png = *b"\x89PNG\r\n\x1a\n\0\0";
+        let problem = format_problem(&jpeg, Some("png")).expect("JPEG under png");
+        assert!(problem.contains("jpeg bytes"), "{problem}");
+        assert!(format_problem(&png, Some("jpeg")).is_some());
+        assert_eq!(format_problem(&jpeg, Some("jpeg")), None);
+        assert_eq!(format_problem(&jpeg, Some("JPG")), None);
+        assert_eq!(format_problem(&png, Some("png")), None);
+        assert_eq!(format_problem(&png, None), None, "nothing declared");
+        assert_eq!(
+            format_problem(b"GIF89a", Some("png")),
+            None,
+            "left to the decoder"
+        );
+    }
 }
