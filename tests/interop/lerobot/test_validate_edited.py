@@ -1,5 +1,6 @@
 """`surgvla validate` (full and `--quick`) and `info` on what lerobot 0.6.1's own
-`lerobot-edit-dataset` writes from surgvla datasets: every operation's output is valid, and the
+`lerobot-edit-dataset` writes from surgvla datasets (delete_episodes, split, remove_feature,
+modify_tasks, convert_image_to_video, merge): every operation's output is valid, and the
 three agree with each other and with the dataset's own totals (the quick pass once counted the
 episodes of a row group lerobot writes several into as one).
 
@@ -29,6 +30,7 @@ OPERATIONS = [
     ("images", "remove_feature", ["--operation.feature_names", '["observation.images.depth"]']),
     ("images", "modify_tasks", ["--operation.new_task", "pick it up"]),
     ("images", "convert_image_to_video", []),
+    ("videos", "merge", []),
 ]
 
 
@@ -56,10 +58,17 @@ def test_validate_quick_and_info_agree_on_what_lerobots_edit_tool_writes(tmp_pat
                "--new_root", str(out), "--operation.type", operation, *args]
     if operation == "convert_image_to_video":
         command += ["--operation.output_dir", str(out)]
+    if operation == "merge":
+        # The dataset with a second copy of itself.
+        second = tmp_path / "second"
+        shutil.copytree(original, second)
+        command = [EDIT, "--new_repo_id", "local/edited", "--new_root", str(out), "--operation.type", "merge",
+                   "--operation.repo_ids", '["local/source", "local/second"]',
+                   "--operation.roots", json.dumps([str(copy), str(second)])]
     run = subprocess.run(command, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr[-3000:]
     # What it wrote; an operation that edits in place (modify_tasks) leaves the copy edited.
-    datasets = sorted({p.parent.parent for p in tmp_path.rglob("meta/info.json")} - {copy}) or [copy]
+    datasets = sorted({p.parent.parent for p in tmp_path.rglob("meta/info.json")} - {copy, tmp_path / "second"}) or [copy]
     for dataset in datasets:
         info = json.loads((dataset / "meta/info.json").read_text())
         totals = (info["total_episodes"], info["total_frames"])

@@ -429,6 +429,11 @@ pub(super) fn check_stats(
     findings: &Findings,
 ) {
     let path = root.join("meta/stats.json");
+    // v2.1 as lerobot (0.3.x) writes it: per-episode statistics only, which its loader
+    // aggregates (their lines are checked with the episodes).
+    if !path.is_file() && root.join("meta/episodes_stats.jsonl").is_file() {
+        return;
+    }
     if !path.is_file() {
         findings.file_error(&path, Check::Stats, "is missing (normalisation needs it)");
         return;
