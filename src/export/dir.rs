@@ -73,6 +73,25 @@ impl FileRecord {
     }
 
     /// What is wrong with the file at `path` compared with this record, if anything.
+    /// As [`FileRecord::problem`], by the file's size alone (what `validate --quick` checks of
+    /// the data and video files).
+    pub fn size_problem(&self, path: &Path) -> Result<Option<String>, ExportError> {
+        match std::fs::metadata(path) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Some("is missing".into())),
+            Err(source) => Err(ExportError::Io {
+                path: path.into(),
+                source,
+            }),
+            Ok(m) if !m.is_file() => Ok(Some("is not a regular file".into())),
+            Ok(m) if m.len() != self.bytes => Ok(Some(format!(
+                "is {} bytes, {} were recorded",
+                m.len(),
+                self.bytes
+            ))),
+            Ok(_) => Ok(None),
+        }
+    }
+
     pub fn problem(&self, path: &Path) -> Result<Option<String>, ExportError> {
         let file = match File::open(path) {
             Ok(file) => file,

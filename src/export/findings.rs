@@ -79,6 +79,8 @@ pub struct Report {
     pub facts: Facts,
     pub errors: Vec<Finding>,
     pub warnings: Vec<Finding>,
+    /// The quality lint's verdict, one line per check that ran (empty: not linted).
+    pub lint: Vec<LintSummary>,
 }
 
 impl Report {
@@ -86,6 +88,27 @@ impl Report {
     pub fn add_errors(&mut self, errors: Vec<Finding>) {
         self.valid &= errors.is_empty();
         self.errors.extend(errors);
+    }
+}
+
+/// One check's verdict in one line (`surgvla validate` prints one per check that ran).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LintSummary {
+    pub check: Check,
+    /// "ok", "warning" or "error".
+    pub status: &'static str,
+    pub line: String,
+}
+
+impl std::fmt::Display for LintSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:<20} {:<7} {}",
+            self.check.name(),
+            self.status,
+            self.line
+        )
     }
 }
 
@@ -115,13 +138,25 @@ pub struct FeatureFact {
 /// How thoroughly to check.
 #[derive(Clone, Debug, Default)]
 pub struct ValidateOptions {
-    /// Metadata and one frame per episode instead of every frame.
+    /// Metadata, every row's numbers, and one frame per row group or video file instead of
+    /// every frame.
     pub quick: bool,
     /// Step limit per task id (e.g. "T1-1" -> 100) for the semantic checks of our datasets;
     /// empty: not checked.
     pub step_limits: BTreeMap<String, usize>,
     /// Worker threads for the full pass (0: one per core).
     pub threads: usize,
+    /// Run the quality lint ([`crate::export::lint`]).
+    pub lint: bool,
+    /// A community's contribution guide to check against too.
+    pub profile: Option<Profile>,
+}
+
+/// A contribution guide `validate --profile` checks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Profile {
+    /// Open-H-Embodiment's (LeRobot v2.1 video, features, splits, README, rates).
+    OpenH,
 }
 
 /// Collects findings from checks that may run in parallel, keeping [`FINDINGS_PER_CHECK`] of
@@ -131,6 +166,7 @@ pub struct Findings {
     root: PathBuf,
     inner: Mutex<Collected>,
     facts: Mutex<Facts>,
+    lint: Mutex<Vec<LintSummary>>,
 }
 
 /// Findings as the checks report them (in parallel, in any order): per (check, is_error), the
@@ -176,12 +212,18 @@ impl Findings {
             root: root.to_path_buf(),
             inner: Mutex::new(Collected::default()),
             facts: Mutex::new(Facts::default()),
+            lint: Mutex::new(Vec::new()),
         }
     }
 
     /// Records what the checks learned about the dataset.
     pub fn learn(&self, update: impl FnOnce(&mut Facts)) {
         update(&mut self.facts.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+
+    /// Records a lint check's one-line verdict.
+    pub fn summarise(&self, summary: LintSummary) {
+        (self.lint.lock().unwrap_or_else(|e| e.into_inner())).push(summary);
     }
 
     /// `path` relative to the dataset's root where it is inside it.
@@ -279,6 +321,7 @@ impl Findings {
             path: self.root,
             errors,
             warnings,
+            lint: self.lint.into_inner().unwrap_or_else(|e| e.into_inner()),
         }
     }
 }
@@ -298,9 +341,10 @@ fn disk_bytes(path: &Path) -> u64 {
 }
 
 /// Verifies the manifest `relative` when the dataset has one: every listed file present with
-/// its recorded size and CRC-32C, and no listed path outside the root. Returns whether another
+/// its recorded size and CRC-32C (`quick`: the CRC of the metadata files only, `meta/` and the
+/// root's JSON; the others by size), and no listed path outside the root. Returns whether another
 /// tool rewrote the dataset since (its own metadata changed: the manifest is stale, a warning).
-pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) -> bool {
+pub fn check_manifest(root: &Path, relative: &str, quick: bool, findings: &Findings) -> bool {
     let path = root.join(relative);
     if !path.is_file() {
         return false;
@@ -343,7 +387,13 @@ pub fn check_manifest(root: &Path, relative: &str, findings: &Findings) -> bool 
                 continue;
             }
         };
-        match record.problem(&root.join(listed)) {
+        let metadata = record.path.starts_with("meta/") || !record.path.contains('/');
+        let problem = if quick && !metadata {
+            record.size_problem(&root.join(listed))
+        } else {
+            record.problem(&root.join(listed))
+        };
+        match problem {
             Ok(None) => {}
             Ok(Some(problem)) => changed.push((record.path.clone(), problem)),
             Err(_) => findings.error(

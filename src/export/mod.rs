@@ -35,6 +35,7 @@ pub mod format;
 pub mod identity;
 pub mod info;
 pub mod lerobot;
+pub mod lint;
 pub mod mcap;
 pub mod merge;
 pub mod open;

@@ -15,7 +15,7 @@ use crate::export::check::Check;
 use crate::export::dir::INCOMPLETE_MARKER;
 use crate::export::error::ExportError;
 pub use crate::export::findings::{
-    At, FINDINGS_PER_CHECK, Facts, FeatureFact, Finding, Findings, Report, Semantics,
+    At, FINDINGS_PER_CHECK, Facts, FeatureFact, Finding, Findings, Profile, Report, Semantics,
     ValidateOptions, check_manifest, check_semantics,
 };
 use crate::export::registry::Detected;
@@ -27,6 +27,9 @@ pub fn validate(path: &Path, options: &ValidateOptions) -> Result<Report, Export
     let findings = Findings::new(&found.root);
     let pool = crate::threads::pool(options.threads)?;
     let counts = pool.install(|| format.check(&found, options, &findings));
+    if options.profile == Some(crate::export::findings::Profile::OpenH) {
+        crate::export::lerobot::openh::check(&found.root, found.layout, &findings);
+    }
     // The card sits in the dataset's folder (above an RLDS version folder, none for one file).
     if let Some(folder) = format.card_folder(&found) {
         crate::export::card::check(folder, counts.episodes, counts.frames, &findings);

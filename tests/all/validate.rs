@@ -814,6 +814,195 @@ fn validate_and_info_exit_codes_and_json() {
     );
 }
 
+/// The quality lint: on by default in the CLI (one summary line per check, in `--json` too),
+/// off with `--no-lint`; `--fail-on warning` gates on warnings; planted defects (a gripper out
+/// of its range, actions recorded two frames late, a blank camera) are each an error of their
+/// own check, naming episode and frame.
+#[test]
+fn the_lint_reports_per_check_and_finds_planted_defects() {
+    let c = corpus();
+    let (code, out, err) = surgvla(&["validate", path(&c.lerobot), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+    let lint = json["lint"].as_array().expect("lint");
+    assert!(lint.len() >= 20, "{lint:?}");
+    assert!(lint.iter().all(|l| l["status"] != "error"), "{lint:?}");
+    // Two episodes shorter than ACT's chunk: one warning for the dataset, not one per episode.
+    let chunk: Vec<&serde_json::Value> = (json["warnings"].as_array().expect("warnings").iter())
+        .filter(|w| w["check"] == "chunk-length")
+        .collect();
+    assert_eq!(chunk.len(), 1, "{chunk:?}");
+    let (code, _, err) = surgvla(&["validate", path(&c.lerobot), "--fail-on", "warning"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("--fail-on warning"), "{err}");
+    let (code, out, err) = surgvla(&["validate", path(&c.lerobot), "--no-lint", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+    assert_eq!(json["lint"], serde_json::json!([]));
+    let (code, out, _) = surgvla(&["validate", path(&c.lerobot)]);
+    assert_eq!(code, 0);
+    assert!(out.contains("lint:") && out.contains("action-lag"), "{out}");
+    let lint = ValidateOptions {
+        lint: true,
+        ..ValidateOptions::default()
+    };
+    let data = |root: &Path| root.join("data/chunk-000/file-000.parquet");
+    let (copy, _) = broken(&c.lerobot, |root| {
+        rewrite_parquet(&data(root), |batch| {
+            let column = map_vectors(&batch, "action", |row, v| {
+                if row == 3 {
+                    v[6] = 1.5;
+                }
+            });
+            with_column(batch, "action", column)
+        });
+    });
+    let report = validate(&copy, &lint).expect("validate");
+    let found: Vec<_> = (report.errors.iter())
+        .filter(|f| f.check == "gripper-range")
+        .collect();
+    assert_eq!(found.len(), 1, "{:#?}", report.errors);
+    assert_eq!((found[0].episode, found[0].frame), (Some(0), Some(3)));
+    let (copy, _) = broken(&c.lerobot, |root| {
+        rewrite_parquet(&data(root), |batch| {
+            let episodes = ints(&batch, "episode_index");
+            let original = map_vectors(&batch, "action", |_, _| {});
+            let list = original
+                .as_any()
+                .downcast_ref::<FixedSizeListArray>()
+                .expect("list");
+            let values = list
+                .values()
+                .as_any()
+                .downcast_ref::<Float32Array>()
+                .expect("f32");
+            let rows: Vec<Vec<f32>> = (0..list.len())
+                .map(|r| values.values()[r * 7..r * 7 + 7].to_vec())
+                .collect();
+            // Each action recorded two frames late.
+            let column = map_vectors(&batch, "action", |row, v| {
+                if row >= 2 && episodes[row - 2] == episodes[row] {
+                    v.copy_from_slice(&rows[row - 2]);
+                }
+            });
+            with_column(batch, "action", column)
+        });
+    });
+    let report = validate(&copy, &lint).expect("validate");
+    let lag: Vec<_> = (report.errors.iter())
+        .filter(|f| f.check == "action-lag")
+        .collect();
+    assert_eq!(lag.len(), 1, "{:#?}", report.errors);
+    assert!(
+        lag[0].message.contains("lags the state by 2 frames"),
+        "{}",
+        lag[0].message
+    );
+    let (copy, _) = broken(&c.lerobot, |root| {
+        rewrite_parquet(&data(root), |batch| {
+            let black = black_png(224, 224);
+            let episodes = ints(&batch, "episode_index");
+            let mut batch = batch;
+            for row in (0..batch.num_rows()).filter(|&r| episodes[r] == 1) {
+                let column =
+                    replace_image(&batch, "observation.images.endoscope", row, black.clone());
+                batch = with_column(batch, "observation.images.endoscope", column);
+            }
+            batch
+        });
+    });
+    let report = validate(&copy, &lint).expect("validate");
+    assert!(
+        (report.errors.iter())
+            .any(|f| f.check == "blank-camera" && (f.episode, f.frame) == (Some(1), Some(0))),
+        "{:#?}",
+        report.errors
+    );
+}
+
+/// `--profile open-h`: a v3.0 dataset is refused (Open-H takes v2.1); a v2.1 image-mode one
+/// lacks the videos and the README with its synchronisation section (errors, as Open-H's
+/// validator has them) and warns of its 5 Hz and 224 px.
+#[test]
+fn the_open_h_profile_checks_the_contribution_guide() {
+    let c = corpus();
+    let (code, out, _) = surgvla(&[
+        "validate",
+        path(&c.lerobot),
+        "--profile",
+        "open-h",
+        "--json",
+    ]);
+    assert_eq!(code, 1);
+    let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+    let messages = |json: &serde_json::Value, kind: &str| -> Vec<String> {
+        (json[kind].as_array().expect("findings").iter())
+            .filter(|f| f["check"] == "profile")
+            .map(|f| f["message"].as_str().unwrap_or_default().to_string())
+            .collect()
+    };
+    assert!(
+        (messages(&json, "errors").iter()).any(|m| m.contains("takes LeRobot v2.1")),
+        "{json}"
+    );
+    let (code, out, _) = surgvla(&[
+        "validate",
+        path(&c.lerobot21),
+        "--profile",
+        "open-h",
+        "--json",
+    ]);
+    assert_eq!(code, 1);
+    let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+    let errors = messages(&json, "errors");
+    assert!(errors.iter().any(|m| m.contains("template")), "{errors:?}");
+    assert!(
+        errors.iter().any(|m| m.contains("stores cameras as video")),
+        "{errors:?}"
+    );
+    let warnings = messages(&json, "warnings");
+    assert!(
+        warnings
+            .iter()
+            .any(|m| m.contains("below the guide's 20 Hz")),
+        "{warnings:?}"
+    );
+    assert!(
+        warnings
+            .iter()
+            .any(|m| m.contains("below the guide's 480p")),
+        "{warnings:?}"
+    );
+    // With its README documenting synchronisation, that error goes.
+    let (copy, _) = broken(&c.lerobot21, |root| {
+        std::fs::write(
+            root.join("meta/README.md"),
+            "# Data\n\n## Synchronization\n\nBy timestamp.\n",
+        )
+        .expect("readme");
+    });
+    let (_, out, _) = surgvla(&["validate", path(&copy), "--profile", "open-h", "--json"]);
+    let json: serde_json::Value = serde_json::from_str(&out).expect("json");
+    let errors: Vec<&serde_json::Value> = (json["errors"].as_array().expect("errors").iter())
+        .filter(|f| f["check"] == "profile")
+        .collect();
+    assert_eq!(errors.len(), 1, "{errors:?}");
+}
+
+/// A black RGB PNG.
+fn black_png(width: u32, height: u32) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut bytes, width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().expect("header");
+    writer
+        .write_image_data(&vec![0u8; (width * height * 3) as usize])
+        .expect("pixels");
+    writer.finish().expect("finish");
+    bytes
+}
+
 /// Seeded random corruption (flipped bytes, truncations, deletions) of each format's files:
 /// validation must finish with a report, never panic.
 #[test]

@@ -26,6 +26,8 @@ pub(crate) fn run_info(args: &InfoArgs) -> Result<(), CliError> {
         quick: true,
         step_limits: step_limits(),
         threads: 0,
+        lint: false,
+        profile: None,
     };
     let report = validate(&args.path, &options)?;
     if let Some(plot) = &args.plot {

@@ -20,7 +20,8 @@ pub(crate) struct ValidateArgs {
     /// {"valid": false, "format": null, "error": "why", "errors": [], "warnings": []}.
     #[arg(long)]
     pub json: bool,
-    /// Metadata and one frame per episode instead of every frame.
+    /// Metadata, every row's numbers, and one frame per row group or video file instead of
+    /// every frame.
     #[arg(long)]
     pub quick: bool,
     /// Also re-simulate every episode from its recorded seed, replay its actions and confirm
@@ -30,6 +31,39 @@ pub(crate) struct ValidateArgs {
     /// Worker threads for the full pass (0: one per core; at most 8 per core).
     #[arg(long, default_value_t = 0, value_parser = crate::threads_arg)]
     pub threads: usize,
+    /// Judge whether the data is any good to train on (the default): frozen or jumping
+    /// actions, outliers, state/action lag, quaternions, units, gripper range, episode lengths
+    /// against action chunks, instructions, splits; with every frame decoded (not --quick),
+    /// blank, frozen and swapped cameras. docs/validate.md lists the checks and thresholds.
+    #[arg(long, overrides_with = "no_lint")]
+    pub lint: bool,
+    /// Skip the quality lint: the format's checks only.
+    #[arg(long, overrides_with = "lint")]
+    pub no_lint: bool,
+    /// Also check a community's contribution guide: open-h (Open-H-Embodiment: LeRobot v2.1
+    /// video, action and observation.state, observation.images.* cameras, splits, >= 20 Hz and
+    /// 480p, meta/README.md with a synchronisation section), every frame decoded.
+    #[arg(long, value_enum)]
+    pub profile: Option<ProfileArg>,
+    /// What makes the exit code 1: an error (the default), or a warning too (a CI gate).
+    #[arg(long, value_enum, default_value_t = FailOn::Error)]
+    pub fail_on: FailOn,
+}
+
+/// A contribution guide to check against.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ProfileArg {
+    /// Open-H-Embodiment's.
+    OpenH,
+}
+
+/// What fails `validate`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum FailOn {
+    /// Errors: data a trainer would mis-learn from, or that does not read.
+    Error,
+    /// Errors and warnings.
+    Warning,
 }
 
 pub(crate) fn step_limits() -> std::collections::BTreeMap<String, usize> {
@@ -48,6 +82,10 @@ pub(crate) fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
         quick: args.quick,
         step_limits: step_limits(),
         threads: args.threads,
+        lint: !args.no_lint,
+        profile: args.profile.map(|p| match p {
+            ProfileArg::OpenH => surgvla::export::validate::Profile::OpenH,
+        }),
     };
     let mut report = match validate(&args.path, &options) {
         Ok(report) => report,
@@ -92,6 +130,14 @@ pub(crate) fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
     } else {
         print_report(&report)?;
     }
+    if report.valid && args.fail_on == FailOn::Warning && !report.warnings.is_empty() {
+        return Err(CliError::invalid(format!(
+            "{} has {} warning{} (--fail-on warning)",
+            place(&report.path),
+            report.warnings.len(),
+            if report.warnings.len() == 1 { "" } else { "s" }
+        )));
+    }
     if report.valid {
         Ok(())
     } else {
@@ -123,6 +169,12 @@ fn print_report(report: &Report) -> Result<(), CliError> {
                 "... {} more {label}s (--json lists them all)",
                 findings.len() - PRINTED_FINDINGS
             );
+        }
+    }
+    if !report.lint.is_empty() {
+        say!("lint:");
+        for summary in &report.lint {
+            say!("  {summary}");
         }
     }
     Ok(())

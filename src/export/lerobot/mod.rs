@@ -21,6 +21,7 @@ mod format;
 mod layout;
 pub mod merge;
 pub mod meta;
+pub mod openh;
 mod options;
 mod parts;
 pub mod read;

@@ -474,9 +474,7 @@ impl LeRobotFiles {
         frames: &[Vec<EncodedFrame>],
     ) -> Result<Vec<KeyedSpan>, ExportError> {
         let from = self.ready_videos(dir, info)?;
-        for (video, frames) in self.videos.iter_mut().zip(frames) {
-            video.mp4.append(frames)?;
-        }
+        self.append_video_packets(frames)?;
         Ok(self.video_spans(&from))
     }
 

@@ -310,7 +310,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
     let files: Vec<PathBuf> = if root.is_file() {
         vec![root.to_path_buf()]
     } else {
-        check_manifest(root, super::writer::MANIFEST, findings);
+        check_manifest(root, super::writer::MANIFEST, options.quick, findings);
         let mut files: Vec<PathBuf> = std::fs::read_dir(root)
             .into_iter()
             .flatten()

@@ -14,7 +14,7 @@ use std::path::Path;
 pub fn check(
     root: &Path,
     extension: &str,
-    _options: &ValidateOptions,
+    options: &ValidateOptions,
     findings: &Findings,
 ) -> (u64, u64) {
     match read_json(&root.join(super::files::SURGVLA_JSON)) {
@@ -44,7 +44,7 @@ pub fn check(
             "is missing or not JSON",
         ),
     }
-    check_manifest(root, super::files::MANIFEST, findings);
+    check_manifest(root, super::files::MANIFEST, options.quick, findings);
     let episodes = crate::export::bounded::read_metadata(&root.join(super::files::EPISODES));
     let stated = match episodes.map(|bytes| String::from_utf8_lossy(&bytes).into_owned()) {
         Ok(text) => text,

@@ -131,7 +131,7 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
     if let Some(data_dir) = root.parent().and_then(Path::parent) {
         let manifest = data_dir.join(super::options::MANIFEST);
         if manifest.is_file() {
-            check_manifest(data_dir, super::options::MANIFEST, findings);
+            check_manifest(data_dir, super::options::MANIFEST, options.quick, findings);
         }
     }
     // Shards: the ones dataset_info.json names, and any other tfrecord file here.

@@ -31,13 +31,15 @@ fn problem(frame: Option<u64>, error: &MediaError) -> DecodeProblem {
 /// or only the first when `quick`, and checks each is `size_px` (width, height); with `means`,
 /// also returns the decoded RGB frames' mean per channel (0..1) when every picture decoded.
 /// `video` is a reader whose tables are shared ([`VideoReader::reopen`]): one per file, however
-/// many episodes it holds. The first failure ends the pass.
+/// many episodes it holds. `on_picture` sees each decoded picture in presentation order. The
+/// first failure ends the pass.
 pub fn check_span(
     video: &VideoReader,
     span: Option<(f64, f64)>,
     size_px: (usize, usize),
     quick: bool,
     means: bool,
+    on_picture: &mut dyn FnMut(&super::YuvFrame),
 ) -> (Vec<DecodeProblem>, Option<[f64; 3]>) {
     let mut reader = match video.reopen() {
         Ok(reader) => reader,
@@ -81,6 +83,7 @@ pub fn check_span(
                 }
                 pixels += (rgb.len() / 3) as u64;
             }
+            on_picture(&picture);
             frame += 1;
             Ok(())
         },
@@ -105,7 +108,7 @@ mod tests {
             .join("tests/fixtures/video")
             .join(name);
         let video = VideoReader::open(&path).expect("open");
-        check_span(&video, None, size_px, quick, false).0
+        check_span(&video, None, size_px, quick, false, &mut |_| {}).0
     }
 
     #[test]

@@ -10,6 +10,7 @@ use crate::export::bounded::read_json;
 use crate::export::check::Check;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
+use crate::export::lint::cameras::{CameraFrames, FrameLook};
 use crate::export::paths::{self, Field};
 use crate::media::demux::VideoReader;
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
@@ -591,7 +592,7 @@ fn episode_video(
 /// Every video feature's files and episode spans: through the MP4 sample tables, each file
 /// readable with its samples inside it, in the declared codec and frame size, and each
 /// episode's span holding exactly its frames and starting on a keyframe (v2.1: each episode's
-/// file holds its frames); then each span decoded (its first frame only when `quick`), one
+/// file holds its frames); then each span decoded (`quick`: each file's first frame only), one
 /// episode per worker: every sample decodes, to the declared frame size. A codec or profile
 /// surgvla does not decode is a warning.
 pub(super) fn check_videos(
@@ -600,9 +601,9 @@ pub(super) fn check_videos(
     info: &crate::export::lerobot::meta::InfoJson,
     features: &[Declared],
     entries: &[EpisodeEntry],
-    (quick, as_written): (bool, bool),
+    (quick, as_written, lint): (bool, bool, bool),
     findings: &Findings,
-) {
+) -> Vec<CameraFrames> {
     let chunks_size = info.chunks_size.unwrap_or(1000).max(1) as i64;
     let declared: BTreeMap<String, crate::export::lerobot::meta::FeatureJson> =
         info.feature_list().into_iter().collect();
@@ -645,8 +646,12 @@ pub(super) fn check_videos(
                     }
                     let length = entry.length;
                     check_episode_span(&at, reader, (span, length), as_written, findings);
-                    if let Some(size_px) = size_px {
+                    // Quick: each file's first frame (as lerobot-doctor opens), the spans of
+                    // every episode checked above through the sample tables.
+                    if let Some(size_px) = size_px.filter(|_| fresh || !quick) {
                         spans.push(SpanToDecode {
+                            key: key.clone(),
+                            channels: feature.shape.get(2).copied().unwrap_or(3),
                             video: Arc::clone(reader),
                             file: at.file.clone().unwrap_or_default(),
                             episode: i as u64,
@@ -669,11 +674,15 @@ pub(super) fn check_videos(
             }
         }
     }
-    decode_spans(&spans, quick, findings);
+    decode_spans(&spans, (quick, lint), findings)
 }
 
 /// An episode's span of a video file, for [`decode_spans`].
 struct SpanToDecode {
+    /// The video feature.
+    key: String,
+    /// Its declared channels.
+    channels: usize,
     /// The file's reader, its tables shared by every episode in it.
     video: Arc<VideoReader>,
     /// The file as findings name it (relative to the dataset).
@@ -711,12 +720,20 @@ fn stored_mean(value: &serde_json::Value) -> Option<[f64; 3]> {
 
 /// Decodes each episode's span (the first frame only when `quick`), in parallel: a sample that
 /// does not decode, or decodes to another size than declared, is a finding naming the file,
-/// episode and frame; what surgvla cannot decode (a profile) is a warning, once per file.
-fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
+/// episode and frame; what surgvla cannot decode (a profile) is a warning, once per file. With
+/// `lint` (and not `quick`), returns the lint's look at every decoded frame (its luma).
+fn decode_spans(
+    spans: &[SpanToDecode],
+    (quick, lint): (bool, bool),
+    findings: &Findings,
+) -> Vec<CameraFrames> {
     use rayon::prelude::*;
     let warned = std::sync::Mutex::new(std::collections::BTreeSet::new());
-    spans.par_iter().for_each(|to_decode| {
+    let lint = lint && !quick;
+    spans.par_iter().map(|to_decode| {
         let SpanToDecode {
+            key,
+            channels,
             video,
             file,
             episode,
@@ -724,13 +741,21 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
             size_px,
             stored_mean,
         } = to_decode;
+        let mut looks = Vec::new();
         {
+            let mut look = |picture: &crate::media::decode::YuvFrame| {
+                if lint && !crate::export::lint::cameras::is_mask(key) {
+                    let (w, h) = (picture.width_px as usize, picture.height_px as usize);
+                    looks.push(FrameLook::of(looks.len() as u64, w, h, 1, &picture.y));
+                }
+            };
             let (problems, decoded_mean) = crate::media::decode::check::check_span(
                 video,
                 *span,
                 *size_px,
                 quick,
                 stored_mean.is_some() && !quick,
+                &mut look,
             );
             if let (Some(stored), Some(decoded)) = (stored_mean, decoded_mean)
                 && stored
@@ -768,7 +793,15 @@ fn decode_spans(spans: &[SpanToDecode], quick: bool, findings: &Findings) {
                 }
             }
         }
-    });
+        CameraFrames {
+            episode: *episode,
+            camera: key.clone(),
+            shape: (size_px.0, size_px.1, *channels),
+            frames: looks,
+        }
+    })
+    .filter(|camera| !camera.frames.is_empty())
+    .collect()
 }
 
 /// info.json's `data_path` and `video_path` templates: only the placeholders of their version,

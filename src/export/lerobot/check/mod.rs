@@ -25,6 +25,7 @@ use serde_json::Value;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
+mod lint;
 mod meta;
 
 mod parts;
@@ -63,7 +64,7 @@ pub fn check(root: &Path, v21: bool, options: &ValidateOptions, findings: &Findi
     });
     let surgvla = check_our_metadata(root, findings);
     let semantics = Semantics::of(&surgvla, options);
-    let rewritten = check_manifest(root, crate::export::dir::MANIFEST, findings);
+    let rewritten = check_manifest(root, crate::export::dir::MANIFEST, options.quick, findings);
     // As surgvla wrote it: what our writer always writes is required.
     let as_written = !surgvla.is_null() && !rewritten;
     let tasks = read_tasks(root, v21, findings);
@@ -92,18 +93,29 @@ pub fn check(root: &Path, v21: bool, options: &ValidateOptions, findings: &Findi
         findings,
         info_known,
         as_written,
+        lint: options.lint,
     };
-    let (episodes, frames, parts) = check_data_files(&context, &files, &info, v21);
+    let (episodes, frames, mut parts) = check_data_files(&context, &files, &info, v21);
     check_stats(root, &features, &parts, as_written, findings);
-    check_videos(
+    let videos = check_videos(
         root,
         v21,
         &info,
         &features,
         &entries,
-        (options.quick, as_written),
+        (options.quick, as_written, options.lint),
         findings,
     );
+    if options.lint {
+        let known = lint::Known {
+            info: &info,
+            features: &features,
+            tasks: &tasks,
+            entries: &entries,
+            semantics: semantics.as_ref(),
+        };
+        lint::lint(&known, &mut parts, videos, findings);
+    }
     (episodes, frames)
 }
 

@@ -3,6 +3,8 @@
 
 use crate::export::check::Check;
 use crate::export::findings::{Findings, Semantics};
+use crate::export::lint::EpisodeSeries;
+use crate::export::lint::cameras::FrameLook;
 use arrow_array::RecordBatch;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -63,7 +65,17 @@ pub(super) struct Part {
     pub(super) runs: Vec<Run>,
     pub(super) rows: u64,
     pub(super) moments: BTreeMap<String, Moments>,
+    /// The lint's series of the row group's episodes (lint on).
+    pub(super) series: BTreeMap<i64, EpisodeSeries>,
+    /// The lint's look at each decoded image: (episode, feature, (w, h, c), look).
+    pub(super) looks: Vec<ImageLook>,
 }
+
+/// The lint's look at one decoded image: (episode, feature, (w, h, c), look).
+pub(super) type ImageLook = (i64, String, (usize, usize, usize), FrameLook);
+
+/// Numeric features with more values than this per frame are not linted.
+pub(super) const LINT_MAX_DIMS: usize = 64;
 
 /// Reads every batch of a parquet file, or names the file in a finding.
 pub(super) fn read_table(path: &Path, findings: &Findings) -> Option<Vec<RecordBatch>> {
@@ -95,6 +107,8 @@ pub(super) struct Context<'a> {
     /// A dataset surgvla wrote, unedited since (see `check_manifest`): what our writer always
     /// writes is required.
     pub(super) as_written: bool,
+    /// Gather what the quality lint judges.
+    pub(super) lint: bool,
 }
 
 /// The columns every LeRobot frame has besides its features.

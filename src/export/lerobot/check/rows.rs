@@ -2,10 +2,14 @@
 //! indices, timestamps, task indices, finite numbers, decodable images of the declared size and
 //! channels, and the semantic checks of our datasets per episode.
 
-use super::parts::{Context, Declared, Part, Run, TIMESTAMP_TOLERANCE_SECS, is_index_column};
+use super::parts::{
+    Context, Declared, ImageLook, LINT_MAX_DIMS, Part, Run, TIMESTAMP_TOLERANCE_SECS,
+    is_index_column,
+};
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
 use crate::export::check::Check;
 use crate::export::findings::{At, Semantics, check_semantics};
+use crate::export::lint::cameras::FrameLook;
 use crate::media::image::{decode_png, png_size};
 use crate::media::tiff::decode_f32_tiff;
 use arrow_array::{
@@ -75,7 +79,9 @@ impl Context<'_> {
             let reader = self.row_group_reader(path, metadata, group, Some(projection), true);
             for batch in reader.into_iter().flatten() {
                 match batch {
-                    Ok(batch) => self.check_first_images(&batch, &file),
+                    Ok(batch) => {
+                        self.check_first_images(&batch, &file);
+                    }
                     Err(problem) => self.findings.error(
                         At::file(file.clone()),
                         Check::Readable,
@@ -131,7 +137,7 @@ impl Context<'_> {
     }
 
     /// Quick: the images of a row group's first row (`batch`: its image and index columns).
-    fn check_first_images(&self, batch: &RecordBatch, file: &str) {
+    fn check_first_images(&self, batch: &RecordBatch, file: &str) -> Vec<ImageLook> {
         let ints = |name: &str| -> Vec<i64> {
             (batch.column_by_name(name))
                 .and_then(|c| c.as_any().downcast_ref::<Int64Array>())
@@ -139,11 +145,13 @@ impl Context<'_> {
                 .unwrap_or_else(|| vec![0; batch.num_rows()])
         };
         let (episode, frame) = (ints("episode_index"), ints("frame_index"));
+        let mut looks = Vec::new();
         for feature in self.features.iter().filter(|f| f.dtype == "image") {
             if let Some(column) = batch.column_by_name(&feature.name) {
-                self.check_images(feature, column.as_ref(), &episode, &frame, file);
+                looks.extend(self.check_images(feature, column.as_ref(), &episode, &frame, file));
             }
         }
+        looks
     }
 
     /// The columns are exactly the declared features (video features live in MP4 files).
@@ -229,6 +237,18 @@ impl Context<'_> {
             timestamp: timestamp.as_deref(),
         };
         self.check_row_order(&columns, file, part);
+        if self.lint {
+            for row in 0..index.len() {
+                let series = part.series.entry(episode[row]).or_default();
+                series.episode = episode[row].max(0) as u64;
+                if series.task.is_none() {
+                    series.task = task.as_ref().map(|t| t[row]);
+                }
+                if let Some(timestamp) = &timestamp {
+                    series.timestamps_secs.push(timestamp[row]);
+                }
+            }
+        }
         part.rows += batch.num_rows() as u64;
         let judged = self.semantics.is_some() && !self.quick;
         let mut steps: Vec<Step> = if judged {
@@ -244,7 +264,10 @@ impl Context<'_> {
                 "float32" | "float64" => {
                     self.float_feature(feature, column.as_ref(), &columns, file, part, &mut steps);
                 }
-                "image" => self.check_images(feature, column.as_ref(), &episode, &frame, file),
+                "image" => {
+                    let looks = self.check_images(feature, column.as_ref(), &episode, &frame, file);
+                    part.looks.extend(looks);
+                }
                 _ => {}
             }
         }
@@ -339,6 +362,28 @@ impl Context<'_> {
             return;
         };
         let n = feature.elements();
+        if self.lint && n <= LINT_MAX_DIMS {
+            // Row by row into each episode's series, looked up once per run of its rows.
+            let mut row = 0;
+            while row < columns.episode.len() {
+                let episode = columns.episode[row];
+                let end = (row..columns.episode.len())
+                    .find(|&r| columns.episode[r] != episode)
+                    .unwrap_or(columns.episode.len());
+                let series = part.series.entry(episode).or_default();
+                if !series.features.contains_key(&feature.name) {
+                    series
+                        .features
+                        .insert(feature.name.clone(), Default::default());
+                }
+                if let Some(into) = series.features.get_mut(&feature.name) {
+                    into.dims = n;
+                    let chunk = values.get(row * n..end * n).unwrap_or_default();
+                    into.values.extend(chunk.iter().map(|v| *v as f32));
+                }
+                row = end;
+            }
+        }
         let moments = part
             .moments
             .entry(feature.name.clone())
@@ -380,10 +425,11 @@ impl Context<'_> {
         episode: &[i64],
         frame: &[i64],
         file: &str,
-    ) {
+    ) -> Vec<ImageLook> {
         let findings = self.findings;
+        let mut looks = Vec::new();
         let Some(images) = column.as_any().downcast_ref::<StructArray>() else {
-            return;
+            return looks;
         };
         let bytes = images.column_by_name("bytes");
         let binary = bytes.and_then(|b| b.as_any().downcast_ref::<BinaryArray>());
@@ -393,6 +439,9 @@ impl Context<'_> {
             feature.shape.get(1).copied().unwrap_or(0),
         );
         let channels = feature.shape.get(2).copied().unwrap_or(1);
+        // The lint looks at cameras in the full pass (a segmentation mask is not one).
+        let looked =
+            self.lint && !self.quick && !crate::export::lint::cameras::is_mask(&feature.name);
         for row in 0..images.len() {
             let at = || {
                 At::file(file)
@@ -414,12 +463,13 @@ impl Context<'_> {
                 );
                 continue;
             };
-            // A size other than the declared one is known from the header: nothing is decoded.
-            let header = png_size(encoded).filter(|size| *size != (width, height));
-            let decoded = match header {
-                Some((w, h)) => Ok(Some((w, h, channels))),
-                None => decoded_size(encoded),
-            };
+            let decoded = self.decode_image(encoded, (width, height, channels), frame[row], looked);
+            let decoded = decoded.map(|(size, look)| {
+                if let (Some(size), Some(look)) = (size, look) {
+                    looks.push((episode[row], feature.name.clone(), size, look));
+                }
+                size
+            });
             let (w, h, c) = match decoded {
                 Ok(Some(size)) => size,
                 Ok(None) => continue,
@@ -455,6 +505,29 @@ impl Context<'_> {
                 );
             }
         }
+        looks
+    }
+
+    /// An encoded image's decoded size and, with the lint (full pass), its look. A size other
+    /// than the declared one is known from the PNG header: nothing is decoded.
+    #[allow(clippy::type_complexity)]
+    fn decode_image(
+        &self,
+        encoded: &[u8],
+        (width, height, channels): (usize, usize, usize),
+        frame: i64,
+        looked: bool,
+    ) -> Result<(Option<(usize, usize, usize)>, Option<FrameLook>), String> {
+        if let Some((w, h)) = png_size(encoded).filter(|size| *size != (width, height)) {
+            return Ok((Some((w, h, channels)), None));
+        }
+        if looked && encoded.starts_with(b"\x89PNG") {
+            return decoded_look(encoded, frame).map(|looked| match looked {
+                Some((size, look)) => (Some(size), Some(look)),
+                None => (None, None),
+            });
+        }
+        decoded_size(encoded).map(|size| (size, None))
     }
 
     /// Groups rows into episodes and runs the shared semantic checks.
@@ -593,6 +666,28 @@ struct IndexColumns<'a> {
     frame: &'a [i64],
     task: Option<&'a [i64]>,
     timestamp: Option<&'a [f64]>,
+}
+
+/// A decoded image's (width, height, channels) and the lint's look at it.
+type Looked = ((usize, usize, usize), FrameLook);
+
+/// A PNG's decoded size, as [`decoded_size`], with the lint's look at its pixels (8-bit: its
+/// channels; 16-bit: the high bytes).
+fn decoded_look(encoded: &[u8], frame: i64) -> Result<Option<Looked>, String> {
+    let frame = frame.max(0) as u64;
+    match decode_png(encoded) {
+        Ok((w, h, c, pixels)) => {
+            let (w, h) = (w as usize, h as usize);
+            Ok(Some(((w, h, c), FrameLook::of(frame, w, h, c, &pixels))))
+        }
+        Err(e) => crate::media::image::decode_png16(encoded)
+            .map(|(w, h, values)| {
+                let (w, h) = (w as usize, h as usize);
+                let high: Vec<u8> = values.iter().map(|v| (v >> 8) as u8).collect();
+                Some(((w, h, 1), FrameLook::of(frame, w, h, 1, &high)))
+            })
+            .map_err(|_| e),
+    }
 }
 
 /// An encoded image's (width, height, channels) once decoded: PNG (8 or 16 bit) or a float32
