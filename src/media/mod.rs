@@ -1,6 +1,8 @@
 //! Media codecs: the bytes of one image or one video stream, below any dataset.
 //!
 //! - [`image`]: 8-bit and 16-bit PNG, baseline JPEG, and reading them back.
+//! - [`png_rows`]: a PNG checked and inflated to its filtered rows, unfiltered on demand
+//!   (validate's full pass).
 //! - [`tiff`]: float32 grey TIFF (depth in metres, as LeRobot stores it).
 //! - [`video`]: AV1 (rav1e) and H.264 (openh264) encoding, and the MP4 muxer.
 //! - [`demux`]: an MP4 file's video samples read back without decoding (re_mp4), bounded first
@@ -15,6 +17,7 @@ pub mod decode;
 pub mod demux;
 pub mod image;
 pub(crate) mod mp4scan;
+pub mod png_rows;
 
 pub use mp4scan::in_quiet_parse;
 pub mod tiff;

@@ -66,14 +66,30 @@ pub fn encode_f32_tiff_into(out: &mut Vec<u8>, width: u32, height: u32, pixels: 
 
 /// Decodes what [`encode_f32_tiff`] writes (our own round trip; the real reader is Pillow).
 pub fn decode_f32_tiff(bytes: &[u8]) -> Option<(u32, u32, Vec<f32>)> {
+    let (width, height, data) = f32_tiff_layout(bytes)?;
+    let pixels = data
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Some((width, height, pixels))
+}
+
+/// A float32 grey TIFF's (width, height) when [`decode_f32_tiff`] would decode it, without
+/// converting its samples (validate's size check).
+pub fn f32_tiff_size(bytes: &[u8]) -> Option<(u32, u32)> {
+    f32_tiff_layout(bytes).map(|(width, height, _)| (width, height))
+}
+
+/// (width, height, the samples' bytes) of a little-endian float32 grey TIFF in one strip.
+fn f32_tiff_layout(bytes: &[u8]) -> Option<(u32, u32, &[u8])> {
     let u16_at = |o: usize| {
         bytes
-            .get(o..o + 2)
+            .get(o..o.checked_add(2)?)
             .map(|b| u16::from_le_bytes([b[0], b[1]]))
     };
     let u32_at = |o: usize| {
         bytes
-            .get(o..o + 4)
+            .get(o..o.checked_add(4)?)
             .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     };
     if bytes.get(0..4)? != b"II*\0" {
@@ -101,15 +117,12 @@ pub fn decode_f32_tiff(bytes: &[u8]) -> Option<(u32, u32, Vec<f32>)> {
             _ => {}
         }
     }
-    if bits != 32 || format != 3 || length != (width * height * 4) as usize {
+    let samples_len = u64::from(width) * u64::from(height) * 4;
+    if bits != 32 || format != 3 || length as u64 != samples_len {
         return None;
     }
-    let data = bytes.get(offset..offset + length)?;
-    let pixels = data
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    Some((width, height, pixels))
+    let data = bytes.get(offset..offset.checked_add(length)?)?;
+    Some((width, height, data))
 }
 
 #[cfg(test)]
@@ -128,5 +141,12 @@ mod tests {
         );
         assert!(decode_f32_tiff(b"not a tiff").is_none());
         assert!(decode_f32_tiff(&bytes[..bytes.len() - 1]).is_none());
+        assert_eq!(f32_tiff_size(&bytes), Some((4, 3)));
+        assert_eq!(f32_tiff_size(&bytes[..bytes.len() - 1]), None);
+        // A claimed size whose byte count overflows 32 bits is refused, not wrapped.
+        let mut huge = bytes.clone();
+        let width_value = 8 + 2 + 8; // the first entry (width) holds its value at byte 8
+        huge[width_value..width_value + 4].copy_from_slice(&0x4000_0001u32.to_le_bytes());
+        assert_eq!(f32_tiff_size(&huge), None);
     }
 }

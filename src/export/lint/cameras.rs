@@ -2,7 +2,8 @@
 //! and spread, a hash of its pixels and an 8 x 8 thumbnail): blank frames (black, or one
 //! colour), a camera frozen while the robot moves (the same picture frame after frame), and two
 //! cameras of one shape swapped within an episode. Only where frames are decoded (the full
-//! pass): lerobot-doctor decodes none. Segmentation masks (`*mask*`, `*segment*`) are
+//! pass): lerobot-doctor decodes none. Video frames are all looked at; PNG frames as
+//! [`LOOK_EVERY`] says. Segmentation masks (`*mask*`, `*segment*`) are
 //! mostly background by nature and are not judged.
 
 use super::series::{EpisodeSeries, Lint, LintDataset};
@@ -19,6 +20,11 @@ pub const FROZEN_FRAMES: usize = 3;
 pub const SWAP_FACTOR: f64 = 0.5;
 /// Pixels sampled for the spread and thumbnail: every this many, across and down.
 const SAMPLE_STEP: usize = 2;
+/// PNG frames are all hashed (from their filtered rows), and their pixels looked at where a
+/// check needs them: every frame that could be blank ([`could_be_blank`]), every frame that
+/// repeats the one before it, and, where a camera has another of its shape it could be swapped
+/// with, every this many frames. Unfiltering the rest would be most of the full pass's cost.
+pub const LOOK_EVERY: u64 = 4;
 /// The thumbnail's side, in blocks.
 const THUMB_SIDE: usize = 8;
 
@@ -26,10 +32,12 @@ const THUMB_SIDE: usize = 8;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameLook {
     pub frame: u64,
+    /// Whether the pixels were looked at: the grey levels and thumbnail are known.
+    pub seen: bool,
     /// Grey level (0..255): mean and standard deviation.
     pub mean: f32,
     pub std: f32,
-    /// A hash of the pixels: equal pictures, equal hashes.
+    /// A hash of the pixels (of a PNG's filtered rows): equal pictures, equal hashes.
     pub hash: u64,
     /// Mean grey level of each of 8 x 8 blocks.
     pub thumb: [u8; THUMB_SIDE * THUMB_SIDE],
@@ -39,6 +47,28 @@ impl FrameLook {
     /// The look of a frame of `width` x `height` pixels of `channels` interleaved 8-bit
     /// channels (grey is their mean).
     pub fn of(frame: u64, width: usize, height: usize, channels: usize, pixels: &[u8]) -> Self {
+        Self::of_hashed(frame, (width, height, channels), pixels, hash(pixels))
+    }
+
+    /// A frame known by its hash only (its pixels not looked at).
+    pub fn unseen(frame: u64, hash: u64) -> Self {
+        FrameLook {
+            frame,
+            seen: false,
+            mean: 0.0,
+            std: 0.0,
+            hash,
+            thumb: [0; THUMB_SIDE * THUMB_SIDE],
+        }
+    }
+
+    /// [`FrameLook::of`] with the hash already taken (of a PNG's filtered rows).
+    pub fn of_hashed(
+        frame: u64,
+        (width, height, channels): (usize, usize, usize),
+        pixels: &[u8],
+        hash: u64,
+    ) -> Self {
         let channels = channels.max(1);
         let (width, height) = (width.max(1), height.max(1));
         // Integer sums of the channels' sum per pixel (grey times `channels`): no division per
@@ -92,9 +122,10 @@ impl FrameLook {
         };
         FrameLook {
             frame,
+            seen: true,
             mean: mean as f32,
             std: std as f32,
-            hash: hash(pixels),
+            hash,
             thumb: blocks.map(|(s, count)| {
                 (s.checked_div(count * channels as u64).unwrap_or(0)).min(255) as u8
             }),
@@ -114,8 +145,48 @@ pub fn is_mask(feature: &str) -> bool {
     feature.contains("mask") || feature.contains("segment")
 }
 
+/// Whether a PNG frame could be blank, from its filtered `rows` (each a filter type and
+/// `stride` bytes of `pixel_bytes`-byte pixels): in a picture whose grey levels spread less than
+/// [`BLANK_STD`], what the filters leave (each byte's difference to a prediction from its
+/// neighbours; in an unfiltered row, to the pixel on its left) is small everywhere, bar a few.
+/// Rendered surgical scenes leave 0.5-1.6 % of bytes above [`LARGE_RESIDUAL`]; a candidate
+/// leaves under 0.1 %. Every blank frame is a candidate, so candidates are all looked at.
+pub fn could_be_blank(rows: &[u8], stride: usize, pixel_bytes: usize) -> bool {
+    let mut large = 0;
+    for row in rows.chunks_exact(stride + 1) {
+        let bytes = &row[1..];
+        large += if row[0] == 0 {
+            // Unfiltered (rare): each byte against the same channel of the pixel on its left.
+            let left = bytes
+                .iter()
+                .zip(bytes.get(pixel_bytes..).unwrap_or_default());
+            left.filter(|(a, b)| is_large(b.wrapping_sub(**a))).count()
+        } else {
+            count_large(bytes)
+        };
+    }
+    large * 1000 < rows.len()
+}
+
+/// |b as i8| > LARGE_RESIDUAL, as one unsigned comparison.
+fn is_large(b: u8) -> bool {
+    b.wrapping_sub(LARGE_RESIDUAL + 1) < u8::MAX - 2 * LARGE_RESIDUAL
+}
+
+/// How many bytes are [`is_large`], counted in byte lanes the processor adds side by side
+/// (blocks of 255 cannot overflow them).
+fn count_large(bytes: &[u8]) -> usize {
+    bytes
+        .chunks(255)
+        .map(|block| usize::from(block.iter().fold(0u8, |n, b| n + u8::from(is_large(*b)))))
+        .sum()
+}
+
+/// A filtered byte further than this from its prediction marks an edge or texture.
+const LARGE_RESIDUAL: u8 = 24;
+
 /// A hash of the bytes, eight at a time (equal pictures, equal hashes).
-fn hash(bytes: &[u8]) -> u64 {
+pub fn hash(bytes: &[u8]) -> u64 {
     const K: u64 = 0x9e37_79b9_7f4a_7c15;
     // Four lanes of eight bytes, for the processor to run side by side.
     let mut lanes = [bytes.len() as u64, 1, 2, 3];
@@ -186,7 +257,10 @@ pub(super) fn check(
 }
 
 fn blank(lint: &mut Lint<'_>, camera: &CameraFrames) {
-    let blank: Vec<&FrameLook> = camera.frames.iter().filter(|f| f.std < BLANK_STD).collect();
+    // Every frame that could be blank is looked at: the count is of all frames.
+    let blank: Vec<&FrameLook> = (camera.frames.iter())
+        .filter(|f| f.seen && f.std < BLANK_STD)
+        .collect();
     if let Some(first) = blank.first() {
         let all = blank.len() == camera.frames.len();
         lint.flag(
@@ -232,7 +306,9 @@ fn frozen(lint: &mut Lint<'_>, camera: &CameraFrames, episode: Option<&EpisodeSe
             continue;
         }
         let length = t - start;
-        if length >= run && frames[start].std >= BLANK_STD {
+        // Every frame that repeats the one before is looked at: the run's picture is known.
+        let picture = frames[start..t].iter().find(|f| f.seen);
+        if length >= run && picture.is_some_and(|f| f.std >= BLANK_STD) {
             let (first, last) = (frames[start].frame, frames[t - 1].frame);
             if moved(first, last) {
                 lint.flag(
@@ -250,15 +326,13 @@ fn frozen(lint: &mut Lint<'_>, camera: &CameraFrames, episode: Option<&EpisodeSe
     }
 }
 
+/// Compared between consecutive frames whose pictures both cameras' looks hold.
 fn swapped(lint: &mut Lint<'_>, a: &CameraFrames, b: &CameraFrames) {
-    let n = a.frames.len().min(b.frames.len());
-    for t in 1..n {
-        let (a0, a1, b0, b1) = (
-            &a.frames[t - 1],
-            &a.frames[t],
-            &b.frames[t - 1],
-            &b.frames[t],
-        );
+    let both: Vec<(&FrameLook, &FrameLook)> = (a.frames.iter().zip(&b.frames))
+        .filter(|(a, b)| a.seen && b.seen)
+        .collect();
+    for pair in both.windows(2) {
+        let ((a0, b0), (a1, b1)) = (pair[0], pair[1]);
         let own = a1.distance(a0) + b1.distance(b0);
         let crossed = a1.distance(b0) + b1.distance(a0);
         if own > 64.0 * 4.0 && crossed < SWAP_FACTOR * own {
@@ -287,11 +361,15 @@ mod tests {
         let looks = (0..frames)
             .map(|t| {
                 let mut pixels = vec![0u8; w * h];
+                // Cameras of odd offsets see the ramp the other way and the square lower down.
+                let odd = offset % 2 == 1;
                 for (i, p) in pixels.iter_mut().enumerate() {
-                    *p = (i % w * 4) as u8;
+                    let x = if odd { w - 1 - i % w } else { i % w };
+                    *p = (x * 4) as u8;
                 }
-                let at = (t * 3 + offset) % (w - 8);
-                for y in 4..12 {
+                let at = (t + offset) % (w - 8);
+                let top = 4 + usize::from(odd) * 14;
+                for y in top..top + 8 {
                     for x in at..at + 8 {
                         pixels[y * w + x] = 255;
                     }
@@ -342,5 +420,95 @@ mod tests {
             swapped[1].frames[t] = a;
         }
         assert_eq!(fired(&swapped), ["camera-swap"]);
+    }
+
+    /// Frames looked at as PNG frames are: every one hashed, the pictures of some only. A
+    /// swap is found between the frames both cameras' pictures are known at, a frozen run
+    /// whose first frame was not looked at still by its repeats, and an unseen frame is never
+    /// called blank.
+    #[test]
+    fn sampled_looks_find_the_same_defects() {
+        let sampled = |cameras: &[CameraFrames]| -> Vec<CameraFrames> {
+            (cameras.iter())
+                .map(|c| CameraFrames {
+                    frames: (c.frames.iter())
+                        .map(|f| match f.frame % LOOK_EVERY {
+                            0 => *f,
+                            _ => FrameLook::unseen(f.frame, f.hash),
+                        })
+                        .collect(),
+                    ..c.clone()
+                })
+                .collect()
+        };
+        let clean = vec![camera(0, "left", 20, 0), camera(0, "right", 20, 11)];
+        assert!(fired(&sampled(&clean)).is_empty());
+        let mut swapped = clean.clone();
+        for t in 10..20 {
+            let (a, b) = (swapped[0].frames[t], swapped[1].frames[t]);
+            swapped[0].frames[t] = b;
+            swapped[1].frames[t] = a;
+        }
+        assert_eq!(fired(&sampled(&swapped)), ["camera-swap"]);
+        // A frozen run from frame 9 (not looked at); its repeats are, as rows.rs looks at them.
+        let mut frozen = sampled(&clean);
+        let picture = clean[0].frames[9];
+        frozen[0].frames[9] = FrameLook::unseen(9, picture.hash);
+        for t in 10..16 {
+            frozen[0].frames[t] = FrameLook {
+                frame: t as u64,
+                ..picture
+            };
+        }
+        assert_eq!(fired(&frozen), ["frozen-camera"]);
+        let mut unseen = sampled(&clean);
+        unseen[1].frames[6] = FrameLook::unseen(6, 1);
+        assert!(fired(&unseen).is_empty());
+    }
+
+    /// Filtered rows of blank frames (black with sensor noise, one flat colour, unfiltered
+    /// grey) are candidates; a rendered scene's are not.
+    #[test]
+    fn blank_frames_are_candidates_and_scenes_are_not() {
+        use crate::media::image::{PngLevel, encode_png};
+        use crate::media::png_rows::inflate_rows;
+        let mut rng = crate::rng::SplitMix64::new(9);
+        let (w, h) = (96, 64);
+        let candidate = |png: &[u8]| {
+            let mut rows = Vec::new();
+            let header = inflate_rows(png, None, &mut rows).expect("inflates");
+            could_be_blank(&rows, header.stride(), header.pixel_bytes())
+        };
+        let noisy_black: Vec<u8> = (0..w * h * 3).map(|_| (rng.next_u64() % 4) as u8).collect();
+        let flat: Vec<u8> = [40u8, 90, 160].repeat(w * h);
+        // A scene: shaded tissue with vessels and an instrument's edges.
+        let scene: Vec<u8> = (0..w * h)
+            .flat_map(|i| {
+                let (x, y) = (i % w, i / w);
+                let vessel = (x + 2 * y) % 23 < 3;
+                let tool = x > 60 && y > 20 && y < 30;
+                let base = (120 + x / 2 + y) as u8;
+                match (vessel, tool) {
+                    (_, true) => [200, 200, 210],
+                    (true, _) => [base / 2, 20, 30],
+                    _ => [base, base / 2 + 30, base / 3],
+                }
+            })
+            .collect();
+        for (pixels, blank) in [(&noisy_black, true), (&flat, true), (&scene, false)] {
+            let png = encode_png(w, h, 3, pixels, PngLevel::Fast).expect("encode");
+            assert_eq!(candidate(&png), blank);
+            let look = FrameLook::of(0, w, h, 3, pixels);
+            assert_eq!(look.std < BLANK_STD, blank, "std {}", look.std);
+        }
+        let mut unfiltered = Vec::new();
+        {
+            let mut encoder = png::Encoder::new(&mut unfiltered, w as u32, h as u32);
+            encoder.set_color(png::ColorType::Rgb);
+            encoder.set_filter(png::Filter::NoFilter);
+            let mut writer = encoder.write_header().expect("header");
+            writer.write_image_data(&flat).expect("data");
+        }
+        assert!(candidate(&unfiltered));
     }
 }

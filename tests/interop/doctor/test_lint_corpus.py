@@ -4,7 +4,9 @@ Each case copies a surgvla LeRobot dataset (image mode) and plants one defect wi
 `surgvla validate --json` must name it with the right check (an error where the defect is one
 a trainer would mis-learn from), and, for the defects lerobot-doctor detects, doctor's own
 report must flag it too (so the corpus holds what the peer calls a defect). The clean copy
-must lint without an error, in the full pass and `--quick`.
+must lint without an error, in the full pass and `--quick`. A copy given a second RGB camera
+(the first's negative) must lint without a camera finding, and with the two cameras' pictures
+traded from one episode's twelfth frame on, must have `camera-swap` name that episode and frame.
 
 SURGVLA_BIN is the surgvla binary; SURGVLA_LEROBOT_DATASET a surgvla dataset (image mode).
 """
@@ -236,9 +238,99 @@ def test_each_planted_defect_is_found_by_its_check(tmp_path, name, plant, check,
     assert any(f["check"] == check for f in found), (name, [(f["check"], f["message"]) for f in report["errors"] + report["warnings"]])
     if is_error:
         assert code == 1
-    named = [f for f in found if f["check"] == check and f.get("episode") is not None]
     lint_line = [line for line in report["lint"] if line["check"] == check]
-    assert named or lint_line or check in ("finite", "timestamps"), report
+    if lint_line:
+        # A lint check: its summary line says what it found.
+        assert lint_line[0]["status"] != "ok", lint_line
+    else:
+        # A structural check: its finding names the episode.
+        assert any(f["check"] == check and f.get("episode") is not None for f in found), found
     if doctor_says is not None:
         said = doctor(root)
         assert any(doctor_says.lower() in m.lower() for m in said), (name, said)
+
+
+def inverted_png(png: bytes) -> bytes:
+    """The picture's negative (255 - every sample), for an 8-bit RGB PNG whose rows are all
+    Paeth-filtered (surgvla's): Paeth chooses alike on negated neighbours, so each filtered
+    byte is negated, bar the first pixel's (predicted from nothing)."""
+    at, chunks = 8, []
+    while at < len(png):
+        (length,) = struct.unpack(">I", png[at:at + 4])
+        chunks.append((png[at + 4:at + 8], png[at + 8:at + 8 + length]))
+        at += 12 + length
+    header = dict(chunks)[b"IHDR"]
+    width, height, depth, colour = struct.unpack(">IIBB", header[:10])
+    assert (depth, colour) == (8, 2)
+    rows = np.frombuffer(zlib.decompress(b"".join(d for k, d in chunks if k == b"IDAT")), np.uint8)
+    rows = rows.reshape(height, 1 + width * 3).copy()
+    assert (rows[:, 0] == 4).all(), "Paeth rows"
+    rows[:, 1:] = (256 - rows[:, 1:].astype(np.int32)) % 256
+    rows[0, 1:4] = 255 - (256 - rows[0, 1:4].astype(np.int32)) % 256
+    chunk = lambda kind, data: struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows.tobytes())) + chunk(b"IEND", b"")
+
+
+def negated_stats(stats: dict) -> dict:
+    """Statistics (of 0..1 samples) of the negative picture."""
+    one = lambda values: (1.0 - np.asarray(values, dtype=np.float64)).tolist()
+    flipped = {"min": one(stats["max"]), "max": one(stats["min"]), "mean": one(stats["mean"]), "std": stats["std"], "count": stats["count"]}
+    for low, high in [("q01", "q99"), ("q10", "q90"), ("q50", "q50")]:
+        if low in stats:
+            flipped[low], flipped[high] = one(stats[high]), one(stats[low])
+    return flipped
+
+
+def with_second_camera(root: Path, swap_episode: int | None):
+    """A second RGB camera (the first's negative) beside the first, declared in info.json with
+    its statistics; with `swap_episode`, the two cameras' pictures trade places from that
+    episode's twelfth frame on."""
+    first, second = "observation.images.endoscope", "observation.images.endoscope_negative"
+    info_path = root / "meta/info.json"
+    info = json.loads(info_path.read_text())
+    info["features"][second] = info["features"][first]
+    info_path.write_text(json.dumps(info, indent=4))
+    stats_path = root / "meta/stats.json"
+    stats = json.loads(stats_path.read_text())
+    stats[second] = negated_stats(stats[first])
+    stats_path.write_text(json.dumps(stats, indent=4))
+    for path in sorted((root / "meta/episodes").rglob("*.parquet")):
+        table = pq.read_table(path)
+        prefix = f"stats/{first}/"
+        partner = {"min": "max", "max": "min", "mean": "mean", "q01": "q99", "q99": "q01", "q10": "q90", "q90": "q10", "q50": "q50"}
+        for name in [n for n in table.column_names if n.startswith(prefix)]:
+            key, kind = name[len(prefix):], table.schema.field(name).type
+            if key in partner:
+                values = [(1.0 - np.asarray(v, dtype=np.float64)).tolist() for v in table.column(prefix + partner[key]).to_pylist()]
+            else:  # std and count are the negative's too
+                values = table.column(name).to_pylist()
+            table = table.append_column(pa.field(f"stats/{second}/{key}", kind), pa.array(values, type=kind))
+        pq.write_table(table, path)
+    t = Table(root)
+    column = t.table.column(first).combine_chunks()
+    images = column.field("bytes").to_pylist()
+    negatives = [inverted_png(png) for png in images]
+    if swap_episode is not None:
+        for row in t.rows(swap_episode)[12:]:
+            images[row], negatives[row] = negatives[row], images[row]
+    t.replace(first, pa.StructArray.from_arrays([pa.array(images, type=pa.binary()), column.field("path")], fields=list(column.type)))
+    paths = pa.array([None] * len(negatives), type=column.field("path").type)
+    t.table = t.table.append_column(second, pa.StructArray.from_arrays([pa.array(negatives, type=pa.binary()), paths], fields=list(column.type)))
+    t.write()
+
+
+@pytest.mark.parametrize("swap_episode", [None, 3])
+def test_two_cameras_swapped_within_an_episode_and_not(tmp_path, swap_episode):
+    root = planted(tmp_path, None)
+    with_second_camera(root, swap_episode)
+    code, report = validate(root)
+    assert code == 0, [(f["check"], f["message"]) for f in report["errors"]]
+    swaps = [f for f in report["warnings"] if f["check"] == "camera-swap"]
+    if swap_episode is None:
+        assert swaps == [], swaps
+        assert [w["check"] for w in report["warnings"] if w["check"] in ("blank-camera", "frozen-camera")] == []
+    else:
+        # Found at the first frame both cameras' pictures were looked at after the swap.
+        assert [(f["episode"], f["frame"]) for f in swaps] == [(swap_episode, 12)], swaps
+        line = [line for line in report["lint"] if line["check"] == "camera-swap"]
+        assert line and line[0]["status"] == "warning", line

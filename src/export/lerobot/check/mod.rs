@@ -250,10 +250,10 @@ fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata
         let file_bytes = f.metadata().map_err(|e| e.to_string())?.len();
         let metadata = ArrowReaderMetadata::load(&f, ArrowReaderOptions::default())
             .map_err(|e| e.to_string())?;
-        match super::read::footer_problem(metadata.metadata(), file_bytes) {
-            Some(problem) => Err(problem),
-            None => Ok(metadata),
+        if let Some(problem) = super::read::footer_problem(metadata.metadata(), file_bytes) {
+            return Err(problem);
         }
+        Ok(with_image_views(metadata))
     });
     match opened {
         Ok(metadata) => Some(metadata),
@@ -266,6 +266,40 @@ fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata
             None
         }
     }
+}
+
+/// The file read with its images' `bytes` as views into the decoded pages (`BinaryView`), not
+/// copied out of them: the full pass's largest copy. Unchanged when another schema cannot be
+/// applied (the reader then reports the file as it is).
+fn with_image_views(metadata: ArrowReaderMetadata) -> ArrowReaderMetadata {
+    use arrow_schema::{DataType, Field, Schema};
+    let schema = metadata.schema();
+    let viewed = |field: &Field| -> Option<Field> {
+        let DataType::Struct(children) = field.data_type() else {
+            return None;
+        };
+        let bytes = children.find("bytes")?.1;
+        (bytes.data_type() == &DataType::Binary).then(|| {
+            let children: Vec<Field> = (children.iter())
+                .map(|c| match c.name().as_str() {
+                    "bytes" => c.as_ref().clone().with_data_type(DataType::BinaryView),
+                    _ => c.as_ref().clone(),
+                })
+                .collect();
+            field
+                .clone()
+                .with_data_type(DataType::Struct(children.into()))
+        })
+    };
+    if !schema.fields().iter().any(|f| viewed(f).is_some()) {
+        return metadata;
+    }
+    let fields: Vec<Field> = (schema.fields().iter())
+        .map(|f| viewed(f).unwrap_or_else(|| f.as_ref().clone()))
+        .collect();
+    let hinted = Schema::new_with_metadata(fields, schema.metadata().clone());
+    let options = ArrowReaderOptions::new().with_schema(std::sync::Arc::new(hinted));
+    ArrowReaderMetadata::try_new(metadata.metadata().clone(), options).unwrap_or(metadata)
 }
 
 /// One whole episode as the rows hold it: (episode, first index, last index, rows, file).

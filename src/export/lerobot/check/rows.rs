@@ -9,12 +9,13 @@ use super::parts::{
 use crate::episode::{Episode, EpisodeMeta, MAX_OBJECTS, POSE_VALUES, Step};
 use crate::export::check::Check;
 use crate::export::findings::{At, Semantics, check_semantics};
-use crate::export::lint::cameras::FrameLook;
+use crate::export::lint::cameras::{FrameLook, LOOK_EVERY, could_be_blank, hash};
 use crate::media::image::{decode_png, png_size};
-use crate::media::tiff::decode_f32_tiff;
+use crate::media::png_rows::{PngRows, inflate_rows, unfilter};
+use crate::media::tiff::f32_tiff_size;
 use arrow_array::{
-    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
-    LargeBinaryArray, RecordBatch, StructArray,
+    Array, BinaryArray, BinaryViewArray, FixedSizeListArray, Float32Array, Float64Array,
+    Int64Array, LargeBinaryArray, RecordBatch, StructArray,
 };
 use arrow_schema::DataType;
 use parquet::arrow::ProjectionMask;
@@ -418,6 +419,21 @@ impl Context<'_> {
         }
     }
 
+    /// A batch's PNG buffers for `feature`: its pictures looked at every [`LOOK_EVERY`] frames
+    /// only where a camera of the same shape could have been swapped with it.
+    fn png_scratch(&self, feature: &Declared) -> PngScratch {
+        let paired = (self.features.iter()).any(|f| {
+            f.name != feature.name
+                && f.dtype == "image"
+                && f.shape == feature.shape
+                && !crate::export::lint::cameras::is_mask(&f.name)
+        });
+        PngScratch {
+            every: paired.then_some(LOOK_EVERY),
+            ..PngScratch::default()
+        }
+    }
+
     fn check_images(
         &self,
         feature: &Declared,
@@ -431,9 +447,7 @@ impl Context<'_> {
         let Some(images) = column.as_any().downcast_ref::<StructArray>() else {
             return looks;
         };
-        let bytes = images.column_by_name("bytes");
-        let binary = bytes.and_then(|b| b.as_any().downcast_ref::<BinaryArray>());
-        let large = bytes.and_then(|b| b.as_any().downcast_ref::<LargeBinaryArray>());
+        let image_bytes = image_bytes(images);
         let (height, width) = (
             feature.shape.first().copied().unwrap_or(0),
             feature.shape.get(1).copied().unwrap_or(0),
@@ -442,20 +456,14 @@ impl Context<'_> {
         // The lint looks at cameras in the full pass (a segmentation mask is not one).
         let looked =
             self.lint && !self.quick && !crate::export::lint::cameras::is_mask(&feature.name);
+        let mut scratch = self.png_scratch(feature);
         for row in 0..images.len() {
             let at = || {
                 At::file(file)
                     .episode(episode[row].max(0) as u64)
                     .frame(frame[row].max(0) as u64)
             };
-            let encoded: Option<&[u8]> = if bytes.is_some_and(|b| b.is_null(row)) {
-                None
-            } else {
-                binary
-                    .map(|b| b.value(row))
-                    .or_else(|| large.map(|b| b.value(row)))
-            };
-            let Some(encoded) = encoded.filter(|e| !e.is_empty()) else {
+            let Some(encoded) = image_bytes(row).filter(|e| !e.is_empty()) else {
                 findings.error(
                     at(),
                     Check::Image,
@@ -463,7 +471,13 @@ impl Context<'_> {
                 );
                 continue;
             };
-            let decoded = self.decode_image(encoded, (width, height, channels), frame[row], looked);
+            let decoded = decode_image(
+                encoded,
+                (width, height, channels),
+                (episode[row], frame[row]),
+                looked,
+                &mut scratch,
+            );
             let decoded = decoded.map(|(size, look)| {
                 if let (Some(size), Some(look)) = (size, look) {
                     looks.push((episode[row], feature.name.clone(), size, look));
@@ -506,28 +520,6 @@ impl Context<'_> {
             }
         }
         looks
-    }
-
-    /// An encoded image's decoded size and, with the lint (full pass), its look. A size other
-    /// than the declared one is known from the PNG header: nothing is decoded.
-    #[allow(clippy::type_complexity)]
-    fn decode_image(
-        &self,
-        encoded: &[u8],
-        (width, height, channels): (usize, usize, usize),
-        frame: i64,
-        looked: bool,
-    ) -> Result<(Option<(usize, usize, usize)>, Option<FrameLook>), String> {
-        if let Some((w, h)) = png_size(encoded).filter(|size| *size != (width, height)) {
-            return Ok((Some((w, h, channels)), None));
-        }
-        if looked && encoded.starts_with(b"\x89PNG") {
-            return decoded_look(encoded, frame).map(|looked| match looked {
-                Some((size, look)) => (Some(size), Some(look)),
-                None => (None, None),
-            });
-        }
-        decoded_size(encoded).map(|size| (size, None))
     }
 
     /// Groups rows into episodes and runs the shared semantic checks.
@@ -671,6 +663,88 @@ struct IndexColumns<'a> {
 /// A decoded image's (width, height, channels) and the lint's look at it.
 type Looked = ((usize, usize, usize), FrameLook);
 
+/// Row `row`'s encoded image of an image struct column (None: null or no `bytes` field), its
+/// `bytes` binary, large binary or a view.
+fn image_bytes<'a>(images: &'a StructArray) -> impl Fn(usize) -> Option<&'a [u8]> + 'a {
+    let bytes = images.column_by_name("bytes");
+    let binary = bytes.and_then(|b| b.as_any().downcast_ref::<BinaryArray>());
+    let large = bytes.and_then(|b| b.as_any().downcast_ref::<LargeBinaryArray>());
+    let view = bytes.and_then(|b| b.as_any().downcast_ref::<BinaryViewArray>());
+    move |row| {
+        if bytes.is_none_or(|b| b.is_null(row)) {
+            return None;
+        }
+        (binary.map(|b| b.value(row)))
+            .or_else(|| large.map(|b| b.value(row)))
+            .or_else(|| view.map(|b| b.value(row)))
+    }
+}
+
+/// Buffers a batch's PNG frames inflate into, the last frame's (episode, hash), and how often
+/// pictures are looked at whatever they show.
+#[derive(Default)]
+struct PngScratch {
+    rows: Vec<u8>,
+    pixels: Vec<u8>,
+    last: Option<(i64, u64)>,
+    every: Option<u64>,
+}
+
+/// An encoded image's decoded size and, with the lint (full pass), its look. A size other
+/// than the declared one is known from the PNG header: nothing is decoded. PNGs of the common
+/// layout are checked and inflated without being unfiltered ([`inflate_rows`]); their pixels
+/// are wanted only for the lint's look, and only at some frames ([`LOOK_EVERY`]).
+#[allow(clippy::type_complexity)]
+fn decode_image(
+    encoded: &[u8],
+    (width, height, channels): (usize, usize, usize),
+    (episode, frame): (i64, i64),
+    looked: bool,
+    scratch: &mut PngScratch,
+) -> Result<(Option<(usize, usize, usize)>, Option<FrameLook>), String> {
+    if let Some(header) = inflate_rows(encoded, Some((width, height)), &mut scratch.rows) {
+        let size = (header.width, header.height, header.channels);
+        let look = looked.then(|| png_look(&header, (episode, frame), scratch));
+        return Ok((Some(size), look));
+    }
+    if let Some((w, h)) = png_size(encoded).filter(|size| *size != (width, height)) {
+        return Ok((Some((w, h, channels)), None));
+    }
+    if looked && encoded.starts_with(b"\x89PNG") {
+        return decoded_look(encoded, frame).map(|looked| match looked {
+            Some((size, look)) => (Some(size), Some(look)),
+            None => (None, None),
+        });
+    }
+    decoded_size(encoded).map(|size| (size, None))
+}
+
+/// The lint's look at an inflated PNG frame: its filtered rows hashed, its pixels looked at
+/// where [`LOOK_EVERY`] says so.
+fn png_look(header: &PngRows, (episode, frame): (i64, i64), scratch: &mut PngScratch) -> FrameLook {
+    let rows_hash = hash(&scratch.rows);
+    let repeated = scratch.last == Some((episode, rows_hash));
+    scratch.last = Some((episode, rows_hash));
+    let frame = frame.max(0) as u64;
+    let due = scratch
+        .every
+        .is_some_and(|every| frame.is_multiple_of(every));
+    let (stride, pixel_bytes) = (header.stride(), header.pixel_bytes());
+    if !(due || repeated || could_be_blank(&scratch.rows, stride, pixel_bytes)) {
+        return FrameLook::unseen(frame, rows_hash);
+    }
+    unfilter(header, &scratch.rows, &mut scratch.pixels);
+    let (width, height) = (header.width, header.height);
+    if header.bit_depth == 16 {
+        // The high bytes of each sample, as the png crate's path looks at them.
+        let high: Vec<u8> = scratch.pixels.iter().step_by(2).copied().collect();
+        let channels = header.channels;
+        return FrameLook::of_hashed(frame, (width, height, channels), &high, rows_hash);
+    }
+    let shape = (width, height, header.channels);
+    FrameLook::of_hashed(frame, shape, &scratch.pixels, rows_hash)
+}
+
 /// A PNG's decoded size, as [`decoded_size`], with the lint's look at its pixels (8-bit: its
 /// channels; 16-bit: the high bytes).
 fn decoded_look(encoded: &[u8], frame: i64) -> Result<Option<Looked>, String> {
@@ -697,8 +771,8 @@ fn decoded_size(encoded: &[u8]) -> Result<Option<(usize, usize, usize)>, String>
         return Ok(None);
     }
     if encoded.starts_with(b"II*\0") || encoded.starts_with(b"MM\0*") {
-        return decode_f32_tiff(encoded)
-            .map(|(w, h, _)| Some((w as usize, h as usize, 1)))
+        return f32_tiff_size(encoded)
+            .map(|(w, h)| Some((w as usize, h as usize, 1)))
             .ok_or_else(|| "a TIFF that is not a float32 depth image".to_string());
     }
     decode_png(encoded)
