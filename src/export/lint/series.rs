@@ -185,15 +185,15 @@ impl<'a> Lint<'a> {
             (false, true) => "error",
             (false, false) => "warning",
         };
+        // The first episode flagged, else the first note about the dataset, else `ok`.
         let line = match (&first, notes.first()) {
-            (None, None) => ok.to_string(),
-            (_, Some((_, note))) if flagged.is_empty() => note.clone(),
             (Some((episode, message)), _) => format!(
                 "{} of {} episodes, e.g. episode {episode}: {message}",
                 flagged.len(),
                 self.episodes
             ),
             (None, Some((_, note))) => note.clone(),
+            (None, None) => ok.to_string(),
         };
         for (is_error, message) in notes {
             report(At::file(self.file.clone()), is_error, message);
