@@ -58,6 +58,9 @@ pub struct TrialResult {
     /// Steps whose action had to be clipped to the action space (at most 1 cm per axis, no roll
     /// or pitch, 30 deg of yaw) or to the workspace.
     pub clipped_steps: u32,
+    /// The deepest the tool tip went below a kidney's or spleen's surface during the trial,
+    /// millimetres (0: never inside one; an honest touch stays within 1 mm).
+    pub peak_penetration_mm: f64,
     /// The replay baseline's training episode.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub replayed_episode: Option<u64>,
@@ -325,6 +328,7 @@ mod tests {
             reason: String::new(),
             policy_error: !success,
             clipped_steps: 0,
+            peak_penetration_mm: 0.0,
             replayed_episode: None,
             recording: None,
         }

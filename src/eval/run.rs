@@ -139,6 +139,8 @@ fn run_trial(
         reason,
         policy_error: failure.is_some(),
         clipped_steps,
+        // To the micrometre: the figure, not float noise.
+        peak_penetration_mm: (observation.sim.peak_penetration_m * 1e6).round() / 1e3,
         replayed_episode: None,
         recording: None,
     };

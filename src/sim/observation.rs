@@ -53,6 +53,9 @@ pub struct Observation {
     /// Per scene mark that is a clip site: the jaw angle when the tip last entered its clip
     /// band, while it stays inside (None: outside it).
     pub clip_entry_jaw_rad: Vec<Option<f64>>,
+    /// The deepest the tool tip has been below a kidney's or spleen's surface since the start,
+    /// metres (0: never inside one). Recorded, not yet judged: see docs/FIDELITY.md.
+    pub peak_penetration_m: f64,
     /// On the last step the held object met static geometry and the tip stopped above its
     /// target.
     pub descent_stopped: bool,

@@ -9,7 +9,7 @@
 //!    a rate that completes a full open/close in one control step, the instrument collider and
 //!    any bound object follow the forward kinematics, and rapier steps.
 
-use crate::scene::{InstrumentPose, ObjectKind, SceneSpec};
+use crate::scene::{InstrumentPose, ObjectKind, OrganKind, SceneSpec, organ};
 use crate::sim::control::{
     JawCommand, NativeCommand, PhysicalAction, Timing, TipTarget, Workspace, native_target,
     physical_target,
@@ -99,6 +99,9 @@ pub struct Simulator {
     ever_bound: Vec<bool>,
     /// Per object: its pose when last released, until it is bound again.
     released_at: Vec<Option<Isometry3<f64>>>,
+    /// The deepest the tool tip has been below a solid organ's surface since the start,
+    /// metres (0: never inside one).
+    peak_penetration_m: f64,
 }
 
 /// Pose of the instrument's shaft frame: origin at the wrist-pitch joint, z from the RCM outward.
@@ -139,15 +142,22 @@ impl Simulator {
             clip_entry_jaw_rad: vec![None; marks],
             ever_bound: vec![false; objects],
             released_at: vec![None; objects],
+            peak_penetration_m: 0.0,
         };
         sim.record_clip_entries();
         sim
     }
 
     /// Records the jaw angle for every clip site whose band the tip has just entered, and
-    /// forgets the sites whose band it has left (a clip is judged on the jaws as they entered).
+    /// forgets the sites whose band it has left (a clip is judged on the jaws as they entered);
+    /// and keeps the tip's deepest penetration into a solid organ (kidney, spleen).
     fn record_clip_entries(&mut self) {
         let tip = self.world_from_tip().translation.vector;
+        let depth_m = (self.scene.organs.iter())
+            .filter(|o| o.kind != OrganKind::Vessel)
+            .map(|o| -organ::radial_gap_m(o, &tip))
+            .fold(0.0, f64::max);
+        self.peak_penetration_m = self.peak_penetration_m.max(depth_m);
         for (mark, record) in self.scene.marks.iter().zip(&mut self.clip_entry_jaw_rad) {
             let inside = mark.clip_offset(&tip).is_some_and(|o| o.in_band());
             if !inside {
@@ -417,6 +427,7 @@ impl Simulator {
             bound_object: self.bound_object(),
             ik: self.last_report.ik,
             clip_entry_jaw_rad: self.clip_entry_jaw_rad.clone(),
+            peak_penetration_m: self.peak_penetration_m,
             descent_stopped: self.last_report.descent_stopped,
         }
     }

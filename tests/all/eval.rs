@@ -321,6 +321,16 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
     for row in &expert.tasks {
         assert!(row.successes >= 5, "expert on {}: {:?}", row.task_id, row);
     }
+    // The experts' tips stay on the tissue: an honest touch is within 1 mm of its surface.
+    for trial in &expert.trials {
+        assert!(
+            (0.0..=1.0).contains(&trial.peak_penetration_mm),
+            "{} trial {}: {} mm into an organ",
+            trial.task_id,
+            trial.trial,
+            trial.peak_penetration_mm
+        );
+    }
     // Every predicate can fail: a policy that does nothing fails every task.
     let noop = evaluate(
         &PolicyChoice::Noop,

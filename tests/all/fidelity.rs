@@ -105,6 +105,38 @@ fn closed_jaws_3_5_mm_over_or_into_the_kidney_do_not_touch_it() {
     }
 }
 
+/// A stab is remembered: closed jaws pushed 6 mm into the kidney and pulled back onto the spot
+/// leave the trial's peak penetration at 6 mm or more (the rules of surgvla-physical-v1 still judge the
+/// end state only: issue 43 makes it a failure); a touch straight onto the spot leaves it
+/// within 1 mm.
+#[test]
+fn the_deepest_penetration_into_an_organ_is_remembered() {
+    let task = TaskId::Electrocoagulation;
+    for k in 0..3 {
+        let instance = instance(task, k);
+        let spot = instance.scene.marks[instance.target_mark.expect("spot")].position_m;
+        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        sim.step_native(&surgvla::sim::NativeCommand {
+            jaw: -1.0,
+            ..Default::default()
+        });
+        let mut visit = |dz: f64| {
+            let mut pose = sim.world_from_tip();
+            pose.translation.vector = spot + nalgebra::Vector3::new(0.0, 0.0, dz);
+            assert!(sim.teleport_tip(&pose).is_exact());
+            sim.observation().peak_penetration_m
+        };
+        let touched = visit(0.0);
+        assert!(touched <= 0.001, "k {k}: {touched} m");
+        // 6 mm down is 6 mm or more below the curved surface, measured from the organ's centre.
+        let stabbed = visit(-0.006);
+        assert!((0.0055..0.012).contains(&stabbed), "k {k}: {stabbed} m");
+        // Back on the spot: the end state is a touch, the stab is not forgotten.
+        assert_eq!(visit(0.0), stabbed);
+        assert!(instance.success(&sim.observation()).success);
+    }
+}
+
 #[test]
 fn a_touch_is_on_the_tissue_not_over_it_or_inside_it() {
     let task = TaskId::Electrocoagulation;
