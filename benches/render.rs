@@ -40,7 +40,7 @@ fn bench_render(c: &mut Criterion) {
         });
         group.bench_function(name, |b| {
             b.iter(|| {
-                let instances = assets.instances(&poses, &instrument);
+                let instances = assets.instances(&poses, &instrument, &[]);
                 black_box(renderer.render(&camera, &instances))
             })
         });
@@ -51,7 +51,7 @@ fn bench_render(c: &mut Criterion) {
     });
     group.bench_function("endoscope_224_over_static", |b| {
         b.iter(|| {
-            let instances = assets.instances(&poses, &instrument);
+            let instances = assets.instances(&poses, &instrument, &[]);
             let frame = renderer.render_over_static(&camera, &instances, assets.static_count());
             black_box(&frame);
             renderer.recycle(frame.rgb, frame.depth_m, frame.mask);

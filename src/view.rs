@@ -17,7 +17,11 @@ pub fn render_simulator(
     camera: &Camera,
     sim: &Simulator,
 ) -> Frame {
-    let instances = assets.instances(&sim.object_poses(), &sim.instrument_pose());
+    let instances = assets.instances(
+        &sim.object_poses(),
+        &sim.instrument_pose(),
+        &sim.world_from_clips(),
+    );
     renderer.render(camera, &instances)
 }
 
@@ -29,7 +33,11 @@ pub fn render_simulator_over_static(
     camera: &Camera,
     sim: &Simulator,
 ) -> Frame {
-    let instances = assets.instances(&sim.object_poses(), &sim.instrument_pose());
+    let instances = assets.instances(
+        &sim.object_poses(),
+        &sim.instrument_pose(),
+        &sim.world_from_clips(),
+    );
     renderer.render_over_static(camera, &instances, assets.static_count())
 }
 
@@ -170,7 +178,8 @@ pub fn scene_meshes_at_start(
 pub fn scene_meshes(assets: &SceneAssets, sim: &Simulator) -> Vec<crate::episode::SceneMesh> {
     let object_poses = sim.object_poses();
     let instrument = sim.instrument_pose();
-    let instances = assets.instances(&object_poses, &instrument);
+    // Without the clips, which come last: the parts a viewer places by frame.
+    let instances = assets.instances(&object_poses, &instrument, &[]);
     let statics = instances.len() - object_poses.len() - 4;
     instances
         .iter()

@@ -10,9 +10,10 @@ use crate::render::mesh::Mesh;
 use crate::render::raster::{Instance, Lighting};
 use crate::rng::SplitMix64;
 use crate::scene::{
-    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, InstrumentPose, MarkColour, NEEDLE_WIRE_RADIUS_M,
-    ObjectKind, OrganKind, SceneSpec, TABLE_TOP_Z_M, TRAY_CENTER_XY_M, TRAY_HALF_EXTENTS_XY_M,
-    TRAY_RIM_WIDTH_M, needle_arc_points, tray_boxes,
+    BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, InstrumentPose, MarkColour, MarkSpec,
+    NEEDLE_WIRE_RADIUS_M, ObjectKind, OrganKind, OrganSpec, SceneSpec, TABLE_TOP_Z_M,
+    TRAY_CENTER_XY_M, TRAY_HALF_EXTENTS_XY_M, TRAY_RIM_WIDTH_M, needle_arc_points, organ,
+    tray_boxes,
 };
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -34,6 +35,8 @@ pub enum MaskClass {
     Vessel = 11,
     TargetMark = 12,
     OtherMark = 13,
+    /// A ligation clip left on T2-3's vessel where the jaws closed on it.
+    Clip = 14,
     DistractorGauze = 16,
     DistractorNeedle = 17,
     DistractorBlock = 18,
@@ -41,7 +44,7 @@ pub enum MaskClass {
 
 impl MaskClass {
     /// Every class with its name, in id order.
-    pub const ALL: [(MaskClass, &'static str); 17] = [
+    pub const ALL: [(MaskClass, &'static str); 18] = [
         (MaskClass::Background, "background"),
         (MaskClass::Table, "table"),
         (MaskClass::Tray, "tray"),
@@ -56,6 +59,7 @@ impl MaskClass {
         (MaskClass::Vessel, "vessel"),
         (MaskClass::TargetMark, "target_mark"),
         (MaskClass::OtherMark, "other_mark"),
+        (MaskClass::Clip, "clip"),
         (MaskClass::DistractorGauze, "distractor_gauze"),
         (MaskClass::DistractorNeedle, "distractor_needle"),
         (MaskClass::DistractorBlock, "distractor_block"),
@@ -197,6 +201,10 @@ pub mod palette {
     pub fn wrist() -> Material {
         Material::matte([95, 96, 100]).glossy(0.8, 5)
     }
+    /// A titanium ligation clip.
+    pub fn clip() -> Material {
+        Material::matte([188, 190, 196]).glossy(1.0, 8)
+    }
     pub fn jaws() -> Material {
         Material::matte([165, 168, 172])
             .glossy(1.0, 6)
@@ -297,6 +305,8 @@ pub struct SceneAssets {
     statics: Vec<(Part, Isometry3<f64>)>,
     objects: Vec<Part>,
     instrument: InstrumentMeshes,
+    /// The ligation clip drawn where the jaws closed on the vessel.
+    clip: Part,
     appearance: Appearance,
 }
 
@@ -409,6 +419,80 @@ fn drape_and_tray(appearance: &Appearance) -> Vec<(Part, Isometry3<f64>)> {
     statics
 }
 
+/// Half extents of a drawn ligation clip in its frame (x across the vessel, the direction the
+/// jaws closed along; y along the vessel; z up), metres: 7.2 mm long, spanning the 5 mm vessel with its
+/// legs, 1.2 mm wide, its crown 0.4 mm above the vessel's top (centred on the vessel's axis).
+pub const CLIP_HALF_EXTENTS_M: [f64; 3] = [0.0036, 0.0006, 0.0029];
+
+/// How far a mark stands out of the tissue it is painted on, metres: flush with it, so a tip
+/// resting on a mark is on the tissue.
+pub const MARK_RELIEF_M: f64 = 0.0003;
+
+/// A mark's mesh and pose, flush with the tissue under it: on a kidney or spleen a disc of the
+/// mark's radius, [`MARK_RELIEF_M`] thick, lying in the surface (its axis along the surface
+/// normal); on the vessel a band of the mark's width around the tube, [`MARK_RELIEF_M`] proud of
+/// it.
+fn mark_mesh(scene: &SceneSpec, mark: &MarkSpec) -> (Mesh, Isometry3<f64>) {
+    let relief = MARK_RELIEF_M as f32;
+    let radius = mark.radius_m as f32;
+    if let Some(line) = mark.line_direction {
+        // A clip site on the vessel's top: the band's axis is the vessel's, one radius down.
+        let vessel_radius = crate::scene::VESSEL_RADIUS_M;
+        let axis = mark.position_m - Vector3::new(0.0, 0.0, vessel_radius);
+        let rotation = UnitQuaternion::rotation_between(&Vector3::z(), &line)
+            .unwrap_or_else(UnitQuaternion::identity);
+        let band = vessel_radius as f32 + relief;
+        return (
+            Mesh::cylinder(band, band, -radius, radius, 24, true),
+            Isometry3::from_parts(Translation3::from(axis), rotation),
+        );
+    }
+    let normal = surface_normal(scene, &mark.position_m);
+    let rotation = UnitQuaternion::rotation_between(&Vector3::z(), &normal)
+        .unwrap_or_else(UnitQuaternion::identity);
+    let disc = Mesh::star(4, 24, |d| {
+        Vector3::new(d.x * radius, d.y * radius, d.z * relief)
+    });
+    (
+        disc,
+        Isometry3::from_parts(Translation3::from(mark.position_m), rotation),
+    )
+}
+
+/// The outward normal of the solid organ whose surface passes nearest `point_m` (world), there;
+/// straight up where there is none.
+fn surface_normal(scene: &SceneSpec, point_m: &Vector3<f64>) -> Vector3<f64> {
+    let gap = |o: &&OrganSpec| organ::radial_gap_m(o, point_m).abs();
+    let Some(spec) = scene
+        .organs
+        .iter()
+        .filter(|o| o.kind != OrganKind::Vessel)
+        .min_by(|a, b| gap(a).total_cmp(&gap(b)))
+    else {
+        return Vector3::z();
+    };
+    // The surface's tangents from two nearby directions about the organ's centre.
+    let local = spec
+        .world_from_organ
+        .inverse_transform_point(&nalgebra::Point3::from(*point_m))
+        .coords;
+    let d = local.try_normalize(1e-12).unwrap_or(Vector3::z());
+    let u = d
+        .cross(&Vector3::x())
+        .try_normalize(1e-6)
+        .unwrap_or(d.cross(&Vector3::y()).normalize());
+    let v = d.cross(&u);
+    let at = |e: Vector3<f64>| organ::surface_point(spec, (d + e * 1e-3).normalize());
+    let normal = (at(u) - at(-u)).cross(&(at(v) - at(-v)));
+    let normal = spec.world_from_organ.rotation * normal;
+    let outward = spec.world_from_organ.rotation * d;
+    match normal.try_normalize(1e-12) {
+        Some(n) if n.dot(&outward) < 0.0 => -n,
+        Some(n) => n,
+        None => outward,
+    }
+}
+
 impl SceneAssets {
     /// Builds the meshes of `scene`; `seed` varies the objects' surface detail.
     pub fn new(scene: &SceneSpec, seed: u64, appearance: Appearance) -> Self {
@@ -435,19 +519,14 @@ impl SceneAssets {
             } else {
                 MaskClass::OtherMark
             };
+            let (mesh, world_from_mark) = mark_mesh(scene, mark);
             let part = Part {
-                mesh: Mesh::sphere(mark.radius_m as f32, 8, 16),
+                mesh,
                 material: palette::mark(mark.colour),
                 mask,
                 closed: true,
             };
-            statics.push((
-                part,
-                Isometry3::from_parts(
-                    Translation3::from(mark.position_m),
-                    UnitQuaternion::identity(),
-                ),
-            ));
+            statics.push((part, world_from_mark));
         }
         let objects = scene
             .objects
@@ -464,6 +543,12 @@ impl SceneAssets {
             statics,
             objects,
             instrument: InstrumentMeshes::new(),
+            clip: Part {
+                mesh: Mesh::cuboid(CLIP_HALF_EXTENTS_M.map(|v| v as f32)),
+                material: palette::clip(),
+                mask: MaskClass::Clip,
+                closed: true,
+            },
             appearance,
         }
     }
@@ -498,10 +583,13 @@ impl SceneAssets {
 
     /// The instances of one frame: the static parts first, then objects at `object_poses`
     /// (grasp frames, in scene order) and the instrument at `instrument`.
+    /// Every part to draw: statics, objects at `object_poses`, the instrument, and a clip at
+    /// each of `world_from_clips` (last).
     pub fn instances(
         &self,
         object_poses: &[Isometry3<f64>],
         instrument: &InstrumentPose,
+        world_from_clips: &[Isometry3<f64>],
     ) -> Vec<Instance<'_>> {
         fn instance(part: &Part, pose: Isometry3<f64>) -> Instance<'_> {
             Instance {
@@ -553,6 +641,11 @@ impl SceneAssets {
                 * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), sign * half);
             out.push(tool(mesh, palette::jaws(), MaskClass::InstrumentJaws, pose));
         }
+        out.extend(
+            world_from_clips
+                .iter()
+                .map(|pose| instance(&self.clip, *pose)),
+        );
         out
     }
 }

@@ -61,12 +61,28 @@ pub struct TrialResult {
     /// The deepest the tool tip went below a kidney's or spleen's surface during the trial,
     /// millimetres (0: never inside one; an honest touch stays within 1 mm).
     pub peak_penetration_mm: f64,
+    /// The trial's contact events in time order: grasps and releases of objects, the tip's
+    /// entries into the vessel (from above or through its wall), the jaws' closings in it.
+    pub events: Vec<TrialEvent>,
     /// The replay baseline's training episode.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub replayed_episode: Option<u64>,
     /// The MCAP recording of a failed trial, relative to the results folder.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub recording: Option<String>,
+}
+
+/// One contact event of a trial (`sim::history::ContactEvent`, named).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TrialEvent {
+    /// The control step it happened at (0: before the first).
+    pub step: u64,
+    /// `grasped`, `released`, `entered_vessel_from_above`, `entered_vessel_through_wall`,
+    /// `closed_in_vessel`.
+    pub event: &'static str,
+    /// The object grasped or released.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub object: Option<String>,
 }
 
 /// One task's row.
@@ -329,6 +345,7 @@ mod tests {
             policy_error: !success,
             clipped_steps: 0,
             peak_penetration_mm: 0.0,
+            events: Vec::new(),
             replayed_episode: None,
             recording: None,
         }

@@ -12,7 +12,7 @@ use super::agents::{
 use super::numpy::metadata_json;
 use super::options::{EvalError, EvalOptions, PolicyChoice};
 use super::remote::RemotePolicy;
-use super::results::{EvalReport, TaskResult, TrialResult};
+use super::results::{EvalReport, TaskResult, TrialEvent, TrialResult};
 use crate::env::{Env, EnvObservation, EnvOptions, Images};
 use crate::episode::{Episode, EpisodeMeta, FeatureSet, Step};
 use crate::export::collection::{Collection, EvaluationRecord};
@@ -20,6 +20,7 @@ use crate::export::mcap::{McapOptions, record_episode};
 use crate::policy::{ExpertLibrary, RandomPolicy};
 use crate::rng::SplitMix64;
 use crate::sim::JawCommand;
+use crate::sim::history::TrialHistory;
 use crate::sim::psm::wrap_angle;
 use crate::task::{TaskId, TaskInstance};
 use rayon::prelude::*;
@@ -81,6 +82,19 @@ struct Outcome {
 
 /// Runs trial `trial` with `agent` on `env`, fresh from `instance` with its first
 /// `observation`; `record` keeps every rendered step.
+/// The contact events of a trial's history, objects by name.
+fn trial_events(history: &TrialHistory, instance: &TaskInstance) -> Vec<TrialEvent> {
+    (history.events().iter())
+        .map(|e| TrialEvent {
+            step: e.step_index,
+            event: e.kind.name(),
+            object: (e.object)
+                .and_then(|i| instance.scene.objects.get(i))
+                .map(|o| o.name.clone()),
+        })
+        .collect()
+}
+
 fn run_trial(
     (mut env, mut observation): (Env, EnvObservation),
     instance: &TaskInstance,
@@ -140,7 +154,8 @@ fn run_trial(
         policy_error: failure.is_some(),
         clipped_steps,
         // To the micrometre: the figure, not float noise.
-        peak_penetration_mm: (observation.sim.peak_penetration_m * 1e6).round() / 1e3,
+        peak_penetration_mm: (observation.sim.history.peak_penetration_m * 1e6).round() / 1e3,
+        events: trial_events(&observation.sim.history, instance),
         replayed_episode: None,
         recording: None,
     };

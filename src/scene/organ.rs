@@ -87,6 +87,62 @@ pub fn vessel_path(spec: &OrganSpec, points: usize) -> (Vec<Vector3<f64>>, f64) 
     (path, radius)
 }
 
+/// Points of the vessel's centre line [`vessel_section`] measures against (the drawn tube has 48).
+const VESSEL_SECTION_POINTS: usize = 97;
+
+/// Where a point lies relative to the vessel's tube, in the cross-section through the nearest
+/// point of its centre line, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VesselSection {
+    /// Horizontal distance from the centre line, signed (positive on the side of the centre
+    /// line's left normal, looking along the vessel).
+    pub across_m: f64,
+    /// Height above the centre line.
+    pub above_axis_m: f64,
+    /// Distance along the centre line from its start.
+    pub along_m: f64,
+    pub radius_m: f64,
+}
+
+impl VesselSection {
+    /// Inside the tube.
+    pub fn inside(&self) -> bool {
+        self.across_m.hypot(self.above_axis_m) < self.radius_m
+    }
+}
+
+/// Where `point_m` (world) lies relative to the vessel `spec`'s tube.
+pub fn vessel_section(spec: &OrganSpec, point_m: &Vector3<f64>) -> VesselSection {
+    let local = spec
+        .world_from_organ
+        .inverse_transform_point(&nalgebra::Point3::from(*point_m))
+        .coords;
+    let (path, radius_m) = vessel_path(spec, VESSEL_SECTION_POINTS);
+    // (horizontal distance squared, arc length, foot of the perpendicular, unit tangent)
+    let mut best = (f64::INFINITY, 0.0, path[0], Vector3::y());
+    let mut walked = 0.0;
+    for pair in path.windows(2) {
+        let segment = pair[1] - pair[0];
+        let length = segment.norm();
+        let t = ((local - pair[0]).dot(&segment) / (length * length)).clamp(0.0, 1.0);
+        let foot = pair[0] + segment * t;
+        let d2 = (local.xy() - foot.xy()).norm_squared();
+        if d2 < best.0 {
+            best = (d2, walked + t * length, foot, segment / length);
+        }
+        walked += length;
+    }
+    let (_, along_m, foot, tangent) = best;
+    let left = Vector3::new(-tangent.y, tangent.x, 0.0);
+    let offset = local - foot;
+    VesselSection {
+        across_m: offset.x * left.x + offset.y * left.y,
+        above_axis_m: offset.z,
+        along_m,
+        radius_m,
+    }
+}
+
 /// Rings and segments of the sampling grid of a solid organ's surface (drawn and collided).
 pub const SURFACE_GRID: (usize, usize) = (22, 44);
 

@@ -1,13 +1,14 @@
 //! The grasp binding rule that replaces contact grasping for small objects.
 //!
-//! Binding happens when the jaws start closing on the object itself: with the tip within
-//! `max_surface_gap_m` of the object's surface where they close. A gauze (or block) binds when
-//! the tip is over its footprint and within the gap of its top face (above it, or pressed into
-//! the soft pad); a needle binds when the tip is within the gap of the nearest point of its
-//! wire, anywhere along the arc, with the jaws across the wire's tangent at that point (the
-//! tangent along the reported tip frame's local z axis: the jaws close along local x) within
-//! `needle_yaw_tolerance_rad`. Jaws closing in the air above an object, or inside the needle's
-//! arc where no wire is, bind nothing. While bound the object follows the tip rigidly, keeping
+//! Binding happens when the jaws start closing on the object itself: with the tip at most
+//! `max_gap_above_m` above the object's surface where they close, or at most
+//! `max_depth_m` into it. A gauze (or block) binds when the tip is over its footprint and
+//! that close to its top face (above it, or pressed into the soft pad); a needle binds when the
+//! tip is that close to the nearest point of its wire, anywhere along the arc but not past
+//! either end, with the jaws across the wire's tangent at that point (the tangent along the
+//! reported tip frame's local z axis: the jaws close along local x) within
+//! `needle_yaw_tolerance_rad`. Jaws closing in the air above an object, past the needle's end,
+//! or inside its arc where no wire is, bind nothing. While bound the object follows the tip rigidly, keeping
 //! the point grasped; opening the jaws releases it.
 
 use crate::scene::{
@@ -20,19 +21,26 @@ use std::f64::consts::{FRAC_PI_2, PI};
 /// Thresholds of the binding rule.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GraspRule {
-    /// Largest distance between the tip and the object's surface where the jaws close, metres
-    /// (either side of it).
-    pub max_surface_gap_m: f64,
+    /// Largest height of the tip above the object's surface where the jaws close, metres.
+    pub max_gap_above_m: f64,
+    /// Deepest the tip may be pressed into the object where the jaws close, metres.
+    pub max_depth_m: f64,
     /// Largest angle between the needle's tangent at the grasped point and the jaws' crossing
     /// axis, radians.
     pub needle_yaw_tolerance_rad: f64,
 }
 
 impl Default for GraspRule {
+    /// 0.4 mm above the surface: the depth of the teeth of a needle driver's or grasper's jaw
+    /// tips (about 0.4 mm on an 8 mm instrument), which is as high as closing jaws still bite
+    /// an object's surface; 1 mm into it: the gauze pad gives that much under the jaws (the
+    /// expert presses 0.8 mm). Needles up to 45 deg oblique: surgeons load a needle square to
+    /// the jaws or at an angle for backhand and angled bites; along the wire it slips.
     fn default() -> Self {
         GraspRule {
-            max_surface_gap_m: 0.001,
-            needle_yaw_tolerance_rad: 20f64.to_radians(),
+            max_gap_above_m: 0.0004,
+            max_depth_m: 0.001,
+            needle_yaw_tolerance_rad: 45f64.to_radians(),
         }
     }
 }
@@ -48,12 +56,27 @@ pub fn line_angle_difference(a_rad: f64, b_rad: f64) -> f64 {
 /// tangent there.
 pub fn nearest_wire_point(point: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let r = NEEDLE_ARC_RADIUS_M;
-    let theta = (point.y + r).atan2(point.x).clamp(0.0, PI);
+    let theta = wire_angle(point).clamp(0.0, PI);
     let (sin, cos) = theta.sin_cos();
     (
         Vector3::new(r * cos, r * sin - r, 0.0),
         Vector3::new(-sin, cos, 0.0),
     )
+}
+
+/// How far beside the needle's wire, horizontally, closing jaws still sweep it in, metres.
+const NEEDLE_REACH_M: f64 = 0.0015;
+
+/// The angle of `point` (grasp frame) about the needle arc's centre: within [0, pi] beside the
+/// wire, outside it past either end.
+fn wire_angle(point: &Vector3<f64>) -> f64 {
+    let angle = (point.y + NEEDLE_ARC_RADIUS_M).atan2(point.x);
+    // The ends are at 0 and pi; below the centre, atan2's (-pi, 0) is past one end or the other.
+    if angle < -FRAC_PI_2 {
+        angle + 2.0 * PI
+    } else {
+        angle
+    }
 }
 
 impl GraspRule {
@@ -62,6 +85,7 @@ impl GraspRule {
     /// inside), and, for the needle, the wire's tangent there (world). None when the tip is not
     /// over a gauze's or block's footprint.
     fn surface_gap(
+        &self,
         tip_position_m: &Vector3<f64>,
         kind: ObjectKind,
         world_from_grasp: &Isometry3<f64>,
@@ -71,8 +95,19 @@ impl GraspRule {
             .coords;
         let half = match kind {
             ObjectKind::Needle => {
+                if !(0.0..=PI).contains(&wire_angle(&local)) {
+                    // Past an end: the jaws would close on air beyond the wire's tip.
+                    return None;
+                }
                 let (wire, tangent) = nearest_wire_point(&local);
-                let gap = (local - wire).norm() - NEEDLE_WIRE_RADIUS_M;
+                let offset = local - wire;
+                // Above the wire's top the jaw tips close over it; beside it, within reach,
+                // the closing jaws sweep it in.
+                let beside = offset.xy().norm();
+                if beside > NEEDLE_REACH_M || offset.z < -NEEDLE_WIRE_RADIUS_M - self.max_depth_m {
+                    return None;
+                }
+                let gap = offset.z - NEEDLE_WIRE_RADIUS_M;
                 return Some((gap, Some(world_from_grasp.rotation * tangent)));
             }
             ObjectKind::Gauze => GAUZE_HALF_EXTENTS_M,
@@ -91,8 +126,8 @@ impl GraspRule {
         kind: ObjectKind,
         world_from_grasp: &Isometry3<f64>,
     ) -> Option<f64> {
-        let (gap, tangent) = Self::surface_gap(tip_position_m, kind, world_from_grasp)?;
-        if gap.abs() > self.max_surface_gap_m {
+        let (gap, tangent) = self.surface_gap(tip_position_m, kind, world_from_grasp)?;
+        if gap > self.max_gap_above_m || gap < -self.max_depth_m {
             return None;
         }
         if let Some(tangent) = tangent {
@@ -143,11 +178,13 @@ mod tests {
             let tip = object * Point3::new(x, y, z);
             rule.binds(&tip.coords, 0.0, ObjectKind::Gauze, &object)
         };
-        // Honest: on the face (the expert closes 0.8 mm into it), at a corner of the footprint.
+        // Honest: on the face (the expert closes 0.8 mm into it), at a corner of the footprint
+        // with the jaw tips' teeth on the cloth.
         assert!(binds(0.0, 0.0, top));
         assert!(binds(0.0, 0.0, 0.0005));
-        assert!(binds(0.007, -0.012, top + 0.0009));
-        // Dishonest: 1.5 and 3 mm above the face, 1 mm beyond its edge, through the pad.
+        assert!(binds(0.007, -0.012, top + 0.0003));
+        // Dishonest: 0.9, 1.5 and 3 mm above the face, 1 mm beyond its edge, through the pad.
+        assert!(!binds(0.0, 0.0, top + 0.0009));
         assert!(!binds(0.0, 0.0, top + 0.0015));
         assert!(!binds(0.0, 0.0, top + 0.003));
         assert!(!binds(0.0085, 0.0, top));
@@ -180,16 +217,45 @@ mod tests {
         // 10 mm along the arc from the midpoint (a third along a 63 mm needle): 0.5 rad.
         let third = FRAC_PI_2 - 0.010 / r;
         assert!(grasp(midpoint, 0.0, 0.0, 0.0));
-        assert!(grasp(midpoint, 0.0, 0.0012, 0.3));
+        assert!(grasp(midpoint, 0.0, 0.0008, 0.3));
         assert!(grasp(third, 0.0, 0.0005, 0.0));
         assert!(grasp(third, 0.0, 0.0, -0.3));
-        // 2 and 3 mm above the wire; 8 mm inside the arc; jaws along the wire; at the third
-        // with the jaws set for the midpoint's tangent (29 deg off).
-        assert!(!grasp(midpoint, 0.0, 0.002, 0.0));
-        assert!(!grasp(midpoint, 0.0, 0.003, 0.0));
+        // Oblique grasps a surgeon uses: at the third with the jaws set for the midpoint's
+        // tangent (29 deg off), and 40 deg off.
+        assert!(grasp(third, 0.0, 0.0, midpoint - third));
+        assert!(grasp(midpoint, 0.0, 0.0, 40f64.to_radians()));
+        // 0.9, 2 and 3 mm above the wire's top; 8 mm inside the arc; jaws along the wire, or
+        // 60 deg off across it.
+        assert!(!grasp(midpoint, 0.0, 0.0014, 0.0));
+        assert!(!grasp(midpoint, 0.0, 0.0025, 0.0));
+        assert!(!grasp(midpoint, 0.0, 0.0035, 0.0));
         assert!(!grasp(midpoint, 0.008, 0.0, 0.0));
         assert!(!grasp(third, 0.0, 0.0, FRAC_PI_2));
-        assert!(!grasp(third, 0.0, 0.0, midpoint - third));
+        assert!(!grasp(midpoint, 0.0, 0.0, 60f64.to_radians()));
+    }
+
+    /// Near a needle's end the jaws bind on the wire; 0.1 to 0.9 mm past the end, in the air,
+    /// they do not, though the end is within reach.
+    #[test]
+    fn a_needle_does_not_bind_past_its_end() {
+        let rule = GraspRule::default();
+        let needle = at(0.55, 0.0, 0.68, 0.0);
+        // The end at theta = 0: (R, -R, 0) in the grasp frame, its tangent along y; the jaws
+        // across it close along y (tip yaw 0).
+        let r = NEEDLE_ARC_RADIUS_M;
+        let binds = |local: Vector3<f64>| {
+            rule.binds(
+                &(needle * Point3::from(local)).coords,
+                0.0,
+                ObjectKind::Needle,
+                &needle,
+            )
+        };
+        assert!(binds(Vector3::new(r, -r + 0.0005, 0.0)));
+        assert!(binds(Vector3::new(r, -r, 0.0)));
+        for past in [0.0001, 0.0005, 0.0009] {
+            assert!(!binds(Vector3::new(r, -r - past, 0.0)), "{past}");
+        }
     }
 
     #[test]

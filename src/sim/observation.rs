@@ -5,6 +5,7 @@
 
 use crate::scene::ObjectKind;
 use crate::sim::control::JawCommand;
+use crate::sim::history::TrialHistory;
 use crate::sim::psm::{IkReport, Joints};
 use nalgebra::Isometry3;
 
@@ -50,12 +51,9 @@ pub struct Observation {
     pub bound_object: Option<usize>,
     /// What IK had to clamp on the last step.
     pub ik: IkReport,
-    /// Per scene mark that is a clip site: the jaw angle when the tip last entered its clip
-    /// band, while it stays inside (None: outside it).
-    pub clip_entry_jaw_rad: Vec<Option<f64>>,
-    /// The deepest the tool tip has been below a kidney's or spleen's surface since the start,
-    /// metres (0: never inside one). Recorded, not yet judged: see docs/FIDELITY.md.
-    pub peak_penetration_m: f64,
+    /// What happened since the start that a verdict needs: penetration, the vessel's entries
+    /// and closures, releases.
+    pub history: TrialHistory,
     /// On the last step the held object met static geometry and the tip stopped above its
     /// target.
     pub descent_stopped: bool,

@@ -15,6 +15,7 @@ use crate::sim::control::{
     physical_target,
 };
 use crate::sim::grasp::GraspRule;
+use crate::sim::history::{Moment, TrialHistory};
 use crate::sim::observation::{ObjectState, Observation};
 use crate::sim::physics::{PhysicsParams, PhysicsScene};
 use crate::sim::psm::{
@@ -27,6 +28,8 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 pub const MOVED_THRESHOLD_M: f64 = 0.002;
 /// How deep a held object may reach into static geometry, metres.
 pub const HELD_PENETRATION_M: f64 = 0.0002;
+/// Jaw angle at or below which the jaws count as closed, radians.
+pub const JAWS_CLOSED_RAD: f64 = JAW_CLOSED_RAD + 0.02;
 
 /// Everything that configures a simulator besides the scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -92,16 +95,10 @@ pub struct Simulator {
     binding: Option<Binding>,
     step_index: u64,
     last_report: StepReport,
-    /// Per scene mark: the jaw angle when the tip last entered its clip band, while it stays
-    /// inside (see [`crate::scene::ClipOffset::in_band`]).
-    clip_entry_jaw_rad: Vec<Option<f64>>,
-    /// Per object: bound at any time since the start.
-    ever_bound: Vec<bool>,
     /// Per object: its pose when last released, until it is bound again.
     released_at: Vec<Option<Isometry3<f64>>>,
-    /// The deepest the tool tip has been below a solid organ's surface since the start,
-    /// metres (0: never inside one).
-    peak_penetration_m: f64,
+    /// What the trial remembers (penetration, the vessel, releases).
+    history: TrialHistory,
 }
 
 /// Pose of the instrument's shaft frame: origin at the wrist-pitch joint, z from the RCM outward.
@@ -124,7 +121,6 @@ impl Simulator {
             &config.physics,
             &world_from_shaft(&config.psm, &joints),
         );
-        let marks = scene.marks.len();
         let objects = scene.objects.len();
         let mut sim = Simulator {
             config,
@@ -139,33 +135,24 @@ impl Simulator {
                 ik,
                 ..StepReport::default()
             },
-            clip_entry_jaw_rad: vec![None; marks],
-            ever_bound: vec![false; objects],
             released_at: vec![None; objects],
-            peak_penetration_m: 0.0,
+            history: TrialHistory::new(objects),
         };
-        sim.record_clip_entries();
+        sim.record_history();
         sim
     }
 
-    /// Records the jaw angle for every clip site whose band the tip has just entered, and
-    /// forgets the sites whose band it has left (a clip is judged on the jaws as they entered);
-    /// and keeps the tip's deepest penetration into a solid organ (kidney, spleen).
-    fn record_clip_entries(&mut self) {
-        let tip = self.world_from_tip().translation.vector;
-        let depth_m = (self.scene.organs.iter())
-            .filter(|o| o.kind != OrganKind::Vessel)
-            .map(|o| -organ::radial_gap_m(o, &tip))
-            .fold(0.0, f64::max);
-        self.peak_penetration_m = self.peak_penetration_m.max(depth_m);
-        for (mark, record) in self.scene.marks.iter().zip(&mut self.clip_entry_jaw_rad) {
-            let inside = mark.clip_offset(&tip).is_some_and(|o| o.in_band());
-            if !inside {
-                *record = None;
-            } else if record.is_none() {
-                *record = Some(self.jaw_angle_rad);
-            }
-        }
+    /// Records the tip's penetration and its passage through the vessel in the trial's history.
+    fn record_history(&mut self) {
+        let tip = self.world_from_tip();
+        self.history.record(&Moment {
+            step_index: self.step_index,
+            tip_m: tip.translation.vector,
+            tip_yaw_rad: euler_xyz(&tip.rotation)[2],
+            jaw_angle_rad: self.jaw_angle_rad,
+            jaws_closed: self.jaw_angle_rad <= JAWS_CLOSED_RAD,
+            scene: &self.scene,
+        });
     }
 
     pub fn config(&self) -> &SimConfig {
@@ -220,6 +207,29 @@ impl Simulator {
                 self.physics
                     .object_pose(i)
                     .unwrap_or(self.scene.objects[i].world_from_object)
+            })
+            .collect()
+    }
+
+    /// Where a ligation clip sits for every closing of the jaws on the vessel (a clip applier
+    /// leaves one each time it closes): on the vessel's axis under the tip, its x axis the
+    /// direction the jaws closed along (the tip's yaw then), z up.
+    pub fn world_from_clips(&self) -> Vec<Isometry3<f64>> {
+        let Some(vessel) = (self.scene.organs.iter()).find(|o| o.kind == OrganKind::Vessel) else {
+            return Vec::new();
+        };
+        (self.history.vessel_closures.iter())
+            .map(|closure| {
+                let tip = Vector3::from(closure.tip_m);
+                let section = organ::vessel_section(vessel, &tip);
+                Isometry3::from_parts(
+                    Translation3::from(tip - Vector3::z() * section.above_axis_m),
+                    UnitQuaternion::from_euler_angles(
+                        0.0,
+                        0.0,
+                        closure.jaw_line_rad - std::f64::consts::FRAC_PI_2,
+                    ),
+                )
             })
             .collect()
     }
@@ -300,7 +310,7 @@ impl Simulator {
         }
         self.step_index += 1;
         self.last_report = report;
-        self.record_clip_entries();
+        self.record_history();
         report
     }
 
@@ -333,9 +343,7 @@ impl Simulator {
                     let world_from_object = self.physics.object_pose(object).unwrap_or_default();
                     let tip_from_object = self.world_from_tip().inverse() * world_from_object;
                     self.physics.set_object_bound(object, true);
-                    if let Some(ever) = self.ever_bound.get_mut(object) {
-                        *ever = true;
-                    }
+                    self.history.bound(object, self.step_index);
                     if let Some(released) = self.released_at.get_mut(object) {
                         *released = None;
                     }
@@ -351,6 +359,9 @@ impl Simulator {
                     if let Some(released) = self.released_at.get_mut(binding.object) {
                         *released = self.physics.object_pose(binding.object);
                     }
+                    let poses = self.object_poses();
+                    self.history
+                        .released(binding.object, self.step_index, poses);
                     self.physics.set_object_bound(binding.object, false);
                     report.released = Some(binding.object);
                 }
@@ -404,7 +415,7 @@ impl Simulator {
                     kind: spec.kind,
                     world_from_object: pose,
                     bound: self.bound_object() == Some(i),
-                    ever_bound: self.ever_bound.get(i).copied().unwrap_or(false),
+                    ever_bound: self.history.ever_bound.get(i).copied().unwrap_or(false),
                     released_at: self.released_at.get(i).copied().flatten(),
                     on_tray: self.physics.object_on_tray(i),
                     on_block: block.is_some_and(|b| b != i && self.physics.objects_touching(i, b)),
@@ -426,8 +437,7 @@ impl Simulator {
             objects,
             bound_object: self.bound_object(),
             ik: self.last_report.ik,
-            clip_entry_jaw_rad: self.clip_entry_jaw_rad.clone(),
-            peak_penetration_m: self.peak_penetration_m,
+            history: self.history.clone(),
             descent_stopped: self.last_report.descent_stopped,
         }
     }
@@ -439,7 +449,7 @@ impl Simulator {
         self.joints = joints;
         self.physics
             .move_instrument(&world_from_shaft(&self.config.psm, &self.joints));
-        self.record_clip_entries();
+        self.record_history();
         ik
     }
 

@@ -1,59 +1,44 @@
-//! Success predicates: whether an observation completes the task of a [`TaskInstance`]. Each
-//! judges the physical event (rule set [`RULE_SET`]; docs/FIDELITY.md gives every rule with a
-//! motion that passes and one that fails):
+//! Success predicates: whether a trial, as its observation and history (`sim::history`)
+//! record it, completes the task of a [`TaskInstance`]. Each judges the physical event, and
+//! each condition at the moment it matters (rule set [`RULE_SET`]; docs/FIDELITY.md gives
+//! every rule with a motion that passes and one that fails):
 //!
 //! | task | success |
 //! |---|---|
 //! | T1-1, T2-1 | the named gauze bound (the jaws closed on its top face: see `sim::grasp`) and raised >= 10 mm |
-//! | T1-2, T2-2 | the named needle bound (the jaws closed on its wire, across it), raised >= 4 mm, not touching the tray |
+//! | T1-2, T2-2 | the named needle bound (the jaws closed on its wire, across it within 45 deg, not past its ends), raised >= 4 mm, not touching the tray |
 //! | T2-1, T2-2 | ... and no distractor ever grasped (a terminal failure: the trial ends there) or moved more than 2 mm |
-//! | T1-3 | jaws closed, the tip on the organ's surface (within 1 mm of it, either side) within 4 mm of the spot |
-//! | T2-3 | a clip: the jaws were open when the tip entered the band around the named site (within 1.5 mm of the vessel's axis across it, 4 mm along it, between the tissue and the vessel's centre line), closed while inside it, crossing the vessel within 20 deg |
-//! | T3-1 | the gauze placed: let go within 5 mm above the block, at rest, its centre over the block's top, bottom-to-top gap < 3 mm |
-//! | T3-2 | the gauze placed: let go within 5 mm above the spleen, at rest on it (underside within 3 mm of its surface), the target spot wholly under its footprint |
+//! | T1-3 | jaws closed, the tip on the organ's surface (within 1 mm of it, either side) on the drawn spot (within its radius) |
+//! | T2-3 | a clip applied at the named site (`clip_rule`): the jaws entered the vessel open from above, closed in the band around the site, across the vessel when they closed |
+//! | T3-1 | the gauze placed (`place_rule`): every release within 5 mm above what was under it, the block never held and not moved since, the gauze at rest with its centre over the block's top, gap < 3 mm |
+//! | T3-2 | the gauze placed: every release within 5 mm above what was under it, the spot wholly under the footprint when let go and within 3 mm of it after sliding, resting on the spleen |
 //!
-//! Every verdict carries a short reason, so a failed episode says why.
+//! Every task: the tip never deeper than [`PENETRATION_LIMIT_M`] inside a kidney or spleen
+//! (a terminal failure). Terminal failures end a trial the moment they happen
+//! ([`TaskInstance::terminal_failure`]); every verdict carries a short reason, so a failed
+//! episode says why.
 
-use crate::scene::{
-    BLOCK_HALF_EXTENTS_M, CLIP_BAND_ACROSS_M, CLIP_BAND_ALONG_M, GAUZE_HALF_EXTENTS_M, ObjectKind,
-    OrganKind, OrganSpec, organ,
-};
-use crate::sim::grasp::line_angle_difference;
+use crate::scene::{ObjectKind, OrganKind, OrganSpec, organ};
+use crate::sim::JAWS_CLOSED_RAD;
 use crate::sim::observation::Observation;
-use crate::sim::psm::{JAW_CLOSED_RAD, JAW_OPEN_RAD};
 use crate::task::id::TaskId;
 use crate::task::spawn::TaskInstance;
-use nalgebra::{Isometry3, Point3, Vector3};
-use std::f64::consts::FRAC_PI_2;
+use nalgebra::Vector3;
 
 /// The name and version of these rules, recorded with every dataset and evaluation: a dataset
 /// judged by other rules is not re-judged by these.
-pub const RULE_SET: &str = "surgvla-physical-v1";
+pub const RULE_SET: &str = "surgvla-physical-v2";
 
 /// Lift a picked gauze needs, metres.
 pub const GAUZE_LIFT_M: f64 = 0.010;
 /// Lift a picked needle needs, metres.
 pub const NEEDLE_LIFT_M: f64 = 0.004;
-/// Tip-to-mark distance for touch and clip, metres.
-pub const TOUCH_RADIUS_M: f64 = 0.004;
 /// Largest distance between the touching tip and the organ's surface, either side, metres:
 /// on the tissue, neither hovering over it nor pushed into it.
 pub const TOUCH_SURFACE_GAP_M: f64 = 0.001;
-/// Largest angle between the jaws' closing line and the vessel's normal, radians (20 deg).
-pub const CLIP_CROSSING_TOLERANCE_RAD: f64 = 20.0 * std::f64::consts::PI / 180.0;
-/// Largest gap between the placed gauze's bottom and the block's top, metres.
-pub const PLACE_GAP_M: f64 = 0.003;
-/// A placed object moving slower than this has settled, metres per second: a gauze on the
-/// spleen's curve jitters in contact at up to 15 mm/s for seconds before the engine puts it to
-/// sleep; one let go in the air falls faster than this within 0.02 s.
-pub const SETTLED_SPEED_M_PER_S: f64 = 0.02;
-/// Highest a gauze may be let go above its support and count as placed, metres (measured from
-/// its underside).
-pub const PLACE_RELEASE_HEIGHT_M: f64 = 0.005;
-/// Jaw angle that counts as closed, radians.
-const JAWS_CLOSED_RAD: f64 = JAW_CLOSED_RAD + 0.02;
-/// Jaw angle that counts as open when a clip reaches its site: at least half open, radians.
-const JAWS_OPEN_FOR_CLIP_RAD: f64 = 0.5 * JAW_OPEN_RAD;
+/// Deepest the tool tip may go below a kidney's or spleen's surface at any time, metres:
+/// twice the touch's allowance; deeper is a stab, whatever the tip does next.
+pub const PENETRATION_LIMIT_M: f64 = 0.002;
 
 /// The outcome of a success check.
 #[derive(Clone, Debug, PartialEq)]
@@ -64,14 +49,14 @@ pub struct Verdict {
 }
 
 impl Verdict {
-    fn pass(reason: impl Into<String>) -> Self {
+    pub(super) fn pass(reason: impl Into<String>) -> Self {
         Verdict {
             success: true,
             reason: reason.into(),
         }
     }
 
-    fn fail(reason: impl Into<String>) -> Self {
+    pub(super) fn fail(reason: impl Into<String>) -> Self {
         Verdict {
             success: false,
             reason: reason.into(),
@@ -91,7 +76,7 @@ fn jaws_open(observation: &Observation) -> Option<Verdict> {
 
 impl TaskInstance {
     /// The solid organ a mark lies on: the one whose surface passes nearest it.
-    fn organ_under(&self, mark_m: &Vector3<f64>) -> Option<&OrganSpec> {
+    pub(super) fn organ_under(&self, mark_m: &Vector3<f64>) -> Option<&OrganSpec> {
         let at_mark = |o: &OrganSpec| organ::radial_gap_m(o, mark_m).abs();
         self.scene
             .organs
@@ -101,14 +86,33 @@ impl TaskInstance {
     }
 
     /// A failure that ends a trial (or an expert attempt) the moment it happens, whatever
-    /// follows: a distractor grasped (T2-1, T2-2).
+    /// follows: a distractor grasped (T2-1, T2-2); the tip deeper than
+    /// [`PENETRATION_LIMIT_M`] in a kidney or spleen; the jaws into the vessel closed or
+    /// through its wall, or closed in it anywhere but at the named site (T2-3); the gauze
+    /// dropped, or its support held (T3-1, T3-2).
     pub fn terminal_failure(&self, observation: &Observation) -> Option<Verdict> {
-        observation
+        if let Some((_, spec)) = observation
             .objects
             .iter()
             .zip(&self.scene.objects)
             .find(|(state, spec)| spec.distractor && state.ever_bound)
-            .map(|(_, spec)| Verdict::fail(format!("grasped the distractor '{}'", spec.name)))
+        {
+            return Some(Verdict::fail(format!(
+                "grasped the distractor '{}'",
+                spec.name
+            )));
+        }
+        let depth = observation.history.peak_penetration_m;
+        if depth > PENETRATION_LIMIT_M {
+            return Some(Verdict::fail(format!(
+                "the tip went {:.1} mm into the tissue (deeper than {:.0} mm is a stab)",
+                depth * 1e3,
+                PENETRATION_LIMIT_M * 1e3
+            )));
+        }
+        self.vessel_decision(observation)
+            .filter(|verdict| !verdict.success)
+            .or_else(|| self.placement_failure(observation))
     }
 
     /// Whether `observation` completes this instance's task.
@@ -182,24 +186,26 @@ impl TaskInstance {
             return Verdict::fail("no target mark");
         };
         let tip = Vector3::from(observation.tip_position_m);
-        let distance = (tip - mark.position_m).norm();
         if let Some(open) = jaws_open(observation) {
             return open;
         }
-        if distance > TOUCH_RADIUS_M {
-            return Verdict::fail(format!(
-                "tip {:.1} mm from '{}' (> {:.0} mm)",
-                distance * 1e3,
-                mark.name,
-                TOUCH_RADIUS_M * 1e3
-            ));
-        }
-        let Some(gap) = self
-            .organ_under(&mark.position_m)
-            .map(|o| organ::radial_gap_m(o, &tip))
-        else {
+        let Some(organ) = self.organ_under(&mark.position_m) else {
             return Verdict::fail("no tissue to touch");
         };
+        let gap = organ::radial_gap_m(organ, &tip);
+        // On the drawn spot: the tip's distance from its centre along the surface (the part of
+        // the offset across the ray from the organ's centre, which the gap measures along).
+        let normal = (mark.position_m - organ.world_from_organ.translation.vector).normalize();
+        let offset = tip - mark.position_m;
+        let distance = (offset - normal * offset.dot(&normal)).norm();
+        if distance > mark.radius_m {
+            return Verdict::fail(format!(
+                "tip {:.1} mm from the centre of '{}' (off the drawn spot, {:.1} mm in radius)",
+                distance * 1e3,
+                mark.name,
+                mark.radius_m * 1e3
+            ));
+        }
         if gap.abs() > TOUCH_SURFACE_GAP_M {
             return Verdict::fail(format!(
                 "tip {:.1} mm {} the tissue's surface (touching is within {:.0} mm of it)",
@@ -213,189 +219,6 @@ impl TaskInstance {
             gap * 1e3,
             distance * 1e3,
             mark.name
-        ))
-    }
-
-    /// A clip: the jaws entered the band around the vessel at the named site open, closed
-    /// there, and cross the vessel.
-    fn clipped(&self, observation: &Observation) -> Verdict {
-        let Some((index, mark)) = self
-            .target_mark
-            .and_then(|i| self.scene.marks.get(i).map(|m| (i, m)))
-        else {
-            return Verdict::fail("no target mark");
-        };
-        let tip = Vector3::from(observation.tip_position_m);
-        let Some(offset) = mark.clip_offset(&tip) else {
-            return Verdict::fail(format!("'{}' is not on a vessel", mark.name));
-        };
-        if offset.across_m > CLIP_BAND_ACROSS_M || offset.along_m > CLIP_BAND_ALONG_M {
-            return Verdict::fail(format!(
-                "tip {:.1} mm from the vessel's axis and {:.1} mm along it from '{}' (a clip closes within {:.1} mm of the axis, {:.0} mm of the site)",
-                offset.across_m * 1e3,
-                offset.along_m * 1e3,
-                mark.name,
-                CLIP_BAND_ACROSS_M * 1e3,
-                CLIP_BAND_ALONG_M * 1e3
-            ));
-        }
-        if !offset.in_band() {
-            return Verdict::fail(format!(
-                "tip {:.1} mm above the vessel's centre line, {:.1} mm above the tissue: the jaws do not straddle the vessel",
-                offset.above_centre_line_m * 1e3,
-                offset.above_tissue_m * 1e3
-            ));
-        }
-        match observation.clip_entry_jaw_rad.get(index).copied().flatten() {
-            None => return Verdict::fail("the tip is not in the clip band"),
-            Some(jaw) if jaw < JAWS_OPEN_FOR_CLIP_RAD => {
-                return Verdict::fail(format!(
-                    "the jaws were closed ({:.0} deg) when the tip reached the vessel at '{}': a clip closes around it",
-                    jaw.to_degrees(),
-                    mark.name
-                ));
-            }
-            Some(_) => {}
-        }
-        if let Some(open) = jaws_open(observation) {
-            return open;
-        }
-        if let Some(line) = mark.line_direction {
-            let jaw_line = observation.tip_euler_xyz_rad[2] + FRAC_PI_2;
-            let off = line_angle_difference(line.y.atan2(line.x), jaw_line);
-            if off > CLIP_CROSSING_TOLERANCE_RAD {
-                return Verdict::fail(format!(
-                    "jaws {:.0} deg off crossing the vessel",
-                    off.to_degrees()
-                ));
-            }
-        }
-        Verdict::pass(format!(
-            "clipped '{}': tip {:.1} mm from the axis, {:.1} mm along it, {:.1} mm below the centre line",
-            mark.name,
-            offset.across_m * 1e3,
-            offset.along_m * 1e3,
-            -offset.above_centre_line_m * 1e3
-        ))
-    }
-
-    /// The target object, let go by the jaws and at rest, with its pose when released.
-    fn released_target<'a>(
-        &self,
-        observation: &'a Observation,
-    ) -> Result<(&'a crate::sim::observation::ObjectState, Isometry3<f64>), Verdict> {
-        let target = self
-            .target_object
-            .ok_or_else(|| Verdict::fail("no target object"))?;
-        let state = observation
-            .objects
-            .get(target)
-            .ok_or_else(|| Verdict::fail("target object missing from the observation"))?;
-        if state.bound {
-            return Err(Verdict::fail(format!("'{}' still held", state.name)));
-        }
-        let Some(released_at) = state.released_at else {
-            return Err(Verdict::fail(format!("'{}' never placed", state.name)));
-        };
-        if !state.at_rest && state.speed_m_per_s > SETTLED_SPEED_M_PER_S {
-            return Err(Verdict::fail(format!(
-                "'{}' still moving ({:.0} mm/s)",
-                state.name,
-                state.speed_m_per_s * 1e3
-            )));
-        }
-        Ok((state, released_at))
-    }
-
-    /// A released object dropped from higher than [`PLACE_RELEASE_HEIGHT_M`] was thrown, not
-    /// placed.
-    fn dropped(&self, height_m: f64) -> Option<Verdict> {
-        (height_m > PLACE_RELEASE_HEIGHT_M).then(|| {
-            Verdict::fail(format!(
-                "gauze released {:.1} mm above its support (placing is within {:.0} mm)",
-                height_m * 1e3,
-                PLACE_RELEASE_HEIGHT_M * 1e3
-            ))
-        })
-    }
-
-    fn placed_on_block(&self, observation: &Observation) -> Verdict {
-        let (gauze, released_at) = match self.released_target(observation) {
-            Ok(state) => state,
-            Err(verdict) => return verdict,
-        };
-        let Some(block) = self.support_object.and_then(|i| observation.objects.get(i)) else {
-            return Verdict::fail("no block");
-        };
-        let block_from_world = block.world_from_object.inverse();
-        let centre = block_from_world * Point3::from(gauze.world_from_object.translation.vector);
-        if centre.x.abs() > BLOCK_HALF_EXTENTS_M[0] || centre.y.abs() > BLOCK_HALF_EXTENTS_M[1] {
-            return Verdict::fail(format!(
-                "gauze centre not over the block ({:.1}, {:.1}) mm",
-                centre.x * 1e3,
-                centre.y * 1e3
-            ));
-        }
-        let gap = centre.z - GAUZE_HALF_EXTENTS_M[2] - BLOCK_HALF_EXTENTS_M[2];
-        if !(-0.001..PLACE_GAP_M).contains(&gap) {
-            return Verdict::fail(format!("gauze {:.1} mm above the block", gap * 1e3));
-        }
-        let released = block_from_world * Point3::from(released_at.translation.vector);
-        let height = released.z - GAUZE_HALF_EXTENTS_M[2] - BLOCK_HALF_EXTENTS_M[2];
-        if let Some(dropped) = self.dropped(height) {
-            return dropped;
-        }
-        Verdict::pass(format!(
-            "gauze placed on the block from {:.1} mm, gap {:.1} mm",
-            height * 1e3,
-            gap * 1e3
-        ))
-    }
-
-    fn placed_on_mark(&self, observation: &Observation) -> Verdict {
-        let (gauze, released_at) = match self.released_target(observation) {
-            Ok(state) => state,
-            Err(verdict) => return verdict,
-        };
-        let Some(mark) = self.target_mark.and_then(|i| self.scene.marks.get(i)) else {
-            return Verdict::fail("no target mark");
-        };
-        // The spot under the footprint, all of it: its centre within the footprint shrunk by
-        // its radius.
-        let spot = gauze.world_from_object.inverse() * Point3::from(mark.position_m);
-        let [hx, hy, hz] = GAUZE_HALF_EXTENTS_M;
-        let uncovered_x = spot.x.abs() + mark.radius_m - hx;
-        let uncovered_y = spot.y.abs() + mark.radius_m - hy;
-        if uncovered_x > 0.0 || uncovered_y > 0.0 {
-            return Verdict::fail(format!(
-                "'{}' not under the gauze (its edge {:.1} mm beyond the gauze's)",
-                mark.name,
-                uncovered_x.max(uncovered_y) * 1e3
-            ));
-        }
-        // Resting on the organ the spot is on: its underside on the surface there.
-        let Some(organ) = self.organ_under(&mark.position_m) else {
-            return Verdict::fail("no organ under the target");
-        };
-        let underside = |pose: &Isometry3<f64>| (pose * Point3::new(0.0, 0.0, -hz)).coords;
-        let resting = organ::radial_gap_m(organ, &underside(&gauze.world_from_object));
-        if resting.abs() > PLACE_GAP_M {
-            return Verdict::fail(format!(
-                "gauze {:.1} mm {} the {}'s surface, not resting on it",
-                resting.abs() * 1e3,
-                if resting > 0.0 { "above" } else { "inside" },
-                organ.kind.name()
-            ));
-        }
-        let height = organ::radial_gap_m(organ, &underside(&released_at));
-        if let Some(dropped) = self.dropped(height) {
-            return dropped;
-        }
-        Verdict::pass(format!(
-            "'{}' covered, gauze placed on the {} from {:.1} mm",
-            mark.name,
-            organ.kind.name(),
-            height * 1e3
         ))
     }
 }

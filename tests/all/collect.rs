@@ -290,7 +290,12 @@ fn measuring_experts_counts_failures_and_collect_stops_on_an_exhausted_slot() {
             .all(|f| f.stage == surgvla::collect::slot::FailureStage::Expert
                 && f.slot.task == TaskId::Hemostasis)
     );
-    assert!(report.failures[0].reason.contains("not under the gauze"));
+    // Let go 25 mm aside: off the spot, or (where the spleen's flank falls away) a drop.
+    let reason = &report.failures[0].reason;
+    assert!(
+        reason.contains("not under the gauze") || reason.contains("gauze dropped"),
+        "{reason}"
+    );
 
     let root = temp_root("exhausted");
     let mut writer = LeRobotWriter::create(&root, &info(false), LeRobotOptions::default()).unwrap();
@@ -329,7 +334,8 @@ fn the_experts_command_prints_rates_and_reproducible_failures() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     assert!(
-        stdout.contains("(expert): 'bleeding_target' not under the gauze")
+        (stdout.contains("(expert): 'bleeding_target' not under the gauze")
+            || stdout.contains("(expert): gauze dropped"))
             && stdout.contains("[seed "),
         "{stdout}"
     );

@@ -33,6 +33,12 @@ fn instance(task: TaskId, k: u64) -> TaskInstance {
 
 /// Runs `text` as the expert of `task` on a few slots: every verdict fails, saying `why`.
 fn always_fails(task: TaskId, text: &str, why: &str) {
+    always_fails_for_one_of(task, text, &[why]);
+}
+
+/// Runs `text` as the expert of `task` on a few slots: every verdict fails, saying one of
+/// `whys` (a motion that breaks two rules fails on whichever it breaks first).
+fn always_fails_for_one_of(task: TaskId, text: &str, whys: &[&str]) {
     let plan = plan(text);
     for k in 0..4 {
         let run = run_expert(
@@ -44,7 +50,7 @@ fn always_fails(task: TaskId, text: &str, why: &str) {
         .expect("run");
         assert!(!run.verdict.success, "{task} k {k}: {}", run.verdict.reason);
         assert!(
-            run.verdict.reason.contains(why),
+            whys.iter().any(|why| run.verdict.reason.contains(why)),
             "{task} k {k}: {}",
             run.verdict.reason
         );
@@ -69,7 +75,11 @@ fn a_clip_must_arrive_open_and_straddle_the_vessel() {
         "frame = \"mark\"\noffset_m = [0.0035, 0.0, -0.0035]",
     );
     assert_ne!(beside, expert);
-    always_fails(task, &beside, "from the vessel's axis");
+    always_fails_for_one_of(
+        task,
+        &beside,
+        &["from the vessel's axis", "through the vessel's wall"],
+    );
 }
 
 /// The loophole as it was found: closed jaws 3.5 mm over the spot, or 3.5 mm into the kidney
@@ -96,44 +106,64 @@ fn closed_jaws_3_5_mm_over_or_into_the_kidney_do_not_touch_it() {
         for dz in [0.0035, -0.0035] {
             let verdict = verdict_at(dz);
             assert!(!verdict.success, "k {k} dz {dz}: {}", verdict.reason);
-            assert!(
-                verdict.reason.contains("tissue's surface"),
-                "{}",
-                verdict.reason
-            );
+            // Over it: not on the surface; into it: a stab (more than 2 mm deep).
+            let why = if dz > 0.0 {
+                "tissue's surface"
+            } else {
+                "into the tissue"
+            };
+            assert!(verdict.reason.contains(why), "{}", verdict.reason);
         }
     }
 }
 
 /// A stab is remembered: closed jaws pushed 6 mm into the kidney and pulled back onto the spot
-/// leave the trial's peak penetration at 6 mm or more (the rules of surgvla-physical-v1 still judge the
-/// end state only: issue 43 makes it a failure); a touch straight onto the spot leaves it
-/// within 1 mm.
+/// fail, though the end state is a touch; a touch pressed 1.5 mm into the tissue (within the
+/// 2 mm allowed) and eased back onto the spot passes. The peak is measured along the ray from
+/// the organ's centre.
 #[test]
-fn the_deepest_penetration_into_an_organ_is_remembered() {
+fn a_stab_pulled_back_onto_the_spot_is_a_failure_a_firm_press_is_not() {
     let task = TaskId::Electrocoagulation;
     for k in 0..3 {
         let instance = instance(task, k);
         let spot = instance.scene.marks[instance.target_mark.expect("spot")].position_m;
-        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
-        sim.step_native(&surgvla::sim::NativeCommand {
-            jaw: -1.0,
-            ..Default::default()
-        });
-        let mut visit = |dz: f64| {
-            let mut pose = sim.world_from_tip();
-            pose.translation.vector = spot + nalgebra::Vector3::new(0.0, 0.0, dz);
-            assert!(sim.teleport_tip(&pose).is_exact());
-            sim.observation().peak_penetration_m
-        };
-        let touched = visit(0.0);
-        assert!(touched <= 0.001, "k {k}: {touched} m");
-        // 6 mm down is 6 mm or more below the curved surface, measured from the organ's centre.
-        let stabbed = visit(-0.006);
-        assert!((0.0055..0.012).contains(&stabbed), "k {k}: {stabbed} m");
-        // Back on the spot: the end state is a touch, the stab is not forgotten.
-        assert_eq!(visit(0.0), stabbed);
-        assert!(instance.success(&sim.observation()).success);
+        for (deepest, honest) in [(-0.006, false), (-0.0015, true)] {
+            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+            sim.step_native(&surgvla::sim::NativeCommand {
+                jaw: -1.0,
+                ..Default::default()
+            });
+            let mut visit = |dz: f64| {
+                let mut pose = sim.world_from_tip();
+                pose.translation.vector = spot + nalgebra::Vector3::new(0.0, 0.0, dz);
+                assert!(sim.teleport_tip(&pose).is_exact());
+                let observation = sim.observation();
+                (observation.history.peak_penetration_m, observation)
+            };
+            assert!(visit(0.0).0 <= 0.001, "k {k}");
+            let (peak, _) = visit(deepest);
+            assert!(
+                (-deepest - 0.0005..-2.0 * deepest).contains(&peak),
+                "k {k}: {peak} m"
+            );
+            // Back on the spot: the end state is a touch; the peak is not forgotten.
+            let (after, observation) = visit(0.0);
+            assert_eq!(after, peak);
+            let verdict = instance.success(&observation);
+            assert_eq!(verdict.success, honest, "k {k}: {}", verdict.reason);
+            assert_eq!(
+                instance.terminal_failure(&observation).is_some(),
+                !honest,
+                "k {k}"
+            );
+            if !honest {
+                assert!(
+                    verdict.reason.contains("into the tissue"),
+                    "{}",
+                    verdict.reason
+                );
+            }
+        }
     }
 }
 
@@ -145,8 +175,12 @@ fn a_touch_is_on_the_tissue_not_over_it_or_inside_it() {
     assert!(expert.contains(touch));
     let hovering = expert.replace(touch, &touch.replace("0.0]", "0.0025]"));
     always_fails(task, &hovering, "above the tissue's surface");
+    // 2.5 mm in: a stab (more than 2 mm); 2.1 mm down (1-2 mm into the curved surface), held:
+    // not on the surface.
     let pushed_in = expert.replace(touch, &touch.replace("0.0]", "-0.0025]"));
-    always_fails(task, &pushed_in, "inside the tissue's surface");
+    always_fails(task, &pushed_in, "into the tissue");
+    let pressed = expert.replace(touch, &touch.replace("0.0]", "-0.0021]"));
+    always_fails(task, &pressed, "inside the tissue's surface");
 }
 
 #[test]
@@ -164,21 +198,29 @@ fn a_gauze_let_go_high_above_its_support_is_not_placed() {
     }
 }
 
+/// Slot `k` of `task` (T3-1, T3-2) and the observation after its built-in expert placed the
+/// gauze (checked a success).
+fn placed_by_the_expert(task: TaskId, k: u64) -> (TaskInstance, surgvla::sim::Observation) {
+    let plan = plan(&builtin(task));
+    let instance = instance(task, k);
+    let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+    let mut expert = plan
+        .expert(&instance, &sim.observation(), instance.seed)
+        .expect("expert");
+    let placed = rollout(&mut sim, &mut expert, 150).final_observation;
+    let verdict = instance.success(&placed);
+    assert!(verdict.success, "{task} k {k}: {}", verdict.reason);
+    (instance, placed)
+}
+
 #[test]
 fn a_hemostasis_gauze_must_cover_the_spot() {
-    // The honest placement passes; the same gauze moved 9 mm along its short side (its centre
-    // still within the old 10 mm) leaves the spot uncovered.
+    // The honest placement passes; the same gauze moved 9 mm along its short side after it was
+    // let go (its centre still within the old 10 mm) leaves the spot uncovered; moved 2 mm
+    // (a slide the spleen's flank allows) it still passes.
     let task = TaskId::Hemostasis;
-    let plan = plan(&builtin(task));
     for k in 0..3 {
-        let instance = instance(task, k);
-        let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
-        let mut expert = plan
-            .expert(&instance, &sim.observation(), instance.seed)
-            .expect("expert");
-        let placed = rollout(&mut sim, &mut expert, 150).final_observation;
-        let verdict = instance.success(&placed);
-        assert!(verdict.success, "k {k}: {}", verdict.reason);
+        let (instance, placed) = placed_by_the_expert(task, k);
         let gauze = instance.target_object.expect("gauze");
         let mut moved = placed.clone();
         let pose = &mut moved.objects[gauze].world_from_object;
@@ -190,14 +232,15 @@ fn a_hemostasis_gauze_must_cover_the_spot() {
         } else {
             -1.0
         };
-        pose.translation.vector += sign * 0.009 * short_side;
+        let start = pose.translation.vector;
+        pose.translation.vector = start + sign * 0.002 * short_side;
+        let verdict = instance.success(&moved);
+        assert!(verdict.success, "k {k}: {}", verdict.reason);
+        moved.objects[gauze].world_from_object.translation.vector =
+            start + sign * 0.009 * short_side;
         let verdict = instance.success(&moved);
         assert!(!verdict.success);
-        assert!(
-            verdict.reason.contains("not under the gauze"),
-            "{}",
-            verdict.reason
-        );
+        assert!(verdict.reason.contains("slid off"), "{}", verdict.reason);
     }
 }
 
@@ -212,7 +255,13 @@ fn a_gauze_beside_the_block_or_15_mm_from_the_target_is_not_placed() {
         "frame = \"place\"\noffset_m = [0.0, 0.0,",
         "frame = \"place\"\noffset_m = [0.0, 0.015,",
     );
-    always_fails(TaskId::Hemostasis, &off_target, "not under the gauze");
+    // Let go 15 mm aside, where the spleen's flank falls away: not over the spot, or (lower
+    // on the flank) dropped from above 5 mm.
+    always_fails_for_one_of(
+        TaskId::Hemostasis,
+        &off_target,
+        &["not under the gauze", "gauze dropped"],
+    );
 }
 
 #[test]
@@ -285,5 +334,68 @@ fn a_held_gauze_pressed_into_the_pad_stops_at_its_surface() {
             );
         }
         assert!(held_steps > 5, "k {k}: the gauze was held");
+    }
+}
+
+/// The touch rule's radius is the drawn spot's: closed jaws on the tissue 2 mm from the spot's
+/// centre touch it; 3.8 mm from it (1.4 mm outside the drawn 2.4 mm spot) they do not.
+#[test]
+fn a_touch_counts_on_the_drawn_spot_only() {
+    let task = TaskId::Electrocoagulation;
+    for k in 0..4 {
+        let instance = instance(task, k);
+        let mark = &instance.scene.marks[instance.target_mark.expect("spot")];
+        assert_eq!(mark.radius_m, 0.0024);
+        let organ = &instance.scene.organs[0];
+        let verdict_at = |aside_m: f64| {
+            // Along the surface: aside in y, then onto the surface along the ray from the
+            // organ's centre.
+            let centre = organ.world_from_organ.translation.vector;
+            let ray =
+                (mark.position_m + nalgebra::Vector3::new(0.0, aside_m, 0.0) - centre).normalize();
+            let local = organ.world_from_organ.rotation.inverse() * ray;
+            let surface = organ.world_from_organ
+                * nalgebra::Point3::from(surgvla::scene::organ::surface_point(organ, local));
+            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+            sim.step_native(&surgvla::sim::NativeCommand {
+                jaw: -1.0,
+                ..Default::default()
+            });
+            let mut pose = sim.world_from_tip();
+            pose.translation.vector = surface.coords;
+            assert!(sim.teleport_tip(&pose).is_exact());
+            instance.success(&sim.observation())
+        };
+        let on = verdict_at(0.002);
+        assert!(on.success, "k {k}: {}", on.reason);
+        let off = verdict_at(0.0038);
+        assert!(!off.success, "k {k}");
+        assert!(off.reason.contains("off the drawn spot"), "{}", off.reason);
+    }
+}
+
+/// A placement stands only while its support stays: the block carried 6 mm away after the gauze
+/// was let go on it fails; nudged 1 mm it passes.
+#[test]
+fn a_block_moved_after_the_placement_undoes_it() {
+    for k in 0..3 {
+        let (instance, placed) = placed_by_the_expert(TaskId::PickAndPlace, k);
+        let block = instance.support_object.expect("block");
+        let gauze = instance.target_object.expect("gauze");
+        for (moved_m, honest) in [(0.001, true), (0.006, false)] {
+            let mut moved = placed.clone();
+            for index in [block, gauze] {
+                moved.objects[index].world_from_object.translation.vector.x += moved_m;
+            }
+            let verdict = instance.success(&moved);
+            assert_eq!(verdict.success, honest, "k {k}: {}", verdict.reason);
+            if !honest {
+                assert!(
+                    verdict.reason.contains("the block moved"),
+                    "{}",
+                    verdict.reason
+                );
+            }
+        }
     }
 }

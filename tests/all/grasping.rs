@@ -43,8 +43,9 @@ fn tip_near_gauze(dx_m: f64, dz_m: f64) -> Simulator {
 #[test]
 fn binds_where_the_jaws_close_on_the_gauzes_top_face() {
     // The grasp point is the gauze's centre, 1.3 mm below its top face: the tip on the face,
-    // 0.8 mm into it (the expert), at its centre and 6 mm aside over the footprint.
-    for (dx, dz) in [(0.0, 0.0013), (0.0, 0.0005), (0.006, 0.001), (0.0, 0.002)] {
+    // 0.8 mm into it (the expert), at its centre and 6 mm aside over the footprint, and 0.3 mm
+    // above it (the jaw tips' teeth on the cloth).
+    for (dx, dz) in [(0.0, 0.0013), (0.0, 0.0005), (0.006, 0.001), (0.0, 0.0016)] {
         let mut sim = tip_near_gauze(dx, dz);
         let report = sim.step_native(&CLOSE);
         assert_eq!(report.bound, Some(0), "offset ({dx}, {dz}) should bind");
@@ -54,9 +55,16 @@ fn binds_where_the_jaws_close_on_the_gauzes_top_face() {
 
 #[test]
 fn does_not_bind_in_the_air_above_it_or_beside_it() {
-    // 1.2 mm and 2.7 mm above the face (the old rule's 3 mm box bound both), beyond the
-    // footprint's 7.5 mm half width, 10 mm up.
-    for (dx, dz) in [(0.0, 0.0025), (0.0, 0.004), (0.0085, 0.0013), (0.0, 0.010)] {
+    // 0.7, 1.2 and 2.7 mm above the face (the old rule's 3 mm box bound all three, the
+    // first rule of surgvla-physical-v1 the first), beyond the footprint's 7.5 mm half width,
+    // 10 mm up.
+    for (dx, dz) in [
+        (0.0, 0.002),
+        (0.0, 0.0025),
+        (0.0, 0.004),
+        (0.0085, 0.0013),
+        (0.0, 0.010),
+    ] {
         let mut sim = tip_near_gauze(dx, dz);
         let report = sim.step_native(&CLOSE);
         assert_eq!(report.bound, None, "offset ({dx}, {dz}) must not bind");
@@ -105,11 +113,15 @@ fn a_needle_grasped_on_its_wire_anywhere_along_the_arc_is_picked() {
     use std::f64::consts::FRAC_PI_2;
     let r = surgvla::scene::NEEDLE_ARC_RADIUS_M;
     // Honest: the midpoint; 7 and 12 mm along the wire from it (where surgeons grasp),
-    // jaws across the tangent there within the 20 deg tolerance.
+    // jaws across the tangent there, square or oblique (a third along with the jaws set for
+    // the midpoint's tangent, 29 deg off; 40 deg off).
+    let third = FRAC_PI_2 - 0.010 / r;
     for (theta, yaw_off) in [
         (FRAC_PI_2, 0.0),
         (FRAC_PI_2 - 0.007 / r, 0.2),
         (FRAC_PI_2 + 0.012 / r, -0.2),
+        (third, FRAC_PI_2 - third),
+        (FRAC_PI_2, 40f64.to_radians()),
     ] {
         assert_eq!(
             close_on_needle(theta, 0.0, 0.0, yaw_off),
@@ -128,14 +140,9 @@ fn a_needle_is_not_grasped_above_its_wire_inside_its_arc_or_along_it() {
         (FRAC_PI_2, 0.0, 0.002, 0.0, "2 mm above the wire"),
         (FRAC_PI_2, 0.0, 0.003, 0.0, "3 mm above the wire"),
         (FRAC_PI_2, 0.008, 0.0, 0.0, "8 mm inside the arc"),
+        (FRAC_PI_2, 0.0, 0.0014, 0.0, "0.9 mm above the wire's top"),
         (third, 0.0, 0.0, FRAC_PI_2, "jaws along the wire"),
-        (
-            third,
-            0.0,
-            0.0,
-            FRAC_PI_2 - third,
-            "jaws set for the midpoint's tangent",
-        ),
+        (third, 0.0, 0.0, 1.05, "jaws 60 deg off across the wire"),
     ] {
         assert_eq!(
             close_on_needle(theta, inward, dz, yaw_off),
@@ -210,7 +217,13 @@ fn bound_object_follows_the_jaws_and_falls_back_when_released() {
 
 #[test]
 fn needle_binds_only_with_jaws_across_the_wire() {
-    for (yaw_deg, expected) in [(90.0, true), (-75.0, true), (0.0, false), (45.0, false)] {
+    for (yaw_deg, expected) in [
+        (90.0, true),
+        (-75.0, true),
+        (60.0, true),
+        (0.0, false),
+        (40.0, false),
+    ] {
         let mut sim = simulator(three_objects(0.0));
         sim.step_native(&OPEN);
         let needle = sim
@@ -223,7 +236,7 @@ fn needle_binds_only_with_jaws_across_the_wire() {
         sim.teleport_tip(&tip_at(
             needle.x,
             needle.y,
-            needle.z + 0.001,
+            needle.z + 0.0008,
             f64::to_radians(yaw_deg),
         ));
         let bound = sim.step_native(&CLOSE).bound;

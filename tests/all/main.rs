@@ -15,6 +15,7 @@ mod eval;
 mod fidelity;
 mod grasping;
 mod hardening;
+mod history;
 mod hostile;
 mod ingest;
 mod kinematics;
