@@ -160,10 +160,15 @@ pub(super) fn vessel_with_sites(
     order: f64,
 ) -> (OrganSpec, Vec<MarkSpec>) {
     let radius = crate::scene::VESSEL_RADIUS_M;
+    // The vessel runs towards the endoscope (along world x; its local y), so jaws closing
+    // across it open left and right in the picture, where a clip across it can be seen.
     let vessel = OrganSpec {
         kind: OrganKind::Vessel,
-        world_from_organ: Isometry3::translation(x, y, TRAY_TOP_Z_M + radius),
-        semi_axes_m: [0.006, 0.07, radius],
+        world_from_organ: Isometry3::from_parts(
+            Translation3::new(x, y, TRAY_TOP_Z_M + radius),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, -std::f64::consts::FRAC_PI_2),
+        ),
+        semi_axes_m: [0.005, VESSEL_HALF_LENGTH_M, radius],
         shape_seed: (shape * u64::MAX as f64) as u64,
     };
     const ORDERS: [[MarkColour; 3]; 6] = [
@@ -196,6 +201,10 @@ pub(super) fn vessel_with_sites(
         .collect();
     (vessel, marks)
 }
+
+/// Half the length of T2-3's vessel segment, metres: it lies along x on the pad (the pad's far
+/// rim at x 0.60), its sites 18 mm apart.
+pub(super) const VESSEL_HALF_LENGTH_M: f64 = 0.045;
 
 /// Radius of T2-3's clip-site marks, metres.
 pub(super) const CLIP_SITE_RADIUS_M: f64 = 0.002;

@@ -152,7 +152,9 @@ impl TaskId {
                     (-90.0, 90.0),
                 )
             }
-            TaskId::VesselClipping => ranges((0.535, 0.565), (-0.01, 0.01), none, none, none),
+            // The vessel along x: its far end stays on the pad (x <= 0.597), its sites in the
+            // workspace.
+            TaskId::VesselClipping => ranges((0.535, 0.55), (-0.015, 0.015), none, none, none),
             // The spleen's centre range puts the bleeding target where the reference has it:
             // x 0.532..0.552, y +-0.03, z ~0.705.
             TaskId::Hemostasis => ranges(

@@ -68,11 +68,11 @@ fn a_clip_must_arrive_open_and_straddle_the_vessel() {
     always_fails(task, &touch, "a clip closes around it");
     let on_top = expert.replace("-0.0035", "0.0");
     always_fails(task, &on_top, "do not straddle");
-    // Beside the vessel: the tip 3.5 mm off its axis (the vessel runs along y, within 30 deg),
+    // Beside the vessel: the tip 3.5 mm off its axis (the vessel runs along x, within 30 deg),
     // outside its 2.5 mm radius.
     let beside = expert.replace(
         "frame = \"mark\"\noffset_m = [0.0, 0.0, -0.0035]",
-        "frame = \"mark\"\noffset_m = [0.0035, 0.0, -0.0035]",
+        "frame = \"mark\"\noffset_m = [0.0, 0.0035, -0.0035]",
     );
     assert_ne!(beside, expert);
     always_fails_for_one_of(

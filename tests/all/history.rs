@@ -355,36 +355,37 @@ fn a_hemostasis_gauze_let_go_3_mm_aside_may_slide_and_still_cover_the_spot() {
     }
 }
 
-/// Every closing of the jaws on the vessel leaves a clip there, drawn across the vessel and
-/// visible once the jaws are gone (its own mask class); before it, none is drawn.
-#[test]
-fn a_clip_is_left_on_the_vessel_where_the_jaws_closed() {
-    let clip_id = surgvla::assets::MaskClass::Clip.id();
+/// A rendering T2-3 environment of `seed` and its first observation.
+fn rendered_clipping(seed: u64) -> (Env, surgvla::env::EnvObservation) {
     let options = EnvOptions {
         max_steps: Some(600),
         ..EnvOptions::default()
     };
     let instance = TaskId::VesselClipping
-        .instance(1, &TaskConfig::default())
+        .instance(seed, &TaskConfig::default())
         .expect("spawn");
-    let (mut e, first) = Env::from_instance(instance, &options);
+    Env::from_instance(instance, &options)
+}
+
+/// Brings open jaws across the vessel from 20 mm above the named site down to where the expert
+/// closes them; returns the last step and the crossing yaw.
+fn open_jaws_at_the_site(env: &mut Env) -> (EnvStep, f64) {
+    let (site, _, cross) = clip_site(env);
+    steer(env, site + Vector3::new(0.0, 0.0, 0.02), cross, OPEN, 0.01);
+    let down = site - Vector3::new(0.0, 0.0, CLIP_DEPTH_M);
+    (steer(env, down, cross, OPEN, 0.002), cross)
+}
+
+/// Every closing of the jaws on the vessel leaves a clip there, drawn across the vessel and
+/// visible once the jaws are gone (its own mask class); before it, none is drawn.
+#[test]
+fn a_clip_is_left_on_the_vessel_where_the_jaws_closed() {
+    let clip_id = surgvla::assets::MaskClass::Clip.id();
+    let (mut e, first) = rendered_clipping(1);
     let clip_pixels = |mask: &[u8]| mask.iter().filter(|&&id| id == clip_id).count();
     assert_eq!(clip_pixels(&first.images.expect("rendered").mask), 0);
-    let (site, _, cross) = clip_site(&e);
-    steer(
-        &mut e,
-        site + Vector3::new(0.0, 0.0, 0.02),
-        cross,
-        OPEN,
-        0.01,
-    );
-    steer(
-        &mut e,
-        site - Vector3::new(0.0, 0.0, CLIP_DEPTH_M),
-        cross,
-        OPEN,
-        0.002,
-    );
+    let (_, cross) = open_jaws_at_the_site(&mut e);
+    let (site, _, _) = clip_site(&e);
     ended_succeeding(&hold(&mut e, CLOSED, 1), "the clip");
     let away = steer(
         &mut e,
@@ -395,4 +396,43 @@ fn a_clip_is_left_on_the_vessel_where_the_jaws_closed() {
     );
     let pixels = clip_pixels(&away.observation.images.expect("rendered").mask);
     assert!(pixels >= 4, "{pixels} clip pixels");
+}
+
+/// At 224 px the open jaws straddling T2-3's vessel are seen across it: the vessel runs towards
+/// the endoscope, so jaws closing across it open left and right in the picture, wider than the
+/// vessel and at least 6 px (they were 2-3 px with the vessel across the view).
+#[test]
+fn open_jaws_across_the_vessel_are_several_pixels_wide_in_the_picture() {
+    use surgvla::assets::MaskClass;
+    let (jaws, vessel) = (MaskClass::InstrumentJaws.id(), MaskClass::Vessel.id());
+    for seed in 0..3 {
+        let (mut e, _) = rendered_clipping(seed);
+        let (step, _) = open_jaws_at_the_site(&mut e);
+        let images = step.observation.images.expect("rendered");
+        let width = 224;
+        let columns = |id: u8, rows: std::ops::Range<usize>| {
+            let cols: Vec<usize> = rows
+                .flat_map(|r| (0..width).map(move |c| (r, c)))
+                .filter(|&(r, c)| images.mask[r * width + c] == id)
+                .map(|(_, c)| c)
+                .collect();
+            (cols.iter().min().copied(), cols.iter().max().copied())
+        };
+        let jaw_rows: Vec<usize> = (0..224)
+            .filter(|r| images.mask[r * width..(r + 1) * width].contains(&jaws))
+            .collect();
+        let (first, last) = (jaw_rows[0], jaw_rows[jaw_rows.len() - 1]);
+        let (Some(left), Some(right)) = columns(jaws, first..last + 1) else {
+            panic!("seed {seed}: no jaws in the picture");
+        };
+        let (Some(v_left), Some(v_right)) = columns(vessel, last + 1..(last + 4).min(224)) else {
+            panic!("seed {seed}: no vessel under the jaws");
+        };
+        let (span, vessel_width) = (right - left + 1, v_right - v_left + 1);
+        assert!(span >= 6, "seed {seed}: the jaws span {span} px");
+        assert!(
+            span > vessel_width,
+            "seed {seed}: jaws {span} px, vessel {vessel_width} px"
+        );
+    }
 }
