@@ -25,6 +25,8 @@ pub struct VesselEntry {
     pub tip_m: [f64; 3],
     /// Jaw angle when the tip entered, radians.
     pub jaw_angle_rad: f64,
+    /// Yaw of the jaws' line when the tip entered (the tip's yaw + 90 deg), radians.
+    pub jaw_line_rad: f64,
     /// Whether the tip came in through the tube's top quarter (its path from the last position
     /// outside crossed the tube's wall within 45 deg of straight up), as open jaws straddling
     /// a vessel do; otherwise it went through the vessel's wall.
@@ -154,6 +156,7 @@ impl TrialHistory {
                     step_index: moment.step_index,
                     tip_m: tip.into(),
                     jaw_angle_rad: moment.jaw_angle_rad,
+                    jaw_line_rad: moment.tip_yaw_rad + std::f64::consts::FRAC_PI_2,
                     from_above,
                 };
                 self.vessel_entries.push(entry);

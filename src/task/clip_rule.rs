@@ -1,9 +1,10 @@
 //! T2-3's clip, judged from the trial's history of the vessel (`sim::history`), each event at
 //! the moment it happened:
 //!
-//! - the tip must enter the vessel with the jaws at least half open and through the tube's top
-//!   quarter, as open jaws straddling it come down; closed jaws pushed into it, or open jaws
-//!   driven through its wall, end the trial there;
+//! - the tip must enter the vessel with the jaws at least half open, across it (within 20 deg)
+//!   and through the tube's top quarter, as open jaws straddling it come down; closed jaws pushed
+//!   into it, open jaws driven through its wall, or open jaws coming down along it (a blade on
+//!   the vessel) end the trial there;
 //! - the jaws' closing with the tip in the vessel is the clip. It counts only with the tip in
 //!   the band around the named site (1.5 mm of the axis across it, 4 mm along it, between the
 //!   tissue and the centre line), the jaws having entered the vessel within that band's reach
@@ -44,6 +45,14 @@ impl TaskInstance {
             } else if !entry.from_above {
                 format!(
                     "the open jaws went through the vessel's wall (step {}): they straddle it from above",
+                    entry.step_index
+                )
+            } else if let Some(off) = self.off_crossing_rad(&entry.tip_m, entry.jaw_line_rad)
+                && off > CLIP_CROSSING_TOLERANCE_RAD
+            {
+                format!(
+                    "the open jaws came down on the vessel {:.0} deg off crossing it (step {}): a blade lands on it",
+                    off.to_degrees(),
                     entry.step_index
                 )
             } else {
@@ -100,15 +109,14 @@ impl TaskInstance {
                 closure.entry.step_index
             ));
         }
-        if let Some(line) = mark.line_direction {
-            let off = line_angle_difference(line.y.atan2(line.x), closure.jaw_line_rad);
-            if off > CLIP_CROSSING_TOLERANCE_RAD {
-                return Verdict::fail(format!(
-                    "the jaws closed {:.0} deg off crossing the vessel (step {step}; a clip crosses it within {:.0} deg)",
-                    off.to_degrees(),
-                    CLIP_CROSSING_TOLERANCE_RAD.to_degrees()
-                ));
-            }
+        if let Some(off) = self.off_crossing_rad(&closure.tip_m, closure.jaw_line_rad)
+            && off > CLIP_CROSSING_TOLERANCE_RAD
+        {
+            return Verdict::fail(format!(
+                "the jaws closed {:.0} deg off crossing the vessel (step {step}; a clip crosses it within {:.0} deg)",
+                off.to_degrees(),
+                CLIP_CROSSING_TOLERANCE_RAD.to_degrees()
+            ));
         }
         Verdict::pass(format!(
             "clipped '{}' at step {step}: tip {:.1} mm from the axis, {:.1} mm along it, {:.1} mm below the centre line",
@@ -117,6 +125,17 @@ impl TaskInstance {
             offset.along_m * 1e3,
             -offset.above_centre_line_m * 1e3
         ))
+    }
+
+    /// How far jaws whose line has yaw `jaw_line_rad` are from crossing the vessel at `tip_m`
+    /// (the direction of the clip site nearest along it), radians; None without a vessel.
+    fn off_crossing_rad(&self, tip_m: &[f64; 3], jaw_line_rad: f64) -> Option<f64> {
+        let tip = Vector3::from(*tip_m);
+        let nearest = (self.scene.marks.iter())
+            .filter_map(|m| Some((m.clip_offset(&tip)?.along_m, m.line_direction?)))
+            .min_by(|a, b| a.0.total_cmp(&b.0))?;
+        let line = nearest.1;
+        Some(line_angle_difference(line.y.atan2(line.x), jaw_line_rad))
     }
 
     /// A clip at the named site: one applied (see the module's overview), or why not.

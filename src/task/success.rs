@@ -9,7 +9,7 @@
 //! | T1-2, T2-2 | the named needle bound (the jaws closed on its wire, across it within 45 deg, not past its ends), raised >= 4 mm, not touching the tray |
 //! | T2-1, T2-2 | ... and no distractor ever grasped (a terminal failure: the trial ends there) or moved more than 2 mm |
 //! | T1-3 | jaws closed, the tip on the organ's surface (within 1 mm of it, either side) on the drawn spot (within its radius) |
-//! | T2-3 | a clip applied at the named site (`clip_rule`): the jaws entered the vessel open from above, closed in the band around the site, across the vessel when they closed |
+//! | T2-3 | a clip applied at the named site (`clip_rule`): the jaws entered the vessel open, across it, from above, closed in the band around the site, across the vessel when they closed |
 //! | T3-1 | the gauze placed (`place_rule`): every release within 5 mm above what was under it, the block never held and not moved since, the gauze at rest with its centre over the block's top, gap < 3 mm |
 //! | T3-2 | the gauze placed: every release within 5 mm above what was under it, the spot wholly under the footprint when let go and within 3 mm of it after sliding, resting on the spleen |
 //!
@@ -87,8 +87,8 @@ impl TaskInstance {
 
     /// A failure that ends a trial (or an expert attempt) the moment it happens, whatever
     /// follows: a distractor grasped (T2-1, T2-2); the tip deeper than
-    /// [`PENETRATION_LIMIT_M`] in a kidney or spleen; the jaws into the vessel closed or
-    /// through its wall, or closed in it anywhere but at the named site (T2-3); the gauze
+    /// [`PENETRATION_LIMIT_M`] in a kidney or spleen; the jaws into the vessel closed,
+    /// through its wall or along it, or closed in it anywhere but at the named site (T2-3); the gauze
     /// dropped, or its support held (T3-1, T3-2).
     pub fn terminal_failure(&self, observation: &Observation) -> Option<Verdict> {
         if let Some((_, spec)) = observation

@@ -176,10 +176,18 @@ fn a_clip_counts_only_as_applied_open_from_above_across_the_vessel_at_the_site()
             "slid along inside it",
             "slid along inside",
         );
-        // Jaws along the vessel, closed, then twisted across it: judged when they closed.
+        // Open jaws along the vessel come down onto it (to be closed, then twisted across): a
+        // blade lands on the vessel, and the trial ends there.
         let mut e = new();
         steer(&mut e, site + up(20.0), cross + 1.5, OPEN, 0.01);
-        steer(&mut e, site + down, cross + 1.5, OPEN, 0.002);
+        let step = steer(&mut e, site + down, cross + 1.5, OPEN, 0.002);
+        ended_failing(&step, "a blade lands on it", "open jaws along the vessel");
+        // Across it as they came down, twisted along it inside and closed: judged as they
+        // closed.
+        let mut e = new();
+        steer(&mut e, site + up(20.0), cross, OPEN, 0.01);
+        steer(&mut e, site + down, cross, OPEN, 0.002);
+        steer(&mut e, site + down, cross + 1.0, OPEN, 0.002);
         let step = hold(&mut e, CLOSED, 1);
         ended_failing(&step, "off crossing the vessel", "closed along the vessel");
     }
