@@ -1,13 +1,61 @@
-//! The lowest level of bytes on disk, shared by the renderer and the formats: PNG encoding
-//! ([`encode_png`], every colour type surgvla writes) and atomic file writes
-//! ([`write_atomically`]: a temporary `.name.partial` beside the file, renamed when complete,
-//! so a crash never leaves a truncated file under its final name). Imports nothing of the
-//! crate.
+//! The lowest level of bytes on disk, shared by the renderer, the formats and the readers of
+//! other people's files: PNG encoding ([`encode_png`], every colour type surgvla writes), atomic
+//! file writes ([`write_atomically`]: a temporary `.name.partial` beside the file, renamed when
+//! complete, so a crash never leaves a truncated file under its final name), and the one way an
+//! input file is opened ([`open_regular`]: regular files only, so a FIFO, socket or device never
+//! blocks or feeds a reader). Imports nothing of the crate.
 
 mod pixels;
 
 pub use pixels::{PngLevel, PngPixels};
+use std::fs::File;
+use std::io::Read;
 use std::path::{Path, PathBuf};
+
+/// `O_NONBLOCK`: opening a FIFO with it never waits for a writer (reads of a regular file are
+/// unaffected).
+#[cfg(target_os = "linux")]
+const OPEN_NONBLOCKING: i32 = 0o4000;
+#[cfg(target_os = "macos")]
+const OPEN_NONBLOCKING: i32 = 0x0004;
+
+/// Opens `path` (links followed) for reading if it is a regular file. Anything else (a FIFO,
+/// a socket, a device, a directory) is refused with [`std::io::ErrorKind::InvalidInput`]
+/// before it is opened, as opening a FIFO waits for a writer for ever; the file is then opened
+/// non-blocking and checked again, so one swapped in between cannot block either.
+pub fn open_regular(path: &Path) -> std::io::Result<File> {
+    let not_regular =
+        || std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file");
+    if !std::fs::metadata(path)?.is_file() {
+        return Err(not_regular());
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(any(target_os = "linux", target_os = "macos"))]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(OPEN_NONBLOCKING);
+    }
+    let file = options.open(path)?;
+    if !file.metadata()?.is_file() {
+        return Err(not_regular());
+    }
+    Ok(file)
+}
+
+/// The bytes of the regular file `path` ([`open_regular`]).
+pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+    let mut file = open_regular(path)?;
+    let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| m.len() as usize));
+    file.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// The text of the regular file `path` ([`open_regular`]).
+pub fn read_regular_to_string(path: &Path) -> std::io::Result<String> {
+    String::from_utf8(read_regular(path)?)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e.utf8_error()))
+}
 
 /// Encodes row-major `pixels` of `layout` as PNG; the sample count must fit the size.
 pub fn encode_png(

@@ -16,16 +16,18 @@ pub const MAX_METADATA_BYTES: u64 = 32 << 20;
 pub const MAX_LINE_BYTES: u64 = 16 << 20;
 
 /// Opens `path` for reading if it is a regular file (links followed).
+/// ([`crate::files::open_regular`]: checked before it is opened, so a FIFO never blocks).
 pub fn open_regular(path: &Path) -> Result<File, ExportError> {
-    let file = File::open(path).map_err(ExportError::io(path))?;
-    let metadata = file.metadata().map_err(ExportError::io(path))?;
-    if !metadata.is_file() {
-        return Err(ExportError::InvalidDataset {
-            path: path.to_path_buf(),
-            problem: "is not a regular file".into(),
-        });
-    }
-    Ok(file)
+    crate::files::open_regular(path).map_err(|error| {
+        if error.kind() == std::io::ErrorKind::InvalidInput {
+            ExportError::InvalidDataset {
+                path: path.to_path_buf(),
+                problem: "is not a regular file".into(),
+            }
+        } else {
+            ExportError::io(path)(error)
+        }
+    })
 }
 
 /// The bytes of the regular file `path`, refused when longer than `limit_bytes` (checked while

@@ -93,10 +93,13 @@ impl FileRecord {
     }
 
     pub fn problem(&self, path: &Path) -> Result<Option<String>, ExportError> {
-        let file = match File::open(path) {
+        let file = match crate::files::open_regular(path) {
             Ok(file) => file,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Ok(Some("is missing".into()));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::InvalidInput => {
+                return Ok(Some("is not a regular file".into()));
             }
             Err(source) => {
                 return Err(ExportError::Io {

@@ -51,7 +51,7 @@ impl Probe {
         };
         if metadata.is_file() {
             let mut magic = Vec::with_capacity(8);
-            let file = std::fs::File::open(path).map_err(unreadable)?;
+            let file = crate::files::open_regular(path).map_err(unreadable)?;
             std::io::Read::read_to_end(&mut std::io::Read::take(file, 8), &mut magic)
                 .map_err(unreadable)?;
             return Ok(Probe {

@@ -213,7 +213,7 @@ pub fn load(path: &Path) -> Result<Vec<MappedFeature>, IngestError> {
     if metadata.len() > MAX_MAP_BYTES {
         return Err(usage(format!("larger than {MAX_MAP_BYTES} bytes")));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| usage(e.to_string()))?;
+    let text = crate::files::read_regular_to_string(path).map_err(|e| usage(e.to_string()))?;
     parse(&text).map_err(usage)
 }
 

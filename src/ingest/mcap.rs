@@ -12,7 +12,6 @@ use crate::ingest::decode::Wire;
 use crate::ingest::recording::{BagError, Channel, MessageReader, RawMessage};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
@@ -34,7 +33,7 @@ pub struct McapRecording {
 impl McapRecording {
     /// Opens the MCAP file at `path`.
     pub fn open(path: &Path) -> Result<McapRecording, BagError> {
-        let file = File::open(path).map_err(|source| BagError::Io {
+        let file = crate::files::open_regular(path).map_err(|source| BagError::Io {
             path: path.to_path_buf(),
             source,
         })?;

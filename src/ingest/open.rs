@@ -38,7 +38,7 @@ impl Recording {
             return Ok(Messages::new(bag));
         }
         let mut start = [0u8; 13];
-        let read = std::fs::File::open(path)
+        let read = crate::files::open_regular(path)
             .and_then(|mut file| {
                 let mut read = 0;
                 while read < start.len() {

@@ -48,7 +48,7 @@ impl Ros1Bag {
             path: path.to_path_buf(),
             source,
         };
-        let file = File::open(path).map_err(io)?;
+        let file = crate::files::open_regular(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let mut file = BufReader::new(file);
         let mut magic = [0u8; MAGIC.len()];

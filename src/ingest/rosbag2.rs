@@ -64,7 +64,7 @@ impl Rosbag2 {
             problem,
         };
         let mut text = String::new();
-        std::fs::File::open(&path)
+        crate::files::open_regular(&path)
             .and_then(|file| file.take(MAX_METADATA_BYTES + 1).read_to_string(&mut text))
             .map_err(|source| BagError::Io {
                 path: path.clone(),
@@ -123,7 +123,7 @@ impl Rosbag2 {
         let per_message = mode == "message";
         let reader: Box<dyn MessageReader> = match (self.metadata.storage.as_str(), mode.as_str()) {
             ("mcap", "file") => {
-                let file = std::fs::File::open(&path).map_err(|source| BagError::Io {
+                let file = crate::files::open_regular(&path).map_err(|source| BagError::Io {
                     path: path.clone(),
                     source,
                 })?;
@@ -259,7 +259,7 @@ fn decompressed_sqlite(
         let at = at.to_path_buf();
         move |source| BagError::Io { path: at, source }
     };
-    let file = std::fs::File::open(path).map_err(io(path))?;
+    let file = crate::files::open_regular(path).map_err(io(path))?;
     let limit = limit_of(file.metadata().map_err(io(path))?.len());
     let made = !scratch.exists();
     std::fs::create_dir_all(scratch).map_err(io(scratch))?;

@@ -105,7 +105,7 @@ fn codec_of(
 impl VideoReader {
     /// Reads the sample tables of the file's video track (not its media data).
     pub fn open(path: &Path) -> Result<Self, MediaError> {
-        let mut file = File::open(path).map_err(MediaError::io(path))?;
+        let mut file = crate::files::open_regular(path).map_err(MediaError::io(path))?;
         let size = file.metadata().map_err(MediaError::io(path))?.len();
         // re_mp4 trusts stsz's sample count and indexes its tables without bounds checks in
         // places: a damaged file must be an error naming it, never a crash or an abort.
@@ -184,7 +184,7 @@ impl VideoReader {
     pub fn reopen(&self) -> Result<Self, MediaError> {
         Ok(VideoReader {
             path: self.path.clone(),
-            file: File::open(&self.path).map_err(MediaError::io(&self.path))?,
+            file: crate::files::open_regular(&self.path).map_err(MediaError::io(&self.path))?,
             codec: self.codec,
             width_px: self.width_px,
             height_px: self.height_px,

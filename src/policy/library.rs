@@ -92,10 +92,11 @@ impl ExpertLibrary {
         }
         let mut sources: BTreeMap<TaskId, PathBuf> = BTreeMap::new();
         for path in paths {
-            let text = std::fs::read_to_string(&path).map_err(|source| PlanError::Io {
-                path: path.clone(),
-                source,
-            })?;
+            let text =
+                crate::files::read_regular_to_string(&path).map_err(|source| PlanError::Io {
+                    path: path.clone(),
+                    source,
+                })?;
             let plan = ExpertPlan::parse(&text, &path)?;
             let task = plan.task_id().map_err(|e| PlanError::Invalid {
                 path: path.clone(),

@@ -1,8 +1,9 @@
 //! Other people's datasets as an attacker or an unlucky operator would make them: names and
 //! templates in the metadata that point outside the dataset, metadata files that never end,
-//! links inside an interrupted dataset, absurd thread counts. Every command ends (within a time
-//! limit) with exit 1 or 2, never a panic or an abort, and a sentinel folder beside the dataset
-//! and the output is byte-identical afterwards.
+//! FIFOs, folders and link loops where files should be, links inside an interrupted dataset,
+//! absurd thread counts. Every command ends (within a time limit) with exit 1 or 2, never a
+//! panic or an abort, and a sentinel folder beside the dataset and the output is byte-identical
+//! afterwards.
 
 use crate::util::{temp_root, tree};
 use serde_json::Value;
@@ -722,4 +723,96 @@ fn a_foreign_float_image_leaves_no_output_behind() {
         "into an empty folder",
     );
     assert_eq!(std::fs::read_dir(&out).expect("read").count(), 0);
+}
+
+/// A special file where a dataset has a regular one.
+#[derive(Clone, Copy, Debug)]
+enum Special {
+    /// Opening it for reading waits for a writer for ever.
+    Fifo,
+    Directory,
+    /// A link to itself: opening it fails with "too many levels of symbolic links".
+    LinkLoop,
+}
+
+fn make_special(path: &Path, kind: Special) {
+    std::fs::remove_file(path).expect("remove");
+    match kind {
+        Special::Fifo => {
+            let made = std::process::Command::new("mkfifo")
+                .arg(path)
+                .status()
+                .expect("mkfifo");
+            assert!(made.success(), "mkfifo {}", path.display());
+        }
+        Special::Directory => std::fs::create_dir(path).expect("dir"),
+        Special::LinkLoop => std::os::unix::fs::symlink(path, path).expect("link"),
+    }
+}
+
+/// FIFOs, folders and link loops in place of a dataset's files (its metadata, a data parquet, a
+/// video, a zarr chunk, an RLDS shard) are refused without being opened: every command reading
+/// the dataset ends within 20 s without a crash (the FIFO was a hang: opened before its type was
+/// checked), `validate` with exit 1, and nothing outside the dataset and the output changes.
+#[test]
+fn special_files_are_refused_before_they_are_opened() {
+    let limit = Duration::from_secs(20);
+    let parent = temp_root("hostile-special");
+    sentinel(&parent);
+    let formats: [(&str, &[&str], &[&str]); 3] = [
+        (
+            "lerobot",
+            &["--video", "h264"],
+            &["meta/info.json", "meta/stats.json", ".parquet", ".mp4"],
+        ),
+        (
+            "rlds",
+            &["--format", "rlds"],
+            &["features.json", ".tfrecord-"],
+        ),
+        ("zarr", &["--format", "zarr"], &[".zarray", "/0.0"]),
+    ];
+    for (name, extra, targets) in formats {
+        let base = parent.join(format!("base-{name}"));
+        collect(base.to_str().expect("utf-8"), "1", extra);
+        let files = files_where(&base, |_| true);
+        for (i, target) in targets.iter().enumerate() {
+            let file = files
+                .iter()
+                .find(|f| f.contains(target))
+                .unwrap_or_else(|| panic!("{name}: no {target} in {files:?}"));
+            for kind in [Special::Fifo, Special::Directory, Special::LinkLoop] {
+                let dataset = parent.join(format!("{name}-{i}-{kind:?}"));
+                copy_tree(&base, &dataset);
+                make_special(&dataset.join(file), kind);
+                let text = dataset.to_str().expect("utf-8").to_string();
+                let out = format!("{text}-out");
+                let merged = format!("{text}-merged");
+                let base_text = base.to_str().expect("utf-8");
+                let what = format!("{name}: {file} as {kind:?}");
+                for command in [
+                    vec!["validate", text.as_str()],
+                    vec!["info", text.as_str()],
+                    vec!["convert", &text, "--to", "lerobot", "--out", &out],
+                    vec!["merge", base_text, &text, "--out", &merged],
+                ] {
+                    let before = tree(&parent.join("outside"));
+                    let (code, stderr) = run(&command, limit);
+                    // Converting and merging may go on without a file they can rebuild
+                    // (stats.json): exit 0 is allowed there, a hang or a crash never.
+                    let expected: &[i32] = if command[0] == "validate" {
+                        &[1]
+                    } else {
+                        &[0, 1, 2]
+                    };
+                    assert!(
+                        expected.contains(&code),
+                        "{what}: {command:?} exit {code}: {stderr}"
+                    );
+                    assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+                    assert_eq!(tree(&parent.join("outside")), before, "{what}");
+                }
+            }
+        }
+    }
 }

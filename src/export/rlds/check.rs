@@ -21,7 +21,6 @@ use crate::export::schema;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
@@ -53,7 +52,7 @@ fn scan_shard(
     quick: bool,
     findings: &Findings,
 ) -> Option<(u64, u64)> {
-    let file = File::open(path).ok()?;
+    let file = crate::files::open_regular(path).ok()?;
     let mut reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
     let mut count = 0u64;
     let mut steps = 0u64;

@@ -219,7 +219,7 @@ impl ShardRecords {
                 let Some(shard) = self.shards.next() else {
                     return Ok(None);
                 };
-                let file = File::open(&shard.path).map_err(ExportError::io(&shard.path))?;
+                let file = crate::export::bounded::open_regular(&shard.path)?;
                 let reader = RecordReader::new(BufReader::with_capacity(1 << 20, file));
                 self.current = Some((shard.path, reader, shard.episodes, 0));
             }

@@ -64,7 +64,7 @@ impl ArrayWriter {
         if pending > 0 {
             let relative = self.chunk_path(mark.rows / CHUNK_ROWS as u64);
             let path = dir.path(&relative);
-            let compressed = std::fs::read(&path).map_err(ExportError::io(&path))?;
+            let compressed = crate::files::read_regular(&path).map_err(ExportError::io(&path))?;
             let bytes = zstd::bulk::decompress(&compressed, self.row_bytes * CHUNK_ROWS).map_err(
                 |source| ExportError::Damaged {
                     path: path.clone(),

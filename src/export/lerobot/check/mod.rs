@@ -22,7 +22,6 @@ use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
 use parts::{Context, Declared, EpisodeEntry, Part};
 use rayon::prelude::*;
 use serde_json::Value;
-use std::fs::File;
 use std::path::{Path, PathBuf};
 
 mod lint;
@@ -246,15 +245,17 @@ fn read_optional_json(root: &Path, relative: &str, findings: &Findings) -> Value
 
 /// A data file's parquet metadata (its footer), or a finding naming the file.
 fn open_metadata(path: &Path, findings: &Findings) -> Option<ArrowReaderMetadata> {
-    let opened = File::open(path).map_err(|e| e.to_string()).and_then(|f| {
-        let file_bytes = f.metadata().map_err(|e| e.to_string())?.len();
-        let metadata = ArrowReaderMetadata::load(&f, ArrowReaderOptions::default())
-            .map_err(|e| e.to_string())?;
-        if let Some(problem) = super::read::footer_problem(metadata.metadata(), file_bytes) {
-            return Err(problem);
-        }
-        Ok(with_image_views(metadata))
-    });
+    let opened = crate::files::open_regular(path)
+        .map_err(|e| e.to_string())
+        .and_then(|f| {
+            let file_bytes = f.metadata().map_err(|e| e.to_string())?.len();
+            let metadata = ArrowReaderMetadata::load(&f, ArrowReaderOptions::default())
+                .map_err(|e| e.to_string())?;
+            if let Some(problem) = super::read::footer_problem(metadata.metadata(), file_bytes) {
+                return Err(problem);
+            }
+            Ok(with_image_views(metadata))
+        });
     match opened {
         Ok(metadata) => Some(metadata),
         Err(problem) => {

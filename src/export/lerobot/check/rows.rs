@@ -24,7 +24,6 @@ use parquet::arrow::arrow_reader::{
 };
 use serde_json::Value;
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::path::Path;
 
 impl Context<'_> {
@@ -107,7 +106,7 @@ impl Context<'_> {
         projection: Option<ProjectionMask>,
         first_row: bool,
     ) -> Option<parquet::arrow::arrow_reader::ParquetRecordBatchReader> {
-        let reader = File::open(path)
+        let reader = crate::files::open_regular(path)
             .map_err(|e| e.to_string())
             .map(|f| ParquetRecordBatchReaderBuilder::new_with_metadata(f, metadata.clone()))
             .and_then(|builder| {
