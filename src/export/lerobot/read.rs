@@ -48,26 +48,49 @@ pub struct StoredFrame {
 const MAX_ROWS_PER_BYTE: u64 = 64;
 
 /// What is wrong with a parquet footer given the file's size, if anything: row counts that the
-/// file cannot hold, column chunks outside it.
+/// file cannot hold, column chunks at negative offsets or sizes (the parquet crate asserts on
+/// them), outside the file, or together larger than it (chunks never share bytes: thousands of
+/// row groups pointing at the same bytes would make every reader's work unbounded).
 pub fn footer_problem(
     metadata: &parquet::file::metadata::ParquetMetaData,
     file_bytes: u64,
 ) -> Option<String> {
     let mut rows: u64 = 0;
+    let mut chunk_bytes: u64 = 0;
     for (g, group) in metadata.row_groups().iter().enumerate() {
         let Ok(group_rows) = u64::try_from(group.num_rows()) else {
             return Some(format!("row group {g} claims {} rows", group.num_rows()));
         };
         rows = rows.saturating_add(group_rows);
         for column in group.columns() {
-            let (start, length) = column.byte_range();
-            if start.checked_add(length).is_none_or(|end| end > file_bytes) {
+            let start = column
+                .dictionary_page_offset()
+                .unwrap_or_else(|| column.data_page_offset());
+            let (Ok(start), Ok(length)) = (
+                u64::try_from(start),
+                u64::try_from(column.compressed_size()),
+            ) else {
+                return Some(format!(
+                    "row group {g} places column {} at bytes {start}..+{}",
+                    column.column_path(),
+                    column.compressed_size()
+                ));
+            };
+            if column.data_page_offset() < 0
+                || start.checked_add(length).is_none_or(|end| end > file_bytes)
+            {
                 return Some(format!(
                     "row group {g} places column {} at bytes {start}..+{length}, beyond the file's {file_bytes}",
                     column.column_path()
                 ));
             }
+            chunk_bytes = chunk_bytes.saturating_add(length);
         }
+    }
+    if chunk_bytes > file_bytes {
+        return Some(format!(
+            "its column chunks claim {chunk_bytes} bytes in a file of {file_bytes} (chunks that share bytes)"
+        ));
     }
     (rows > file_bytes.saturating_mul(MAX_ROWS_PER_BYTE))
         .then(|| format!("its footer claims {rows} rows in a file of {file_bytes} bytes"))
@@ -1211,8 +1234,13 @@ mod tests {
         writer.write(&batch).expect("write");
         writer.close().expect("close");
         let size = bytes.len() as u64;
-        let path =
-            std::env::temp_dir().join(format!("surgvla-footer-{}.parquet", std::process::id()));
+        // One file per call: tests run in parallel.
+        static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!(
+            "surgvla-footer-{}-{call}.parquet",
+            std::process::id()
+        ));
         std::fs::write(&path, bytes).expect("write");
         let builder = open_parquet(&path).expect("footer");
         std::fs::remove_file(&path).ok();
@@ -1256,5 +1284,49 @@ mod tests {
                 .expect("refused")
                 .contains("claims -1 rows")
         );
+    }
+
+    /// A footer with one column chunk changed by `edit`.
+    fn with_column(
+        metadata: &parquet::file::metadata::ParquetMetaData,
+        edit: impl FnOnce(
+            parquet::file::metadata::ColumnChunkMetaDataBuilder,
+        ) -> parquet::file::metadata::ColumnChunkMetaDataBuilder,
+    ) -> parquet::file::metadata::ParquetMetaData {
+        let group = metadata.row_group(0).clone();
+        let column = edit(group.column(0).clone().into_builder())
+            .build()
+            .expect("column");
+        let group = group
+            .into_builder()
+            .set_column_metadata(vec![column])
+            .build()
+            .expect("row group");
+        metadata
+            .clone()
+            .into_builder()
+            .set_row_groups(vec![group])
+            .build()
+    }
+
+    /// Negative sizes and offsets, on which the parquet crate asserts (a panic in every
+    /// command before), and row groups sharing their bytes (20,000 of them made every command
+    /// run past a minute) are refused from the footer alone.
+    #[test]
+    fn column_chunks_at_negative_offsets_or_sharing_bytes_are_refused() {
+        let (metadata, size) = footer();
+        let negative_size = with_column(&metadata, |c| c.set_total_compressed_size(-5));
+        let problem = footer_problem(&negative_size, size).expect("refused");
+        assert!(problem.contains("..+-5"), "{problem}");
+        let negative_offset = with_column(&metadata, |c| c.set_data_page_offset(-4));
+        assert!(footer_problem(&negative_offset, size).is_some());
+        let group = metadata.row_group(0).clone();
+        let shared = metadata
+            .clone()
+            .into_builder()
+            .set_row_groups(vec![group; 20_000])
+            .build();
+        let problem = footer_problem(&shared, size).expect("refused");
+        assert!(problem.contains("chunks that share bytes"), "{problem}");
     }
 }
