@@ -199,6 +199,14 @@ pub fn decode_av1_each<E: From<MediaError>>(
         Ok(())
     };
     for sample in samples {
+        let max_pixels = u64::from(max_side) * u64::from(max_side);
+        if let Some(problem) = sequence_header_problem(&sample.data, max_pixels) {
+            return Err(MediaError::Decode {
+                what: what.to_string(),
+                source: problem.into(),
+            }
+            .into());
+        }
         decoder.send(&sample.data, &mut out).map_err(failed)?;
         hand_over(&mut out)?;
     }
@@ -209,6 +217,122 @@ pub fn decode_av1_each<E: From<MediaError>>(
         samples.len(),
         what,
     )?)
+}
+
+/// Reads AV1 bits most significant first.
+struct Bits<'a> {
+    data: &'a [u8],
+    position: usize,
+}
+
+impl Bits<'_> {
+    fn read(&mut self, count: u32) -> Option<u64> {
+        let mut value = 0u64;
+        for _ in 0..count {
+            let byte = self.data.get(self.position / 8)?;
+            let bit = (byte >> (7 - self.position % 8)) & 1;
+            value = (value << 1) | u64::from(bit);
+            self.position += 1;
+        }
+        Some(value)
+    }
+
+    fn flag(&mut self) -> Option<bool> {
+        self.read(1).map(|bit| bit == 1)
+    }
+
+    /// An unsigned variable-length code (`uvlc()` of the AV1 specification).
+    fn uvlc(&mut self) -> Option<u64> {
+        let mut zeros = 0;
+        while !self.flag()? {
+            zeros += 1;
+            if zeros >= 32 {
+                return Some(u64::from(u32::MAX));
+            }
+        }
+        Some(self.read(zeros)? + (1u64 << zeros) - 1)
+    }
+}
+
+/// The largest frame (width, height) a sequence header OBU (`obu`: header and payload, as
+/// `video::obus` spans it) allows, read as the AV1 specification's `sequence_header_obu()`
+/// lays it out; None when it ends early.
+pub(crate) fn sequence_header_max_size(obu: &[u8]) -> Option<(u64, u64)> {
+    let header = *obu.first()?;
+    let mut start = 1 + usize::from(header & 0x04 != 0);
+    if header & 0x02 != 0 {
+        // The payload's size: leb128.
+        while obu.get(start)? & 0x80 != 0 {
+            start += 1;
+        }
+        start += 1;
+    }
+    let mut bits = Bits {
+        data: obu.get(start..)?,
+        position: 0,
+    };
+    bits.read(3)?; // seq_profile
+    bits.read(1)?; // still_picture
+    if bits.flag()? {
+        // reduced_still_picture_header: one operating point, its level.
+        bits.read(5)?;
+    } else {
+        let mut buffer_delay_bits = 0;
+        let timing_info = bits.flag()?;
+        let mut decoder_model_info = false;
+        if timing_info {
+            bits.read(32)?;
+            bits.read(32)?;
+            if bits.flag()? {
+                bits.uvlc()?;
+            }
+            decoder_model_info = bits.flag()?;
+            if decoder_model_info {
+                buffer_delay_bits = bits.read(5)? as u32 + 1;
+                bits.read(32)?;
+                bits.read(5)?;
+                bits.read(5)?;
+            }
+        }
+        let initial_display_delay = bits.flag()?;
+        let operating_points = bits.read(5)? + 1;
+        for _ in 0..operating_points {
+            bits.read(12)?; // operating_point_idc
+            if bits.read(5)? > 7 {
+                bits.read(1)?; // seq_tier
+            }
+            if decoder_model_info && bits.flag()? {
+                bits.read(buffer_delay_bits)?;
+                bits.read(buffer_delay_bits)?;
+                bits.read(1)?;
+            }
+            if initial_display_delay && bits.flag()? {
+                bits.read(4)?;
+            }
+        }
+    }
+    let width_bits = bits.read(4)? as u32 + 1;
+    let height_bits = bits.read(4)? as u32 + 1;
+    let width = bits.read(width_bits)? + 1;
+    let height = bits.read(height_bits)? + 1;
+    Some((width, height))
+}
+
+/// Why the sequence headers in `data` (one temporal unit) ask for frames the decoder must not
+/// be given: larger than `max_pixels` (the decoder sizes its buffers from them before any frame
+/// header is checked against its limit), or cut short.
+fn sequence_header_problem(data: &[u8], max_pixels: u64) -> Option<String> {
+    let spans = crate::media::video::obus(data)?;
+    spans
+        .iter()
+        .filter(|(kind, _)| *kind == 1)
+        .find_map(|(_, range)| match sequence_header_max_size(&data[range.clone()]) {
+            None => Some("a sequence header ends early".to_string()),
+            Some((w, h)) if w.saturating_mul(h) > max_pixels => Some(format!(
+                "a sequence header declares frames up to {w} x {h}, more than the {max_pixels} pixels surgvla decodes"
+            )),
+            Some(_) => None,
+        })
 }
 
 /// [`decode_av1_each`], the pictures collected.
@@ -268,5 +392,68 @@ mod tests {
         }];
         let error = decode_av1(&garbage, "bad.mp4", 8192).expect_err("refused");
         assert!(error.to_string().contains("bad.mp4"), "{error}");
+    }
+
+    /// A sequence header OBU (reduced still-picture form) declaring frames up to `w` x `h`.
+    fn forged_sequence_header(w: u64, h: u64) -> Vec<u8> {
+        let mut bits: Vec<u8> = Vec::new();
+        let mut push = |value: u64, count: u32| {
+            for k in (0..count).rev() {
+                bits.push(((value >> k) & 1) as u8);
+            }
+        };
+        push(0, 3); // seq_profile
+        push(1, 1); // still_picture
+        push(1, 1); // reduced_still_picture_header
+        push(0, 5); // seq_level_idx
+        push(15, 4); // frame_width_bits_minus_1: 16 bits
+        push(15, 4);
+        push(w - 1, 16);
+        push(h - 1, 16);
+        let payload: Vec<u8> = bits
+            .chunks(8)
+            .map(|c| {
+                c.iter()
+                    .enumerate()
+                    .fold(0u8, |b, (k, bit)| b | (bit << (7 - k)))
+            })
+            .collect();
+        let mut obu = vec![(1 << 3) | 0x02, payload.len() as u8];
+        obu.extend(payload);
+        obu
+    }
+
+    /// The sizes our encoder's sequence headers declare are read back; a header rewritten to
+    /// 8192 x 8192 (rav1d aborted the process on it) is refused before the decoder sees it,
+    /// with an error naming the stream.
+    #[test]
+    fn sequence_headers_declaring_huge_frames_are_refused_before_decoding() {
+        let frame = vec![90u8; 64 * 48 * 3];
+        let encoded = encode_av1(&[frame.as_slice()], 64, 48, 10, 40).expect("encode");
+        let data = &encoded[0].data;
+        let spans = crate::media::video::obus(data).expect("obus");
+        let (_, header) = spans.iter().find(|(kind, _)| *kind == 1).expect("header");
+        assert_eq!(
+            sequence_header_max_size(&data[header.clone()]),
+            Some((64, 48))
+        );
+        assert_eq!(
+            sequence_header_max_size(&forged_sequence_header(8192, 8192)),
+            Some((8192, 8192))
+        );
+        let mut forged = encoded.clone();
+        forged[0].data = [forged_sequence_header(8192, 8192), data.clone()].concat();
+        let error = decode_av1(&forged, "forged.mp4", 4096).expect_err("refused");
+        let text = format!(
+            "{error}: {}",
+            std::error::Error::source(&error).map_or(String::new(), |s| s.to_string())
+        );
+        assert!(
+            text.contains("forged.mp4") && text.contains("8192 x 8192"),
+            "{text}"
+        );
+        // Cut short: refused too.
+        forged[0].data = forged_sequence_header(8192, 8192)[..4].to_vec();
+        assert!(decode_av1(&forged, "cut.mp4", 4096).is_err());
     }
 }
