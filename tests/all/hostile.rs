@@ -140,6 +140,13 @@ fn lerobot_names_and_templates_that_leave_the_dataset_are_refused() {
             }),
         ),
         (
+            "a data_path template with ../ (which no reader follows: refused all the same)",
+            Box::new(|info: &mut Value| {
+                info["data_path"] =
+                    "../../etc/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet".into();
+            }),
+        ),
+        (
             "an absolute video_path",
             Box::new(move |info: &mut Value| {
                 info["video_path"] = absolute.clone().into();
@@ -198,6 +205,28 @@ fn lerobot_names_and_templates_that_leave_the_dataset_are_refused() {
             what,
         );
         expect_exit(&parent, &["info", dataset], 1, what);
+        if escapes {
+            let (code, stderr) = run(
+                &[
+                    "eval",
+                    "--policy",
+                    "replay",
+                    "--dataset",
+                    dataset,
+                    "--tasks",
+                    "T1-1",
+                    "--trials",
+                    "1",
+                    "--out",
+                    &format!("{out}-eval"),
+                ],
+                LIMIT,
+            );
+            assert!(
+                (1..=2).contains(&code) && !stderr.contains("panicked"),
+                "{what}: eval exit {code}: {stderr}"
+            );
+        }
     }
 }
 

@@ -360,6 +360,35 @@ impl InfoJson {
         self.codebase_version.as_deref() == Some("v2.1")
     }
 
+    /// Why `data_path` or `video_path` cannot be a path inside the dataset, if one cannot: only
+    /// the placeholders of its version, integer widths within bounds, nothing leading outside.
+    /// Every command refuses such a dataset, as `validate` does (exit 1).
+    pub fn template_problem(&self) -> Option<String> {
+        use crate::export::paths::{self, Field};
+        let (chunk, file) = if self.is_v21() {
+            ("episode_chunk", "episode_index")
+        } else {
+            ("chunk_index", "file_index")
+        };
+        let fields = [
+            (chunk, Field::Index(0)),
+            (file, Field::Index(0)),
+            ("video_key", Field::Name("key")),
+        ];
+        [
+            ("data_path", &self.data_path),
+            ("video_path", &self.video_path),
+        ]
+        .into_iter()
+        .find_map(|(name, template)| {
+            let template = template.as_ref()?;
+            let problem = paths::fill(template, &fields).err()?;
+            Some(format!(
+                "{name} {template:?} cannot be a path inside the dataset: it {problem}"
+            ))
+        })
+    }
+
     /// Frames per second as a float, when it is a positive number.
     pub fn fps_hz(&self) -> Option<f64> {
         self.fps.as_ref()?.as_f64().filter(|f| *f > 0.0)

@@ -245,10 +245,14 @@ fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
 /// `meta/info.json`, typed (leniently: see [`super::meta`]).
 pub(crate) fn read_info(path: &Path) -> Result<super::meta::InfoJson, ExportError> {
     let bytes = crate::export::bounded::read_metadata(path)?;
-    super::meta::InfoJson::parse(&bytes).map_err(|source| ExportError::Json {
+    let info = super::meta::InfoJson::parse(&bytes).map_err(|source| ExportError::Json {
         path: path.to_path_buf(),
         source,
-    })
+    })?;
+    if let Some(problem) = info.template_problem() {
+        return Err(invalid(path, problem));
+    }
+    Ok(info)
 }
 
 /// The features of info.json as surgvla's model knows them (defaults left out). Our roles

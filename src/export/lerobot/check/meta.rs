@@ -11,7 +11,7 @@ use crate::export::check::Check;
 use crate::export::findings::{At, Findings};
 use crate::export::lerobot::meta::{FeatureStatsJson, StatValue, StatsJson};
 use crate::export::lint::cameras::{CameraFrames, FrameLook};
-use crate::export::paths::{self, Field};
+use crate::export::paths;
 use crate::media::demux::VideoReader;
 use arrow_array::{Array, BooleanArray, Float64Array, Int64Array, ListArray, StringArray};
 use serde_json::Value;
@@ -609,7 +609,7 @@ pub(super) fn check_videos(
         info.feature_list().into_iter().collect();
     let mut readers: BTreeMap<PathBuf, Result<Arc<VideoReader>, (String, bool)>> = BTreeMap::new();
     let mut spans: Vec<SpanToDecode> = Vec::new();
-    check_templates(info, v21, findings);
+    check_templates(info, findings);
     for feature in features.iter().filter(|f| f.dtype == "video") {
         let key = &feature.name;
         if let Err(problem) = paths::component(key) {
@@ -804,33 +804,11 @@ fn decode_spans(
     .collect()
 }
 
-/// info.json's `data_path` and `video_path` templates: only the placeholders of their version,
-/// integer widths within bounds, and nothing that leads outside the dataset.
-fn check_templates(info: &crate::export::lerobot::meta::InfoJson, v21: bool, findings: &Findings) {
-    let (chunk, file) = if v21 {
-        ("episode_chunk", "episode_index")
-    } else {
-        ("chunk_index", "file_index")
-    };
-    let fields = [
-        (chunk, Field::Index(0)),
-        (file, Field::Index(0)),
-        ("video_key", Field::Name("key")),
-    ];
-    for (name, template) in [
-        ("data_path", &info.data_path),
-        ("video_path", &info.video_path),
-    ] {
-        let Some(template) = template else {
-            continue;
-        };
-        if let Err(problem) = paths::fill(template, &fields) {
-            findings.error(
-                At::file("meta/info.json"),
-                Check::Paths,
-                format!("{name} {template:?} cannot be a path inside the dataset: it {problem}"),
-            );
-        }
+/// info.json's `data_path` and `video_path` templates
+/// ([`crate::export::lerobot::meta::InfoJson::template_problem`]).
+fn check_templates(info: &crate::export::lerobot::meta::InfoJson, findings: &Findings) {
+    if let Some(problem) = info.template_problem() {
+        findings.error(At::file("meta/info.json"), Check::Paths, problem);
     }
 }
 
