@@ -8,7 +8,7 @@
 //!   at that moment);
 //! - every release of every object, with the poses of all objects at that moment (a drop is
 //!   judged against its support where the support was then);
-//! - whether each object was ever held.
+//! - every grasp (whether an object was ever held follows).
 //!
 //! The simulator records at every control step's end (and after a teleport), so an event is
 //! seen at 5 Hz; what happened between two records is judged from the segment between them
@@ -98,8 +98,6 @@ pub struct TrialHistory {
     pub vessel_entries: Vec<VesselEntry>,
     /// Every closing of the jaws with the tip in the vessel, in order.
     pub vessel_closures: Vec<VesselClosure>,
-    /// Per object: held at any time.
-    pub ever_bound: Vec<bool>,
     /// Every grasp: (control step, object index), in order.
     pub grasps: Vec<(u64, usize)>,
     /// Per object: its releases, in order.
@@ -126,7 +124,6 @@ impl TrialHistory {
     /// An empty history for a scene of `objects` movable objects.
     pub fn new(objects: usize) -> Self {
         TrialHistory {
-            ever_bound: vec![false; objects],
             releases: vec![Vec::new(); objects],
             ..TrialHistory::default()
         }
@@ -181,10 +178,12 @@ impl TrialHistory {
 
     /// Records that object `index` was bound at `step_index`.
     pub(crate) fn bound(&mut self, index: usize, step_index: u64) {
-        if let Some(ever) = self.ever_bound.get_mut(index) {
-            *ever = true;
-            self.grasps.push((step_index, index));
-        }
+        self.grasps.push((step_index, index));
+    }
+
+    /// Whether object `index` was held at any time.
+    pub fn ever_bound(&self, index: usize) -> bool {
+        self.grasps.iter().any(|&(_, object)| object == index)
     }
 
     /// The trial's contact events in time order: grasps and releases (with the object's

@@ -95,8 +95,6 @@ pub struct Simulator {
     binding: Option<Binding>,
     step_index: u64,
     last_report: StepReport,
-    /// Per object: its pose when last released, until it is bound again.
-    released_at: Vec<Option<Isometry3<f64>>>,
     /// What the trial remembers (penetration, the vessel, releases).
     history: TrialHistory,
 }
@@ -135,7 +133,6 @@ impl Simulator {
                 ik,
                 ..StepReport::default()
             },
-            released_at: vec![None; objects],
             history: TrialHistory::new(objects),
         };
         sim.record_history();
@@ -344,9 +341,6 @@ impl Simulator {
                     let tip_from_object = self.world_from_tip().inverse() * world_from_object;
                     self.physics.set_object_bound(object, true);
                     self.history.bound(object, self.step_index);
-                    if let Some(released) = self.released_at.get_mut(object) {
-                        *released = None;
-                    }
                     self.binding = Some(Binding {
                         object,
                         tip_from_object,
@@ -356,9 +350,6 @@ impl Simulator {
             }
             JawCommand::Open => {
                 if let Some(binding) = self.binding.take() {
-                    if let Some(released) = self.released_at.get_mut(binding.object) {
-                        *released = self.physics.object_pose(binding.object);
-                    }
                     let poses = self.object_poses();
                     self.history
                         .released(binding.object, self.step_index, poses);
@@ -415,8 +406,12 @@ impl Simulator {
                     kind: spec.kind,
                     world_from_object: pose,
                     bound: self.bound_object() == Some(i),
-                    ever_bound: self.history.ever_bound.get(i).copied().unwrap_or(false),
-                    released_at: self.released_at.get(i).copied().flatten(),
+                    ever_bound: self.history.ever_bound(i),
+                    // The last release, unless held again since.
+                    released_at: (self.bound_object() != Some(i))
+                        .then(|| self.history.releases.get(i)?.last())
+                        .flatten()
+                        .map(|r| r.world_from_object),
                     on_tray: self.physics.object_on_tray(i),
                     on_block: block.is_some_and(|b| b != i && self.physics.objects_touching(i, b)),
                     displacement_m,

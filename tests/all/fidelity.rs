@@ -82,6 +82,16 @@ fn a_clip_must_arrive_open_and_straddle_the_vessel() {
     );
 }
 
+/// A simulator of `instance`'s scene whose jaws have closed (on nothing) at the start pose.
+fn closed_jaws(instance: &TaskInstance) -> Simulator {
+    let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+    sim.step_native(&surgvla::sim::NativeCommand {
+        jaw: -1.0,
+        ..Default::default()
+    });
+    sim
+}
+
 /// The loophole as it was found: closed jaws 3.5 mm over the spot, or 3.5 mm into the kidney
 /// under it, were within the old 4 mm sphere; on the spot itself they touch.
 #[test]
@@ -91,11 +101,7 @@ fn closed_jaws_3_5_mm_over_or_into_the_kidney_do_not_touch_it() {
         let instance = instance(task, k);
         let spot = instance.scene.marks[instance.target_mark.expect("spot")].position_m;
         let verdict_at = |dz: f64| {
-            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
-            sim.step_native(&surgvla::sim::NativeCommand {
-                jaw: -1.0,
-                ..Default::default()
-            });
+            let mut sim = closed_jaws(&instance);
             let mut pose = sim.world_from_tip();
             pose.translation.vector = spot + nalgebra::Vector3::new(0.0, 0.0, dz);
             assert!(sim.teleport_tip(&pose).is_exact());
@@ -128,11 +134,7 @@ fn a_stab_pulled_back_onto_the_spot_is_a_failure_a_firm_press_is_not() {
         let instance = instance(task, k);
         let spot = instance.scene.marks[instance.target_mark.expect("spot")].position_m;
         for (deepest, honest) in [(-0.006, false), (-0.0015, true)] {
-            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
-            sim.step_native(&surgvla::sim::NativeCommand {
-                jaw: -1.0,
-                ..Default::default()
-            });
+            let mut sim = closed_jaws(&instance);
             let mut visit = |dz: f64| {
                 let mut pose = sim.world_from_tip();
                 pose.translation.vector = spot + nalgebra::Vector3::new(0.0, 0.0, dz);
@@ -356,11 +358,7 @@ fn a_touch_counts_on_the_drawn_spot_only() {
             let local = organ.world_from_organ.rotation.inverse() * ray;
             let surface = organ.world_from_organ
                 * nalgebra::Point3::from(surgvla::scene::organ::surface_point(organ, local));
-            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
-            sim.step_native(&surgvla::sim::NativeCommand {
-                jaw: -1.0,
-                ..Default::default()
-            });
+            let mut sim = closed_jaws(&instance);
             let mut pose = sim.world_from_tip();
             pose.translation.vector = surface.coords;
             assert!(sim.teleport_tip(&pose).is_exact());
