@@ -44,6 +44,7 @@ checks! {
     Chunk = "chunk": "zarr chunks are present, zstd frames and of the size their array declares",
     ChunkLength = "chunk-length": "lint: how many episodes are shorter than ACT's, pi0's and diffusion's action chunks",
     Clipping = "clipping": "lint: no action dimension sits at its minimum or maximum for half its values",
+    Cloud = "cloud": "a PLY or PCD frame's header parses and its body holds exactly the points it declares, all finite",
     Columns = "columns": "a LeRobot table has a column for each declared feature and no other",
     Constant = "constant": "lint: every numeric dimension varies across the dataset",
     Crc = "crc": "TFRecord and MCAP framing: lengths and CRCs are intact to the end of the file",

@@ -326,6 +326,65 @@ fn a_damaged_input_file_fails_the_merge_naming_it() {
     }
 }
 
+/// Rewrites the first occurrence of `from` in the file at `path` with `to`.
+fn forge(path: &Path, from: &str, to: &[u8]) {
+    let bytes = std::fs::read(path).expect("frame");
+    let at = bytes
+        .windows(from.len())
+        .position(|w| w == from.as_bytes())
+        .expect("in the header");
+    let mut forged = bytes[..at].to_vec();
+    forged.extend_from_slice(to);
+    forged.extend_from_slice(&bytes[at + from.len()..]);
+    std::fs::write(path, forged).expect("forge");
+}
+
+/// A point-cloud frame plyfile or PCL could not read (a header declaring 10^12 points, one
+/// that never ends, a compressed body declaring gigabytes) is found by validate, full and
+/// quick, with or without the manifest, and never copied into a merged dataset.
+#[test]
+fn a_forged_point_cloud_is_never_called_valid_nor_merged() {
+    let input = temp_root("merge-forged-cloud-input");
+    collect(&input, &[]);
+    let endless = [b"ply\nformat binary_little_endian 1.0\n".as_slice(), &[b' '; 1 << 17]].concat();
+    let mut bomb = b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n\
+        WIDTH 200000000\nHEIGHT 1\nPOINTS 200000000\nDATA binary_compressed\n"
+        .to_vec();
+    bomb.extend_from_slice(&5u32.to_le_bytes());
+    bomb.extend_from_slice(&2_400_000_000u32.to_le_bytes());
+    bomb.extend_from_slice(&[0, 0, 0xE0, 14, 0]);
+    type Forgery<'a> = (&'a str, &'a dyn Fn(&Path), &'a str);
+    let cases: [Forgery<'_>; 3] = [
+        (
+            "ply",
+            &|file| forge(file, "element vertex ", b"element vertex 99999999999"),
+            "cannot hold",
+        ),
+        ("ply", &|file| std::fs::write(file, &endless).expect("forge"), "64 KiB"),
+        ("pcd", &|file| std::fs::write(file, &bomb).expect("forge"), "cannot hold"),
+    ];
+    for (to, damage, problem) in cases {
+        let a = converted(&input, &["--to", to], Some("0/2"));
+        let b = converted(&input, &["--to", to], Some("1/2"));
+        let damaged = format!("episode_000001/frame_000003.{to}");
+        damage(&b.join(&damaged));
+        let out = temp_root("merge-forged-cloud-out");
+        let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&out)]);
+        assert_eq!(code, 1, "{to}: {err}");
+        assert!(err.contains(&damaged) && err.contains(problem), "{err}");
+        let (code, ..) = surgvla(&["validate", path(&out)]);
+        assert_ne!(code, 0, "{to}: the merged output is called valid");
+        std::fs::remove_file(b.join("surgvla_manifest.json")).expect("no manifest");
+        for quick in [&[][..], &["--quick"]] {
+            let mut args = vec!["validate", path(&b)];
+            args.extend(quick);
+            let (code, out, err) = surgvla(&args);
+            assert_eq!(code, 1, "{to} {quick:?}: {out}{err}");
+            assert!(out.contains(&damaged) && out.contains(problem), "{out}");
+        }
+    }
+}
+
 /// An RLDS merge killed after a closed shard resumes to the bytes of an uninterrupted one.
 #[test]
 fn a_killed_rlds_merge_resumes_to_the_uninterrupted_dataset() {

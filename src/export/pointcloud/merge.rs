@@ -1,11 +1,13 @@
 //! The point-cloud folders' merge: a frame's file holds no episode number, so every file is
-//! copied as it is under its new episode's folder (`episode_NNNNNN/frame_NNNNNN.ply|pcd`);
+//! copied as it is (once [`super::frame::frame_problem`] finds nothing wrong with it) under its
+//! new episode's folder (`episode_NNNNNN/frame_NNNNNN.ply|pcd`);
 //! `episodes.jsonl` gets each line again with its new `episode_index` (the other keys as they
 //! were, in their order), `surgvla.json` the merged collection
 //! ([`crate::export::merge::merge_episode_files`]). N of N merged are the single run's bytes.
 //! A point-cloud merge does not resume: run it again into an empty folder.
 
-use super::files::{EPISODES, MANIFEST, SURGVLA_JSON};
+use super::files::{CloudFileFormat, EPISODES, MANIFEST, SURGVLA_JSON};
+use super::frame::{MAX_FRAME_BYTES, frame_problem};
 use crate::export::bounded::read_capped;
 use crate::export::bounded::read_json;
 use crate::export::collection::Collection;
@@ -17,10 +19,6 @@ use crate::export::merge::{Part, merge_episode_files, plan};
 use crate::export::sink::Summary;
 use serde_json::Value;
 use std::path::Path;
-
-/// A frame's file larger than this is not one surgvla writes (a million points of PCD with a
-/// mask channel is about 16 MB).
-const MAX_FRAME_BYTES: u64 = 256 << 20;
 
 /// Merges the request's point-cloud folders into a new one at its `out` (see the module
 /// overview).
@@ -39,10 +37,11 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         first_surgvla.get_or_insert(surgvla);
     }
     let plan = plan(parts)?;
-    let extension = match plan.options.format() {
-        Some("pcd") => "pcd",
-        _ => "ply",
+    let format = match plan.options.format() {
+        Some("pcd") => CloudFileFormat::Pcd,
+        _ => CloudFileFormat::Ply,
     };
+    let extension = format.extension();
     let mut surgvla = first_surgvla.ok_or(MergeError::NoInput)?;
     if let Some(collection) = &plan.collection {
         surgvla["collection"] = collection.to_json();
@@ -80,6 +79,14 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         for frame in 0..count {
             let source = root.join(format!("episode_{from:06}/frame_{frame:06}.{extension}"));
             let bytes = read_capped(&source, MAX_FRAME_BYTES).map_err(read)?;
+            // A frame that plyfile or PCL could not read is never copied into a valid-looking
+            // dataset.
+            if let Err(problem) = frame_problem(&bytes, format) {
+                return Err(read(ExportError::InvalidDataset {
+                    path: source,
+                    problem,
+                }));
+            }
             let target = format!("episode_{to:06}/frame_{frame:06}.{extension}");
             dir.write_atomically(&target, &bytes).map_err(write)?;
         }

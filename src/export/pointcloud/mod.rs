@@ -17,6 +17,7 @@ pub mod check;
 mod cloud;
 pub mod files;
 mod format;
+pub mod frame;
 mod merge;
 pub mod pcd;
 pub mod ply;
