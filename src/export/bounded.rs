@@ -14,6 +14,11 @@ use std::path::{Path, PathBuf};
 pub const MAX_METADATA_BYTES: u64 = 32 << 20;
 /// The longest line of a JSON-lines file.
 pub const MAX_LINE_BYTES: u64 = 16 << 20;
+/// The most values one metadata document or line may hold. Parsed into a generic tree, each
+/// costs 32 to about 100 bytes whatever its size in the file (`0,` is two bytes), so a 32 MiB
+/// document of zeros would cost gigabytes; at this cap a tree stays under about 200 MB. Real
+/// metadata holds at most a few values per 10 bytes (a manifest of 200,000 files is well under).
+pub const MAX_JSON_VALUES: u64 = 2_000_000;
 
 /// Opens `path` for reading if it is a regular file (links followed).
 /// ([`crate::files::open_regular`]: checked before it is opened, so a FIFO never blocks).
@@ -48,9 +53,42 @@ pub fn read_capped(path: &Path, limit_bytes: u64) -> Result<Vec<u8>, ExportError
     Ok(bytes)
 }
 
-/// A metadata document's bytes ([`MAX_METADATA_BYTES`]).
+/// A metadata document's bytes ([`MAX_METADATA_BYTES`], [`MAX_JSON_VALUES`]).
 pub fn read_metadata(path: &Path) -> Result<Vec<u8>, ExportError> {
-    read_capped(path, MAX_METADATA_BYTES)
+    let bytes = read_capped(path, MAX_METADATA_BYTES)?;
+    json_values_problem(&bytes).map_or(Ok(bytes), |problem| {
+        Err(ExportError::InvalidDataset {
+            path: path.to_path_buf(),
+            problem,
+        })
+    })
+}
+
+/// Refuses JSON text holding more than [`MAX_JSON_VALUES`] values, counted in one pass over
+/// the bytes before any parser builds them (every `,` `[` `{` outside strings begins a value or
+/// entry: an upper bound of values less one). Text that is not JSON passes, for its parser to
+/// refuse.
+pub fn json_values_problem(bytes: &[u8]) -> Option<String> {
+    let (mut values, mut in_string, mut escaped) = (1u64, false, false);
+    for &b in bytes {
+        if in_string {
+            match b {
+                _ if escaped => escaped = false,
+                b'\\' => escaped = true,
+                b'"' => in_string = false,
+                _ => {}
+            }
+        } else {
+            match b {
+                b'"' => in_string = true,
+                b',' | b'[' | b'{' => values += 1,
+                _ => {}
+            }
+        }
+    }
+    (values > MAX_JSON_VALUES).then(|| {
+        format!("holds more than the {MAX_JSON_VALUES} JSON values surgvla reads in one document")
+    })
 }
 
 fn too_large(path: &Path, limit_bytes: u64) -> ExportError {
@@ -100,6 +138,12 @@ impl Iterator for Lines {
                         "line {} is longer than {} MiB",
                         self.number,
                         MAX_LINE_BYTES >> 20
+                    )
+                }
+                Ok(_) if json_values_problem(&buffer).is_some() => {
+                    format!(
+                        "line {} holds more than the {MAX_JSON_VALUES} JSON values surgvla reads",
+                        self.number
                     )
                 }
                 Ok(_) => match String::from_utf8(std::mem::take(&mut buffer)) {
@@ -163,6 +207,18 @@ mod tests {
         );
         std::fs::write(&path, [b'a', 0xff, b'\n']).unwrap();
         assert!(lines(&path).unwrap().next().unwrap().is_err());
+        // A document of many tiny values: refused before it is parsed, as a line too; the same
+        // count of values inside a string is text.
+        let zeros = format!("[{}0]", "0,".repeat(MAX_JSON_VALUES as usize));
+        std::fs::write(&path, &zeros).unwrap();
+        let error = read_metadata(&path).unwrap_err().to_string();
+        assert!(error.contains("JSON values"), "{error}");
+        assert!(lines(&path).unwrap().next().unwrap().is_err());
+        std::fs::write(&path, format!("[\"\\\"{zeros}\"]")).unwrap();
+        assert!(read_metadata(&path).is_ok());
+        let fewer = format!("[{}0]", "0,".repeat(MAX_JSON_VALUES as usize - 2));
+        std::fs::write(&path, &fewer).unwrap();
+        assert!(read_metadata(&path).is_ok());
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

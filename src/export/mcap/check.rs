@@ -265,6 +265,10 @@ fn check_json_message(
     findings: &Findings,
 ) {
     let channel = &message.channel;
+    if let Some(problem) = crate::export::bounded::json_values_problem(&message.data) {
+        findings.error(at(), Check::Json, format!("a {} message {problem}", channel.topic));
+        return;
+    }
     let value: serde_json::Value = match serde_json::from_slice(&message.data) {
         Ok(value) => value,
         Err(_) => {

@@ -122,6 +122,12 @@ fn renumbered(recording: Recording, index: u64, path: &Path) -> Result<Vec<u8>, 
     for (mut header, data) in recording.messages {
         let mut data = data;
         if Some(header.channel_id) == info_channel {
+            if let Some(problem) = crate::export::bounded::json_values_problem(&data) {
+                return Err(ExportError::InvalidDataset {
+                    path: path.to_path_buf(),
+                    problem: format!("its {INFO_TOPIC} message {problem}"),
+                });
+            }
             let mut info: Value =
                 serde_json::from_slice(&data).map_err(|e| ExportError::InvalidDataset {
                     path: path.to_path_buf(),
