@@ -136,11 +136,14 @@ pub enum EvalError {
 }
 
 impl crate::error::HasKind for EvalError {
-    /// Exit 2 for what the user gave (an unreachable server at start, an unusable dataset or
-    /// option), 1 when writing the results failed.
+    /// Exit 2 for what the user gave (an unreachable server at start, an unusable option, a
+    /// replay dataset that is not there), 1 when writing the results failed or the replay
+    /// dataset is invalid (as every command judges a dataset).
     fn kind(&self) -> ErrorKind {
         match self {
-            EvalError::Write { source, .. } => source.kind(),
+            EvalError::Write { source, .. } | EvalError::ReplayDataset { source, .. } => {
+                source.kind()
+            }
             EvalError::Plan(e) => e.kind(),
             EvalError::Spawn(_) => ErrorKind::Failed,
             _ => ErrorKind::Usage,

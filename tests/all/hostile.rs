@@ -845,3 +845,113 @@ fn special_files_are_refused_before_they_are_opened() {
         }
     }
 }
+
+/// The compact-thrift varint of the zigzag of `value`.
+fn zigzag_varint(value: i64) -> Vec<u8> {
+    let mut n = ((value << 1) ^ (value >> 63)) as u64;
+    let mut out = Vec::new();
+    loop {
+        let byte = (n & 0x7f) as u8;
+        n >>= 7;
+        if n == 0 {
+            out.push(byte);
+            return out;
+        }
+        out.push(byte | 0x80);
+    }
+}
+
+/// A data file's footer rewritten so that its row count is a lie, in the file's own count (the
+/// footer's bytes patched) or a row group's: every command gives the same verdict (exit 1
+/// naming the file), none reads rows.
+#[test]
+fn a_forged_parquet_row_count_gets_one_verdict_from_every_command() {
+    use parquet::file::metadata::{ParquetMetaData, ParquetMetaDataWriter};
+    let parent = temp_root("hostile-rows");
+    sentinel(&parent);
+    let base = parent.join("base");
+    collect(base.to_str().expect("utf-8"), "2", &["--shard", "0/2"]);
+    let second = parent.join("second");
+    let second = second.to_str().expect("utf-8");
+    collect(second, "2", &["--shard", "1/2"]);
+    let data = "data/chunk-000/file-000.parquet";
+    let original = std::fs::read(base.join(data)).expect("data");
+    let metadata = surgvla::export::lerobot::read::open_parquet(&base.join(data))
+        .expect("footer")
+        .metadata()
+        .as_ref()
+        .clone();
+    let length = u32::from_le_bytes(original[original.len() - 8..][..4].try_into().expect("4"));
+    let body = &original[..original.len() - 8 - length as usize];
+    let footer = &original[body.len()..original.len() - 8];
+    // FileMetaData's field 3 (i64, the field after the schema list): header 0x16, then the count.
+    let true_rows = [
+        &[0x16][..],
+        &zigzag_varint(metadata.file_metadata().num_rows()),
+    ]
+    .concat();
+    let at = footer
+        .windows(true_rows.len())
+        .position(|w| w == true_rows)
+        .expect("the file's row count");
+    let cases = [
+        ("file", 1_000_000_000_000i64),
+        ("file", -1),
+        ("file", i64::MAX),
+        ("group", 1_000_000_000_000),
+    ];
+    for (level, rows) in cases {
+        let mut bytes = body.to_vec();
+        if level == "file" {
+            let mut forged = footer[..at].to_vec();
+            forged.push(0x16);
+            forged.extend(zigzag_varint(rows));
+            forged.extend_from_slice(&footer[at + true_rows.len()..]);
+            bytes.extend_from_slice(&forged);
+            bytes.extend_from_slice(&(forged.len() as u32).to_le_bytes());
+            bytes.extend_from_slice(b"PAR1");
+        } else {
+            let group = metadata.row_group(0).clone().into_builder();
+            let group = group.set_num_rows(rows).build().expect("group");
+            let forged = ParquetMetaData::new(metadata.file_metadata().clone(), vec![group]);
+            ParquetMetaDataWriter::new(&mut bytes, &forged)
+                .finish()
+                .expect("footer");
+        }
+        let dataset = parent.join(format!("forged-{level}-{rows}"));
+        copy_tree(&base, &dataset);
+        std::fs::write(dataset.join(data), bytes).expect("forge");
+        std::fs::remove_file(dataset.join("meta/surgvla_manifest.json")).expect("manifest");
+        let input = dataset.to_str().expect("utf-8");
+        let out = parent.join("out");
+        let out = out.to_str().expect("utf-8");
+        for args in [
+            vec!["validate", input],
+            vec!["validate", input, "--quick"],
+            vec!["info", input],
+            vec!["convert", input, "--to", "rlds", "--out", out],
+            vec!["merge", input, second, "--out", out],
+            vec![
+                "eval",
+                "--policy",
+                "replay",
+                "--dataset",
+                input,
+                "--tasks",
+                "T1-1",
+                "--trials",
+                "1",
+                "--out",
+                out,
+            ],
+        ] {
+            let what = format!("{level} rows {rows}");
+            let text = expect_exit(&parent, &args, 1, &what);
+            assert!(
+                text.contains("file-000.parquet") && text.contains(&format!("claims {rows} rows")),
+                "{what} {args:?}: {text}"
+            );
+            std::fs::remove_dir_all(parent.join("out")).ok();
+        }
+    }
+}

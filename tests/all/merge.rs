@@ -346,7 +346,11 @@ fn forge(path: &Path, from: &str, to: &[u8]) {
 fn a_forged_point_cloud_is_never_called_valid_nor_merged() {
     let input = temp_root("merge-forged-cloud-input");
     collect(&input, &[]);
-    let endless = [b"ply\nformat binary_little_endian 1.0\n".as_slice(), &[b' '; 1 << 17]].concat();
+    let endless = [
+        b"ply\nformat binary_little_endian 1.0\n".as_slice(),
+        &[b' '; 1 << 17],
+    ]
+    .concat();
     let mut bomb = b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n\
         WIDTH 200000000\nHEIGHT 1\nPOINTS 200000000\nDATA binary_compressed\n"
         .to_vec();
@@ -360,8 +364,16 @@ fn a_forged_point_cloud_is_never_called_valid_nor_merged() {
             &|file| forge(file, "element vertex ", b"element vertex 99999999999"),
             "cannot hold",
         ),
-        ("ply", &|file| std::fs::write(file, &endless).expect("forge"), "64 KiB"),
-        ("pcd", &|file| std::fs::write(file, &bomb).expect("forge"), "cannot hold"),
+        (
+            "ply",
+            &|file| std::fs::write(file, &endless).expect("forge"),
+            "64 KiB",
+        ),
+        (
+            "pcd",
+            &|file| std::fs::write(file, &bomb).expect("forge"),
+            "cannot hold",
+        ),
     ];
     for (to, damage, problem) in cases {
         let a = converted(&input, &["--to", to], Some("0/2"));

@@ -92,8 +92,15 @@ pub fn footer_problem(
             "its column chunks claim {chunk_bytes} bytes in a file of {file_bytes} (chunks that share bytes)"
         ));
     }
-    (rows > file_bytes.saturating_mul(MAX_ROWS_PER_BYTE))
-        .then(|| format!("its footer claims {rows} rows in a file of {file_bytes} bytes"))
+    if rows > file_bytes.saturating_mul(MAX_ROWS_PER_BYTE) {
+        return Some(format!(
+            "its footer claims {rows} rows in a file of {file_bytes} bytes"
+        ));
+    }
+    // The file's own count is the sum of its row groups' (readers differ on which they trust).
+    let stated = metadata.file_metadata().num_rows();
+    (u64::try_from(stated) != Ok(rows))
+        .then(|| format!("its footer claims {stated} rows where its row groups hold {rows}"))
 }
 
 /// A parquet file's reader builder, its footer checked ([`footer_problem`]) first.
@@ -1279,6 +1286,7 @@ mod tests {
             .set_num_rows(-1)
             .build()
             .expect("row group");
+        let original = metadata.clone();
         let negative = metadata
             .into_builder()
             .set_row_groups(vec![negative])
@@ -1288,6 +1296,27 @@ mod tests {
                 .expect("refused")
                 .contains("claims -1 rows")
         );
+        // The file's own row count, forged alone: every command refuses it alike.
+        for stated in [1_000_000_000_000, -1, i64::MAX, 2] {
+            let file = original.file_metadata();
+            let forged = parquet::file::metadata::FileMetaData::new(
+                file.version(),
+                stated,
+                file.created_by().map(String::from),
+                file.key_value_metadata().cloned(),
+                file.schema_descr_ptr(),
+                file.column_orders().cloned(),
+            );
+            let forged = parquet::file::metadata::ParquetMetaData::new(
+                forged,
+                original.row_groups().to_vec(),
+            );
+            let problem = footer_problem(&forged, size).expect("refused");
+            assert!(
+                problem.contains(&format!("claims {stated} rows")),
+                "{problem}"
+            );
+        }
     }
 
     /// A footer with one column chunk changed by `edit`.

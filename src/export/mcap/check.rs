@@ -266,7 +266,11 @@ fn check_json_message(
 ) {
     let channel = &message.channel;
     if let Some(problem) = crate::export::bounded::json_values_problem(&message.data) {
-        findings.error(at(), Check::Json, format!("a {} message {problem}", channel.topic));
+        findings.error(
+            at(),
+            Check::Json,
+            format!("a {} message {problem}", channel.topic),
+        );
         return;
     }
     let value: serde_json::Value = match serde_json::from_slice(&message.data) {

@@ -7,11 +7,11 @@
 use super::files::CloudFileFormat;
 use super::frame;
 use crate::export::bounded::{open_regular, read_capped, read_json};
-use std::io::Read;
 use crate::export::check::Check;
 use crate::export::collection::Collection;
 use crate::export::findings::{At, FeatureFact, Findings, ValidateOptions, check_manifest};
 use crate::export::schema;
+use std::io::Read;
 use std::path::Path;
 
 /// Checks the folder at `root` of `extension` files; returns (episodes, frames) on disk.
@@ -127,7 +127,10 @@ fn frame_files(folder: &Path, rule: &FrameRule, findings: &Findings) -> u64 {
     let mut paths: Vec<_> = entries
         .flatten()
         .map(|entry| entry.path())
-        .filter(|path| path.extension().is_some_and(|e| e == rule.format.extension()))
+        .filter(|path| {
+            path.extension()
+                .is_some_and(|e| e == rule.format.extension())
+        })
         .collect();
     paths.sort();
     for path in &paths {

@@ -183,7 +183,11 @@ fn ply_header(lines: &[&str]) -> Result<(u64, Body), String> {
                 property.list = Some(count);
                 element.2.push(property);
             }
-            _ => return Err(format!("its PLY header has a line `{line}` PLY does not know")),
+            _ => {
+                return Err(format!(
+                    "its PLY header has a line `{line}` PLY does not know"
+                ));
+            }
         }
     }
     if let Some((name, ..)) = elements.iter().find(|e| e.1 > 0 && e.2.is_empty()) {
@@ -242,12 +246,17 @@ fn pcd_header(lines: &[&str]) -> Result<(u64, Body), String> {
     };
     let number = |key: &str| -> Result<u64, String> {
         match get(key)?.as_slice() {
-            [value] => value.parse().map_err(|_| format!("its {key} is not a count")),
+            [value] => value
+                .parse()
+                .map_err(|_| format!("its {key} is not a count")),
             _ => Err(format!("its {key} line holds more than one value")),
         }
     };
     let (names, sizes, types) = (get("FIELDS")?, get("SIZE")?, get("TYPE")?);
-    let counts = keys.get("COUNT").cloned().unwrap_or_else(|| vec!["1"; names.len()]);
+    let counts = keys
+        .get("COUNT")
+        .cloned()
+        .unwrap_or_else(|| vec!["1"; names.len()]);
     if sizes.len() != names.len() || types.len() != names.len() || counts.len() != names.len() {
         return Err("its FIELDS, SIZE, TYPE and COUNT lines differ in length".into());
     }
@@ -271,7 +280,9 @@ fn pcd_header(lines: &[&str]) -> Result<(u64, Body), String> {
     let points = number("POINTS")?;
     let (width, height) = (number("WIDTH")?, number("HEIGHT")?);
     if width.checked_mul(height) != Some(points) {
-        return Err(format!("its WIDTH {width} x HEIGHT {height} is not POINTS {points}"));
+        return Err(format!(
+            "its WIDTH {width} x HEIGHT {height} is not POINTS {points}"
+        ));
     }
     let body = match get("DATA")?.as_slice() {
         ["binary"] => Body::Binary {
@@ -421,7 +432,9 @@ fn read_ascii(body: &[u8], elements: &[(u64, Vec<Property>)]) -> Result<(), Stri
                 }
             }
             if words.next().is_some() {
-                return Err(format!("row {row} holds more values than its header declares"));
+                return Err(format!(
+                    "row {row} holds more values than its header declares"
+                ));
             }
         }
     }
@@ -574,14 +587,16 @@ mod tests {
                     property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
                     end_header\n0 0 0\n1 1 1\n3 0 1 1\n";
         assert_eq!(frame_problem(ply, CloudFileFormat::Ply), Ok(2));
-        let short = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+        let short =
+            b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
                     property float z\nend_header\n0 0 0\n";
         assert!(frame_problem(short, CloudFileFormat::Ply).is_err());
         // Binary with a list: the face's length byte says 3, then three int32s.
-        let mut binary = b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n\
+        let mut binary =
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n\
                     property float y\nproperty float z\nelement face 1\n\
                     property list uchar int vertex_indices\nend_header\n"
-            .to_vec();
+                .to_vec();
         binary.extend_from_slice(&[0; 12]);
         binary.push(3);
         binary.extend_from_slice(&[0; 12]);
