@@ -472,7 +472,7 @@ fn json_files(root: &Path) -> Vec<String> {
 /// TFRecord lengths, MCAP records and index, zarr chunks (relative paths, sorted).
 fn binary_files(root: &Path) -> Vec<String> {
     files_where(root, |name| {
-        [".parquet", ".mcap", ".mp4", ".png", ".tiff"]
+        [".parquet", ".mcap", ".mp4", ".png", ".tiff", ".ply", ".pcd"]
             .iter()
             .any(|ending| name.ends_with(ending))
             || name.contains(".tfrecord-")
@@ -588,13 +588,20 @@ fn every_command_survives(
     files: fn(&Path) -> Vec<String>,
     mutator: Mutator,
 ) {
+    // A deeper local run: SURGVLA_MUTATION_SEED=N SURGVLA_MUTATION_ROUNDS=M.
+    let from_env = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<u64>().ok());
+    let seed = from_env("SURGVLA_MUTATION_SEED").unwrap_or(seed);
+    let rounds = from_env("SURGVLA_MUTATION_ROUNDS").map_or(rounds, |r| r as usize);
     let parent = temp_root(label);
     sentinel(&parent);
-    let formats: [(&str, &[&str]); 4] = [
+    let formats: [(&str, &[&str]); 7] = [
         ("lerobot", &["--video", "h264"]),
+        ("lerobot-av1", &["--video", "av1"]),
         ("rlds", &["--format", "rlds"]),
         ("zarr", &["--format", "zarr"]),
         ("mcap", &["--format", "mcap"]),
+        ("ply", &["--format", "ply"]),
+        ("pcd", &["--format", "pcd"]),
     ];
     let mut rng = surgvla::rng::SplitMix64::new(seed);
     for (name, extra) in formats {
@@ -620,8 +627,10 @@ fn every_command_survives(
             let what = format!("{name} round {round}: {file} <- {how}");
             let merged = format!("{out}-merged");
             let eval = format!("{out}-eval");
+            let mut verdicts = Vec::new();
             for command in [
                 vec!["validate", text.as_str()],
+                vec!["validate", text.as_str(), "--quick"],
                 vec!["info", text.as_str()],
                 vec!["convert", &text, "--to", "rlds", "--out", &out],
                 vec!["merge", &base_text, &text, "--out", &merged],
@@ -653,7 +662,22 @@ fn every_command_survives(
                     before,
                     "{what}: the sentinel changed"
                 );
+                verdicts.push((code, stderr));
             }
+            // `info` runs the quick check; the quick check reads less than the full pass (the
+            // checksums of metadata only, samples of images and video) and never judges more
+            // strictly.
+            let [(full, full_text), (quick, quick_text), (info, _)] = &verdicts[..3] else {
+                unreachable!("three checks ran")
+            };
+            assert_eq!(
+                info, quick,
+                "{what}: info and validate --quick differ: {quick_text}"
+            );
+            assert!(
+                *quick == 0 || full == quick,
+                "{what}: --quick exit {quick}, the full pass {full}: {quick_text} / {full_text}"
+            );
         }
         assert!(mutated > 0, "{name}: nothing was mutated");
     }
@@ -666,7 +690,8 @@ fn mutated_metadata_never_panics_hangs_or_escapes() {
 }
 
 /// Seeded mutations of every format's binary files (parquet footers and row groups, TFRecord
-/// lengths, MCAP records and summary, zarr chunks, PNG and TIFF headers).
+/// lengths, MCAP records and summary, zarr chunks, PNG and TIFF headers, MP4 boxes with AV1
+/// and H.264 streams, PLY and PCD headers and bodies).
 #[test]
 fn mutated_binary_files_never_panic_hang_or_escape() {
     every_command_survives("hostile-bytes", 2, 24, binary_files, mutate_bytes);

@@ -21,9 +21,8 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
         return 0;
     };
     let summary = check_summary(&bytes, &at, episode, findings);
-    if quick {
-        return summary.as_ref().map_or(0, rgb_frames);
-    }
+    // Quick mode walks the same records, chunk CRCs and counts (so it never calls valid what
+    // the full pass refuses), and skips only each message's content (JSON Schema, names).
     // The mcap reader reserves each chunk's claimed uncompressed size before decompressing it.
     if let Some(problem) = chunks_problem(&bytes) {
         findings.error(at(), Check::Chunk, problem);
@@ -58,6 +57,9 @@ fn check_file(path: &Path, episode: u64, quick: bool, findings: &Findings) -> u6
         *counts.entry(channel.id).or_default() += 1;
         if channel.topic == "/endoscope/rgb" {
             frames += 1;
+        }
+        if quick {
+            continue;
         }
         if channel.message_encoding == "json" {
             check_json_message(&message, &mut json_schemas, || at().frame(frames), findings);
@@ -238,23 +240,6 @@ fn check_summary(
     summary
 }
 
-/// The frames the statistics count on `/endoscope/rgb` (quick mode reads no message).
-fn rgb_frames(summary: &Summary) -> u64 {
-    summary
-        .channels
-        .values()
-        .find(|c| c.topic == "/endoscope/rgb")
-        .and_then(|c| {
-            summary
-                .stats
-                .as_ref()?
-                .channel_message_counts
-                .get(&c.id)
-                .copied()
-        })
-        .unwrap_or(0)
-}
-
 /// A JSON message: valid JSON, and valid against its schema (our channels against
 /// `schemas/mcap_json_channels.json`, others against their own channel's JSON Schema, compiled
 /// once per channel in `schemas`).
@@ -335,21 +320,14 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         .map(|(i, path)| check_file(path, i as u64, options.quick, findings))
         .collect();
     if !root.is_file() {
-        check_episode_lines(root, &files, &frames, options.quick, findings);
+        check_episode_lines(root, &files, &frames, findings);
     }
     (files.len() as u64, frames.iter().sum())
 }
 
 /// A folder's `episodes.jsonl` (when there is one) against its recordings: a line per file in
-/// order, each naming its file and episode, and (unless `quick`, which reads one frame per
-/// file) the frames the file holds.
-fn check_episode_lines(
-    root: &Path,
-    files: &[PathBuf],
-    frames: &[u64],
-    quick: bool,
-    findings: &Findings,
-) {
+/// order, each naming its file and episode, and the frames the file holds.
+fn check_episode_lines(root: &Path, files: &[PathBuf], frames: &[u64], findings: &Findings) {
     let path = root.join("episodes.jsonl");
     if !path.is_file() {
         return;
@@ -396,7 +374,7 @@ fn check_episode_lines(
                 Check::Episodes,
                 format!("names {}, the recording is {name:?}", value["file"]),
             );
-        } else if !quick && value["frames"].as_u64() != frames.get(count).copied() {
+        } else if value["frames"].as_u64() != frames.get(count).copied() {
             findings.error(
                 at(),
                 Check::Episodes,

@@ -21,35 +21,7 @@ pub fn check(
     options: &ValidateOptions,
     findings: &Findings,
 ) -> (u64, u64) {
-    let mut max_points = None;
-    match read_json(&root.join(super::files::SURGVLA_JSON)) {
-        Ok(surgvla) => {
-            max_points = surgvla["point_cloud"]["points"].as_u64();
-            findings.learn(|facts| {
-                facts.fps = surgvla["fps"].as_f64();
-                facts.generator = surgvla["generator"].as_str().map(String::from);
-                facts.collection = Collection::from_json(&surgvla["collection"]);
-                let points = surgvla["point_cloud"]["points"].as_u64().unwrap_or(0) as usize;
-                facts.features.push(FeatureFact {
-                    name: format!("{extension} point cloud"),
-                    dtype: "float32".into(),
-                    shape: vec![points, 6],
-                });
-            });
-            for (pointer, problem) in schema::check_text(&surgvla, schema::SURGVLA_META) {
-                findings.error(
-                    At::file(super::files::SURGVLA_JSON),
-                    Check::Schema,
-                    format!("{pointer} {problem}"),
-                );
-            }
-        }
-        Err(_) => findings.error(
-            At::file(super::files::SURGVLA_JSON),
-            Check::Present,
-            "is missing or not JSON",
-        ),
-    }
+    let max_points = check_metadata(root, extension, findings);
     check_manifest(root, super::files::MANIFEST, options.quick, findings);
     let episodes = crate::export::bounded::read_metadata(&root.join(super::files::EPISODES));
     let stated = match episodes.map(|bytes| String::from_utf8_lossy(&bytes).into_owned()) {
@@ -107,6 +79,41 @@ pub fn check(
         }
     }
     (episodes, frames)
+}
+
+/// Checks `surgvla.json` against its schema and learns the dataset's facts from it; returns the
+/// points per cloud its settings allow.
+fn check_metadata(root: &Path, extension: &str, findings: &Findings) -> Option<u64> {
+    let mut max_points = None;
+    match read_json(&root.join(super::files::SURGVLA_JSON)) {
+        Ok(surgvla) => {
+            max_points = surgvla["point_cloud"]["points"].as_u64();
+            findings.learn(|facts| {
+                facts.fps = surgvla["fps"].as_f64();
+                facts.generator = surgvla["generator"].as_str().map(String::from);
+                facts.collection = Collection::from_json(&surgvla["collection"]);
+                let points = surgvla["point_cloud"]["points"].as_u64().unwrap_or(0) as usize;
+                facts.features.push(FeatureFact {
+                    name: format!("{extension} point cloud"),
+                    dtype: "float32".into(),
+                    shape: vec![points, 6],
+                });
+            });
+            for (pointer, problem) in schema::check_text(&surgvla, schema::SURGVLA_META) {
+                findings.error(
+                    At::file(super::files::SURGVLA_JSON),
+                    Check::Schema,
+                    format!("{pointer} {problem}"),
+                );
+            }
+        }
+        Err(_) => findings.error(
+            At::file(super::files::SURGVLA_JSON),
+            Check::Present,
+            "is missing or not JSON",
+        ),
+    }
+    max_points
 }
 
 /// How a frame file is read: its format, the most points the dataset's settings allow, and

@@ -1,6 +1,7 @@
 //! AV1 decoding with rav1d (the Rust port of dav1d), through its C API: the only unsafe code in
-//! the library, kept to this file. One decoder per span, one thread, no frame delay: pictures
-//! come out in order, one per temporal unit.
+//! the library, kept to this file. One decoder per span, drained after every temporal unit:
+//! pictures come out in order, one per unit (two frame threads, for rav1d's error path: see
+//! [`Decoder::open`]).
 
 #![allow(unsafe_code)]
 
@@ -50,8 +51,12 @@ impl Decoder {
             dav1d_default_settings(NonNull::new_unchecked(settings.as_mut_ptr()));
             settings.assume_init()
         };
-        settings.n_threads = 1;
-        settings.max_frame_delay = 1;
+        // Two frame contexts, not one: with one, rav1d 1.1.0 aborts the process on any frame
+        // that fails to decode (its error path unwraps a header it already dropped;
+        // memorysafety/rav1d#1497). `send` drains after every unit, so pictures still come
+        // out in order, one per unit, and an error names its unit.
+        settings.n_threads = 2;
+        settings.max_frame_delay = 2;
         settings.frame_size_limit = max_pixels;
         // No logging: a damaged stream is reported once, as an error naming its file.
         // SAFETY: dav1d's logger is a cookie and a callback, both nullable pointers (repr(C)
@@ -94,7 +99,9 @@ impl Decoder {
                 break Err(code);
             }
             if data.sz == 0 {
-                break Ok(());
+                // A second call with nothing new sent makes the decoder finish the frames in
+                // flight (its drain): one picture out per temporal unit, an error at its unit.
+                break self.drain(out);
             }
         };
         if data.sz > 0 {
@@ -198,9 +205,11 @@ pub fn decode_av1_each<E: From<MediaError>>(
         }
         Ok(())
     };
+    let mut sequence_header_seen = false;
     for sample in samples {
         let max_pixels = u64::from(max_side) * u64::from(max_side);
-        if let Some(problem) = sequence_header_problem(&sample.data, max_pixels) {
+        let problem = sequence_header_problem(&sample.data, max_pixels, &mut sequence_header_seen);
+        if let Some(problem) = problem {
             return Err(MediaError::Decode {
                 what: what.to_string(),
                 source: problem.into(),
@@ -318,21 +327,33 @@ pub(crate) fn sequence_header_max_size(obu: &[u8]) -> Option<(u64, u64)> {
     Some((width, height))
 }
 
-/// Why the sequence headers in `data` (one temporal unit) ask for frames the decoder must not
-/// be given: larger than `max_pixels` (the decoder sizes its buffers from them before any frame
-/// header is checked against its limit), or cut short.
-fn sequence_header_problem(data: &[u8], max_pixels: u64) -> Option<String> {
-    let spans = crate::media::video::obus(data)?;
-    spans
-        .iter()
-        .filter(|(kind, _)| *kind == 1)
-        .find_map(|(_, range)| match sequence_header_max_size(&data[range.clone()]) {
-            None => Some("a sequence header ends early".to_string()),
-            Some((w, h)) if w.saturating_mul(h) > max_pixels => Some(format!(
-                "a sequence header declares frames up to {w} x {h}, more than the {max_pixels} pixels surgvla decodes"
-            )),
-            Some(_) => None,
-        })
+/// Why the OBUs in `data` (one temporal unit) must not be given to the decoder: a sequence
+/// header asking for frames larger than `max_pixels` (the decoder sizes its buffers from it
+/// before any frame header is checked against its limit) or cut short, or a frame before any
+/// sequence header of the stream (`seen`, kept across samples: rav1d aborts the process on
+/// one).
+fn sequence_header_problem(data: &[u8], max_pixels: u64, seen: &mut bool) -> Option<String> {
+    /// OBU types: frame header, frame, redundant frame header, tile group, tile list.
+    const FRAME_OBUS: [u8; 5] = [3, 6, 7, 4, 8];
+    let Some(spans) = crate::media::video::obus(data) else {
+        return Some("an OBU's size is cut short".to_string());
+    };
+    for (kind, range) in &spans {
+        if *kind == 1 {
+            match sequence_header_max_size(&data[range.clone()]) {
+                None => return Some("a sequence header ends early".to_string()),
+                Some((w, h)) if w.saturating_mul(h) > max_pixels => {
+                    return Some(format!(
+                        "a sequence header declares frames up to {w} x {h}, more than the {max_pixels} pixels surgvla decodes"
+                    ));
+                }
+                Some(_) => *seen = true,
+            }
+        } else if FRAME_OBUS.contains(kind) && !*seen {
+            return Some("a frame comes before any sequence header".to_string());
+        }
+    }
+    None
 }
 
 /// [`decode_av1_each`], the pictures collected.
@@ -455,5 +476,23 @@ mod tests {
         // Cut short: refused too.
         forged[0].data = forged_sequence_header(8192, 8192)[..4].to_vec();
         assert!(decode_av1(&forged, "cut.mp4", 4096).is_err());
+        // The sequence header zeroed (an OBU of a reserved type running to the sample's end):
+        // no picture; then a frame in the next sample, on which rav1d aborted: refused.
+        let mut headless = encoded.clone();
+        headless[0].data[header.clone()].fill(0);
+        let two =
+            encode_av1(&[frame.as_slice(), frame.as_slice()], 64, 48, 10, 40).expect("encode");
+        let mut second = two.clone();
+        let first_header = crate::media::video::obus(&second[0].data).expect("obus");
+        let (_, range) = first_header
+            .iter()
+            .find(|(kind, _)| *kind == 1)
+            .expect("header");
+        second[0].data[range.clone()].fill(0);
+        assert!(decode_av1(&headless, "headless.mp4", 4096).is_err());
+        let error = decode_av1(&second, "headless.mp4", 4096).expect_err("refused");
+        let text = format!("{error}: {:?}", std::error::Error::source(&error));
+        assert!(text.contains("before any sequence header"), "{text}");
+        assert!(decode_av1(&two, "two.mp4", 4096).is_ok());
     }
 }
