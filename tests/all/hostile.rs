@@ -980,3 +980,65 @@ fn a_forged_parquet_row_count_gets_one_verdict_from_every_command() {
         }
     }
 }
+
+/// A zarr array whose chunk keys would be joined by anything but `.` or `/` (a path out of the
+/// store), or whose chunks pass through filters surgvla does not apply, is not called valid;
+/// nested (`/`) chunk keys, which zarr allows, are read.
+#[test]
+fn zarr_separators_and_filters_are_checked_not_trusted() {
+    let parent = temp_root("hostile-zarr");
+    sentinel(&parent);
+    let base = parent.join("base");
+    collect(base.to_str().expect("utf-8"), "1", &["--format", "zarr"]);
+    std::fs::remove_file(base.join("surgvla_manifest.json")).expect("no manifest");
+    let array = "data/state";
+    let cases: [(&str, Value, &str); 3] = [
+        (
+            "dimension_separator",
+            Value::from("/../../../"),
+            "is not '.' or '/'",
+        ),
+        (
+            "filters",
+            serde_json::json!([{"id": "delta", "dtype": "<f4"}]),
+            "not applied",
+        ),
+        ("dimension_separator", Value::from("/"), ""),
+    ];
+    for (key, value, problem) in cases {
+        let dataset = parent.join(format!("zarr-{key}-{}", problem.len()));
+        copy_tree(&base, &dataset);
+        edit_json(&dataset.join(array).join(".zarray"), |meta| {
+            meta[key] = value.clone();
+        });
+        let input = dataset.to_str().expect("utf-8");
+        if problem.is_empty() {
+            // Nested keys: chunk 0.0 lives at 0/0.
+            let folder = dataset.join(array);
+            for entry in std::fs::read_dir(&folder).expect("chunks") {
+                let name = entry
+                    .expect("entry")
+                    .file_name()
+                    .into_string()
+                    .expect("name");
+                if let Some((row, column)) = name.split_once('.')
+                    && row.parse::<u64>().is_ok()
+                {
+                    std::fs::create_dir_all(folder.join(row)).expect("mkdir");
+                    std::fs::rename(folder.join(&name), folder.join(row).join(column))
+                        .expect("nest");
+                }
+            }
+            expect_exit(&parent, &["validate", input], 0, "nested keys");
+            continue;
+        }
+        for args in [vec!["validate", input], vec!["validate", input, "--quick"]] {
+            let text = expect_exit(&parent, &args, 1, key);
+            assert!(text.contains(".zarray") && text.contains(problem), "{text}");
+        }
+        let out = parent.join("merged");
+        let out = out.to_str().expect("utf-8");
+        let text = expect_exit(&parent, &["merge", input, input, "--out", out], 1, key);
+        assert!(text.contains(".zarray"), "{text}");
+    }
+}

@@ -21,6 +21,8 @@ struct ArrayMeta {
     dtype: String,
     item_bytes: usize,
     zstd: bool,
+    /// What joins a chunk key's indices: `.` (flat) or `/` (nested folders).
+    separator: &'static str,
 }
 
 /// The largest chunk decoded, in bytes (ours are a few MB).
@@ -127,18 +129,10 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         );
         return None;
     }
-    let zstd = match &meta["compressor"] {
-        Value::Null => false,
-        c if c["id"] == "zstd" => true,
-        c => {
-            findings.file_error(
-                &path,
-                Check::Schema,
-                format!(
-                    "compressor {} is not one surgvla decodes (zstd or none)",
-                    c["id"]
-                ),
-            );
+    let (zstd, separator) = match codec_of(&meta) {
+        Ok(codec) => codec,
+        Err(problem) => {
+            findings.file_error(&path, Check::Schema, problem);
             return None;
         }
     };
@@ -149,7 +143,37 @@ fn array_meta(root: &Path, name: &str, findings: &Findings) -> Option<ArrayMeta>
         dtype,
         item_bytes,
         zstd,
+        separator,
     })
+}
+
+/// How an array's chunks are stored, as far as surgvla reads them: (zstd or not, the chunk
+/// key's separator); an error for a compressor it does not decode, a separator that is not
+/// `.` or `/`, or filters (which change the bytes before the compressor; surgvla applies none).
+fn codec_of(meta: &Value) -> Result<(bool, &'static str), String> {
+    let zstd = match &meta["compressor"] {
+        Value::Null => false,
+        c if c["id"] == "zstd" => true,
+        c => {
+            return Err(format!(
+                "compressor {} is not one surgvla decodes (zstd or none)",
+                c["id"]
+            ));
+        }
+    };
+    let separator = match &meta["dimension_separator"] {
+        Value::Null => ".",
+        s if s == "." => ".",
+        s if s == "/" => "/",
+        other => return Err(format!("dimension_separator {other} is not '.' or '/'")),
+    };
+    match &meta["filters"] {
+        Value::Null => Ok((zstd, separator)),
+        Value::Array(filters) if filters.is_empty() => Ok((zstd, separator)),
+        filters => Err(format!(
+            "filters {filters} are not applied by surgvla, so its chunks cannot be checked"
+        )),
+    }
 }
 
 /// Checks every chunk of `array` (only the first when `quick`).
@@ -185,7 +209,7 @@ fn check_chunk(root: &Path, array: &ArrayMeta, key: &[usize], findings: &Finding
         .iter()
         .map(usize::to_string)
         .collect::<Vec<_>>()
-        .join(".");
+        .join(array.separator);
     let name = if name.is_empty() {
         "0".to_string()
     } else {

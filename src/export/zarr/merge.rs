@@ -92,11 +92,19 @@ fn array_shape(root: &Path, array: &str) -> Result<ArrayShape, MergeError> {
     };
     let compressor = &zarray["compressor"]["id"];
     let chunked = chunks.first() == Some(&CHUNK_ROWS) && chunks[1..] == shape[1..];
-    if shape.is_empty() || !chunked || compressor != "zstd" || !zarray["filters"].is_null() {
+    let separator = &zarray["dimension_separator"];
+    let dotted = separator.is_null() || separator == ".";
+    if shape.is_empty()
+        || !chunked
+        || compressor != "zstd"
+        || !zarray["filters"].is_null()
+        || !dotted
+    {
         return Err(invalid(
             &path,
             format!(
-                "is not chunked as surgvla writes ({CHUNK_ROWS} rows a chunk, zstd, no filters)"
+                "is not chunked as surgvla writes ({CHUNK_ROWS} rows a chunk, zstd, no filters, \
+                 chunk keys joined by '.')"
             ),
         ));
     }
