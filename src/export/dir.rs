@@ -884,20 +884,28 @@ impl DatasetDir {
         self.write_atomically(relative, &text)
     }
 
-    /// Marks the dataset complete: makes everything durable, removes the marker (with the
-    /// checkpoint in it) in one step, then the journals (the checkpoint needs them until the
-    /// marker is gone). Calling it again does nothing.
+    /// Marks the dataset complete: makes everything durable, then, when there are journals
+    /// (which the checkpoint needs), replaces the checkpoint by none and removes them, then
+    /// removes the marker in one step. Interrupted in between, the folder is still marked
+    /// incomplete, and a resume starts the run over in it (the same bytes): never a finished
+    /// dataset with a journal left in it. Calling it again does nothing.
     pub fn complete(&mut self) -> Result<(), ExportError> {
         let marker = self.path(INCOMPLETE_MARKER);
         if marker.exists() {
             self.sync()?;
             sync_dir(&self.root)?;
-            std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
-            sync_dir(&self.root)?;
+            if !self.journals.is_empty() {
+                self.write_marker::<()>(None)?;
+            }
         }
         for relative in std::mem::take(&mut self.journals).into_keys() {
             let path = self.path(&relative);
             std::fs::remove_file(&path).map_err(ExportError::io(&path))?;
+        }
+        if marker.exists() {
+            sync_dir(&self.root)?;
+            std::fs::remove_file(&marker).map_err(ExportError::io(&marker))?;
+            sync_dir(&self.root)?;
         }
         Ok(())
     }
@@ -1168,6 +1176,30 @@ mod tests {
         assert_eq!(rows, ["one"]);
         dir.complete().expect("complete");
         assert!(!root.join("meta/.rows").exists());
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    /// Completing stops between the journals and the marker (here: a journal that cannot be
+    /// removed): the folder is still marked incomplete, its checkpoint gone, so a resume starts
+    /// over rather than leave a finished-looking dataset holding a journal.
+    #[test]
+    fn a_completion_cut_short_leaves_a_folder_that_resumes_from_the_start() {
+        let root = scratch("complete-cut");
+        let mut dir = DatasetDir::create(&root, &options(1)).expect("create");
+        dir.append("meta/.rows", b"one").expect("append");
+        dir.write_atomically("data/a.bin", b"abc").expect("write");
+        dir.save_checkpoint(&7u32).expect("checkpoint");
+        // The journal replaced by a folder holding a file: removing it fails.
+        std::fs::remove_file(root.join("meta/.rows")).expect("journal");
+        std::fs::create_dir_all(root.join("meta/.rows/x")).expect("folder");
+        assert!(dir.complete().is_err());
+        drop(dir);
+        assert!(DatasetDir::is_interrupted(&root));
+        std::fs::remove_dir_all(root.join("meta/.rows")).expect("folder");
+        let (_, state) =
+            DatasetDir::resume::<u32>(&root, &options(1), &["data", "meta"]).expect("resume");
+        assert_eq!(state, None, "no checkpoint: the run starts over");
+        assert!(!root.join("data/a.bin").exists());
         std::fs::remove_dir_all(&root).ok();
     }
 

@@ -218,19 +218,12 @@ pub fn merge_episode_files(
     manifest: &str,
 ) -> Result<Summary, MergeError> {
     let write = |e| MergeError::Convert(ConvertError::Write(e));
-    if request.resume {
-        return Err(MergeError::Unsupported {
-            path: request.out.to_path_buf(),
-            problem: "this format's merge does not resume: remove the folder and merge again"
-                .into(),
-        });
-    }
     let inputs: Vec<(&Path, Vec<(Value, u64)>)> = plan
         .parts
         .iter()
         .map(|p| Ok((p.path.as_path(), episode_lines(&p.path, jsonl)?)))
         .collect::<Result<_, MergeError>>()?;
-    let mut dir = DatasetDir::create(request.out, &plan.options).map_err(write)?;
+    let mut dir = output_dir(request.out, request.resume, &plan.options).map_err(write)?;
     let mut lines = Vec::new();
     let (mut episodes, mut frames) = (0u64, 0u64);
     for (root, input) in &inputs {
@@ -258,6 +251,24 @@ pub fn merge_episode_files(
     }
     let roots: Vec<&Path> = inputs.iter().map(|(root, _)| *root).collect();
     finish_folder(dir, manifest, (episodes, frames), &roots, plan)
+}
+
+/// The output folder of a merge that keeps no checkpoint (zarr, MCAP, PLY, PCD): created, or
+/// with `resume` and an interrupted merge there (started with the same options), emptied and
+/// written again from the start. A merge is a function of its inputs, so a resumed one ends
+/// with the bytes of an uninterrupted run; these merges copy or re-pack without encoding, so
+/// starting over costs little.
+pub fn output_dir(
+    out: &Path,
+    resume: bool,
+    options: &crate::export::dir::RunOptions,
+) -> Result<DatasetDir, crate::export::error::ExportError> {
+    if crate::export::dir::resumes(out, resume) {
+        let (dir, _) = DatasetDir::resume::<serde::de::IgnoredAny>(out, options, &[""])?;
+        Ok(dir)
+    } else {
+        DatasetDir::create(out, options)
+    }
 }
 
 /// Ends a merge that writes its folder itself: the manifest `manifest` over every file

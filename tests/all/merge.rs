@@ -397,6 +397,44 @@ fn a_forged_point_cloud_is_never_called_valid_nor_merged() {
     }
 }
 
+/// A zarr, MCAP, PLY or PCD merge stopped part-way (an input file found damaged after the
+/// first input's episodes were written) leaves its folder marked interrupted; with the file
+/// repaired, `merge --resume` finishes it with the bytes of an uninterrupted merge, as the
+/// failure's hint says.
+#[test]
+fn an_interrupted_copy_merge_resumes_to_the_uninterrupted_bytes() {
+    let input = temp_root("merge-resume-copy-input");
+    collect(&input, &[]);
+    let cases = [
+        ("zarr", "data/state/0.0"),
+        ("mcap", "episode_000001.mcap"),
+        ("ply", "episode_000001/frame_000003.ply"),
+        ("pcd", "episode_000001/frame_000003.pcd"),
+    ];
+    for (to, damaged) in cases {
+        let a = converted(&input, &["--to", to], Some("0/2"));
+        let b = converted(&input, &["--to", to], Some("1/2"));
+        let reference = temp_root("merge-resume-copy-reference");
+        let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&reference)]);
+        assert_eq!(code, 0, "{to}: {err}");
+        let file = b.join(damaged);
+        let bytes = std::fs::read(&file).expect("file");
+        std::fs::write(&file, &bytes[..bytes.len() / 2]).expect("truncate");
+        let out = temp_root("merge-resume-copy-out");
+        let (code, _, err) = surgvla(&["merge", path(&a), path(&b), "--out", path(&out)]);
+        assert_eq!(code, 1, "{to}: {err}");
+        assert!(
+            out.join(surgvla::export::INCOMPLETE_MARKER).exists(),
+            "{to}: the stopped merge's folder is marked interrupted"
+        );
+        std::fs::write(&file, &bytes).expect("repair");
+        let args = ["merge", path(&a), path(&b), "--out", path(&out), "--resume"];
+        let (code, _, err) = surgvla(&args);
+        assert_eq!(code, 0, "{to}: {err}");
+        assert_eq!(dataset(&out), dataset(&reference), "{to}: resumed bytes");
+    }
+}
+
 /// An RLDS merge killed after a closed shard resumes to the bytes of an uninterrupted one.
 #[test]
 fn a_killed_rlds_merge_resumes_to_the_uninterrupted_dataset() {

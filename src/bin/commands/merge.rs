@@ -20,8 +20,8 @@ pub(crate) struct MergeArgs {
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::threads_arg)]
     threads: Option<usize>,
-    /// Continue an interrupted merge into --out (the same inputs; LeRobot and RLDS: zarr,
-    /// point-cloud and MCAP merges start again in an empty folder).
+    /// Continue an interrupted merge into --out (the same inputs; zarr, point-cloud and MCAP
+    /// merges start over in it).
     #[arg(long)]
     resume: bool,
     /// Recompute the pixel statistics of video features another tool wrote (whose metadata

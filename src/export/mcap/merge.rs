@@ -5,7 +5,8 @@
 //! the new number, so the chunks, indexes and summary come out as one run writes them.
 //! `episodes.jsonl` gets each line again with the new `episode_index` and `file`
 //! ([`crate::export::merge::merge_episode_files`]). N of N merged are the single run's bytes.
-//! An MCAP merge does not resume: run it again into an empty folder.
+//! `--resume` starts an interrupted MCAP merge over in its folder
+//! ([`crate::export::merge::output_dir`]).
 
 use super::writer::{MANIFEST, mcap_error};
 use crate::export::bounded::read_capped;

@@ -4,7 +4,8 @@
 //! `episodes.jsonl` gets each line again with its new `episode_index` (the other keys as they
 //! were, in their order), `surgvla.json` the merged collection
 //! ([`crate::export::merge::merge_episode_files`]). N of N merged are the single run's bytes.
-//! A point-cloud merge does not resume: run it again into an empty folder.
+//! `--resume` starts an interrupted point-cloud merge over in its folder
+//! ([`crate::export::merge::output_dir`]).
 
 use super::files::{CloudFileFormat, EPISODES, MANIFEST, SURGVLA_JSON};
 use super::frame::{MAX_FRAME_BYTES, frame_problem};

@@ -7,7 +7,7 @@
 //!
 //! Every input is checked before anything is written: the same arrays, dtypes and row shapes,
 //! our chunking and codec, and episode ends that agree with the arrays' lengths. A zarr merge
-//! does not resume: run it again into an empty folder.
+//! resumes by starting over in its folder ([`crate::export::merge::output_dir`]).
 
 use super::array::{ArrayWriter, CHUNK_ROWS};
 use super::writer::MANIFEST;
@@ -269,12 +269,6 @@ fn write_groups(
 
 /// Merges the request's zarr stores into a new one at its `out` (see the module overview).
 pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
-    if request.resume {
-        return Err(MergeError::Unsupported {
-            path: request.out.to_path_buf(),
-            problem: "a zarr merge does not resume: remove the folder and merge again".into(),
-        });
-    }
     let mut stores = Vec::new();
     let mut parts = Vec::new();
     for path in request.inputs {
@@ -291,7 +285,8 @@ pub(super) fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeErro
         .collect();
     let first = ordered.first().ok_or(MergeError::NoInput)?;
     same_arrays(&ordered)?;
-    let mut dir = DatasetDir::create(request.out, &plan.options).map_err(write_error)?;
+    let mut dir = crate::export::merge::output_dir(request.out, request.resume, &plan.options)
+        .map_err(write_error)?;
     let mut writers: Vec<ArrayWriter> = first
         .arrays
         .iter()
