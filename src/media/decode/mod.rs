@@ -5,9 +5,10 @@
 //! AV1 with rav1d ([`decode_av1`], in `av1.rs`, the library's only unsafe code: rav1d's public
 //! API is dav1d's C API).
 //!
-//! The first slice of issue 25: H.264 Baseline, Main and High (8-bit 4:2:0) and 8-bit 4:2:0 AV1
-//! decode; another profile is refused by name before decoding, never turned into garbage
-//! frames. The wiring into `convert` and `validate` comes next.
+//! H.264 Baseline, Main and High (8-bit 4:2:0) and 8-bit 4:2:0 AV1 decode; another profile is
+//! refused by name before decoding, never turned into garbage frames. Both decoders are handed
+//! only samples whose headers were read first (`sps.rs`: H.264 sequence parameter sets; AV1
+//! sequence headers in `av1.rs`), sizes checked against [`MAX_DECODED_SIDE_PX`].
 
 mod av1;
 
@@ -15,6 +16,7 @@ pub mod check;
 
 pub mod color;
 mod frame;
+mod sps;
 
 pub use av1::{decode_av1, decode_av1_each};
 
@@ -100,10 +102,12 @@ fn planes(picture: &DecodedYUV<'_>) -> YuvFrame {
 /// [`crate::media::demux::VideoReader::decodable`] returns them), handing each picture to
 /// `on_picture` in presentation order (OpenH264 reorders B-frames); returns how many there
 /// were. `what` names the stream in errors (file and feature). A profile the decoder is not
-/// used for is refused as a usage error naming it.
+/// used for is refused as a usage error naming it; a sequence parameter set declaring pictures
+/// over `max_side` on a side is refused before the decoder sees it ([`sps::h264_sps_problem`]).
 pub fn decode_h264_each<E: From<MediaError>>(
     samples: &[EncodedFrame],
     what: &str,
+    max_side: u32,
     on_picture: &mut dyn FnMut(YuvFrame) -> Result<(), E>,
 ) -> Result<usize, E> {
     if let Some(profile) = samples.first().and_then(|s| h264_profile(&s.data))
@@ -125,7 +129,7 @@ pub fn decode_h264_each<E: From<MediaError>>(
     // The span starts on a keyframe carrying its SPS, whose VUI signals the colour space.
     let color = samples
         .first()
-        .and_then(|s| color::h264_color_space(&s.data))
+        .and_then(|s| sps::h264_color_space(&s.data))
         .unwrap_or_default();
     let with_color = |picture: &DecodedYUV<'_>| YuvFrame {
         color,
@@ -133,6 +137,13 @@ pub fn decode_h264_each<E: From<MediaError>>(
     };
     let mut count = 0;
     for sample in samples {
+        if let Some(problem) = sps::h264_sps_problem(&sample.data, max_side) {
+            return Err(MediaError::Decode {
+                what: what.to_string(),
+                source: problem.into(),
+            }
+            .into());
+        }
         if let Some(picture) = decoder.decode(&sample.data).map_err(&error)? {
             count += 1;
             on_picture(with_color(&picture))?;
@@ -145,10 +156,10 @@ pub fn decode_h264_each<E: From<MediaError>>(
     Ok(frame::every_sample_decoded(count, samples.len(), what)?)
 }
 
-/// [`decode_h264_each`], the pictures collected.
+/// [`decode_h264_each`] up to [`MAX_DECODED_SIDE_PX`], the pictures collected.
 pub fn decode_h264(samples: &[EncodedFrame], what: &str) -> Result<Vec<YuvFrame>, MediaError> {
     let mut pictures = Vec::with_capacity(samples.len());
-    decode_h264_each(samples, what, &mut |p| {
+    decode_h264_each(samples, what, MAX_DECODED_SIDE_PX, &mut |p| {
         pictures.push(p);
         Ok(())
     })?;
@@ -181,7 +192,7 @@ pub fn decode_span_each<E: From<MediaError>>(
     };
     match codec {
         VideoCodec::Av1 => decode_av1_each(samples, what, max_side, &mut checked),
-        VideoCodec::H264 => decode_h264_each(samples, what, &mut checked),
+        VideoCodec::H264 => decode_h264_each(samples, what, max_side, &mut checked),
     }
 }
 
