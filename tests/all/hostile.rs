@@ -1,17 +1,38 @@
 //! Other people's datasets as an attacker or an unlucky operator would make them: names and
 //! templates in the metadata that point outside the dataset, metadata files that never end,
 //! FIFOs, folders and link loops where files should be, links inside an interrupted dataset,
-//! absurd thread counts. Every command ends (within a time limit) with exit 1 or 2, never a
-//! panic or an abort, and a sentinel folder beside the dataset and the output is byte-identical
-//! afterwards.
+//! absurd thread counts, seeded mutations of every format's metadata and binary files and of
+//! the recordings `ingest` reads. Every command ends within [`LIMIT`] (60 s) and
+//! [`MAX_RSS_BYTES`] (1 GiB, sampled while it runs) with exit 0, 1 or 2, never a panic or an
+//! abort, and a sentinel folder beside the dataset and the output is byte-identical afterwards.
 
 use crate::util::{temp_root, tree};
 use serde_json::Value;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// The peak resident memory of process `pid` so far (Linux's VmHWM), in bytes.
+fn peak_rss_bytes(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find_map(|line| line.strip_prefix("VmHWM:"))
+        .and_then(|rest| {
+            rest.trim()
+                .trim_end_matches("kB")
+                .trim()
+                .parse::<u64>()
+                .ok()
+        })
+        .map_or(0, |kib| kib * 1024)
+}
+
+/// The most memory any run may take: the bound the hostile tests state.
+const MAX_RSS_BYTES: u64 = 1 << 30;
+
 /// Runs the binary with a deadline: (exit code, stderr then stdout). A run past the deadline is
-/// killed and fails the test (a hang).
+/// killed and fails the test (a hang), as does a run whose peak resident memory, sampled while
+/// it runs, passes [`MAX_RSS_BYTES`].
 fn run(args: &[&str], limit: Duration) -> (i32, String) {
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
         .args(args)
@@ -20,7 +41,14 @@ fn run(args: &[&str], limit: Duration) -> (i32, String) {
         .spawn()
         .expect("spawn surgvla");
     let started = Instant::now();
+    let mut peak = 0;
     loop {
+        peak = peak.max(peak_rss_bytes(child.id()));
+        assert!(
+            peak <= MAX_RSS_BYTES,
+            "surgvla {args:?} took {} MiB of memory",
+            peak >> 20
+        );
         if let Some(status) = child.try_wait().expect("wait") {
             let mut text = String::new();
             std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut text)
@@ -594,7 +622,8 @@ fn every_command_survives(
     let rounds = from_env("SURGVLA_MUTATION_ROUNDS").map_or(rounds, |r| r as usize);
     let parent = temp_root(label);
     sentinel(&parent);
-    let formats: [(&str, &[&str]); 7] = [
+    let formats: [(&str, &[&str]); 8] = [
+        ("lerobot-png", &[]),
         ("lerobot", &["--video", "h264"]),
         ("lerobot-av1", &["--video", "av1"]),
         ("rlds", &["--format", "rlds"]),
@@ -690,8 +719,8 @@ fn mutated_metadata_never_panics_hangs_or_escapes() {
 }
 
 /// Seeded mutations of every format's binary files (parquet footers and row groups, TFRecord
-/// lengths, MCAP records and summary, zarr chunks, PNG and TIFF headers, MP4 boxes with AV1
-/// and H.264 streams, PLY and PCD headers and bodies).
+/// lengths, MCAP records and summary, zarr chunks, PNG images in parquet cells, PNG and TIFF
+/// headers, MP4 boxes with AV1 and H.264 streams, PLY and PCD headers and bodies).
 #[test]
 fn mutated_binary_files_never_panic_hang_or_escape() {
     every_command_survives("hostile-bytes", 2, 24, binary_files, mutate_bytes);
@@ -1040,5 +1069,57 @@ fn zarr_separators_and_filters_are_checked_not_trusted() {
         let out = out.to_str().expect("utf-8");
         let text = expect_exit(&parent, &["merge", input, input, "--out", out], 1, key);
         assert!(text.contains(".zarray"), "{text}");
+    }
+}
+
+/// Seeded mutations of the recordings `ingest` reads (a ROS 1 bag with LZ4 chunks, an MCAP
+/// file with PNG images): every run ends within the limits with exit 0, 1 or 2, and the output
+/// is either a finished dataset that validates or no dataset that looks finished.
+#[test]
+fn mutated_recordings_never_panic_hang_or_escape() {
+    let parent = temp_root("hostile-ingest");
+    sentinel(&parent);
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/ingest");
+    let mut rng = surgvla::rng::SplitMix64::new(5);
+    for name in ["ros1_raw_lz4.bag", "single_png.mcap"] {
+        let original = std::fs::read(fixtures.join(name)).expect("fixture");
+        for round in 0..16 {
+            let Some((bytes, how)) = mutate_bytes(&original, &mut rng) else {
+                continue;
+            };
+            let input = parent.join(format!("{round}-{name}"));
+            std::fs::write(&input, bytes).expect("write");
+            let out = parent.join(format!("out-{round}-{name}"));
+            let (input_text, out_text) =
+                (input.to_str().expect("utf-8"), out.to_str().expect("utf-8"));
+            let what = format!("{name} round {round}: {how}");
+            let before = tree(&parent.join("outside"));
+            let args = [
+                "ingest",
+                input_text,
+                "--camera",
+                "left=/camera/left/image",
+                "--out",
+                out_text,
+            ];
+            let (code, stderr) = run(&args, LIMIT);
+            assert!((0..=2).contains(&code), "{what}: exit {code}: {stderr}");
+            assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+            assert_eq!(
+                tree(&parent.join("outside")),
+                before,
+                "{what}: the sentinel changed"
+            );
+            let finished = out.exists() && !out.join(surgvla::export::INCOMPLETE_MARKER).exists();
+            if code == 0 {
+                let (valid, text) = run(&["validate", out_text, "--no-lint"], LIMIT);
+                assert_eq!(valid, 0, "{what}: ingest exit 0, validate: {text}");
+            } else {
+                assert!(
+                    !finished,
+                    "{what}: exit {code} left a finished-looking dataset"
+                );
+            }
+        }
     }
 }
