@@ -252,6 +252,11 @@ pub fn dataset_chart(
     let bar_x0 = 16 + 12 * GLYPH_PX + 2 * 10 * GLYPH_PX;
     let bar_x1 = width - 16;
     for (group, rows) in ranges {
+        if rows.is_empty() {
+            canvas.text(16, y, &format!("{group}: no values to draw"), 1, BLACK);
+            y += 24;
+            continue;
+        }
         let low = rows.iter().map(|r| r.min).fold(f64::INFINITY, f64::min);
         let high = rows.iter().map(|r| r.max).fold(f64::NEG_INFINITY, f64::max);
         canvas.text(

@@ -2,7 +2,7 @@
 //! episode lengths, and each state and action dimension's range, read episode by episode from
 //! any [`EpisodeSource`] (memory: one episode).
 
-use crate::episode::FeatureKind;
+use crate::episode::{FeatureKind, FeatureValue};
 use crate::export::error::ExportError;
 use crate::export::source::EpisodeSource;
 
@@ -31,9 +31,23 @@ fn widen(ranges: &mut Vec<(f64, f64)>, values: &[f32]) {
 /// Reads every episode of `source` into its profile.
 pub fn profile(source: &mut dyn EpisodeSource) -> Result<Profile, ExportError> {
     let mut profile = Profile::default();
-    // Another tool's vectors are features of its own (not in the steps' state and action).
-    let has_state = source.info().has(FeatureKind::State);
-    let has_action = source.info().has(FeatureKind::Action);
+    // Another tool's vectors are features of its own (not in the steps' state and action):
+    // LeRobot's `observation.state` and `action`, found among the steps' other values.
+    let info = source.info();
+    let other_index = |name: &str| {
+        info.features
+            .iter()
+            .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
+            .position(|f| f.name == name)
+    };
+    let state_at = (!info.has(FeatureKind::State))
+        .then(|| other_index("observation.state"))
+        .flatten();
+    let action_at = (!info.has(FeatureKind::Action))
+        .then(|| other_index("action"))
+        .flatten();
+    let has_state = info.has(FeatureKind::State);
+    let has_action = info.has(FeatureKind::Action);
     for episode in &mut *source {
         let episode = episode?;
         let meta = &episode.meta;
@@ -48,11 +62,19 @@ pub fn profile(source: &mut dyn EpisodeSource) -> Result<Profile, ExportError> {
             None => profile.lengths.push((task, vec![frames])),
         }
         for step in &episode.steps {
+            let other = |at: Option<usize>| match at.and_then(|k| step.other.get(k)) {
+                Some(FeatureValue::Float32(values)) => Some(values.as_slice()),
+                _ => None,
+            };
             if has_state {
                 widen(&mut profile.state, &step.state);
+            } else if let Some(values) = other(state_at) {
+                widen(&mut profile.state, values);
             }
             if has_action {
                 widen(&mut profile.action, &step.action);
+            } else if let Some(values) = other(action_at) {
+                widen(&mut profile.action, values);
             }
         }
     }
@@ -139,5 +161,62 @@ mod tests {
         widen(&mut numbers, &[1.0, f32::NAN]);
         widen(&mut numbers, &[-3.0, 2.0]);
         assert_eq!(numbers, [(-3.0, 1.0), (2.0, 2.0)]);
+    }
+
+    /// Another tool's LeRobot dataset: `observation.state` and `action` are its own features,
+    /// in the steps' other values; their ranges are drawn from there.
+    #[test]
+    fn another_tools_state_and_action_are_profiled() {
+        use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureSpec, Step};
+        let feature = |name: &str, size: usize| FeatureSpec {
+            name: name.into(),
+            dtype: Dtype::Float32,
+            shape: vec![size],
+            names: Vec::new(),
+            kind: FeatureKind::Other,
+            video: None,
+            info: Default::default(),
+        };
+        let info = crate::export::info::DatasetInfo::from_surgvla_json(
+            &serde_json::Value::Null,
+            5,
+            "r",
+            vec![feature("observation.state", 2), feature("action", 1)],
+        );
+        let step = |state: [f32; 2], action: f32| Step {
+            other: vec![
+                FeatureValue::Float32(state.to_vec()),
+                FeatureValue::Float32(vec![action]),
+            ],
+            ..Step::empty()
+        };
+        let episode = Episode {
+            meta: EpisodeMeta::foreign(0, "lift".into()),
+            steps: vec![step([0.0, 5.0], -1.0), step([2.0, 4.0], 3.0)],
+            encoded: Vec::new(),
+            image_stats: Vec::new(),
+        };
+        struct One(Option<Episode>, crate::export::info::DatasetInfo);
+        impl Iterator for One {
+            type Item = Result<Episode, ExportError>;
+            fn next(&mut self) -> Option<Self::Item> {
+                self.0.take().map(Ok)
+            }
+        }
+        impl EpisodeSource for One {
+            fn info(&self) -> &crate::export::info::DatasetInfo {
+                &self.1
+            }
+            fn len(&self) -> u64 {
+                u64::from(self.0.is_some())
+            }
+            fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
+                self.0.take().map(|_| Ok(()))
+            }
+        }
+        let profiled = profile(&mut One(Some(episode), info)).expect("profile");
+        assert_eq!(profiled.state, [(0.0, 2.0), (4.0, 5.0)]);
+        assert_eq!(profiled.action, [(-1.0, 3.0)]);
+        assert_eq!(profiled.lengths, [("lift".to_string(), vec![2])]);
     }
 }

@@ -389,3 +389,21 @@ fn jpeg_rgb_is_verified_within_the_tolerance_and_copied_between_jpeg_datasets() 
     let (code, _, err) = surgvla(&["validate", path(&jpeg), "--replay"]);
     assert_eq!(code, 0, "{err}");
 }
+
+/// OPENVLA.md says what the gripper holds: absolute by default; with `--gripper-encoding
+/// pulse`, the pulse, and a standardize transform that rebuilds the absolute gripper (the
+/// interop test runs it through tf.data).
+#[test]
+fn the_openvla_guide_describes_the_gripper_the_data_holds() {
+    let absolute = temp_root("rlds-guide-absolute");
+    let pulse = temp_root("rlds-guide-pulse");
+    collect(&absolute, &["--format", "rlds"]);
+    collect(&pulse, &["--format", "rlds", "--gripper-encoding", "pulse"]);
+    let read = |root: &Path| std::fs::read_to_string(root.join("OPENVLA.md")).expect("guide");
+    let (absolute, pulse) = (read(&absolute), read(&pulse));
+    assert!(absolute.contains("absolute, **1 = open, 0 = closed**"));
+    assert!(!absolute.contains("pulse") && !absolute.contains("tf.scan"));
+    assert!(pulse.contains("gripper as a **pulse**") && pulse.contains("tf.scan("));
+    assert!(!pulse.contains("absolute, **1 = open"));
+    assert!(!pulse.contains("output.  The") && !absolute.contains("output.  The"));
+}

@@ -3,7 +3,7 @@
 //! `transforms.py`), the fine-tuning command and the normalisation to expect. The interop test
 //! executes its Python blocks on the dataset with `tf.data`.
 
-use crate::episode::FeatureKind;
+use crate::episode::{FeatureKind, GripperEncoding};
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::options::RldsOptions;
 
@@ -25,10 +25,47 @@ fn depth_note(info: &DatasetInfo, options: &RldsOptions) -> String {
     }
 }
 
+/// How the guide describes the gripper and rebuilds what OpenVLA expects from it: (the
+/// action's last element, the transform's lines for it, the normalisation's sentence).
+fn gripper_text(info: &DatasetInfo) -> (&'static str, &'static str, &'static str) {
+    let pulse = info
+        .collection
+        .as_ref()
+        .and_then(|c| c.gripper_encoding())
+        .is_some_and(|e| e == GripperEncoding::Pulse);
+    if pulse {
+        (
+            "the gripper as a **pulse**: +1 on the step the jaws are commanded open, -1 on the \
+             step they are commanded closed, 0 otherwise (the jaws start open; `collect \
+             --gripper-encoding pulse`)",
+            r#"    # The gripper is a pulse (+1 commanded open, -1 commanded closed, 0 otherwise; the
+    # jaws start open): rebuild OpenVLA's absolute gripper, 1 = open, 0 = closed.
+    pulse = trajectory["action"][:, -1]
+    gripper = tf.scan(
+        lambda held, p: tf.where(p > 0.5, 1.0, tf.where(p < -0.5, 0.0, held)),
+        pulse,
+        initializer=tf.constant(1.0, pulse.dtype),
+    )
+    trajectory["action"] = tf.concat([trajectory["action"][:, :6], gripper[:, None]], axis=-1)
+"#,
+            "The transform above turns the pulse into that absolute gripper: without it \
+             OpenVLA would read -1/0/+1 as gripper states. ",
+        )
+    } else {
+        (
+            "the gripper, absolute, **1 = open, 0 = closed**",
+            "    # The action already is OpenVLA's EEF_POS: six end-effector deltas and an absolute\n    \
+             # gripper with 1 = open, 0 = closed.\n",
+            "",
+        )
+    }
+}
+
 /// The guide for a dataset of `info` written with `options`.
 pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
     let name = &options.name;
     let keys = &options.keys;
+    let (gripper, gripper_transform, gripper_note) = gripper_text(info);
     let state_names = info
         .feature(FeatureKind::State)
         .map(|f| f.names.join(", "))
@@ -47,8 +84,8 @@ tfds.builder_from_directory("<this folder>/{name}/{version}")
 
 Each step: `observation/{image}` (224 x 224 x 3 uint8 PNG, the endoscope),
 `observation/{state}` (float32 x 7: {state_names}), `action` (float32 x 7: dx, dy, dz in
-metres, droll, dpitch, dyaw in radians per control step at {fps} Hz, and the gripper, absolute,
-**1 = open, 0 = closed**), `language_instruction`, `is_first`, `is_last`, `is_terminal`,
+metres, droll, dpitch, dyaw in radians per control step at {fps} Hz, and {gripper}),
+`language_instruction`, `is_first`, `is_last`, `is_terminal`,
 `reward` (1.0 on the last step of a successful episode) and `discount`.
 `episode_metadata/` holds `file_path` (task id and seed), `task_id`, `level`, `seed`, `success`.
 {depth}
@@ -73,8 +110,7 @@ Append to `prismatic/vla/datasets/rlds/oxe/transforms.py` (after
 
 ```python
 def {name}_dataset_transform(trajectory: Dict[str, Any]) -> Dict[str, Any]:
-    # The action already is OpenVLA's EEF_POS: six end-effector deltas and an absolute
-    # gripper with 1 = open, 0 = closed. Only the state is split.
+{gripper_transform}    # The state is split into the end effector and the gripper.
     state = trajectory["observation"]["{state}"]
     trajectory["observation"]["EEF_state"] = state[:, :6]
     trajectory["observation"]["gripper_state"] = state[:, -1:]
@@ -102,7 +138,7 @@ OpenVLA computes the dataset's statistics on first load (cached in its data dire
 normalises with `BOUNDS_Q99`: each of the six deltas is mapped from its [1st, 99th] percentile
 to [-1, 1] and clipped. The gripper is absolute (`absolute_action_mask = [False] * 6 + [True]`)
 and is not normalised (`action_normalization_mask = [True] * 6 + [False]`): it stays 1 = open,
-0 = closed, which is what the policy must output. The deltas are small (millimetres per step),
+0 = closed, which is what the policy must output. {gripper_note}The deltas are small (millimetres per step),
 so the percentiles, not the units, decide their scale. The state's last element is the jaw
 angle in radians, not 0/1. There is one `train` split; OpenVLA trains on `train[:95%]` and
 validates on `train[95%:]`.

@@ -4,7 +4,9 @@
 - SURGVLA_LEROBOT_DATASET: a LeRobot dataset (`collect`, with the mask), the reference values;
 - SURGVLA_RLDS_DATASET: `collect --format rlds --rlds-shard-mb 1` (several shards);
 - SURGVLA_RLDS_CONVERTED: `convert <the LeRobot dataset> --to rlds`;
-- SURGVLA_RLDS_JPEG: the same with `--rlds-image-encoding jpeg` (quality 95).
+- SURGVLA_RLDS_JPEG: the same with `--rlds-image-encoding jpeg` (quality 95);
+- SURGVLA_RLDS_PULSE: `collect --format rlds --gripper-encoding pulse`, whose OPENVLA.md
+  rebuilds the absolute gripper.
 
 Expected values are read independently of surgvla: the LeRobot parquet with pyarrow, its PNG
 with TensorFlow and its float TIFF depth with Pillow. The RLDS side is read only through
@@ -30,6 +32,7 @@ LEROBOT = Path(os.environ.get("SURGVLA_LEROBOT_DATASET", "")).resolve()
 RLDS = Path(os.environ.get("SURGVLA_RLDS_DATASET", "")).resolve()
 CONVERTED = Path(os.environ.get("SURGVLA_RLDS_CONVERTED", "")).resolve()
 JPEG = Path(os.environ.get("SURGVLA_RLDS_JPEG", "")).resolve()
+PULSE = Path(os.environ.get("SURGVLA_RLDS_PULSE", "")).resolve()
 NAME, VERSION = "surgvla_benchmark", "1.0.0"
 
 
@@ -197,9 +200,9 @@ def test_jpeg_rgb_reads_through_tfds_near_the_png_frames():
     assert size(JPEG) < size(CONVERTED)
 
 
-def openvla_snippets():
-    """The Python blocks of OPENVLA.md: the config entry and the standardize transform."""
-    text = (RLDS / "OPENVLA.md").read_text()
+def openvla_snippets(root):
+    """The Python blocks of `root`'s OPENVLA.md: the config entry and the standardize transform."""
+    text = (root / "OPENVLA.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, re.S)
     assert len(blocks) == 2, "OPENVLA.md has the config entry and the transform"
     return blocks
@@ -213,8 +216,9 @@ class ActionEncoding:
     EEF_POS = 1
 
 
-def test_openvla_standardisation_yields_what_openvla_expects():
-    config_block, transform_block = openvla_snippets()
+@pytest.mark.parametrize("root", [RLDS, PULSE], ids=["absolute", "pulse"])
+def test_openvla_standardisation_yields_what_openvla_expects(root):
+    config_block, transform_block = openvla_snippets(root)
     namespace = {
         "OXE_DATASET_CONFIGS": {},
         "OXE_STANDARDIZATION_TRANSFORMS": {},
@@ -231,7 +235,7 @@ def test_openvla_standardisation_yields_what_openvla_expects():
 
     # What OpenVLA does (prismatic/vla/datasets/rlds/dataset.py, dlimp's from_rlds): read with
     # tfds.builder(name, data_dir), keep the steps encoded, broadcast the metadata.
-    builder = tfds.builder(NAME, data_dir=str(RLDS))
+    builder = tfds.builder(NAME, data_dir=str(root))
     dataset = builder.as_dataset(split="train[:95%]", decoders={"steps": tfds.decode.SkipDecoding()})
 
     def broadcast(i, traj):
