@@ -42,6 +42,18 @@ impl crate::error::HasKind for ConvertError {
     }
 }
 
+impl ConvertError {
+    /// Whether writing the output failed on the file system (a full disk, an I/O error): the
+    /// only failure a `--resume` can get past. A failure of the data (a value the target
+    /// cannot hold, an encoder refusing a frame) fails again on every run.
+    pub fn is_output_io(&self) -> bool {
+        matches!(
+            self,
+            ConvertError::Write(ExportError::Io { .. } | ExportError::Output { .. })
+        )
+    }
+}
+
 /// Copies every episode of `source` into `sink` on `threads` worker threads (0: one per core)
 /// and finishes it; `progress` is told the number of episodes done after each batch.
 pub fn convert(

@@ -159,7 +159,7 @@ pub(crate) fn check_episode(
                 .any(|f| f.name == e.feature && !f.in_steps())
     }) {
         return Err(ExportError::InvalidOptions(format!(
-            "episode {}: {}'s video is not one frame per row in presentation order (B-frames, or frames the rows skip), so it cannot be copied as it is: decode it (convert --decode, or --video to re-encode)",
+            "episode {}: {}'s video is not one frame per row in presentation order (B-frames, or frames the rows skip), so it cannot be copied as it is: decode it (convert --decode for images, or --video with another codec than the input's to re-encode it)",
             episode.meta.index, video.feature
         )));
     }

@@ -227,7 +227,7 @@ impl VideoReader {
         if self.reorders {
             return Err(invalid(
                 &self.path,
-                "reorders frames (B-frames), which surgvla cannot copy between files: decode them (convert --decode, or --video to re-encode)",
+                "reorders frames (B-frames), which surgvla cannot copy between files: decode them (convert --decode for images, or --video with another codec than the input's to re-encode them)",
             ));
         }
         let wanted: Vec<SampleRef> = self.in_span(from_secs, to_secs).copied().collect();

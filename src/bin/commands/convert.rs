@@ -157,7 +157,7 @@ impl Output {
     /// The error of a failed conversion into `out`, saying whether `--resume` continues it.
     pub(crate) fn failed(self, error: ConvertError, out: &Path) -> CliError {
         let usage = surgvla::error::HasKind::kind(&error) == surgvla::error::ErrorKind::Usage;
-        let write = matches!(error, ConvertError::Write(_));
+        let write = error.is_output_io();
         let resumable = after_failure(out, self.created, self.resuming, usage, write);
         CliError::from(error).resumable(resumable)
     }

@@ -3,7 +3,6 @@
 use crate::error::CliError;
 use clap::Args;
 use std::path::PathBuf;
-use surgvla::export::convert::ConvertError;
 use surgvla::export::dir::after_failure;
 use surgvla::export::format::MergeRequest;
 
@@ -49,10 +48,7 @@ pub(crate) fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     })
     .map_err(|e| {
         let usage = surgvla::error::HasKind::kind(&e) == surgvla::error::ErrorKind::Usage;
-        let write = matches!(
-            e,
-            surgvla::export::MergeError::Convert(ConvertError::Write(_))
-        );
+        let write = matches!(&e, surgvla::export::MergeError::Convert(c) if c.is_output_io());
         let resumable = after_failure(&args.out, created, args.resume, usage, write);
         CliError::from(e).resumable(resumable)
     })?;
