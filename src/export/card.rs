@@ -1,9 +1,11 @@
 //! The dataset card: `README.md` in the dataset root, in the shape of lerobot's own cards (YAML
-//! front matter with `license`, `task_categories: [robotics]`, `tags`, `configs` where the format
+//! front matter with `license` (surgvla's simulated data only: another tool's or a robot's data
+//! carries its owner's licence, which surgvla does not know), `task_categories: [robotics]`,
+//! `tags`, `configs` where the format
 //! has data files a hub viewer loads), then what the dataset is, its tasks with their episode
 //! counts and instructions, its features with dtypes and shapes, how it was made (from the
 //! metadata: the generator, the collection options and seed, the success rules), and how to cite
-//! it. The same content for every format and a pure function of the dataset: the writer core
+//! it (surgvla's data: surgvla and the benchmark; anyone else's: its own authors). The same content for every format and a pure function of the dataset: the writer core
 //! tallies each episode into a journal (resumable like every journal) and writes the card before
 //! the manifest, which lists it; merges that write their folders themselves add up their inputs'
 //! cards ([`parse`]). `validate` checks a card against the dataset when there is one
@@ -150,7 +152,11 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
     let mut card = String::new();
     let ours = info.is_ours();
     // Front matter, in the keys and order lerobot's cards use.
-    card.push_str("---\nlicense: apache-2.0\ntask_categories:\n- robotics\ntags:\n- LeRobot\n");
+    card.push_str("---\n");
+    if ours {
+        card.push_str("license: apache-2.0\n");
+    }
+    card.push_str("task_categories:\n- robotics\ntags:\n- LeRobot\n");
     if ours {
         card.push_str("- surgical\n- surgvla\n");
     }
@@ -217,10 +223,22 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
             camera.width_px, camera.height_px, camera.fx_px, camera.near_m, camera.far_m
         );
     }
+    card.push_str(&citation(info, tally));
+    card
+}
+
+/// The card's citation section: surgvla's and the benchmark's for the data it simulated, the
+/// data's own authors' for anyone else's.
+fn citation(info: &DatasetInfo, tally: &Tally) -> String {
+    let mut card = String::new();
+    let ours = info.is_ours();
     card.push_str("## Citation\n\n");
-    if ours {
-        card.push_str("The tasks, experts and evaluation protocol are those of the SurgVLA-Bench benchmark (eight laparoscopic tasks in three levels, on the SurRoL simulator): cite its paper when you use this dataset. The dataset itself:\n\n");
+    if !ours {
+        // Another tool's dataset or a robot's recordings: surgvla only converted them.
+        card.push_str("Cite the data's own authors, as its source asks; surgvla converted it and adds no work of its own to cite. Its licence is its owner's: surgvla does not know it.\n");
+        return card;
     }
+    card.push_str("The tasks, experts and evaluation protocol are those of the SurgVLA-Bench benchmark (eight laparoscopic tasks in three levels, on the SurRoL simulator): cite its paper when you use this dataset. The dataset itself:\n\n");
     let version = info.generator.strip_prefix("surgvla ").unwrap_or("unknown");
     let _ = write!(
         card,
@@ -444,6 +462,28 @@ mod tests {
         data_files: Some("data/*/*.parquet"),
         video: Vec::new(),
     };
+
+    /// Another tool's data: no licence, no citation of surgvla (only its own authors), and the
+    /// card still reads back.
+    #[test]
+    fn a_card_of_someone_elses_data_invents_no_licence_or_citation() {
+        let mut foreign = info();
+        foreign.generator = String::new();
+        foreign.collection = None;
+        let card = render(&foreign, &tally(), &LEROBOT());
+        assert!(
+            card.starts_with("---\ntask_categories:\n- robotics\n"),
+            "{card}"
+        );
+        assert!(
+            !card.contains("license") && !card.contains("@software"),
+            "{card}"
+        );
+        assert!(card.contains("Cite the data's own authors"), "{card}");
+        assert_eq!(parse(&card), Some(tally()));
+        let ours = render(&info(), &tally(), &LEROBOT());
+        assert!(ours.contains("@software{surgvla") && ours.contains("license: apache-2.0"));
+    }
 
     #[test]
     fn a_card_states_its_tally_and_reads_back_the_same() {
