@@ -146,6 +146,12 @@ pub trait DatasetFormat: Sync {
     /// Whether `probe` is a dataset of this format.
     fn sniff(&self, probe: &Probe) -> Sniff;
 
+    /// When no format recognises `probe`: why it is not one dataset of this format though it
+    /// holds them (a TFDS data directory of several datasets names them), for the error.
+    fn several(&self, _probe: &Probe) -> Option<String> {
+        None
+    }
+
     /// Checks a dataset [`DatasetFormat::sniff`] found, every defect a finding; returns the
     /// episodes and frames it holds.
     fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts;

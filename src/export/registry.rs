@@ -77,8 +77,11 @@ pub fn detect(path: &Path) -> Result<Detected, ExportError> {
             broken,
         });
     }
+    let several = BUILTIN_FORMATS.iter().find_map(|f| f.several(&probe));
     let problem = if probe.is_file {
         "is a file that is not MCAP; give a dataset folder or an .mcap file".to_string()
+    } else if let Some(several) = several {
+        several
     } else {
         format!(
             "holds nothing surgvla recognises ({} files)",

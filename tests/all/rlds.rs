@@ -407,3 +407,39 @@ fn the_openvla_guide_describes_the_gripper_the_data_holds() {
     assert!(!pulse.contains("absolute, **1 = open"));
     assert!(!pulse.contains("output.  The") && !absolute.contains("output.  The"));
 }
+
+/// A TFDS data directory holding several datasets (as `~/tensorflow_datasets` does) is named
+/// as such with its datasets listed (exit 2), and each is read when given as `<dir>/<name>`.
+#[test]
+fn a_data_directory_of_several_datasets_lists_them() {
+    let source = temp_root("rlds-several-source");
+    collect(&source, &["--format", "rlds"]);
+    let data_dir = temp_root("rlds-several");
+    for name in ["bridge_like", "surgvla_benchmark"] {
+        for (relative, bytes) in tree(&source.join("surgvla_benchmark")) {
+            let path = data_dir.join(name).join(relative);
+            std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+            std::fs::write(path, bytes).expect("copy");
+        }
+    }
+    for command in ["validate", "info"] {
+        let (code, out, err) = surgvla(&[command, path(&data_dir)]);
+        assert_eq!(code, 2, "{command}: {out}{err}");
+        assert!(
+            err.contains("several RLDS datasets (bridge_like, surgvla_benchmark)"),
+            "{err}"
+        );
+    }
+    let one = data_dir.join("bridge_like");
+    let (code, out, err) = surgvla(&["info", path(&one)]);
+    assert_eq!(code, 0, "{out}{err}");
+    let out_dir = temp_root("rlds-several-out");
+    run_ok(&[
+        "convert",
+        path(&one),
+        "--to",
+        "lerobot",
+        "--out",
+        path(&out_dir),
+    ]);
+}

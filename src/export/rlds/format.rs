@@ -83,6 +83,19 @@ impl DatasetFormat for RldsFormat {
         }
     }
 
+    /// A TFDS data directory of several datasets (`~/tensorflow_datasets`): which are there.
+    fn several(&self, probe: &Probe) -> Option<String> {
+        let found = super::read::datasets_below(&probe.path);
+        (found.len() > 1).then(|| {
+            let names: Vec<&str> = found.iter().map(|(name, _)| name.as_str()).collect();
+            format!(
+                "is a TFDS data directory of several RLDS datasets ({}): give one of them as {}/<name>",
+                names.join(", "),
+                probe.path.display()
+            )
+        })
+    }
+
     fn check(&self, found: &Found, options: &ValidateOptions, findings: &Findings) -> Counts {
         Counts::from(super::check::check(&found.root, options, findings))
     }

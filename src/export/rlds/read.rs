@@ -40,54 +40,72 @@ fn version_number(name: &str) -> Option<[u64; 3]> {
     parts.try_into().ok()
 }
 
-/// The version folder `path` names: itself, or in a data directory the highest version of its
-/// one dataset.
+/// The version folder `path` names: itself, the highest version of a dataset folder
+/// (`<name>/`), or in a data directory the highest version of its one dataset.
 pub fn version_dir(path: &Path) -> Result<PathBuf, ExportError> {
     if path.join("dataset_info.json").is_file() {
         return Ok(path.to_path_buf());
     }
-    let mut found: Vec<(String, [u64; 3], PathBuf)> = Vec::new();
-    let entries = std::fs::read_dir(path).map_err(ExportError::io(path))?;
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let Ok(versions) = std::fs::read_dir(entry.path()) else {
-            continue;
-        };
-        for version in versions.flatten() {
-            let folder = version.path();
-            let number = version_number(&version.file_name().to_string_lossy());
-            if let Some(number) = number
-                && folder.join("dataset_info.json").is_file()
-            {
-                found.push((name.clone(), number, folder));
-            }
-        }
+    // A dataset's own folder: its versions.
+    if let Some(folder) = highest_version(path) {
+        return Ok(folder);
     }
-    let mut names: Vec<&String> = found.iter().map(|(n, ..)| n).collect();
-    names.sort();
-    names.dedup();
-    match names.len() {
+    let found = datasets_below(path);
+    match found.len() {
         0 => Err(invalid(
             path,
             "no dataset_info.json here or in <name>/<version>/ below: not an RLDS dataset, or an incomplete one",
         )),
         1 => Ok(found
             .into_iter()
-            .max_by_key(|(_, number, _)| *number)
-            .map(|(.., folder)| folder)
+            .map(|(_, folder)| folder)
+            .next()
             .unwrap_or_default()),
         _ => Err(invalid(
             path,
             format!(
-                "holds several RLDS datasets ({}); give one as <path>/<name>/<version>",
-                names
+                "holds several RLDS datasets ({}): give one of them as {}/<name>",
+                found
                     .iter()
-                    .map(|n| n.as_str())
+                    .map(|(name, _)| name.as_str())
                     .collect::<Vec<_>>()
-                    .join(", ")
+                    .join(", "),
+                path.display()
             ),
         )),
     }
+}
+
+/// The highest version folder (`x.y.z` holding `dataset_info.json`) directly in `folder`.
+fn highest_version(folder: &Path) -> Option<PathBuf> {
+    let versions = std::fs::read_dir(folder).ok()?;
+    versions
+        .flatten()
+        .filter_map(|version| {
+            let number = version_number(&version.file_name().to_string_lossy())?;
+            let path = version.path();
+            path.join("dataset_info.json")
+                .is_file()
+                .then_some((number, path))
+        })
+        .max_by_key(|(number, _)| *number)
+        .map(|(_, path)| path)
+}
+
+/// The datasets of a TFDS data directory, by name (sorted): each one's highest version folder.
+pub fn datasets_below(path: &Path) -> Vec<(String, PathBuf)> {
+    let Ok(entries) = std::fs::read_dir(path) else {
+        return Vec::new();
+    };
+    let mut found: Vec<(String, PathBuf)> = entries
+        .flatten()
+        .filter_map(|entry| {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            Some((name, highest_version(&entry.path())?))
+        })
+        .collect();
+    found.sort();
+    found
 }
 
 /// The observation node of features.json.
