@@ -135,18 +135,29 @@ fn copy_parts(
     Ok(())
 }
 
-/// A source with some optional features left out (`convert --without`): they leave the
-/// dataset's features and every step.
+/// A source with some features left out (`convert --without`): they leave the dataset's
+/// features and every step.
 pub struct Without {
     inner: Box<dyn EpisodeSource + Send>,
     info: crate::export::info::DatasetInfo,
     kinds: Vec<FeatureKind>,
+    /// Per value of the input's steps' `other`, whether it is kept.
+    other_kept: Vec<bool>,
 }
 
 impl Without {
     /// `inner` without the features of `kinds` (RGB, state and action cannot be left out: they
     /// are ignored here).
     pub fn new(inner: Box<dyn EpisodeSource + Send>, kinds: &[FeatureKind]) -> Self {
+        Self::with_names(inner, kinds, &[])
+    }
+
+    /// `inner` without the features of `kinds` and the other features named `names`.
+    pub fn with_names(
+        inner: Box<dyn EpisodeSource + Send>,
+        kinds: &[FeatureKind],
+        names: &[String],
+    ) -> Self {
         let kinds: Vec<FeatureKind> = kinds
             .iter()
             .copied()
@@ -158,8 +169,71 @@ impl Without {
             })
             .collect();
         let mut info = inner.info().clone();
-        info.features.retain(|f| !kinds.contains(&f.kind));
-        Without { inner, info, kinds }
+        let dropped = |f: &crate::episode::FeatureSpec| {
+            kinds.contains(&f.kind) || (f.kind == FeatureKind::Other && names.contains(&f.name))
+        };
+        let other_kept = info
+            .features
+            .iter()
+            .filter(|f| f.kind == FeatureKind::Other && f.in_steps())
+            .map(|f| !dropped(f))
+            .collect();
+        info.features.retain(|f| !dropped(f));
+        Without {
+            inner,
+            info,
+            kinds,
+            other_kept,
+        }
+    }
+
+    /// What `--without` values leave out of a dataset of `info`: (surgvla's optional kinds,
+    /// other features by key). A value is `depth`, `mask` or `environment_state`, or a feature
+    /// key of the input; anything else, and the camera, state or action, is refused naming
+    /// the input's features.
+    pub fn resolve(
+        info: &crate::export::info::DatasetInfo,
+        given: &[String],
+    ) -> Result<(Vec<FeatureKind>, Vec<String>), String> {
+        let (mut kinds, mut names) = (Vec::new(), Vec::new());
+        for value in given {
+            let kind = match value.as_str() {
+                "depth" => Some(FeatureKind::Depth),
+                "mask" => Some(FeatureKind::Mask),
+                "environment_state" => Some(FeatureKind::EnvironmentState),
+                _ => None,
+            };
+            if let Some(kind) = kind {
+                kinds.push(kind);
+                continue;
+            }
+            match info.features.iter().find(|f| &f.name == value) {
+                Some(f) if f.kind == FeatureKind::Other => names.push(f.name.clone()),
+                Some(f)
+                    if matches!(
+                        f.kind,
+                        FeatureKind::Depth | FeatureKind::Mask | FeatureKind::EnvironmentState
+                    ) =>
+                {
+                    kinds.push(f.kind);
+                }
+                Some(f) => {
+                    return Err(format!(
+                        "--without {value}: {} is the dataset's {:?}, which a conversion keeps",
+                        f.name, f.kind
+                    ));
+                }
+                None => {
+                    let keys: Vec<&str> = info.features.iter().map(|f| f.name.as_str()).collect();
+                    return Err(format!(
+                        "--without {value}: the input has no such feature (depth, mask, \
+                         environment_state, or one of its keys: {})",
+                        keys.join(", ")
+                    ));
+                }
+            }
+        }
+        Ok((kinds, names))
     }
 
     fn strip(&self, mut episode: Episode) -> Episode {
@@ -167,6 +241,7 @@ impl Without {
         episode
             .encoded
             .retain(|e| kept.iter().any(|f| f.name == e.feature));
+        let drops_other = self.other_kept.iter().any(|k| !k);
         for step in &mut episode.steps {
             for kind in &self.kinds {
                 match kind {
@@ -177,6 +252,10 @@ impl Without {
                     }
                     _ => {}
                 }
+            }
+            if drops_other {
+                let mut keep = self.other_kept.iter();
+                step.other.retain(|_| keep.next().copied().unwrap_or(true));
             }
         }
         episode
@@ -478,5 +557,51 @@ impl Sides {
         } else {
             None
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::{Dtype, FeatureSpec};
+
+    /// `--without` takes surgvla's names and the input's keys; it refuses what the input lacks
+    /// and what a conversion keeps (the camera, state and action of a surgvla dataset).
+    #[test]
+    fn without_values_resolve_against_the_inputs_features() {
+        let feature = |name: &str, kind| FeatureSpec {
+            name: name.into(),
+            dtype: Dtype::Float32,
+            shape: vec![1],
+            names: Vec::new(),
+            kind,
+            video: None,
+            info: Default::default(),
+        };
+        let info = crate::export::info::DatasetInfo::from_surgvla_json(
+            &serde_json::Value::Null,
+            5,
+            "r",
+            vec![
+                feature("observation.images.endoscope", FeatureKind::Rgb),
+                feature("observation.images.depth", FeatureKind::Depth),
+                feature("observation.effort", FeatureKind::Other),
+            ],
+        );
+        let given = |values: &[&str]| {
+            let values: Vec<String> = values.iter().map(|v| v.to_string()).collect();
+            Without::resolve(&info, &values)
+        };
+        assert_eq!(
+            given(&["mask", "observation.images.depth", "observation.effort"]),
+            Ok((
+                vec![FeatureKind::Mask, FeatureKind::Depth],
+                vec!["observation.effort".to_string()]
+            ))
+        );
+        let missing = given(&["observation.nothing"]).unwrap_err();
+        assert!(missing.contains("observation.effort"), "{missing}");
+        let kept = given(&["observation.images.endoscope"]).unwrap_err();
+        assert!(kept.contains("keeps"), "{kept}");
     }
 }

@@ -96,8 +96,10 @@ pub struct ConvertInput {
     pub path: PathBuf,
     pub source: SourceOptions,
     pub shard: Shard,
-    /// Optional features left out (depth, mask, environment state).
-    pub without: Vec<FeatureKind>,
+    /// Features left out, as the user names them: `depth`, `mask`, `environment_state`
+    /// (surgvla's optional features) or any feature key of the input
+    /// ([`Without::resolve`] checks them against its features).
+    pub without: Vec<String>,
     /// Decode video features to pixels even where the target stores video.
     pub decode: bool,
 }
@@ -115,7 +117,9 @@ impl ConvertInput {
             source = Box::new(Sharded::new(source, self.shard).map_err(ConvertError::Input)?);
         }
         if !self.without.is_empty() {
-            source = Box::new(Without::new(source, &self.without));
+            let (kinds, names) = Without::resolve(source.info(), &self.without)
+                .map_err(|problem| ConvertError::Input(ExportError::InvalidOptions(problem)))?;
+            source = Box::new(Without::with_names(source, &kinds, &names));
         }
         let needed = decoding_needed(source.info(), options);
         if needed || (self.decode && Decoded::needed(source.info())) {

@@ -806,6 +806,43 @@ fn a_foreign_float_image_leaves_no_output_behind() {
         "into an empty folder",
     );
     assert_eq!(std::fs::read_dir(&out).expect("read").count(), 0);
+    // The way past: leave the feature out by its key (another tool's, not surgvla's `depth`).
+    std::fs::remove_dir(&out).expect("rmdir");
+    let args = [
+        "convert",
+        text,
+        "--to",
+        "rlds",
+        "--without",
+        "observation.images.depth",
+        "--out",
+        out_text,
+    ];
+    expect_exit(&parent, &args, 0, "without the float image");
+    let (code, report) = run(&["validate", out_text, "--no-lint"], LIMIT);
+    assert_eq!(code, 0, "{report}");
+    let features = std::fs::read_to_string(out.join("surgvla_benchmark/1.0.0/features.json"))
+        .expect("features.json");
+    assert!(!features.contains("depth"), "the feature is left out");
+    // A key the input lacks is refused before anything is written, naming the keys it has.
+    let refused = parent.join("refused");
+    let refused = refused.to_str().expect("utf-8");
+    let args = [
+        "convert",
+        text,
+        "--to",
+        "rlds",
+        "--without",
+        "observation.images.nothing",
+        "--out",
+        refused,
+    ];
+    let stderr = expect_exit(&parent, &args, 2, "an unknown key");
+    assert!(
+        stderr.contains("has no such feature") && stderr.contains("observation.state"),
+        "{stderr}"
+    );
+    assert!(!parent.join("refused").exists());
 }
 
 /// A special file where a dataset has a regular one.

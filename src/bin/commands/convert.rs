@@ -5,9 +5,8 @@
 use crate::error::CliError;
 use crate::formats::Format;
 use crate::formats::FormatArgs;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use std::path::{Path, PathBuf};
-use surgvla::episode::FeatureKind;
 use surgvla::export::convert::ConvertError;
 use surgvla::export::dir::after_failure;
 use surgvla::export::open::ConvertInput;
@@ -41,9 +40,11 @@ pub(crate) struct ConvertArgs {
     /// The robot type of an input that states none (default "unknown").
     #[arg(long)]
     robot_type: Option<String>,
-    /// Leave optional features out, comma-separated: depth, mask, environment_state.
-    #[arg(long, value_enum, value_delimiter = ',')]
-    without: Vec<ConvertOmit>,
+    /// Leave features out, comma-separated: depth, mask, environment_state (surgvla's optional
+    /// features) or any feature key of the input (e.g. observation.images.depth of another
+    /// tool's dataset), checked against its features before anything is written.
+    #[arg(long, value_delimiter = ',')]
+    without: Vec<String>,
     /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of
     /// copying the video as it is. Implied for every other target, and for --video with
     /// another codec than the input's (re-encoding).
@@ -58,28 +59,6 @@ pub(crate) struct ConvertArgs {
     formats: FormatArgs,
 }
 
-/// An optional feature `convert --without` leaves out.
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum ConvertOmit {
-    /// `observation.images.depth`.
-    Depth,
-    /// `observation.images.mask`.
-    Mask,
-    /// `observation.environment_state`.
-    #[value(name = "environment_state")]
-    EnvironmentState,
-}
-
-impl ConvertOmit {
-    fn kind(self) -> FeatureKind {
-        match self {
-            ConvertOmit::Depth => FeatureKind::Depth,
-            ConvertOmit::Mask => FeatureKind::Mask,
-            ConvertOmit::EnvironmentState => FeatureKind::EnvironmentState,
-        }
-    }
-}
-
 impl ConvertArgs {
     /// What the conversion reads.
     fn input(&self) -> ConvertInput {
@@ -90,7 +69,7 @@ impl ConvertArgs {
                 robot_type: self.robot_type.clone(),
             },
             shard: self.shard,
-            without: self.without.iter().map(|w| w.kind()).collect(),
+            without: self.without.clone(),
             decode: self.decode,
         }
     }
