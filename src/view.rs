@@ -266,5 +266,6 @@ pub fn dataset_info(
         input: None,
         provenance: Vec::new(),
         splits: Vec::new(),
+        notes: Vec::new(),
     }
 }

@@ -199,6 +199,23 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
     card.push_str("## Tasks\n\n| task | level | episodes | frames | instructions |\n|---|---:|---:|---:|---|\n");
     card.push_str(&task_rows(tally));
     card.push_str(&feature_rows(info, format));
+    card.push_str(&how_made(info));
+    let camera = &info.camera;
+    if camera.fx_px > 0.0 {
+        let _ = writeln!(
+            card,
+            "The camera: {} x {} pixels, fx {:.3} px, near {} m, far {} m; its intrinsics and `world_from_camera` are in the dataset's metadata.\n",
+            camera.width_px, camera.height_px, camera.fx_px, camera.near_m, camera.far_m
+        );
+    }
+    card.push_str(&citation(info, tally));
+    card
+}
+
+/// The card's "How it was made" section: the collection's options, the paragraphs of the
+/// ingest or conversion that made it, and how another tool's dataset was read.
+fn how_made(info: &DatasetInfo) -> String {
+    let mut card = String::new();
     card.push_str("\n## How it was made\n\n");
     match &info.collection {
         Some(collection) if !collection.is_empty() => {
@@ -215,15 +232,13 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
         }
         _ => card.push_str("The dataset does not say how its episodes were made.\n\n"),
     }
-    let camera = &info.camera;
-    if camera.fx_px > 0.0 {
-        let _ = writeln!(
-            card,
-            "The camera: {} x {} pixels, fx {:.3} px, near {} m, far {} m; its intrinsics and `world_from_camera` are in the dataset's metadata.\n",
-            camera.width_px, camera.height_px, camera.fx_px, camera.near_m, camera.far_m
-        );
+    if !info.notes.is_empty() {
+        card.push_str("How surgvla read the dataset it was converted from:\n\n");
+        for note in &info.notes {
+            let _ = writeln!(card, "- {}", cell(note));
+        }
+        card.push('\n');
     }
-    card.push_str(&citation(info, tally));
     card
 }
 

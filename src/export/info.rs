@@ -41,6 +41,11 @@ pub struct DatasetInfo {
     /// them, e.g. for Open-H; empty: every episode is `train`. Written where a format has room
     /// (LeRobot's `splits` in info.json).
     pub splits: Vec<(String, std::ops::Range<u64>)>,
+    /// What reading the input decided, one line each, which a conversion prints and the card
+    /// repeats: how another tool's keys were mapped (`action = steps/action/world_vector +
+    /// ...`), what was left out and why. Empty for surgvla's own data; not part of the options
+    /// digest.
+    pub notes: Vec<String>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -146,6 +151,7 @@ impl DatasetInfo {
             input: None,
             provenance: Vec::new(),
             splits: Vec::new(),
+            notes: Vec::new(),
         }
     }
 

@@ -79,6 +79,13 @@ pub fn open_source_with(
     options: &SourceOptions,
 ) -> Result<Box<dyn EpisodeSource + Send>, ExportError> {
     let (format, found) = registry::detect_readable(root)?;
+    if !options.map.is_empty() && format.name() != "rlds" {
+        return Err(ExportError::InvalidOptions(format!(
+            "--map is for RLDS datasets another tool wrote; {} is {}, whose features are named already (--without leaves one out)",
+            found.root.display(),
+            format.title()
+        )));
+    }
     let source = format.open_source(&found, options).unwrap_or_else(|| {
         Err(ExportError::NotReadable {
             path: found.root.clone(),

@@ -110,6 +110,18 @@ impl Gathering {
     }
 }
 
+/// One feature made of one or more of the input's keys, concatenated (`convert --map`; the
+/// Open X-Embodiment rules of [`crate::export::rlds::mapping`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Joined {
+    /// The LeRobot name, `action` or `observation.state`.
+    pub name: String,
+    /// RLDS keys, in concatenation order.
+    pub keys: Vec<String>,
+    /// One name per value, as a map file gives them; empty: each part's name (indexed).
+    pub names: Vec<String>,
+}
+
 /// What a reader needs to know that a dataset may not say.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SourceOptions {
@@ -117,4 +129,7 @@ pub struct SourceOptions {
     pub fps: Option<u32>,
     /// The robot type of such datasets ("unknown" when not given).
     pub robot_type: Option<String>,
+    /// Features of an RLDS dataset another tool wrote, made of its keys (`convert --map`), in
+    /// place of or beside those [`crate::export::rlds::mapping::Mapping`]'s rules find.
+    pub map: Vec<Joined>,
 }

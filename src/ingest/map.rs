@@ -18,8 +18,11 @@
 //! `pose` is [x, y, z, qx, qy, qz, qw] of a `PoseStamped` or `TransformStamped`; `joints` the
 //! first `count` positions of a `JointState`; `fields` numbers at dotted paths (`a.b[2]` for an
 //! array's element). The file is the user's input: its size is bounded, unknown keys, bad names
-//! and clashes with the preset's features are refused by name.
+//! and clashes with the preset's features are refused by name. The same format maps a
+//! dataset's keys for `convert --map` ([`load_keys`]): `keys = [...]` in place of `topic`,
+//! `values`, `fields` and `count`.
 
+use crate::export::source::Joined;
 use crate::ingest::decode::RosValue;
 use crate::ingest::error::IngestError;
 use crate::ingest::extract::{joint_positions, pose7};
@@ -33,11 +36,12 @@ const MAX_MAP_BYTES: u64 = 1 << 20;
 const MAX_VALUES: usize = 1024;
 
 /// How a message becomes a mapped feature's values.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Values {
     Pose,
     Joints,
+    #[default]
     Fields,
 }
 
@@ -55,9 +59,16 @@ pub enum MapKind {
 #[serde(deny_unknown_fields)]
 pub struct MappedFeature {
     pub name: String,
+    /// The recording's topic (`ingest`).
+    #[serde(default)]
     pub topic: String,
+    /// The dataset's keys, concatenated in order (`convert` of an RLDS dataset another tool
+    /// wrote): `steps/action/world_vector`, or without the `steps/`.
+    #[serde(default)]
+    pub keys: Vec<String>,
     #[serde(default)]
     pub kind: MapKind,
+    #[serde(default)]
     pub values: Values,
     #[serde(default)]
     pub fields: Vec<String>,
@@ -149,6 +160,9 @@ impl MappedFeature {
         if reserved(&self.name) {
             return Err("the preset writes a feature of this name".into());
         }
+        if !self.keys.is_empty() {
+            return Err("keys = [...] names a dataset's keys (convert --map); a recording's feature names its topic".into());
+        }
         if !self.topic.starts_with('/') {
             return Err(format!("topic {:?} must start with /", self.topic));
         }
@@ -201,9 +215,9 @@ fn number_at(message: &RosValue, path: &str) -> Option<f64> {
     value.as_f64()
 }
 
-/// Reads and checks a map file (`--map`): any problem is the user's (exit 2), named with the
-/// file and the feature.
-pub fn load(path: &Path) -> Result<Vec<MappedFeature>, IngestError> {
+/// Reads a map file's text: its size is bounded, any problem is the user's (exit 2), named
+/// with the file.
+fn read(path: &Path) -> Result<String, IngestError> {
     let usage =
         |problem: String| IngestError::Usage(format!("--map {}: {problem}", path.display()));
     let metadata = std::fs::metadata(path).map_err(|e| usage(e.to_string()))?;
@@ -213,8 +227,23 @@ pub fn load(path: &Path) -> Result<Vec<MappedFeature>, IngestError> {
     if metadata.len() > MAX_MAP_BYTES {
         return Err(usage(format!("larger than {MAX_MAP_BYTES} bytes")));
     }
-    let text = crate::files::read_regular_to_string(path).map_err(|e| usage(e.to_string()))?;
-    parse(&text).map_err(usage)
+    crate::files::read_regular_to_string(path).map_err(|e| usage(e.to_string()))
+}
+
+/// Reads and checks a map file of a recording (`ingest --map`): any problem is the user's
+/// (exit 2), named with the file and the feature.
+pub fn load(path: &Path) -> Result<Vec<MappedFeature>, IngestError> {
+    let usage =
+        |problem: String| IngestError::Usage(format!("--map {}: {problem}", path.display()));
+    parse(&read(path)?).map_err(usage)
+}
+
+/// Reads and checks a map file of a dataset (`convert --map`): each feature made of the
+/// input's keys, `task` naming where the instruction is.
+pub fn load_keys(path: &Path) -> Result<Vec<Joined>, IngestError> {
+    let usage =
+        |problem: String| IngestError::Usage(format!("--map {}: {problem}", path.display()));
+    parse_keys(&read(path)?).map_err(usage)
 }
 
 /// A map file's features, checked.
@@ -229,6 +258,46 @@ pub fn parse(text: &str) -> Result<Vec<MappedFeature>, String> {
         }
     }
     Ok(file.feature)
+}
+
+/// A dataset map's features: names as a recording's map checks them (any name: a dataset has
+/// no preset), keys and no topic.
+pub fn parse_keys(text: &str) -> Result<Vec<Joined>, String> {
+    let file: MapFile = toml::from_str(text).map_err(|e| e.message().to_string())?;
+    let mut joined: Vec<Joined> = Vec::new();
+    for feature in file.feature {
+        let problem = |p: &str| format!("feature {:?}: {p}", feature.name);
+        let valid_name = !feature.name.is_empty()
+            && (feature.name.chars()).all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
+        if !valid_name {
+            return Err(problem(
+                "a feature name is letters, digits, '.', '_' and '-'",
+            ));
+        }
+        if !feature.topic.is_empty() || !feature.fields.is_empty() || feature.count.is_some() {
+            return Err(problem(
+                "topic, values, fields and count are for recordings (ingest --map); a dataset's feature names its keys = [...]",
+            ));
+        }
+        if feature.keys.is_empty() {
+            return Err(problem("keys = [...] names the dataset keys it is made of"));
+        }
+        if joined.iter().any(|j| j.name == feature.name) {
+            return Err(format!("feature {:?} is given twice", feature.name));
+        }
+        let keys = (feature.keys.iter())
+            .map(|k| match k.starts_with("steps/") {
+                true => k.clone(),
+                false => format!("steps/{k}"),
+            })
+            .collect();
+        joined.push(Joined {
+            name: feature.name,
+            keys,
+            names: feature.names,
+        });
+    }
+    Ok(joined)
 }
 
 #[cfg(test)]

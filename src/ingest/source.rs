@@ -874,7 +874,7 @@ mod tests {
             sink.finish().expect("finish");
             let fps = crate::export::source::SourceOptions {
                 fps: Some(10),
-                robot_type: None,
+                ..Default::default()
             };
             let mut back = crate::export::open::open_source_with(&out, &fps).expect("read back");
             let read = back.next().expect("an episode").expect("read");

@@ -280,7 +280,7 @@ fn other_features_round_trip_through_rlds() {
     assert!(open_source(&root).is_err(), "no frame rate given");
     let options = surgvla::export::SourceOptions {
         fps: Some(5),
-        robot_type: None,
+        ..Default::default()
     };
     let mut source = surgvla::export::open_source_with(&root, &options).expect("source");
     let named = |info: &surgvla::export::DatasetInfo, values: &[surgvla::episode::FeatureValue]| {
@@ -442,4 +442,99 @@ fn a_data_directory_of_several_datasets_lists_them() {
         "--out",
         path(&out_dir),
     ]);
+}
+
+/// `convert --map` on an RLDS dataset another tool wrote: the map's features are made of the
+/// keys it names (concatenated, integers joining floats exactly), `task` says where the
+/// instruction is; what is left out is named on stderr; a key the dataset lacks, a
+/// recording's map and a map for a dataset that is not another tool's RLDS exit 2.
+#[test]
+fn a_map_file_names_the_features_of_another_tools_rlds() {
+    let (dataset, episodes) = crate::util::foreign_dataset();
+    let root = temp_root("rlds-map");
+    let mut writer = surgvla::export::rlds::RldsWriter::create(&root, &dataset, Default::default())
+        .expect("writer");
+    surgvla::export::EpisodeSink::write_batch(&mut writer, &episodes).expect("write");
+    surgvla::export::EpisodeSink::finish(&mut writer).expect("finish");
+    let map = root.join("map.toml");
+    let write_map = |text: &str| std::fs::write(&map, text).expect("map");
+    write_map(
+        "[[feature]]\nname = \"action\"\nkeys = [\"observation/state\", \"steps/observation/gripper_count\"]\n\n[[feature]]\nname = \"task\"\nkeys = [\"instruction/text\"]\n",
+    );
+    let out = temp_root("rlds-map-out");
+    let convert = |out: &Path, input: &Path| {
+        surgvla(&[
+            "convert",
+            path(input),
+            "--to",
+            "lerobot",
+            "--fps",
+            "5",
+            "--map",
+            path(&map),
+            "--out",
+            path(out),
+            "--verify",
+        ])
+    };
+    let (code, _, err) = convert(&out, &root);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("left out episode_metadata/file_path"), "{err}");
+    assert!(
+        err.contains("action = steps/observation/state + steps/observation/gripper_count"),
+        "{err}"
+    );
+    let options = surgvla::export::SourceOptions::default();
+    let mut source = surgvla::export::open_source_with(&out, &options).expect("output");
+    let info = source.info().clone();
+    let action = info
+        .features
+        .iter()
+        .position(|f| f.name == "action")
+        .expect("action");
+    assert_eq!(info.features[action].shape, [15]);
+    for expected in &episodes {
+        let read = source.next().expect("episode").expect("readable");
+        for (k, (step, original)) in read.steps.iter().zip(&expected.steps).enumerate() {
+            use surgvla::episode::FeatureValue;
+            let (FeatureValue::Float32(state), FeatureValue::Int64(count)) =
+                (&original.other[0], &original.other[1])
+            else {
+                panic!("the fixture's layout");
+            };
+            let mut joined = state.clone();
+            joined.push(count[0] as f32);
+            assert_eq!(step.other[action], FeatureValue::Float32(joined));
+            assert_eq!(
+                read.meta.instruction_at(k),
+                format!("step {k} of task {}", expected.meta.index % 2)
+            );
+        }
+    }
+    for (text, said) in [
+        (
+            "[[feature]]\nname = \"action\"\nkeys = [\"action/world_vector\"]\n",
+            "steps/action/world_vector is not a numeric key",
+        ),
+        (
+            "[[feature]]\nname = \"x\"\ntopic = \"/a\"\nkeys = [\"observation/state\"]\n",
+            "are for recordings",
+        ),
+        (
+            "[[feature]]\nname = \"task\"\nkeys = [\"observation/state\"]\n",
+            "not a text or integer key",
+        ),
+    ] {
+        write_map(text);
+        let (code, _, err) = convert(&temp_root("rlds-map-bad"), &root);
+        assert_eq!(code, 2, "{said}: {err}");
+        assert!(err.contains(said) && err.contains("--map"), "{err}");
+    }
+    write_map("[[feature]]\nname = \"task\"\nkeys = [\"instruction/text\"]\n");
+    let (code, _, err) = convert(&temp_root("rlds-map-lerobot"), &out);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--map is for RLDS datasets another tool wrote"),
+        "{err}"
+    );
 }

@@ -1078,7 +1078,7 @@ fn random_corruption_never_panics_a_reader() {
                     }
                     let options = surgvla::export::SourceOptions {
                         fps: Some(5),
-                        robot_type: None,
+                        ..Default::default()
                     };
                     if let Ok(mut source) = surgvla::export::open_source_with(&copy, &options) {
                         for episode in source.by_ref() {

@@ -45,6 +45,12 @@ pub(crate) struct ConvertArgs {
     /// tool's dataset), checked against its features before anything is written.
     #[arg(long, value_delimiter = ',')]
     without: Vec<String>,
+    /// For an RLDS dataset another tool wrote: a TOML file naming the keys that make `action`,
+    /// `observation.state`, the `task` or any other feature, in place of the Open
+    /// X-Embodiment conventions surgvla finds by itself (the format of `ingest --map`, with
+    /// `keys = [...]`; see docs/datasets.md).
+    #[arg(long, value_name = "FILE.toml")]
+    map: Option<PathBuf>,
     /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of
     /// copying the video as it is. Implied for every other target, and for --video with
     /// another codec than the input's (re-encoding).
@@ -61,17 +67,22 @@ pub(crate) struct ConvertArgs {
 
 impl ConvertArgs {
     /// What the conversion reads.
-    fn input(&self) -> ConvertInput {
-        ConvertInput {
+    fn input(&self) -> Result<ConvertInput, CliError> {
+        let map = match &self.map {
+            Some(path) => surgvla::ingest::map::load_keys(path)?,
+            None => Vec::new(),
+        };
+        Ok(ConvertInput {
             path: self.input.clone(),
             source: surgvla::export::SourceOptions {
                 fps: self.fps,
                 robot_type: self.robot_type.clone(),
+                map,
             },
             shard: self.shard,
             without: self.without.clone(),
             decode: self.decode,
-        }
+        })
     }
 }
 
@@ -81,7 +92,7 @@ fn verify(
     options: &dyn SinkOptions,
     summary: &surgvla::export::Summary,
 ) -> Result<(), CliError> {
-    let mut source = args.input().open(options)?;
+    let mut source = args.input()?.open(options)?;
     let differences = surgvla::export::verify::verify_output(source.as_mut(), &args.out, summary)?;
     verified(&differences, &args.out, &args.input.display().to_string())
 }
@@ -145,8 +156,11 @@ impl Output {
 /// `surgvla convert INPUT --to FORMAT --out DIR`.
 pub(crate) fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
     let options = args.formats.sink_options(args.to, "--to")?;
-    let mut source = args.input().open(options.as_ref())?;
+    let mut source = args.input()?.open(options.as_ref())?;
     let info = source.info().clone();
+    for note in &info.notes {
+        eprintln!("{}: {note}", args.input.display());
+    }
     let (mut sink, output) = open_output(&args.out, &info, options.as_ref(), args.resume)?;
     let bar = crate::progress::episode_bar(source.len(), "converting");
     let threads = args.threads.unwrap_or(0);

@@ -241,7 +241,11 @@ fn write_episodes_jsonl(
         let e = row?;
         let mut line =
             json!({"episode_index": e.episode_index, "tasks": e.tasks, "length": e.length});
-        for (key, value) in e.provenance.columns() {
+        for (key, value) in e
+            .provenance
+            .iter()
+            .flat_map(super::table::Provenance::columns)
+        {
             line[key] = value;
         }
         for (key, value) in &e.pixel_stats {

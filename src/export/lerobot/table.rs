@@ -473,7 +473,10 @@ pub(super) struct EpisodeRow {
     /// (null when unknown): the `surgvla/pixel_stats/<feature>` column.
     #[serde(default)]
     pub pixel_stats: Vec<(String, Value)>,
-    pub provenance: Provenance,
+    /// Where the episode came from, for surgvla's own episodes only: another tool's dataset
+    /// or a robot's recordings get no `surgvla/...` columns rather than placeholders.
+    #[serde(default)]
+    pub provenance: Option<Provenance>,
 }
 
 /// One episode's row of the episodes metadata as a reader sees it (v3.0's parquet row, or v2.1's
@@ -702,27 +705,36 @@ fn video_columns(rows: &[EpisodeRow], key: &str) -> Vec<(String, ArrayRef)> {
     columns
 }
 
-/// The episodes table's provenance columns; the seed as int64 (two's complement: seeds above
-/// 2^63 read negative).
-fn provenance_columns(rows: &[EpisodeRow]) -> impl Iterator<Item = (String, ArrayRef)> {
-    let int = |f: &dyn Fn(&EpisodeRow) -> u64| int_column(rows, f);
+/// The episodes table's provenance columns, when every episode has its provenance (none
+/// for another tool's episodes); the seed as int64 (two's complement: seeds above 2^63 read
+/// negative).
+fn provenance_columns(rows: &[EpisodeRow]) -> Vec<(String, ArrayRef)> {
+    let Some(known) = rows
+        .iter()
+        .map(|r| r.provenance.as_ref())
+        .collect::<Option<Vec<_>>>()
+    else {
+        return Vec::new();
+    };
+    let int = |f: &dyn Fn(&Provenance) -> u64| -> ArrayRef {
+        Arc::new(Int64Array::from_iter_values(
+            known.iter().map(|p| f(p) as i64),
+        ))
+    };
     let provenance: [ArrayRef; 5] = [
-        int(&|r| r.provenance.seed),
+        int(&|p| p.seed),
         Arc::new(StringArray::from_iter_values(
-            rows.iter().map(|r| r.provenance.task_id.as_str()),
+            known.iter().map(|p| p.task_id.as_str()),
         )),
-        int(&|r| u64::from(r.provenance.level)),
-        int(&|r| u64::from(r.provenance.attempts)),
+        int(&|p| u64::from(p.level)),
+        int(&|p| u64::from(p.attempts)),
         Arc::new(BooleanArray::from(
-            rows.iter()
-                .map(|r| r.provenance.success)
-                .collect::<Vec<_>>(),
+            known.iter().map(|p| p.success).collect::<Vec<_>>(),
         )),
     ];
-    Provenance::KEYS
-        .iter()
-        .map(|k| k.to_string())
+    (Provenance::KEYS.iter().map(|k| k.to_string()))
         .zip(provenance)
+        .collect()
 }
 
 /// The episodes table (episode_index equals row order); `video_keys` are the video features.

@@ -676,7 +676,7 @@ impl LeRobotFiles {
             stats: stats_json,
             videos,
             pixel_stats,
-            provenance: Provenance::of(meta),
+            provenance: info.is_ours().then(|| Provenance::of(meta)),
         };
         self.journal(dir, &row)?;
         if written.full {

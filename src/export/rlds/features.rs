@@ -368,6 +368,7 @@ mod tests {
             input: None,
             provenance: Vec::new(),
             splits: Vec::new(),
+            notes: Vec::new(),
         }
     }
 

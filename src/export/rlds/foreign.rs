@@ -1,11 +1,14 @@
 //! Reading an RLDS dataset another tool wrote (an Open X-Embodiment dataset written by
 //! tensorflow_datasets): [`ForeignRldsSource`], an [`EpisodeSource`] that takes its features
-//! from the dataset's own `features.json`. Every step-level tensor and image becomes a
-//! [`FeatureKind::Other`] feature named the LeRobot way (`steps/observation/state` ->
-//! `observation.state`, `steps/observation/image` -> `observation.images.image`, `steps/action`
-//! -> `action`); `steps/language_instruction` is each step's instruction (the first step's
-//! the episode's); `is_first` / `is_last` are structure, not features; other texts and the episode metadata are
-//! left out. RLDS has no frame rate: the caller gives one.
+//! from the dataset's own `features.json`. The instruction, `action` and `observation.state`
+//! are found by [`Mapping`] (fractal's `observation/natural_language_instruction` and action
+//! dict, language_table's byte codes, ...); every other step-level tensor, text and image
+//! becomes a [`FeatureKind::Other`] feature named the LeRobot way (`steps/observation/image` ->
+//! `observation.images.image`, `steps/action/terminate_episode` -> `action.terminate_episode`);
+//! `is_first` / `is_last` / `is_terminal` are structure, not features. What cannot be carried
+//! (per-episode metadata, string tensors, images of unknown size) is named in the dataset
+//! info's notes, which `convert` prints: nothing is left out silently. RLDS has no frame rate:
+//! the caller gives one.
 
 use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
 use crate::export::bounded::read_json;
@@ -13,19 +16,16 @@ use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::rlds::example::{Feature, decode_example};
 use crate::export::rlds::generic::{Leaf, leaves};
+use crate::export::rlds::mapping::{Instruction, Joined, Mapping};
 use crate::export::rlds::options::SURGVLA_JSON;
 use crate::export::rlds::read::{ShardRecords, invalid, version_dir};
 use crate::export::source::EpisodeSource;
 use serde_json::Value;
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// Keys that are structure, not features.
-const STRUCTURE: [&str; 4] = [
-    "steps/is_first",
-    "steps/is_last",
-    "steps/is_terminal",
-    "steps/language_instruction",
-];
+const STRUCTURE: [&str; 3] = ["steps/is_first", "steps/is_last", "steps/is_terminal"];
 
 /// The LeRobot name of an RLDS step key.
 fn lerobot_name(key: &str, image: bool) -> String {
@@ -36,65 +36,169 @@ fn lerobot_name(key: &str, image: bool) -> String {
     }
 }
 
-/// One feature read from the records: its RLDS key and spec.
+/// One feature read from the records: the RLDS keys it is made of (several for a joined
+/// action or state, concatenated in order) with their element counts, and its spec.
 #[derive(Clone, Debug)]
 struct Column {
-    key: String,
+    parts: Vec<(String, usize)>,
     spec: FeatureSpec,
 }
 
-fn columns(features: &Value, path: &Path) -> Result<Vec<Column>, ExportError> {
-    let leaves = leaves(features).map_err(|problem| invalid(path, problem))?;
-    let mut columns = Vec::new();
-    for (key, leaf) in leaves {
-        if !key.starts_with("steps/") || STRUCTURE.contains(&key.as_str()) {
-            continue;
+/// The dtype and shape a leaf is read as, or why it is left out.
+fn read_as(key: &str, leaf: &Leaf) -> Result<(Dtype, Vec<usize>), String> {
+    match leaf {
+        Leaf::Image { shape, .. } => match shape {
+            [Some(h), Some(w), Some(c)] => Ok((Dtype::Image, vec![*h, *w, *c])),
+            _ => Err(format!(
+                "left out {key}: an image of unknown size (surgvla needs fixed sizes)"
+            )),
+        },
+        Leaf::Tensor { dtype, elements } => match dtype.as_str() {
+            "float32" | "float64" | "float16" => Ok((Dtype::Float32, vec![*elements])),
+            "int64" | "int32" | "int16" | "int8" | "uint8" | "uint16" | "uint32" | "bool" => {
+                Ok((Dtype::Int64, vec![*elements]))
+            }
+            other => Err(format!(
+                "left out {key}: a {other} tensor, which surgvla does not read"
+            )),
+        },
+        // One text per step: a string feature (e.g. instruction.text).
+        Leaf::Text => Ok((Dtype::String, vec![1])),
+    }
+}
+
+/// The name a carried key gets: its LeRobot name, with the dot after a joined feature's name
+/// made an underscore (`steps/action/terminate_episode` beside a joined `action` is
+/// `action_terminate_episode`), since a format of nested keys (RLDS) cannot hold `action` both
+/// as a value and as a folder.
+fn carried_name(key: &str, dtype: Dtype, mapping: &Mapping) -> String {
+    let name = lerobot_name(key, dtype == Dtype::Image);
+    for joined in &mapping.joined {
+        if let Some(rest) = name.strip_prefix(&format!("{}.", joined.name)) {
+            return format!("{}_{}", joined.name, rest.replace('.', "_"));
         }
-        let (dtype, shape) = match &leaf {
-            Leaf::Image { shape, .. } => match shape {
-                [Some(h), Some(w), Some(c)] => (Dtype::Image, vec![*h, *w, *c]),
-                _ => {
-                    return Err(invalid(
-                        path,
-                        format!("{key} is an image of unknown size; surgvla needs fixed sizes"),
-                    ));
-                }
-            },
-            Leaf::Tensor { dtype, elements } => match dtype.as_str() {
-                "float32" | "float64" | "float16" => (Dtype::Float32, vec![*elements]),
-                "int64" | "int32" | "int16" | "int8" | "uint8" | "uint16" | "uint32" | "bool" => {
-                    (Dtype::Int64, vec![*elements])
-                }
-                other => {
-                    return Err(invalid(
-                        path,
-                        format!("{key} is a {other} tensor, which surgvla does not read"),
-                    ));
-                }
-            },
-            // One text per step: a string feature (e.g. instruction.text).
-            Leaf::Text => (Dtype::String, vec![1]),
+    }
+    name
+}
+
+/// A feature spec surgvla has no role for.
+fn other(name: String, dtype: Dtype, shape: Vec<usize>, names: Vec<String>) -> FeatureSpec {
+    FeatureSpec {
+        name,
+        dtype,
+        shape,
+        names,
+        kind: FeatureKind::Other,
+        video: None,
+        info: Default::default(),
+    }
+}
+
+/// Element names of a joined feature: each part's last key segment, indexed when it has
+/// several values.
+fn part_names(parts: &[(String, usize)]) -> Vec<String> {
+    let mut names = Vec::new();
+    for (key, n) in parts {
+        let part = key.rsplit('/').next().unwrap_or(key);
+        if *n == 1 {
+            names.push(part.to_string());
+        } else {
+            names.extend((0..*n).map(|i| format!("{part}_{i}")));
+        }
+    }
+    names
+}
+
+/// The columns of a dataset with these leaves read through `mapping`, and the notes a
+/// conversion prints: how the mapping read the dataset, what it left out.
+fn columns(leaves: &BTreeMap<String, Leaf>, mapping: &Mapping) -> (Vec<Column>, Vec<String>) {
+    let mut notes = mapping.describe();
+    let mut columns = Vec::new();
+    for joined in &mapping.joined {
+        let parts: Vec<(String, usize)> = (joined.keys.iter())
+            .filter_map(|key| match leaves.get(key)? {
+                Leaf::Tensor { elements, .. } => Some((key.clone(), *elements)),
+                _ => None,
+            })
+            .collect();
+        let total = parts.iter().map(|(_, n)| n).sum();
+        let names = match joined.names.len() == total {
+            true => joined.names.clone(),
+            false => part_names(&parts),
         };
         columns.push(Column {
-            spec: FeatureSpec {
-                name: lerobot_name(&key, dtype == Dtype::Image),
-                dtype,
-                shape,
-                names: Vec::new(),
-                kind: FeatureKind::Other,
-                video: None,
-                info: Default::default(),
-            },
-            key,
+            spec: other(joined.name.clone(), Dtype::Float32, vec![total], names),
+            parts,
         });
     }
-    Ok(columns)
+    for (key, leaf) in leaves {
+        if !key.starts_with("steps/") {
+            notes.push(format!(
+                "left out {key}: per-episode metadata, which surgvla does not carry yet"
+            ));
+            continue;
+        }
+        if STRUCTURE.contains(&key.as_str()) || mapping.takes(key) {
+            continue;
+        }
+        match read_as(key, leaf) {
+            Ok((dtype, shape)) => columns.push(Column {
+                parts: vec![(key.clone(), shape.iter().product())],
+                spec: other(carried_name(key, dtype, mapping), dtype, shape, Vec::new()),
+            }),
+            Err(note) => notes.push(note),
+        }
+        if matches!(leaf, Leaf::Tensor { dtype, .. } if dtype == "float64") {
+            notes.push(format!(
+                "{key} is declared float64, but TFRecord files store float32: read as float32, no value changes"
+            ));
+        }
+    }
+    (columns, notes)
+}
+
+/// The longest text of `dataset_info.json` repeated in a note.
+const MAX_DESCRIBED_CHARS: usize = 2000;
+
+/// What the dataset says of itself in `dataset_info.json` (name, version, licence, homepage,
+/// citation), as notes: the card of a conversion says where the data came from. A file that
+/// cannot be read says nothing here (reading the records names it).
+fn described(folder: &Path) -> Vec<String> {
+    let Ok(info) = read_json(&folder.join("dataset_info.json")) else {
+        return Vec::new();
+    };
+    // One line each, and no longer than a citation needs: the file is another tool's.
+    let text = |value: &Value| {
+        (value.as_str())
+            .map(|s| s.split_whitespace().collect::<Vec<_>>().join(" "))
+            .filter(|s| !s.is_empty())
+            .map(|s| match s.char_indices().nth(MAX_DESCRIBED_CHARS) {
+                Some((cut, _)) => format!("{}...", &s[..cut]),
+                None => s,
+            })
+    };
+    let name = text(&info["name"]).unwrap_or_else(|| "unnamed".into());
+    let version = text(&info["version"]).unwrap_or_else(|| "of no version".into());
+    let mut line = format!("the input is the RLDS dataset {name} {version}");
+    match text(&info["redistributionInfo"]["license"]) {
+        Some(licence) => line.push_str(&format!(", licence: {licence}")),
+        None => line.push_str(", which states no licence"),
+    }
+    if let Some(homepage) = text(&info["homepage"]) {
+        line.push_str(&format!(", homepage {homepage}"));
+    }
+    let mut notes = vec![line];
+    if let Some(citation) = text(&info["citation"]) {
+        notes.push(format!("its authors ask to be cited as: {citation}"));
+    }
+    notes
 }
 
 /// Reads an RLDS dataset another tool wrote, episode by episode (one record in memory).
 pub struct ForeignRldsSource {
     info: DatasetInfo,
     columns: Vec<Column>,
+    instruction: Option<Instruction>,
     records: ShardRecords,
     next_index: u64,
 }
@@ -102,23 +206,122 @@ pub struct ForeignRldsSource {
 impl ForeignRldsSource {
     /// Opens the dataset at `path` (a version folder or the data directory above it) with
     /// `fps` steps per second and robot type `robot_type`.
-    pub fn open(path: &Path, fps: u32, robot_type: &str) -> Result<Self, ExportError> {
+    /// `map` (`convert --map`) names features the rules would not find.
+    pub fn open(
+        path: &Path,
+        fps: u32,
+        robot_type: &str,
+        map: &[Joined],
+    ) -> Result<Self, ExportError> {
         let folder = version_dir(path)?;
         let records = ShardRecords::open(&folder)?;
         let features_path = folder.join("features.json");
-        let columns = columns(&read_json(&features_path)?, &features_path)?;
+        let leaves = leaves(&read_json(&features_path)?)
+            .map_err(|problem| invalid(&features_path, problem))?;
+        let mapping = (Mapping::of(&leaves).with(map, &leaves)).map_err(|problem| {
+            ExportError::InvalidOptions(format!("--map for {}: {problem}", folder.display()))
+        })?;
+        let (columns, notes) = columns(&leaves, &mapping);
         let features: Vec<FeatureSpec> = columns.iter().map(|c| c.spec.clone()).collect();
-        let info = DatasetInfo::from_surgvla_json(&Value::Null, fps, robot_type, features);
+        let mut info = DatasetInfo::from_surgvla_json(&Value::Null, fps, robot_type, features);
+        info.notes = described(&folder);
+        info.notes.extend(notes);
         Ok(ForeignRldsSource {
             info,
             columns,
+            instruction: mapping.instruction,
             records,
             next_index: 0,
         })
     }
 
+    /// Each step's instruction: texts, or UTF-8 byte codes padded with zeros.
+    fn instructions(
+        instruction: Option<&Instruction>,
+        example: &BTreeMap<String, Feature>,
+        steps: usize,
+    ) -> Result<Vec<String>, String> {
+        let Some(instruction) = instruction else {
+            return Ok(Vec::new());
+        };
+        let wrong = || format!("{} does not hold {steps} instructions", instruction.key);
+        let texts: Vec<String> = match example.get(&instruction.key) {
+            Some(Feature::Bytes(texts)) if !instruction.codes => (texts.iter())
+                .map(|t| String::from_utf8_lossy(t).into_owned())
+                .collect(),
+            Some(Feature::Int64(codes)) if instruction.codes && codes.len() % steps.max(1) == 0 => {
+                let per_step = codes.len() / steps.max(1);
+                (codes.chunks(per_step.max(1)))
+                    .map(|step| {
+                        let bytes: Vec<u8> = (step.iter())
+                            .take_while(|c| **c != 0)
+                            .map(|c| u8::try_from(*c).unwrap_or(b'?'))
+                            .collect();
+                        String::from_utf8_lossy(&bytes).into_owned()
+                    })
+                    .collect()
+            }
+            _ => return Err(wrong()),
+        };
+        if texts.len() != steps {
+            return Err(wrong());
+        }
+        Ok(texts)
+    }
+
+    /// Step `i`'s value of `column`.
+    fn value(
+        column: &Column,
+        example: &BTreeMap<String, Feature>,
+        i: usize,
+        steps: usize,
+    ) -> Result<FeatureValue, String> {
+        let wrong = |key: &str| {
+            format!(
+                "{key} does not hold {steps} steps of {:?}",
+                column.spec.shape
+            )
+        };
+        let mut floats = Vec::with_capacity(column.spec.shape.iter().product());
+        for (key, n) in &column.parts {
+            let n = *n;
+            let values = example.get(key).ok_or_else(|| wrong(key))?;
+            let value = match (column.spec.dtype, values) {
+                (Dtype::Image, Feature::Bytes(images)) => {
+                    FeatureValue::Image(images.get(i).ok_or_else(|| wrong(key))?.clone())
+                }
+                (Dtype::Float32, Feature::Float(v)) => {
+                    floats.extend_from_slice(v.get(i * n..(i + 1) * n).ok_or_else(|| wrong(key))?);
+                    continue;
+                }
+                // A flag or count joining a float vector (bridge's open_gripper): exact.
+                (Dtype::Float32, Feature::Int64(v)) => {
+                    let part = v.get(i * n..(i + 1) * n).ok_or_else(|| wrong(key))?;
+                    floats.extend(part.iter().map(|x| *x as f32));
+                    continue;
+                }
+                (Dtype::Int64, Feature::Int64(v)) => FeatureValue::Int64(
+                    v.get(i * n..(i + 1) * n)
+                        .ok_or_else(|| wrong(key))?
+                        .to_vec(),
+                ),
+                (Dtype::String, Feature::Bytes(texts)) => FeatureValue::Text(
+                    String::from_utf8_lossy(texts.get(i).ok_or_else(|| wrong(key))?).into_owned(),
+                ),
+                _ => return Err(wrong(key)),
+            };
+            return Ok(value);
+        }
+        Ok(FeatureValue::Float32(floats))
+    }
+
     /// Episode `index` from its record.
-    fn decode(columns: &[Column], bytes: &[u8], index: u64) -> Result<Episode, String> {
+    fn decode(
+        columns: &[Column],
+        instruction: Option<&Instruction>,
+        bytes: &[u8],
+        index: u64,
+    ) -> Result<Episode, String> {
         let example = decode_example(bytes).map_err(|e| e.0.to_string())?;
         let steps = match example.get("steps/is_first") {
             Some(Feature::Int64(flags)) => flags.len(),
@@ -127,41 +330,13 @@ impl ForeignRldsSource {
         if steps == 0 {
             return Err("the episode has zero steps".into());
         }
-        let texts: Vec<String> = match example.get("steps/language_instruction") {
-            Some(Feature::Bytes(texts)) => (texts.iter())
-                .map(|t| String::from_utf8_lossy(t).into_owned())
-                .collect(),
-            _ => Vec::new(),
-        };
+        let texts = Self::instructions(instruction, &example, steps)?;
         let task_changes = EpisodeMeta::changes_of(texts.iter().map(String::as_str));
         let instruction = texts.into_iter().next().unwrap_or_default();
-        let mut rows: Vec<Vec<FeatureValue>> = vec![Vec::new(); steps];
+        let mut rows: Vec<Vec<FeatureValue>> = vec![Vec::with_capacity(columns.len()); steps];
         for column in columns {
-            let n: usize = column.spec.shape.iter().product();
-            let wrong = || {
-                format!(
-                    "{} does not hold {steps} steps of {:?}",
-                    column.key, column.spec.shape
-                )
-            };
-            let values = example.get(&column.key).ok_or_else(wrong)?;
             for (i, row) in rows.iter_mut().enumerate() {
-                let value = match (column.spec.dtype, values) {
-                    (Dtype::Image, Feature::Bytes(images)) => {
-                        FeatureValue::Image(images.get(i).ok_or_else(wrong)?.clone())
-                    }
-                    (Dtype::Float32, Feature::Float(v)) => {
-                        FeatureValue::Float32(v.get(i * n..(i + 1) * n).ok_or_else(wrong)?.to_vec())
-                    }
-                    (Dtype::Int64, Feature::Int64(v)) => {
-                        FeatureValue::Int64(v.get(i * n..(i + 1) * n).ok_or_else(wrong)?.to_vec())
-                    }
-                    (Dtype::String, Feature::Bytes(texts)) => FeatureValue::Text(
-                        String::from_utf8_lossy(texts.get(i).ok_or_else(wrong)?).into_owned(),
-                    ),
-                    _ => return Err(wrong()),
-                };
-                row.push(value);
+                row.push(Self::value(column, &example, i, steps)?);
             }
         }
         Ok(Episode {
@@ -187,9 +362,9 @@ impl Iterator for ForeignRldsSource {
     fn next(&mut self) -> Option<Self::Item> {
         let index = self.next_index;
         self.next_index += 1;
-        let columns = &self.columns;
+        let (columns, instruction) = (&self.columns, self.instruction.as_ref());
         self.records
-            .next_decoded(|bytes| Self::decode(columns, bytes, index))
+            .next_decoded(|bytes| Self::decode(columns, instruction, bytes, index))
     }
 }
 
@@ -215,6 +390,12 @@ pub fn open_any(
     options: &crate::export::source::SourceOptions,
 ) -> Result<Box<dyn crate::export::source::EpisodeSource + Send>, ExportError> {
     if folder.join(SURGVLA_JSON).is_file() {
+        if !options.map.is_empty() {
+            return Err(ExportError::InvalidOptions(format!(
+                "--map is for RLDS datasets another tool wrote; {} is surgvla's, whose features are named already",
+                folder.display()
+            )));
+        }
         return Ok(Box::new(super::read::RldsSource::open(folder)?));
     }
     let fps = options.fps.ok_or_else(|| ExportError::NoFrameRate {
@@ -222,6 +403,9 @@ pub fn open_any(
     })?;
     let robot_type = options.robot_type.as_deref().unwrap_or("unknown");
     Ok(Box::new(super::foreign::ForeignRldsSource::open(
-        folder, fps, robot_type,
+        folder,
+        fps,
+        robot_type,
+        &options.map,
     )?))
 }

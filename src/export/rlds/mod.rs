@@ -23,6 +23,7 @@ pub mod features;
 pub mod foreign;
 mod format;
 pub mod generic;
+pub mod mapping;
 pub mod merge;
 mod openvla;
 mod options;

@@ -79,6 +79,9 @@ impl FormatWriter for RldsShards {
                 "RLDS needs an RGB camera feature and images of height x width x channels".into(),
             ));
         }
+        if !info.is_ours() {
+            key_clash(info)?;
+        }
         let mut run = info.run_options();
         run.merge(options.run_options());
         Ok(run)
@@ -132,6 +135,25 @@ impl FormatWriter for RldsShards {
     fn finish(&mut self, dir: &mut DatasetDir, info: &DatasetInfo) -> Result<Summary, ExportError> {
         self.finish_dataset(dir, info)
     }
+}
+
+/// Refuses features whose RLDS keys nest in each other (`action` and `action.gripper` would
+/// be `steps/action` both as a value and as a folder, which features.json cannot say).
+fn key_clash(info: &DatasetInfo) -> Result<(), ExportError> {
+    let paths: Vec<(Vec<String>, &str)> = (info.features.iter())
+        .map(|f| (super::options::rlds_path(&f.name), f.name.as_str()))
+        .collect();
+    for (path, name) in &paths {
+        for (other, other_name) in &paths {
+            if other.len() > path.len() && other.starts_with(path) {
+                return Err(ExportError::InvalidOptions(format!(
+                    "{name} and {other_name} would both be RLDS key steps/{}, as a value and as a folder; leave one out with --without {other_name}",
+                    path.join("/")
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 impl RldsShards {
@@ -300,6 +322,32 @@ mod tests {
         assert!(with(&|o| o.keys.state = "image".into()).is_err());
         assert!(with(&|o| o.keys.image = "a/b".into()).is_err());
         assert!(with(&|o| o.keys.image = "agentview_rgb".into()).is_ok());
+    }
+
+    /// Another tool's `action` beside `action.gripper` (a LeRobot dataset may hold both) is
+    /// refused by name before anything is written; `action_gripper` is not.
+    #[test]
+    fn nested_keys_of_another_tools_features_are_refused() {
+        let feature = |name: &str| crate::episode::FeatureSpec {
+            name: name.into(),
+            dtype: crate::episode::Dtype::Float32,
+            shape: vec![1],
+            names: Vec::new(),
+            kind: FeatureKind::Other,
+            video: None,
+            info: Default::default(),
+        };
+        let info = |names: &[&str]| {
+            let features = names.iter().map(|n| feature(n)).collect();
+            DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 10, "x", features)
+        };
+        let options = RldsOptions::default();
+        let refused = RldsShards::run_options(&info(&["action", "action.gripper"]), &options)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(refused.contains("--without action.gripper"), "{refused}");
+        assert!(RldsShards::run_options(&info(&["action", "action_gripper"]), &options).is_ok());
     }
 
     #[test]
