@@ -267,5 +267,6 @@ pub fn dataset_info(
         provenance: Vec::new(),
         splits: Vec::new(),
         notes: Vec::new(),
+        omitted: Vec::new(),
     }
 }

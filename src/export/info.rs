@@ -46,6 +46,10 @@ pub struct DatasetInfo {
     /// ...`), what was left out and why. Empty for surgvla's own data; not part of the options
     /// digest.
     pub notes: Vec<String>,
+    /// Features of the input its reader left out because [`crate::export::source::SourceOptions`]'s
+    /// `without` named them (video surgvla cannot decode); `convert --without` takes them as
+    /// done. Not part of the options digest.
+    pub omitted: Vec<String>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -152,6 +156,7 @@ impl DatasetInfo {
             provenance: Vec::new(),
             splits: Vec::new(),
             notes: Vec::new(),
+            omitted: Vec::new(),
         }
     }
 

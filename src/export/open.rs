@@ -118,13 +118,22 @@ impl ConvertInput {
         &self,
         options: &dyn SinkOptions,
     ) -> Result<Box<dyn EpisodeSource + Send>, ConvertError> {
-        let mut source = open_source_with(&self.path, &self.source).map_err(ConvertError::Read)?;
+        let reading = SourceOptions {
+            without: self.without.clone(),
+            ..self.source.clone()
+        };
+        let mut source = open_source_with(&self.path, &reading).map_err(ConvertError::Read)?;
         if self.shard != Shard::default() {
             // Usage: a shard past the input's episodes, or an input that is itself a shard.
             source = Box::new(Sharded::new(source, self.shard).map_err(ConvertError::Input)?);
         }
-        if !self.without.is_empty() {
-            let (kinds, names) = Without::resolve(source.info(), &self.without)
+        // What the reader left out already (video it cannot decode) is done.
+        let without: Vec<String> = (self.without.iter())
+            .filter(|name| !source.info().omitted.contains(name))
+            .cloned()
+            .collect();
+        if !without.is_empty() {
+            let (kinds, names) = Without::resolve(source.info(), &without)
                 .map_err(|problem| ConvertError::Input(ExportError::InvalidOptions(problem)))?;
             source = Box::new(Without::with_names(source, &kinds, &names));
         }

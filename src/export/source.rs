@@ -132,4 +132,12 @@ pub struct SourceOptions {
     /// Features of an RLDS dataset another tool wrote, made of its keys (`convert --map`), in
     /// place of or beside those [`crate::export::rlds::mapping::Mapping`]'s rules find.
     pub map: Vec<Joined>,
+    /// Read another tool's float64 LeRobot features as float32 (`convert --cast float32`);
+    /// without it they are refused by name, since surgvla's vectors are float32.
+    pub float64_as_float32: bool,
+    /// The features the user leaves out (`convert --without`), for a reader that must leave
+    /// one out before reading it: video in a codec surgvla has no decoder for (HEVC, VP9),
+    /// which is otherwise refused at opening. Such features are named in
+    /// [`crate::export::info::DatasetInfo::omitted`].
+    pub without: Vec<String>,
 }

@@ -25,7 +25,7 @@ pub fn verify_output(
     let options = SourceOptions {
         fps: Some(source.info().fps),
         robot_type: Some(source.info().robot_type.clone()),
-        map: Vec::new(),
+        ..Default::default()
     };
     if let Some(target) = format.open_source(&found, &options) {
         let mut target = target.map_err(ConvertError::Write)?;

@@ -238,6 +238,20 @@ pub fn decode_png16_sized(
 /// A decoded 8-bit PNG: (width, height, channels, row-major pixels).
 pub type DecodedPng = (u32, u32, usize, Vec<u8>);
 
+/// Decodes an 8-bit image as stored, JPEG (by its signature) or PNG, of `expected` (width,
+/// height) when given: another tool's image features hold either (a JPEG an RLDS dataset
+/// stored, copied into LeRobot unchanged).
+pub fn decode_8bit_sized(
+    bytes: &[u8],
+    expected: Option<(usize, usize)>,
+) -> Result<DecodedPng, String> {
+    if is_jpeg(bytes) {
+        decode_jpeg_checked(bytes, expected)
+    } else {
+        decode_png_sized(bytes, expected)
+    }
+}
+
 /// Decodes an 8-bit grey, RGB or RGBA PNG.
 pub fn decode_png(bytes: &[u8]) -> Result<DecodedPng, String> {
     decode_png_sized(bytes, None)
@@ -263,6 +277,21 @@ pub fn decode_png_sized(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Another tool's image may be a JPEG or a PNG: both decode by their signature, sized as
+    /// declared; a 16-bit PNG is not taken for 8 bits.
+    #[test]
+    fn eight_bit_images_decode_as_what_they_are() {
+        let rgb: Vec<u8> = (0..8 * 6 * 3).map(|i| (i * 5) as u8).collect();
+        let jpeg = encode_jpeg(8, 6, &rgb, 90).expect("jpeg");
+        let png = encode_png(8, 6, 3, &rgb, PngLevel::Fast).expect("png");
+        let (w, h, c, pixels) = decode_8bit_sized(&jpeg, Some((8, 6))).expect("jpeg decodes");
+        assert_eq!((w, h, c, pixels.len()), (8, 6, 3, rgb.len()));
+        assert_eq!(decode_8bit_sized(&png, Some((8, 6))).expect("png").3, rgb);
+        assert!(decode_8bit_sized(&jpeg, Some((6, 8))).is_err());
+        let deep = encode_png16(2, 2, &[1, 2, 3, 60_000], PngLevel::Fast).expect("png16");
+        assert!(decode_8bit_sized(&deep, None).is_err_and(|e| e.contains("8 bits")));
+    }
 
     #[test]
     fn jpeg_round_trips_near_the_pixels_with_the_same_bytes_everywhere() {

@@ -51,6 +51,10 @@ pub(crate) struct ConvertArgs {
     /// `keys = [...]`; see docs/datasets.md).
     #[arg(long, value_name = "FILE.toml")]
     map: Option<PathBuf>,
+    /// Read another tool's float64 vectors as this type (surgvla holds float32; without
+    /// --cast a float64 feature is refused by name).
+    #[arg(long, value_enum)]
+    cast: Option<Cast>,
     /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of
     /// copying the video as it is. Implied for every other target, and for --video with
     /// another codec than the input's (re-encoding).
@@ -63,6 +67,13 @@ pub(crate) struct ConvertArgs {
     verify: bool,
     #[command(flatten)]
     formats: FormatArgs,
+}
+
+/// What `--cast` narrows float64 features to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Cast {
+    /// float32, about 7 significant digits.
+    Float32,
 }
 
 impl ConvertArgs {
@@ -78,6 +89,9 @@ impl ConvertArgs {
                 fps: self.fps,
                 robot_type: self.robot_type.clone(),
                 map,
+                float64_as_float32: self.cast == Some(Cast::Float32),
+                // ConvertInput::open gives the reader the --without list.
+                without: Vec::new(),
             },
             shard: self.shard,
             without: self.without.clone(),

@@ -91,10 +91,10 @@ impl DatasetFormat for LeRobotFormat {
     fn open_source(
         &self,
         found: &Found,
-        _options: &SourceOptions,
+        options: &SourceOptions,
     ) -> Option<Result<Box<dyn EpisodeSource + Send>, ExportError>> {
         Some(
-            super::read::LeRobotSource::open(&found.root)
+            super::read::LeRobotSource::open_with(&found.root, options)
                 .map(|source| Box::new(source) as Box<dyn EpisodeSource + Send>),
         )
     }

@@ -270,7 +270,9 @@ fn features_of(
     info: &super::meta::InfoJson,
     surgvla: &Value,
     path: &Path,
-) -> Result<Vec<FeatureSpec>, ExportError> {
+    options: &crate::export::source::SourceOptions,
+) -> Result<ReadFeatures, ExportError> {
+    let (mut notes, mut omitted) = (Vec::new(), Vec::new());
     if info.features.is_none() {
         return Err(invalid(path, "no features object"));
     }
@@ -299,18 +301,30 @@ fn features_of(
         // pixels are not in the steps.
         let video = if dtype == "video" {
             let codec_name = f.video_codec().unwrap_or_default();
-            let codec = VideoCodec::from_name(codec_name).ok_or_else(|| {
+            let Some(codec) = VideoCodec::from_name(codec_name) else {
+                // surgvla's own camera is never left out (a conversion keeps it).
+                if options.without.contains(name) && !named(camera_key) {
+                    notes.push(format!(
+                        "left out {name} (--without): video in codec {codec_name:?}, which surgvla does not decode"
+                    ));
+                    omitted.push(name.clone());
+                    continue;
+                }
                 // A codec this build has no decoder for: the user's choice of input (exit 2).
-                ExportError::InvalidOptions(format!(
-                    "{}: {name} is video in codec {codec_name:?}; surgvla reads AV1 and H.264 video (no HEVC or VP9 decoder is built in: leave the feature out with another tool, or re-encode it)",
+                return Err(ExportError::InvalidOptions(format!(
+                    "{}: {name} is video in codec {codec_name:?}; surgvla reads AV1 and H.264 video (no HEVC or VP9 decoder is built in): --without {name} leaves it out",
                     path.display()
-                ))
-            })?;
+                )));
+            };
             dtype = "image";
             Some(codec)
         } else {
             None
         };
+        if dtype == "float64" && shape.len() == 1 {
+            notes.push(narrowed(name, path, options)?);
+            dtype = "float32";
+        }
         let role = Role {
             ours,
             camera: named(camera_key),
@@ -334,7 +348,70 @@ fn features_of(
             info: kept_info(kind, f.info.as_ref()),
         });
     }
-    Ok(specs)
+    Ok(ReadFeatures {
+        specs,
+        notes,
+        omitted,
+    })
+}
+
+/// The note of a float64 vector read as float32, or the refusal naming `--cast` when the
+/// options do not allow it.
+fn narrowed(
+    name: &str,
+    path: &Path,
+    options: &crate::export::source::SourceOptions,
+) -> Result<String, ExportError> {
+    if !options.float64_as_float32 {
+        return Err(ExportError::InvalidOptions(format!(
+            "{}: {name} is float64, and surgvla holds float32 vectors: --cast float32 reads it narrowed (about 7 significant digits)",
+            path.display()
+        )));
+    }
+    Ok(format!(
+        "{name} is float64: read as float32 (--cast float32), rounded to about 7 significant digits"
+    ))
+}
+
+/// What [`features_of`] read: the features, the notes on how, the features left out.
+struct ReadFeatures {
+    specs: Vec<FeatureSpec>,
+    notes: Vec<String>,
+    omitted: Vec<String>,
+}
+
+/// Where another tool's LeRobot dataset came from, as a note for the card of its conversion:
+/// its folder, layout version and the licence its own card (README.md) states, if any.
+fn described(root: &Path, info: &super::meta::InfoJson) -> String {
+    let version = info
+        .codebase_version
+        .as_deref()
+        .unwrap_or("of no stated version");
+    let licence = crate::export::bounded::read_capped(&root.join("README.md"), 1 << 20)
+        .ok()
+        .and_then(|card| {
+            let card = String::from_utf8_lossy(&card);
+            let front = card
+                .strip_prefix("---\n")?
+                .split("\n---")
+                .next()?
+                .to_string();
+            front.lines().find_map(|line| {
+                let value = line.strip_prefix("license:")?.trim();
+                (!value.is_empty()).then(|| value.chars().take(100).collect::<String>())
+            })
+        });
+    let name = root
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    match licence {
+        Some(licence) => {
+            format!("the input is the LeRobot dataset {name} ({version}), licence: {licence}")
+        }
+        None => format!(
+            "the input is the LeRobot dataset {name} ({version}), whose card states no licence"
+        ),
+    }
 }
 
 /// What our metadata says of a feature: whether the dataset is surgvla's, and whether it names
@@ -677,6 +754,16 @@ fn stored_pixel_stats(row: &StoredEpisode, key: &str) -> Option<PixelStats> {
 
 impl LeRobotSource {
     pub fn open(root: &Path) -> Result<Self, ExportError> {
+        Self::open_with(root, &Default::default())
+    }
+
+    /// [`LeRobotSource::open`] with what `options` allow: another tool's float64 vectors
+    /// read as float32 (a note says so; refused by name otherwise), video of a codec surgvla
+    /// cannot decode left out when `options.without` names it (refused by name otherwise).
+    pub fn open_with(
+        root: &Path,
+        options: &crate::export::source::SourceOptions,
+    ) -> Result<Self, ExportError> {
         let info_path = root.join("meta/info.json");
         if !info_path.exists() {
             return Err(invalid(
@@ -692,7 +779,8 @@ impl LeRobotSource {
         } else {
             Value::Null
         };
-        let features = features_of(&info_json, &surgvla, &info_path)?;
+        let read = features_of(&info_json, &surgvla, &info_path, options)?;
+        let (features, mut notes) = (read.specs, read.notes);
         // Video keys name folders: refused here, before any path is made of them.
         for feature in features.iter().filter(|f| f.video.is_some()) {
             paths::component(&feature.name).map_err(|problem| ExportError::UnsafeName {
@@ -718,12 +806,17 @@ impl LeRobotSource {
             }
             tasks
         };
-        let info = DatasetInfo::from_surgvla_json(
+        let mut info = DatasetInfo::from_surgvla_json(
             &surgvla,
             info_json.fps.as_ref().and_then(|f| f.as_u64()).unwrap_or(0) as u32,
             info_json.robot_type.as_deref().unwrap_or_default(),
             features,
         );
+        if !info.is_ours() {
+            notes.insert(0, described(root, &info_json));
+        }
+        info.notes = notes;
+        info.omitted = read.omitted;
         let episodes = EpisodeRows::open(root, v21)?;
         Ok(LeRobotSource {
             root: root.to_path_buf(),

@@ -11,7 +11,7 @@ use crate::episode::{
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::stats::{FeatureStats, ImageStats, LastFrame, SummaryStats, VectorStats};
-use crate::media::image::{decode_png, encode_png_into};
+use crate::media::image::{decode_8bit_sized, encode_png_into};
 use crate::media::tiff::{encode_f32_tiff_into, f32_tiff_len};
 use crate::media::video::{EncodedFrame, encode};
 use rayon::prelude::*;
@@ -354,9 +354,9 @@ fn fold_frame(
                     s.push(&v.iter().map(|&x| x as f32).collect::<Vec<_>>())
                 }
                 (Some(FeatureValue::Image(bytes)), FeatureStats::Image(s)) => {
-                    // Statistics need pixels: PNG decodes here; other encodings leave the
-                    // image out of them.
-                    if let Ok((_, _, _, pixels)) = decode_png(bytes) {
+                    // Statistics need pixels: PNG and JPEG decode here; other encodings
+                    // (a 16-bit depth PNG) leave the image out of them.
+                    if let Ok((_, _, _, pixels)) = decode_8bit_sized(bytes, None) {
                         image(s, &mut |f| f.push_u8_counting_since(&pixels, counts, last))
                     }
                 }
@@ -776,7 +776,7 @@ fn other_rgb(
         return Err(bad("holds no image".into()));
     };
     let (w, h, channels, pixels) =
-        crate::media::image::decode_png_sized(bytes, Some((width, height))).map_err(bad)?;
+        crate::media::image::decode_8bit_sized(bytes, Some((width, height))).map_err(bad)?;
     if (w as usize, h as usize, channels) != (width, height, 3) {
         return Err(bad(format!(
             "a {w}x{h} image with {channels} channels where {width}x{height} RGB was declared"

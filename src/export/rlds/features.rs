@@ -290,7 +290,10 @@ fn as_features_dicts(tree: serde_json::Map<String, Value>) -> serde_json::Map<St
 /// `features.json` of a dataset another tool made (its features all
 /// [`FeatureKind::Other`]): each feature at its [`crate::export::rlds::rlds_path`], the language instruction and
 /// the RLDS flags; `episode_metadata/file_path`.
-pub fn foreign_features_json(info: &DatasetInfo) -> Value {
+pub fn foreign_features_json(
+    info: &DatasetInfo,
+    formats: &std::collections::BTreeMap<String, String>,
+) -> Value {
     let mut step = serde_json::Map::new();
     for feature in &info.features {
         let elements: usize = feature.shape.iter().product();
@@ -300,10 +303,15 @@ pub fn foreign_features_json(info: &DatasetInfo) -> Value {
                 for (s, v) in shape.iter_mut().zip(&feature.shape) {
                     *s = *v;
                 }
-                // A depth map in millimetres is a 16-bit PNG (TFDS decodes it as uint16).
+                // A depth map in millimetres, or any 16-bit PNG, is uint16 to TFDS.
                 let millimetres = feature.info.get("depth_unit").is_some_and(|u| u == "mm");
-                let dtype = if millimetres { "uint16" } else { "uint8" };
-                image(shape, dtype, &format!("{} (as stored).", feature.name))
+                let description = format!("{} (as stored).", feature.name);
+                match formats.get(&feature.name).map(String::as_str) {
+                    Some("png16") => image(shape, "uint16", &description),
+                    _ if millimetres => image(shape, "uint16", &description),
+                    Some("jpeg") => image_as(shape, "jpeg", &description),
+                    _ => image(shape, "uint8", &description),
+                }
             }
             Dtype::Float32 => tensor(elements, &feature.name),
             Dtype::Int64 => int_tensor(elements, &feature.name),
@@ -369,6 +377,7 @@ mod tests {
             provenance: Vec::new(),
             splits: Vec::new(),
             notes: Vec::new(),
+            omitted: Vec::new(),
         }
     }
 

@@ -142,10 +142,18 @@ fn columns(leaves: &BTreeMap<String, Leaf>, mapping: &Mapping) -> (Vec<Column>, 
             continue;
         }
         match read_as(key, leaf) {
-            Ok((dtype, shape)) => columns.push(Column {
-                parts: vec![(key.clone(), shape.iter().product())],
-                spec: other(carried_name(key, dtype, mapping), dtype, shape, Vec::new()),
-            }),
+            Ok((dtype, shape)) => {
+                let mut spec = other(carried_name(key, dtype, mapping), dtype, shape, Vec::new());
+                // A 16-bit image in an RLDS dataset is a depth map (OXE's depth keys): it says
+                // so to LeRobot, its PNG bytes unchanged.
+                if matches!(leaf, Leaf::Image { dtype, .. } if dtype == "uint16") {
+                    spec.info.insert("is_depth_map".into(), Value::Bool(true));
+                }
+                columns.push(Column {
+                    parts: vec![(key.clone(), spec.shape.iter().product())],
+                    spec,
+                });
+            }
             Err(note) => notes.push(note),
         }
         if matches!(leaf, Leaf::Tensor { dtype, .. } if dtype == "float64") {

@@ -58,7 +58,7 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
             .and_then(|v| v.as_u64())
             .and_then(|f| u32::try_from(f).ok()),
         robot_type: text("robot_type"),
-        map: Vec::new(),
+        ..Default::default()
     };
     let mut sources: Vec<Box<dyn EpisodeSource + Send>> = Vec::new();
     let mut data_dirs = Vec::new();

@@ -24,6 +24,10 @@ pub struct State {
     /// Serialized Example bytes (dataset_info's numBytes).
     example_bytes: u64,
     summary: Summary,
+    /// Per image feature of another tool's dataset, the encoding its first frame is stored in
+    /// ("png", "png16" for 16 bits per sample, "jpeg"): features.json declares it.
+    #[serde(default)]
+    image_formats: std::collections::BTreeMap<String, String>,
 }
 
 /// The shard being written.
@@ -124,10 +128,13 @@ impl FormatWriter for RldsShards {
     fn append(
         &mut self,
         dir: &mut DatasetDir,
-        _: &DatasetInfo,
+        info: &DatasetInfo,
         episode: &Episode,
         example: Vec<u8>,
     ) -> Result<f64, ExportError> {
+        if !info.is_ours() {
+            self.note_image_formats(info, episode);
+        }
         self.append_example(dir, &example, episode.steps.len() as u64)?;
         Ok(0.0)
     }
@@ -157,6 +164,29 @@ fn key_clash(info: &DatasetInfo) -> Result<(), ExportError> {
 }
 
 impl RldsShards {
+    /// Records the encoding of each image feature not seen before, from `episode`'s first
+    /// frame (bytes are copied as stored: a JPEG another tool wrote stays JPEG).
+    fn note_image_formats(&mut self, info: &DatasetInfo, episode: &Episode) {
+        let Some(first) = episode.steps.first() else {
+            return;
+        };
+        let images = (info.features.iter().zip(&first.other))
+            .filter(|(f, _)| f.dtype == crate::episode::Dtype::Image);
+        for (feature, value) in images {
+            if let crate::episode::FeatureValue::Image(bytes) = value {
+                // A PNG's bit depth is byte 24 (IHDR); TFDS declares a 16-bit one uint16.
+                let format = match bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+                    true => "jpeg",
+                    false if bytes.get(24) == Some(&16) => "png16",
+                    false => "png",
+                };
+                (self.state.image_formats)
+                    .entry(feature.name.clone())
+                    .or_insert_with(|| format.into());
+            }
+        }
+    }
+
     /// Appends one serialized episode to the open shard (opening one), closing the shard and
     /// checkpointing once it is full.
     fn append_example(
@@ -257,7 +287,7 @@ impl RldsShards {
         let features = if ours {
             super::features::features_json(info, &self.options)
         } else {
-            super::features::foreign_features_json(info)
+            super::features::foreign_features_json(info, &self.state.image_formats)
         };
         let dataset_info = super::features::dataset_info_json(
             info,

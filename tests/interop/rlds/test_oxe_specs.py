@@ -173,8 +173,10 @@ def value_of(feature, key, rng, text, step, steps):
         return {k: value_of(v, k, rng, text, step, steps) for k, v in feature.items()}
     if isinstance(feature, tfds.features.Image):
         h, w, c = feature.shape
-        ramp = (np.add.outer(np.arange(h), np.arange(w)) + 17 * step) % 256
-        return np.repeat(ramp[:, :, None], c, axis=2).astype(np.uint8)
+        ramp = np.add.outer(np.arange(h), np.arange(w)) + 17 * step
+        if feature.np_dtype == np.uint16:  # depth in millimetres, beyond 8 bits
+            return (ramp[:, :, None] * 97 + 300).astype(np.uint16)
+        return np.repeat((ramp % 256)[:, :, None], c, axis=2).astype(np.uint8)
     if key == "instruction":  # language_table: UTF-8 byte codes, zero-padded
         codes = np.zeros(512, np.int32)
         codes[: len(text)] = list(text.encode())
@@ -360,3 +362,53 @@ def test_a_map_file_overrides_the_conventions(fractal, tmp_path):
     mapping.write_text('[[feature]]\nname = "action"\nkeys = ["action/nothing"]\n')
     code, _, err = run("convert", root, "--to", "lerobot", "--fps", 10, "--map", mapping, "--out", tmp_path / "bad")
     assert code == 2 and "steps/action/world_vector" in err, err
+
+
+def test_depth_and_jpeg_keep_what_they_are_through_lerobot_and_back(tmp_path_factory, tmp_path):
+    """A 16-bit depth image (tfds Image of uint16, as OXE datasets store depth) and a JPEG
+    camera: through LeRobot (the depth says `is_depth_map`, both keep their bytes) and back to
+    RLDS, whose features.json declares them as they are (uint16 PNG, JPEG), so tfds decodes
+    the same pixels as from the dataset it wrote."""
+    spec = (
+        {
+            "action": tensor(7), "reward": scalar(), "language_instruction": TEXT,
+            "observation": {
+                "image": tfds.features.Image(shape=(48, 64, 3), encoding_format="jpeg"),
+                "depth": tfds.features.Image(shape=(48, 64, 1), dtype=np.uint16),
+                "state": tensor(7),
+            },
+        },
+        {}, ("language_instruction",), None, ["state"],
+    )
+    SPECS["depth_and_jpeg"] = spec
+    try:
+        _, root = build("depth_and_jpeg", tmp_path_factory)
+    finally:
+        del SPECS["depth_and_jpeg"]
+    lerobot, rlds = tmp_path / "lerobot", tmp_path / "rlds"
+    for source, to, target in [(root, "lerobot", lerobot), (lerobot, "rlds", rlds)]:
+        code, _, err = run("convert", source, "--to", to, "--fps", 10, "--out", target, "--verify")
+        assert code == 0, err
+        code, _, err = run("validate", target)
+        assert code == 0, err
+    info = json.loads((lerobot / "meta/info.json").read_text())
+    assert info["features"]["observation.images.depth"]["info"]["is_depth_map"] is True, info
+    # The JPEG camera re-encodes to video (decoded as the JPEG it is), the depth map kept.
+    video = tmp_path / "video"
+    code, _, err = run("convert", lerobot, "--to", "lerobot", "--video", "av1", "--out", video, "--verify")
+    assert code == 0, err
+    code, _, err = run("validate", video)
+    assert code == 0, err
+    features = json.loads((video / "meta/info.json").read_text())["features"]
+    assert features["observation.images.image"]["dtype"] == "video", features
+    assert features["observation.images.depth"]["dtype"] == "image", features
+    version = next(rlds.glob("*/*"))
+    features = json.loads((version / "features.json").read_text())
+    observation = features["featuresDict"]["features"]["steps"]["sequence"]["feature"]["featuresDict"]["features"]["observation"]["featuresDict"]["features"]
+    assert observation["image"]["image"]["encodingFormat"] == "jpeg", observation["image"]
+    assert observation["depth"]["image"]["dtype"] == "uint16", observation["depth"]
+    for a, b in zip(episodes(root), episodes(version)):
+        for x, y in zip(a, b):
+            assert np.array_equal(x["observation"]["depth"], y["observation"]["depth"])
+            assert x["observation"]["depth"].dtype == y["observation"]["depth"].dtype == np.uint16
+            assert np.array_equal(x["observation"]["image"], y["observation"]["image"])

@@ -1,0 +1,70 @@
+"""A LeRobot dataset lerobot 0.6.1 writes with float64 vectors (an arm logging doubles):
+`surgvla convert` refuses it by name, naming `--cast float32`, and with it converts, saying so
+on stderr and in the card, with every value the float32 nearest the stored double; the card
+says which dataset the data came from and invents no licence.
+
+SURGVLA_BIN is the surgvla binary.
+"""
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
+
+BIN = os.environ.get("SURGVLA_BIN", "surgvla")
+
+
+def make(root: Path) -> Path:
+    features = {
+        "observation.state": {"dtype": "float64", "shape": (3,), "names": ["x", "y", "z"]},
+        "action": {"dtype": "float64", "shape": (3,), "names": ["dx", "dy", "dz"]},
+        "observation.images.top": {"dtype": "image", "shape": (16, 20, 3), "names": ["height", "width", "channels"]},
+    }
+    dataset = LeRobotDataset.create("someone/doubles", fps=10, features=features, root=root, robot_type="arm", use_videos=False)
+    rng = np.random.default_rng(2)
+    for episode in range(2):
+        for _ in range(4 + episode):
+            dataset.add_frame({
+                "observation.state": rng.standard_normal(3) * 1e3 + 1 / 3,
+                "action": rng.standard_normal(3) / 7,
+                "observation.images.top": rng.integers(0, 255, (16, 20, 3), dtype=np.uint8),
+                "task": "reach",
+            })
+        dataset.save_episode()
+    dataset.finalize()
+    return root
+
+
+def surgvla(*args):
+    return subprocess.run([BIN, *map(str, args)], capture_output=True, text=True)
+
+
+def test_float64_is_refused_by_name_then_cast_with_a_note(tmp_path):
+    source = make(tmp_path / "doubles")
+    done = surgvla("convert", source, "--to", "lerobot", "--out", tmp_path / "refused")
+    assert done.returncode == 2, done.stderr
+    assert "observation.state is float64" in done.stderr and "--cast float32" in done.stderr, done.stderr
+    assert not (tmp_path / "refused" / "meta" / "info.json").exists()
+    out = tmp_path / "cast"
+    done = surgvla("convert", source, "--to", "lerobot", "--cast", "float32", "--out", out, "--verify")
+    assert done.returncode == 0, done.stderr
+    assert "observation.state is float64: read as float32 (--cast float32)" in done.stderr, done.stderr
+    assert surgvla("validate", out).returncode == 0
+    card = (out / "README.md").read_text()
+    assert "the input is the LeRobot dataset doubles (v3.0)" in card and "license: apache-2.0" not in card, card
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["features"]["observation.state"]["dtype"] == "float32"
+    original = pq.read_table(source / "data/chunk-000/file-000.parquet").to_pydict()
+    converted = pq.read_table(out / "data/chunk-000/file-000.parquet").to_pydict()
+    for key in ["observation.state", "action"]:
+        expected = np.array(original[key], np.float64).astype(np.float32)
+        assert np.array_equal(np.array(converted[key], np.float32), expected), key
+    loaded = LeRobotDataset("someone/doubles", root=out)
+    assert len(loaded) == 9
