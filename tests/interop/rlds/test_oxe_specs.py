@@ -11,11 +11,13 @@ an action dict becomes one `action` in OpenVLA's order with its parts named; a s
 where the spec keeps it; every other step feature is carried with its values, and what cannot be
 (per-episode metadata) is named on stderr; `validate` of every output exits 0.
 
-SURGVLA_BIN is the surgvla binary.
+SURGVLA_BIN is the surgvla binary; SURGVLA_OXE_OUT, when set, receives the LeRobot conversions
+for lerobot's own loader (tests/interop/oxe).
 """
 
 import json
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -316,6 +318,9 @@ def test_oxe_spec_converts_to_lerobot_without_loss(written, tmp_path):
                 assert np.array_equal(np.array(table["action_actions"][row], np.float32), step["action"]["actions"])
             row += 1
     assert row == len(table["index"]) == 7
+    # For lerobot's own loader (tests/interop/oxe, run in the lerobot venv by .ci/run).
+    if os.environ.get("SURGVLA_OXE_OUT"):
+        shutil.copytree(out, Path(os.environ["SURGVLA_OXE_OUT"]) / name, dirs_exist_ok=True)
 
 
 def test_oxe_spec_converts_to_rlds_tfds_reads(written, tmp_path):
