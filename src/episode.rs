@@ -381,6 +381,12 @@ pub struct EpisodeMeta {
     /// moves on mid-episode), in step order; empty: `instruction` holds throughout.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub task_changes: Vec<TaskChange>,
+    /// Per-episode values another tool's dataset records (an RLDS dataset's
+    /// `episode_metadata/file_path`, language_table's `episode_id`), by their key there, as
+    /// JSON scalars or short arrays; written where a format has room (LeRobot's episodes
+    /// table). Empty for surgvla's own episodes.
+    #[serde(skip_serializing_if = "serde_json::Map::is_empty")]
+    pub fields: serde_json::Map<String, serde_json::Value>,
 }
 
 /// From step `first_step` of an episode on, its instruction is `instruction`.
@@ -404,6 +410,7 @@ impl EpisodeMeta {
             attempts: 0,
             success: false,
             task_changes: Vec::new(),
+            fields: serde_json::Map::new(),
         }
     }
 

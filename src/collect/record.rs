@@ -261,6 +261,7 @@ pub fn render_replay_with<E>(
                 attempts,
                 success: verdict.success,
                 task_changes: Vec::new(),
+                fields: serde_json::Map::new(),
             },
             steps,
         },

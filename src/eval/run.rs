@@ -172,6 +172,7 @@ fn run_trial(
             attempts: 1,
             success: verdict.success,
             task_changes: Vec::new(),
+            fields: serde_json::Map::new(),
         },
         steps,
     });

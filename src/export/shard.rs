@@ -148,6 +148,7 @@ mod tests {
                         attempts: 1,
                         success: true,
                         task_changes: Vec::new(),
+                        fields: serde_json::Map::new(),
                     },
                     steps: Vec::new(),
                     encoded: Vec::new(),

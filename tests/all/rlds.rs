@@ -479,7 +479,10 @@ fn a_map_file_names_the_features_of_another_tools_rlds() {
     };
     let (code, _, err) = convert(&out, &root);
     assert_eq!(code, 0, "{err}");
-    assert!(err.contains("left out episode_metadata/file_path"), "{err}");
+    assert!(
+        err.contains("episode_metadata/file_path: per episode, carried"),
+        "{err}"
+    );
     assert!(
         err.contains("action = steps/observation/state + steps/observation/gripper_count"),
         "{err}"

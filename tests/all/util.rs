@@ -138,6 +138,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
                 attempts: 1,
                 success: true,
                 task_changes: Vec::new(),
+                fields: serde_json::Map::new(),
             },
             steps: (0..4 + index)
                 .map(|k| {

@@ -248,6 +248,9 @@ fn write_episodes_jsonl(
         {
             line[key] = value;
         }
+        for (key, value) in (e.fields.iter()).filter(|(k, _)| super::table::free_field_name(k)) {
+            line[key.as_str()] = value.clone();
+        }
         for (key, value) in &e.pixel_stats {
             line[format!("{}{key}", super::table::PIXEL_STATS)] = value.clone();
         }

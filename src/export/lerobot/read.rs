@@ -1274,6 +1274,7 @@ impl Iterator for LeRobotSource {
                 attempts: provenance.attempts,
                 success: provenance.success,
                 task_changes,
+                fields: serde_json::Map::new(),
             },
             steps,
         }))

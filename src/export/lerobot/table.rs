@@ -454,7 +454,7 @@ pub(super) fn tasks_batch(tasks: &[String]) -> Result<RecordBatch, ExportError> 
 }
 
 /// One row of the episodes table.
-#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, Default)]
 pub(super) struct EpisodeRow {
     pub episode_index: u64,
     /// The episode's instructions, each once, in the order they first hold.
@@ -477,6 +477,9 @@ pub(super) struct EpisodeRow {
     /// or a robot's recordings get no `surgvla/...` columns rather than placeholders.
     #[serde(default)]
     pub provenance: Option<Provenance>,
+    /// Per-episode values another tool's dataset recorded ([`crate::episode::EpisodeMeta::fields`]).
+    #[serde(default)]
+    pub fields: serde_json::Map<String, Value>,
 }
 
 /// One episode's row of the episodes metadata as a reader sees it (v3.0's parquet row, or v2.1's
@@ -737,6 +740,74 @@ fn provenance_columns(rows: &[EpisodeRow]) -> Vec<(String, ArrayRef)> {
         .collect()
 }
 
+/// Whether a per-episode field of another tool may be a column of this name: not one of the
+/// table's own.
+pub(super) fn free_field_name(name: &str) -> bool {
+    const OWN: [&str; 9] = [
+        "episode_index",
+        "tasks",
+        "length",
+        "dataset_from_index",
+        "dataset_to_index",
+        "data/",
+        "meta/",
+        "stats/",
+        "videos/",
+    ];
+    !name.is_empty()
+        && !name.starts_with("surgvla/")
+        && !OWN
+            .iter()
+            .any(|own| name == *own || (own.ends_with('/') && name.starts_with(own)))
+}
+
+/// The columns of the episodes' own fields (the first episode's keys): strings, integers,
+/// floats or booleans when every episode's value is one, else each value's JSON text; an
+/// episode without the field holds null.
+fn field_columns(rows: &[EpisodeRow]) -> Vec<(String, ArrayRef)> {
+    let Some(first) = rows.first() else {
+        return Vec::new();
+    };
+    let mut columns = Vec::new();
+    for key in first.fields.keys().filter(|k| free_field_name(k)) {
+        let values: Vec<Option<&Value>> = rows.iter().map(|r| r.fields.get(key)).collect();
+        let all = |test: &dyn Fn(&Value) -> bool| values.iter().flatten().all(|v| test(v));
+        let column: ArrayRef = if all(&Value::is_string) {
+            Arc::new(StringArray::from(
+                (values.iter())
+                    .map(|v| v.and_then(Value::as_str))
+                    .collect::<Vec<_>>(),
+            ))
+        } else if all(&Value::is_boolean) {
+            Arc::new(BooleanArray::from(
+                (values.iter())
+                    .map(|v| v.and_then(Value::as_bool))
+                    .collect::<Vec<_>>(),
+            ))
+        } else if all(&Value::is_i64) {
+            Arc::new(Int64Array::from(
+                (values.iter())
+                    .map(|v| v.and_then(Value::as_i64))
+                    .collect::<Vec<_>>(),
+            ))
+        } else if all(&Value::is_number) {
+            Arc::new(arrow_array::Float64Array::from(
+                (values.iter())
+                    .map(|v| v.and_then(Value::as_f64))
+                    .collect::<Vec<_>>(),
+            ))
+        } else {
+            Arc::new(StringArray::from(
+                (values.iter())
+                    .map(|v| v.map(Value::to_string))
+                    .collect::<Vec<_>>(),
+            ))
+        };
+        columns.push((key.clone(), column));
+    }
+    columns
+}
+
 /// The episodes table (episode_index equals row order); `video_keys` are the video features.
 pub(super) fn episodes_batch(
     rows: &[EpisodeRow],
@@ -781,6 +852,7 @@ pub(super) fn episodes_batch(
         }
     }
     columns.extend(provenance_columns(rows));
+    columns.extend(field_columns(rows));
     let stats_keys: Vec<&String> = rows
         .first()
         .map(|r| r.pixel_stats.iter().map(|(k, _)| k).collect())
@@ -810,6 +882,38 @@ pub(super) fn episodes_batch(
 mod tests {
     use super::*;
     use serde_json::json;
+
+    /// Another tool's per-episode fields become typed columns (text, integer, float, boolean;
+    /// mixed kinds as JSON text; a missing value null), never one of the table's own names.
+    #[test]
+    fn per_episode_fields_become_typed_columns() {
+        let row = |fields: Value| EpisodeRow {
+            fields: fields.as_object().cloned().unwrap_or_default(),
+            ..Default::default()
+        };
+        let rows = [
+            row(json!({"id": "a", "n": 1, "x": 0.5, "ok": true, "mixed": 1, "length": 9})),
+            row(json!({"id": "b", "n": 2, "x": 2, "mixed": "two"})),
+        ];
+        let columns: std::collections::BTreeMap<String, ArrayRef> =
+            field_columns(&rows).into_iter().collect();
+        assert_eq!(
+            columns.keys().collect::<Vec<_>>(),
+            ["id", "mixed", "n", "ok", "x"],
+            "length is the table's own"
+        );
+        assert_eq!(columns["id"].data_type(), &DataType::Utf8);
+        assert_eq!(columns["n"].data_type(), &DataType::Int64);
+        assert_eq!(columns["x"].data_type(), &DataType::Float64);
+        assert_eq!(columns["ok"].data_type(), &DataType::Boolean);
+        assert_eq!(columns["ok"].null_count(), 1);
+        let mixed = columns["mixed"]
+            .as_any()
+            .downcast_ref::<StringArray>()
+            .expect("text");
+        assert_eq!((mixed.value(0), mixed.value(1)), ("1", "\"two\""));
+        assert!(free_field_name("episode_metadata/file_path") && !free_field_name("stats/a/min"));
+    }
 
     #[test]
     fn a_stored_episode_reads_its_columns_leniently() {

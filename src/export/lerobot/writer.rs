@@ -677,6 +677,7 @@ impl LeRobotFiles {
             videos,
             pixel_stats,
             provenance: info.is_ours().then(|| Provenance::of(meta)),
+            fields: meta.fields.clone(),
         };
         self.journal(dir, &row)?;
         if written.full {

@@ -81,6 +81,46 @@ fn carried_name(key: &str, dtype: Dtype, mapping: &Mapping) -> String {
     name
 }
 
+/// The most values a per-episode field carried into LeRobot's episodes table may have.
+const MAX_FIELD_VALUES: usize = 16;
+
+/// Whether an episode-level leaf is carried as a per-episode field (a text, or a few numbers).
+fn episode_field(leaf: &Leaf) -> bool {
+    match leaf {
+        Leaf::Text => true,
+        Leaf::Tensor { dtype, elements } => dtype != "string" && *elements <= MAX_FIELD_VALUES,
+        Leaf::Image { .. } => false,
+    }
+}
+
+/// The per-episode fields of a record: each carried episode-level leaf as JSON (a text, a
+/// boolean, a number, or an array of them).
+fn fields_of(
+    leaves: &BTreeMap<String, Leaf>,
+    example: &BTreeMap<String, Feature>,
+) -> serde_json::Map<String, Value> {
+    let mut fields = serde_json::Map::new();
+    let carried = (leaves.iter()).filter(|(k, l)| !k.starts_with("steps/") && episode_field(l));
+    for (key, leaf) in carried {
+        let boolean = matches!(leaf, Leaf::Tensor { dtype, .. } if dtype == "bool");
+        let mut values: Vec<Value> = match example.get(key) {
+            Some(Feature::Bytes(texts)) => (texts.iter())
+                .map(|t| Value::from(String::from_utf8_lossy(t).into_owned()))
+                .collect(),
+            Some(Feature::Int64(v)) if boolean => v.iter().map(|x| Value::from(*x != 0)).collect(),
+            Some(Feature::Int64(v)) => v.iter().map(|x| Value::from(*x)).collect(),
+            Some(Feature::Float(v)) => v.iter().map(|x| Value::from(f64::from(*x))).collect(),
+            None => continue,
+        };
+        let value = match values.len() {
+            1 => values.remove(0),
+            _ => Value::Array(values),
+        };
+        fields.insert(key.clone(), value);
+    }
+    fields
+}
+
 /// A feature spec surgvla has no role for.
 fn other(name: String, dtype: Dtype, shape: Vec<usize>, names: Vec<String>) -> FeatureSpec {
     FeatureSpec {
@@ -133,9 +173,12 @@ fn columns(leaves: &BTreeMap<String, Leaf>, mapping: &Mapping) -> (Vec<Column>, 
     }
     for (key, leaf) in leaves {
         if !key.starts_with("steps/") {
-            notes.push(format!(
-                "left out {key}: per-episode metadata, which surgvla does not carry yet"
-            ));
+            notes.push(match episode_field(leaf) {
+                true => format!(
+                    "{key}: per episode, carried as the LeRobot episodes table's column {key} (an RLDS output leaves it out)"
+                ),
+                false => format!("left out {key}: per-episode values surgvla does not carry"),
+            });
             continue;
         }
         if STRUCTURE.contains(&key.as_str()) || mapping.takes(key) {
@@ -205,10 +248,17 @@ fn described(folder: &Path) -> Vec<String> {
 /// Reads an RLDS dataset another tool wrote, episode by episode (one record in memory).
 pub struct ForeignRldsSource {
     info: DatasetInfo,
-    columns: Vec<Column>,
-    instruction: Option<Instruction>,
+    reading: Reading,
     records: ShardRecords,
     next_index: u64,
+}
+
+/// How a record becomes an episode: its columns, where its instruction is, the
+/// episode-level leaves carried as per-episode fields.
+struct Reading {
+    columns: Vec<Column>,
+    instruction: Option<Instruction>,
+    episode_leaves: BTreeMap<String, Leaf>,
 }
 
 impl ForeignRldsSource {
@@ -234,10 +284,16 @@ impl ForeignRldsSource {
         let mut info = DatasetInfo::from_surgvla_json(&Value::Null, fps, robot_type, features);
         info.notes = described(&folder);
         info.notes.extend(notes);
+        let episode_leaves = (leaves.into_iter())
+            .filter(|(k, l)| !k.starts_with("steps/") && episode_field(l))
+            .collect();
         Ok(ForeignRldsSource {
             info,
-            columns,
-            instruction: mapping.instruction,
+            reading: Reading {
+                columns,
+                instruction: mapping.instruction,
+                episode_leaves,
+            },
             records,
             next_index: 0,
         })
@@ -322,14 +378,12 @@ impl ForeignRldsSource {
         }
         Ok(FeatureValue::Float32(floats))
     }
+}
 
+impl Reading {
     /// Episode `index` from its record.
-    fn decode(
-        columns: &[Column],
-        instruction: Option<&Instruction>,
-        bytes: &[u8],
-        index: u64,
-    ) -> Result<Episode, String> {
+    fn decode(&self, bytes: &[u8], index: u64) -> Result<Episode, String> {
+        let (columns, instruction) = (&self.columns, self.instruction.as_ref());
         let example = decode_example(bytes).map_err(|e| e.0.to_string())?;
         let steps = match example.get("steps/is_first") {
             Some(Feature::Int64(flags)) => flags.len(),
@@ -338,13 +392,13 @@ impl ForeignRldsSource {
         if steps == 0 {
             return Err("the episode has zero steps".into());
         }
-        let texts = Self::instructions(instruction, &example, steps)?;
+        let texts = ForeignRldsSource::instructions(instruction, &example, steps)?;
         let task_changes = EpisodeMeta::changes_of(texts.iter().map(String::as_str));
         let instruction = texts.into_iter().next().unwrap_or_default();
         let mut rows: Vec<Vec<FeatureValue>> = vec![Vec::with_capacity(columns.len()); steps];
         for column in columns {
             for (i, row) in rows.iter_mut().enumerate() {
-                row.push(Self::value(column, &example, i, steps)?);
+                row.push(ForeignRldsSource::value(column, &example, i, steps)?);
             }
         }
         Ok(Episode {
@@ -352,6 +406,7 @@ impl ForeignRldsSource {
             image_stats: Vec::new(),
             meta: EpisodeMeta {
                 task_changes,
+                fields: fields_of(&self.episode_leaves, &example),
                 ..EpisodeMeta::foreign(index, instruction)
             },
             steps: rows
@@ -370,9 +425,8 @@ impl Iterator for ForeignRldsSource {
     fn next(&mut self) -> Option<Self::Item> {
         let index = self.next_index;
         self.next_index += 1;
-        let (columns, instruction) = (&self.columns, self.instruction.as_ref());
-        self.records
-            .next_decoded(|bytes| Self::decode(columns, instruction, bytes, index))
+        let reading = &self.reading;
+        (self.records).next_decoded(|bytes| reading.decode(bytes, index))
     }
 }
 

@@ -578,6 +578,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
         attempts: fields.int("episode_metadata/attempts")? as u32,
         success: fields.int("episode_metadata/success")? == 1,
         task_changes,
+        fields: serde_json::Map::new(),
     };
     let encoded = stored_jpeg(layout, &rgb);
     Ok(Episode {
@@ -637,6 +638,7 @@ mod tests {
                 attempts: 2,
                 success,
                 task_changes: Vec::new(),
+                fields: serde_json::Map::new(),
             },
             steps,
         }

@@ -9,7 +9,8 @@ What must hold: the instruction wherever the spec keeps it (fractal's
 `observation/natural_language_instruction`, language_table's int32 byte codes) becomes the task;
 an action dict becomes one `action` in OpenVLA's order with its parts named; a state is found
 where the spec keeps it; every other step feature is carried with its values, and what cannot be
-(per-episode metadata) is named on stderr; `validate` of every output exits 0.
+(nothing in these specs) is named on stderr, per-episode values become columns of LeRobot's
+episodes table; `validate` of every output exits 0.
 
 SURGVLA_BIN is the surgvla binary; SURGVLA_OXE_OUT, when set, receives the LeRobot conversions
 for lerobot's own loader (tests/interop/oxe).
@@ -281,10 +282,16 @@ def test_oxe_spec_converts_to_lerobot_without_loss(written, tmp_path):
     out = tmp_path / "lerobot"
     code, _, err = run("convert", root, "--to", "lerobot", "--fps", 10, "--out", out, "--verify")
     assert code == 0, err
-    if name.startswith("austin"):
-        assert "left out episode_metadata/file_path" in err, err
-    if name == "language_table":
-        assert "left out episode_id" in err, err
+    # Per-episode values travel as columns of the episodes table, named on stderr.
+    field = {"language_table": "episode_id", "austin_buds_dataset_converted_externally_to_rlds": "episode_metadata/file_path"}.get(name)
+    if field:
+        assert f"{field}: per episode, carried as the LeRobot episodes table's column" in err, err
+        episodes_table = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+        config = tfds.ReadConfig(interleave_cycle_length=1)
+        stored = tfds.builder_from_directory(str(root)).as_dataset(split="train", shuffle_files=False, read_config=config)
+        expected = [at(e, field.split("/")).numpy().decode() for e in stored]
+        assert sorted(expected) == ["episode 0", "episode 1"], expected
+        assert episodes_table[field] == expected, episodes_table.get(field)
     code, _, err = run("validate", out)
     assert code == 0, err
     # The card says where the data came from, with its own licence and citation, and invents

@@ -550,6 +550,7 @@ impl Context<'_> {
                 attempts: provenance("surgvla/attempts").as_u64().unwrap_or(0) as u32,
                 success: provenance("surgvla/success").as_bool().unwrap_or(false),
                 task_changes: Vec::new(),
+                fields: serde_json::Map::new(),
             };
             // A part of an episode cannot be judged against its step limit.
             let whole = entry.and_then(|e| e.length) == Some(steps.len() as i64);
