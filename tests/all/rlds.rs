@@ -527,6 +527,10 @@ fn a_map_file_names_the_features_of_another_tools_rlds() {
             "[[feature]]\nname = \"task\"\nkeys = [\"observation/state\"]\n",
             "not a text or integer key",
         ),
+        (
+            "[[feature]]\nname = \"observation.state\"\nkeys = [\"observation/gripper_count\"]\n",
+            "which the map's feature of that name already is",
+        ),
     ] {
         write_map(text);
         let (code, _, err) = convert(&temp_root("rlds-map-bad"), &root);

@@ -150,8 +150,12 @@ fn part_names(parts: &[(String, usize)]) -> Vec<String> {
 }
 
 /// The columns of a dataset with these leaves read through `mapping`, and the notes a
-/// conversion prints: how the mapping read the dataset, what it left out.
-fn columns(leaves: &BTreeMap<String, Leaf>, mapping: &Mapping) -> (Vec<Column>, Vec<String>) {
+/// conversion prints: how the mapping read the dataset, what it left out. `Err` names a
+/// key whose feature name a map's feature took.
+fn columns(
+    leaves: &BTreeMap<String, Leaf>,
+    mapping: &Mapping,
+) -> Result<(Vec<Column>, Vec<String>), String> {
     let mut notes = mapping.describe();
     let mut columns = Vec::new();
     for joined in &mapping.joined {
@@ -186,7 +190,13 @@ fn columns(leaves: &BTreeMap<String, Leaf>, mapping: &Mapping) -> (Vec<Column>, 
         }
         match read_as(key, leaf) {
             Ok((dtype, shape)) => {
-                let mut spec = other(carried_name(key, dtype, mapping), dtype, shape, Vec::new());
+                let name = carried_name(key, dtype, mapping);
+                if columns.iter().any(|c: &Column| c.spec.name == name) {
+                    return Err(format!(
+                        "{key} would be the feature {name}, which the map's feature of that name already is: add the key to it, or name the map's feature otherwise"
+                    ));
+                }
+                let mut spec = other(name, dtype, shape, Vec::new());
                 // A 16-bit image in an RLDS dataset is a depth map (OXE's depth keys): it says
                 // so to LeRobot, its PNG bytes unchanged.
                 if matches!(leaf, Leaf::Image { dtype, .. } if dtype == "uint16") {
@@ -205,7 +215,7 @@ fn columns(leaves: &BTreeMap<String, Leaf>, mapping: &Mapping) -> (Vec<Column>, 
             ));
         }
     }
-    (columns, notes)
+    Ok((columns, notes))
 }
 
 /// The longest text of `dataset_info.json` repeated in a note.
@@ -279,7 +289,9 @@ impl ForeignRldsSource {
         let mapping = (Mapping::of(&leaves).with(map, &leaves)).map_err(|problem| {
             ExportError::InvalidOptions(format!("--map for {}: {problem}", folder.display()))
         })?;
-        let (columns, notes) = columns(&leaves, &mapping);
+        let (columns, notes) = columns(&leaves, &mapping).map_err(|problem| {
+            ExportError::InvalidOptions(format!("--map for {}: {problem}", folder.display()))
+        })?;
         let features: Vec<FeatureSpec> = columns.iter().map(|c| c.spec.clone()).collect();
         let mut info = DatasetInfo::from_surgvla_json(&Value::Null, fps, robot_type, features);
         info.notes = described(&folder);
