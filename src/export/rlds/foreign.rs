@@ -358,7 +358,11 @@ impl ForeignRldsSource {
                 column.spec.shape
             )
         };
-        let mut floats = Vec::with_capacity(column.spec.shape.iter().product());
+        // Only a float column gathers values here (an image's are its bytes, not pixels).
+        let mut floats = match column.spec.dtype {
+            Dtype::Float32 => Vec::with_capacity(column.spec.shape.iter().product()),
+            _ => Vec::new(),
+        };
         for (key, n) in &column.parts {
             let n = *n;
             let values = example.get(key).ok_or_else(|| wrong(key))?;

@@ -175,7 +175,7 @@ impl RldsShards {
         for (feature, value) in images {
             if let crate::episode::FeatureValue::Image(bytes) = value {
                 // A PNG's bit depth is byte 24 (IHDR); TFDS declares a 16-bit one uint16.
-                let format = match bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+                let format = match crate::media::image::is_jpeg(bytes) {
                     true => "jpeg",
                     false if bytes.get(24) == Some(&16) => "png16",
                     false => "png",
