@@ -945,13 +945,29 @@ fn holds_link(root: &Path, link: &str) -> ExportError {
     }
 }
 
+/// How long [`lock`] waits for a lock this very process held and released: a child process
+/// forked by another thread holds a copy of the closed descriptor until it execs.
+const OWN_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// Locks `root` (an advisory `flock` on the folder itself, so no lock file is left behind).
 pub fn lock(root: &Path) -> Result<File, ExportError> {
     let file = File::open(root).map_err(|source| ExportError::Output {
         path: root.to_path_buf(),
         source,
     })?;
-    match file.try_lock() {
+    let started = std::time::Instant::now();
+    let mut attempt = file.try_lock();
+    // The lock of a writer this process dropped may linger for the moment a child forked by
+    // another thread takes to exec (the descriptor is close-on-exec, not close-on-fork).
+    while matches!(attempt, Err(std::fs::TryLockError::WouldBlock))
+        && started.elapsed() < OWN_LOCK_WAIT
+        && read_marker::<serde::de::IgnoredAny>(root)
+            .is_ok_and(|m| m.holder.pid == std::process::id())
+    {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        attempt = file.try_lock();
+    }
+    match attempt {
         Ok(()) => Ok(file),
         Err(std::fs::TryLockError::WouldBlock) => Err(ExportError::Locked {
             path: root.to_path_buf(),

@@ -112,8 +112,12 @@ pub struct Capabilities {
     pub merges: bool,
     /// It stores features that arrive as video without decoding them.
     pub video: bool,
-    /// It stores features surgvla has no role for (another robot's state, another camera).
-    pub other_features: bool,
+    /// Which features surgvla has no role for (another robot's state, another camera) it
+    /// stores.
+    pub other_features: crate::export::roles::Others,
+    /// It is built around one RGB camera, which another tool's dataset names with `--camera`
+    /// ([`crate::export::roles::Roles`]).
+    pub needs_camera: bool,
     /// It stores point clouds of the frames (whose points carry the mask ids, so collecting
     /// into it renders the mask).
     pub point_clouds: bool,

@@ -190,6 +190,25 @@ impl DatasetInfo {
             metadata["depth"] = json!({"key": depth.name, "unit": "m", "along": "optical axis", "background": 0.0,
                   "back_projection": "X = (u + 0.5 - cx) z / fx, Y = (v + 0.5 - cy) z / fy, Z = z"});
         }
+        // What another tool's dataset does not say is left out: the program (surgvla made no
+        // episode of it), the intrinsics and the clipping planes.
+        let camera_json = &mut metadata["camera"];
+        if let Some(fields) = camera_json.as_object_mut() {
+            if camera.fx_px <= 0.0 || camera.fy_px <= 0.0 {
+                for key in ["fx", "fy", "cx", "cy"] {
+                    fields.remove(key);
+                }
+            }
+            if camera.near_m <= 0.0 || camera.far_m <= 0.0 {
+                fields.remove("near_m");
+                fields.remove("far_m");
+            }
+        }
+        if self.generator.is_empty()
+            && let Some(fields) = metadata.as_object_mut()
+        {
+            fields.remove("generator");
+        }
         metadata["mask_ids"] = Value::Object(masks);
         if let Some(workspace) = self.tip_workspace {
             metadata["tip_workspace_m"] = workspace_json(workspace);

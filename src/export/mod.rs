@@ -45,6 +45,7 @@ pub mod pointcloud;
 pub mod profile;
 pub mod registry;
 pub mod rlds;
+pub mod roles;
 pub mod schema;
 pub mod shard;
 pub mod sink;

@@ -13,6 +13,7 @@ use crate::export::format::SinkOptions;
 use crate::export::identity;
 use crate::export::info::DatasetInfo;
 use crate::export::registry;
+use crate::export::roles::{Others, RoleSource, Roles};
 use crate::export::shard::Sharded;
 use crate::export::sink::EpisodeSink;
 use crate::export::source::{EpisodeSource, SourceOptions};
@@ -50,15 +51,20 @@ pub fn open_sink(
     let others: Vec<&str> = info
         .features
         .iter()
-        .filter(|f| f.kind == FeatureKind::Other)
+        .filter(|f| f.kind == FeatureKind::Other && !holds.other_features.hold(f))
         .map(|f| f.name.as_str())
         .collect();
-    if !others.is_empty() && !holds.other_features {
+    let title = options.format().title();
+    if !others.is_empty() {
         return Err(ExportError::InvalidOptions(format!(
-            "the features {} have no place in this format yet ({} hold surgvla's features: an RGB camera, 7-D state and action, depth); convert to {}",
+            "the features {} have no place in {title} (convert leaves them out with a note; {} keep them)",
             others.join(", "),
-            registry::titles(|c| !c.other_features, "and"),
-            registry::titles(|c| c.other_features, "or"),
+            registry::titles(|c| c.other_features == Others::All, "or"),
+        )));
+    }
+    if holds.needs_camera && !info.has(FeatureKind::Rgb) {
+        return Err(ExportError::InvalidOptions(format!(
+            "{title} is built around one RGB camera, which this dataset does not name (convert --camera KEY names one)"
         )));
     }
     options.open_sink(root, info, resumes(root, resume))
@@ -109,6 +115,9 @@ pub struct ConvertInput {
     pub without: Vec<String>,
     /// Decode video features to pixels even where the target stores video.
     pub decode: bool,
+    /// Which of another tool's features are the camera and depth of a target built around
+    /// them (zarr, MCAP, PLY, PCD).
+    pub roles: Roles,
 }
 
 impl ConvertInput {
@@ -141,6 +150,26 @@ impl ConvertInput {
         if needed || (self.decode && Decoded::needed(source.info())) {
             source = Box::new(Decoded::new(source).map_err(ConvertError::Input)?);
         }
-        Ok(source)
+        let format = options.format();
+        let holds = format.capabilities();
+        if !holds.needs_camera {
+            if !self.roles.is_empty() {
+                return Err(ConvertError::Input(ExportError::InvalidOptions(format!(
+                    "--camera, --depth, --depth-unit-m and --intrinsics name the camera of {}; {} keeps every feature as it is",
+                    registry::titles(|c| c.needs_camera, "and"),
+                    format.title()
+                ))));
+            }
+            return Ok(source);
+        }
+        let info = source.info();
+        let left_out = (info.features.iter())
+            .any(|f| f.kind == FeatureKind::Other && !holds.other_features.hold(f));
+        if self.roles.is_empty() && info.has(FeatureKind::Rgb) && !left_out {
+            return Ok(source);
+        }
+        let roled = RoleSource::new(source, &self.roles, holds.other_features, format.title())
+            .map_err(ConvertError::Input)?;
+        Ok(Box::new(roled))
     }
 }

@@ -512,6 +512,7 @@ impl EpisodeFiles {
         episode: &Episode,
         file: Option<&str>,
         checkpoint_every: u64,
+        ours: bool,
     ) -> Result<(), ExportError> {
         let meta = &episode.meta;
         let mut line = serde_json::Map::new();
@@ -521,11 +522,18 @@ impl EpisodeFiles {
         }
         let frames = episode.steps.len() as u64;
         line.insert("frames".into(), frames.into());
-        line.insert("task_id".into(), meta.task_code.clone().into());
-        line.insert("level".into(), meta.level.into());
-        line.insert("seed".into(), meta.seed.into());
-        line.insert("success".into(), meta.success.into());
+        // Provenance only where surgvla made the episode; another tool's per-episode values
+        // as they were read.
+        if ours {
+            line.insert("task_id".into(), meta.task_code.clone().into());
+            line.insert("level".into(), meta.level.into());
+            line.insert("seed".into(), meta.seed.into());
+            line.insert("success".into(), meta.success.into());
+        }
         line.insert("instruction".into(), meta.instruction.clone().into());
+        if !meta.fields.is_empty() {
+            line.insert("fields".into(), meta.fields.clone().into());
+        }
         dir.append(
             EPISODE_LINES,
             serde_json::Value::Object(line).to_string().as_bytes(),

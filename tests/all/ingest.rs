@@ -111,7 +111,10 @@ fn every_format_that_holds_the_robots_features_takes_them() {
     let out = root.join("zarr");
     let (code, _, stderr) = ingest(&out, &["--to", "zarr"]);
     assert_eq!(code, 2, "{stderr}");
-    assert!(stderr.contains("LeRobot or RLDS"), "{stderr}");
+    assert!(
+        stderr.contains("LeRobot, RLDS or MCAP keep them"),
+        "{stderr}"
+    );
     assert!(!out.exists());
 }
 

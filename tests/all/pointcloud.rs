@@ -143,18 +143,32 @@ fn points_labelled_as_an_object_lie_on_its_true_surface() {
 #[test]
 fn cloud_formats_refuse_a_dataset_without_depth_or_workspace_before_writing() {
     use surgvla::export::open_sink;
-    use surgvla::export::pointcloud::CloudSettings;
+    use surgvla::export::pointcloud::files::CloudFileFormat;
+    use surgvla::export::pointcloud::{CloudFileOptions, CloudSettings};
     use surgvla::export::zarr::ZarrOptions;
     let mut info = crate::util::info(false);
     let out = crate::util::temp_root("clouds-refused");
     info.features
         .retain(|f| f.kind != surgvla::episode::FeatureKind::Depth);
-    let zarr = ZarrOptions::default();
-    let error = open_sink(&out, &info, &zarr, false)
-        .err()
-        .expect("no depth");
+    let ply = CloudFileOptions {
+        format: CloudFileFormat::Ply,
+        settings: CloudSettings::default(),
+    };
+    let error = open_sink(&out, &info, &ply, false).err().expect("no depth");
     assert!(error.to_string().contains("depth"), "{error}");
     assert_eq!(error.kind(), surgvla::error::ErrorKind::Usage);
+    // A zarr store without depth has no clouds: Diffusion Policy's images, state and action.
+    let zarr = ZarrOptions::default();
+    let mut sink = open_sink(&out, &info, &zarr, false).expect("a store without clouds");
+    sink.finish().expect("finished");
+    for (array, present) in [("point_cloud", false), ("img", true), ("state", true)] {
+        assert_eq!(
+            out.join("data").join(array).join(".zarray").is_file(),
+            present,
+            "{array}"
+        );
+    }
+    let out = crate::util::temp_root("clouds-refused-2");
     let mut info = crate::util::info(false);
     info.tip_workspace = None;
     let error = open_sink(&out, &info, &zarr, false)

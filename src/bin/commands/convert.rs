@@ -65,8 +65,38 @@ pub(crate) struct ConvertArgs {
     /// files counted); a difference exits 1.
     #[arg(long)]
     verify: bool,
+    /// For zarr, MCAP, PLY and PCD from another tool's dataset: the RGB image feature that is
+    /// their camera (e.g. observation.images.image); its other features are carried where the
+    /// format has a place for them, else left out with a note.
+    #[arg(long, value_name = "KEY")]
+    camera: Option<String>,
+    /// With --camera: the depth image feature (16-bit grey, or float in metres) the point
+    /// clouds are made of.
+    #[arg(long, value_name = "KEY", requires = "camera")]
+    depth: Option<String>,
+    /// Metres per unit of a 16-bit --depth image [default: 0.001, millimetres].
+    #[arg(long, value_name = "METRES", requires = "depth")]
+    depth_unit_m: Option<f64>,
+    /// With --camera: its pinhole intrinsics in pixels, FX,FY,CX,CY as OpenCV's camera matrix
+    /// holds them (pixel centres at integers; point clouds need them).
+    #[arg(long, value_name = "FX,FY,CX,CY", value_parser = parse_intrinsics, requires = "camera")]
+    intrinsics: Option<[f64; 4]>,
     #[command(flatten)]
     formats: FormatArgs,
+}
+
+/// `--intrinsics FX,FY,CX,CY`: four numbers, focal lengths positive.
+fn parse_intrinsics(text: &str) -> Result<[f64; 4], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match values[..] {
+        [fx, fy, cx, cy] if fx > 0.0 && fy > 0.0 && cx.is_finite() && cy.is_finite() => {
+            Ok([fx, fy, cx, cy])
+        }
+        _ => Err("four numbers FX,FY,CX,CY in pixels, FX and FY positive".into()),
+    }
 }
 
 /// What `--cast` narrows float64 features to.
@@ -96,6 +126,12 @@ impl ConvertArgs {
             shard: self.shard,
             without: self.without.clone(),
             decode: self.decode,
+            roles: surgvla::export::roles::Roles {
+                camera: self.camera.clone(),
+                depth: self.depth.clone(),
+                depth_unit_m: self.depth_unit_m,
+                intrinsics_px: self.intrinsics,
+            },
         })
     }
 }

@@ -45,7 +45,8 @@ impl DatasetFormat for LeRobotFormat {
             reads: true,
             merges: true,
             video: true,
-            other_features: true,
+            other_features: crate::export::roles::Others::All,
+            needs_camera: false,
             point_clouds: false,
         }
     }

@@ -39,6 +39,8 @@ impl DatasetFormat for McapFormat {
         Capabilities {
             merges: true,
             point_clouds: true,
+            other_features: crate::export::roles::Others::All,
+            needs_camera: true,
             ..Capabilities::default()
         }
     }

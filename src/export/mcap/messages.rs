@@ -143,14 +143,22 @@ pub fn point_cloud(ns: u64, cloud: &Cloud) -> PointCloud {
 
 /// World -> optical frame, -> tool tip (state: x y z, Euler xyz with R = Rz Ry Rx), -> each
 /// object with a pose (named by `objects`).
-pub fn frames(ns: u64, camera: &CameraInfo, step: &Step, objects: &[String]) -> FrameTransforms {
+pub fn frames(
+    ns: u64,
+    camera: &CameraInfo,
+    step: &Step,
+    objects: &[String],
+    with_tip: bool,
+) -> FrameTransforms {
     let m = &camera.world_from_camera;
     let rotation = Matrix3::from_fn(|r, c| m[r][c]);
     let optical = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&rotation));
     let mut transforms = vec![transform(ns, OPTICAL, [m[0][3], m[1][3], m[2][3]], optical)];
-    let s = step.state.map(f64::from);
-    let tip = UnitQuaternion::from_euler_angles(s[3], s[4], s[5]);
-    transforms.push(transform(ns, TOOL_TIP, [s[0], s[1], s[2]], tip));
+    if with_tip {
+        let s = step.state.map(f64::from);
+        let tip = UnitQuaternion::from_euler_angles(s[3], s[4], s[5]);
+        transforms.push(transform(ns, TOOL_TIP, [s[0], s[1], s[2]], tip));
+    }
     for (i, name) in objects.iter().enumerate().take(MAX_OBJECTS) {
         let pose = &step.environment_state[i * POSE_VALUES..(i + 1) * POSE_VALUES];
         if pose.iter().all(|&v| v == 0.0) {
@@ -232,6 +240,69 @@ pub fn state_json(ns: u64, step: &Step) -> Value {
     })
 }
 
+/// A feature surgvla has no role for (another tool's), as JSON: its numbers (NaN as null), or
+/// its text; None for an image (a compressed image message of its own).
+pub fn feature_json(ns: u64, value: &crate::episode::FeatureValue) -> Option<Value> {
+    use crate::episode::FeatureValue;
+    Some(match value {
+        FeatureValue::Float32(values) => json!({"timestamp_ns": ns, "values": values}),
+        FeatureValue::Int64(values) => json!({"timestamp_ns": ns, "values": values}),
+        FeatureValue::Text(text) => json!({"timestamp_ns": ns, "text": text}),
+        FeatureValue::Image(_) => return None,
+    })
+}
+
+/// The JSON Schema of [`feature_json`]'s messages of `feature`: its length and element names.
+pub fn feature_schema(feature: &crate::episode::FeatureSpec) -> Value {
+    use crate::episode::Dtype;
+    let value = match feature.dtype {
+        Dtype::String => json!({"text": {"type": "string"}}),
+        dtype => {
+            let element = if dtype == Dtype::Int64 {
+                json!({"type": "integer"})
+            } else {
+                json!({"type": ["number", "null"], "description": "null: not a number"})
+            };
+            let length = feature.shape.iter().product::<usize>();
+            let mut values =
+                json!({"type": "array", "items": element, "minItems": length, "maxItems": length});
+            if !feature.names.is_empty() {
+                values["description"] = json!(format!("elements: {}", feature.names.join(", ")));
+            }
+            json!({"values": values})
+        }
+    };
+    let mut properties = json!({"timestamp_ns": {"type": "integer"}});
+    if let (Some(all), Some(more)) = (properties.as_object_mut(), value.as_object()) {
+        all.extend(more.clone());
+    }
+    let required: Vec<&String> = properties
+        .as_object()
+        .map(|p| p.keys().collect())
+        .unwrap_or_default();
+    json!({
+        "title": format!("surgvla.Feature {}", feature.name),
+        "type": "object",
+        "properties": properties,
+        "required": required,
+    })
+}
+
+/// An image feature surgvla has no role for, as stored (JPEG or PNG bytes).
+pub fn stored_image(ns: u64, key: &str, bytes: &[u8]) -> CompressedImage {
+    let format = if crate::media::image::is_jpeg(bytes) {
+        "jpeg"
+    } else {
+        "png"
+    };
+    CompressedImage {
+        timestamp: Some(timestamp(ns)),
+        frame_id: key.into(),
+        data: bytes.to_vec().into(),
+        format: format.into(),
+    }
+}
+
 /// `/robot/action` as JSON.
 pub fn action_json(ns: u64, step: &Step) -> Value {
     let a = step.action;
@@ -293,8 +364,9 @@ pub fn info_schema() -> Value {
             "instruction": {"type": "string"},
             "success": {"type": "boolean"},
             "frames": {"type": "integer"},
+            "fields": {"type": "object", "description": "another tool's per-episode values, as read"},
         },
-        "required": ["episode_index", "task_id", "seed", "instruction", "success", "frames"],
+        "required": ["episode_index", "instruction", "frames"],
     })
 }
 

@@ -101,18 +101,26 @@ fn write_provenance(
     info: &DatasetInfo,
     meta: &crate::episode::EpisodeMeta,
 ) -> Result<(), ExportError> {
-    let provenance: BTreeMap<String, String> = [
+    let mut provenance: BTreeMap<String, String> = [
         ("episode_index", meta.index.to_string()),
-        ("task_id", meta.task_code.clone()),
-        ("level", meta.level.to_string()),
-        ("seed", meta.seed.to_string()),
         ("instruction", meta.instruction.clone()),
-        ("success", meta.success.to_string()),
-        ("generator", info.generator.clone()),
     ]
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
+    // Provenance only where surgvla made the episode.
+    if info.is_ours() {
+        provenance.extend(
+            [
+                ("task_id", meta.task_code.clone()),
+                ("level", meta.level.to_string()),
+                ("seed", meta.seed.to_string()),
+                ("success", meta.success.to_string()),
+                ("generator", info.generator.clone()),
+            ]
+            .map(|(k, v)| (k.to_string(), v)),
+        );
+    }
     writer
         .write_metadata(&mcap::records::Metadata {
             name: "episode".into(),
@@ -156,30 +164,35 @@ impl StepMessages<'_> {
                 encoded(&super::messages::depth_image(ns, camera, &step.depth_m))?,
             ));
         }
-        out.push((
-            channels.calibration,
-            encoded(&super::messages::calibration(ns, camera))?,
-        ));
+        if let Some(channel) = channels.calibration {
+            out.push((channel, encoded(&super::messages::calibration(ns, camera))?));
+        }
         if let (Some(channel), Some(cloud_options)) = (channels.points, self.cloud_options) {
             let cloud = frame_cloud(camera, step, cloud_options);
             out.push((channel, encoded(&super::messages::point_cloud(ns, &cloud))?));
         }
-        out.push((
-            channels.tf,
-            encoded(&super::messages::frames(ns, camera, step, &self.objects))?,
-        ));
-        out.push((
-            channels.state,
-            super::messages::state_json(ns, step)
-                .to_string()
-                .into_bytes(),
-        ));
-        out.push((
-            channels.action,
-            super::messages::action_json(ns, step)
-                .to_string()
-                .into_bytes(),
-        ));
+        let tf = super::messages::frames(ns, camera, step, &self.objects, channels.state.is_some());
+        out.push((channels.tf, encoded(&tf)?));
+        if let Some(channel) = channels.state {
+            let json = super::messages::state_json(ns, step);
+            out.push((channel, json.to_string().into_bytes()));
+        }
+        if let Some(channel) = channels.action {
+            let json = super::messages::action_json(ns, step);
+            out.push((channel, json.to_string().into_bytes()));
+        }
+        for ((channel, key), value) in channels.features.iter().zip(&step.other) {
+            let data = match super::messages::feature_json(ns, value) {
+                Some(json) => json.to_string().into_bytes(),
+                None => match value {
+                    crate::episode::FeatureValue::Image(bytes) => {
+                        encoded(&super::messages::stored_image(ns, key, bytes))?
+                    }
+                    _ => continue,
+                },
+            };
+            out.push((*channel, data));
+        }
         Ok(out)
     }
 }
@@ -189,12 +202,17 @@ struct Channels {
     info: u16,
     rgb: u16,
     depth: Option<u16>,
-    calibration: u16,
+    /// With the camera's intrinsics.
+    calibration: Option<u16>,
     points: Option<u16>,
     tf: u16,
     scene: Option<u16>,
-    state: u16,
-    action: u16,
+    /// With surgvla's state and action.
+    state: Option<u16>,
+    action: Option<u16>,
+    /// Per feature without a role (another tool's), in the order of the steps' values: its
+    /// channel and key.
+    features: Vec<(u16, String)>,
 }
 
 impl Channels {
@@ -212,56 +230,67 @@ impl Channels {
         let calibration_schema = schema_of::<foxglove::messages::CameraCalibration>(writer)?;
         let points_schema = schema_of::<foxglove::messages::PointCloud>(writer)?;
         let tf_schema = schema_of::<foxglove::messages::FrameTransforms>(writer)?;
-        let scene_schema = if with_scene {
-            Some(schema_of::<foxglove::messages::SceneUpdate>(writer)?)
-        } else {
-            None
-        };
-        let json_schema = |writer: &mut mcap::Writer<_>, value: Value, name: &str| {
+        let scene_schema = (with_scene)
+            .then(|| schema_of::<foxglove::messages::SceneUpdate>(writer))
+            .transpose()?;
+        let json_schemas = [
+            (super::messages::state_schema(), "surgvla.RobotState"),
+            (super::messages::action_schema(), "surgvla.RobotAction"),
+            (super::messages::info_schema(), "surgvla.EpisodeInfo"),
+        ]
+        .map(|(value, name): (Value, &str)| {
             writer
                 .add_schema(name, "jsonschema", value.to_string().as_bytes())
                 .map_err(mcap_error("schema"))
-        };
-        let state_schema = json_schema(
-            writer,
-            super::messages::state_schema(),
-            "surgvla.RobotState",
-        )?;
-        let action_schema = json_schema(
-            writer,
-            super::messages::action_schema(),
-            "surgvla.RobotAction",
-        )?;
-        let info_schema = json_schema(
-            writer,
-            super::messages::info_schema(),
-            "surgvla.EpisodeInfo",
-        )?;
+        });
+        let [state_schema, action_schema, info_schema] = json_schemas;
+        let (state_schema, action_schema, info_schema) =
+            (state_schema?, action_schema?, info_schema?);
         let mut add = |schema: u16, topic: &str, encoding: &str| {
             writer
                 .add_channel(schema, topic, encoding, &no_metadata)
                 .map_err(mcap_error("channel"))
         };
-        let info_channel = add(info_schema, "/episode/info", "json")?;
-        let rgb = add(rgb_schema, "/endoscope/rgb", "protobuf")?;
-        let depth = if info.has(FeatureKind::Depth) {
-            Some(add(depth_schema, "/endoscope/depth", "protobuf")?)
-        } else {
-            None
+        let mut add_if = |wanted: bool, schema: u16, topic: &str, encoding: &str| {
+            wanted.then(|| add(schema, topic, encoding)).transpose()
         };
-        let calibration = add(calibration_schema, "/endoscope/camera_info", "protobuf")?;
-        let points = if with_points {
-            Some(add(points_schema, "/endoscope/points", "protobuf")?)
-        } else {
-            None
-        };
-        let tf = add(tf_schema, "/tf", "protobuf")?;
+        let (protobuf, json) = ("protobuf", "json");
+        let info_channel = add_if(true, info_schema, "/episode/info", json)?;
+        let rgb = add_if(true, rgb_schema, "/endoscope/rgb", protobuf)?;
+        let depth = add_if(
+            info.has(FeatureKind::Depth),
+            depth_schema,
+            "/endoscope/depth",
+            protobuf,
+        )?;
+        let calibration = add_if(
+            info.camera.fx_px > 0.0,
+            calibration_schema,
+            "/endoscope/camera_info",
+            protobuf,
+        )?;
+        let points = add_if(with_points, points_schema, "/endoscope/points", protobuf)?;
+        let tf = add_if(true, tf_schema, "/tf", protobuf)?;
         let scene_channel = match scene_schema {
-            Some(schema) => Some(add(schema, "/scene", "protobuf")?),
+            Some(schema) => add_if(true, schema, "/scene", protobuf)?,
             None => None,
         };
-        let state = add(state_schema, "/robot/state", "json")?;
-        let action = add(action_schema, "/robot/action", "json")?;
+        let state = add_if(
+            info.has(FeatureKind::State),
+            state_schema,
+            "/robot/state",
+            json,
+        )?;
+        let action = add_if(
+            info.has(FeatureKind::Action),
+            action_schema,
+            "/robot/action",
+            json,
+        )?;
+        let features = feature_channels(writer, info, rgb_schema)?;
+        let (Some(info_channel), Some(rgb), Some(tf)) = (info_channel, rgb, tf) else {
+            return Err(ExportError::Internal("a channel added is missing".into()));
+        };
         Ok(Channels {
             info: info_channel,
             rgb,
@@ -272,8 +301,45 @@ impl Channels {
             scene: scene_channel,
             state,
             action,
+            features,
         })
     }
+}
+
+/// The channels of the features without a role (another tool's), after every other channel:
+/// a JSON Schema of each vector or text, images on `image_schema` (a compressed image as
+/// stored); each channel with its feature's key.
+fn feature_channels(
+    writer: &mut mcap::Writer<std::io::Cursor<Vec<u8>>>,
+    info: &DatasetInfo,
+    image_schema: u16,
+) -> Result<Vec<(u16, String)>, ExportError> {
+    let others = (info.features.iter()).filter(|f| f.kind == FeatureKind::Other && f.in_steps());
+    let mut channels = Vec::new();
+    for feature in others {
+        let (schema, encoding) = match feature.dtype {
+            crate::episode::Dtype::Image => (image_schema, "protobuf"),
+            _ => {
+                let schema = super::messages::feature_schema(feature).to_string();
+                let id = writer
+                    .add_schema("surgvla.Feature", "jsonschema", schema.as_bytes())
+                    .map_err(mcap_error("schema"))?;
+                (id, "json")
+            }
+        };
+        let topic = feature_topic(&feature.name);
+        let channel = writer
+            .add_channel(schema, &topic, encoding, &BTreeMap::new())
+            .map_err(mcap_error("channel"))?;
+        channels.push((channel, feature.name.clone()));
+    }
+    Ok(channels)
+}
+
+/// The topic of a feature without a role: its key with dots as slashes
+/// (`observation.images.wrist` on `/observation/images/wrist`).
+fn feature_topic(key: &str) -> String {
+    format!("/{}", key.replace('.', "/"))
 }
 
 /// The MCAP file of one episode; `scene`, when given, goes on `/scene` once at the start (the
@@ -284,11 +350,7 @@ pub fn record_episode(
     episode: &Episode,
     scene: Option<&[SceneMesh]>,
 ) -> Result<Vec<u8>, ExportError> {
-    let cloud_options = if info.has(FeatureKind::Depth) {
-        Some(options.cloud.options(info)?)
-    } else {
-        None
-    };
+    let cloud_options = points_options(info, options)?;
     let mut writer = new_writer(&info.generator)?;
     let meta = &episode.meta;
     write_provenance(&mut writer, info, meta)?;
@@ -311,15 +373,21 @@ pub fn record_episode(
         .map(|(t, step)| steps.of(t, T0_NS + t as u64 * 1_000_000_000 / fps, step))
         .collect::<Result<_, _>>()?;
     let (info_channel, scene_channel) = (channels.info, channels.scene);
-    let info_message = json!({
+    let mut info_message = json!({
         "episode_index": meta.index,
-        "task_id": meta.task_code,
-        "level": meta.level,
-        "seed": meta.seed,
         "instruction": meta.instruction,
-        "success": meta.success,
         "frames": episode.steps.len(),
     });
+    // Provenance only where surgvla made the episode; another tool's values as read.
+    if info.is_ours() {
+        info_message["task_id"] = json!(meta.task_code);
+        info_message["level"] = json!(meta.level);
+        info_message["seed"] = json!(meta.seed);
+        info_message["success"] = json!(meta.success);
+    }
+    if !meta.fields.is_empty() {
+        info_message["fields"] = Value::Object(meta.fields.clone());
+    }
     let mut sequence = 0u32;
     let mut write = |writer: &mut mcap::Writer<_>, channel: u16, ns: u64, data: &[u8]| {
         sequence += 1;
@@ -355,6 +423,20 @@ pub fn record_episode(
     Ok(writer.into_inner().into_inner())
 }
 
+/// How `/endoscope/points` clouds are made; None without them: a dataset without depth, or
+/// another tool's without intrinsics (`convert --intrinsics`) or a crop box (`--crop`).
+fn points_options(
+    info: &DatasetInfo,
+    options: &McapOptions,
+) -> Result<Option<crate::export::pointcloud::CloudOptions>, ExportError> {
+    let unknown =
+        info.camera.fx_px <= 0.0 || (info.tip_workspace.is_none() && options.cloud.crop.is_none());
+    if !info.has(FeatureKind::Depth) || unknown {
+        return Ok(None);
+    }
+    options.cloud.options(info).map(Some)
+}
+
 /// Writes one MCAP file per episode.
 pub type McapWriter = Writer<McapFiles>;
 
@@ -375,9 +457,7 @@ impl FormatWriter for McapFiles {
     }
 
     fn run_options(info: &DatasetInfo, options: &McapOptions) -> Result<RunOptions, ExportError> {
-        if info.has(FeatureKind::Depth) {
-            options.cloud.options(info)?;
-        }
+        points_options(info, options)?;
         let mut run = info.run_options();
         run.merge(options.run_options());
         Ok(run)
@@ -415,14 +495,19 @@ impl FormatWriter for McapFiles {
     fn append(
         &mut self,
         dir: &mut DatasetDir,
-        _: &DatasetInfo,
+        info: &DatasetInfo,
         episode: &Episode,
         bytes: Vec<u8>,
     ) -> Result<f64, ExportError> {
         let file = format!("episode_{:06}.mcap", episode.meta.index);
         self.state.write_file(dir, &file, &bytes)?;
-        self.state
-            .episode_done(dir, episode, Some(&file), CHECKPOINT_EPISODES)?;
+        self.state.episode_done(
+            dir,
+            episode,
+            Some(&file),
+            CHECKPOINT_EPISODES,
+            info.is_ours(),
+        )?;
         Ok(0.0)
     }
 

@@ -65,7 +65,12 @@ impl CloudSettings {
         }
         if !info.has(crate::episode::FeatureKind::Depth) {
             return Err(ExportError::InvalidOptions(
-                "point clouds need the depth image, which this dataset does not have".into(),
+                "point clouds need the depth image, which this dataset does not have (convert --depth KEY names another tool's)".into(),
+            ));
+        }
+        if !(info.camera.fx_px > 0.0 && info.camera.fy_px > 0.0) {
+            return Err(ExportError::InvalidOptions(
+                "point clouds need the camera's intrinsics, which this dataset does not record (convert --intrinsics FX,FY,CX,CY gives them)".into(),
             ));
         }
         let crop = match (self.crop, info.tip_workspace) {
@@ -156,7 +161,7 @@ pub fn candidates(
     let voxel = options.voxel_m.max(1e-6);
     let cells: [usize; 3] =
         std::array::from_fn(|i| ((crop.max_m[i] - crop.min_m[i]) / voxel).ceil().max(1.0) as usize);
-    let mut taken = vec![false; cells[0] * cells[1] * cells[2]];
+    let mut taken = Voxels::new(cells);
     let mut out = Vec::new();
     for (pixel, &z) in depth_m.iter().enumerate() {
         if !(z.is_finite() && z > 0.0) {
@@ -168,13 +173,47 @@ pub fn candidates(
         }
         let cell: [usize; 3] =
             std::array::from_fn(|i| (((p[i] - crop.min_m[i]) / voxel) as usize).min(cells[i] - 1));
-        let key = (cell[2] * cells[1] + cell[1]) * cells[0] + cell[0];
-        if !taken[key] {
-            taken[key] = true;
+        if taken.take(cell) {
             out.push((pixel, p));
         }
     }
     out
+}
+
+/// Grids with more voxels than this keep the occupied ones in a set, not a bitmap (a crop box
+/// of metres at millimetre voxels would be terabytes).
+const MAX_DENSE_VOXELS: usize = 1 << 22;
+
+/// The occupied voxels of a grid of `cells`.
+enum Voxels {
+    Dense { cells: [usize; 3], taken: Vec<bool> },
+    Sparse(std::collections::HashSet<[usize; 3]>),
+}
+
+impl Voxels {
+    fn new(cells: [usize; 3]) -> Self {
+        let count = cells[0]
+            .checked_mul(cells[1])
+            .and_then(|n| n.checked_mul(cells[2]));
+        match count {
+            Some(count) if count <= MAX_DENSE_VOXELS => Voxels::Dense {
+                cells,
+                taken: vec![false; count],
+            },
+            _ => Voxels::Sparse(std::collections::HashSet::new()),
+        }
+    }
+
+    /// Marks `cell` occupied; whether it was free.
+    fn take(&mut self, cell: [usize; 3]) -> bool {
+        match self {
+            Voxels::Dense { cells, taken } => {
+                let key = (cell[2] * cells[1] + cell[1]) * cells[0] + cell[0];
+                !std::mem::replace(&mut taken[key], true)
+            }
+            Voxels::Sparse(taken) => taken.insert(cell),
+        }
+    }
 }
 
 /// Farthest point sampling: `count` indices into `points` (all of them if fewer), starting
@@ -294,6 +333,28 @@ mod tests {
         assert!((p[0] - (-0.5 * 0.2 / 100.0)).abs() < 1e-12, "{p:?}");
         assert!((p[1] - (0.5 * 0.2 / 100.0)).abs() < 1e-12, "{p:?}");
         assert!(p[2].abs() < 1e-12, "a floor at z = 0: {p:?}");
+    }
+
+    #[test]
+    fn a_crop_box_of_more_voxels_than_memory_holds_is_thinned_as_a_small_one() {
+        // Kilometres at 3 mm would be 10^19 voxels: a set of the occupied ones, the same
+        // candidates as the bitmap of a box that fits.
+        let camera = camera(64, 48);
+        let frame = step(64, 48, |u, v| 0.15 + 0.0007 * (u + v) as f32);
+        let small = CloudOptions::new(everywhere());
+        let mut huge = small;
+        huge.crop.min_m = huge.crop.min_m.map(|v| v - 1000.0 * 0.003);
+        huge.crop.max_m = [1e4; 3];
+        assert!(matches!(Voxels::new([1 << 30; 3]), Voxels::Sparse(_)));
+        let (a, b) = (
+            candidates(&camera, &frame.depth_m, &small),
+            candidates(&camera, &frame.depth_m, &huge),
+        );
+        assert!(a.len() > 100, "{}", a.len());
+        assert_eq!(
+            a.iter().map(|c| c.0).collect::<Vec<_>>(),
+            b.iter().map(|c| c.0).collect::<Vec<_>>()
+        );
     }
 
     #[test]

@@ -131,7 +131,7 @@ impl FormatWriter for CloudFiles {
     fn append(
         &mut self,
         dir: &mut DatasetDir,
-        _: &DatasetInfo,
+        info: &DatasetInfo,
         episode: &Episode,
         files: Vec<Vec<u8>>,
     ) -> Result<f64, ExportError> {
@@ -142,7 +142,7 @@ impl FormatWriter for CloudFiles {
             self.state.write_file(dir, &relative, bytes)?;
         }
         self.state
-            .episode_done(dir, episode, None, CHECKPOINT_EPISODES)?;
+            .episode_done(dir, episode, None, CHECKPOINT_EPISODES, info.is_ours())?;
         Ok(0.0)
     }
 

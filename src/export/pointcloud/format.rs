@@ -71,6 +71,7 @@ impl DatasetFormat for CloudFilesFormat {
         Capabilities {
             merges: true,
             point_clouds: true,
+            needs_camera: true,
             ..Capabilities::default()
         }
     }

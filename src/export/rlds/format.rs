@@ -41,7 +41,8 @@ impl DatasetFormat for RldsFormat {
             reads: true,
             merges: true,
             video: false,
-            other_features: true,
+            other_features: crate::export::roles::Others::All,
+            needs_camera: false,
             point_clouds: false,
         }
     }

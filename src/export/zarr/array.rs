@@ -89,6 +89,16 @@ impl ArrayWriter {
         Ok(self)
     }
 
+    /// Bytes of one row (one frame).
+    pub fn row_bytes(&self) -> usize {
+        self.row_bytes
+    }
+
+    /// The array's path in the store, e.g. `data/state`.
+    pub fn name(&self) -> &str {
+        &self.path
+    }
+
     pub fn mark(&self) -> ArrayMark {
         ArrayMark {
             rows: self.rows,

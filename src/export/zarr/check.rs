@@ -313,9 +313,14 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
             "is missing: zarr cannot open the store",
         );
     }
+    // Clouds where the store says it has them (a store of another tool's data without depth
+    // has none), state and action where surgvla made the episodes.
+    let (mut clouds, mut ours) = (true, true);
     if let Ok(attributes) = read_json(&root.join(".zattrs"))
         && let Some(surgvla) = attributes.get("surgvla")
     {
+        clouds = surgvla.get("point_cloud").is_some();
+        ours = surgvla["generator"].as_str().is_some_and(|g| !g.is_empty());
         findings.learn(|facts| {
             facts.fps = surgvla["fps"].as_f64();
             facts.generator = surgvla["generator"].as_str().map(String::from);
@@ -337,7 +342,16 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
         .filter(|e| e.path().join(".zarray").is_file())
         .map(|e| format!("data/{}", e.file_name().to_string_lossy()))
         .collect();
-    for required in ["data/point_cloud", "data/state", "data/action"] {
+    let required = [
+        ("data/point_cloud", clouds),
+        ("data/state", ours),
+        ("data/action", ours),
+    ];
+    for required in required
+        .iter()
+        .filter(|(_, needed)| *needed)
+        .map(|(name, _)| *name)
+    {
         if !data_names.iter().any(|n| n == required) {
             findings.error(At::file(required), Check::Present, "array is missing");
         }

@@ -37,6 +37,8 @@ impl DatasetFormat for ZarrFormat {
         Capabilities {
             merges: true,
             point_clouds: true,
+            other_features: crate::export::roles::Others::Vectors,
+            needs_camera: true,
             ..Capabilities::default()
         }
     }

@@ -2,7 +2,7 @@
 //! state, action (and images) to the arrays, checkpointing every [`CHECKPOINT_EPISODES`].
 
 use super::array::{ArrayMark, ArrayWriter};
-use crate::episode::Episode;
+use crate::episode::{Dtype, Episode, FeatureKind, FeatureValue};
 use crate::export::dir::{DatasetDir, RunOptions};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
@@ -64,32 +64,112 @@ pub type ZarrWriter = Writer<ZarrStore>;
 /// The zarr store's part of [`ZarrWriter`].
 pub struct ZarrStore {
     options: ZarrOptions,
-    /// point_cloud, state, action, then img and depth with images.
+    /// The arrays and what each holds, in [`Column::of`]'s order.
     arrays: Vec<ArrayWriter>,
+    columns: Vec<Column>,
     state: State,
 }
 
-impl ZarrStore {
-    fn arrays(info: &DatasetInfo, options: &ZarrOptions) -> Vec<ArrayWriter> {
-        let channels = if options.mask_channel { 7 } else { 6 };
-        let mut arrays = vec![
-            ArrayWriter::new(
-                "data/point_cloud",
-                "<f4",
-                4,
-                &[options.cloud.points, channels],
-            ),
-            ArrayWriter::new("data/state", "<f4", 4, &[7]),
-            ArrayWriter::new("data/action", "<f4", 4, &[7]),
-        ];
-        if options.images {
-            let (width, height) = info.image_size();
-            arrays.push(ArrayWriter::new("data/img", "|u1", 1, &[height, width, 3]));
-            arrays.push(ArrayWriter::new("data/depth", "<f4", 4, &[height, width]));
+/// What one `data/` array holds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Column {
+    /// Each frame's cloud.
+    Cloud,
+    /// surgvla's 7-D state and action.
+    State,
+    Action,
+    /// The camera's pixels and the depth in metres.
+    Img,
+    Depth,
+    /// Another tool's vector: the index of its value in the steps' `other`.
+    Other(usize),
+}
+
+impl Column {
+    /// A store's arrays: `point_cloud` with depth, `state` and `action` (surgvla's, or another
+    /// tool's `observation.state` and `action` under DP3's names), `img` (and `depth`) with
+    /// `--zarr-images` or when there is no cloud (Diffusion Policy's store), and every other
+    /// vector under its key.
+    fn of(
+        info: &DatasetInfo,
+        options: &ZarrOptions,
+    ) -> Result<Vec<(Column, ArrayWriter)>, ExportError> {
+        let clouds = info.has(FeatureKind::Depth);
+        let mut arrays = Vec::new();
+        if clouds {
+            let channels = if options.mask_channel { 7 } else { 6 };
+            let shape = [options.cloud.points, channels];
+            arrays.push((
+                Column::Cloud,
+                ArrayWriter::new("data/point_cloud", "<f4", 4, &shape),
+            ));
         }
-        arrays
+        for (kind, column, name) in [
+            (FeatureKind::State, Column::State, "data/state"),
+            (FeatureKind::Action, Column::Action, "data/action"),
+        ] {
+            if info.has(kind) {
+                arrays.push((column, ArrayWriter::new(name, "<f4", 4, &[7])));
+            }
+        }
+        let others =
+            (info.features.iter()).filter(|f| f.kind == FeatureKind::Other && f.in_steps());
+        for (i, feature) in others.enumerate() {
+            let name = match feature.name.as_str() {
+                "observation.state" if !info.has(FeatureKind::State) => "state",
+                "action" if !info.has(FeatureKind::Action) => "action",
+                key => crate::export::paths::component(key).map_err(|e| {
+                    ExportError::InvalidOptions(format!("the feature key {key:?}: {e}"))
+                })?,
+            };
+            let width = [feature.shape.iter().product::<usize>()];
+            let array = match feature.dtype {
+                Dtype::Int64 => ArrayWriter::new(&format!("data/{name}"), "<i8", 8, &width),
+                _ => ArrayWriter::new(&format!("data/{name}"), "<f4", 4, &width),
+            };
+            arrays.push((Column::Other(i), array));
+        }
+        if options.images || !clouds {
+            let (width, height) = info.image_size();
+            arrays.push((
+                Column::Img,
+                ArrayWriter::new("data/img", "|u1", 1, &[height, width, 3]),
+            ));
+            if clouds {
+                let depth = ArrayWriter::new("data/depth", "<f4", 4, &[height, width]);
+                arrays.push((Column::Depth, depth));
+            }
+        }
+        Ok(arrays)
     }
 
+    /// This column's bytes of `steps`, with `clouds` the frames' encoded clouds.
+    fn bytes(self, steps: &[crate::episode::Step], clouds: &[Vec<u8>]) -> Vec<u8> {
+        let floats = |values: &mut dyn Iterator<Item = f32>| -> Vec<u8> {
+            values.flat_map(f32::to_le_bytes).collect()
+        };
+        match self {
+            Column::Cloud => clouds.concat(),
+            Column::State => floats(&mut steps.iter().flat_map(|s| s.state)),
+            Column::Action => floats(&mut steps.iter().flat_map(|s| s.action)),
+            Column::Img => steps.iter().flat_map(|s| s.rgb.iter().copied()).collect(),
+            Column::Depth => floats(&mut steps.iter().flat_map(|s| s.depth_m.iter().copied())),
+            Column::Other(i) => (steps.iter())
+                .flat_map(|s| match s.other.get(i) {
+                    Some(FeatureValue::Float32(v)) => {
+                        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+                    }
+                    Some(FeatureValue::Int64(v)) => {
+                        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+                    }
+                    _ => Vec::new(),
+                })
+                .collect(),
+        }
+    }
+}
+
+impl ZarrStore {
     /// Writes the partial chunks and records the state.
     fn checkpoint(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         for array in &self.arrays {
@@ -119,7 +199,9 @@ impl FormatWriter for ZarrStore {
     }
 
     fn run_options(info: &DatasetInfo, options: &ZarrOptions) -> Result<RunOptions, ExportError> {
-        options.cloud.options(info)?;
+        if info.has(FeatureKind::Depth) {
+            options.cloud.options(info)?;
+        }
         if options.mask_channel && !info.has(crate::episode::FeatureKind::Mask) {
             return Err(ExportError::InvalidOptions(
                 "the mask channel needs a dataset with the mask feature".into(),
@@ -141,7 +223,8 @@ impl FormatWriter for ZarrStore {
         state: Option<State>,
     ) -> Result<Self, ExportError> {
         let state = state.unwrap_or_default();
-        let mut arrays = Self::arrays(info, &options);
+        let (columns, mut arrays): (Vec<Column>, Vec<ArrayWriter>) =
+            Column::of(info, &options)?.into_iter().unzip();
         if !state.arrays.is_empty() {
             arrays = arrays
                 .into_iter()
@@ -151,6 +234,7 @@ impl FormatWriter for ZarrStore {
         }
         Ok(ZarrStore {
             arrays,
+            columns,
             options,
             state,
         })
@@ -176,23 +260,19 @@ impl FormatWriter for ZarrStore {
         episode: &Episode,
         clouds: Vec<Vec<u8>>,
     ) -> Result<f64, ExportError> {
-        let floats = |values: &mut dyn Iterator<Item = f32>| -> Vec<u8> {
-            values.flat_map(f32::to_le_bytes).collect()
-        };
         let steps = &episode.steps;
-        let mut columns: Vec<Vec<u8>> = vec![
-            clouds.concat(),
-            floats(&mut steps.iter().flat_map(|s| s.state)),
-            floats(&mut steps.iter().flat_map(|s| s.action)),
-        ];
-        if self.options.images {
-            columns.push(steps.iter().flat_map(|s| s.rgb.iter().copied()).collect());
-            columns.push(floats(
-                &mut steps.iter().flat_map(|s| s.depth_m.iter().copied()),
-            ));
-        }
-        for (array, bytes) in self.arrays.iter_mut().zip(&columns) {
-            array.push(dir, bytes)?;
+        for (array, column) in self.arrays.iter_mut().zip(&self.columns) {
+            let expected = array.row_bytes() * steps.len();
+            let bytes = column.bytes(steps, &clouds);
+            if bytes.len() != expected {
+                return Err(ExportError::InvalidEpisode(format!(
+                    "episode {}: {} bytes for {}, not {expected}",
+                    episode.meta.index,
+                    bytes.len(),
+                    array.name()
+                )));
+            }
+            array.push(dir, &bytes)?;
         }
         let end = self.state.episode_ends.last().copied().unwrap_or(0) + steps.len() as i64;
         self.state.episode_ends.push(end);
@@ -218,12 +298,14 @@ impl FormatWriter for ZarrStore {
         ends.flush(dir)?;
         let mut attributes = info.surgvla_json();
         attributes["fps"] = json!(info.fps);
-        attributes["point_cloud"] = self.options.cloud.describe(info)?;
-        attributes["point_cloud"]["channels"] = if self.options.mask_channel {
-            json!(["x", "y", "z", "r", "g", "b", "mask_id"])
-        } else {
-            json!(["x", "y", "z", "r", "g", "b"])
-        };
+        if info.has(FeatureKind::Depth) {
+            attributes["point_cloud"] = self.options.cloud.describe(info)?;
+            attributes["point_cloud"]["channels"] = if self.options.mask_channel {
+                json!(["x", "y", "z", "r", "g", "b", "mask_id"])
+            } else {
+                json!(["x", "y", "z", "r", "g", "b"])
+            };
+        }
         let group = json!({"zarr_format": 2});
         let files = [
             (".zgroup", group.clone()),
@@ -251,6 +333,9 @@ impl FormatWriter for ZarrStore {
 impl EpisodeEncoder<Vec<Vec<u8>>> for (&ZarrStore, &DatasetInfo) {
     fn encode(&self, episode: &Episode) -> Result<Vec<Vec<u8>>, ExportError> {
         let (store, info) = *self;
+        if !info.has(FeatureKind::Depth) {
+            return Ok(Vec::new());
+        }
         let cloud_options = store.options.cloud.options(info)?;
         let camera = info.camera;
         let mask_channel = store.options.mask_channel;

@@ -19,6 +19,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
 ACTION_WIDTH = {
     "fractal20220817_data": 7, "bridge": 7, "taco_play": 7, "jaco_play": 4, "language_table": 2,
     "austin_buds_dataset_converted_externally_to_rlds": 7,
+    "maniskill_dataset_converted_externally_to_rlds": 7,
 }
 INSTRUCTIONS = {"pick up the gauze", "place the can upright"}
 

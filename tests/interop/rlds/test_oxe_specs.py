@@ -41,8 +41,8 @@ def scalar(dtype=F32):
     return tfds.features.Scalar(dtype=dtype)
 
 
-def image(h, w, c=3):
-    return tfds.features.Image(shape=(h, w, c))
+def image(h, w, c=3, dtype=np.uint8):
+    return tfds.features.Image(shape=(h, w, c), dtype=dtype)
 
 
 TEXT = "text"
@@ -148,6 +148,31 @@ SPECS = {
             "observation": {"image": image(128, 128), "state": tensor(24), "wrist_image": image(128, 128)},
         },
         {"episode_metadata": {"file_path": TEXT}},
+        ("language_instruction",),
+        None,
+        ["state"],
+    ),
+    # Held out: added after the conversions were built, and the one spec with depth images
+    # (uint16, 1/1024 m) and per-step camera matrices; zarr, MCAP and point clouds are made of
+    # it with --camera and --depth.
+    "maniskill_dataset_converted_externally_to_rlds": (
+        {
+            "action": tensor(7), "discount": scalar(), "reward": scalar(),
+            "language_embedding": tensor(512), "language_instruction": TEXT,
+            "observation": {
+                "base_pose": tensor(7), "depth": image(256, 256, 1, np.uint16), "image": image(256, 256),
+                "main_camera_cam2world_gl": tensor(4, 4), "main_camera_extrinsic_cv": tensor(4, 4),
+                "main_camera_intrinsic_cv": tensor(3, 3), "state": tensor(18),
+                "target_object_or_part_final_pose": tensor(7),
+                "target_object_or_part_final_pose_valid": tensor(7, dtype=np.uint8),
+                "target_object_or_part_initial_pose": tensor(7),
+                "target_object_or_part_initial_pose_valid": tensor(7, dtype=np.uint8),
+                "tcp_pose": tensor(7), "wrist_camera_cam2world_gl": tensor(4, 4),
+                "wrist_camera_extrinsic_cv": tensor(4, 4), "wrist_camera_intrinsic_cv": tensor(3, 3),
+                "wrist_depth": image(256, 256, 1, np.uint16), "wrist_image": image(256, 256),
+            },
+        },
+        {"episode_metadata": {"episode_id": TEXT, "file_path": TEXT}},
         ("language_instruction",),
         None,
         ["state"],
@@ -424,3 +449,74 @@ def test_depth_and_jpeg_keep_what_they_are_through_lerobot_and_back(tmp_path_fac
             assert np.array_equal(x["observation"]["depth"], y["observation"]["depth"])
             assert x["observation"]["depth"].dtype == y["observation"]["depth"].dtype == np.uint16
             assert np.array_equal(x["observation"]["image"], y["observation"]["image"])
+
+
+# maniskill's depth: "divide the depth value by 2**10 to get the depth in meters".
+DEPTH_UNIT_M = 2.0**-10
+INTRINSICS = (128.0, 128.0, 128.0, 128.0)
+CROP = (-100.0, -100.0, 0.0, 100.0, 100.0, 100.0)
+ROLES = [
+    "--camera", "observation.images.image", "--depth", "observation.images.depth",
+    "--depth-unit-m", repr(DEPTH_UNIT_M), "--intrinsics", ",".join(map(str, INTRINSICS)),
+    "--crop=" + ",".join(map(str, CROP)),
+]
+
+
+def test_a_named_camera_and_depth_make_zarr_mcap_and_point_clouds(tmp_path_factory, tmp_path):
+    """The held-out maniskill spec (uint16 depth images in 1/1024 m, a wrist camera, camera
+    matrices per step) into zarr, MCAP, PLY and PCD, which are built around one camera: without
+    --camera each refuses naming the flag and the dataset's image features, writing nothing;
+    with --camera/--depth/--depth-unit-m/--intrinsics/--crop each is written, says on stderr
+    what it leaves out, and validates. The outputs and the values they must hold go to
+    SURGVLA_ROLES_OUT for the real readers (tests/interop/clouds: zarr 3, plyfile, Open3D;
+    tests/interop/mcap: the mcap reader)."""
+    name, root = build("maniskill_dataset_converted_externally_to_rlds", tmp_path_factory)
+    out = Path(os.environ.get("SURGVLA_ROLES_OUT") or tmp_path / "roles")
+    out.mkdir(parents=True, exist_ok=True)
+    for to in ["zarr", "mcap", "ply", "pcd"]:
+        target = out / to
+        shutil.rmtree(target, ignore_errors=True)
+        code, _, err = run("convert", root, "--to", to, "--fps", 10, "--out", target)
+        assert code == 2 and "--camera KEY" in err and "observation.images.wrist_image" in err, err
+        assert not target.exists()
+        code, _, err = run("convert", root, "--to", to, "--fps", 10, *ROLES, "--out", target, "--verify")
+        assert code == 0, err
+        assert "the camera is observation.images.image (256x256)" in err, err
+        assert f"{DEPTH_UNIT_M} m (--depth-unit-m)" in err, err
+        left_out = [line for line in err.splitlines() if ": left out " in line]
+        if to == "mcap":
+            assert not left_out, err
+        else:  # zarr keeps the vectors, point clouds nothing else; one line names them
+            assert len(left_out) == 1 and "observation.images.wrist_image" in left_out[0], err
+            assert ("observation.state" in left_out[0]) == (to != "zarr"), err
+        code, _, err = run("validate", target)
+        assert code == 0, err
+    # What the readers compare with, read by tfds: values, and the wrist camera's PNG bytes as
+    # stored (SkipDecoding), which MCAP carries unchanged.
+    config = tfds.ReadConfig(interleave_cycle_length=1)
+    builder = tfds.builder_from_directory(str(root))
+    stored = builder.as_dataset(
+        split="train", shuffle_files=False, read_config=config,
+        decoders={"steps": {"observation": {"wrist_image": tfds.decode.SkipDecoding()}}},
+    )
+    steps = [s for e in stored for s in e["steps"].as_numpy_iterator()]
+    decoded = [s for e in episodes(root) for s in e]
+    lengths = [len(e) for e in episodes(root)]
+    np.savez(
+        out / "expected.npz",
+        action=np.stack([s["action"] for s in decoded]),
+        state=np.stack([s["observation"]["state"] for s in decoded]),
+        base_pose=np.stack([s["observation"]["base_pose"] for s in decoded]),
+        image=np.stack([s["observation"]["image"] for s in decoded]),
+        depth_m=np.stack([(s["observation"]["depth"][:, :, 0] * DEPTH_UNIT_M).astype(np.float32) for s in decoded]),
+        episode_ends=np.cumsum(lengths),
+    )
+    expected = {
+        "intrinsics": INTRINSICS,
+        "lengths": lengths,
+        "action": [s["action"].tolist() for s in decoded],
+        "wrist_png_sha256": [__import__("hashlib").sha256(s["observation"]["wrist_image"]).hexdigest() for s in steps],
+        "depth_m_sha256": [__import__("hashlib").sha256((s["observation"]["depth"][:, :, 0] * DEPTH_UNIT_M).astype("<f4").tobytes()).hexdigest() for s in decoded],
+        "instructions": [s["language_instruction"].decode() for s in decoded],
+    }
+    (out / "expected.json").write_text(json.dumps(expected))
