@@ -21,6 +21,8 @@ pub const POSE_VALUES: usize = 7;
 #[serde(rename_all = "lowercase")]
 pub enum Dtype {
     Float32,
+    /// Another tool's float64 vectors, kept as they are (surgvla's own are float32).
+    Float64,
     Int64,
     /// An RGB or grey image stored as encoded bytes (PNG, or TIFF for float depth).
     Image,
@@ -389,6 +391,58 @@ pub struct EpisodeMeta {
     pub fields: serde_json::Map<String, serde_json::Value>,
 }
 
+/// A per-episode value another tool's dataset carries ([`EpisodeMeta::fields`]), declared once
+/// for the dataset, so that a format with a fixed schema (RLDS's `features.json`) can state it and
+/// write a default where an episode has none.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EpisodeField {
+    /// Its key in [`EpisodeMeta::fields`] (RLDS: its path, e.g. `episode_metadata/file_path`).
+    pub key: String,
+    pub dtype: FieldDtype,
+    /// Values per episode (1 for a text or a scalar).
+    pub len: usize,
+}
+
+/// What an [`EpisodeField`] holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldDtype {
+    Text,
+    Int64,
+    Float,
+    Bool,
+}
+
+impl FieldDtype {
+    /// The kind of a JSON value (a scalar or an array of them); None for nulls and objects.
+    pub fn of_json(value: &serde_json::Value) -> Option<(FieldDtype, usize)> {
+        use serde_json::Value;
+        match value {
+            Value::String(_) => Some((FieldDtype::Text, 1)),
+            Value::Bool(_) => Some((FieldDtype::Bool, 1)),
+            Value::Number(n) if n.is_i64() => Some((FieldDtype::Int64, 1)),
+            Value::Number(_) => Some((FieldDtype::Float, 1)),
+            Value::Array(items) if !items.is_empty() => {
+                let kinds: Vec<FieldDtype> = (items.iter())
+                    .map(|v| FieldDtype::of_json(v).filter(|k| k.1 == 1).map(|k| k.0))
+                    .collect::<Option<_>>()?;
+                // Numbers are floats if any is; texts are one per key.
+                let numbers = kinds
+                    .iter()
+                    .all(|k| matches!(k, FieldDtype::Int64 | FieldDtype::Float));
+                let dtype = if numbers && kinds.contains(&FieldDtype::Float) {
+                    FieldDtype::Float
+                } else if kinds.iter().all(|k| *k == kinds[0]) && kinds[0] != FieldDtype::Text {
+                    kinds[0]
+                } else {
+                    return None;
+                };
+                Some((dtype, items.len()))
+            }
+            _ => None,
+        }
+    }
+}
+
 /// From step `first_step` of an episode on, its instruction is `instruction`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TaskChange {
@@ -508,6 +562,7 @@ impl Step {
 #[derive(Clone, Debug, PartialEq)]
 pub enum FeatureValue {
     Float32(Vec<f32>),
+    Float64(Vec<f64>),
     Int64(Vec<i64>),
     /// An encoded image (PNG or JPEG), passed through as stored.
     Image(Vec<u8>),
@@ -620,6 +675,7 @@ impl Episode {
                 let elements: usize = feature.shape.iter().product();
                 let fits = match (feature.dtype, value) {
                     (Dtype::Float32, FeatureValue::Float32(v)) => v.len() == elements,
+                    (Dtype::Float64, FeatureValue::Float64(v)) => v.len() == elements,
                     (Dtype::Int64, FeatureValue::Int64(v)) => v.len() == elements,
                     (Dtype::Image, FeatureValue::Image(bytes)) => !bytes.is_empty(),
                     (Dtype::String, FeatureValue::Text(_)) => elements == 1,

@@ -268,5 +268,6 @@ pub fn dataset_info(
         splits: Vec::new(),
         notes: Vec::new(),
         omitted: Vec::new(),
+        episode_fields: Vec::new(),
     }
 }

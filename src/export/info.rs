@@ -50,6 +50,10 @@ pub struct DatasetInfo {
     /// `without` named them (video surgvla cannot decode); `convert --without` takes them as
     /// done. Not part of the options digest.
     pub omitted: Vec<String>,
+    /// The per-episode values another tool's dataset carries
+    /// ([`crate::episode::EpisodeMeta::fields`]), declared; empty for surgvla's own data. Not
+    /// part of the options digest.
+    pub episode_fields: Vec<crate::episode::EpisodeField>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -157,6 +161,7 @@ impl DatasetInfo {
             splits: Vec::new(),
             notes: Vec::new(),
             omitted: Vec::new(),
+            episode_fields: Vec::new(),
         }
     }
 

@@ -54,7 +54,10 @@ impl Others {
     pub fn hold(self, feature: &FeatureSpec) -> bool {
         match self {
             Others::All => true,
-            Others::Vectors => matches!(feature.dtype, Dtype::Float32 | Dtype::Int64),
+            Others::Vectors => matches!(
+                feature.dtype,
+                Dtype::Float32 | Dtype::Float64 | Dtype::Int64
+            ),
             Others::Nothing => false,
         }
     }
@@ -363,5 +366,161 @@ impl EpisodeSource for RoleSource {
 
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::{EpisodeMeta, FeatureSpec};
+    use crate::media::image::{PngLevel, encode_png, encode_png16};
+
+    fn feature(name: &str, dtype: Dtype, shape: Vec<usize>) -> FeatureSpec {
+        FeatureSpec {
+            name: name.into(),
+            dtype,
+            shape,
+            names: Vec::new(),
+            kind: FeatureKind::Other,
+            video: None,
+            info: Default::default(),
+        }
+    }
+
+    /// Another tool's dataset of one 2-step episode: a 4x3 camera, its 16-bit depth, a wrist
+    /// camera and an action.
+    struct Foreign {
+        info: DatasetInfo,
+        episodes: Vec<Episode>,
+    }
+
+    impl Iterator for Foreign {
+        type Item = Result<Episode, ExportError>;
+        fn next(&mut self) -> Option<Self::Item> {
+            (!self.episodes.is_empty()).then(|| Ok(self.episodes.remove(0)))
+        }
+    }
+
+    impl EpisodeSource for Foreign {
+        fn info(&self) -> &DatasetInfo {
+            &self.info
+        }
+        fn len(&self) -> u64 {
+            1
+        }
+    }
+
+    fn foreign() -> Box<dyn EpisodeSource + Send> {
+        let features = vec![
+            feature("action", Dtype::Float32, vec![2]),
+            feature("observation.images.depth", Dtype::Image, vec![3, 4, 1]),
+            feature("observation.images.image", Dtype::Image, vec![3, 4, 3]),
+            feature("observation.images.wrist", Dtype::Image, vec![3, 4, 3]),
+        ];
+        let info = DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 10, "", features);
+        let steps = (0..2u8)
+            .map(|t| {
+                let rgb: Vec<u8> = (0..36).map(|i| i * 7 + t).collect();
+                let mm: Vec<u16> = (0..12).map(|i| 1000 + 10 * i + u16::from(t)).collect();
+                let mut step = Step::empty();
+                step.other = vec![
+                    FeatureValue::Float32(vec![f32::from(t), 1.0]),
+                    FeatureValue::Image(encode_png16(4, 3, &mm, PngLevel::Fast).expect("png16")),
+                    FeatureValue::Image(encode_png(4, 3, 3, &rgb, PngLevel::Fast).expect("png")),
+                    FeatureValue::Image(encode_png(4, 3, 3, &rgb, PngLevel::Fast).expect("png")),
+                ];
+                step
+            })
+            .collect();
+        let episode = Episode {
+            meta: EpisodeMeta::foreign(0, "pick".into()),
+            steps,
+            encoded: Vec::new(),
+            image_stats: Vec::new(),
+        };
+        Box::new(Foreign {
+            info,
+            episodes: vec![episode],
+        })
+    }
+
+    fn roles(camera: &str, depth: Option<&str>) -> Roles {
+        Roles {
+            camera: Some(camera.into()),
+            depth: depth.map(String::from),
+            depth_unit_m: Some(0.5e-3),
+            intrinsics_px: Some([100.0, 110.0, 1.5, 1.0]),
+        }
+    }
+
+    #[test]
+    fn the_named_camera_and_depth_become_pixels_and_metres_and_the_rest_is_kept_or_noted() {
+        let named = roles("observation.images.image", Some("observation.images.depth"));
+        let mut source =
+            RoleSource::new(foreign(), &named, Others::Vectors, "zarr").expect("roles");
+        let info = source.info().clone();
+        assert_eq!(info.rgb_key(), Some("observation.images.image"));
+        assert!(info.has(FeatureKind::Depth));
+        assert_eq!((info.camera.width_px, info.camera.height_px), (4, 3));
+        // OpenCV's principal point, in surgvla's pixel-centre convention.
+        assert_eq!((info.camera.cx_px, info.camera.cy_px), (2.0, 1.5));
+        let names: Vec<&str> = info.features.iter().map(|f| f.name.as_str()).collect();
+        assert!(!names.contains(&"observation.images.wrist"), "{names:?}");
+        assert!(
+            info.notes
+                .iter()
+                .any(|n| n.starts_with("left out observation.images.wrist: zarr")),
+            "{:?}",
+            info.notes
+        );
+        let episode = source.next().expect("one").expect("read");
+        let step = &episode.steps[1];
+        assert_eq!(step.rgb, (0..36).map(|i| i * 7 + 1).collect::<Vec<u8>>());
+        assert!(
+            (step.depth_m[2] - 1021.0 * 0.5e-3).abs() < 1e-6,
+            "{:?}",
+            step.depth_m
+        );
+        assert_eq!(step.other, [FeatureValue::Float32(vec![1.0, 1.0])]);
+        // MCAP keeps every other feature.
+        let source = RoleSource::new(foreign(), &named, Others::All, "MCAP").expect("roles");
+        assert!(
+            source
+                .info()
+                .notes
+                .iter()
+                .all(|n| !n.starts_with("left out"))
+        );
+    }
+
+    #[test]
+    fn roles_that_do_not_fit_the_input_are_refused_naming_its_images() {
+        let refused = |roles: Roles| {
+            let error = RoleSource::new(foreign(), &roles, Others::All, "PLY")
+                .err()
+                .expect("refused");
+            assert_eq!(
+                crate::error::HasKind::kind(&error),
+                crate::error::ErrorKind::Usage
+            );
+            error.to_string()
+        };
+        let none = refused(Roles::default());
+        assert!(
+            none.contains("--camera KEY") && none.contains("observation.images.wrist"),
+            "{none}"
+        );
+        let missing = refused(roles("nothing", None));
+        assert!(missing.contains("not an image feature"), "{missing}");
+        let grey = refused(roles("observation.images.depth", None));
+        assert!(grey.contains("3 channels (RGB)"), "{grey}");
+        let colour = refused(roles(
+            "observation.images.image",
+            Some("observation.images.wrist"),
+        ));
+        assert!(colour.contains("1 channel (depth)"), "{colour}");
+        let mut unit = roles("observation.images.image", None);
+        unit.depth_unit_m = Some(-1.0);
+        assert!(refused(unit).contains("--depth-unit-m"));
     }
 }

@@ -137,6 +137,15 @@ impl VectorStats {
         self.sample(values.iter().copied());
     }
 
+    /// Adds one frame's float64 vector (another tool's): the running statistics in float64,
+    /// the quantiles' sample in float32.
+    pub fn push_f64(&mut self, values: &[f64]) {
+        for (running, v) in self.running.iter_mut().zip(values) {
+            running.push(*v);
+        }
+        self.sample(values.iter().map(|&v| v as f32));
+    }
+
     /// Folds in another series' statistics (its sampled values join the reservoir).
     pub fn merge(&mut self, other: &VectorStats) {
         for (a, b) in self.running.iter_mut().zip(&other.running) {

@@ -659,11 +659,35 @@ fn an_interrupted_dataset_resumes_to_the_same_bytes() {
 }
 
 /// Another tool's features (FeatureKind::Other: a 14-D float vector, a one-value int64, a
-/// camera's encoded PNG) go through the LeRobot writer and reader unchanged, in v3.0 and v2.1,
-/// images byte for byte; such a dataset gets no surgvla metadata and validates.
+/// camera's encoded PNG, a float64 vector kept float64) and its per-episode values go through
+/// the LeRobot writer and reader unchanged, in v3.0 and v2.1, images byte for byte; such a
+/// dataset gets no surgvla metadata and validates.
 #[test]
 fn other_features_round_trip_unchanged() {
-    let (dataset, episodes) = crate::util::foreign_dataset();
+    use surgvla::episode::{Dtype, FeatureValue};
+    let (mut dataset, mut episodes) = crate::util::foreign_dataset();
+    let mut doubles = dataset.features[0].clone();
+    (doubles.name, doubles.dtype, doubles.shape) =
+        ("observation.joints".into(), Dtype::Float64, vec![3]);
+    doubles.info.clear();
+    dataset.features.push(doubles);
+    for episode in &mut episodes {
+        let index = episode.meta.index;
+        for (k, step) in episode.steps.iter_mut().enumerate() {
+            // Doubles no float32 holds.
+            let value = 1.0 / 3.0 + (index * 10 + k as u64) as f64 * 1e-12;
+            step.other
+                .push(FeatureValue::Float64(vec![value, -value, value * 1e9]));
+        }
+        episode.meta.fields.insert(
+            "episode_metadata/file_path".into(),
+            format!("run_{index}.h5").into(),
+        );
+        episode
+            .meta
+            .fields
+            .insert("episode_metadata/score".into(), (index as f64 / 4.0).into());
+    }
     for version in [
         surgvla::export::lerobot::LeRobotVersion::V30,
         surgvla::export::lerobot::LeRobotVersion::V21,
@@ -685,7 +709,15 @@ fn other_features_round_trip_unchanged() {
             let others: Vec<_> = read.steps.iter().map(|s| s.other.clone()).collect();
             let wanted: Vec<_> = expected.steps.iter().map(|s| s.other.clone()).collect();
             assert_eq!(others, wanted, "{version:?}");
+            assert_eq!(read.meta.fields, expected.meta.fields, "{version:?}");
         }
+        let declared: Vec<&str> = (source.info().episode_fields.iter())
+            .map(|f| f.key.as_str())
+            .collect();
+        assert_eq!(
+            declared,
+            ["episode_metadata/file_path", "episode_metadata/score"]
+        );
         assert!(source.next().is_none());
         let report = surgvla::export::validate::validate(&root, &Default::default()).expect("runs");
         assert!(report.valid, "{version:?}: {:#?}", report.errors);

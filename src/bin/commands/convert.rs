@@ -51,8 +51,8 @@ pub(crate) struct ConvertArgs {
     /// `keys = [...]`; see docs/datasets.md).
     #[arg(long, value_name = "FILE.toml")]
     map: Option<PathBuf>,
-    /// Read another tool's float64 vectors as this type (surgvla holds float32; without
-    /// --cast a float64 feature is refused by name).
+    /// Read another tool's float64 vectors as this type (without --cast they stay float64,
+    /// except in RLDS, whose TFRecord files store float32).
     #[arg(long, value_enum)]
     cast: Option<Cast>,
     /// Decode video features to pixels: with --to lerobot, write image mode (PNG) instead of

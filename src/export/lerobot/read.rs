@@ -322,8 +322,9 @@ fn features_of(
             None
         };
         if dtype == "float64" && shape.len() == 1 {
-            notes.push(narrowed(name, path, options)?);
-            dtype = "float32";
+            let (read_as, note) = float64_read(name, options);
+            dtype = read_as;
+            notes.push(note);
         }
         let role = Role {
             ours,
@@ -355,22 +356,22 @@ fn features_of(
     })
 }
 
-/// The note of a float64 vector read as float32, or the refusal naming `--cast` when the
-/// options do not allow it.
-fn narrowed(
+/// How a float64 vector feature is read (float64, or float32 with `--cast float32`), and the
+/// note saying so.
+fn float64_read(
     name: &str,
-    path: &Path,
     options: &crate::export::source::SourceOptions,
-) -> Result<String, ExportError> {
-    if !options.float64_as_float32 {
-        return Err(ExportError::InvalidOptions(format!(
-            "{}: {name} is float64, and surgvla holds float32 vectors: --cast float32 reads it narrowed (about 7 significant digits)",
-            path.display()
-        )));
+) -> (&'static str, String) {
+    if options.float64_as_float32 {
+        let note = format!(
+            "{name} is float64: read as float32 (--cast float32), rounded to about 7 significant digits"
+        );
+        return ("float32", note);
     }
-    Ok(format!(
-        "{name} is float64: read as float32 (--cast float32), rounded to about 7 significant digits"
-    ))
+    let note = format!(
+        "{name} is float64, kept so (an RLDS output stores float32, as TFRecord does; --cast float32 narrows it everywhere)"
+    );
+    ("float64", note)
 }
 
 /// What [`features_of`] read: the features, the notes on how, the features left out.
@@ -447,6 +448,7 @@ impl Role {
             }
             "image" if shape.len() == 3 => (Dtype::Image, FeatureKind::Other),
             "float32" if shape.len() == 1 => (Dtype::Float32, FeatureKind::Other),
+            "float64" if shape.len() == 1 => (Dtype::Float64, FeatureKind::Other),
             "int64" if shape.len() == 1 => (Dtype::Int64, FeatureKind::Other),
             "string" if shape == [1] => (Dtype::String, FeatureKind::Other),
             _ => return None,
@@ -512,24 +514,24 @@ fn other_values(
                 .map(|r| FeatureValue::Image(bytes.value(r).to_vec()))
                 .collect()
         }
-        Dtype::Float32 => {
-            if let Some(a) = values.as_any().downcast_ref::<Float32Array>() {
-                (0..rows)
-                    .map(|r| FeatureValue::Float32(a.values()[chunk(r)].to_vec()))
-                    .collect()
-            } else {
-                let a = values
-                    .as_any()
-                    .downcast_ref::<Float64Array>()
-                    .ok_or_else(bad)?;
-                (0..rows)
-                    .map(|r| {
-                        FeatureValue::Float32(
-                            a.values()[chunk(r)].iter().map(|&v| v as f32).collect(),
-                        )
-                    })
-                    .collect()
-            }
+        Dtype::Float32 | Dtype::Float64 => {
+            let singles = values.as_any().downcast_ref::<Float32Array>();
+            let doubles = values.as_any().downcast_ref::<Float64Array>();
+            (0..rows)
+                .map(|r| match (feature.dtype, singles, doubles) {
+                    (Dtype::Float32, Some(a), _) => {
+                        Ok(FeatureValue::Float32(a.values()[chunk(r)].to_vec()))
+                    }
+                    // float64 read as float32 (`--cast float32`).
+                    (Dtype::Float32, _, Some(a)) => Ok(FeatureValue::Float32(
+                        a.values()[chunk(r)].iter().map(|&v| v as f32).collect(),
+                    )),
+                    (Dtype::Float64, _, Some(a)) => {
+                        Ok(FeatureValue::Float64(a.values()[chunk(r)].to_vec()))
+                    }
+                    _ => Err(bad()),
+                })
+                .collect::<Result<_, _>>()?
         }
         Dtype::Int64 => {
             let a = values
@@ -588,7 +590,7 @@ fn cell(column: &dyn Array, row: usize) -> Value {
 /// episode's (memory flat in episodes); v2.1's jsonl files, whose stats lines may come in any
 /// order, are read whole into the same shape.
 enum EpisodeRows {
-    Loaded(std::vec::IntoIter<StoredEpisode>),
+    Loaded(std::collections::VecDeque<StoredEpisode>),
     Parquet {
         files: std::vec::IntoIter<PathBuf>,
         reader: Option<parquet::arrow::arrow_reader::ParquetRecordBatchReader>,
@@ -601,7 +603,7 @@ impl EpisodeRows {
     /// stops a command before it writes anything.
     fn open(root: &Path, v21: bool) -> Result<Self, ExportError> {
         if v21 {
-            return Ok(EpisodeRows::Loaded(episode_rows_v21(root)?.into_iter()));
+            return Ok(EpisodeRows::Loaded(episode_rows_v21(root)?.into()));
         }
         let files = parquet_files(&root.join("meta/episodes"))?;
         for path in &files {
@@ -614,10 +616,34 @@ impl EpisodeRows {
         })
     }
 
+    /// The per-episode values another tool's dataset carries in its episodes table (columns
+    /// that are not LeRobot's or surgvla's), declared from the first episode's row, which is
+    /// read and kept for [`EpisodeRows::next_row`].
+    fn declared_fields(&mut self) -> Result<Vec<crate::episode::EpisodeField>, ExportError> {
+        let Some(first) = self.next_row()? else {
+            return Ok(Vec::new());
+        };
+        let declared = (first.fields.iter())
+            .filter_map(|(key, value)| {
+                let (dtype, len) = crate::episode::FieldDtype::of_json(value)?;
+                Some(crate::episode::EpisodeField {
+                    key: key.clone(),
+                    dtype,
+                    len,
+                })
+            })
+            .collect();
+        match self {
+            EpisodeRows::Loaded(rows) => rows.push_front(first),
+            EpisodeRows::Parquet { ready, .. } => ready.push_front(first),
+        }
+        Ok(declared)
+    }
+
     /// The next episode's row, or None after the last.
     fn next_row(&mut self) -> Result<Option<StoredEpisode>, ExportError> {
         let (files, reader, ready) = match self {
-            EpisodeRows::Loaded(rows) => return Ok(rows.next()),
+            EpisodeRows::Loaded(rows) => return Ok(rows.pop_front()),
             EpisodeRows::Parquet {
                 files,
                 reader,
@@ -817,7 +843,8 @@ impl LeRobotSource {
         }
         info.notes = notes;
         info.omitted = read.omitted;
-        let episodes = EpisodeRows::open(root, v21)?;
+        let mut episodes = EpisodeRows::open(root, v21)?;
+        info.episode_fields = episodes.declared_fields()?;
         Ok(LeRobotSource {
             root: root.to_path_buf(),
             total_episodes: info_json.total_episodes.unwrap_or(0),
@@ -1232,6 +1259,7 @@ impl Iterator for LeRobotSource {
             .as_ref()
             .map(|e| e.provenance.clone())
             .unwrap_or_default();
+        let fields = row.as_ref().map(|e| e.fields.clone()).unwrap_or_default();
         let mut encoded: Vec<EncodedFeature> = stored_keys
             .into_iter()
             .zip(stored)
@@ -1274,7 +1302,7 @@ impl Iterator for LeRobotSource {
                 attempts: provenance.attempts,
                 success: provenance.success,
                 task_changes,
-                fields: serde_json::Map::new(),
+                fields,
             },
             steps,
         }))

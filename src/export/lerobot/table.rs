@@ -54,6 +54,7 @@ pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
             Dtype::String => Field::new(&f.name, DataType::Utf8, true),
             // Another robot's one-value feature is a plain column, as lerobot writes it.
             Dtype::Float32 if is_scalar(f) => Field::new(&f.name, DataType::Float32, true),
+            Dtype::Float64 if is_scalar(f) => Field::new(&f.name, DataType::Float64, true),
             Dtype::Int64 if is_scalar(f) => Field::new(&f.name, DataType::Int64, true),
             Dtype::Float32 => Field::new(
                 &f.name,
@@ -63,6 +64,11 @@ pub fn frame_schema(features: &[FeatureSpec]) -> Arc<Schema> {
             Dtype::Int64 => Field::new(
                 &f.name,
                 DataType::FixedSizeList(list_item(DataType::Int64), elements(f) as i32),
+                true,
+            ),
+            Dtype::Float64 => Field::new(
+                &f.name,
+                DataType::FixedSizeList(list_item(DataType::Float64), elements(f) as i32),
                 true,
             ),
         })
@@ -404,6 +410,19 @@ fn other_column(
             }
             vector(Arc::new(Float32Array::from(flat)), DataType::Float32)
         }
+        Dtype::Float64 => {
+            let mut flat = Vec::new();
+            for value in values {
+                match value {
+                    Some(FeatureValue::Float64(v)) => flat.extend_from_slice(v),
+                    _ => return Err(wrong()),
+                }
+            }
+            vector(
+                Arc::new(arrow_array::Float64Array::from(flat)),
+                DataType::Float64,
+            )
+        }
         Dtype::Int64 => {
             let mut flat = Vec::new();
             for value in values {
@@ -498,6 +517,8 @@ pub(super) struct StoredEpisode {
     pub pixel_stats: std::collections::BTreeMap<String, String>,
     /// The `surgvla/...` columns (each absent one reads as zero, empty or false).
     pub provenance: Provenance,
+    /// Another tool's own columns (see [`free_field_name`]), nulls left out.
+    pub fields: serde_json::Map<String, Value>,
 }
 
 impl StoredEpisode {
@@ -514,6 +535,10 @@ impl StoredEpisode {
                 "surgvla/attempts" => p.attempts = value.as_u64().unwrap_or(0) as u32,
                 "surgvla/success" => p.success = value.as_bool().unwrap_or(false),
                 _ => {}
+            }
+            if free_field_name(name) && !value.is_null() {
+                episode.fields.insert(name.to_string(), value);
+                continue;
             }
             if let Some(key) = name.strip_prefix(PIXEL_STATS) {
                 let exact = match value {

@@ -350,6 +350,7 @@ fn fold_frame(
             }
             (Some(FeatureKind::Other), s) => match (others.next(), s) {
                 (Some(FeatureValue::Float32(v)), FeatureStats::Vector(s)) => s.push(v),
+                (Some(FeatureValue::Float64(v)), FeatureStats::Vector(s)) => s.push_f64(v),
                 (Some(FeatureValue::Int64(v)), FeatureStats::Vector(s)) => {
                     s.push(&v.iter().map(|&x| x as f32).collect::<Vec<_>>())
                 }

@@ -815,7 +815,7 @@ fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> 
     let mut features = serde_json::Map::new();
     for f in feature_specs {
         let mut entry = json!({
-            "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Int64 => "int64", Dtype::String => "string" },
+            "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Float64 => "float64", Dtype::Int64 => "int64", Dtype::String => "string" },
             "shape": f.shape,
             "names": if f.names.is_empty() && f.dtype == Dtype::String { Value::Null } else { json!(f.names) },
         });

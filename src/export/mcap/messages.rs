@@ -246,6 +246,7 @@ pub fn feature_json(ns: u64, value: &crate::episode::FeatureValue) -> Option<Val
     use crate::episode::FeatureValue;
     Some(match value {
         FeatureValue::Float32(values) => json!({"timestamp_ns": ns, "values": values}),
+        FeatureValue::Float64(values) => json!({"timestamp_ns": ns, "values": values}),
         FeatureValue::Int64(values) => json!({"timestamp_ns": ns, "values": values}),
         FeatureValue::Text(text) => json!({"timestamp_ns": ns, "text": text}),
         FeatureValue::Image(_) => return None,

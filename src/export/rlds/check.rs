@@ -260,7 +260,9 @@ fn learn_facts(leaves: Option<&BTreeMap<String, Leaf>>, surgvla: &Value, finding
             .into_iter()
             .flatten()
             .map(|(key, leaf)| match leaf {
-                Leaf::Tensor { dtype, elements } => FeatureFact {
+                Leaf::Tensor {
+                    dtype, elements, ..
+                } => FeatureFact {
                     name: key.clone(),
                     dtype: dtype.clone(),
                     shape: vec![*elements],

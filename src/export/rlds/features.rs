@@ -249,14 +249,6 @@ pub fn dataset_info_json(
     })
 }
 
-fn int_tensor(length: usize, description: &str) -> Value {
-    json!({
-        "pythonClassName": TENSOR,
-        "tensor": {"dtype": "int64", "encoding": "none", "shape": {"dimensions": [length.to_string()]}},
-        "description": description,
-    })
-}
-
 /// Nests `leaf` at `path` in a tree of plain maps.
 fn insert_at(tree: &mut serde_json::Map<String, Value>, path: &[String], leaf: Value) {
     match path {
@@ -296,7 +288,6 @@ pub fn foreign_features_json(
 ) -> Value {
     let mut step = serde_json::Map::new();
     for feature in &info.features {
-        let elements: usize = feature.shape.iter().product();
         let leaf = match feature.dtype {
             Dtype::Image => {
                 let mut shape = [0usize; 3];
@@ -313,8 +304,15 @@ pub fn foreign_features_json(
                     _ => image(shape, "uint8", &description),
                 }
             }
-            Dtype::Float32 => tensor(elements, &feature.name),
-            Dtype::Int64 => int_tensor(elements, &feature.name),
+            Dtype::Float32 | Dtype::Float64 | Dtype::Int64 => {
+                // float64 as TFDS declares it; TFRecord stores it as float32 (a note says).
+                let dtype = match feature.dtype {
+                    Dtype::Int64 => "int64",
+                    Dtype::Float64 => "float64",
+                    _ => "float32",
+                };
+                shaped_tensor(dtype, &declared_shape(feature), &feature.name)
+            }
             Dtype::String => text(&format!("{} (one text per step).", feature.name)),
         };
         insert_at(
@@ -327,12 +325,21 @@ pub fn foreign_features_json(
     for flag in ["is_first", "is_last", "is_terminal"] {
         step.insert(flag.into(), scalar("bool", flag));
     }
-    let mut metadata = serde_json::Map::new();
-    metadata.insert(
-        "file_path".into(),
-        text("episode-N, N the episode's index."),
-    );
-    let mut top = serde_json::Map::new();
+    // The input's per-episode values at their own paths; `episode_metadata/file_path` says
+    // the episode's index unless the input has one.
+    let mut episode = serde_json::Map::new();
+    if !crate::export::rlds::record::metadata_taken(info) {
+        insert_at(
+            &mut episode,
+            &["episode_metadata".into(), "file_path".into()],
+            text("episode-N, N the episode's index."),
+        );
+    }
+    for field in &info.episode_fields {
+        let path: Vec<String> = field.key.split('/').map(String::from).collect();
+        insert_at(&mut episode, &path, field_leaf(field));
+    }
+    let mut top = as_features_dicts(episode);
     top.insert(
         "steps".into(),
         json!({
@@ -341,11 +348,52 @@ pub fn foreign_features_json(
             "description": "The episode's steps.",
         }),
     );
-    top.insert(
-        "episode_metadata".into(),
-        features_dict(metadata, "Where the episode came from."),
-    );
     features_dict(top, "")
+}
+
+/// The shape to declare for a vector feature: the one another tool's RLDS dataset declared it
+/// with (kept in its info when it was flattened), else its own.
+fn declared_shape(feature: &crate::episode::FeatureSpec) -> Vec<usize> {
+    let elements: usize = feature.shape.iter().product();
+    let recorded: Option<Vec<usize>> = (feature.info.get(crate::export::rlds::foreign::SHAPE_KEY))
+        .and_then(Value::as_array)
+        .and_then(|dims| {
+            dims.iter()
+                .map(|d| d.as_u64().map(|d| d as usize))
+                .collect()
+        });
+    match recorded {
+        Some(dims) if dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)) == Some(elements) => {
+            dims
+        }
+        _ => vec![elements],
+    }
+}
+
+/// A tensor of `dtype` and `dims`.
+fn shaped_tensor(dtype: &str, dims: &[usize], description: &str) -> Value {
+    let dims: Vec<String> = dims.iter().map(usize::to_string).collect();
+    json!({
+        "pythonClassName": TENSOR,
+        "tensor": {"dtype": dtype, "encoding": "none", "shape": {"dimensions": dims}},
+        "description": description,
+    })
+}
+
+/// The declaration of another tool's per-episode value: a text, a scalar, or a vector.
+fn field_leaf(field: &crate::episode::EpisodeField) -> Value {
+    use crate::episode::FieldDtype;
+    let description = format!("{} (the input's, per episode).", field.key);
+    let dtype = match field.dtype {
+        FieldDtype::Text => return text(&description),
+        FieldDtype::Int64 => "int64",
+        FieldDtype::Float => "float32",
+        FieldDtype::Bool => "bool",
+    };
+    if field.len == 1 {
+        return scalar(dtype, &description);
+    }
+    shaped_tensor(dtype, &[field.len], &description)
 }
 
 #[cfg(test)]
@@ -378,7 +426,30 @@ mod tests {
             splits: Vec::new(),
             notes: Vec::new(),
             omitted: Vec::new(),
+            episode_fields: Vec::new(),
         }
+    }
+
+    #[test]
+    fn a_flattened_tensor_is_declared_with_the_shape_it_came_with_when_that_fits() {
+        let mut feature = crate::episode::FeatureSpec {
+            name: "observation.depth_static".into(),
+            dtype: Dtype::Float32,
+            shape: vec![6],
+            names: Vec::new(),
+            kind: FeatureKind::Other,
+            video: None,
+            info: Default::default(),
+        };
+        assert_eq!(declared_shape(&feature), [6]);
+        let key = crate::export::rlds::foreign::SHAPE_KEY;
+        feature.info.insert(key.into(), json!([2, 3]));
+        assert_eq!(declared_shape(&feature), [2, 3]);
+        // A recorded shape that does not hold the values (edited, hostile) is not believed.
+        feature.info.insert(key.into(), json!([4, 4]));
+        assert_eq!(declared_shape(&feature), [6]);
+        feature.info.insert(key.into(), json!([u64::MAX, 2]));
+        assert_eq!(declared_shape(&feature), [6]);
     }
 
     #[test]

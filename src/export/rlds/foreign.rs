@@ -10,7 +10,10 @@
 //! info's notes, which `convert` prints: nothing is left out silently. RLDS has no frame rate:
 //! the caller gives one.
 
-use crate::episode::{Dtype, Episode, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, Step};
+use crate::episode::{
+    Dtype, Episode, EpisodeField, EpisodeMeta, FeatureKind, FeatureSpec, FeatureValue, FieldDtype,
+    Step,
+};
 use crate::export::bounded::read_json;
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
@@ -53,7 +56,9 @@ fn read_as(key: &str, leaf: &Leaf) -> Result<(Dtype, Vec<usize>), String> {
                 "left out {key}: an image of unknown size (surgvla needs fixed sizes)"
             )),
         },
-        Leaf::Tensor { dtype, elements } => match dtype.as_str() {
+        Leaf::Tensor {
+            dtype, elements, ..
+        } => match dtype.as_str() {
             "float32" | "float64" | "float16" => Ok((Dtype::Float32, vec![*elements])),
             "int64" | "int32" | "int16" | "int8" | "uint8" | "uint16" | "uint32" | "bool" => {
                 Ok((Dtype::Int64, vec![*elements]))
@@ -88,7 +93,9 @@ const MAX_FIELD_VALUES: usize = 16;
 fn episode_field(leaf: &Leaf) -> bool {
     match leaf {
         Leaf::Text => true,
-        Leaf::Tensor { dtype, elements } => dtype != "string" && *elements <= MAX_FIELD_VALUES,
+        Leaf::Tensor {
+            dtype, elements, ..
+        } => dtype != "string" && *elements <= MAX_FIELD_VALUES,
         Leaf::Image { .. } => false,
     }
 }
@@ -119,6 +126,36 @@ fn fields_of(
         fields.insert(key.clone(), value);
     }
     fields
+}
+
+/// The feature info key of a flattened tensor's declared shape (e.g. `[150, 200]`).
+pub const SHAPE_KEY: &str = "rlds_shape";
+
+/// The per-episode leaves carried, declared as [`EpisodeField`]s (in key order).
+fn declared(leaves: &BTreeMap<String, Leaf>) -> Vec<EpisodeField> {
+    (leaves.iter())
+        .filter_map(|(key, leaf)| {
+            let (dtype, len) = match leaf {
+                Leaf::Text => (FieldDtype::Text, 1),
+                Leaf::Tensor {
+                    dtype, elements, ..
+                } => {
+                    let kind = match dtype.as_str() {
+                        "bool" => FieldDtype::Bool,
+                        d if d.starts_with("float") => FieldDtype::Float,
+                        _ => FieldDtype::Int64,
+                    };
+                    (kind, (*elements).max(1))
+                }
+                Leaf::Image { .. } => return None,
+            };
+            Some(EpisodeField {
+                key: key.clone(),
+                dtype,
+                len,
+            })
+        })
+        .collect()
 }
 
 /// A feature spec surgvla has no role for.
@@ -179,7 +216,7 @@ fn columns(
         if !key.starts_with("steps/") {
             notes.push(match episode_field(leaf) {
                 true => format!(
-                    "{key}: per episode, carried as the LeRobot episodes table's column {key} (an RLDS output leaves it out)"
+                    "{key}: per episode, carried as the LeRobot episodes table's column {key} (RLDS: the same key; MCAP, PLY, PCD: episodes.jsonl's fields)"
                 ),
                 false => format!("left out {key}: per-episode values surgvla does not carry"),
             });
@@ -201,6 +238,14 @@ fn columns(
                 // so to LeRobot, its PNG bytes unchanged.
                 if matches!(leaf, Leaf::Image { dtype, .. } if dtype == "uint16") {
                     spec.info.insert("is_depth_map".into(), Value::Bool(true));
+                }
+                // A tensor of several dimensions travels flattened; its shape goes with it
+                // (LeRobot: the feature's info), for an RLDS output to declare again.
+                if let Leaf::Tensor { dims, .. } = leaf
+                    && dims.len() > 1
+                {
+                    spec.info
+                        .insert(SHAPE_KEY.into(), Value::from(dims.clone()));
                 }
                 columns.push(Column {
                     parts: vec![(key.clone(), spec.shape.iter().product())],
@@ -296,9 +341,10 @@ impl ForeignRldsSource {
         let mut info = DatasetInfo::from_surgvla_json(&Value::Null, fps, robot_type, features);
         info.notes = described(&folder);
         info.notes.extend(notes);
-        let episode_leaves = (leaves.into_iter())
+        let episode_leaves: BTreeMap<String, Leaf> = (leaves.into_iter())
             .filter(|(k, l)| !k.starts_with("steps/") && episode_field(l))
             .collect();
+        info.episode_fields = declared(&episode_leaves);
         Ok(ForeignRldsSource {
             info,
             reading: Reading {

@@ -19,6 +19,8 @@ pub enum Leaf {
     Tensor {
         dtype: String,
         elements: usize,
+        /// The declared dimensions (empty for a scalar).
+        dims: Vec<usize>,
     },
     /// An encoded image with (height, width, channels); dimensions may be unknown (None).
     Image {
@@ -83,15 +85,15 @@ fn walk(node: &Value, prefix: &str, out: &mut BTreeMap<String, Leaf>) -> Result<
         return Ok(());
     }
     if let Some(tensor) = node.get("tensor") {
-        let elements = tensor["shape"]["dimensions"]
-            .as_array()
-            .map(|d| d.iter().map(|v| dimension(v).unwrap_or(1)).product())
-            .unwrap_or(1);
+        let dims: Vec<usize> = (tensor["shape"]["dimensions"].as_array())
+            .map(|d| d.iter().map(|v| dimension(v).unwrap_or(1)).collect())
+            .unwrap_or_default();
         out.insert(
             prefix.to_string(),
             Leaf::Tensor {
                 dtype: tensor["dtype"].as_str().unwrap_or_default().into(),
-                elements,
+                elements: dims.iter().product(),
+                dims,
             },
         );
         return Ok(());

@@ -241,6 +241,7 @@ mod tests {
         Leaf::Tensor {
             dtype: dtype.into(),
             elements,
+            dims: vec![elements],
         }
     }
 

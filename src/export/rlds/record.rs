@@ -132,6 +132,17 @@ fn foreign_feature(
             }
             Feature::Float(flat)
         }
+        // TFRecord's floats are float32, as tensorflow_datasets stores float64 tensors.
+        Dtype::Float64 => {
+            let mut flat = Vec::new();
+            for step in steps {
+                match step.other.get(position) {
+                    Some(FeatureValue::Float64(v)) => flat.extend(v.iter().map(|&x| x as f32)),
+                    _ => return Err(wrong()),
+                }
+            }
+            Feature::Float(flat)
+        }
         Dtype::Int64 => {
             let mut flat = Vec::new();
             for step in steps {
@@ -205,11 +216,58 @@ pub fn encode_foreign_episode(
     features.insert("steps/is_first".into(), flags(&|i| i == 0));
     features.insert("steps/is_last".into(), flags(&|i| i == last));
     features.insert("steps/is_terminal".into(), flags(&|i| i == last));
-    features.insert(
-        "episode_metadata/file_path".into(),
-        text(&format!("episode-{}", episode.meta.index)),
-    );
+    if !metadata_taken(info) {
+        features.insert(
+            "episode_metadata/file_path".into(),
+            text(&format!("episode-{}", episode.meta.index)),
+        );
+    }
+    for field in &info.episode_fields {
+        let value = episode.meta.fields.get(&field.key);
+        features.insert(field.key.clone(), field_feature(field, value));
+    }
     Ok(encode_example(&features))
+}
+
+/// Whether the input has a per-episode value named `episode_metadata` itself, which leaves no
+/// folder of that name for the `file_path` an episode of another tool's dataset gets.
+pub(crate) fn metadata_taken(info: &DatasetInfo) -> bool {
+    info.episode_fields
+        .iter()
+        .any(|f| f.key == "episode_metadata")
+}
+
+/// Another tool's per-episode value as RLDS stores it; where an episode has none, or one of
+/// another kind or length, the declared kind's zero (an empty text), so every record holds
+/// every key `features.json` declares.
+fn field_feature(
+    field: &crate::episode::EpisodeField,
+    value: Option<&serde_json::Value>,
+) -> Feature {
+    use crate::episode::FieldDtype;
+    use serde_json::Value;
+    let items: Vec<&Value> = match value {
+        Some(Value::Array(items)) => items.iter().collect(),
+        Some(value) => vec![value],
+        None => Vec::new(),
+    };
+    let fits = items.len() == field.len;
+    match field.dtype {
+        FieldDtype::Text => text(value.and_then(Value::as_str).unwrap_or_default()),
+        FieldDtype::Float => Feature::Float(match fits {
+            true => items
+                .iter()
+                .map(|v| v.as_f64().unwrap_or(0.0) as f32)
+                .collect(),
+            false => vec![0.0; field.len],
+        }),
+        FieldDtype::Int64 | FieldDtype::Bool => Feature::Int64(match fits {
+            true => (items.iter())
+                .map(|v| v.as_i64().or(v.as_bool().map(i64::from)).unwrap_or(0))
+                .collect(),
+            false => vec![0; field.len],
+        }),
+    }
 }
 
 /// Each step's images, encoded (steps in parallel); stored PNG and JPEG bytes copied.
@@ -593,6 +651,58 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
+
+    #[test]
+    fn another_tools_episode_values_are_written_as_declared_or_as_zeros() {
+        use crate::episode::{EpisodeField, FieldDtype};
+        use serde_json::json;
+        let field = |dtype, len| EpisodeField {
+            key: "episode_metadata/x".into(),
+            dtype,
+            len,
+        };
+        // Each JSON value as its kind, and its kind declared from it.
+        for (value, dtype, len, stored) in [
+            (json!("ep 3"), FieldDtype::Text, 1, text("ep 3")),
+            (json!(7), FieldDtype::Int64, 1, Feature::Int64(vec![7])),
+            (
+                json!([true, false]),
+                FieldDtype::Bool,
+                2,
+                Feature::Int64(vec![1, 0]),
+            ),
+            (
+                json!([0.5, 2]),
+                FieldDtype::Float,
+                2,
+                Feature::Float(vec![0.5, 2.0]),
+            ),
+        ] {
+            assert_eq!(FieldDtype::of_json(&value), Some((dtype, len)), "{value}");
+            assert_eq!(
+                field_feature(&field(dtype, len), Some(&value)),
+                stored,
+                "{value}"
+            );
+        }
+        // None, or a value of another length: the kind's zeros, so every record has the key.
+        assert_eq!(
+            field_feature(&field(FieldDtype::Float, 2), None),
+            Feature::Float(vec![0.0; 2])
+        );
+        let short = json!([1]);
+        assert_eq!(
+            field_feature(&field(FieldDtype::Int64, 3), Some(&short)),
+            Feature::Int64(vec![0; 3])
+        );
+        assert_eq!(field_feature(&field(FieldDtype::Text, 1), None), text(""));
+        assert_eq!(
+            FieldDtype::of_json(&json!(["a", "b"])),
+            None,
+            "texts are one per key"
+        );
+        assert_eq!(FieldDtype::of_json(&json!(null)), None);
+    }
 
     fn layout() -> StepLayout {
         StepLayout {

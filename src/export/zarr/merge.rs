@@ -73,6 +73,7 @@ fn array_shape(root: &Path, array: &str) -> Result<ArrayShape, MergeError> {
         Some("<f4") => ("<f4", 4),
         Some("|u1") => ("|u1", 1),
         Some("<i8") => ("<i8", 8),
+        Some("<f8") => ("<f8", 8),
         other => {
             return Err(invalid(
                 &path,

@@ -125,6 +125,7 @@ impl Column {
             let width = [feature.shape.iter().product::<usize>()];
             let array = match feature.dtype {
                 Dtype::Int64 => ArrayWriter::new(&format!("data/{name}"), "<i8", 8, &width),
+                Dtype::Float64 => ArrayWriter::new(&format!("data/{name}"), "<f8", 8, &width),
                 _ => ArrayWriter::new(&format!("data/{name}"), "<f4", 4, &width),
             };
             arrays.push((Column::Other(i), array));
@@ -157,6 +158,9 @@ impl Column {
             Column::Other(i) => (steps.iter())
                 .flat_map(|s| match s.other.get(i) {
                     Some(FeatureValue::Float32(v)) => {
+                        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+                    }
+                    Some(FeatureValue::Float64(v)) => {
                         v.iter().flat_map(|x| x.to_le_bytes()).collect()
                     }
                     Some(FeatureValue::Int64(v)) => {

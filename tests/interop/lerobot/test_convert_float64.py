@@ -1,7 +1,8 @@
 """A LeRobot dataset lerobot 0.6.1 writes with float64 vectors (an arm logging doubles):
-`surgvla convert` refuses it by name, naming `--cast float32`, and with it converts, saying so
-on stderr and in the card, with every value the float32 nearest the stored double; the card
-says which dataset the data came from and invents no licence.
+`surgvla convert` keeps them float64, every double bit for bit, and lerobot loads the result;
+`--cast float32` narrows them, saying so on stderr and in the card, with every value the
+float32 nearest the stored double; the card says which dataset the data came from and invents
+no licence.
 
 SURGVLA_BIN is the surgvla binary.
 """
@@ -46,12 +47,22 @@ def surgvla(*args):
     return subprocess.run([BIN, *map(str, args)], capture_output=True, text=True)
 
 
-def test_float64_is_refused_by_name_then_cast_with_a_note(tmp_path):
+def test_float64_stays_float64_unless_cast(tmp_path):
     source = make(tmp_path / "doubles")
-    done = surgvla("convert", source, "--to", "lerobot", "--out", tmp_path / "refused")
-    assert done.returncode == 2, done.stderr
-    assert "observation.state is float64" in done.stderr and "--cast float32" in done.stderr, done.stderr
-    assert not (tmp_path / "refused" / "meta" / "info.json").exists()
+    original = pq.read_table(source / "data/chunk-000/file-000.parquet").to_pydict()
+    kept = tmp_path / "kept"
+    done = surgvla("convert", source, "--to", "lerobot", "--out", kept, "--verify")
+    assert done.returncode == 0, done.stderr
+    assert surgvla("validate", kept).returncode == 0
+    info = json.loads((kept / "meta/info.json").read_text())
+    assert info["features"]["observation.state"]["dtype"] == "float64", info["features"]
+    table = pq.read_table(kept / "data/chunk-000/file-000.parquet")
+    assert str(table.schema.field("observation.state").type.value_type) == "double", table.schema
+    converted = table.to_pydict()
+    for key in ["observation.state", "action"]:
+        assert np.array_equal(np.array(converted[key], np.float64), np.array(original[key], np.float64)), key
+    loaded = LeRobotDataset("someone/doubles", root=kept)
+    assert len(loaded) == 9 and loaded[0]["observation.state"].dtype.is_floating_point
     out = tmp_path / "cast"
     done = surgvla("convert", source, "--to", "lerobot", "--cast", "float32", "--out", out, "--verify")
     assert done.returncode == 0, done.stderr
@@ -61,10 +72,19 @@ def test_float64_is_refused_by_name_then_cast_with_a_note(tmp_path):
     assert "the input is the LeRobot dataset doubles (v3.0)" in card and "license: apache-2.0" not in card, card
     info = json.loads((out / "meta/info.json").read_text())
     assert info["features"]["observation.state"]["dtype"] == "float32"
-    original = pq.read_table(source / "data/chunk-000/file-000.parquet").to_pydict()
     converted = pq.read_table(out / "data/chunk-000/file-000.parquet").to_pydict()
     for key in ["observation.state", "action"]:
         expected = np.array(original[key], np.float64).astype(np.float32)
         assert np.array_equal(np.array(converted[key], np.float32), expected), key
     loaded = LeRobotDataset("someone/doubles", root=out)
     assert len(loaded) == 9
+    # The other targets: zarr keeps doubles (<f8), MCAP's JSON writes them exactly, RLDS
+    # declares float64 and stores float32 as TFRecord does (a note says so).
+    for to, extra in [("zarr", ["--camera", "observation.images.top"]), ("mcap", ["--camera", "observation.images.top"]), ("rlds", [])]:
+        target = tmp_path / to
+        done = surgvla("convert", source, "--to", to, *extra, "--out", target)
+        assert done.returncode == 0, done.stderr
+        assert surgvla("validate", target).returncode == 0, to
+    zarray = json.loads((tmp_path / "zarr/data/state/.zarray").read_text())
+    assert zarray["dtype"] == "<f8" and zarray["shape"] == [9, 3], zarray
+    assert "an RLDS output stores float32" in done.stderr, done.stderr

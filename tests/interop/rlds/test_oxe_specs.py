@@ -274,6 +274,21 @@ def episodes(root):
     return [list(e["steps"].as_numpy_iterator()) for e in dataset]
 
 
+def episode_values(root):
+    """Each episode's values outside `steps`, by their path ("episode_metadata/file_path")."""
+    config = tfds.ReadConfig(interleave_cycle_length=1)
+    dataset = tfds.builder_from_directory(str(root)).as_dataset(split="train", shuffle_files=False, read_config=config)
+
+    def flatten(tree, prefix=""):
+        for key, value in tree.items():
+            if isinstance(value, dict):
+                yield from flatten(value, f"{prefix}{key}/")
+            elif key != "steps":
+                yield f"{prefix}{key}", value.numpy()
+
+    return [dict(flatten(e)) for e in dataset]
+
+
 def at(step, path):
     for part in path:
         step = step[part]
@@ -363,8 +378,35 @@ def test_oxe_spec_converts_to_rlds_tfds_reads(written, tmp_path):
     assert code == 0, err
     code, _, err = run("validate", out)
     assert code == 0, err
-    again = episodes(next(out.glob("*/*")))
+    version = next(out.glob("*/*"))
+    again = episodes(version)
     original = episodes(root)
+    # Per-episode values keep their paths and values (file_path: the input's where it has one).
+    written_values, read_values = episode_values(version), episode_values(root)
+    for x, y in zip(read_values, written_values):
+        for key, value in x.items():
+            assert np.array_equal(np.asarray(y[key]), np.asarray(value)), (key, y, x)
+    # And through LeRobot's episodes table and back.
+    lerobot, back = tmp_path / "lerobot", tmp_path / "back"
+    for source, to, target in [(root, "lerobot", lerobot), (lerobot, "rlds", back)]:
+        code, _, err = run("convert", source, "--to", to, "--fps", 10, "--out", target)
+        assert code == 0, err
+    code, _, err = run("validate", back)
+    assert code == 0, err
+    for x, y in zip(read_values, episode_values(next(back.glob("*/*")))):
+        for key, value in x.items():
+            assert np.array_equal(np.asarray(y[key]), np.asarray(value)), (key, y, x)
+    # Every observation keeps its values and its shape (taco_play's 150 x 200 depth_static,
+    # flattened on the way through LeRobot, declared with its shape again).
+    for target in (version, next(back.glob("*/*"))):
+        for a, b in zip(original, episodes(target)):
+            for x, y in zip(a, b):
+                for key, value in x["observation"].items():
+                    if key == "instruction" or key in state_parts or isinstance(value, bytes):
+                        continue  # the task, or joined into observation/state
+                    assert key in y["observation"], (key, list(y["observation"]))
+                    assert np.asarray(y["observation"][key]).shape == np.asarray(value).shape, key
+                    assert np.array_equal(y["observation"][key], value), key
     assert [len(e) for e in again] == [len(e) for e in original]
     for a, b in zip(original, again):
         for x, y in zip(a, b):
