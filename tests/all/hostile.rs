@@ -764,18 +764,21 @@ fn a_foreign_float_image_is_not_made_rlds_depth() {
     let mut sink = open_sink(&parent.join("out"), &info, &options, false).expect("open");
     let error = sink.write_batch(&episodes[..1]).expect_err("refused");
     assert_eq!(error.kind(), surgvla::error::ErrorKind::Usage, "{error}");
+    // One-channel float TIFFs where the feature declares three channels: not RLDS's to hold.
+    let message = error.to_string();
     assert!(
-        error
-            .to_string()
-            .contains("observation.images.wrist holds float TIFF"),
-        "{error}"
+        message.contains(
+            "observation.images.wrist: episode 0 holds images other than one-channel float TIFFs"
+        ) && message.contains("--without observation.images.wrist"),
+        "{message}"
     );
 }
 
-/// The same through the CLI: a LeRobot dataset without our metadata (so its depth TIFF is
-/// another tool's float image) to RLDS exits 2 naming the feature and leaves no output folder.
+/// Through the CLI: a LeRobot dataset without our metadata (so its depth TIFF is another
+/// tool's float image, not necessarily metres) goes to RLDS as a float32 tensor of its shape,
+/// every value kept; `--without` leaves it out by its key.
 #[test]
-fn a_foreign_float_image_leaves_no_output_behind() {
+fn a_foreign_float_image_becomes_an_rlds_float_tensor() {
     let parent = temp_root("hostile-tiff-cli");
     sentinel(&parent);
     let dataset = parent.join("foreign");
@@ -786,28 +789,25 @@ fn a_foreign_float_image_leaves_no_output_behind() {
     }
     let out = parent.join("out");
     let out_text = out.to_str().expect("utf-8");
-    let stderr = expect_exit(
-        &parent,
-        &["convert", text, "--to", "rlds", "--out", out_text],
-        2,
-        "float TIFF to RLDS",
+    let tensor = parent.join("tensor");
+    let tensor_text = tensor.to_str().expect("utf-8");
+    let args = ["convert", text, "--to", "rlds", "--out", tensor_text];
+    expect_exit(&parent, &args, 0, "float TIFF to RLDS");
+    let (code, report) = run(&["validate", tensor_text, "--no-lint"], LIMIT);
+    assert_eq!(code, 0, "{report}");
+    let features: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(tensor.join("surgvla_benchmark/1.0.0/features.json")).expect("features"),
+    )
+    .expect("json");
+    let observation = &features["featuresDict"]["features"]["steps"]["sequence"]["feature"]["featuresDict"]
+        ["features"]["observation"]["featuresDict"]["features"];
+    let depth = &observation["depth"]["tensor"];
+    assert_eq!(depth["dtype"], "float32", "{observation}");
+    assert_eq!(
+        depth["shape"]["dimensions"],
+        serde_json::json!(["224", "224", "1"])
     );
-    assert!(
-        stderr.contains("observation.images.depth holds float TIFF"),
-        "{stderr}"
-    );
-    assert!(!out.exists(), "no output folder is left");
-    // A folder the user made stays, empty.
-    std::fs::create_dir(&out).expect("mkdir");
-    expect_exit(
-        &parent,
-        &["convert", text, "--to", "rlds", "--out", out_text],
-        2,
-        "into an empty folder",
-    );
-    assert_eq!(std::fs::read_dir(&out).expect("read").count(), 0);
     // The way past: leave the feature out by its key (another tool's, not surgvla's `depth`).
-    std::fs::remove_dir(&out).expect("rmdir");
     let args = [
         "convert",
         text,

@@ -298,6 +298,7 @@ pub fn foreign_features_json(
                 let millimetres = feature.info.get("depth_unit").is_some_and(|u| u == "mm");
                 let description = format!("{} (as stored).", feature.name);
                 match formats.get(&feature.name).map(String::as_str) {
+                    Some("tiff") => shaped_tensor("float32", &shape, &description),
                     Some("png16") => image(shape, "uint16", &description),
                     _ if millimetres => image(shape, "uint16", &description),
                     Some("jpeg") => image_as(shape, "jpeg", &description),

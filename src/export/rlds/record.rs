@@ -102,21 +102,20 @@ fn foreign_feature(
             episode.meta.index, feature.name, feature.dtype
         ))
     };
+    let first_image = match steps.first().and_then(|s| s.other.get(position)) {
+        Some(FeatureValue::Image(bytes)) => Some(bytes.as_slice()),
+        _ => None,
+    };
     Ok(match feature.dtype {
+        // A float image (TIFF) of another tool's: RLDS has no float image type, and it is not
+        // necessarily depth in metres, so its values are a float32 tensor of its shape.
+        Dtype::Image if first_image.is_some_and(is_tiff) => {
+            tiff_tensor(feature, position, episode)?
+        }
         Dtype::Image => Feature::Bytes(
             steps
                 .iter()
                 .map(|s| match s.other.get(position) {
-                    // features.json declares PNG (or JPEG); a float TIFF of another tool's
-                    // is not necessarily depth in metres, so it is not turned into one.
-                    Some(FeatureValue::Image(bytes))
-                        if bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*") =>
-                    {
-                        Err(ExportError::InvalidOptions(format!(
-                            "{} holds float TIFF images, which RLDS has no image type for (a float image of another tool's is not necessarily depth in metres, so it is not made one): convert it to LeRobot instead",
-                            feature.name
-                        )))
-                    }
                     Some(FeatureValue::Image(bytes)) => Ok(bytes.clone()),
                     _ => Err(wrong()),
                 })
@@ -227,6 +226,40 @@ pub fn encode_foreign_episode(
         features.insert(field.key.clone(), field_feature(field, value));
     }
     Ok(encode_example(&features))
+}
+
+/// A float image feature's values over an episode (one-channel float TIFFs of its size), as
+/// one float tensor per step.
+fn tiff_tensor(
+    feature: &crate::episode::FeatureSpec,
+    position: usize,
+    episode: &Episode,
+) -> Result<Feature, ExportError> {
+    let mut flat = Vec::new();
+    for step in &episode.steps {
+        let values = match step.other.get(position) {
+            Some(FeatureValue::Image(bytes)) => crate::media::tiff::decode_f32_tiff(bytes),
+            _ => None,
+        };
+        let size = values
+            .as_ref()
+            .map(|(w, h, v)| (*w as usize, *h as usize, v.len()));
+        match (values, feature.shape.as_slice()) {
+            (Some((_, _, v)), [h, w, 1]) if size == Some((*w, *h, w * h)) => flat.extend(v),
+            _ => {
+                return Err(ExportError::InvalidOptions(format!(
+                    "{}: episode {} holds images other than one-channel float TIFFs of its size, which RLDS cannot hold beside them (--without {} leaves the feature out)",
+                    feature.name, episode.meta.index, feature.name
+                )));
+            }
+        }
+    }
+    Ok(Feature::Float(flat))
+}
+
+/// Whether `bytes` are a TIFF file (a float image of another tool's LeRobot dataset).
+pub(crate) fn is_tiff(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"II*\0") || bytes.starts_with(b"MM\0*")
 }
 
 /// Whether the input has a per-episode value named `episode_metadata` itself, which leaves no

@@ -25,7 +25,8 @@ pub struct State {
     example_bytes: u64,
     summary: Summary,
     /// Per image feature of another tool's dataset, the encoding its first frame is stored in
-    /// ("png", "png16" for 16 bits per sample, "jpeg"): features.json declares it.
+    /// ("png", "png16" for 16 bits per sample, "jpeg", "tiff": a float32 tensor of its shape):
+    /// features.json declares it.
     #[serde(default)]
     image_formats: std::collections::BTreeMap<String, String>,
 }
@@ -177,6 +178,7 @@ impl RldsShards {
                 // A PNG's bit depth is byte 24 (IHDR); TFDS declares a 16-bit one uint16.
                 let format = match crate::media::image::is_jpeg(bytes) {
                     true => "jpeg",
+                    false if super::record::is_tiff(bytes) => "tiff",
                     false if bytes.get(24) == Some(&16) => "png16",
                     false => "png",
                 };

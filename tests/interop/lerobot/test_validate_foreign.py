@@ -236,7 +236,10 @@ def test_lerobot_written_dataset_converts_through_v21_unchanged(images, tmp_path
     assert [x["bytes"] for x in before] == [x["bytes"] for x in after]
 
 
-def test_other_features_go_to_rlds_and_formats_without_room_refuse_them(images, tmp_path):
+def test_other_features_go_to_rlds_and_the_camera_formats_once_one_is_named(images, tmp_path):
+    """RLDS holds every feature; zarr and MCAP, built around one camera, refuse without
+    --camera (naming the flag and the dataset's image features, writing nothing) and with it
+    keep `observation.effort` (zarr: an array under its key; MCAP: a channel of its own)."""
     done = subprocess.run(
         [BIN, "convert", str(images), "--to", "rlds", "--out", str(tmp_path / "rlds"), "--verify"],
         capture_output=True, text=True,
@@ -247,7 +250,15 @@ def test_other_features_go_to_rlds_and_formats_without_room_refuse_them(images, 
     for to in ["zarr", "mcap"]:
         done = subprocess.run([BIN, "convert", str(images), "--to", to, "--out", str(tmp_path / to)], capture_output=True, text=True)
         assert done.returncode == 2, done.stderr
-        assert "observation.effort" in done.stderr
+        assert "--camera KEY" in done.stderr and "observation.images.cam_high" in done.stderr, done.stderr
+        assert not (tmp_path / to).exists()
+        camera = ["--camera", "observation.images.cam_high"]
+        done = subprocess.run([BIN, "convert", str(images), "--to", to, *camera, "--out", str(tmp_path / to)], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        code, report, err = validate(tmp_path / to)
+        assert code == 0, (report, err)
+    assert (tmp_path / "zarr/data/observation.effort/.zarray").is_file()
+    assert b"/observation/effort" in (tmp_path / "mcap/episode_000000.mcap").read_bytes()
 
 
 def test_lerobot_written_video_converts_and_merges_without_reencoding(videos, tmp_path):
