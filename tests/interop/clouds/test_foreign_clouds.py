@@ -82,3 +82,21 @@ def test_plyfile_and_open3d_read_clouds_of_the_named_depth(expected):
             np.testing.assert_allclose(np.asarray(cloud.points), xyz, atol=1e-7)
             t += 1
     assert t == len(expected["action"])
+
+
+def spec_folders():
+    return sorted((ROOT / "specs").iterdir()) if (ROOT / "specs").is_dir() else []
+
+
+def test_zarr3_reads_every_oxe_spec_with_its_camera():
+    """tests/interop/rlds/test_oxe_specs.py converts every Open X-Embodiment spec it builds to
+    zarr with --camera: the action (DP3's `data/action`) and the camera's pixels (`data/img`,
+    no depth so no clouds) are what tfds read."""
+    folders = spec_folders()
+    assert len(folders) >= 7, folders
+    for folder in folders:
+        expected = np.load(folder / "expected.npz")
+        store = zarr.open_group(str(folder / "zarr"), mode="r", zarr_format=2)
+        np.testing.assert_array_equal(store["data/action"][:], expected["action"], err_msg=folder.name)
+        np.testing.assert_array_equal(store["data/img"][:], expected["image"], err_msg=folder.name)
+        assert "point_cloud" not in store["data"], folder.name  # no --depth given

@@ -79,3 +79,26 @@ def test_the_named_camera_depth_and_every_other_feature_are_on_channels(expected
                     actions += 1
             t = first + entry["frames"]
     assert actions == t == sum(expected["lengths"])
+
+
+def test_every_oxe_spec_has_its_action_on_a_channel():
+    """Every Open X-Embodiment spec tests/interop/rlds/test_oxe_specs.py converts to MCAP
+    with --camera: /action carries the action tfds read (its JSON numbers are the float32
+    values, exactly), the camera is on /endoscope/rgb, one message of each per step."""
+    folders = sorted((ROOT / "specs").iterdir()) if (ROOT / "specs").is_dir() else []
+    assert len(folders) >= 7, folders
+    for folder in folders:
+        expected = json.loads((folder / "expected.json").read_text())
+        lines = [json.loads(line) for line in (folder / "mcap/episodes.jsonl").read_text().splitlines()]
+        assert [e["frames"] for e in lines] == expected["lengths"], folder.name
+        actions, frames = [], 0
+        for entry in lines:
+            with open(folder / "mcap" / entry["file"], "rb") as f:
+                reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory(), JsonDecoderFactory()])
+                for _, channel, _, decoded in reader.iter_decoded_messages(log_time_order=True):
+                    if channel.topic == "/action":
+                        actions.append(decoded["values"])
+                    elif channel.topic == "/endoscope/rgb":
+                        frames += 1
+        assert actions == expected["action"], folder.name
+        assert frames == len(actions), folder.name
