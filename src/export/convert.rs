@@ -312,13 +312,21 @@ fn others_differ(
     min_psnr_db: Option<f64>,
 ) -> bool {
     use crate::episode::FeatureValue;
-    // A float image (TIFF) that a target without float images (RLDS) holds as its values,
-    // under the name its RLDS key reads back as (`observation.images.X` is `observation/X`).
+    // What a target that cannot hold a value as it is (RLDS) holds instead: a float image
+    // (TIFF) as its values, under the name its RLDS key reads back as (`observation.images.X`
+    // is `observation/X`); float64 as float32, as TFRecord stores it.
     let tensor_of_image = |name: &str, x: &FeatureValue| {
         let folded = name.replacen("observation.images.", "observation.", 1);
         match (x, b.get(name).or_else(|| b.get(&folded))) {
             (FeatureValue::Image(bytes), Some(FeatureValue::Float32(values))) => {
                 crate::media::tiff::decode_f32_tiff(bytes).is_some_and(|(_, _, v)| v == *values)
+            }
+            (FeatureValue::Float64(doubles), Some(FeatureValue::Float32(values))) => {
+                doubles.len() == values.len()
+                    && doubles
+                        .iter()
+                        .zip(values)
+                        .all(|(d, v)| (*d as f32).to_bits() == v.to_bits())
             }
             _ => false,
         }

@@ -93,10 +93,13 @@ def test_zarr3_reads_every_oxe_spec_with_its_camera():
     zarr with --camera: the action (DP3's `data/action`) and the camera's pixels (`data/img`,
     no depth so no clouds) are what tfds read."""
     folders = spec_folders()
-    assert len(folders) >= 7, folders
+    assert len(folders) >= 9, folders
     for folder in folders:
         expected = np.load(folder / "expected.npz")
         store = zarr.open_group(str(folder / "zarr"), mode="r", zarr_format=2)
-        np.testing.assert_array_equal(store["data/action"][:], expected["action"], err_msg=folder.name)
-        np.testing.assert_array_equal(store["data/img"][:], expected["image"], err_msg=folder.name)
+        action = store["data/action"][:]
+        assert action.dtype == expected["action"].dtype, folder.name  # float64 stays float64
+        np.testing.assert_array_equal(action, expected["action"], err_msg=folder.name)
+        if "image" in expected:  # stored images (lerobot's video is decoded, lossy)
+            np.testing.assert_array_equal(store["data/img"][:], expected["image"], err_msg=folder.name)
         assert "point_cloud" not in store["data"], folder.name  # no --depth given

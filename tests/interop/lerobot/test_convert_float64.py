@@ -49,6 +49,11 @@ def surgvla(*args):
 
 def test_float64_stays_float64_unless_cast(tmp_path):
     source = make(tmp_path / "doubles")
+    # For the other clients' readers (tests/interop/rlds/test_lerobot_made.py, run later by .ci/run).
+    if os.environ.get("SURGVLA_LEROBOT_MADE"):
+        import shutil
+
+        shutil.copytree(source, Path(os.environ["SURGVLA_LEROBOT_MADE"]) / "float64", dirs_exist_ok=True)
     original = pq.read_table(source / "data/chunk-000/file-000.parquet").to_pydict()
     kept = tmp_path / "kept"
     done = surgvla("convert", source, "--to", "lerobot", "--out", kept, "--verify")

@@ -51,6 +51,11 @@ def surgvla(*args):
 
 def test_an_hevc_depth_video_is_left_out_by_name(tmp_path):
     source = make(tmp_path / "depth")
+    # For the other clients' readers (tests/interop/rlds/test_lerobot_made.py, run later by .ci/run).
+    if os.environ.get("SURGVLA_LEROBOT_MADE"):
+        import shutil
+
+        shutil.copytree(source, Path(os.environ["SURGVLA_LEROBOT_MADE"]) / "hevc_depth", dirs_exist_ok=True)
     codec = json.loads((source / "meta/info.json").read_text())["features"][DEPTH]["info"]["video.codec"]
     assert codec == "hevc", codec
     done = surgvla("convert", source, "--to", "lerobot", "--out", tmp_path / "refused")
