@@ -94,6 +94,11 @@ impl ArrayWriter {
         self.row_bytes
     }
 
+    /// numpy's dtype string of its items, e.g. `<f4`.
+    pub fn dtype(&self) -> &'static str {
+        self.dtype
+    }
+
     /// The array's path in the store, e.g. `data/state`.
     pub fn name(&self) -> &str {
         &self.path

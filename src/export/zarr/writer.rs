@@ -141,6 +141,16 @@ impl Column {
                 arrays.push((Column::Depth, depth));
             }
         }
+        // Another tool's `state` beside its `observation.state`, or its own `img`, would be
+        // one array twice.
+        for (k, (_, array)) in arrays.iter().enumerate() {
+            if arrays[..k].iter().any(|(_, a)| a.name() == array.name()) {
+                return Err(ExportError::InvalidOptions(format!(
+                    "two of the dataset's features would be the zarr array {}: leave one out with --without",
+                    array.name()
+                )));
+            }
+        }
         Ok(arrays)
     }
 
@@ -360,5 +370,54 @@ impl EpisodeEncoder<Vec<Vec<u8>>> for (&ZarrStore, &DatasetInfo) {
                 bytes
             })
             .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::FeatureSpec;
+
+    fn vector(name: &str, dtype: Dtype) -> FeatureSpec {
+        FeatureSpec {
+            name: name.into(),
+            dtype,
+            shape: vec![3],
+            names: Vec::new(),
+            kind: FeatureKind::Other,
+            video: None,
+            info: Default::default(),
+        }
+    }
+
+    #[test]
+    fn another_tools_vectors_get_dp3_names_their_keys_and_never_one_array_twice() {
+        let mut info = DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 10, "", Vec::new());
+        info.features = vec![
+            vector("observation.state", Dtype::Float32),
+            vector("action", Dtype::Float64),
+            vector("observation.effort", Dtype::Int64),
+        ];
+        let arrays = Column::of(&info, &ZarrOptions::default()).expect("arrays");
+        let named: Vec<(&str, &str)> = arrays.iter().map(|(_, a)| (a.name(), a.dtype())).collect();
+        assert_eq!(
+            named,
+            [
+                ("data/state", "<f4"),
+                ("data/action", "<f8"),
+                ("data/observation.effort", "<i8"),
+                ("data/img", "|u1"),
+            ]
+        );
+        info.features.push(vector("state", Dtype::Float32));
+        let error = Column::of(&info, &ZarrOptions::default())
+            .err()
+            .expect("refused");
+        assert!(error.to_string().contains("data/state"), "{error}");
+        info.features[3] = vector("..", Dtype::Float32);
+        assert!(
+            Column::of(&info, &ZarrOptions::default()).is_err(),
+            "no path outside data/"
+        );
     }
 }
