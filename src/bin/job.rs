@@ -78,7 +78,7 @@ pub(crate) struct JobArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Worker threads (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::threads_arg)]
+    #[arg(long, value_parser = crate::app::threads_arg)]
     pub(crate) threads: Option<usize>,
     /// Distractors in the level-2 pick tasks (T2-1, T2-2).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]

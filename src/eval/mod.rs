@@ -7,6 +7,8 @@
 //! - [`numpy`] and [`remote`]: openpi's msgpack-numpy encoding and the WebSocket client.
 //! - [`run`]: trials (seeds disjoint from collection's, [`trial_seed`]), in parallel for the
 //!   built-in policies, and recordings of a few failed trials (MCAP).
+//! - [`vector`]: many environments of one task stepped together, the core of the Python
+//!   module's gymnasium environments; [`shaping`]: their optional dense reward.
 //! - [`results`]: success rates with Wilson 95 % intervals, written as JSON, CSV and Markdown.
 
 pub mod agents;
@@ -16,6 +18,8 @@ mod options;
 pub mod remote;
 pub mod results;
 pub mod run;
+pub mod shaping;
+pub mod vector;
 
 pub use agents::SendExtras;
 pub use options::{EvalError, EvalOptions, PolicyChoice, evaluation_spawn_scale};

@@ -32,7 +32,7 @@ pub(crate) struct ConvertArgs {
     #[arg(long, default_value = "0/1")]
     shard: surgvla::export::collection::Shard,
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::threads_arg)]
+    #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
     /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]

@@ -91,7 +91,7 @@ pub(crate) struct EvalArgs {
     timeout_secs: f64,
     /// Worker threads for the built-in policies (default and 0: one per core; at most 8 per
     /// core).
-    #[arg(long, value_parser = crate::threads_arg)]
+    #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
     /// Failed trials per task to record as MCAP under OUT/failures/.
     #[arg(long, default_value_t = 3)]

@@ -96,7 +96,7 @@ pub(crate) struct IngestArgs {
     #[arg(long, default_value_t = 32.0, value_parser = parse_part_mib)]
     part_mib: f64,
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::threads_arg)]
+    #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
     /// Afterwards read the recordings and the output again and compare every frame; a
     /// difference exits 1.

@@ -17,7 +17,7 @@ pub(crate) struct MergeArgs {
     #[arg(long)]
     out: PathBuf,
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::threads_arg)]
+    #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
     /// Continue an interrupted merge into --out (the same inputs; zarr, point-cloud and MCAP
     /// merges start over in it).

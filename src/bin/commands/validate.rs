@@ -29,7 +29,7 @@ pub(crate) struct ValidateArgs {
     #[arg(long)]
     pub replay: bool,
     /// Worker threads for the full pass (0: one per core; at most 8 per core).
-    #[arg(long, default_value_t = 0, value_parser = crate::threads_arg)]
+    #[arg(long, default_value_t = 0, value_parser = crate::app::threads_arg)]
     pub threads: usize,
     /// Judge whether the data is any good to train on (the default): frozen or jumping
     /// actions, outliers, state/action lag, quaternions, units, gripper range, episode lengths
