@@ -171,6 +171,9 @@ class SurgvlaEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
 
     def __init__(self, task: str = "T1-1", **kwargs: Any):
+        # One environment needs no worker pool of its own (many of them in gymnasium's
+        # SyncVectorEnv would each start one per core).
+        kwargs.setdefault("threads", 1)
         self._options = _Options(task, **kwargs)
         self.render_mode = self._options.render_mode
         self._core = self._options.core(1)

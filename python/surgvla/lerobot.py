@@ -1,6 +1,7 @@
 """LeRobot's environment contract: `make_env(n_envs, use_async_envs)` in the EnvHub shape, so
 lerobot's own evaluation loop (`lerobot.scripts.lerobot_eval.eval_policy`) scores a LeRobot
-policy on surgvla's tasks in-process. An EnvHub repository's `env.py` is one line:
+policy on surgvla's tasks in-process. An EnvHub repository's `env.py` is one line
+(`examples/envhub/env.py`):
 
     from surgvla.lerobot import make_env  # noqa: F401
 
@@ -23,7 +24,6 @@ FEATURES_MAP = {
     "action": "action",
     "agent_pos": "observation.state",
     "environment_state": "observation.environment_state",
-    "pixels": "observation.images",
     f"pixels/{CAMERA}": f"observation.images.{CAMERA}",
 }
 

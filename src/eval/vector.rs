@@ -240,11 +240,20 @@ impl VectorEnv {
         let mut slots = std::mem::take(&mut self.slots);
         let experts = self.experts.as_ref();
         let this = &*self;
-        let outcomes = self.pool.install(|| {
-            (slots.par_iter_mut().zip(actions.par_chunks_exact(dims)))
-                .map(|(slot, action)| this.step_slot(slot, action, experts))
+        let step = |(slot, action): (&mut Slot, &[f64])| this.step_slot(slot, action, experts);
+        // One environment steps on the caller's thread: a hop to the pool and back would cost
+        // more than it could save.
+        let outcomes = if slots.len() == 1 {
+            (slots.iter_mut().zip(actions.chunks_exact(dims)))
+                .map(step)
                 .collect::<Result<Vec<_>, _>>()
-        });
+        } else {
+            self.pool.install(|| {
+                (slots.par_iter_mut().zip(actions.par_chunks_exact(dims)))
+                    .map(step)
+                    .collect::<Result<Vec<_>, _>>()
+            })
+        };
         self.slots = slots;
         Ok((self.observations(), outcomes?))
     }
