@@ -69,5 +69,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(tasks, m)?)?;
     m.add_class::<vector::VectorCore>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // The success rules the environments judge by (what datasets record as `success_rules`).
+    m.add("RULE_SET", surgvla::task::success::RULE_SET)?;
     Ok(())
 }

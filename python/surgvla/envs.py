@@ -19,6 +19,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from surgvla import _native
 from surgvla._native import VectorCore, tasks
 
 #: gymnasium ids by task id, in benchmark order.
@@ -320,9 +321,9 @@ class SurgvlaVectorEnv(VectorEnv):
         return self._core.instructions()
 
 
-#: The success rules these environments judge by: `surgvla eval`'s (docs/FIDELITY.md), by
-#: the library's version.
-RULE_SET = "surgvla-eval/" + __import__("surgvla._native", fromlist=["__version__"]).__version__
+#: The success rules these environments judge by: `surgvla eval`'s and `collect`'s
+#: (docs/FIDELITY.md), as datasets record them in `success_rules`.
+RULE_SET = _native.RULE_SET
 
 
 def register_envs() -> None:

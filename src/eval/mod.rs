@@ -9,12 +9,15 @@
 //!   built-in policies, and recordings of a few failed trials (MCAP).
 //! - [`vector`]: many environments of one task stepped together, the core of the Python
 //!   module's gymnasium environments; [`shaping`]: their optional dense reward.
+//! - [`progress`]: each trial's stages, progress, failure class and precision figures, from the
+//!   simulator's state.
 //! - [`results`]: success rates with Wilson 95 % intervals, written as JSON, CSV and Markdown.
 
 pub mod agents;
 pub mod chart;
 pub mod numpy;
 mod options;
+pub mod progress;
 pub mod remote;
 pub mod results;
 pub mod run;

@@ -3,7 +3,9 @@
 //! reproduces it) and, for failures, the reason. Written as `results.json`, `results.csv` and
 //! `results.md` (the paper's row: one column per task, then the per-task table).
 
+use super::progress::{FailureClass, TrialProgress, stages};
 use crate::task::TaskId;
+use indexmap::IndexMap;
 use serde::Serialize;
 use std::fmt::Write as _;
 
@@ -70,6 +72,10 @@ pub struct TrialResult {
     /// The MCAP recording of a failed trial, relative to the results folder.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub recording: Option<String>,
+    /// The furthest stage, progress, failure class and precision figures
+    /// ([`super::progress`]).
+    #[serde(flatten)]
+    pub progress: TrialProgress,
 }
 
 /// One contact event of a trial (`sim::history::ContactEvent`, named).
@@ -102,6 +108,26 @@ pub struct TaskResult {
     pub mean_steps_success: Option<f64>,
     /// Trials that failed because the policy did not answer properly.
     pub policy_errors: u32,
+    /// Mean of the trials' progress, 0..1.
+    pub mean_progress: f64,
+    /// The survival cascade: each stage of the task with the trials that reached it.
+    pub stages: IndexMap<&'static str, u32>,
+    /// Failed trials by failure class (every class listed).
+    pub failure_classes: IndexMap<&'static str, u32>,
+    /// Means over the trials that have the figure (None: none has it).
+    pub mean_grasp_offset_mm: Option<f64>,
+    pub mean_placement_error_mm: Option<f64>,
+    pub mean_path_length_mm: f64,
+    pub mean_time_to_success_s: Option<f64>,
+}
+
+/// The mean of the values present, to the micrometre (None without one).
+fn mean_of(values: impl Iterator<Item = Option<f64>>) -> Option<f64> {
+    let present: Vec<f64> = values.flatten().collect();
+    (!present.is_empty()).then(|| {
+        let mean = present.iter().sum::<f64>() / present.len() as f64;
+        (mean * 1e3).round() / 1e3
+    })
 }
 
 impl TaskResult {
@@ -129,13 +155,44 @@ impl TaskResult {
                 successful.iter().map(|t| f64::from(t.steps)).sum::<f64>() / successful.len() as f64
             }),
             policy_errors: trials.iter().filter(|t| t.policy_error).count() as u32,
+            mean_progress: mean_of(trials.iter().map(|t| Some(t.progress.progress))).unwrap_or(0.0),
+            stages: stage_counts(task, trials),
+            failure_classes: FailureClass::ALL
+                .iter()
+                .map(|&class| {
+                    let count = (trials.iter())
+                        .filter(|t| t.progress.failure_class == Some(class))
+                        .count();
+                    (class.name(), count as u32)
+                })
+                .collect(),
+            mean_grasp_offset_mm: mean_of(trials.iter().map(|t| t.progress.grasp_offset_mm)),
+            mean_placement_error_mm: mean_of(trials.iter().map(|t| t.progress.placement_error_mm)),
+            mean_path_length_mm: mean_of(trials.iter().map(|t| Some(t.progress.path_length_mm)))
+                .unwrap_or(0.0),
+            mean_time_to_success_s: mean_of(trials.iter().map(|t| t.progress.time_to_success_s)),
         }
     }
+}
+
+/// Each stage of `task` with the trials that reached it.
+fn stage_counts(task: TaskId, trials: &[TrialResult]) -> IndexMap<&'static str, u32> {
+    let chain = stages(task);
+    (chain.iter().enumerate())
+        .map(|(i, &stage)| {
+            let reached = (trials.iter())
+                .filter(|t| (t.progress.progress * chain.len() as f64).round() as usize > i)
+                .count();
+            (stage, reached as u32)
+        })
+        .collect()
 }
 
 /// The whole evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EvalReport {
+    /// [`RESULTS_SCHEMA`]: the version of `schemas/eval_results.schema.json` the file follows.
+    pub results_schema: &'static str,
     /// "expert", "random", "noop", "replay" or the server's URL.
     pub policy: String,
     /// The server's metadata message (remote policies), arrays summarised.
@@ -150,6 +207,12 @@ pub struct EvalReport {
     /// The success rules the trials were judged by.
     pub success_rules: String,
 }
+
+/// The version of results.json's layout (`schemas/eval_results.schema.json`).
+pub const RESULTS_SCHEMA: &str = "surgvla-eval-results-v1";
+
+/// results.json's JSON Schema.
+pub const RESULTS_JSON_SCHEMA: &str = include_str!("../../schemas/eval_results.schema.json");
 
 /// Trials of all tasks pooled.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -178,6 +241,7 @@ impl EvalReport {
             },
         };
         EvalReport {
+            results_schema: RESULTS_SCHEMA,
             policy,
             policy_metadata,
             options,
@@ -198,17 +262,21 @@ impl EvalReport {
 
     /// `results.csv`: one row per task.
     pub fn csv(&self) -> String {
-        let mut text = String::from(
-            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors\n",
+        let classes: Vec<&str> = FailureClass::ALL.iter().map(|c| c.name()).collect();
+        let mut text = format!(
+            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors,mean_progress,{},mean_grasp_offset_mm,mean_placement_error_mm,mean_path_length_mm,mean_time_to_success_s\n",
+            classes.join(",")
         );
+        let or_empty = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
         for t in &self.tasks {
             let steps = t
                 .mean_steps_success
                 .map(|s| format!("{s:.1}"))
                 .unwrap_or_default();
+            let counts: Vec<String> = (t.failure_classes.values()).map(u32::to_string).collect();
             let _ = writeln!(
                 text,
-                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{}",
+                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{:.4},{},{},{},{},{}",
                 t.task_id,
                 t.name,
                 t.level,
@@ -218,7 +286,44 @@ impl EvalReport {
                 t.ci95_low,
                 t.ci95_high,
                 steps,
-                t.policy_errors
+                t.policy_errors,
+                t.mean_progress,
+                counts.join(","),
+                or_empty(t.mean_grasp_offset_mm),
+                or_empty(t.mean_placement_error_mm),
+                t.mean_path_length_mm,
+                or_empty(t.mean_time_to_success_s),
+            );
+        }
+        text
+    }
+
+    /// The survival cascade and failure classes per task, as Markdown lines.
+    pub fn stages_markdown(&self) -> String {
+        let mut text = String::from(
+            "Stages reached (of the trials), mean progress, and failures by class:\n\n",
+        );
+        for t in &self.tasks {
+            let cascade: Vec<String> = (t.stages.iter())
+                .map(|(stage, n)| format!("{stage} {n}"))
+                .collect();
+            let failures: Vec<String> = (t.failure_classes.iter())
+                .filter(|(_, n)| **n > 0)
+                .map(|(class, n)| format!("{class} {n}"))
+                .collect();
+            let failures = if failures.is_empty() {
+                "none".to_string()
+            } else {
+                failures.join(", ")
+            };
+            let _ = writeln!(
+                text,
+                "- {} ({} trials): {}; progress {:.2}; failures: {}",
+                t.task_id,
+                t.trials,
+                cascade.join(" -> "),
+                t.mean_progress,
+                failures
             );
         }
         text
@@ -273,6 +378,8 @@ impl EvalReport {
         );
         text.push_str("Success rates in %.\n\n");
         text.push_str(&self.table());
+        text.push('\n');
+        text.push_str(&self.stages_markdown());
         let _ = writeln!(
             text,
             "\nOptions: `{}`\n",
@@ -348,6 +455,7 @@ mod tests {
             events: Vec::new(),
             replayed_episode: None,
             recording: None,
+            progress: TrialProgress::default(),
         }
     }
 

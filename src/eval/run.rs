@@ -11,6 +11,7 @@ use super::agents::{
 };
 use super::numpy::metadata_json;
 use super::options::{EvalError, EvalOptions, PolicyChoice};
+use super::progress::ProgressTracker;
 use super::remote::RemotePolicy;
 use super::results::{EvalReport, TaskResult, TrialEvent, TrialResult};
 use crate::env::{Env, EnvObservation, EnvOptions, Images};
@@ -22,7 +23,7 @@ use crate::rng::SplitMix64;
 use crate::sim::JawCommand;
 use crate::sim::history::TrialHistory;
 use crate::sim::psm::wrap_angle;
-use crate::task::{TaskId, TaskInstance};
+use crate::task::{TaskId, TaskInstance, Verdict};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -95,6 +96,25 @@ fn trial_events(history: &TrialHistory, instance: &TaskInstance) -> Vec<TrialEve
         .collect()
 }
 
+/// Why a trial ended without success (empty on success): the policy's error, the step limit,
+/// a failure nothing could undo, or the policy stopping.
+fn trial_reason(
+    failure: Option<&str>,
+    verdict: &Verdict,
+    (taken, limit): (u32, u32),
+    done: bool,
+) -> String {
+    match (failure, verdict.success) {
+        (Some(why), _) => format!("policy: {why}"),
+        (None, true) => String::new(),
+        (None, false) if taken >= limit => {
+            format!("step limit {limit} reached: {}", verdict.reason)
+        }
+        (None, false) if done => verdict.reason.clone(),
+        (None, false) => format!("policy stopped after {taken} steps: {}", verdict.reason),
+    }
+}
+
 fn run_trial(
     (mut env, mut observation): (Env, EnvObservation),
     instance: &TaskInstance,
@@ -103,6 +123,7 @@ fn run_trial(
     record: bool,
 ) -> Outcome {
     let limit = env.max_steps();
+    let mut tracker = ProgressTracker::new(instance, &observation.sim);
     let mut verdict = env.verdict();
     let mut steps = Vec::new();
     let mut failure = None;
@@ -128,21 +149,22 @@ fn run_trial(
             steps.push(dataset_step(&mut observation, &step.observation, open));
         }
         clipped_steps += u32::from(step.clipped);
+        tracker.update(&step.observation.sim);
         done = step.done;
         verdict = step.verdict;
         observation = step.observation;
     }
     let taken = env.steps();
-    let reason = match (&failure, verdict.success) {
-        (Some(why), _) => format!("policy: {why}"),
-        (None, true) => String::new(),
-        (None, false) if taken >= limit => {
-            format!("step limit {limit} reached: {}", verdict.reason)
-        }
-        (None, false) if done => verdict.reason.clone(),
-        (None, false) => format!("policy stopped after {taken} steps: {}", verdict.reason),
-    };
+    let reason = trial_reason(failure.as_deref(), &verdict, (taken, limit), done);
     let task = instance.task;
+    let dt_secs = crate::sim::SimConfig::default().timing.control_dt_secs();
+    let progress = tracker.finish(
+        instance,
+        &observation.sim,
+        verdict.success,
+        failure.is_some(),
+        (taken, dt_secs),
+    );
     let result = TrialResult {
         task_id: task.code().into(),
         trial,
@@ -158,6 +180,7 @@ fn run_trial(
         events: trial_events(&observation.sim.history, instance),
         replayed_episode: None,
         recording: None,
+        progress,
     };
     let episode = record.then(|| Episode {
         encoded: Vec::new(),

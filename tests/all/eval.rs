@@ -346,6 +346,40 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
             .iter()
             .all(|t| t.reason.starts_with("step limit"))
     );
+    // Stages and failure classes: the expert's successes complete their chains; doing nothing
+    // never reaches anything.
+    for trial in expert.trials.iter().filter(|t| t.success) {
+        assert_eq!(
+            (trial.progress.progress, trial.progress.failure_class),
+            (1.0, None)
+        );
+    }
+    for trial in &noop.trials {
+        let class = trial.progress.failure_class.map(|c| c.name());
+        assert_eq!(
+            (trial.progress.progress, class),
+            (0.0, Some("never_reached")),
+            "{trial:?}"
+        );
+    }
+    // results.json follows its schema, which refuses what it does not describe.
+    for run in ["expert", "noop"] {
+        let text = std::fs::read_to_string(out.join(run).join("results.json")).expect("results");
+        let mut json: serde_json::Value = serde_json::from_str(&text).expect("json");
+        let schema = surgvla::eval::results::RESULTS_JSON_SCHEMA;
+        assert_eq!(
+            surgvla::export::schema::check_text(&json, schema),
+            vec![],
+            "{run}"
+        );
+        json["trials"][0]["progress"] = 1.5.into();
+        json["tasks"][0]["failure_classes"]["stabbed"] = 1.into();
+        assert_eq!(
+            surgvla::export::schema::check_text(&json, schema).len(),
+            2,
+            "{run}"
+        );
+    }
     // Three failures per task recorded as MCAP that validates.
     let recorded: Vec<&str> = noop
         .trials

@@ -40,6 +40,8 @@ def test_observations_info_and_render():
     assert obs["mask"].shape == (224, 224) and len(np.unique(obs["mask"])) > 2
     assert obs["agent_pos"].shape == (7,) and obs["environment_state"].shape == (28,)
     assert info["trial"] == 3 and info["task_description"] == "pick up the gauze"
+    # The success rules datasets record (collect_report.json's success_rules).
+    assert info["rule_set"] == surgvla.RULE_SET and surgvla.RULE_SET.startswith("surgvla-physical-v")
     frame = env.render()
     assert np.array_equal(frame, obs["pixels"])
     # The instruction variants of `--instructions`.
