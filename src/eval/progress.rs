@@ -1,6 +1,6 @@
 //! How far a trial got, and how it failed, from the simulator's state (not from the policy's
 //! actions): a named chain of stages per task, the furthest stage reached, a progress score in
-//! [0, 1], a failure class, and precision figures in millimetres.
+//! [0, 1], a failure class, and precision figures in millimetres (and a clip's angle in degrees).
 //!
 //! The chains (each stage latched once reached; success completes the chain):
 //!
@@ -113,6 +113,9 @@ pub struct TrialProgress {
     pub path_length_mm: f64,
     /// Seconds to success (None: no success).
     pub time_to_success_s: Option<f64>,
+    /// T2-3: how far the jaws' line was from crossing the vessel when they first closed in it,
+    /// degrees (0: straight across).
+    pub clip_angle_error_deg: Option<f64>,
 }
 
 /// Watches a trial step by step.
@@ -248,6 +251,9 @@ impl ProgressTracker {
             placement_error_mm: placement,
             path_length_mm: mm(self.path_m),
             time_to_success_s: success.then(|| f64::from(steps) * dt_secs),
+            clip_angle_error_deg: (last.history.vessel_closures.first())
+                .and_then(|c| instance.off_crossing_rad(&c.tip_m, c.jaw_line_rad))
+                .map(|rad| (rad.to_degrees() * 1e3).round() / 1e3),
         }
     }
 
@@ -366,6 +372,11 @@ mod tests {
                 p.time_to_success_s.is_some() && p.path_length_mm > 10.0,
                 "{task}"
             );
+            let clip = p.clip_angle_error_deg;
+            match task {
+                TaskId::VesselClipping => assert!(clip.is_some_and(|deg| deg < 20.0), "{clip:?}"),
+                _ => assert_eq!(clip, None, "{task}"),
+            }
         }
     }
 
@@ -463,7 +474,10 @@ mod tests {
             c
         });
         // The first command with room for 3 mm more along x (commands saturate at 1 cm).
-        let at = played.iter().position(|c| c.dx.abs() < 0.6).expect("a slow step");
+        let at = played
+            .iter()
+            .position(|c| c.dx.abs() < 0.6)
+            .expect("a slow step");
         let shifted = trial(TaskId::GauzePick, 4, same, |step, _, _, _| {
             let mut c = played.get(step as usize).copied().unwrap_or_default();
             if step as usize == at {
@@ -471,7 +485,10 @@ mod tests {
             }
             c
         });
-        let (a, b) = (honest.grasp_offset_mm.expect("held"), shifted.grasp_offset_mm.expect("held"));
+        let (a, b) = (
+            honest.grasp_offset_mm.expect("held"),
+            shifted.grasp_offset_mm.expect("held"),
+        );
         assert!(b > a + 2.0, "honest {a} mm, shifted {b} mm");
         assert!(shifted.path_length_mm > 10.0 && honest.failure_class.is_none());
     }

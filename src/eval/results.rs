@@ -119,6 +119,7 @@ pub struct TaskResult {
     pub mean_placement_error_mm: Option<f64>,
     pub mean_path_length_mm: f64,
     pub mean_time_to_success_s: Option<f64>,
+    pub mean_clip_angle_error_deg: Option<f64>,
 }
 
 /// The mean of the values present, to the micrometre (None without one).
@@ -171,6 +172,9 @@ impl TaskResult {
             mean_path_length_mm: mean_of(trials.iter().map(|t| Some(t.progress.path_length_mm)))
                 .unwrap_or(0.0),
             mean_time_to_success_s: mean_of(trials.iter().map(|t| t.progress.time_to_success_s)),
+            mean_clip_angle_error_deg: mean_of(
+                trials.iter().map(|t| t.progress.clip_angle_error_deg),
+            ),
         }
     }
 }
@@ -264,7 +268,7 @@ impl EvalReport {
     pub fn csv(&self) -> String {
         let classes: Vec<&str> = FailureClass::ALL.iter().map(|c| c.name()).collect();
         let mut text = format!(
-            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors,mean_progress,{},mean_grasp_offset_mm,mean_placement_error_mm,mean_path_length_mm,mean_time_to_success_s\n",
+            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors,mean_progress,{},mean_grasp_offset_mm,mean_placement_error_mm,mean_path_length_mm,mean_time_to_success_s,mean_clip_angle_error_deg\n",
             classes.join(",")
         );
         let or_empty = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
@@ -276,7 +280,7 @@ impl EvalReport {
             let counts: Vec<String> = (t.failure_classes.values()).map(u32::to_string).collect();
             let _ = writeln!(
                 text,
-                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{:.4},{},{},{},{},{}",
+                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{:.4},{},{},{},{},{},{}",
                 t.task_id,
                 t.name,
                 t.level,
@@ -293,6 +297,7 @@ impl EvalReport {
                 or_empty(t.mean_placement_error_mm),
                 t.mean_path_length_mm,
                 or_empty(t.mean_time_to_success_s),
+                or_empty(t.mean_clip_angle_error_deg),
             );
         }
         text

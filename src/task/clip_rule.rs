@@ -129,7 +129,8 @@ impl TaskInstance {
 
     /// How far jaws whose line has yaw `jaw_line_rad` are from crossing the vessel at `tip_m`
     /// (the direction of the clip site nearest along it), radians; None without a vessel.
-    fn off_crossing_rad(&self, tip_m: &[f64; 3], jaw_line_rad: f64) -> Option<f64> {
+    /// Evaluation reports it for the first closure as the clip's angle error.
+    pub fn off_crossing_rad(&self, tip_m: &[f64; 3], jaw_line_rad: f64) -> Option<f64> {
         let tip = Vector3::from(*tip_m);
         let nearest = (self.scene.marks.iter())
             .filter_map(|m| Some((m.clip_offset(&tip)?.along_m, m.line_direction?)))
