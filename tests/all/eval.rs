@@ -596,6 +596,9 @@ fn the_command_prints_the_eight_task_table_and_refuses_bad_policies() {
         stdout.contains("mean success rate 100.0 % over 8 tasks (16 of 16 trials)"),
         "{stdout}"
     );
+    // The survival cascade under the table.
+    let cascade = "- T3-1 (2 trials): reached 2 -> grasped 2 -> lifted 2 -> transported 2 -> released_on_target 2 -> settled 2; progress 1.00; failures: none";
+    assert!(stdout.contains(cascade), "{stdout}");
     for (args, said) in [
         (
             vec!["--policy", "replay"],

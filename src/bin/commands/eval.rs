@@ -171,6 +171,7 @@ pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
     let report = report?;
     say!("policy: {}", report.policy);
     say!("{}", report.table().trim_end());
+    say!("{}", report.stages_markdown().trim_end());
     say!(
         "mean success rate {:.1} % over {} tasks ({} of {} trials); results in {}",
         100.0 * report.overall.mean_success_rate,
