@@ -29,10 +29,8 @@ fn to_py(error: &surgvla::eval::EvalError) -> PyErr {
 }
 
 fn task_of(name: &str) -> PyResult<TaskId> {
-    TaskId::ALL
-        .into_iter()
-        .find(|t| t.code().eq_ignore_ascii_case(name) || t.name() == name)
-        .ok_or_else(|| PyValueError::new_err(format!("no task {name:?} (see surgvla.tasks())")))
+    name.parse()
+        .map_err(|e| PyValueError::new_err(format!("{e} (see surgvla.tasks())")))
 }
 
 fn choice<T: Copy>(name: &str, what: &str, options: &[(&str, T)]) -> PyResult<T> {

@@ -150,9 +150,7 @@ impl ProgressTracker {
             task: instance.task,
             target,
             start_z_m,
-            mark_m: (instance.target_mark)
-                .and_then(|i| instance.scene.marks.get(i))
-                .map(|m| m.position_m),
+            mark_m: target_mark_m(instance),
             support: instance.support_object,
             reached: vec![false; stages(instance.task).len()],
             last_tip_m: Vector3::from(first.tip_position_m),
@@ -163,11 +161,8 @@ impl ProgressTracker {
         tracker
     }
 
-    /// Where the held object goes (T3-1's block where it is now, T3-2's mark).
     fn place_m(&self, observation: &Observation) -> Option<Vector3<f64>> {
-        (self.support.and_then(|i| observation.objects.get(i)))
-            .map(|o| o.world_from_object.translation.vector)
-            .or(self.mark_m)
+        place_target_m(self.support, self.mark_m, observation)
     }
 
     /// Takes one step's observation.
@@ -301,6 +296,25 @@ impl ProgressTracker {
             (false, false) => FailureClass::Dropped,
         }
     }
+}
+
+/// The named mark's position (T1-3's spot, T2-3's clip site, T3-2's bleeding site).
+pub(super) fn target_mark_m(instance: &TaskInstance) -> Option<Vector3<f64>> {
+    (instance.target_mark)
+        .and_then(|i| instance.scene.marks.get(i))
+        .map(|m| m.position_m)
+}
+
+/// Where a held object goes: the support object where it is now (T3-1's block), else the
+/// named mark (T3-2's bleeding site).
+pub(super) fn place_target_m(
+    support: Option<usize>,
+    mark_m: Option<Vector3<f64>>,
+    observation: &Observation,
+) -> Option<Vector3<f64>> {
+    (support.and_then(|i| observation.objects.get(i)))
+        .map(|o| o.world_from_object.translation.vector)
+        .or(mark_m)
 }
 
 fn near_to(a: [f64; 3], b: Vector3<f64>) -> bool {

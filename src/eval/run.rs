@@ -444,7 +444,7 @@ fn options_json(choice: &PolicyChoice, options: &EvalOptions) -> serde_json::Val
 }
 
 /// The environment of a task's trials.
-fn env_options(options: &EvalOptions, task: TaskId, render: bool) -> EnvOptions {
+pub(super) fn env_options(options: &EvalOptions, task: TaskId, render: bool) -> EnvOptions {
     EnvOptions {
         task: options.task_config(task),
         camera: options.camera,

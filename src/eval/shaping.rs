@@ -16,6 +16,7 @@
 //! The dense reward of a step is `success + potential(after) - potential(before)`: the sparse
 //! reward plus the shaping term. Holding the wrong object earns nothing.
 
+use super::progress::{place_target_m, target_mark_m};
 use crate::sim::Observation;
 use crate::task::TaskInstance;
 use nalgebra::Vector3;
@@ -27,12 +28,9 @@ const APPROACH_SCALE_M: f64 = 0.05;
 pub fn potential(instance: &TaskInstance, observation: &Observation) -> f64 {
     let tip = Vector3::from(observation.tip_position_m);
     let closeness = |d: f64| 1.0 - (d / APPROACH_SCALE_M).min(1.0);
-    let mark = |i: usize| instance.scene.marks.get(i).map(|m| m.position_m);
+    let mark = target_mark_m(instance);
     let Some(target) = instance.target_object else {
-        return instance
-            .target_mark
-            .and_then(mark)
-            .map_or(0.0, |m| closeness((tip - m).norm()));
+        return mark.map_or(0.0, |m| closeness((tip - m).norm()));
     };
     let Some(object) = observation.objects.get(target) else {
         return 0.0;
@@ -41,10 +39,7 @@ pub fn potential(instance: &TaskInstance, observation: &Observation) -> f64 {
     if observation.bound_object != Some(target) {
         return 0.5 * closeness((tip - position).norm());
     }
-    let place = (instance.support_object)
-        .and_then(|i| observation.objects.get(i))
-        .map(|o| o.world_from_object.translation.vector)
-        .or_else(|| instance.target_mark.and_then(mark));
+    let place = place_target_m(instance.support_object, mark, observation);
     match place {
         Some(place) => 0.75 + 0.25 * closeness((position - place).xy().norm()),
         None => 1.0,

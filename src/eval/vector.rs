@@ -13,7 +13,7 @@
 //! - Work runs in a rayon pool of `threads` workers (0: one per core), one environment per task.
 
 use super::options::{EvalError, EvalOptions};
-use super::run::trial_seed;
+use super::run::{env_options, trial_seed};
 use super::shaping::potential;
 use crate::env::{Env, EnvObservation, EnvOptions, Images};
 use crate::policy::{ExpertLibrary, ExpertPolicy, Policy};
@@ -161,16 +161,10 @@ impl VectorEnv {
     }
 
     fn env_options(&self) -> EnvOptions {
+        let options = &self.options;
         EnvOptions {
-            task: self.options.eval.task_config(self.options.task),
-            camera: self.options.eval.camera,
-            render: if self.options.render {
-                EnvOptions::default().render
-            } else {
-                None
-            },
-            max_steps: self.options.max_steps,
-            ..EnvOptions::default()
+            max_steps: options.max_steps,
+            ..env_options(&options.eval, options.task, options.render)
         }
     }
 
