@@ -3,7 +3,10 @@
 //! `sim/step`: one control step (48 physics substeps at 240 Hz) in a scene with a gauze, a
 //! needle and a block, the instrument moving back and forth with the jaws opening and closing.
 //! `sim/step_carrying`: the same with the gauze bound to the jaws (a kinematic body moving
-//! among the others). `sim/ik`: one inverse-kinematics solve.
+//! among the others). `sim/ik`: one inverse-kinematics solve. `sim/trial_step` and
+//! `sim/trial_step_with_progress`: one control step of T3-1 (pick and place, the longest stage
+//! chain) without and with `eval`'s per-trial metrics (`ProgressTracker::update`), side by side:
+//! what the metrics add to a trial.
 
 // Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -68,6 +71,36 @@ fn bench_step(c: &mut Criterion) {
         );
         b.iter(|| black_box(psm.inverse(black_box(&target), 0.0)));
     });
+    for with_progress in [false, true] {
+        let name = if with_progress {
+            "trial_step_with_progress"
+        } else {
+            "trial_step"
+        };
+        group.bench_function(name, |b| {
+            let task = surgvla::task::TaskId::PickAndPlace;
+            let instance = task.instance(0, &Default::default()).unwrap();
+            let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+            let mut tracker =
+                surgvla::eval::progress::ProgressTracker::new(&instance, &sim.observation());
+            let mut i = 0u32;
+            b.iter(|| {
+                i = i.wrapping_add(1);
+                let sign = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
+                sim.step_native(&NativeCommand {
+                    dx: 0.3 * sign,
+                    dz: 0.2 * sign,
+                    jaw: if (i / 3).is_multiple_of(2) { 1.0 } else { -1.0 },
+                    ..NativeCommand::default()
+                });
+                let observation = sim.observation();
+                if with_progress {
+                    tracker.update(&observation);
+                }
+                black_box(observation)
+            });
+        });
+    }
     group.finish();
 }
 

@@ -12,7 +12,7 @@
 
 use crate::assets::{Appearance, SceneAssets};
 use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, StepExtras};
-use crate::render::{Camera, RenderOptions, Renderer};
+use crate::render::{Camera, ImageEffects, RenderOptions, Renderer};
 use crate::sim::{NativeCommand, Observation, PhysicalAction, SimConfig, Simulator, StepReport};
 use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
 use crate::view::render_simulator_over_static;
@@ -27,6 +27,10 @@ pub struct EnvOptions {
     pub render: Option<RenderOptions>,
     /// Draw a seeded appearance variation per episode.
     pub randomize_appearance: bool,
+    /// This appearance instead (an evaluation's perturbation; overrides `randomize_appearance`).
+    pub appearance: Option<Appearance>,
+    /// Applied to every rendered frame's RGB (an evaluation's perturbation).
+    pub effects: ImageEffects,
     /// Most control steps before an episode is done (None: the task's step limit).
     pub max_steps: Option<u32>,
 }
@@ -48,6 +52,8 @@ impl Default for EnvOptions {
             camera: Camera::endoscope(),
             render: Some(RenderOptions::default()),
             randomize_appearance: false,
+            appearance: None,
+            effects: ImageEffects::default(),
             max_steps: None,
         }
     }
@@ -124,10 +130,10 @@ impl Env {
     /// Starts an already drawn instance.
     pub fn from_instance(instance: TaskInstance, options: &EnvOptions) -> (Env, EnvObservation) {
         let view = options.render.map(|render| {
-            let appearance = if options.randomize_appearance {
-                Appearance::randomized(instance.seed)
-            } else {
-                Appearance::default()
+            let appearance = match options.appearance {
+                Some(given) => given,
+                None if options.randomize_appearance => Appearance::randomized(instance.seed),
+                None => Appearance::default(),
             };
             let assets = SceneAssets::new(&instance.scene, instance.seed, appearance);
             let renderer = Renderer::new(RenderOptions {
@@ -178,8 +184,11 @@ impl Env {
         let images = self.view.as_mut().map(|(assets, renderer)| {
             let started = Instant::now();
             // The environment's renderer serves this episode's scene only.
-            let frame =
+            let mut frame =
                 render_simulator_over_static(assets, renderer, &self.options.camera, &self.sim);
+            self.options
+                .effects
+                .apply(&mut frame, u64::from(self.steps));
             self.timing.render_secs += started.elapsed().as_secs_f64();
             Images {
                 rgb: frame.rgb,

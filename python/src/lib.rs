@@ -63,10 +63,25 @@ fn tasks(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
         .collect()
 }
 
+/// The perturbation suites `surgvla eval --suite` runs: {suite name: [variant, ...]}, each
+/// variant a `perturb=` value of the environments ("none" first).
+#[pyfunction]
+fn suites(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    for (name, _) in surgvla::eval::perturb::SUITE_FILES {
+        let suite = surgvla::eval::perturb::Suite::builtin(name)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        let variants: Vec<String> = suite.variants.iter().map(|v| v.name()).collect();
+        d.set_item(name, variants)?;
+    }
+    Ok(d)
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cli, m)?)?;
     m.add_function(wrap_pyfunction!(tasks, m)?)?;
+    m.add_function(wrap_pyfunction!(suites, m)?)?;
     m.add_class::<vector::VectorCore>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     // The success rules the environments judge by (what datasets record as `success_rules`).

@@ -46,7 +46,7 @@ fn choice<T: Copy>(name: &str, what: &str, options: &[(&str, T)]) -> PyResult<T>
 impl VectorCore {
     #[new]
     #[pyo3(signature = (task, num_envs, *, render, depth, mask, actions, reward, instructions,
-        seed, distractors, spawn_scale, max_steps, threads))]
+        seed, distractors, spawn_scale, max_steps, threads, perturb))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -63,7 +63,11 @@ impl VectorCore {
         spawn_scale: Option<f64>,
         max_steps: Option<u32>,
         threads: usize,
+        perturb: &str,
     ) -> PyResult<Self> {
+        let dimensions = surgvla::eval::perturb::Dimensions::v1();
+        let variant = surgvla::eval::perturb::Variant::parse(perturb, dimensions)
+            .map_err(|e| PyValueError::new_err(format!("perturb: {e}")))?;
         let task = task_of(task)?;
         let actions = choice(
             actions,
@@ -85,6 +89,8 @@ impl VectorCore {
                 ("canonical", InstructionChoice::Canonical),
                 ("paraphrase", InstructionChoice::Paraphrase),
                 ("mixed", InstructionChoice::Mixed),
+                ("detailed", InstructionChoice::Detailed),
+                ("absent_object", InstructionChoice::AbsentObject),
             ],
         )?;
         if !(1..=surgvla::task::spawn::MAX_DISTRACTORS).contains(&distractors) {
@@ -109,6 +115,7 @@ impl VectorCore {
             reward,
             max_steps,
             threads,
+            variant,
         };
         let env = py.detach(|| VectorEnv::new(options).map_err(|e| to_py(&e)))?;
         Ok(VectorCore {

@@ -8,6 +8,7 @@ scripted expert as a policy, and LeRobot's environment contract (`surgvla.lerobo
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
     envs = surgvla.make_vec("T1-1", num_envs=8)            # a gymnasium.vector.VectorEnv
+    env = surgvla.make("T1-1", perturb="smoke=2")          # a variant of `eval --suite`
 
 docs/python.md has every option.
 """
@@ -18,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from surgvla._native import __version__, tasks
+from surgvla._native import __version__, suites, tasks
 from surgvla.envs import GYM_IDS, RULE_SET, SurgvlaEnv, SurgvlaVectorEnv, register_envs, task_id
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "make",
     "make_vec",
     "register_envs",
+    "suites",
     "task_id",
     "tasks",
 ]

@@ -82,6 +82,7 @@ class _Options:
         spawn_scale: float | None = None,
         max_episode_steps: int | None = None,
         threads: int = 0,
+        perturb: str = "none",
     ):
         if obs_type not in ("pixels", "state"):
             raise ValueError(f"obs_type {obs_type!r}: 'pixels' or 'state'")
@@ -108,6 +109,7 @@ class _Options:
             spawn_scale=spawn_scale,
             max_steps=max_episode_steps,
             threads=threads,
+            perturb=perturb,
         )
 
     def core(self, num_envs: int) -> VectorCore:

@@ -91,6 +91,12 @@ pub struct Appearance {
     pub tissue_tint: [f32; 3],
     /// Multiplies the contrast of procedural textures.
     pub texture_contrast_scale: f32,
+    /// Multiplies the drape's albedo per channel.
+    pub drape_tint: [f32; 3],
+    /// Multiplies the instrument's albedo (shaft, wrist, jaws, clips) per channel.
+    pub instrument_tint: [f32; 3],
+    /// Multiplies every material's specular highlight.
+    pub specular_scale: f32,
 }
 
 impl Default for Appearance {
@@ -99,13 +105,17 @@ impl Default for Appearance {
             light_gain_scale: 1.0,
             tissue_tint: [1.0; 3],
             texture_contrast_scale: 1.0,
+            drape_tint: [1.0; 3],
+            instrument_tint: [1.0; 3],
+            specular_scale: 1.0,
         }
     }
 }
 
 impl Appearance {
     /// A seeded variation: light +-30 %, tissue tint +-12 % per channel, texture contrast
-    /// 0.5x..1.8x.
+    /// 0.5x..1.8x: the training ranges of `suites/dimensions-v1.json`, which the evaluation's
+    /// perturbation levels stay outside of (the drape, instrument and highlights unchanged).
     pub fn randomized(seed: u64) -> Self {
         let mut rng = SplitMix64::stream(seed, "appearance");
         let mut draw = |lo: f64, hi: f64| rng.uniform(lo, hi) as f32;
@@ -113,8 +123,19 @@ impl Appearance {
             light_gain_scale: draw(0.7, 1.3),
             tissue_tint: [draw(0.88, 1.12), draw(0.88, 1.12), draw(0.88, 1.12)],
             texture_contrast_scale: draw(0.5, 1.8),
+            ..Appearance::default()
         }
     }
+
+    /// The ranges [`Appearance::randomized`] draws from, as magnitudes of the evaluation's
+    /// dimensions (`suites/dimensions-v1.json`'s `training`, which a test keeps equal): the
+    /// light's gain 1 +- m, each tissue channel 1 +- m, texture contrast 2^(+-m) (0.5x..1.8x
+    /// lies within 2^+-1). Collections record them; evaluation levels lie outside.
+    pub const TRAINING_RANGES: [(&'static str, [f64; 2]); 3] = [
+        ("light_intensity", [0.0, 0.3]),
+        ("tissue_colour", [0.0, 0.12]),
+        ("tissue_texture", [0.0, 1.0]),
+    ];
 
     /// The lighting with this appearance's gain.
     pub fn lighting(&self, base: Lighting) -> Lighting {
@@ -150,7 +171,19 @@ impl Appearance {
 
     fn tissue(&self, material: Material) -> Material {
         let textured = material.with_pattern(self.texture(material.pattern));
-        textured.tinted(self.tissue_tint)
+        self.shiny(textured.tinted(self.tissue_tint))
+    }
+
+    /// A material with the highlight scaled.
+    fn shiny(&self, material: Material) -> Material {
+        Material {
+            specular: material.specular * self.specular_scale,
+            ..material
+        }
+    }
+
+    fn instrument(&self, material: Material) -> Material {
+        self.shiny(material.tinted(self.instrument_tint))
     }
 }
 
@@ -384,7 +417,7 @@ fn drape_and_tray(appearance: &Appearance) -> Vec<(Part, Isometry3<f64>)> {
         let mesh = Mesh::cuboid(half.map(|v| v as f32));
         let part = Part {
             mesh,
-            material: palette::table(),
+            material: palette::table().tinted(appearance.drape_tint),
             mask: MaskClass::Table,
             closed: true,
         };
@@ -403,7 +436,7 @@ fn drape_and_tray(appearance: &Appearance) -> Vec<(Part, Isometry3<f64>)> {
                 .per_vertex();
             (mesh, material)
         } else {
-            (Mesh::cuboid(half32), palette::tray_rim())
+            (Mesh::cuboid(half32), appearance.shiny(palette::tray_rim()))
         };
         let part = Part {
             mesh,
@@ -522,7 +555,7 @@ impl SceneAssets {
             let (mesh, world_from_mark) = mark_mesh(scene, mark);
             let part = Part {
                 mesh,
-                material: palette::mark(mark.colour),
+                material: appearance.shiny(palette::mark(mark.colour)),
                 mask,
                 closed: true,
             };
@@ -534,7 +567,7 @@ impl SceneAssets {
             .enumerate()
             .map(|(i, object)| Part {
                 mesh: object_mesh(object.kind, seed.wrapping_add(i as u64)),
-                material: object_material(object.kind),
+                material: appearance.shiny(object_material(object.kind)),
                 mask: MaskClass::of_object(object.kind, object.distractor),
                 closed: true,
             })
@@ -545,7 +578,7 @@ impl SceneAssets {
             instrument: InstrumentMeshes::new(),
             clip: Part {
                 mesh: Mesh::cuboid(CLIP_HALF_EXTENTS_M.map(|v| v as f32)),
-                material: palette::clip(),
+                material: appearance.instrument(palette::clip()),
                 mask: MaskClass::Clip,
                 closed: true,
             },
@@ -622,7 +655,7 @@ impl SceneAssets {
         };
         out.push(tool(
             &meshes.shaft,
-            palette::shaft(),
+            self.appearance.instrument(palette::shaft()),
             MaskClass::InstrumentShaft,
             instrument.world_from_shaft,
         ));
@@ -631,7 +664,7 @@ impl SceneAssets {
         let wrist_pose = segment_pose(&wrist_from, &pivot);
         out.push(tool(
             &meshes.wrist,
-            palette::wrist(),
+            self.appearance.instrument(palette::wrist()),
             MaskClass::InstrumentWrist,
             wrist_pose,
         ));
@@ -639,7 +672,8 @@ impl SceneAssets {
         for (mesh, sign) in [(&meshes.jaw_left, -1.0), (&meshes.jaw_right, 1.0)] {
             let pose = instrument.world_from_jaw_pivot
                 * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), sign * half);
-            out.push(tool(mesh, palette::jaws(), MaskClass::InstrumentJaws, pose));
+            let jaws = self.appearance.instrument(palette::jaws());
+            out.push(tool(mesh, jaws, MaskClass::InstrumentJaws, pose));
         }
         out.extend(
             world_from_clips

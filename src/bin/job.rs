@@ -31,6 +31,10 @@ pub(crate) enum Instructions {
     Paraphrase,
     /// A seeded mix of the canonical instruction and the paraphrases.
     Mixed,
+    /// The detailed prompt: the target described, distractors and other sites named.
+    Detailed,
+    /// An instruction naming an object the scene does not hold (a language probe).
+    AbsentObject,
 }
 
 impl Instructions {
@@ -40,6 +44,8 @@ impl Instructions {
             Instructions::Canonical => InstructionChoice::Canonical,
             Instructions::Paraphrase => InstructionChoice::Paraphrase,
             Instructions::Mixed => InstructionChoice::Mixed,
+            Instructions::Detailed => InstructionChoice::Detailed,
+            Instructions::AbsentObject => InstructionChoice::AbsentObject,
         }
     }
 }

@@ -1,10 +1,12 @@
 //! Charts as PNG, drawn in pure Rust: a [`Canvas`] of RGB pixels with filled rectangles, lines
 //! and text in an 8x8 bitmap font compiled in (`font8x8`, so no system font or library), and
-//! the two charts surgvla draws ([`plots`]): success rates with their 95 % intervals, policies
-//! side by side and tasks grouped by level (`eval`'s `results.png`, `surgvla report`), and
-//! panels of histograms and ranges (`info --plot`). Integer geometry only: the same numbers
+//! the charts surgvla draws: success rates with their 95 % intervals, policies side by side and
+//! tasks grouped by level (`eval`'s `results.png`, `surgvla report`), panels of histograms and
+//! ranges (`info --plot`), both in [`plots`], and a perturbation suite's task x variant grid
+//! ([`heatmap`]). Integer geometry only: the same numbers
 //! give the same bytes on every machine.
 
+pub mod heatmap;
 pub mod plots;
 
 use crate::files::{PngLevel, PngPixels, encode_png};

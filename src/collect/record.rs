@@ -57,6 +57,7 @@ impl RecordOptions {
             render: render.then_some(self.render),
             randomize_appearance: self.randomize_appearance,
             max_steps: self.max_steps,
+            ..EnvOptions::default()
         }
     }
 }

@@ -470,6 +470,17 @@ pub fn episodes_in_flight(threads: usize) -> usize {
     threads.max(1) * 4 + 2
 }
 
+/// What `--randomize-appearance` draws from, stated so that train/test separation is: each
+/// dimension's training range (`surgvla eval`'s suites evaluate outside them).
+fn appearance_ranges() -> serde_json::Value {
+    let mut ranges = serde_json::Map::new();
+    for (name, range) in crate::assets::Appearance::TRAINING_RANGES {
+        ranges.insert(name.into(), serde_json::json!(range));
+    }
+    ranges.insert("held_out_by".into(), "suites/dimensions-v1.json".into());
+    ranges.into()
+}
+
 /// What a collection's dataset is: its features, the camera, the robot and the collection
 /// options, with the experts' plans (`library`; custom plans are named with their checksums).
 pub fn dataset_info(
@@ -489,6 +500,7 @@ pub fn dataset_info(
         instructions: record.task.instruction.name().into(),
         spawn_scale: record.task.spawn_scale,
         randomize_appearance: record.randomize_appearance,
+        appearance_ranges: record.randomize_appearance.then(appearance_ranges),
         policies: if custom { "custom" } else { "builtin" }.into(),
         success_rules: crate::task::success::RULE_SET.into(),
         custom_plans: custom.then(|| {

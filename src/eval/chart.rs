@@ -1,8 +1,10 @@
 //! The success-rate chart of one or several evaluations: each task's rate with its Wilson 95 %
 //! interval, policies side by side, tasks grouped by level ([`crate::chart::plots::rate_chart`]).
 //! `eval` draws its own run as `results.png`; `surgvla report` reads several runs'
-//! `results.json` ([`read_results`]) and draws them together: the paper's table as a chart.
+//! `results.json` ([`read_results`]) and draws them together: the paper's table as a chart, or
+//! a perturbation suite's run as a task x variant heatmap ([`heatmap_of`]).
 
+use crate::chart::heatmap::{HeatCell, HeatRow, Heatmap, heatmap};
 use crate::chart::plots::{Category, Rate, RateChart, rate_chart};
 use crate::export::ExportError;
 use serde::Deserialize;
@@ -23,6 +25,100 @@ pub struct TaskRate {
     pub success_rate: f64,
     pub ci95_low: f64,
     pub ci95_high: f64,
+    /// The perturbation variant (results before variants: "none").
+    #[serde(default = "unperturbed")]
+    pub variant: String,
+    #[serde(default)]
+    pub success_drop: Option<f64>,
+    #[serde(default)]
+    pub trials: u32,
+    #[serde(default)]
+    pub successes: u32,
+}
+
+fn unperturbed() -> String {
+    "none".into()
+}
+
+impl RunRates {
+    /// Whether the run has perturbed rows.
+    pub fn perturbed(&self) -> bool {
+        self.tasks.iter().any(|t| t.variant != "none")
+    }
+
+    /// The run's variants in run order.
+    fn variants(&self) -> Vec<&str> {
+        let mut variants: Vec<&str> = Vec::new();
+        for t in &self.tasks {
+            if !variants.contains(&t.variant.as_str()) {
+                variants.push(&t.variant);
+            }
+        }
+        variants
+    }
+}
+
+/// The task x variant heatmap of `runs` (None when none is perturbed): a row per run and
+/// variant (labelled `name: variant` when there are several runs), a column per task by level
+/// then id, and a mean column (the row's trials pooled, its drop the mean of the tasks').
+pub fn heatmap_of(title: &str, runs: &[RunRates], names: &[String]) -> Option<Heatmap> {
+    if !runs.iter().any(RunRates::perturbed) {
+        return None;
+    }
+    let mut tasks: Vec<(u8, String)> = (runs.iter())
+        .flat_map(|r| r.tasks.iter().map(|t| (t.level, t.task_id.clone())))
+        .collect();
+    tasks.sort();
+    tasks.dedup();
+    let mut rows = Vec::new();
+    for (run, name) in runs.iter().zip(names) {
+        for variant in run.variants() {
+            let of_variant: Vec<&TaskRate> =
+                run.tasks.iter().filter(|t| t.variant == variant).collect();
+            let mut cells: Vec<Option<HeatCell>> = (tasks.iter())
+                .map(|(_, id)| {
+                    (of_variant.iter())
+                        .find(|t| t.task_id == *id)
+                        .map(|t| HeatCell {
+                            rate: Rate {
+                                value: t.success_rate,
+                                low: t.ci95_low,
+                                high: t.ci95_high,
+                            },
+                            drop: t.success_drop,
+                        })
+                })
+                .collect();
+            let trials: u32 = of_variant.iter().map(|t| t.trials).sum();
+            let successes: u32 = of_variant.iter().map(|t| t.successes).sum();
+            let drops: Vec<f64> = of_variant.iter().filter_map(|t| t.success_drop).collect();
+            cells.push((trials > 0).then(|| {
+                let (low, high) = super::results::wilson_interval(successes, trials);
+                HeatCell {
+                    rate: Rate {
+                        value: f64::from(successes) / f64::from(trials),
+                        low,
+                        high,
+                    },
+                    drop: (!drops.is_empty())
+                        .then(|| drops.iter().sum::<f64>() / drops.len() as f64),
+                }
+            }));
+            let label = if runs.len() > 1 {
+                format!("{name}: {variant}")
+            } else {
+                variant.to_string()
+            };
+            rows.push(HeatRow { label, cells });
+        }
+    }
+    let mut columns: Vec<String> = tasks.into_iter().map(|(_, id)| id).collect();
+    columns.push("mean".into());
+    Some(Heatmap {
+        title: title.to_string(),
+        columns,
+        rows,
+    })
 }
 
 /// Why a run's results cannot be charted.
@@ -98,11 +194,13 @@ pub fn chart_of(title: &str, runs: &[RunRates], names: &[String]) -> RateChart {
             tasks
                 .iter()
                 .map(|(_, id)| {
-                    run.tasks.iter().find(|t| t.task_id == *id).map(|t| Rate {
-                        value: t.success_rate,
-                        low: t.ci95_low,
-                        high: t.ci95_high,
-                    })
+                    (run.tasks.iter())
+                        .find(|t| t.task_id == *id && t.variant == "none")
+                        .map(|t| Rate {
+                            value: t.success_rate,
+                            low: t.ci95_low,
+                            high: t.ci95_high,
+                        })
                 })
                 .collect()
         })
@@ -121,13 +219,29 @@ pub fn chart_of(title: &str, runs: &[RunRates], names: &[String]) -> RateChart {
     }
 }
 
+/// What `report` draws: the rate chart, or a suite's heatmap.
+pub enum Chart {
+    Rates(RateChart),
+    Heatmap(Heatmap),
+}
+
+impl Chart {
+    /// The chart drawn.
+    pub fn canvas(&self) -> crate::chart::Canvas {
+        match self {
+            Chart::Rates(chart) => rate_chart(chart).0,
+            Chart::Heatmap(map) => heatmap(map),
+        }
+    }
+}
+
 /// The chart as PNG bytes, written to `path` atomically.
-pub fn write_chart(chart: &RateChart, path: &Path) -> Result<(), ReportError> {
+pub fn write_chart(chart: &Chart, path: &Path) -> Result<(), ReportError> {
     let write = |source| ReportError::Write {
         path: path.to_path_buf(),
         source,
     };
-    let png = rate_chart(chart).0.png().map_err(|e| {
+    let png = chart.canvas().png().map_err(|e| {
         write(ExportError::Encode {
             what: "the chart's PNG".into(),
             source: Box::new(e),

@@ -11,12 +11,15 @@
 //!   module's gymnasium environments; [`shaping`]: their optional dense reward.
 //! - [`progress`]: each trial's stages, progress, failure class and precision figures, from the
 //!   simulator's state.
+//! - [`perturb`]: perturbation suites (versioned files in `suites/`), their variants drawn per
+//!   trial and applied at reset.
 //! - [`results`]: success rates with Wilson 95 % intervals, written as JSON, CSV and Markdown.
 
 pub mod agents;
 pub mod chart;
 pub mod numpy;
 mod options;
+pub mod perturb;
 pub mod progress;
 pub mod remote;
 pub mod results;

@@ -65,6 +65,12 @@ pub struct EvalOptions {
     /// Replace an earlier run's results in `out` (never other files).
     pub replace: bool,
     pub camera: Camera,
+    /// The variants to run each task's trials under, in order (None: the unperturbed trials
+    /// only); each variant's trials share the unperturbed ones' seeds.
+    pub suite: Option<super::perturb::Suite>,
+    /// Render every observation for the built-in policies too (they read the simulator's state,
+    /// so this only costs time: what a served policy's evaluation renders, for benchmarks).
+    pub render_builtin: bool,
 }
 
 impl Default for EvalOptions {
@@ -84,6 +90,8 @@ impl Default for EvalOptions {
             out: PathBuf::from("eval"),
             replace: false,
             camera: Camera::endoscope(),
+            suite: None,
+            render_builtin: false,
         }
     }
 }
@@ -95,6 +103,14 @@ pub fn evaluation_spawn_scale(task: TaskId) -> f64 {
 }
 
 impl EvalOptions {
+    /// The variants each task runs under (the unperturbed one alone without a suite).
+    pub fn variants(&self) -> Vec<super::perturb::Variant> {
+        match &self.suite {
+            Some(suite) => suite.variants.clone(),
+            None => vec![super::perturb::Variant::default()],
+        }
+    }
+
     /// The scene options of `task`'s trials.
     pub fn task_config(&self, task: TaskId) -> TaskConfig {
         TaskConfig {

@@ -43,6 +43,10 @@ pub fn wilson_interval(successes: u32, trials: u32) -> (f64, f64) {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TrialResult {
     pub task_id: String,
+    /// The perturbation variant the trial ran under ("none": unperturbed).
+    pub variant: String,
+    /// What the variant drew for this trial, each number named with its unit (empty: none).
+    pub perturbation: std::collections::BTreeMap<String, serde_json::Value>,
     /// 0-based trial number within the task.
     pub trial: u32,
     /// The scene seed: `surgvla eval --policy ... --tasks T --trials ...` draws the same scene,
@@ -95,6 +99,11 @@ pub struct TrialEvent {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TaskResult {
     pub task_id: String,
+    /// The perturbation variant ("none": unperturbed).
+    pub variant: String,
+    /// The unperturbed success rate minus this variant's (same task, same seeds), -1..1; None
+    /// for the unperturbed row or when the run has none.
+    pub success_drop: Option<f64>,
     pub name: String,
     pub level: u8,
     pub step_limit: u32,
@@ -140,6 +149,8 @@ impl TaskResult {
         let (ci95_low, ci95_high) = wilson_interval(successes, n);
         TaskResult {
             task_id: task.code().into(),
+            variant: "none".into(),
+            success_drop: None,
             name: task.name().into(),
             level: task.level(),
             step_limit: task.step_limit(),
@@ -179,6 +190,29 @@ impl TaskResult {
     }
 }
 
+/// A change in points with its sign, "±0" when it rounds to zero.
+fn change(points: f64, decimals: usize) -> String {
+    let text = format!("{points:+.decimals$}");
+    if text[1..].chars().all(|c| c == '0' || c == '.') {
+        format!("±{}", &text[1..])
+    } else {
+        text
+    }
+}
+
+/// Sets each perturbed row's drop from the unperturbed row of its task.
+pub fn set_drops(rows: &mut [TaskResult]) {
+    let baseline: Vec<(String, f64)> = (rows.iter())
+        .filter(|r| r.variant == "none")
+        .map(|r| (r.task_id.clone(), r.success_rate))
+        .collect();
+    for row in rows.iter_mut().filter(|r| r.variant != "none") {
+        row.success_drop = (baseline.iter())
+            .find(|(task, _)| *task == row.task_id)
+            .map(|(_, rate)| ((rate - row.success_rate) * 1e6).round() / 1e6);
+    }
+}
+
 /// Each stage of `task` with the trials that reached it.
 fn stage_counts(task: TaskId, trials: &[TrialResult]) -> IndexMap<&'static str, u32> {
     let chain = stages(task);
@@ -203,17 +237,22 @@ pub struct EvalReport {
     pub policy_metadata: serde_json::Value,
     /// The options the trials ran with (what the policy was sent, spawn ranges, seeds).
     pub options: serde_json::Value,
+    /// One row per task, per variant when perturbed (variants in run order).
     pub tasks: Vec<TaskResult>,
-    /// All tasks pooled.
+    /// All tasks pooled (the unperturbed rows when the run has them).
     pub overall: TaskTotals,
     pub trials: Vec<TrialResult>,
     pub generator: String,
     /// The success rules the trials were judged by.
     pub success_rules: String,
+    /// The perturbation suite the trials ran under: its name, dimensions file, the files'
+    /// CRC-32 and its variants in order (absent: unperturbed trials only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub suite: Option<serde_json::Value>,
 }
 
 /// The version of results.json's layout (`schemas/eval_results.schema.json`).
-pub const RESULTS_SCHEMA: &str = "surgvla-eval-results-v1";
+pub const RESULTS_SCHEMA: &str = "surgvla-eval-results-v2";
 
 /// results.json's JSON Schema.
 pub const RESULTS_JSON_SCHEMA: &str = include_str!("../../schemas/eval_results.schema.json");
@@ -235,13 +274,20 @@ impl EvalReport {
         tasks: Vec<TaskResult>,
         trials: Vec<TrialResult>,
     ) -> EvalReport {
+        // A perturbed run's totals are its unperturbed rows' (all rows without one).
+        let unperturbed: Vec<&TaskResult> = tasks.iter().filter(|t| t.variant == "none").collect();
+        let pooled: Vec<&TaskResult> = if unperturbed.is_empty() {
+            tasks.iter().collect()
+        } else {
+            unperturbed
+        };
         let overall = TaskTotals {
-            trials: tasks.iter().map(|t| t.trials).sum(),
-            successes: tasks.iter().map(|t| t.successes).sum(),
-            mean_success_rate: if tasks.is_empty() {
+            trials: pooled.iter().map(|t| t.trials).sum(),
+            successes: pooled.iter().map(|t| t.successes).sum(),
+            mean_success_rate: if pooled.is_empty() {
                 0.0
             } else {
-                tasks.iter().map(|t| t.success_rate).sum::<f64>() / tasks.len() as f64
+                pooled.iter().map(|t| t.success_rate).sum::<f64>() / pooled.len() as f64
             },
         };
         EvalReport {
@@ -254,6 +300,7 @@ impl EvalReport {
             trials,
             generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
             success_rules: crate::task::success::RULE_SET.into(),
+            suite: None,
         }
     }
 
@@ -324,7 +371,7 @@ impl EvalReport {
             let _ = writeln!(
                 text,
                 "- {} ({} trials): {}; progress {:.2}; failures: {}",
-                t.task_id,
+                self.label(t),
                 t.trials,
                 cascade.join(" -> "),
                 t.mean_progress,
@@ -332,6 +379,85 @@ impl EvalReport {
             );
         }
         text
+    }
+
+    /// Whether the rows are of several variants or of a perturbed one.
+    fn perturbed(&self) -> bool {
+        self.tasks.iter().any(|t| t.variant != "none")
+    }
+
+    /// A task's label: its id, and its variant when the run is perturbed.
+    fn label(&self, t: &TaskResult) -> String {
+        if self.perturbed() {
+            format!("{} [{}]", t.task_id, t.variant)
+        } else {
+            t.task_id.clone()
+        }
+    }
+
+    /// The task x variant grid of a perturbed run (None otherwise): each cell the success rate
+    /// with its Wilson interval and the drop from the unperturbed run, a mean column last.
+    pub fn variants_markdown(&self) -> Option<String> {
+        if !self.perturbed() {
+            return None;
+        }
+        let mut variants: Vec<&str> = Vec::new();
+        let mut tasks: Vec<&str> = Vec::new();
+        for t in &self.tasks {
+            if !variants.contains(&t.variant.as_str()) {
+                variants.push(&t.variant);
+            }
+            if !tasks.contains(&t.task_id.as_str()) {
+                tasks.push(&t.task_id);
+            }
+        }
+        let mut text = String::from(
+            "Success rate in % [Wilson 95 % interval] and drop from the unperturbed run, in points, per variant and task:\n\n",
+        );
+        let _ = writeln!(
+            text,
+            "| variant | {} | mean | drop |\n|---|{}---:|---:|",
+            tasks.join(" | "),
+            "---|".repeat(tasks.len())
+        );
+        for variant in variants {
+            let rows: Vec<&TaskResult> = (self.tasks.iter())
+                .filter(|t| t.variant == variant)
+                .collect();
+            let cells: Vec<String> = (tasks.iter())
+                .map(|id| {
+                    rows.iter().find(|t| t.task_id == *id).map_or_else(
+                        || "-".into(),
+                        |t| {
+                            let drop = t.success_drop.map_or_else(String::new, |d| {
+                                format!(" ({})", change(-100.0 * d, 0))
+                            });
+                            format!(
+                                "{:.0} [{:.0}-{:.0}]{drop}",
+                                100.0 * t.success_rate,
+                                100.0 * t.ci95_low,
+                                100.0 * t.ci95_high
+                            )
+                        },
+                    )
+                })
+                .collect();
+            let n = rows.len().max(1) as f64;
+            let mean = rows.iter().map(|t| t.success_rate).sum::<f64>() / n;
+            let drops: Vec<f64> = rows.iter().filter_map(|t| t.success_drop).collect();
+            let drop = if drops.is_empty() {
+                "-".to_string()
+            } else {
+                change(-100.0 * drops.iter().sum::<f64>() / drops.len() as f64, 1)
+            };
+            let _ = writeln!(
+                text,
+                "| {variant} | {} | {:.1} | {drop} |",
+                cells.join(" | "),
+                100.0 * mean
+            );
+        }
+        Some(text)
     }
 
     /// The per-task table (what the command prints).
@@ -346,7 +472,7 @@ impl EvalReport {
             let _ = writeln!(
                 text,
                 "| {} | {} | {} | {} | {:.1} % | {:.1} - {:.1} % | {} |",
-                t.task_id,
+                self.label(t),
                 t.name,
                 t.trials,
                 t.successes,
@@ -362,25 +488,28 @@ impl EvalReport {
     /// `results.md`: the paper-style row, the per-task table, the options and the recordings.
     pub fn markdown(&self) -> String {
         let mut text = format!("# surgvla eval: {}\n\n", self.policy);
-        let heads: Vec<&str> = self.tasks.iter().map(|t| t.task_id.as_str()).collect();
-        let _ = writeln!(
-            text,
-            "| policy | {} | mean |\n|---|{}---:|",
-            heads.join(" | "),
-            "---:|".repeat(heads.len())
-        );
-        let rates: Vec<String> = self
-            .tasks
-            .iter()
-            .map(|t| format!("{:.1}", 100.0 * t.success_rate))
-            .collect();
-        let _ = writeln!(
-            text,
-            "| {} | {} | {:.1} |\n",
-            self.policy,
-            rates.join(" | "),
-            100.0 * self.overall.mean_success_rate
-        );
+        if let Some(grid) = self.variants_markdown() {
+            text.push_str(&grid);
+            text.push('\n');
+        } else {
+            let heads: Vec<&str> = self.tasks.iter().map(|t| t.task_id.as_str()).collect();
+            let _ = writeln!(
+                text,
+                "| policy | {} | mean |\n|---|{}---:|",
+                heads.join(" | "),
+                "---:|".repeat(heads.len())
+            );
+            let rates: Vec<String> = (self.tasks.iter())
+                .map(|t| format!("{:.1}", 100.0 * t.success_rate))
+                .collect();
+            let _ = writeln!(
+                text,
+                "| {} | {} | {:.1} |\n",
+                self.policy,
+                rates.join(" | "),
+                100.0 * self.overall.mean_success_rate
+            );
+        }
         text.push_str("Success rates in %.\n\n");
         text.push_str(&self.table());
         text.push('\n');
@@ -447,6 +576,8 @@ mod tests {
 
     fn trial(success: bool, steps: u32) -> TrialResult {
         TrialResult {
+            variant: "none".into(),
+            perturbation: Default::default(),
             task_id: "T1-1".into(),
             trial: 0,
             seed: 1,

@@ -11,6 +11,7 @@ use super::agents::{
 };
 use super::numpy::metadata_json;
 use super::options::{EvalError, EvalOptions, PolicyChoice};
+use super::perturb::{Dimensions, Drawn, Suite, Variant};
 use super::progress::ProgressTracker;
 use super::remote::RemotePolicy;
 use super::results::{EvalReport, TaskResult, TrialEvent, TrialResult};
@@ -167,6 +168,8 @@ fn run_trial(
     );
     let result = TrialResult {
         task_id: task.code().into(),
+        variant: "none".into(),
+        perturbation: Default::default(),
         trial,
         seed: instance.seed,
         instruction: instance.instruction.clone(),
@@ -231,6 +234,48 @@ fn dataset_step(before: &mut EnvObservation, after: &EnvObservation, open: bool)
     }
 }
 
+/// One trial to run: its scene and what its variant drew for it.
+pub(super) struct TrialSetup {
+    pub(super) instance: TaskInstance,
+    pub(super) drawn: Drawn,
+    /// The variant's name ("none" unperturbed).
+    pub(super) variant: String,
+}
+
+/// Trial `trial` of `task` under `variant`: the unperturbed trial's seed, the variant drawn
+/// from it and applied to the scene (spawn, distractors, instruction, the instrument's start).
+pub(super) fn trial_setup(
+    options: &EvalOptions,
+    task: TaskId,
+    variant: &Variant,
+    trial: u32,
+) -> Result<TrialSetup, EvalError> {
+    let seed = trial_seed(options.seed, task, trial);
+    let drawn = variant.draw(Dimensions::v1(), seed);
+    let mut instance = task.instance(seed, &drawn.task_config(options.task_config(task)))?;
+    let default_tip_m = crate::sim::SimConfig::default()
+        .world_from_start_tip
+        .translation
+        .vector;
+    drawn.apply_to_instance(&mut instance, default_tip_m);
+    Ok(TrialSetup {
+        instance,
+        drawn,
+        variant: variant.name(),
+    })
+}
+
+/// The trials of `task` under `variant`.
+fn setups(
+    options: &EvalOptions,
+    task: TaskId,
+    variant: &Variant,
+) -> Result<Vec<TrialSetup>, EvalError> {
+    (0..options.trials)
+        .map(|i| trial_setup(options, task, variant, i))
+        .collect()
+}
+
 /// Progress: called with a task and its trials finished so far.
 pub type Progress<'a> = &'a (dyn Fn(TaskId, u32) + Sync);
 
@@ -258,33 +303,39 @@ pub fn evaluate(
     let _lock = claim_out(options)?;
     let mut rows = Vec::new();
     let mut trials = Vec::new();
-    for &task in &options.tasks {
-        let instances = (0..options.trials)
-            .map(|i| {
-                task.instance(
-                    trial_seed(options.seed, task, i),
-                    &options.task_config(task),
-                )
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        let results = match &mut prepared {
-            Prepared::Remote(policy) => run_remote(policy, &instances, options, progress)?,
-            Prepared::Builtin(builtin) => run_builtin(builtin, &instances, options, progress)?,
-        };
-        rows.push(TaskResult::of(task, &results));
-        trials.extend(results);
+    for (v, variant) in options.variants().iter().enumerate() {
+        let name = variant.name();
+        for &task in &options.tasks {
+            let setups = setups(options, task, variant)?;
+            let offset = v as u32 * options.trials;
+            let progress = &|task, done| progress(task, offset + done);
+            let mut results = match &mut prepared {
+                Prepared::Remote(policy) => run_remote(policy, &setups, options, progress)?,
+                Prepared::Builtin(builtin) => run_builtin(builtin, &setups, options, progress)?,
+            };
+            for (result, setup) in results.iter_mut().zip(&setups) {
+                result.variant.clone_from(&name);
+                result.perturbation = setup.drawn.values.clone();
+            }
+            let mut row = TaskResult::of(task, &results);
+            row.variant.clone_from(&name);
+            rows.push(row);
+            trials.extend(results);
+        }
     }
+    super::results::set_drops(&mut rows);
     let metadata = match &prepared {
         Prepared::Remote(policy) => metadata_json(&policy.metadata),
         _ => serde_json::Value::Null,
     };
-    let report = EvalReport::new(
+    let mut report = EvalReport::new(
         choice.name(),
         metadata,
         options_json(choice, options),
         rows,
         trials,
     );
+    report.suite = options.suite.as_ref().map(Suite::json);
     for (name, text) in [
         ("results.json", report.json()),
         ("results.csv", report.csv()),
@@ -296,39 +347,47 @@ pub fn evaluate(
     Ok(report)
 }
 
-/// `results.png`: the success rates with their intervals, grouped by level.
+/// `results.png`: the success rates with their intervals, grouped by level; a suite's run as
+/// its task x variant heatmap.
 fn results_png(report: &EvalReport, options: &EvalOptions) -> Result<Vec<u8>, EvalError> {
-    let rates: Vec<super::chart::TaskRate> = report
-        .tasks
-        .iter()
-        .map(|t| super::chart::TaskRate {
+    use super::chart::{Chart, RunRates, TaskRate, chart_of, heatmap_of};
+    let rates: Vec<TaskRate> = (report.tasks.iter())
+        .map(|t| TaskRate {
             task_id: t.task_id.clone(),
             level: t.level,
             success_rate: t.success_rate,
             ci95_low: t.ci95_low,
             ci95_high: t.ci95_high,
+            variant: t.variant.clone(),
+            success_drop: t.success_drop,
+            trials: t.trials,
+            successes: t.successes,
         })
         .collect();
-    let run = super::chart::RunRates {
+    let run = RunRates {
         policy: report.policy.clone(),
         tasks: rates,
     };
-    let title = format!(
-        "success rate per task, 95 % interval ({} trials a task)",
-        options.trials
-    );
-    let chart = super::chart::chart_of(&title, &[run], std::slice::from_ref(&report.policy));
-    let png = crate::chart::plots::rate_chart(&chart)
-        .0
-        .png()
-        .map_err(|e| EvalError::Write {
-            path: options.out.join("results.png"),
-            source: crate::export::ExportError::Encode {
-                what: "results.png".into(),
-                source: Box::new(e),
-            },
-        })?;
-    Ok(png)
+    let names = std::slice::from_ref(&report.policy);
+    let runs = std::slice::from_ref(&run);
+    let title = |what: &str| {
+        format!(
+            "{}: {what}, 95 % interval ({} trials a task)",
+            report.policy, options.trials
+        )
+    };
+    let chart = match heatmap_of(&title("success rate per variant and task"), runs, names) {
+        Some(map) => Chart::Heatmap(map),
+        None => Chart::Rates(chart_of(&title("success rate per task"), runs, names)),
+    };
+    let encode = |e| EvalError::Write {
+        path: options.out.join("results.png"),
+        source: crate::export::ExportError::Encode {
+            what: "results.png".into(),
+            source: Box::new(e),
+        },
+    };
+    chart.canvas().png().map_err(encode)
 }
 
 /// The results' files in `out` (a run writes nothing else).
@@ -457,42 +516,53 @@ pub(super) fn env_options(options: &EvalOptions, task: TaskId, render: bool) -> 
     }
 }
 
+/// The environment of one trial: the task's, with its variant's camera, appearance and image
+/// effects.
+pub(super) fn trial_env(options: &EvalOptions, setup: &TrialSetup, render: bool) -> EnvOptions {
+    let base = env_options(options, setup.instance.task, render);
+    EnvOptions {
+        camera: setup.drawn.camera(&base.camera),
+        appearance: Some(setup.drawn.appearance),
+        effects: setup.drawn.effects,
+        ..base
+    }
+}
+
 /// Trials of one task with a built-in policy: headless and in parallel, then the first failures
 /// re-run with rendering and recorded.
 fn run_builtin(
     builtin: &Builtin,
-    instances: &[TaskInstance],
+    setups: &[TrialSetup],
     options: &EvalOptions,
     progress: Progress,
 ) -> Result<Vec<TrialResult>, EvalError> {
-    let Some(task) = instances.first().map(|i| i.task) else {
+    let Some(task) = setups.first().map(|s| s.instance.task) else {
         return Ok(Vec::new());
     };
     let done = AtomicU32::new(0);
-    let headless = env_options(options, task, false);
-    let run = |i: usize, env: &EnvOptions, record: bool| -> Result<Outcome, EvalError> {
-        builtin_trial(builtin, &instances[i], i as u32, env, record)
+    let run = |i: usize, render: bool, record: bool| -> Result<Outcome, EvalError> {
+        let env = trial_env(options, &setups[i], render);
+        builtin_trial(builtin, &setups[i].instance, i as u32, &env, record)
     };
     let pool = crate::threads::pool(options.threads.max(1))
         .map_err(|e| EvalError::Options(crate::error::chain(&e)))?;
     let mut results: Vec<TrialResult> = pool.install(|| {
-        (0..instances.len())
+        (0..setups.len())
             .into_par_iter()
             .map(|i| {
-                let outcome = run(i, &headless, false)?;
+                let outcome = run(i, options.render_builtin, false)?;
                 progress(task, done.fetch_add(1, Ordering::Relaxed) + 1);
                 Ok(outcome.result)
             })
             .collect::<Result<_, EvalError>>()
     })?;
-    let rendered = env_options(options, task, true);
     let failed: Vec<usize> = (0..results.len())
         .filter(|&i| !results[i].success)
         .collect();
     for &i in failed.iter().take(options.recordings_per_task) {
-        let outcome = run(i, &rendered, true)?;
+        let outcome = run(i, true, true)?;
         if let Some(episode) = outcome.episode {
-            results[i].recording = Some(save_recording(options, &instances[i], &episode)?);
+            results[i].recording = Some(save_recording(options, &setups[i], &episode)?);
         }
     }
     Ok(results)
@@ -547,24 +617,25 @@ fn builtin_trial(
 /// kept and recorded.
 fn run_remote(
     policy: &mut RemotePolicy,
-    instances: &[TaskInstance],
+    setups: &[TrialSetup],
     options: &EvalOptions,
     progress: Progress,
 ) -> Result<Vec<TrialResult>, EvalError> {
-    let mut results = Vec::with_capacity(instances.len());
+    let mut results = Vec::with_capacity(setups.len());
     let mut recorded = 0;
     let size = (
         options.camera.height_px as usize,
         options.camera.width_px as usize,
     );
-    for (i, instance) in instances.iter().enumerate() {
-        let env = Env::from_instance(instance.clone(), &env_options(options, instance.task, true));
+    for (i, setup) in setups.iter().enumerate() {
+        let instance = &setup.instance;
+        let env = Env::from_instance(instance.clone(), &trial_env(options, setup, true));
         let mut agent = RemoteAgent::new(policy, options.send, options.replan_steps, size);
         let record = recorded < options.recordings_per_task;
         let outcome = run_trial(env, instance, i as u32, &mut agent, record);
         let mut result = outcome.result;
         if let (false, Some(episode)) = (result.success, outcome.episode) {
-            result.recording = Some(save_recording(options, instance, &episode)?);
+            result.recording = Some(save_recording(options, setup, &episode)?);
             recorded += 1;
         }
         progress(instance.task, i as u32 + 1);
@@ -577,11 +648,17 @@ fn run_remote(
 /// meshes) under `failures/` and returns its path relative to the results folder.
 fn save_recording(
     options: &EvalOptions,
-    instance: &TaskInstance,
+    setup: &TrialSetup,
     episode: &Episode,
 ) -> Result<String, EvalError> {
+    let instance = &setup.instance;
+    // A variant's trials share the unperturbed trials' seeds: its name tells them apart.
+    let variant = match setup.variant.as_str() {
+        "none" => String::new(),
+        name => format!("_{}", name.replace('=', "").replace(',', "_")),
+    };
     let relative = format!(
-        "failures/{}_trial{:03}_seed{}.mcap",
+        "failures/{}{variant}_trial{:03}_seed{}.mcap",
         instance.task.code(),
         episode.meta.index,
         instance.seed
@@ -594,7 +671,8 @@ fn save_recording(
         mask: true,
         ..FeatureSet::default()
     };
-    let info = crate::view::dataset_info(&options.camera, features, collection);
+    let camera = setup.drawn.camera(&options.camera);
+    let info = crate::view::dataset_info(&camera, features, collection);
     let meshes = crate::view::scene_meshes_at_start(&instance.scene, instance.seed, false);
     let bytes = record_episode(&info, &McapOptions::default(), episode, Some(&meshes)).map_err(
         |source| EvalError::Write {

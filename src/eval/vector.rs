@@ -3,7 +3,7 @@
 //! action clipping and success predicates, and batched observations in flat buffers.
 //!
 //! - Trials: resetting an environment with seed `k` starts trial `k` of `surgvla eval --seed S`
-//!   ([`trial_seed`]), so a vector env seeded 0..n walks the same scenes as `eval --trials n`; an
+//!   ([`super::run::trial_seed`]), so a vector env seeded 0..n walks the same scenes as `eval --trials n`; an
 //!   unseeded reset (and the autoreset) continues with trial `k + num_envs`.
 //! - Autoreset, gymnasium 1.x's default (next step): the step after an environment's episode ended
 //!   ignores its action, starts its next trial and returns that first observation, reward 0.
@@ -13,7 +13,7 @@
 //! - Work runs in a rayon pool of `threads` workers (0: one per core), one environment per task.
 
 use super::options::{EvalError, EvalOptions};
-use super::run::{env_options, trial_seed};
+use super::run::{trial_env, trial_setup};
 use super::shaping::potential;
 use crate::env::{Env, EnvObservation, EnvOptions, Images};
 use crate::policy::{ExpertLibrary, ExpertPolicy, Policy};
@@ -68,6 +68,9 @@ pub struct VectorOptions {
     pub max_steps: Option<u32>,
     /// Worker threads (0: one per core).
     pub threads: usize,
+    /// The perturbation every trial runs under ([`super::perturb`]; default: none), drawn per
+    /// trial as `eval --perturb` draws it.
+    pub variant: super::perturb::Variant,
 }
 
 /// One environment of the vector.
@@ -160,20 +163,18 @@ impl VectorEnv {
         (self.options.max_steps).unwrap_or_else(|| self.options.task.step_limit())
     }
 
-    fn env_options(&self) -> EnvOptions {
-        let options = &self.options;
-        EnvOptions {
-            max_steps: options.max_steps,
-            ..env_options(&options.eval, options.task, options.render)
-        }
-    }
-
-    /// A fresh environment at `trial` (the expert re-planned when one is attached).
+    /// A fresh environment at `trial` under the vector's variant (the expert re-planned when
+    /// one is attached).
     fn start(&self, trial: u32, experts: Option<&ExpertLibrary>) -> Result<Slot, EvalError> {
-        let task = self.options.task;
-        let seed = trial_seed(self.options.eval.seed, task, trial);
-        let instance = task.instance(seed, &self.options.eval.task_config(task))?;
-        let (env, observation) = Env::from_instance(instance, &self.env_options());
+        let options = &self.options;
+        let task = options.task;
+        let setup = trial_setup(&options.eval, task, &options.variant, trial)?;
+        let seed = setup.instance.seed;
+        let env_options = EnvOptions {
+            max_steps: options.max_steps,
+            ..trial_env(&options.eval, &setup, options.render)
+        };
+        let (env, observation) = Env::from_instance(setup.instance, &env_options);
         let expert = match experts {
             Some(library) => Some(library.plan(task)?.expert(
                 env.instance(),
@@ -427,6 +428,7 @@ mod tests {
             reward: Reward::Sparse,
             max_steps: None,
             threads: 2,
+            variant: Default::default(),
         }
     }
 
@@ -437,7 +439,7 @@ mod tests {
             ..options(TaskId::NeedlePick, 2, ActionSpace::Dataset)
         })
         .expect("envs");
-        let seed = |trial| trial_seed(0, TaskId::NeedlePick, trial);
+        let seed = |trial| crate::eval::trial_seed(0, TaskId::NeedlePick, trial);
         assert_eq!(env.trials(), vec![(0, seed(0)), (1, seed(1))]);
         env.reset(&[Some(5), None]).expect("reset");
         assert_eq!(env.trials(), vec![(5, seed(5)), (3, seed(3))]);

@@ -148,6 +148,10 @@ pub struct RunRecord {
     pub instructions: String,
     pub spawn_scale: f64,
     pub randomize_appearance: bool,
+    /// With `randomize_appearance`: the ranges drawn from, by dimension of the evaluation's
+    /// perturbation suites (`held_out_by` names the file whose levels lie outside them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub appearance_ranges: Option<Value>,
     /// "builtin", or "custom" when plans were loaded from files.
     pub policies: String,
     /// The success rules the episodes were judged by (`crate::task::success::RULE_SET`).
@@ -292,6 +296,7 @@ mod tests {
             instructions: "mixed".into(),
             spawn_scale: 1.5,
             randomize_appearance: true,
+            appearance_ranges: None,
             policies: "builtin".into(),
             success_rules: "rules-v1".into(),
             custom_plans: None,

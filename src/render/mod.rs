@@ -1,18 +1,20 @@
 //! The CPU renderer: pinhole cameras ([`camera`]), triangle meshes and primitive builders
-//! ([`mesh`]), materials and procedural patterns ([`material`]), the rasterizer ([`raster`]) and
-//! PNG output ([`image`]).
+//! ([`mesh`]), materials and procedural patterns ([`material`]), the rasterizer ([`raster`]),
+//! image-space effects ([`effects`]) and PNG output ([`image`]).
 //!
 //! It knows nothing of the simulator or of rapier: it takes meshes, poses, materials, mask ids
 //! and a camera, and returns RGB u8, depth f32 metres along the optical axis (0 = background)
 //! and a u8 mask, pixel-aligned.
 
 pub mod camera;
+pub mod effects;
 pub mod image;
 pub mod material;
 pub mod mesh;
 pub mod raster;
 
 pub use camera::Camera;
+pub use effects::ImageEffects;
 pub use material::{Material, Pattern};
 pub use mesh::Mesh;
 pub use raster::{Frame, Instance, Lighting, Rasterizer};

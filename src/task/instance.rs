@@ -18,15 +18,23 @@ pub enum InstructionChoice {
     Paraphrase,
     /// A seeded choice among the canonical instruction and the paraphrases.
     Mixed,
+    /// The detailed prompt: the target described and the distractors named ("pick up the
+    /// gauze, not the needle").
+    Detailed,
+    /// An instruction naming an object the scene does not hold (LIBERO-PRO's probe): success
+    /// then means the policy did the scene's task regardless of what it was told.
+    AbsentObject,
 }
 
 impl InstructionChoice {
-    /// The option's name ("canonical", "paraphrase", "mixed").
+    /// The option's name ("canonical", "paraphrase", "mixed", "detailed", "absent_object").
     pub fn name(self) -> &'static str {
         match self {
             InstructionChoice::Canonical => "canonical",
             InstructionChoice::Paraphrase => "paraphrase",
             InstructionChoice::Mixed => "mixed",
+            InstructionChoice::Detailed => "detailed",
+            InstructionChoice::AbsentObject => "absent_object",
         }
     }
 }

@@ -11,6 +11,7 @@ mod id;
 pub mod instance;
 pub mod place_rule;
 mod placement;
+pub mod prompts;
 pub mod spawn;
 pub mod success;
 

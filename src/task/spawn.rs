@@ -344,6 +344,8 @@ fn instruction(task: TaskId, instance: &TaskInstance, choice: InstructionChoice)
     };
     match choice {
         InstructionChoice::Canonical => canonical,
+        InstructionChoice::Detailed => super::prompts::detailed(task, &instance.scene, colour),
+        InstructionChoice::AbsentObject => super::prompts::absent_object(task, &instance.scene),
         InstructionChoice::Paraphrase => pick(&paraphrases, rng.next_f64()),
         InstructionChoice::Mixed => {
             let mut all = vec![canonical];

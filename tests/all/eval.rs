@@ -454,6 +454,10 @@ fn the_report_chart_draws_each_rate_where_the_layout_says() {
                 success_rate: rate,
                 ci95_low: rate,
                 ci95_high: rate,
+                variant: "none".into(),
+                success_drop: None,
+                trials: 4,
+                successes: (4.0 * rate) as u32,
             })
             .collect(),
     };

@@ -23,6 +23,7 @@ mod layers;
 mod lerobot;
 mod merge;
 mod passthrough;
+mod perturb;
 mod physics;
 mod pointcloud;
 mod registry;

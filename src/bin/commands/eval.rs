@@ -7,6 +7,7 @@ use crate::progress::TrialBars;
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use std::time::Duration;
+use surgvla::eval::perturb::{Dimensions, Suite, Variant};
 use surgvla::eval::{EvalOptions, PolicyChoice, SendExtras, evaluate};
 
 /// `--policy`: a server address or a built-in policy.
@@ -48,6 +49,48 @@ pub(crate) enum SendFeature {
     /// `observation/environment_state`, float32 (28,): ground-truth object poses (privileged).
     #[value(name = "environment_state")]
     EnvironmentState,
+}
+
+/// `--suite`: the perturbation suites (each a versioned file in `suites/`).
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum SuiteArg {
+    /// Every visual dimension at level 2 (light, camera, tissue, drape, smoke, blood,
+    /// highlights, noise, blur, instrument), one at a time, after the unperturbed run.
+    #[value(name = "visual-v1")]
+    VisualV1,
+    /// Every visual dimension at levels 1, 2 and 3: severity curves.
+    #[value(name = "visual-levels-v1")]
+    VisualLevelsV1,
+    /// Spawn range, distractor count and the instrument's start, at level 2.
+    #[value(name = "scene-v1")]
+    SceneV1,
+    /// Paraphrases, detailed prompts, and an instruction naming an absent object.
+    #[value(name = "language-v1")]
+    LanguageV1,
+    /// The paper's first prompt study: canonical, then paraphrased instructions.
+    #[value(name = "prompts-paraphrase-v1")]
+    PromptsParaphraseV1,
+    /// The paper's second prompt study: canonical, then detailed instructions.
+    #[value(name = "prompts-detailed-v1")]
+    PromptsDetailedV1,
+    /// Every dimension once: visual and scene at level 2 and the language probes.
+    #[value(name = "all-v1")]
+    AllV1,
+}
+
+impl SuiteArg {
+    /// The suite's file name (without `.json`).
+    pub(crate) fn file(self) -> &'static str {
+        match self {
+            SuiteArg::VisualV1 => "visual-v1",
+            SuiteArg::VisualLevelsV1 => "visual-levels-v1",
+            SuiteArg::SceneV1 => "scene-v1",
+            SuiteArg::LanguageV1 => "language-v1",
+            SuiteArg::PromptsParaphraseV1 => "prompts-paraphrase-v1",
+            SuiteArg::PromptsDetailedV1 => "prompts-detailed-v1",
+            SuiteArg::AllV1 => "all-v1",
+        }
+    }
 }
 
 #[derive(Args, Debug)]
@@ -102,6 +145,19 @@ pub(crate) struct EvalArgs {
     /// Replace an earlier run's results in --out (never other files).
     #[arg(long)]
     replace: bool,
+    /// Run every task under each variant of a perturbation suite (the unperturbed trials
+    /// first; every variant on the same seeds). docs/eval.md lists the dimensions and levels.
+    #[arg(long, value_enum, conflicts_with = "perturb")]
+    suite: Option<SuiteArg>,
+    /// Run every task under this variant, DIMENSION=LEVEL[,DIMENSION=LEVEL...] (e.g.
+    /// `smoke=2` or `light_intensity=1,blur=1`); repeat for several variants, `none` for the
+    /// unperturbed trials.
+    #[arg(long, value_name = "DIM=LEVEL,...")]
+    perturb: Vec<String>,
+    /// Render every observation for the built-in policies too (they read the simulator, so
+    /// this only costs the time a served policy's evaluation spends rendering).
+    #[arg(long)]
+    render_images: bool,
 }
 
 impl EvalArgs {
@@ -140,6 +196,17 @@ impl EvalArgs {
             None | Some(0) => surgvla::collect::slot::cores(),
             Some(n) => n,
         };
+        let suite = match (self.suite, self.perturb.as_slice()) {
+            (Some(suite), _) => Some(Suite::builtin(suite.file())?),
+            (None, []) => None,
+            (None, given) => {
+                let dimensions = Dimensions::v1();
+                let variants = (given.iter())
+                    .map(|v| Variant::parse(v, dimensions))
+                    .collect::<Result<_, _>>()?;
+                Some(Suite::one_off(variants))
+            }
+        };
         Ok(EvalOptions {
             tasks: self.tasks.0.clone(),
             trials: self.trials,
@@ -157,6 +224,8 @@ impl EvalArgs {
             recordings_per_task: self.record_failures,
             out: self.out.clone(),
             replace: self.replace,
+            suite,
+            render_builtin: self.render_images,
             ..EvalOptions::default()
         })
     }
@@ -165,19 +234,27 @@ impl EvalArgs {
 pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
     let choice = args.choice()?;
     let options = args.options()?;
-    let bars = TrialBars::new(&options.tasks, options.trials);
+    let variants = options.variants().len() as u32;
+    let bars = TrialBars::new(&options.tasks, options.trials * variants);
     let report = evaluate(&choice, &options, &|task, done| bars.set(task, done));
     bars.clear();
     let report = report?;
     say!("policy: {}", report.policy);
-    say!("{}", report.table().trim_end());
-    say!("{}", report.stages_markdown().trim_end());
+    match report.variants_markdown() {
+        // A suite's rows are many: the grid here, every row in results.md.
+        Some(grid) => say!("{}", grid.trim_end()),
+        None => {
+            say!("{}", report.table().trim_end());
+            say!("{}", report.stages_markdown().trim_end());
+        }
+    }
     say!(
-        "mean success rate {:.1} % over {} tasks ({} of {} trials); results in {}",
+        "mean success rate {:.1} % over {} tasks ({} of {} trials{}); results in {}",
         100.0 * report.overall.mean_success_rate,
-        report.tasks.len(),
+        options.tasks.len(),
         report.overall.successes,
         report.overall.trials,
+        if variants > 1 { ", unperturbed" } else { "" },
         options.out.display()
     );
     let errors: u32 = report.tasks.iter().map(|t| t.policy_errors).sum();

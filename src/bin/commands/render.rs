@@ -5,6 +5,7 @@ use crate::error::CliError;
 use std::path::PathBuf;
 use surgvla::assets::{Appearance, SceneAssets};
 use surgvla::collect::rollout;
+use surgvla::eval::perturb::{Dimensions, Drawn, Variant};
 use surgvla::policy::ExpertLibrary;
 use surgvla::render::image::{depth_visualisation, mask_visualisation, write_png_file};
 use surgvla::render::{Camera, Lighting, RenderOptions, Renderer};
@@ -42,6 +43,10 @@ pub(crate) struct RenderArgs {
     mask: Option<PathBuf>,
     #[arg(long, value_enum, default_value = "endoscope")]
     camera: CameraChoice,
+    /// Preview a perturbation variant of `eval --perturb` (e.g. `smoke=2` or
+    /// `camera_pose=3,blur=1`), drawn from the seed as an evaluation trial draws it.
+    #[arg(long, value_name = "DIM=LEVEL,...")]
+    perturb: Option<String>,
     #[command(flatten)]
     look: LookArgs,
 }
@@ -79,9 +84,15 @@ impl LookArgs {
 }
 
 pub(crate) fn run_render(args: &RenderArgs) -> Result<(), CliError> {
-    let instance = args
-        .task
-        .instance(args.seed, &surgvla::task::TaskConfig::default())?;
+    let dimensions = Dimensions::v1();
+    let drawn = match &args.perturb {
+        Some(given) => Variant::parse(given, dimensions)?.draw(dimensions, args.seed),
+        None => Drawn::default(),
+    };
+    let config = drawn.task_config(surgvla::task::TaskConfig::default());
+    let mut instance = args.task.instance(args.seed, &config)?;
+    let start = SimConfig::default().world_from_start_tip.translation.vector;
+    drawn.apply_to_instance(&mut instance, start);
     let scene = instance.scene.clone();
     let mut sim = Simulator::new(SimConfig::default(), scene.clone());
     if args.steps > 0 {
@@ -92,14 +103,30 @@ pub(crate) fn run_render(args: &RenderArgs) -> Result<(), CliError> {
                 .expert(&instance, &sim.observation(), args.seed)?;
         rollout(&mut sim, &mut policy, args.steps);
     }
-    let camera = match args.camera {
+    let camera = drawn.camera(&match args.camera {
         CameraChoice::Endoscope => Camera::endoscope(),
         CameraChoice::Overview => Camera::overview(),
-    };
+    });
     let (options, appearance) = args.look.options(args.seed);
+    let (options, appearance) = if args.perturb.is_some() {
+        let lighting = drawn.appearance.lighting(Lighting {
+            allow_per_vertex: options.lighting.allow_per_vertex,
+            ..Lighting::default()
+        });
+        (
+            RenderOptions {
+                lighting,
+                ..options
+            },
+            drawn.appearance,
+        )
+    } else {
+        (options, appearance)
+    };
     let assets = SceneAssets::new(&scene, args.seed, appearance);
     let mut renderer = Renderer::new(options);
-    let frame = render_simulator(&assets, &mut renderer, &camera, &sim);
+    let mut frame = render_simulator(&assets, &mut renderer, &camera, &sim);
+    drawn.effects.apply(&mut frame, u64::from(args.steps));
     let (w, h) = (frame.width_px, frame.height_px);
     write_png_file(&args.out, w, h, 3, &frame.rgb)?;
     if let Some(path) = &args.depth {
@@ -109,9 +136,12 @@ pub(crate) fn run_render(args: &RenderArgs) -> Result<(), CliError> {
         write_png_file(path, w, h, 3, &mask_visualisation(&frame))?;
     }
     say!(
-        "{} ({}), seed {}, step {}: {} triangles, wrote {}",
+        "{} ({}){}, seed {}, step {}: {} triangles, wrote {}",
         args.task.code(),
         args.task.name(),
+        args.perturb
+            .as_ref()
+            .map_or_else(String::new, |p| format!(" under {p}")),
         args.seed,
         sim.observation().step_index,
         assets.triangle_count(),

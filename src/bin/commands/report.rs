@@ -1,4 +1,5 @@
-//! `surgvla report`: several evaluations' success rates charted side by side.
+//! `surgvla report`: several evaluations' success rates charted side by side, or a perturbation
+//! suite's run as a task x variant heatmap.
 
 use crate::error::CliError;
 use clap::Args;
@@ -13,7 +14,8 @@ pub(crate) struct ReportArgs {
     /// The chart to write (PNG).
     #[arg(long)]
     out: PathBuf,
-    /// The chart's title.
+    /// The chart's title. A perturbation suite's run is drawn as a task x variant heatmap
+    /// (success, interval and change from the unperturbed run per cell).
     #[arg(long, default_value = "success rate per task, 95 % interval")]
     title: String,
 }
@@ -41,12 +43,24 @@ pub(crate) fn run_report(args: &ReportArgs) -> Result<(), CliError> {
             }
         })
         .collect();
-    let chart = surgvla::eval::chart::chart_of(&args.title, &runs, &names);
-    surgvla::eval::chart::write_chart(&chart, &args.out)?;
+    use surgvla::eval::chart::{Chart, chart_of, heatmap_of, write_chart};
+    // A suite's run (a perturbed one) is drawn as its task x variant heatmap.
+    let chart = match heatmap_of(&args.title, &runs, &names) {
+        Some(map) => Chart::Heatmap(map),
+        None => Chart::Rates(chart_of(&args.title, &runs, &names)),
+    };
+    write_chart(&chart, &args.out)?;
+    let what = match &chart {
+        Chart::Heatmap(map) => format!(
+            "as a heatmap of {} variants over {} tasks",
+            map.rows.len(),
+            map.columns.len() - 1
+        ),
+        Chart::Rates(rates) => format!("over {} tasks", rates.categories.len()),
+    };
     say!(
-        "charted {} runs over {} tasks into {}",
+        "charted {} runs {what} into {}",
         runs.len(),
-        chart.categories.len(),
         args.out.display()
     );
     Ok(())

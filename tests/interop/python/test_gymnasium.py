@@ -121,10 +121,11 @@ def test_ppo_learns_on_the_state_observation():
     assert env.action_space.contains(action.astype(np.float32))
 
 
-def vector_expert(task: str, trials: int) -> list[tuple[int, bool, int]]:
+def vector_expert(task: str, trials: int, **options) -> list[tuple[int, bool, int]]:
     """(trial, success, steps) of the expert through the vector env, as `eval` runs a trial:
     until success, the step limit, or the expert has nothing left to do."""
-    envs = surgvla.make_vec(task, num_envs=trials, obs_type="state", action_space="native")
+    options = {"obs_type": "state", **options}
+    envs = surgvla.make_vec(task, num_envs=trials, action_space="native", **options)
     envs.reset(seed=0)
     expert = surgvla.expert(envs)
     results: dict[int, tuple[int, bool, int]] = {}
@@ -152,3 +153,33 @@ def test_the_experts_trials_equal_surgvla_eval(tmp_path: Path):
     for task in TASK_IDS:
         expected = [(t["trial"], t["success"], t["steps"]) for t in scored if t["task_id"] == task]
         assert vector_expert(task, trials) == expected, task
+
+
+def test_the_environments_take_evals_perturbation_variants(tmp_path: Path):
+    suites = surgvla.suites()
+    assert suites["all-v1"][0] == "none" and "smoke=2" in suites["all-v1"]
+    plain = surgvla.make("T3-2")
+    smoky = surgvla.make("T3-2", perturb="smoke=2")
+    moved = surgvla.make("T3-2", perturb="camera_pose=2")
+    (o, _), (s, _), (m, _) = (e.reset(seed=3) for e in (plain, smoky, moved))
+    # The images change, the robot does not; smoke flattens the image's contrast.
+    assert np.array_equal(o["agent_pos"], s["agent_pos"]) and np.array_equal(o["agent_pos"], m["agent_pos"])
+    assert s["pixels"].std() < 0.8 * o["pixels"].std()
+    assert (m["pixels"] != o["pixels"]).mean() > 0.3
+    told = surgvla.make("T2-1", perturb="detailed=1", obs_type="state")
+    _, info = told.reset(seed=0)
+    assert info["task_description"] == "pick up the gauze, not the needle"
+    with pytest.raises(ValueError, match="unknown perturbation dimension `fog`"):
+        surgvla.make("T1-1", perturb="fog=1")
+    # The expert's trials under a visual variant are eval's under it, step for step.
+    out = tmp_path / "eval"
+    subprocess.run(
+        [BIN, "eval", "--policy", "expert", "--tasks", "T1-1", "--trials", "3", "--perturb", "blur=2"]
+        + ["--record-failures", "0", "--out", str(out)],
+        check=True,
+        capture_output=True,
+    )
+    scored = json.loads((out / "results.json").read_text())["trials"]
+    assert {t["variant"] for t in scored} == {"blur=2"}
+    expected = [(t["trial"], t["success"], t["steps"]) for t in scored]
+    assert vector_expert("T1-1", 3, obs_type="pixels", perturb="blur=2") == expected
