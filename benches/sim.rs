@@ -4,9 +4,10 @@
 //! needle and a block, the instrument moving back and forth with the jaws opening and closing.
 //! `sim/step_carrying`: the same with the gauze bound to the jaws (a kinematic body moving
 //! among the others). `sim/ik`: one inverse-kinematics solve. `sim/trial_step` and
-//! `sim/trial_step_with_progress`: one control step of T3-1 (pick and place, the longest stage
-//! chain) without and with `eval`'s per-trial metrics (`ProgressTracker::update`), side by side:
-//! what the metrics add to a trial.
+//! `sim/trial_step_with_progress`: one control step of T3-2 (hemostasis: the longest stage
+//! chain, and an organ to count contacts with) without and with `eval`'s per-trial metrics
+//! (`ProgressTracker::update`), side by side: what the metrics add to a trial;
+//! `sim/progress_update`: the metrics' update alone.
 
 // Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -71,6 +72,12 @@ fn bench_step(c: &mut Criterion) {
         );
         b.iter(|| black_box(psm.inverse(black_box(&target), 0.0)));
     });
+    group.finish();
+}
+
+/// What `eval`'s per-trial metrics add to a control step, side by side.
+fn bench_progress(c: &mut Criterion) {
+    let mut group = c.benchmark_group("sim");
     for with_progress in [false, true] {
         let name = if with_progress {
             "trial_step_with_progress"
@@ -78,7 +85,7 @@ fn bench_step(c: &mut Criterion) {
             "trial_step"
         };
         group.bench_function(name, |b| {
-            let task = surgvla::task::TaskId::PickAndPlace;
+            let task = surgvla::task::TaskId::Hemostasis;
             let instance = task.instance(0, &Default::default()).unwrap();
             let mut sim = Simulator::new(SimConfig::default(), instance.scene.clone());
             let mut tracker =
@@ -101,8 +108,16 @@ fn bench_step(c: &mut Criterion) {
             });
         });
     }
+    group.bench_function("progress_update", |b| {
+        let task = surgvla::task::TaskId::Hemostasis;
+        let instance = task.instance(0, &Default::default()).unwrap();
+        let sim = Simulator::new(SimConfig::default(), instance.scene.clone());
+        let observation = sim.observation();
+        let mut tracker = surgvla::eval::progress::ProgressTracker::new(&instance, &observation);
+        b.iter(|| tracker.update(black_box(&observation)));
+    });
     group.finish();
 }
 
-criterion_group!(benches, bench_step);
+criterion_group!(benches, bench_step, bench_progress);
 criterion_main!(benches);

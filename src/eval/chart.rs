@@ -34,6 +34,10 @@ pub struct TaskRate {
     pub trials: u32,
     #[serde(default)]
     pub successes: u32,
+    /// The survival cascade: each stage with the trials that reached it (results before
+    /// stages: empty).
+    #[serde(default)]
+    pub stages: indexmap::IndexMap<String, u32>,
 }
 
 fn unperturbed() -> String {
@@ -217,6 +221,77 @@ pub fn chart_of(title: &str, runs: &[RunRates], names: &[String]) -> RateChart {
             .collect(),
         rates,
     }
+}
+
+/// A stage's label under its bar (six characters fit).
+fn stage_label(stage: &str) -> &str {
+    match stage {
+        "reached" => "reach",
+        "grasped" => "grasp",
+        "lifted" => "lift",
+        "touched" => "touch",
+        "jaws_around_vessel" => "around",
+        "clipped" => "clip",
+        "transported" => "carry",
+        "released_on_target" => "let go",
+        "settled" => "settle",
+        other => other,
+    }
+}
+
+/// The cascade chart's title.
+pub const CASCADE_TITLE: &str = "stages reached per task (share of trials, 95 % interval)";
+
+/// The survival cascade of `runs` (their unperturbed rows): per task, each stage's share of
+/// the trials that reached it, with its Wilson interval, runs side by side, tasks by level then
+/// id (None when no run records stages).
+pub fn cascade_of(title: &str, runs: &[RunRates], names: &[String]) -> Option<RateChart> {
+    let rows = |run: &RunRates| -> Vec<TaskRate> {
+        (run.tasks.iter())
+            .filter(|t| t.variant == "none" && !t.stages.is_empty() && t.trials > 0)
+            .cloned()
+            .collect()
+    };
+    let mut tasks: Vec<(u8, String, Vec<String>)> = (runs.iter())
+        .flat_map(|r| rows(r).into_iter())
+        .map(|t| (t.level, t.task_id, t.stages.keys().cloned().collect()))
+        .collect();
+    tasks.sort();
+    tasks.dedup_by(|a, b| a.1 == b.1);
+    if tasks.is_empty() {
+        return None;
+    }
+    let categories: Vec<(String, String)> = (tasks.iter())
+        .flat_map(|(_, id, stages)| stages.iter().map(move |s| (id.clone(), s.clone())))
+        .collect();
+    let rates = (runs.iter())
+        .map(|run| {
+            let rows = rows(run);
+            (categories.iter())
+                .map(|(id, stage)| {
+                    let row = rows.iter().find(|t| t.task_id == *id)?;
+                    let reached = *row.stages.get(stage)?;
+                    let (low, high) = super::results::wilson_interval(reached, row.trials);
+                    Some(Rate {
+                        value: f64::from(reached) / f64::from(row.trials),
+                        low,
+                        high,
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    Some(RateChart {
+        title: title.to_string(),
+        series: names.to_vec(),
+        categories: (categories.iter())
+            .map(|(id, stage)| Category {
+                label: stage_label(stage).to_string(),
+                group: id.clone(),
+            })
+            .collect(),
+        rates,
+    })
 }
 
 /// What `report` draws: the rate chart, or a suite's heatmap.

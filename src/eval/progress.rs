@@ -21,10 +21,11 @@
 //! place's target), `released_off_target` (let go after it had been over the target, not on
 //! it), and `timed_out` (still holding, or still on the way, when the steps ran out).
 
+use crate::scene::{BLOCK_HALF_EXTENTS_M, GAUZE_HALF_EXTENTS_M, OrganKind, OrganSpec, organ};
 use crate::sim::Observation;
 use crate::task::success::PENETRATION_LIMIT_M;
 use crate::task::{TaskId, TaskInstance};
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Vector3};
 
 /// A stage's "near": the tip (or the held object) within 1 cm of its target.
 pub const REACH_RADIUS_M: f64 = 0.01;
@@ -32,6 +33,11 @@ pub const REACH_RADIUS_M: f64 = 0.01;
 pub const LIFT_M: f64 = 0.005;
 /// A held object counts as over its target within 1 cm horizontally.
 pub const OVER_TARGET_M: f64 = 0.01;
+/// The tip touches tissue within 1 mm of an organ's surface (or inside it, or inside the
+/// vessel).
+pub const CONTACT_M: f64 = 0.001;
+/// A contact within 4 mm of the named mark is on target (the touch and clip tolerance).
+pub const ON_TARGET_M: f64 = 0.004;
 
 /// Why a trial failed, by class.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
@@ -116,6 +122,13 @@ pub struct TrialProgress {
     /// T2-3: how far the jaws' line was from crossing the vessel when they first closed in it,
     /// degrees (0: straight across).
     pub clip_angle_error_deg: Option<f64>,
+    /// T3-1 and T3-2: the share of the target (the block's top; a 1 cm disc around the bleeding
+    /// site) under the object's footprint at the end, when it lies there, percent.
+    pub covered_fraction_pct: Option<f64>,
+    /// Times the tip came into contact with tissue (an organ's surface, the vessel) farther
+    /// than [`ON_TARGET_M`] from the named mark, or anywhere when nothing is to be touched;
+    /// sampled every control step.
+    pub tissue_contacts_off_target: u32,
 }
 
 /// Watches a trial step by step.
@@ -133,6 +146,9 @@ pub struct ProgressTracker {
     last_tip_m: Vector3<f64>,
     path_m: f64,
     grasp_offset_m: Option<f64>,
+    organs: Vec<OrganSpec>,
+    in_contact: bool,
+    contacts_off_target: u32,
 }
 
 /// Rounded to the micrometre: the figure, not float noise.
@@ -156,6 +172,9 @@ impl ProgressTracker {
             last_tip_m: Vector3::from(first.tip_position_m),
             path_m: 0.0,
             grasp_offset_m: None,
+            organs: instance.scene.organs.clone(),
+            in_contact: false,
+            contacts_off_target: 0,
         };
         tracker.update(first);
         tracker
@@ -170,6 +189,7 @@ impl ProgressTracker {
         let tip = Vector3::from(observation.tip_position_m);
         self.path_m += (tip - self.last_tip_m).norm();
         self.last_tip_m = tip;
+        self.count_contact(&tip);
         let near = |p: Vector3<f64>| (tip - p).norm() <= REACH_RADIUS_M;
         let object = self.target.and_then(|i| observation.objects.get(i));
         // Holding the object means the tip got there, wherever on it the jaws closed.
@@ -203,6 +223,63 @@ impl ProgressTracker {
         self.latch(3, held && over);
         let released = object.released_at.is_some() && !held;
         self.latch(4, released && over);
+    }
+
+    /// Counts the tip's arrival on tissue away from the named mark.
+    fn count_contact(&mut self, tip: &Vector3<f64>) {
+        let touching = self.organs.iter().any(|o| match o.kind {
+            OrganKind::Vessel => organ::vessel_section(o, tip).inside(),
+            _ => organ::radial_gap_m(o, tip) <= CONTACT_M,
+        });
+        let on_target = self.mark_m.is_some_and(|m| (tip - m).norm() <= ON_TARGET_M);
+        if touching && !self.in_contact && !on_target {
+            self.contacts_off_target += 1;
+        }
+        self.in_contact = touching;
+    }
+
+    /// T3's covered share of the target at the end (None for other tasks, or when the object is
+    /// held or not lying at the target's height).
+    fn covered_pct(&self, last: &Observation) -> Option<f64> {
+        if !matches!(self.task, TaskId::PickAndPlace | TaskId::Hemostasis) {
+            return None;
+        }
+        let object = self.target.and_then(|i| last.objects.get(i))?;
+        let gauze: Isometry3<f64> = object.world_from_object;
+        // The target's samples: the block's top face, or a disc around the bleeding site.
+        let (samples, top_z) = match self.support.and_then(|i| last.objects.get(i)) {
+            Some(block) => {
+                let pose = block.world_from_object;
+                let [hx, hy, hz] = BLOCK_HALF_EXTENTS_M;
+                let points: Vec<Vector3<f64>> = grid(16)
+                    .map(|(u, v)| pose * nalgebra::Point3::new(u * hx, v * hy, hz))
+                    .map(|p| p.coords)
+                    .collect();
+                (points, (pose.translation.z + hz))
+            }
+            None => {
+                let mark = self.mark_m?;
+                let r = OVER_TARGET_M;
+                let points: Vec<Vector3<f64>> = grid(16)
+                    .filter(|(u, v)| u * u + v * v <= 1.0)
+                    .map(|(u, v)| mark + Vector3::new(u * r, v * r, 0.0))
+                    .collect();
+                (points, mark.z)
+            }
+        };
+        if object.bound || (gauze.translation.z - top_z).abs() > REACH_RADIUS_M {
+            return Some(0.0);
+        }
+        let [hx, hy, _] = GAUZE_HALF_EXTENTS_M;
+        let inverse = gauze.inverse();
+        let covered = (samples.iter())
+            .filter(|p| {
+                let local = inverse * nalgebra::Point3::from(**p);
+                local.x.abs() <= hx && local.y.abs() <= hy
+            })
+            .count();
+        let pct = 100.0 * covered as f64 / samples.len().max(1) as f64;
+        Some((pct * 10.0).round() / 10.0)
     }
 
     /// Sets stage `index` once the ones before it are set.
@@ -249,6 +326,8 @@ impl ProgressTracker {
             clip_angle_error_deg: (last.history.vessel_closures.first())
                 .and_then(|c| instance.off_crossing_rad(&c.tip_m, c.jaw_line_rad))
                 .map(|rad| (rad.to_degrees() * 1e3).round() / 1e3),
+            covered_fraction_pct: self.covered_pct(last),
+            tissue_contacts_off_target: self.contacts_off_target,
         }
     }
 
@@ -315,6 +394,12 @@ pub(super) fn place_target_m(
     (support.and_then(|i| observation.objects.get(i)))
         .map(|o| o.world_from_object.translation.vector)
         .or(mark_m)
+}
+
+/// An n x n grid of cell centres over [-1, 1]^2.
+fn grid(n: usize) -> impl Iterator<Item = (f64, f64)> {
+    let at = move |i: usize| (2.0 * i as f64 + 1.0) / n as f64 - 1.0;
+    (0..n).flat_map(move |i| (0..n).map(move |j| (at(i), at(j))))
 }
 
 fn near_to(a: [f64; 3], b: Vector3<f64>) -> bool {
@@ -386,6 +471,17 @@ mod tests {
                 p.time_to_success_s.is_some() && p.path_length_mm > 10.0,
                 "{task}"
             );
+            assert_eq!(
+                p.tissue_contacts_off_target, 0,
+                "{task}: the expert touches only its mark"
+            );
+            let covered = p.covered_fraction_pct;
+            match task {
+                TaskId::PickAndPlace | TaskId::Hemostasis => {
+                    assert!(covered.is_some_and(|pct| pct > 30.0), "{task}: {covered:?}")
+                }
+                _ => assert_eq!(covered, None),
+            }
             let clip = p.clip_angle_error_deg;
             match task {
                 TaskId::VesselClipping => assert!(clip.is_some_and(|deg| deg < 20.0), "{clip:?}"),
@@ -476,6 +572,32 @@ mod tests {
             (Some(FailureClass::Unsafe), "reached"),
             "{stab:?}"
         );
+    }
+
+    /// Touching the kidney 12 mm beside the spot: one contact off target, never reached.
+    #[test]
+    fn a_touch_beside_the_spot_is_a_contact_off_target() {
+        let beside = trial(TaskId::Electrocoagulation, 2, same, |_, _, t, o| {
+            let aim = t.mark_m.expect("a mark") + Vector3::new(0.012, 0.0, 0.0);
+            let tip = Vector3::from(o.tip_position_m);
+            if t.contacts_off_target > 0 {
+                return NativeCommand::default();
+            }
+            let d = if (aim - tip).xy().norm() > 0.001 {
+                (aim + Vector3::new(0.0, 0.0, 0.015) - tip) / 0.01
+            } else {
+                Vector3::new(0.0, 0.0, -0.2)
+            };
+            NativeCommand {
+                dx: d.x.clamp(-1.0, 1.0),
+                dy: d.y.clamp(-1.0, 1.0),
+                dz: d.z.clamp(-1.0, 1.0),
+                jaw: -1.0,
+                ..NativeCommand::default()
+            }
+        });
+        assert_eq!(beside.tissue_contacts_off_target, 1, "{beside:?}");
+        assert_eq!(beside.failure_class, Some(FailureClass::NeverReached));
     }
 
     /// The expert's commands replayed open loop, the whole path shifted 3 mm along x at the

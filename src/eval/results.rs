@@ -129,6 +129,9 @@ pub struct TaskResult {
     pub mean_path_length_mm: f64,
     pub mean_time_to_success_s: Option<f64>,
     pub mean_clip_angle_error_deg: Option<f64>,
+    pub mean_covered_fraction_pct: Option<f64>,
+    /// Mean tissue contacts away from the target per trial.
+    pub mean_tissue_contacts_off_target: f64,
 }
 
 /// The mean of the values present, to the micrometre (None without one).
@@ -186,6 +189,13 @@ impl TaskResult {
             mean_clip_angle_error_deg: mean_of(
                 trials.iter().map(|t| t.progress.clip_angle_error_deg),
             ),
+            mean_covered_fraction_pct: mean_of(
+                trials.iter().map(|t| t.progress.covered_fraction_pct),
+            ),
+            mean_tissue_contacts_off_target: mean_of(
+                (trials.iter()).map(|t| Some(f64::from(t.progress.tissue_contacts_off_target))),
+            )
+            .unwrap_or(0.0),
         }
     }
 }
@@ -315,7 +325,7 @@ impl EvalReport {
     pub fn csv(&self) -> String {
         let classes: Vec<&str> = FailureClass::ALL.iter().map(|c| c.name()).collect();
         let mut text = format!(
-            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors,mean_progress,{},mean_grasp_offset_mm,mean_placement_error_mm,mean_path_length_mm,mean_time_to_success_s,mean_clip_angle_error_deg\n",
+            "task_id,name,level,trials,successes,success_rate,ci95_low,ci95_high,mean_steps_success,policy_errors,mean_progress,{},mean_grasp_offset_mm,mean_placement_error_mm,mean_path_length_mm,mean_time_to_success_s,mean_clip_angle_error_deg,mean_covered_fraction_pct,mean_tissue_contacts_off_target\n",
             classes.join(",")
         );
         let or_empty = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
@@ -327,7 +337,7 @@ impl EvalReport {
             let counts: Vec<String> = (t.failure_classes.values()).map(u32::to_string).collect();
             let _ = writeln!(
                 text,
-                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{:.4},{},{},{},{},{},{}",
+                "{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{:.4},{},{},{},{},{},{},{},{}",
                 t.task_id,
                 t.name,
                 t.level,
@@ -345,6 +355,8 @@ impl EvalReport {
                 t.mean_path_length_mm,
                 or_empty(t.mean_time_to_success_s),
                 or_empty(t.mean_clip_angle_error_deg),
+                or_empty(t.mean_covered_fraction_pct),
+                t.mean_tissue_contacts_off_target,
             );
         }
         text

@@ -362,6 +362,9 @@ fn results_png(report: &EvalReport, options: &EvalOptions) -> Result<Vec<u8>, Ev
             success_drop: t.success_drop,
             trials: t.trials,
             successes: t.successes,
+            stages: (t.stages.iter())
+                .map(|(stage, n)| ((*stage).to_string(), *n))
+                .collect(),
         })
         .collect();
     let run = RunRates {

@@ -415,6 +415,47 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("charted 2 runs over 8 tasks"), "{stdout}");
+    // The survival cascade: every stage of every task, the expert's bars full, noop's empty.
+    let cascade = out.join("cascade.png");
+    let (code, stdout, stderr) = surgvla(&[
+        "report",
+        &expert_dir.display().to_string(),
+        &noop_dir.display().to_string(),
+        "--out",
+        &chart.display().to_string(),
+        "--cascade",
+        &cascade.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("drew the survival cascade (29 stages)"),
+        "{stdout}"
+    );
+    let runs = [&expert_dir, &noop_dir].map(|d| surgvla::eval::chart::read_results(d).unwrap());
+    let names = ["expert".to_string(), "noop".to_string()];
+    let title = surgvla::eval::chart::CASCADE_TITLE;
+    let stages = surgvla::eval::chart::cascade_of(title, &runs, &names).expect("stages");
+    let (canvas, layout) = surgvla::chart::plots::rate_chart(&stages);
+    let labels: Vec<&str> = (stages.categories.iter().take(3))
+        .map(|c| c.label.as_str())
+        .collect();
+    assert_eq!(labels, ["reach", "grasp", "lift"]);
+    let bar = |category: usize, series: usize| {
+        let x = layout.bar_x(category, series) + 2;
+        let colour = surgvla::chart::SERIES[series];
+        (0..surgvla::chart::plots::BarLayout::zero_y())
+            .rev()
+            .take_while(|&y| canvas.at(x, y) == Some(colour))
+            .count()
+    };
+    // The expert's first T1-1 trials: all six reached (a whole bar), noop none.
+    assert_eq!(bar(0, 0), surgvla::chart::plots::PLOT_HEIGHT_PX);
+    assert_eq!(bar(0, 1), 0);
+    let drawn = png_pixels(&cascade);
+    assert!(
+        drawn == canvas.pixels,
+        "the command drew what the library draws"
+    );
     let report_png = std::fs::read(&chart).expect("chart");
     let (code, _, _) = surgvla(&[
         "report",
@@ -439,6 +480,16 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
     assert!(stderr.contains("holds no results.json"), "{stderr}");
 }
 
+/// A PNG's RGB pixels.
+fn png_pixels(path: &std::path::Path) -> Vec<u8> {
+    let file = std::io::BufReader::new(std::fs::File::open(path).expect("png"));
+    let mut reader = png::Decoder::new(file).read_info().expect("png header");
+    let mut pixels = vec![0; reader.output_buffer_size().expect("size")];
+    let info = reader.next_frame(&mut pixels).expect("png frame");
+    pixels.truncate(info.buffer_size());
+    pixels
+}
+
 /// The chart's bars follow the numbers: read at the places the layout puts each run's bar.
 #[test]
 fn the_report_chart_draws_each_rate_where_the_layout_says() {
@@ -458,6 +509,7 @@ fn the_report_chart_draws_each_rate_where_the_layout_says() {
                 success_drop: None,
                 trials: 4,
                 successes: (4.0 * rate) as u32,
+                stages: Default::default(),
             })
             .collect(),
     };

@@ -14,6 +14,10 @@ pub(crate) struct ReportArgs {
     /// The chart to write (PNG).
     #[arg(long)]
     out: PathBuf,
+    /// Also draw the survival cascade here (PNG): per task, the share of trials that reached
+    /// each stage of its chain, with its 95 % interval, runs side by side.
+    #[arg(long)]
+    cascade: Option<PathBuf>,
     /// The chart's title. A perturbation suite's run is drawn as a task x variant heatmap
     /// (success, interval and change from the unperturbed run per cell).
     #[arg(long, default_value = "success rate per task, 95 % interval")]
@@ -63,5 +67,19 @@ pub(crate) fn run_report(args: &ReportArgs) -> Result<(), CliError> {
         runs.len(),
         args.out.display()
     );
+    if let Some(path) = &args.cascade {
+        let title = surgvla::eval::chart::CASCADE_TITLE;
+        let Some(cascade) = surgvla::eval::chart::cascade_of(title, &runs, &names) else {
+            return Err(CliError::invalid(
+                "no run records stages (results of a surgvla older than the cascade)".to_string(),
+            ));
+        };
+        let stages = cascade.categories.len();
+        write_chart(&Chart::Rates(cascade), path)?;
+        say!(
+            "drew the survival cascade ({stages} stages) into {}",
+            path.display()
+        );
+    }
     Ok(())
 }

@@ -90,3 +90,15 @@ def test_a_lerobot_policy_served_by_the_example_is_evaluated(tmp_path):
     # pick up the gauze).
     assert [t["steps"] for t in results["trials"]] == [100, 100], results["trials"]
     assert all("step limit 100 reached" in t["reason"] for t in results["trials"])
+    # The served policy's trials carry their cascade and failure classes, consistently: the
+    # stage counts never grow along the chain, every failed trial has one class, and each
+    # trial's stage is the furthest the cascade counts it at.
+    cascade = list(row["stages"].values())
+    assert list(row["stages"]) == ["reached", "grasped", "lifted"]
+    assert all(a >= b for a, b in zip(cascade, cascade[1:])), row["stages"]
+    assert sum(row["failure_classes"].values()) == row["trials"] - row["successes"]
+    for trial in results["trials"]:
+        assert trial["failure_class"] in ("never_reached", "reached_no_grasp", "dropped", "timed_out")
+        assert trial["stage"] in ("none", "reached", "grasped"), trial
+        assert trial["progress"] == {"none": 0.0, "reached": 1 / 3, "grasped": 2 / 3}[trial["stage"]]
+        assert trial["path_length_mm"] > 0, "the policy moved the tool"
