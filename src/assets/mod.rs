@@ -97,6 +97,9 @@ pub struct Appearance {
     pub instrument_tint: [f32; 3],
     /// Multiplies every material's specular highlight.
     pub specular_scale: f32,
+    /// How far the distractors' look goes towards the target object's (0: their own; 1: the
+    /// target's colour, highlight and texture on their own shapes).
+    pub distractor_similarity: f32,
 }
 
 impl Default for Appearance {
@@ -108,6 +111,7 @@ impl Default for Appearance {
             drape_tint: [1.0; 3],
             instrument_tint: [1.0; 3],
             specular_scale: 1.0,
+            distractor_similarity: 0.0,
         }
     }
 }
@@ -179,6 +183,33 @@ impl Appearance {
         Material {
             specular: material.specular * self.specular_scale,
             ..material
+        }
+    }
+
+    /// A distractor's material, `distractor_similarity` of the way to the target's.
+    fn distractor(&self, own: Material, target: Material) -> Material {
+        let m = self.distractor_similarity.clamp(0.0, 1.0);
+        if m == 0.0 {
+            return own;
+        }
+        let mut albedo = own.albedo;
+        for (a, t) in albedo.iter_mut().zip(target.albedo) {
+            *a += (t - *a) * m;
+        }
+        Material {
+            albedo,
+            specular: own.specular + (target.specular - own.specular) * m,
+            shininess_log2: if m >= 0.5 {
+                target.shininess_log2
+            } else {
+                own.shininess_log2
+            },
+            pattern: if m >= 0.5 {
+                target.pattern
+            } else {
+                own.pattern
+            },
+            ..own
         }
     }
 
@@ -561,15 +592,25 @@ impl SceneAssets {
             };
             statics.push((part, world_from_mark));
         }
+        let target_kind = scene.objects.iter().find(|o| !o.distractor).map(|o| o.kind);
         let objects = scene
             .objects
             .iter()
             .enumerate()
-            .map(|(i, object)| Part {
-                mesh: object_mesh(object.kind, seed.wrapping_add(i as u64)),
-                material: appearance.shiny(object_material(object.kind)),
-                mask: MaskClass::of_object(object.kind, object.distractor),
-                closed: true,
+            .map(|(i, object)| {
+                let own = object_material(object.kind);
+                let material = match target_kind {
+                    Some(target) if object.distractor => {
+                        appearance.distractor(own, object_material(target))
+                    }
+                    _ => own,
+                };
+                Part {
+                    mesh: object_mesh(object.kind, seed.wrapping_add(i as u64)),
+                    material: appearance.shiny(material),
+                    mask: MaskClass::of_object(object.kind, object.distractor),
+                    closed: true,
+                }
             })
             .collect();
         SceneAssets {

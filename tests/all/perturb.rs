@@ -177,6 +177,32 @@ fn scene_perturbations_move_what_they_name() {
     // Level 2 is three distractors (level 1 two).
     assert_eq!(distractors(&instance("distractors=1").0), 2);
     assert_eq!(distractors(&instance("distractors=2").0), 3);
+    // Similar distractors look like the target (the scene stays as it was).
+    let (similar, drawn) = instance("distractor_similarity=3");
+    assert_eq!(similar, plain);
+    let look = |appearance| {
+        let options = EnvOptions {
+            appearance: Some(appearance),
+            ..EnvOptions::default()
+        };
+        let (_, seen) = Env::from_instance(plain.clone(), &options);
+        seen.images.unwrap()
+    };
+    let (before, after) = (look(Default::default()), look(drawn.appearance));
+    // The distractor's pixels (a needle, mask id 17) go from grey metal to the gauze's white.
+    let mean_of = |images: &surgvla::env::Images| {
+        let pixels: Vec<usize> = (0..images.mask.len())
+            .filter(|&p| images.mask[p] == 17)
+            .collect();
+        assert!(pixels.len() > 20, "the distractor is in view");
+        pixels
+            .iter()
+            .map(|&p| f64::from(images.rgb[p * 3]))
+            .sum::<f64>()
+            / pixels.len() as f64
+    };
+    assert!(mean_of(&after) > mean_of(&before) + 20.0);
+    assert_eq!(before.mask, after.mask);
     // The tip starts the drawn distance away, in the horizontal plane.
     let (moved, drawn) = instance("instrument_start=3");
     let (_, first) = Env::from_instance(moved, &EnvOptions::headless());
