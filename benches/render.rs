@@ -5,6 +5,8 @@
 //! `render/endoscope_224_ss2`: the same with 2x2 supersampled RGB.
 //! `render/endoscope_224_over_static`: the same frame drawn over the scene's kept static layer,
 //! no mask, its buffers handed back after each frame: what `collect` pays per frame.
+//! `effects/<dimension>`: the image effect of an evaluation's visual dimension at level 2 on
+//! one such frame (the appearance and camera dimensions cost nothing per frame).
 
 // Tests and benches fail by unwrapping, expecting and panicking (denied in the library).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -60,5 +62,39 @@ fn bench_render(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_render);
+fn bench_effects(c: &mut Criterion) {
+    use surgvla::eval::perturb::{Dimensions, Variant};
+    use surgvla::render::EffectsCache;
+    let scene = full_scene();
+    let sim = Simulator::new(SimConfig::default(), scene.clone());
+    let assets = SceneAssets::new(&scene, 0, Appearance::default());
+    let instances = assets.instances(&sim.object_poses(), &sim.instrument_pose(), &[]);
+    let frame = Renderer::new(RenderOptions::default()).render(&Camera::endoscope(), &instances);
+    let dimensions = Dimensions::v1();
+    let mut group = c.benchmark_group("effects");
+    for name in [
+        "light_colour",
+        "light_direction",
+        "smoke",
+        "blood",
+        "sensor_noise",
+        "blur",
+    ] {
+        let variant = Variant::parse(&format!("{name}=2"), dimensions).unwrap();
+        let effects = variant.draw(dimensions, 7).effects;
+        let mut pools = EffectsCache::default();
+        let mut index = 0;
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let mut copy = frame.clone();
+                index += 1;
+                effects.apply(&mut copy, index, &mut pools);
+                black_box(copy)
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_render, bench_effects);
 criterion_main!(benches);

@@ -12,7 +12,7 @@
 
 use crate::assets::{Appearance, SceneAssets};
 use crate::episode::{CameraInfo, MAX_OBJECTS, POSE_VALUES, StepExtras};
-use crate::render::{Camera, ImageEffects, RenderOptions, Renderer};
+use crate::render::{Camera, EffectsCache, ImageEffects, RenderOptions, Renderer};
 use crate::sim::{NativeCommand, Observation, PhysicalAction, SimConfig, Simulator, StepReport};
 use crate::task::{SpawnError, TaskConfig, TaskId, TaskInstance, Verdict};
 use crate::view::render_simulator_over_static;
@@ -112,6 +112,8 @@ pub struct Env {
     sim: Simulator,
     options: EnvOptions,
     view: Option<(SceneAssets, Renderer)>,
+    /// What the image effects keep for the episode.
+    effects_cache: EffectsCache,
     steps: u32,
     pub timing: EnvTiming,
 }
@@ -148,6 +150,7 @@ impl Env {
             sim,
             options: *options,
             view,
+            effects_cache: EffectsCache::default(),
             steps: 0,
             timing: EnvTiming::default(),
         };
@@ -186,9 +189,10 @@ impl Env {
             // The environment's renderer serves this episode's scene only.
             let mut frame =
                 render_simulator_over_static(assets, renderer, &self.options.camera, &self.sim);
+            let index = u64::from(self.steps);
             self.options
                 .effects
-                .apply(&mut frame, u64::from(self.steps));
+                .apply(&mut frame, index, &mut self.effects_cache);
             self.timing.render_secs += started.elapsed().as_secs_f64();
             Images {
                 rgb: frame.rgb,

@@ -66,8 +66,9 @@ impl ImageEffects {
     }
 
     /// Applies the effects to `frame`'s RGB, `index` being its frame number in the episode
-    /// (the sensor noise differs from frame to frame, reproducibly).
-    pub fn apply(&self, frame: &mut Frame, index: u64) {
+    /// (the sensor noise differs from frame to frame, reproducibly). `cache` keeps what stays
+    /// the same from frame to frame of an episode (where blood pools, the noise's table).
+    pub fn apply(&self, frame: &mut Frame, index: u64, cache: &mut EffectsCache) {
         if self.is_identity() {
             return;
         }
@@ -76,16 +77,22 @@ impl ImageEffects {
             return;
         }
         if self.needs_linear() {
-            self.light(frame, w, h);
+            let pooled = cache.pools(self, w, h);
+            self.light(frame, w, h, pooled);
         }
         if self.blur_radius_px > 0 {
             box_blur(&mut frame.rgb, w, h, self.blur_radius_px as usize);
         }
         if self.noise_sigma > 0.0 {
+            // Four draws from the episode's table of noise values per 64-bit draw.
+            let table = cache.noise(self);
             let mut rng = SplitMix64::stream(self.noise_seed ^ index, "sensor-noise");
-            for v in &mut frame.rgb {
-                let n = gaussian(&mut rng) * self.noise_sigma;
-                *v = (f32::from(*v) + n).round().clamp(0.0, 255.0) as u8;
+            for values in frame.rgb.chunks_mut(4) {
+                let bits = rng.next_u64();
+                for (k, v) in values.iter_mut().enumerate() {
+                    let n = table[((bits >> (16 * k)) & 0xffff) as usize];
+                    *v = (i16::from(*v) + n).clamp(0, 255) as u8;
+                }
             }
         }
     }
@@ -97,38 +104,39 @@ impl ImageEffects {
             || self.blood_coverage > 0.0
     }
 
-    /// The light's colour and fall-off, blood and smoke, in linear light.
-    fn light(&self, frame: &mut Frame, w: usize, h: usize) {
+    /// The light's colour and fall-off, blood and smoke, in linear light; `pools` marks where
+    /// blood lies (where the mask allows it).
+    fn light(&self, frame: &mut Frame, w: usize, h: usize, pools: &[bool]) {
         let table = srgb_table();
         let linear: Vec<f32> = (0..=255u8).map(srgb_to_linear).collect();
-        let mask_ok = frame.mask.len() == w * h;
-        let pools = |x: usize, y: usize| {
-            let scale = BLOOD_SCALE_PX;
-            value_noise3([x as f32 / scale, y as f32 / scale, 0.5], self.blood_seed)
-        };
-        // Blood covers a pixel where the pools' noise is above the quantile that leaves the
-        // coverage's fraction of the image above it.
-        let threshold = if self.blood_coverage > 0.0 && mask_ok {
-            let mut noise: Vec<f32> = (0..h)
-                .flat_map(|y| (0..w).map(move |x| (x, y)))
-                .map(|(x, y)| pools(x, y))
-                .collect();
-            let rank = ((1.0 - self.blood_coverage.clamp(0.0, 1.0)) * noise.len() as f32) as usize;
-            let rank = rank.min(noise.len().saturating_sub(1));
-            *noise.select_nth_unstable_by(rank, f32::total_cmp).1
-        } else {
-            f32::INFINITY
-        };
+        if self.light_slope == [0.0; 2] && pools.is_empty() {
+            // The same for every pixel: one table per channel.
+            let maps: [Vec<u8>; 3] = std::array::from_fn(|c| {
+                (linear.iter())
+                    .map(|v| {
+                        let v = v * self.light_tint[c];
+                        table.lookup(v * (1.0 - self.haze) + SMOKE[c] * self.haze)
+                    })
+                    .collect()
+            });
+            for pixel in frame.rgb.chunks_exact_mut(3) {
+                for c in 0..3 {
+                    pixel[c] = maps[c][usize::from(pixel[c])];
+                }
+            }
+            return;
+        }
+        let mask_ok = frame.mask.len() == w * h && pools.len() == w * h;
         for y in 0..h {
             let py = (2.0 * (y as f32 + 0.5) / h as f32) - 1.0;
             for x in 0..w {
                 let px = (2.0 * (x as f32 + 0.5) / w as f32) - 1.0;
                 let i = y * w + x;
                 let falloff = (1.0 + self.light_slope[0] * px + self.light_slope[1] * py).max(0.05);
-                let bleeding = threshold.is_finite()
+                let bleeding = mask_ok
+                    && pools[i]
                     && frame.mask[i] < 32
-                    && self.blood_classes & (1 << frame.mask[i]) != 0
-                    && pools(x, y) > threshold;
+                    && self.blood_classes & (1 << frame.mask[i]) != 0;
                 for c in 0..3 {
                     let mut v = linear[usize::from(frame.rgb[i * 3 + c])];
                     if bleeding {
@@ -144,37 +152,127 @@ impl ImageEffects {
     }
 }
 
-/// A standard normal draw (Box-Muller).
-fn gaussian(rng: &mut SplitMix64) -> f32 {
-    let u1 = rng.next_f64().max(1e-12);
-    let u2 = rng.next_f64();
-    ((-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()) as f32
+/// What the effects keep from frame to frame of an episode: where blood pools in frames of one
+/// size (the pixels whose pools' noise lies above the quantile that leaves the coverage's
+/// fraction of the image above it), and 65,536 noise values (rounded, in 8-bit levels) that
+/// every frame draws from.
+#[derive(Clone, Debug, Default)]
+pub struct EffectsCache {
+    /// (width, height, seed, coverage bits) and the map.
+    key: Option<(usize, usize, u32, u32)>,
+    map: Vec<bool>,
+    /// (seed, sigma bits) and the table.
+    noise_key: Option<(u64, u32)>,
+    noise: Vec<i16>,
 }
 
-/// A separable box blur of radius `r` (clamped at the borders), in place.
+impl EffectsCache {
+    fn noise(&mut self, effects: &ImageEffects) -> &[i16] {
+        let key = (effects.noise_seed, effects.noise_sigma.to_bits());
+        if self.noise_key != Some(key) {
+            let mut rng = SplitMix64::stream(effects.noise_seed, "sensor-noise table");
+            self.noise = (0..1 << 16)
+                .map(|_| (normal(&mut rng) * effects.noise_sigma).round() as i16)
+                .collect();
+            self.noise_key = Some(key);
+        }
+        &self.noise
+    }
+
+    fn pools(&mut self, effects: &ImageEffects, w: usize, h: usize) -> &[bool] {
+        if effects.blood_coverage <= 0.0 {
+            return &[];
+        }
+        let key = (w, h, effects.blood_seed, effects.blood_coverage.to_bits());
+        if self.key != Some(key) {
+            let noise: Vec<f32> = (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| {
+                    let scale = BLOOD_SCALE_PX;
+                    value_noise3(
+                        [x as f32 / scale, y as f32 / scale, 0.5],
+                        effects.blood_seed,
+                    )
+                })
+                .collect();
+            let mut sorted = noise.clone();
+            let coverage = effects.blood_coverage.clamp(0.0, 1.0);
+            let rank = ((1.0 - coverage) * sorted.len() as f32) as usize;
+            let rank = rank.min(sorted.len().saturating_sub(1));
+            let threshold = *sorted.select_nth_unstable_by(rank, f32::total_cmp).1;
+            self.map = noise.iter().map(|&n| n > threshold).collect();
+            self.key = Some(key);
+        }
+        &self.map
+    }
+}
+
+/// An approximately standard normal draw: the sum of four uniforms (Irwin-Hall) from one
+/// 64-bit draw, centred and scaled to unit variance (tails end at 3.5 sigma).
+fn normal(rng: &mut SplitMix64) -> f32 {
+    let bits = rng.next_u64();
+    let sum: f32 = (0..4)
+        .map(|k| f32::from((bits >> (16 * k)) as u16) / 65_535.0)
+        .sum();
+    (sum - 2.0) * 3f32.sqrt()
+}
+
+/// A separable box blur of radius `r` (the window clamped at the borders), in place: running
+/// sums along each row, then down the columns, a row at a time.
 fn box_blur(rgb: &mut [u8], w: usize, h: usize, r: usize) {
-    let mut line = Vec::new();
-    let mut pass =
-        |rgb: &mut [u8], len: usize, count: usize, at: &dyn Fn(usize, usize) -> usize| {
-            for k in 0..count {
-                line.clear();
-                line.extend((0..len).flat_map(|j| {
-                    let i = at(k, j);
-                    [rgb[i], rgb[i + 1], rgb[i + 2]]
-                }));
-                for j in 0..len {
-                    let (lo, hi) = (j.saturating_sub(r), (j + r).min(len - 1));
-                    let n = (hi - lo + 1) as u32;
-                    let i = at(k, j);
-                    for c in 0..3 {
-                        let sum: u32 = (lo..=hi).map(|m| u32::from(line[m * 3 + c])).sum();
-                        rgb[i + c] = ((sum + n / 2) / n) as u8;
-                    }
+    if w == 0 || h == 0 {
+        return;
+    }
+    let window = |j: usize, len: usize| ((j + r).min(len - 1) - j.saturating_sub(r) + 1) as u32;
+    let mut line: Vec<u32> = Vec::with_capacity(w * 3);
+    for row in rgb.chunks_exact_mut(w * 3) {
+        line.clear();
+        line.extend(row.iter().map(|&v| u32::from(v)));
+        let mut sum = [0u32; 3];
+        for x in 0..=r.min(w - 1) {
+            for c in 0..3 {
+                sum[c] += line[x * 3 + c];
+            }
+        }
+        for x in 0..w {
+            let n = window(x, w);
+            for c in 0..3 {
+                row[x * 3 + c] = ((sum[c] + n / 2) / n) as u8;
+                if x + r + 1 < w {
+                    sum[c] += line[(x + r + 1) * 3 + c];
+                }
+                if x >= r {
+                    sum[c] -= line[(x - r) * 3 + c];
                 }
             }
-        };
-    pass(rgb, w, h, &|row, col| (row * w + col) * 3);
-    pass(rgb, h, w, &|col, row| (row * w + col) * 3);
+        }
+    }
+    let rows: Vec<u32> = rgb.iter().map(|&v| u32::from(v)).collect();
+    let stride = w * 3;
+    let mut sums = vec![0u32; stride];
+    for y in 0..=r.min(h - 1) {
+        for (s, v) in sums.iter_mut().zip(&rows[y * stride..(y + 1) * stride]) {
+            *s += v;
+        }
+    }
+    for y in 0..h {
+        let n = window(y, h);
+        for (out, s) in rgb[y * stride..(y + 1) * stride].iter_mut().zip(&sums) {
+            *out = ((s + n / 2) / n) as u8;
+        }
+        if y + r + 1 < h {
+            let entering = &rows[(y + r + 1) * stride..(y + r + 2) * stride];
+            for (s, v) in sums.iter_mut().zip(entering) {
+                *s += v;
+            }
+        }
+        if y >= r {
+            let leaving = &rows[(y - r) * stride..(y - r + 1) * stride];
+            for (s, v) in sums.iter_mut().zip(leaving) {
+                *s -= v;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -205,11 +303,43 @@ mod tests {
         frame(rgb, vec![2; (w * h) as usize], w, h)
     }
 
+    /// The running sums give what averaging each clamped window does.
+    #[test]
+    fn the_blur_is_the_mean_of_each_clamped_window() {
+        let (w, h, r) = (9usize, 7usize, 2usize);
+        let mut rng = SplitMix64::new(3);
+        let original: Vec<u8> = (0..w * h * 3).map(|_| rng.next_u64() as u8).collect();
+        let mut blurred = original.clone();
+        box_blur(&mut blurred, w, h, r);
+        let mean = |values: &mut dyn Iterator<Item = u32>| {
+            let v: Vec<u32> = values.collect();
+            ((v.iter().sum::<u32>() + v.len() as u32 / 2) / v.len() as u32) as u8
+        };
+        let span = |j: usize, len: usize| j.saturating_sub(r)..=(j + r).min(len - 1);
+        let mut rows = original.clone();
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    let at = |x: usize| u32::from(original[(y * w + x) * 3 + c]);
+                    rows[(y * w + x) * 3 + c] = mean(&mut span(x, w).map(at));
+                }
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    let at = |y: usize| u32::from(rows[(y * w + x) * 3 + c]);
+                    assert_eq!(blurred[(y * w + x) * 3 + c], mean(&mut span(y, h).map(at)));
+                }
+            }
+        }
+    }
+
     #[test]
     fn the_neutral_effects_change_nothing() {
         let mut f = checker(16, 12);
         let before = f.clone();
-        ImageEffects::default().apply(&mut f, 3);
+        ImageEffects::default().apply(&mut f, 3, &mut EffectsCache::default());
         assert_eq!(f, before);
     }
 
@@ -231,7 +361,7 @@ mod tests {
         let base = checker(32, 32);
         let with = |e: ImageEffects| {
             let mut f = base.clone();
-            e.apply(&mut f, 0);
+            e.apply(&mut f, 0, &mut EffectsCache::default());
             f
         };
         let warm = with(ImageEffects {
@@ -281,7 +411,7 @@ mod tests {
                 noise_seed: 11,
                 ..ImageEffects::default()
             };
-            e.apply(&mut f, index);
+            e.apply(&mut f, index, &mut EffectsCache::default());
             f
         };
         assert_eq!(noisy(1), noisy(1));

@@ -14,7 +14,7 @@ pub mod mesh;
 pub mod raster;
 
 pub use camera::Camera;
-pub use effects::ImageEffects;
+pub use effects::{EffectsCache, ImageEffects};
 pub use material::{Material, Pattern};
 pub use mesh::Mesh;
 pub use raster::{Frame, Instance, Lighting, Rasterizer};

@@ -362,6 +362,33 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
             "{trial:?}"
         );
     }
+    // Random commands rarely get anywhere: progress near 0, failures of the early classes.
+    let random = evaluate(
+        &PolicyChoice::Random,
+        &options(&out.join("random"), &all, 4),
+        &|_, _| {},
+    )
+    .expect("random");
+    let mean: f64 =
+        random.tasks.iter().map(|t| t.mean_progress).sum::<f64>() / random.tasks.len() as f64;
+    assert!(mean < 0.15, "random's mean progress {mean}");
+    for trial in random.trials.iter().filter(|t| !t.success) {
+        let class = trial.progress.failure_class.map(|c| c.name());
+        assert!(
+            matches!(
+                class,
+                Some(
+                    "never_reached"
+                        | "reached_no_grasp"
+                        | "grasped_wrong_object"
+                        | "unsafe"
+                        | "dropped"
+                        | "timed_out"
+                )
+            ),
+            "{trial:?}"
+        );
+    }
     // results.json follows its schema, which refuses what it does not describe.
     for run in ["expert", "noop"] {
         let text = std::fs::read_to_string(out.join(run).join("results.json")).expect("results");

@@ -126,7 +126,10 @@ pub(crate) fn run_render(args: &RenderArgs) -> Result<(), CliError> {
     let assets = SceneAssets::new(&scene, args.seed, appearance);
     let mut renderer = Renderer::new(options);
     let mut frame = render_simulator(&assets, &mut renderer, &camera, &sim);
-    drawn.effects.apply(&mut frame, u64::from(args.steps));
+    let mut pools = surgvla::render::EffectsCache::default();
+    drawn
+        .effects
+        .apply(&mut frame, u64::from(args.steps), &mut pools);
     let (w, h) = (frame.width_px, frame.height_px);
     write_png_file(&args.out, w, h, 3, &frame.rgb)?;
     if let Some(path) = &args.depth {
