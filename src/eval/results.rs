@@ -472,6 +472,32 @@ impl EvalReport {
         Some(text)
     }
 
+    /// The precision and safety means per task, as a Markdown table ("-" where no trial has the
+    /// figure).
+    pub fn precision_markdown(&self) -> String {
+        let mut text = String::from(
+            "Precision and safety, means over the trials that have the figure:\n\n| task | grasp offset (mm) | placement error (mm) | covered (%) | clip angle error (deg) | tissue contacts off target | path (mm) | time to success (s) |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+        );
+        let or_dash = |v: Option<f64>, decimals: usize| {
+            v.map_or_else(|| "-".to_string(), |v| format!("{v:.decimals$}"))
+        };
+        for t in &self.tasks {
+            let _ = writeln!(
+                text,
+                "| {} | {} | {} | {} | {} | {:.2} | {:.0} | {} |",
+                self.label(t),
+                or_dash(t.mean_grasp_offset_mm, 1),
+                or_dash(t.mean_placement_error_mm, 1),
+                or_dash(t.mean_covered_fraction_pct, 1),
+                or_dash(t.mean_clip_angle_error_deg, 1),
+                t.mean_tissue_contacts_off_target,
+                t.mean_path_length_mm,
+                or_dash(t.mean_time_to_success_s, 1),
+            );
+        }
+        text
+    }
+
     /// The per-task table (what the command prints).
     pub fn table(&self) -> String {
         let mut text = String::from(
@@ -526,6 +552,8 @@ impl EvalReport {
         text.push_str(&self.table());
         text.push('\n');
         text.push_str(&self.stages_markdown());
+        text.push('\n');
+        text.push_str(&self.precision_markdown());
         let _ = writeln!(
             text,
             "\nOptions: `{}`\n",

@@ -426,6 +426,18 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
         "{markdown}"
     );
     assert!(markdown.contains("| noop | 0.0 | 0.0 |"), "{markdown}");
+    // The precision table: every task a row, noop's figures absent or zero.
+    assert!(
+        markdown.contains("| T1-1 | - | - | - | - | 0.00 | 0 | - |"),
+        "{markdown}"
+    );
+    let expert_md = std::fs::read_to_string(out.join("expert/results.md")).expect("results.md");
+    let row = (expert_md.lines())
+        .find(|l| l.starts_with("| T3-1 |") && l.matches('|').count() == 9)
+        .expect("T3-1's precision row");
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    let covered: f64 = cells[4].parse().expect("covered %");
+    assert!((40.0..=70.0).contains(&covered), "{row}");
     let csv = std::fs::read_to_string(out.join("expert/results.csv")).expect("results.csv");
     assert_eq!(csv.lines().count(), 9);
     // results.png, and the two runs charted side by side by `surgvla report`.
