@@ -248,13 +248,19 @@ pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
             say!("{}", report.stages_markdown().trim_end());
         }
     }
+    // The totals are the unperturbed rows' when the run has them (all rows otherwise).
+    let perturbed_with_baseline = variants > 1 && report.tasks.iter().any(|t| t.variant == "none");
     say!(
         "mean success rate {:.1} % over {} tasks ({} of {} trials{}); results in {}",
         100.0 * report.overall.mean_success_rate,
         options.tasks.len(),
         report.overall.successes,
         report.overall.trials,
-        if variants > 1 { ", unperturbed" } else { "" },
+        if perturbed_with_baseline {
+            ", unperturbed"
+        } else {
+            ""
+        },
         options.out.display()
     );
     let errors: u32 = report.tasks.iter().map(|t| t.policy_errors).sum();
