@@ -315,13 +315,7 @@ fn the_command_runs_a_suite_records_it_and_draws_its_heatmap() {
         stdout.contains("as a heatmap of 2 variants over 2 tasks"),
         "{stdout}"
     );
-    let decoder = png::Decoder::new(std::io::BufReader::new(
-        std::fs::File::open(&chart).unwrap(),
-    ));
-    let mut reader = decoder.read_info().unwrap();
-    let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut pixels).unwrap();
-    let width = info.width as usize;
+    let (pixels, width) = crate::util::png_rgb(&chart);
     use surgvla::chart::heatmap::{colour_of, column_x, row_y};
     let left = 16 + 8 * "smoke=1,blur=2".len();
     for (r, c) in [(0, 0), (1, 1), (1, 2)] {

@@ -204,3 +204,13 @@ pub(crate) fn unless_briefly_locked<T>(
     }
     attempt
 }
+
+/// A PNG's pixels (RGB, as the charts are written) and its width.
+pub(crate) fn png_rgb(path: &Path) -> (Vec<u8>, usize) {
+    let file = std::io::BufReader::new(std::fs::File::open(path).expect("png"));
+    let mut reader = png::Decoder::new(file).read_info().expect("png header");
+    let mut pixels = vec![0; reader.output_buffer_size().expect("size")];
+    let info = reader.next_frame(&mut pixels).expect("png frame");
+    pixels.truncate(info.buffer_size());
+    (pixels, info.width as usize)
+}
