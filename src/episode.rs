@@ -95,6 +95,15 @@ impl VideoCodec {
         }
     }
 
+    /// The quality setting surgvla encodes this codec at by default (AV1's quantizer 80,
+    /// H.264's largest quantiser 22: see `media::video::VideoEncoder`).
+    pub fn default_quality(self) -> u32 {
+        match self {
+            VideoCodec::Av1 => 80,
+            VideoCodec::H264 => 22,
+        }
+    }
+
     /// The codec of a LeRobot `video.codec` name.
     pub fn from_name(name: &str) -> Option<Self> {
         match name {

@@ -269,5 +269,6 @@ pub fn dataset_info(
         notes: Vec::new(),
         omitted: Vec::new(),
         episode_fields: Vec::new(),
+        carried_keys: Default::default(),
     }
 }

@@ -42,6 +42,10 @@ enum Command {
     /// I/N`, or any compatible ones) into one: episodes re-indexed, files rolled as one run rolls
     /// them; all N shards merged are the single run's bytes.
     Merge(crate::commands::merge::MergeArgs),
+    /// Edit a dataset in its own format, video copied without decoding: keep or drop episodes
+    /// (indices, task, length, success, validate's findings), split them (seeded, stratified
+    /// by task), remove or rename features, change instructions: `edit IN --drop 1,3,6-8 --out DIR`.
+    Edit(crate::commands::edit::EditArgs),
     /// Score a policy in closed loop on the tasks: a VLA behind openpi's policy-server protocol
     /// (`--policy ws://HOST:PORT`) or a built-in reference (expert, replay, random, noop);
     /// writes results.json, results.csv, results.md and results.png (the chart) with Wilson 95 %
@@ -113,6 +117,7 @@ pub(crate) fn run(args: impl IntoIterator<Item = std::ffi::OsString>) -> u8 {
         Command::Record(args) => crate::commands::record::run_record(&args),
         Command::Experts(args) => crate::commands::experts::run_experts(&args),
         Command::Merge(args) => crate::commands::merge::run_merge(&args),
+        Command::Edit(args) => crate::commands::edit::run_edit(&args),
         Command::Eval(args) => crate::commands::eval::run_eval(&args),
         Command::Report(args) => crate::commands::report::run_report(&args),
         Command::Validate(args) => crate::commands::validate::run_validate(&args),

@@ -286,6 +286,10 @@ impl EpisodeSource for Without {
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
     }
+
+    fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
+        self.inner.skim()
+    }
 }
 
 /// Depth may differ by this much between a source and a target that stores millimetres (RLDS):

@@ -66,6 +66,10 @@ impl Decoded {
         for feature in &mut info.features {
             let video = feature.video.take();
             if video.is_some() {
+                // The video's own settings describe the stream that is decoded here.
+                feature
+                    .info
+                    .retain(|key, _| !key.starts_with("video.") && key != "is_depth_map");
                 let size_px = frame_size(&feature.shape).ok_or_else(|| {
                     ExportError::InvalidOptions(format!(
                         "{} is video of shape {:?}; surgvla decodes 3-channel video only",
@@ -324,4 +328,56 @@ fn decode_feature(
         &mut place,
     )?;
     Ok(rgb)
+}
+
+/// Encodes again, in their own codec at `quality`, the video features of `episode` that
+/// cannot be copied as they are ([`EncodedFeature::shown`]: an episode starting mid-GOP, frames
+/// the rows skip): each is decoded to the picture every step shows and encoded from a keyframe,
+/// with exact pixel statistics. Returns the features encoded again (none: nothing to do).
+pub fn reencode_uncopyable(
+    episode: &mut Episode,
+    info: &DatasetInfo,
+    quality: u32,
+) -> Result<Vec<String>, ExportError> {
+    let index = episode.meta.index;
+    let steps = episode.steps.len();
+    let mut done = Vec::new();
+    for encoded in episode.encoded.iter_mut() {
+        let ImageEncoding::Video(codec) = encoded.encoding else {
+            continue;
+        };
+        if encoded.shown.is_none() {
+            continue;
+        }
+        let size_px = (info.features.iter())
+            .find(|f| f.name == encoded.feature)
+            .and_then(|f| frame_size(&f.shape))
+            .ok_or_else(|| {
+                ExportError::InvalidOptions(format!(
+                    "{} is video of no 3-channel shape; surgvla cannot encode it again",
+                    encoded.feature
+                ))
+            })?;
+        let target = Target {
+            name: encoded.feature.clone(),
+            size_px,
+            slot: Slot::Rgb,
+        };
+        let rgb = decode_feature(encoded, &target, index, steps)?;
+        let mut stats = ImageStats::unit_scaled(3);
+        for frame in &rgb {
+            stats.push_u8(frame);
+        }
+        let frames: Vec<&[u8]> = rgb.iter().map(Vec::as_slice).collect();
+        let (width, height) = size_px;
+        encoded.frames =
+            crate::media::video::encode(codec, &frames, width, height, info.fps, quality)?;
+        encoded.shown = None;
+        encoded.pixel_stats = Some(PixelStats::Exact(
+            serde_json::to_value(&stats)
+                .map_err(|e| ExportError::Internal(format!("statistics: {e}")))?,
+        ));
+        done.push(encoded.feature.clone());
+    }
+    Ok(done)
 }

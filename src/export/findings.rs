@@ -81,6 +81,10 @@ pub struct Report {
     pub warnings: Vec<Finding>,
     /// The quality lint's verdict, one line per check that ran (empty: not linted).
     pub lint: Vec<LintSummary>,
+    /// Every episode a finding names (all of them, not only the findings listed), with
+    /// whether one of its findings is an error: what `edit --drop flagged` drops.
+    #[serde(skip)]
+    pub flagged: BTreeMap<u64, bool>,
 }
 
 impl Report {
@@ -175,6 +179,8 @@ pub struct Findings {
 #[derive(Debug, Default)]
 struct Collected {
     kept: BTreeMap<(Check, bool), std::collections::BTreeSet<Finding>>,
+    /// Episode -> whether an error names it (see [`Report::flagged`]).
+    flagged: BTreeMap<u64, bool>,
     /// (check, is_error) -> findings seen.
     counts: BTreeMap<(Check, bool), usize>,
 }
@@ -251,6 +257,9 @@ impl Findings {
         let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
         let count = inner.counts.entry((check, is_error)).or_default();
         *count += 1;
+        if let Some(episode) = at.episode {
+            *inner.flagged.entry(episode).or_default() |= is_error;
+        }
         let finding = Finding {
             file: at.file,
             episode: at.episode,
@@ -322,6 +331,7 @@ impl Findings {
             errors,
             warnings,
             lint: self.lint.into_inner().unwrap_or_else(|e| e.into_inner()),
+            flagged: inner.flagged,
         }
     }
 }

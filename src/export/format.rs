@@ -176,6 +176,26 @@ pub trait DatasetFormat: Sync {
         None
     }
 
+    /// The options that write a dataset like the one `found` is (of `info`, as its source
+    /// read it): its layout, its video codec, its file sizes, its name. What `edit` writes
+    /// its result with, so that the result is the input with episodes or features left out;
+    /// `None`: the format cannot say (edit refuses it).
+    fn options_like(
+        &self,
+        _found: &Found,
+        _info: &DatasetInfo,
+    ) -> Option<Result<Box<dyn SinkOptions>, ExportError>> {
+        None
+    }
+
+    /// The files of a dataset `found` that another tool wrote beside the data and this
+    /// format's writer does not make (a community's README, its own metadata), as (path
+    /// relative to the dataset's root, bytes): `edit` carries them into its result as they
+    /// are. None by default.
+    fn carried_files(&self, _found: &Found) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+        Ok(Vec::new())
+    }
+
     /// Merges datasets of this format into `out`; `None`: the format does not merge.
     fn merge(&self, _request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         None

@@ -103,6 +103,10 @@ impl EpisodeSource for Identified {
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
     }
+
+    fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
+        self.inner.skim()
+    }
 }
 
 #[cfg(test)]

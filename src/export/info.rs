@@ -54,6 +54,10 @@ pub struct DatasetInfo {
     /// ([`crate::episode::EpisodeMeta::fields`]), declared; empty for surgvla's own data. Not
     /// part of the options digest.
     pub episode_fields: Vec<crate::episode::EpisodeField>,
+    /// Keys of the dataset's description that another tool wrote and surgvla has no model for
+    /// (LeRobot's info.json), carried over as they were where the format has room. Not part
+    /// of the options digest.
+    pub carried_keys: serde_json::Map<String, Value>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -162,6 +166,7 @@ impl DatasetInfo {
             notes: Vec::new(),
             omitted: Vec::new(),
             episode_fields: Vec::new(),
+            carried_keys: Default::default(),
         }
     }
 

@@ -17,7 +17,7 @@
 //! - the formats, one folder each: [`lerobot`] (v3.0 and v2.1), [`rlds`] (TFDS), [`pointcloud`]
 //!   (PLY and PCD files), [`zarr`] (DP3), [`mcap`] (Foxglove);
 //! - the dispatch over them: [`registry`] (the one list of formats), [`open`], [`validate`],
-//!   [`verify`].
+//!   [`verify`], [`edit`].
 //!
 //! Adding a format is one folder implementing [`DatasetFormat`] and [`SinkOptions`] plus one
 //! line in [`registry::BUILTIN_FORMATS`] (ARCHITECTURE.md's "How to add a format").
@@ -29,6 +29,7 @@ pub mod collection;
 pub mod convert;
 pub mod decoded;
 pub mod dir;
+pub mod edit;
 pub mod error;
 pub mod findings;
 pub mod format;
@@ -69,4 +70,4 @@ pub use sink::{
     DetachedEncoder, Encoded, EpisodeSink, FrameEncoder, Pipelined, PipelinedSink, Sidecar,
     SinkTiming, Summary,
 };
-pub use source::{EpisodePart, EpisodeSource, Gathering, SourceOptions};
+pub use source::{EpisodePart, EpisodeSource, Gathering, Skimmed, SourceOptions};

@@ -48,6 +48,14 @@ impl Sharded {
             }
             collection.set_shard(&RecordedShard::Part(shard));
         }
+        // The input's named splits, as they fall in the shard.
+        info.splits = (info.splits.iter())
+            .filter_map(|(name, split)| {
+                let from = split.start.max(range.start) - range.start;
+                let to = split.end.min(range.end).saturating_sub(range.start);
+                (from < to).then(|| (name.clone(), from..to))
+            })
+            .collect();
         // What a resume compares besides the options: another shard of the same input is
         // another input (a dataset another tool made has no collection to say it).
         info.input = Some(match &info.input {

@@ -101,6 +101,10 @@ pub trait EpisodeSink {
             part.episode.meta.index
         )))
     }
+    /// Files another tool wrote beside the data (path relative to the dataset's root, bytes;
+    /// [`crate::export::DatasetFormat::carried_files`]), to write as they are, listed in the
+    /// manifest, when the dataset is finished. A sink that writes no such files leaves them.
+    fn carry_files(&mut self, _files: Vec<(String, Vec<u8>)>) {}
     /// Time spent so far.
     fn timing(&self) -> SinkTiming {
         SinkTiming::default()

@@ -40,6 +40,24 @@ pub trait EpisodeSource: Iterator<Item = Result<Episode, ExportError>> {
     fn next_part(&mut self) -> Option<Result<EpisodePart, ExportError>> {
         self.next().map(|e| e.map(EpisodePart::whole))
     }
+    /// The next episode's metadata and length without its images (None after the last): what
+    /// `edit` chooses episodes by. Reading the episode and dropping its steps by default; a
+    /// source that can leave its images unread does so.
+    fn skim(&mut self) -> Option<Result<Skimmed, ExportError>> {
+        self.next().map(|e| {
+            e.map(|e| Skimmed {
+                steps: e.steps.len() as u64,
+                meta: e.meta,
+            })
+        })
+    }
+}
+
+/// An episode's metadata and length, as [`EpisodeSource::skim`] reads them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Skimmed {
+    pub meta: crate::episode::EpisodeMeta,
+    pub steps: u64,
 }
 
 /// A stretch of consecutive steps of an episode, as a source that makes long episodes while it

@@ -248,6 +248,9 @@ pub struct Writer<F: FormatWriter> {
     /// when the format encodes only in batches.
     detached: Option<std::sync::Arc<dyn DetachedEncoder>>,
     held: std::sync::Arc<Held<F::Encoded>>,
+    /// Files another tool wrote beside the data, written as they are when finishing
+    /// ([`EpisodeSink::carry_files`]).
+    carried: Vec<(String, Vec<u8>)>,
 }
 
 impl<F: FormatWriter> Writer<F> {
@@ -308,6 +311,7 @@ impl<F: FormatWriter> Writer<F> {
             finished: None,
             detached,
             held,
+            carried: Vec::new(),
         })
     }
 
@@ -326,6 +330,10 @@ impl<F: FormatWriter> Writer<F> {
 }
 
 impl<F: FormatWriter> EpisodeSink for Writer<F> {
+    fn carry_files(&mut self, files: Vec<(String, Vec<u8>)>) {
+        self.carried = files;
+    }
+
     fn reuses_stored(&self, encoding: ImageEncoding) -> bool {
         self.format.reuses_stored(encoding)
     }
@@ -416,6 +424,10 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
         let mut tally = Tally::default();
         for line in self.dir.journal_lines(TALLY_JOURNAL)? {
             tally.add_line(&line?);
+        }
+        for (relative, bytes) in &self.carried {
+            summary.bytes += self.dir.write_atomically(relative, bytes)?;
+            summary.files += 1;
         }
         let card = crate::export::card::render(&self.info, &tally, &self.format.card_format());
         summary.bytes += self.dir.write_atomically(CARD, card.as_bytes())?;

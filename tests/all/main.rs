@@ -11,6 +11,7 @@ mod cli;
 mod collect;
 mod contract;
 mod determinism;
+mod edit;
 mod eval;
 mod fidelity;
 mod grasping;

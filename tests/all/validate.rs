@@ -114,7 +114,7 @@ fn assert_found(report: &Report, check: &str, file: &str, what: &str) {
 const DATA: &str = "data/chunk-000/file-000.parquet";
 
 /// Rewrites a parquet file's batches through `change` (uncompressed: bytes differ anyway).
-fn rewrite_parquet(file: &Path, change: impl Fn(RecordBatch) -> RecordBatch) {
+pub(crate) fn rewrite_parquet(file: &Path, change: impl Fn(RecordBatch) -> RecordBatch) {
     let batches = surgvla::export::lerobot::read::read_parquet(file).expect("read");
     let metadata = batches[0].schema().metadata().clone();
     let changed: Vec<RecordBatch> = batches.into_iter().map(change).collect();
@@ -133,7 +133,7 @@ fn rewrite_parquet(file: &Path, change: impl Fn(RecordBatch) -> RecordBatch) {
 }
 
 /// The batch with column `name` replaced.
-fn with_column(batch: RecordBatch, name: &str, column: ArrayRef) -> RecordBatch {
+pub(crate) fn with_column(batch: RecordBatch, name: &str, column: ArrayRef) -> RecordBatch {
     let schema = batch.schema();
     let index = schema.index_of(name).expect("column");
     let mut columns = batch.columns().to_vec();

@@ -6,6 +6,7 @@
 pub(crate) mod collect;
 pub(crate) mod contact_sheet;
 pub(crate) mod convert;
+pub(crate) mod edit;
 pub(crate) mod eval;
 pub(crate) mod experts;
 pub(crate) mod info;

@@ -103,6 +103,21 @@ impl DatasetFormat for LeRobotFormat {
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         Some(super::merge::merge(request))
     }
+
+    fn options_like(
+        &self,
+        found: &Found,
+        info: &DatasetInfo,
+    ) -> Option<Result<Box<dyn SinkOptions>, ExportError>> {
+        Some(
+            super::carry::options_like(&found.root, info)
+                .map(|options| Box::new(options) as Box<dyn SinkOptions>),
+        )
+    }
+
+    fn carried_files(&self, found: &Found) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+        super::carry::carried_files(&found.root)
+    }
 }
 
 impl SinkOptions for LeRobotOptions {

@@ -223,6 +223,8 @@ pub fn merge(request: &mut MergeRequest<'_>) -> Result<Summary, MergeError> {
         .map_err(|e| MergeError::Convert(ConvertError::Read(e)))?;
     info.input = Some(identities.join("; "));
     mark_merged_shards(&mut info, &opened);
+    // The first input's named splits do not describe the merged episodes.
+    info.splits = Vec::new();
     let options = merged_options(&info, &opened[0].layout);
     let reports: Option<Vec<Value>> = opened
         .iter()

@@ -16,6 +16,7 @@
 //! belong to [`crate::export::DatasetDir`]; whenever a data file closes (and the open MP4 with it) the writer's
 //! whole state is checkpointed, and [`LeRobotWriter::resume`] continues from there.
 
+mod carry;
 pub mod check;
 mod format;
 mod layout;

@@ -101,7 +101,7 @@ impl VideoOptions {
     pub fn h264() -> Self {
         VideoOptions {
             codec: Codec::H264,
-            quality: 22,
+            quality: Codec::H264.default_quality(),
             file_size_mb: 200,
         }
     }
@@ -111,7 +111,7 @@ impl Default for VideoOptions {
     fn default() -> Self {
         VideoOptions {
             codec: Codec::Av1,
-            quality: 80,
+            quality: Codec::Av1.default_quality(),
             file_size_mb: 200,
         }
     }

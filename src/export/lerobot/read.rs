@@ -457,11 +457,26 @@ impl Role {
 }
 
 /// What another tool's feature says of itself in its `info` (a pose's frame, a camera's
-/// intrinsics, a depth map's unit), kept to travel with it; the keys a writer derives from the
-/// stored data (`video.*`, `has_audio`, `audio.*`) are left out, to be written again.
+/// intrinsics, a depth map's unit, the encoder's settings), kept to travel with it; the keys a
+/// writer derives from the stored data (the video's size, codec, rate, `has_audio`, `audio.*`)
+/// are left out, to be written again.
 fn kept_info(kind: FeatureKind, info: Option<&Map<String, Value>>) -> Map<String, Value> {
-    let derived =
-        |key: &str| key.starts_with("video.") || key.starts_with("audio.") || key == "has_audio";
+    // What the writer states of the video it writes; the encoder's settings another tool
+    // recorded (`video.g`, `video.crf`) stay while the video is copied, and go where it is
+    // decoded (`Decoded`).
+    let derived = |key: &str| {
+        matches!(
+            key,
+            "video.height"
+                | "video.width"
+                | "video.codec"
+                | "video.pix_fmt"
+                | "video.is_depth_map"
+                | "video.fps"
+                | "video.channels"
+                | "has_audio"
+        ) || key.starts_with("audio.")
+    };
     match (kind, info) {
         (FeatureKind::Other, Some(info)) => (info.iter())
             .filter(|(key, _)| !derived(key))
@@ -768,6 +783,49 @@ pub struct LeRobotSource {
     ended: bool,
 }
 
+/// The tasks table's instructions, in task-index order (v2.1: `meta/tasks.jsonl`).
+fn read_tasks(root: &Path, v21: bool) -> Result<Vec<String>, ExportError> {
+    Ok(if v21 {
+        let path = root.join("meta/tasks.jsonl");
+        let mut tasks = Vec::new();
+        for line in crate::export::bounded::lines(&path)? {
+            tasks.extend(super::meta::TaskLine::of(&line?.1).task);
+        }
+        tasks
+    } else {
+        let path = root.join("meta/tasks.parquet");
+        let mut tasks = Vec::new();
+        for batch in read_parquet(&path)? {
+            let column = column::<arrow_array::StringArray>(&batch, "task", &path)?;
+            tasks.extend(column.iter().map(|t| t.unwrap_or_default().to_string()));
+        }
+        tasks
+    })
+}
+
+/// info.json's `splits` ("from:to" episode ranges by name), unless they are the one `train`
+/// split of every episode (what a dataset without splits says); a range that does not parse is
+/// left out (validate reports it).
+fn splits_of(info: &super::meta::InfoJson, episodes: u64) -> Vec<(String, std::ops::Range<u64>)> {
+    let Some(splits) = &info.splits else {
+        return Vec::new();
+    };
+    let ranges: Vec<(String, std::ops::Range<u64>)> = splits
+        .iter()
+        .filter_map(|(name, range)| {
+            let (from, to) = range.split_once(':')?;
+            Some((
+                name.clone(),
+                from.trim().parse().ok()?..to.trim().parse().ok()?,
+            ))
+        })
+        .collect();
+    match &ranges[..] {
+        [(name, range)] if name == "train" && *range == (0..episodes) => Vec::new(),
+        _ => ranges,
+    }
+}
+
 /// The pixel statistics an episodes-table row stores for video feature `key`: surgvla's exact
 /// accumulator, else lerobot's per-episode summary.
 fn stored_pixel_stats(row: &StoredEpisode, key: &str) -> Option<PixelStats> {
@@ -816,22 +874,7 @@ impl LeRobotSource {
                 problem,
             })?;
         }
-        let tasks = if v21 {
-            let path = root.join("meta/tasks.jsonl");
-            let mut tasks = Vec::new();
-            for line in crate::export::bounded::lines(&path)? {
-                tasks.extend(super::meta::TaskLine::of(&line?.1).task);
-            }
-            tasks
-        } else {
-            let path = root.join("meta/tasks.parquet");
-            let mut tasks = Vec::new();
-            for batch in read_parquet(&path)? {
-                let column = column::<arrow_array::StringArray>(&batch, "task", &path)?;
-                tasks.extend(column.iter().map(|t| t.unwrap_or_default().to_string()));
-            }
-            tasks
-        };
+        let tasks = read_tasks(root, v21)?;
         let mut info = DatasetInfo::from_surgvla_json(
             &surgvla,
             info_json.fps.as_ref().and_then(|f| f.as_u64()).unwrap_or(0) as u32,
@@ -843,6 +886,8 @@ impl LeRobotSource {
         }
         info.notes = notes;
         info.omitted = read.omitted;
+        info.carried_keys = info_json.other.clone();
+        info.splits = splits_of(&info_json, info_json.total_episodes.unwrap_or(0));
         let mut episodes = EpisodeRows::open(root, v21)?;
         info.episode_fields = episodes.declared_fields()?;
         Ok(LeRobotSource {
@@ -1255,11 +1300,6 @@ impl Iterator for LeRobotSource {
             steps.push(data_row.step);
             timestamps.push(data_row.timestamp_secs);
         }
-        let provenance = row
-            .as_ref()
-            .map(|e| e.provenance.clone())
-            .unwrap_or_default();
-        let fields = row.as_ref().map(|e| e.fields.clone()).unwrap_or_default();
         let mut encoded: Vec<EncodedFeature> = stored_keys
             .into_iter()
             .zip(stored)
@@ -1285,31 +1325,44 @@ impl Iterator for LeRobotSource {
                 Err(error) => return Some(Err(error)),
             }
         }
-        let (instruction, task_changes) = match self.instructions(index, &row_tasks) {
-            Ok(found) => found,
+        let meta = match self.meta(index, &row_tasks, row.as_ref()) {
+            Ok(meta) => meta,
             Err(error) => return Some(Err(error)),
         };
         Some(Ok(Episode {
             encoded,
             image_stats: Vec::new(),
-            meta: EpisodeMeta {
-                index: index as u64,
-                task_code: provenance.task_id,
-                task_name: String::new(),
-                level: provenance.level,
-                instruction,
-                seed: provenance.seed,
-                attempts: provenance.attempts,
-                success: provenance.success,
-                task_changes,
-                fields,
-            },
+            meta,
             steps,
         }))
     }
 }
 
 impl LeRobotSource {
+    /// Episode `index`'s metadata: its rows' tasks and its row of the episodes table.
+    fn meta(
+        &self,
+        index: i64,
+        row_tasks: &[i64],
+        row: Option<&StoredEpisode>,
+    ) -> Result<EpisodeMeta, ExportError> {
+        let provenance = row.map(|e| e.provenance.clone()).unwrap_or_default();
+        let fields = row.map(|e| e.fields.clone()).unwrap_or_default();
+        let (instruction, task_changes) = self.instructions(index, row_tasks)?;
+        Ok(EpisodeMeta {
+            index: index as u64,
+            task_code: provenance.task_id,
+            task_name: String::new(),
+            level: provenance.level,
+            instruction,
+            seed: provenance.seed,
+            attempts: provenance.attempts,
+            success: provenance.success,
+            task_changes,
+            fields,
+        })
+    }
+
     /// Episode `index`'s instruction and its changes, from its rows' task indices.
     fn instructions(
         &self,
@@ -1349,6 +1402,22 @@ impl EpisodeSource for LeRobotSource {
     /// The episode's rows are read, but its images are never decoded nor its video read.
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
         self.take_episode().map(|taken| taken.map(|_| ()))
+    }
+
+    /// The episode's rows are read for their tasks; its images are never decoded nor its
+    /// video read.
+    fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
+        let skimmed = self.take_episode()?.and_then(|(index, rows, row)| {
+            let tasks: Vec<i64> = rows.iter().map(|r| r.task).collect();
+            Ok(crate::export::source::Skimmed {
+                meta: self.meta(index, &tasks, row.as_ref())?,
+                steps: rows.len() as u64,
+            })
+        });
+        if skimmed.is_err() {
+            self.ended = true;
+        }
+        Some(skimmed)
     }
 }
 

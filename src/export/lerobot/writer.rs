@@ -410,6 +410,12 @@ impl LeRobotFiles {
                 "has_audio": false,
             });
             if let (Some(Value::Object(own)), Some(info)) = (own, entry["info"].as_object_mut()) {
+                // lerobot 0.6 spells the depth flag `is_depth_map`: a feature carrying it (and
+                // the encoder's settings lerobot records, `video.g`, `video.crf`, ...) keeps
+                // its own keys.
+                if own.contains_key("is_depth_map") {
+                    info.remove("video.is_depth_map");
+                }
                 for (key, value) in own {
                     info.entry(key).or_insert(value);
                 }
@@ -438,6 +444,7 @@ impl LeRobotFiles {
                 "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4".into()
             }),
             features: Some(features),
+            other: info.carried_keys.clone(),
             ..InfoJson::default()
         }
     }
@@ -817,7 +824,8 @@ fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> 
         let mut entry = json!({
             "dtype": match f.dtype { Dtype::Image => "image", Dtype::Float32 => "float32", Dtype::Float64 => "float64", Dtype::Int64 => "int64", Dtype::String => "string" },
             "shape": f.shape,
-            "names": if f.names.is_empty() && f.dtype == Dtype::String { Value::Null } else { json!(f.names) },
+            // Another tool's feature without names said null (lerobot's own way), and says it again.
+            "names": if f.names.is_empty() && (f.dtype == Dtype::String || f.kind == FeatureKind::Other) { Value::Null } else { json!(f.names) },
         });
         if f.kind == FeatureKind::Depth {
             entry["info"] = json!({"is_depth_map": true, "depth_unit": "m"});

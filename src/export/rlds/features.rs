@@ -428,6 +428,7 @@ mod tests {
             notes: Vec::new(),
             omitted: Vec::new(),
             episode_fields: Vec::new(),
+            carried_keys: Default::default(),
         }
     }
 

@@ -112,6 +112,29 @@ impl DatasetFormat for RldsFormat {
     fn merge(&self, request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         Some(super::merge::merge(request))
     }
+
+    /// The options the dataset's manifest records (surgvla's), else the defaults under the
+    /// dataset's own name and version (its folders').
+    fn options_like(
+        &self,
+        found: &Found,
+        _info: &DatasetInfo,
+    ) -> Option<Result<Box<dyn SinkOptions>, ExportError>> {
+        let version = found.root.file_name()?.to_string_lossy().into_owned();
+        let named = found.root.parent()?;
+        let name = named.file_name()?.to_string_lossy().into_owned();
+        let manifest = named.parent()?.join(super::options::MANIFEST);
+        let recorded = crate::export::bounded::read_json(&manifest)
+            .ok()
+            .map(|m| crate::export::dir::RunOptions::from_manifest(&m))
+            .and_then(|run| RldsOptions::from_run_options(&run));
+        let options = recorded.unwrap_or(RldsOptions {
+            name,
+            version,
+            ..RldsOptions::default()
+        });
+        Some(Ok(Box::new(options)))
+    }
 }
 
 impl SinkOptions for RldsOptions {
