@@ -31,15 +31,23 @@ drop_list="$(python3 -c "print(','.join(str(i) for i in range(${episodes}) if i 
 drop_json="[${drop_list}]"
 export HF_HUB_OFFLINE=1 HF_HOME="${work}/huggingface"
 
-time_once() { # COMMAND... -> "wall peak_rss_kb" of one run
+time_once() { # COMMAND... -> "wall peak_rss_kb" of one run ("killed ..." when it was killed)
     /usr/bin/time -o "${work}/time" -f "%e %M" "$@" > "${work}/last.log" 2>&1 || {
         tail -n 20 "${work}/last.log" >&2
         exit 1
     }
+    # A command killed by a signal (the kernel's OOM killer) exits through time with 0.
+    if grep -q "terminated by signal" "${work}/time"; then
+        echo "killed $(tail -n 1 "${work}/time")"
+        return
+    fi
     tail -n 1 "${work}/time"
 }
-show() { # LABEL "wall rss"
-    printf '%-48s wall %8s s  peak RSS %8s KB\n' "$1" "${2%% *}" "${2##* }"
+show() { # LABEL "wall rss" (or "killed wall rss")
+    case "$2" in
+        killed*) printf '%-48s KILLED (by signal 9: out of memory?) after %s\n' "$1" "${2#killed }" ;;
+        *) printf '%-48s wall %8s s  peak RSS %8s KB\n' "$1" "${2%% *}" "${2##* }" ;;
+    esac
 }
 best() { # LABEL OUT COMMAND... -> the best wall time and its peak RSS over RUNS runs
     local label="$1" out="$2" result="" line

@@ -337,7 +337,7 @@ impl Findings {
 }
 
 /// Bytes of every file under `path` (the file's size for a file).
-fn disk_bytes(path: &Path) -> u64 {
+pub fn disk_bytes(path: &Path) -> u64 {
     match std::fs::symlink_metadata(path) {
         Ok(m) if m.is_dir() => std::fs::read_dir(path)
             .into_iter()

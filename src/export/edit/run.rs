@@ -367,14 +367,20 @@ pub struct DryOutput {
 /// attributed to the outputs by their share of its frames.
 pub fn dry_run(planned: &Planned) -> Result<DryRun, ConvertError> {
     let total_frames: u64 = planned.steps.iter().sum();
-    let input_bytes = disk_bytes(&planned.request.input);
+    let input_bytes = crate::export::findings::disk_bytes(&planned.request.input);
     let mut per_episode: BTreeMap<u64, (u64, bool)> = BTreeMap::new();
     let mut source = planned.request.reading().open(planned.options.as_ref())?;
-    let wanted: std::collections::BTreeSet<u64> = (planned.outputs.iter())
-        .flat_map(|o| o.order.iter().copied())
-        .collect();
+    // Without video there is nothing to copy sample by sample or to encode again.
+    let wanted: std::collections::BTreeSet<u64> =
+        if crate::export::decoded::Decoded::needed(source.info()) {
+            (planned.outputs.iter())
+                .flat_map(|o| o.order.iter().copied())
+                .collect()
+        } else {
+            Default::default()
+        };
     let mut index = 0u64;
-    loop {
+    while wanted.last().is_some_and(|last| index <= *last) {
         let item = if wanted.contains(&index) {
             source.next().map(|e| e.map(Some))
         } else {
@@ -419,20 +425,6 @@ pub fn dry_run(planned: &Planned) -> Result<DryRun, ConvertError> {
         })
         .collect();
     Ok(DryRun { outputs })
-}
-
-/// Bytes of every file under `path`.
-fn disk_bytes(path: &Path) -> u64 {
-    match std::fs::symlink_metadata(path) {
-        Ok(m) if m.is_dir() => std::fs::read_dir(path)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .map(|e| disk_bytes(&e.path()))
-            .sum(),
-        Ok(m) => m.len(),
-        Err(_) => 0,
-    }
 }
 
 /// Bytes of the MP4 files under `path`.
