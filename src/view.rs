@@ -270,5 +270,6 @@ pub fn dataset_info(
         omitted: Vec::new(),
         episode_fields: Vec::new(),
         carried_keys: Default::default(),
+        history: Vec::new(),
     }
 }

@@ -232,6 +232,13 @@ fn how_made(info: &DatasetInfo) -> String {
         }
         _ => card.push_str("The dataset does not say how its episodes were made.\n\n"),
     }
+    if !info.history.is_empty() {
+        card.push_str("Then:\n\n");
+        for step in &info.history {
+            let _ = writeln!(card, "- {}", cell(step));
+        }
+        card.push('\n');
+    }
     if !info.notes.is_empty() {
         card.push_str("How surgvla read the dataset it was converted from:\n\n");
         for note in &info.notes {

@@ -58,6 +58,10 @@ pub struct DatasetInfo {
     /// (LeRobot's info.json), carried over as they were where the format has room. Not part
     /// of the options digest.
     pub carried_keys: serde_json::Map<String, Value>,
+    /// What was done to the episodes after they were made, one sentence each (an edit: what
+    /// it kept, dropped, split and changed), which the card's "How it was made" lists. Not
+    /// part of the options digest.
+    pub history: Vec<String>,
 }
 
 /// The options a dataset's own description records (see [`DatasetInfo::run_options`]).
@@ -167,6 +171,7 @@ impl DatasetInfo {
             omitted: Vec::new(),
             episode_fields: Vec::new(),
             carried_keys: Default::default(),
+            history: Vec::new(),
         }
     }
 

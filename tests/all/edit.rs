@@ -174,6 +174,11 @@ fn selectors_splits_renames_and_instructions_compose() {
         assert_eq!(val.iter().filter(|e| e.meta.task_code == task).count(), 1);
     }
     assert_eq!(info_json(&split.join("val"))["splits"]["val"], "0:2");
+    let card = std::fs::read_to_string(split.join("val/README.md")).expect("card");
+    assert!(
+        card.contains("Edited with `surgvla edit`: 2 of the input's 6 episodes; split `train=0.67,val=0.33` (seed 3)"),
+        "{card}"
+    );
     // The same seed, one dataset with the splits in info.json, episodes grouped by split.
     let inside = temp_root("edit-split-info");
     let (code, _, err) = run(&inside, &["--splits-in-info"]);

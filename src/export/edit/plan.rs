@@ -258,6 +258,21 @@ impl std::str::FromStr for Splits {
     }
 }
 
+impl std::fmt::Display for Splits {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parts: Vec<String> = match self {
+            Splits::Fractions(shares) => shares.iter().map(|(n, x)| format!("{n}={x}")).collect(),
+            Splits::Indices(splits) => (splits.iter())
+                .map(|(n, ranges)| {
+                    let text = Selector::Indices(ranges.clone()).to_string();
+                    format!("{n}={}", text.replace(',', "+"))
+                })
+                .collect(),
+        };
+        f.write_str(&parts.join(","))
+    }
+}
+
 /// The result of [`choose`]: the outputs to write, and what was left.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Chosen {

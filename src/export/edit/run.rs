@@ -157,9 +157,11 @@ fn outputs(request: &EditRequest, chosen: &Chosen, info: &DatasetInfo) -> Vec<Ou
             request.exact_stats
         )
     };
+    let total = chosen.kept.len() + chosen.dropped.len();
     let with = |order: Vec<u64>, splits: Vec<(String, std::ops::Range<u64>)>| {
         let mut info = info.clone();
         info.input = Some(identity(&order));
+        info.history.push(history(request, order.len(), total));
         info.splits = splits;
         (order, info)
     };
@@ -208,6 +210,37 @@ fn outputs(request: &EditRequest, chosen: &Chosen, info: &DatasetInfo) -> Vec<Ou
             }
         })
         .collect()
+}
+
+/// The card's sentence on an edit that wrote `episodes` of the input's `total`.
+fn history(request: &EditRequest, episodes: usize, total: usize) -> String {
+    let mut said = vec![format!(
+        "Edited with `surgvla edit`: {episodes} of the input's {total} episodes"
+    )];
+    let selection = &request.selection;
+    let selectors: Vec<String> = (selection.keep.iter().map(|s| format!("--keep {s}")))
+        .chain(selection.drop.iter().map(|s| format!("--drop {s}")))
+        .collect();
+    if !selectors.is_empty() {
+        said.push(format!("chosen by `{}`", selectors.join(" ")));
+    }
+    if let Some(splits) = &selection.splits {
+        said.push(format!("split `{splits}` (seed {})", selection.seed));
+    }
+    if !request.remove.is_empty() {
+        said.push(format!("without {}", request.remove.join(", ")));
+    }
+    let changes = &request.changes;
+    for (old, new) in &changes.renames {
+        said.push(format!("`{old}` renamed `{new}`"));
+    }
+    if let Some(task) = &changes.set_task {
+        said.push(format!("every instruction set to \"{task}\""));
+    }
+    for (old, new) in &changes.task_map {
+        said.push(format!("\"{old}\" replaced by \"{new}\""));
+    }
+    format!("{}.", said.join("; "))
 }
 
 impl Planned {

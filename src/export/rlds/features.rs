@@ -429,6 +429,7 @@ mod tests {
             omitted: Vec::new(),
             episode_fields: Vec::new(),
             carried_keys: Default::default(),
+            history: Vec::new(),
         }
     }
 
