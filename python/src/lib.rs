@@ -23,6 +23,8 @@ mod commands;
 mod error;
 #[path = "../../src/bin/formats.rs"]
 mod formats;
+#[path = "../../src/bin/interrupt.rs"]
+mod interrupt;
 #[path = "../../src/bin/job.rs"]
 mod job;
 #[path = "../../src/bin/memory.rs"]

@@ -13,6 +13,23 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Print no progress (no bars on a terminal, no progress lines elsewhere).
+    #[arg(long, global = true)]
+    quiet: bool,
+    /// When stderr is not a terminal (a log file, a batch job), print a progress line (done,
+    /// rate, time left) every this many seconds.
+    #[arg(long, global = true, value_name = "SECS", default_value_t = 10.0, value_parser = progress_interval)]
+    progress_interval: f64,
+}
+
+/// `--progress-interval`: a positive number of seconds, at most a day.
+fn progress_interval(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(secs) if secs.is_finite() && secs > 0.0 && secs <= 86_400.0 => Ok(secs),
+        _ => Err(format!(
+            "{text:?} is not a number of seconds between 0 and 86400"
+        )),
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -102,6 +119,10 @@ pub(crate) fn run(args: impl IntoIterator<Item = std::ffi::OsString>) -> u8 {
             previous(info);
         }
     }));
+    crate::progress::show(crate::progress::Shown {
+        quiet: cli.quiet,
+        interval: std::time::Duration::from_secs_f64(cli.progress_interval),
+    });
     // Before any thread exists (parsing starts none).
     crate::memory::limit_arenas(match &cli.command {
         Command::Collect(args) => crate::memory::collect_arenas(args.job.threads.unwrap_or(0)),

@@ -6,20 +6,14 @@ use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surgvla::collect::run::CollectOptions;
 use surgvla::policy::ExpertLibrary;
-use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTask};
+use surgvla::task::{InstructionChoice, TaskConfig, TaskId, UnknownTasks};
 
-/// `--tasks`: "all" or a comma-separated list of names or ids.
+/// `--tasks`: "all" or a comma-separated list of task names or ids and levels (`L1`).
 #[derive(Clone, Debug)]
 pub(crate) struct TaskList(pub Vec<TaskId>);
 
-pub(crate) fn parse_tasks(text: &str) -> Result<TaskList, UnknownTask> {
-    if text.trim() == "all" {
-        return Ok(TaskList(TaskId::ALL.to_vec()));
-    }
-    text.split(',')
-        .map(str::parse)
-        .collect::<Result<_, _>>()
-        .map(TaskList)
+pub(crate) fn parse_tasks(text: &str) -> Result<TaskList, UnknownTasks> {
+    surgvla::task::parse_task_list(text).map(TaskList)
 }
 
 /// Which instruction each episode gets.
@@ -74,7 +68,8 @@ pub(crate) enum Gripper {
 /// What episodes to make: tasks, counts, seed, scene options, experts.
 #[derive(Args, Debug)]
 pub(crate) struct JobArgs {
-    /// Tasks: "all" or a comma-separated list of names or ids.
+    /// Tasks: "all" or a comma-separated list of names, ids (T1-1) and levels (L1, level2: that
+    /// level's tasks), mixed.
     #[arg(long, default_value = "all", value_parser = parse_tasks)]
     tasks: TaskList,
     /// Verified episodes per task.

@@ -1,8 +1,110 @@
 //! Progress bars (one per task and one overall) and the final summary table of `collect`; the
 //! per-task trial bars of `eval`.
-//! Bars draw on stderr and hide themselves when stderr is not a terminal.
+//! Bars draw on stderr when it is a terminal. When it is not (a log file, a Slurm job), a
+//! thread prints a progress line with the rate and the time left every `--progress-interval`
+//! seconds instead ([`Lines`]), as cargo and rclone do; `--quiet` silences both.
 
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::IsTerminal;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// How progress is shown: `--quiet` and `--progress-interval`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Shown {
+    pub(crate) quiet: bool,
+    pub(crate) interval: Duration,
+}
+
+static SHOWN: Mutex<Shown> = Mutex::new(Shown {
+    quiet: false,
+    interval: Duration::from_secs(10),
+});
+
+/// Sets how progress is shown for the rest of the command.
+pub(crate) fn show(shown: Shown) {
+    *SHOWN.lock().unwrap_or_else(|e| e.into_inner()) = shown;
+}
+
+fn shown() -> Shown {
+    *SHOWN.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Hides `multi`'s bars when progress is not to be drawn (`--quiet`).
+fn drawn(multi: &MultiProgress) {
+    if shown().quiet {
+        multi.set_draw_target(ProgressDrawTarget::hidden());
+    }
+}
+
+/// Progress lines on a stderr that is not a terminal: a thread that reads (done, total) and
+/// prints `what: done/total unit (rate/s, N s left)` every interval until the bars finish.
+pub(crate) struct Lines;
+
+impl Lines {
+    /// Starts the lines for `what`, counted in `unit`, read by `read` ((done, total, finished)),
+    /// unless stderr is a terminal or progress is quiet.
+    fn start(
+        what: String,
+        unit: &'static str,
+        read: impl Fn() -> (u64, u64, bool) + Send + 'static,
+    ) {
+        let Shown { quiet, interval } = shown();
+        if quiet || std::io::stderr().is_terminal() {
+            return;
+        }
+        std::thread::spawn(move || {
+            let started = Instant::now();
+            let mut last = started;
+            let mut said = None;
+            loop {
+                std::thread::sleep(Duration::from_millis(50).min(interval));
+                let (done, total, finished) = read();
+                if finished {
+                    return;
+                }
+                // Once all is counted, the rest (writing, recording failures) says itself.
+                if last.elapsed() < interval || (said == Some(done) && done == total) {
+                    continue;
+                }
+                last = Instant::now();
+                said = Some(done);
+                eprintln!("{}", line(&what, unit, done, total, started.elapsed()));
+            }
+        });
+    }
+}
+
+/// One progress line: `what: done/total unit (rate/s, time left)`.
+fn line(what: &str, unit: &str, done: u64, total: u64, elapsed: Duration) -> String {
+    let secs = elapsed.as_secs_f64().max(1e-9);
+    let rate = done as f64 / secs;
+    let left = if done == 0 || total == 0 {
+        "time left unknown".to_string()
+    } else {
+        format!(
+            "{:.0} s left",
+            total.saturating_sub(done) as f64 / rate.max(1e-9)
+        )
+    };
+    let of = if total > 0 {
+        format!("{done}/{total}")
+    } else {
+        done.to_string()
+    };
+    format!(
+        "{what}: {of} {unit} ({rate:.1}/s, {left}, {:.0} s so far)",
+        secs
+    )
+}
+
+/// [`Lines`] for one bar.
+fn lines_of(bar: &ProgressBar, what: &str, unit: &'static str) {
+    let bar = bar.clone();
+    Lines::start(what.to_string(), unit, move || {
+        (bar.position(), bar.length().unwrap_or(0), bar.is_finished())
+    });
+}
 use surgvla::collect::run::{CollectProgress, CollectReport, Slot, SlotOutcome};
 use surgvla::task::TaskId;
 
@@ -36,6 +138,8 @@ impl Bars {
                 (task, bar)
             })
             .collect();
+        drawn(&multi);
+        lines_of(&overall, "collecting", "episodes");
         Bars {
             multi,
             overall,
@@ -65,6 +169,10 @@ pub(crate) fn episode_bar(total: u64, what: &str) -> ProgressBar {
         .progress_chars("=> "),
     );
     bar.set_prefix(what.to_string());
+    if shown().quiet {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    lines_of(&bar, what, "episodes");
     bar
 }
 
@@ -93,7 +201,7 @@ impl TrialBars {
             ProgressStyle::with_template("{prefix:>30} [{bar:30}] {pos}/{len} trials  {elapsed}")
                 .unwrap_or_else(|_| ProgressStyle::default_bar())
                 .progress_chars("=> ");
-        let tasks = tasks
+        let tasks: Vec<(TaskId, ProgressBar)> = tasks
             .iter()
             .map(|&task| {
                 let bar = multi.add(ProgressBar::new(u64::from(trials)));
@@ -102,6 +210,16 @@ impl TrialBars {
                 (task, bar)
             })
             .collect();
+        drawn(&multi);
+        let watched: Vec<ProgressBar> = tasks.iter().map(|(_, b)| b.clone()).collect();
+        Lines::start("eval".into(), "trials", move || {
+            let sum = |f: &dyn Fn(&ProgressBar) -> u64| watched.iter().map(f).sum::<u64>();
+            (
+                sum(&|b| b.position()),
+                sum(&|b| b.length().unwrap_or(0)),
+                watched.iter().all(ProgressBar::is_finished),
+            )
+        });
         TrialBars { multi, tasks }
     }
 

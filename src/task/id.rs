@@ -155,9 +155,80 @@ impl FromStr for TaskId {
     }
 }
 
+/// A task list that names something that is neither a task nor a level.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown task or level '{given}'; expected all, a level (L1, L2, L3; level1 ...) or tasks: {}", TaskId::ALL.iter().map(|t| format!("{} ({})", t.name(), t.code())).collect::<Vec<_>>().join(", "))]
+pub struct UnknownTasks {
+    pub given: String,
+}
+
+/// The level a word names: `L1`, `level1`, `level-1`, `level_1` (any case), 1 to 3.
+fn level_of(word: &str) -> Option<u8> {
+    let word = word.trim().to_ascii_lowercase();
+    let digits = word
+        .strip_prefix("level")
+        .or_else(|| word.strip_prefix('l'))?
+        .trim_start_matches(['-', '_']);
+    digits.parse().ok().filter(|l| (1..=3).contains(l))
+}
+
+/// A task list as users write it: `all`, or comma-separated tasks (ids like `T1-1` or names
+/// like `gauze_pick`) and levels (`L1`, `level1`: that level's tasks), mixed, in the order
+/// given, each task once.
+pub fn parse_task_list(text: &str) -> Result<Vec<TaskId>, UnknownTasks> {
+    if text.trim().eq_ignore_ascii_case("all") {
+        return Ok(TaskId::ALL.to_vec());
+    }
+    let mut tasks: Vec<TaskId> = Vec::new();
+    for word in text.split(',') {
+        let named: Vec<TaskId> = match (word.parse::<TaskId>(), level_of(word)) {
+            (Ok(task), _) => vec![task],
+            (Err(_), Some(level)) => TaskId::ALL
+                .into_iter()
+                .filter(|t| t.level() == level)
+                .collect(),
+            (Err(_), None) => {
+                return Err(UnknownTasks {
+                    given: word.trim().to_string(),
+                });
+            }
+        };
+        for task in named {
+            if !tasks.contains(&task) {
+                tasks.push(task);
+            }
+        }
+    }
+    Ok(tasks)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn task_lists_take_levels_mixed_with_tasks() {
+        let codes = |text: &str| -> Vec<&str> {
+            parse_task_list(text)
+                .unwrap()
+                .into_iter()
+                .map(TaskId::code)
+                .collect()
+        };
+        assert_eq!(codes("L1"), ["T1-1", "T1-2", "T1-3"]);
+        assert_eq!(codes("level3,T1-1"), ["T3-1", "T3-2", "T1-1"]);
+        assert_eq!(
+            codes("T2-1,level-2,l1"),
+            ["T2-1", "T2-2", "T2-3", "T1-1", "T1-2", "T1-3"]
+        );
+        assert_eq!(codes("ALL").len(), 8);
+        let error = parse_task_list("L4").unwrap_err().to_string();
+        assert!(
+            error.contains("'L4'") && error.contains("L1, L2, L3"),
+            "{error}"
+        );
+        assert!(parse_task_list("T1-1,nothing").is_err());
+    }
 
     #[test]
     fn names_and_codes_parse_back() {

@@ -15,6 +15,6 @@ pub mod prompts;
 pub mod spawn;
 pub mod success;
 
-pub use id::{TaskId, UnknownTask, Z0_M};
+pub use id::{TaskId, UnknownTask, UnknownTasks, Z0_M, parse_task_list};
 pub use spawn::{InstructionChoice, SpawnError, SpawnRanges, TaskConfig, TaskInstance};
 pub use success::Verdict;

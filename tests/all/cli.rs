@@ -313,3 +313,82 @@ fn command_docs_show_the_clis_own_help() {
         assert!(readme.contains(&link), "the README's table lacks {command}");
     }
 }
+
+/// Ctrl-C (SIGINT) in a long command: it says what the interruption leaves and how to go on,
+/// and exits 130, as the README's table says; `--resume` then finishes the dataset.
+#[test]
+fn ctrl_c_exits_130_saying_how_to_resume() {
+    let root = crate::util::temp_root("cli-ctrl-c");
+    let out = root.join("data");
+    let args = [
+        "collect",
+        "--tasks",
+        "T1-1",
+        "--episodes-per-task",
+        "60",
+        "--data-file-mb",
+        "1",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ];
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let marker = out.join(surgvla::export::INCOMPLETE_MARKER);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !marker.exists() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let sent = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(sent.success());
+    let output = child.wait_with_output().expect("wait");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(130), "{stderr}");
+    assert!(
+        stderr.contains("interrupted (Ctrl-C)") && stderr.contains("--resume"),
+        "{stderr}"
+    );
+    let mut again = args.to_vec();
+    again.push("--resume");
+    let (code, _, err) = surgvla(&again);
+    assert_eq!(code, 0, "{err}");
+}
+
+/// A log (stderr not a terminal) gets progress lines with the rate and the time left at the
+/// interval asked for; `--quiet` gets none; a bad interval exits 2.
+#[test]
+fn progress_lines_go_to_a_log_at_the_interval_asked() {
+    let root = crate::util::temp_root("cli-progress-lines");
+    let out = |name: &str| root.join(name).to_str().expect("utf-8").to_string();
+    let collect = |extra: &[&str], name: &str| {
+        let target = out(name);
+        let mut args = vec!["collect", "--tasks", "T1-1", "--episodes-per-task", "40"];
+        args.extend(extra);
+        args.extend(["--out", &target]);
+        let (code, _, err) = surgvla(&args);
+        assert_eq!(code, 0, "{err}");
+        err
+    };
+    let err = collect(&["--progress-interval", "0.1"], "lines");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("collecting: "))
+        .collect();
+    assert!(!lines.is_empty(), "no progress line in {err}");
+    assert!(
+        lines
+            .iter()
+            .all(|l| l.contains("/40 episodes (") && l.contains("/s, ")),
+        "{lines:?}"
+    );
+    let err = collect(&["--progress-interval", "0.1", "--quiet"], "quiet");
+    assert!(!err.contains("collecting: "), "{err}");
+    let (code, _, err) = surgvla(&["collect", "--progress-interval", "0", "--out", &out("bad")]);
+    assert_eq!(code, 2, "{err}");
+}

@@ -340,3 +340,66 @@ fn the_experts_command_prints_rates_and_reproducible_failures() {
         "{stdout}"
     );
 }
+
+/// `--tasks` takes levels mixed with tasks, and `--per-level` writes one complete dataset per
+/// level, each the bytes of `collect --tasks L<N>` into it (the report's timings aside).
+#[test]
+fn per_level_datasets_equal_their_levels_collected_alone() {
+    let root = temp_root("collect-per-level");
+    let text = |p: &Path| p.to_str().expect("utf-8").to_string();
+    let (out, alone) = (root.join("levels"), root.join("level1-alone"));
+    let run = |args: &[&str]| {
+        let (code, stdout, err) = surgvla(args);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        stdout
+    };
+    let stdout = run(&[
+        "collect",
+        "--per-level",
+        "--tasks",
+        "L1,T3-1",
+        "--episodes-per-task",
+        "1",
+        "--out",
+        &text(&out),
+    ]);
+    assert!(stdout.contains("wrote 3 episodes") && stdout.contains("wrote 1 episodes"));
+    run(&[
+        "collect",
+        "--tasks",
+        "level1",
+        "--episodes-per-task",
+        "1",
+        "--out",
+        &text(&alone),
+    ]);
+    let files = |p: &Path| {
+        let mut files = tree(p);
+        files.remove("collect_report.json");
+        files
+    };
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .expect("out")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    assert_eq!(names, ["level1", "level3"]);
+    assert!(
+        files(&out.join("level1")) == files(&alone),
+        "level1 differs"
+    );
+    // A finished level is passed over on --resume.
+    let stdout = run(&[
+        "collect",
+        "--per-level",
+        "--tasks",
+        "L1,T3-1",
+        "--episodes-per-task",
+        "1",
+        "--resume",
+        "--out",
+        &text(&out),
+    ]);
+    assert!(stdout.contains("level1 is complete already"), "{stdout}");
+}

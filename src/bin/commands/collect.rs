@@ -46,6 +46,11 @@ pub(crate) struct CollectArgs {
     /// Randomise light, tissue colour and texture contrast per episode.
     #[arg(long)]
     randomize_appearance: bool,
+    /// Write one dataset per level of the tasks, as the reference releases its data (and
+    /// trains a model per level): OUT/level1, OUT/level2, OUT/level3, each complete with its
+    /// card and manifest and equal to `collect --tasks L<N>` into it.
+    #[arg(long)]
+    per_level: bool,
     #[command(flatten)]
     formats: FormatArgs,
 }
@@ -67,27 +72,55 @@ pub(crate) fn run_collect(args: &CollectArgs) -> Result<(), CliError> {
         environment_state: !args.without.contains(&Omit::EnvironmentState),
     };
     options.check().map_err(CliError::usage)?;
+    if !args.per_level {
+        return collect_into(args, &options, &library, features, &args.out);
+    }
+    let mut levels: Vec<u8> = options.tasks.iter().map(|t| t.level()).collect();
+    levels.sort_unstable();
+    levels.dedup();
+    for level in levels {
+        let out = args.out.join(format!("level{level}"));
+        let mut part = options.clone();
+        part.tasks.retain(|t| t.level() == level);
+        if args.resume && surgvla::export::edit::run::is_complete(&out) {
+            say!("{} is complete already", out.display());
+            continue;
+        }
+        collect_into(args, &part, &library, features, &out)?;
+    }
+    Ok(())
+}
+
+/// Collects `options`' episodes into a dataset at `out`, started or resumed.
+fn collect_into(
+    args: &CollectArgs,
+    options: &surgvla::collect::run::CollectOptions,
+    library: &surgvla::policy::ExpertLibrary,
+    features: FeatureSet,
+    out: &std::path::Path,
+) -> Result<(), CliError> {
     let sink_options = args.formats.sink_options(args.format, "--format")?;
-    let info = dataset_info(&options, features, &library);
-    let resuming = resumes(&args.out, args.resume);
-    let mut sink = open_sink(&args.out, &info, sink_options.as_ref(), args.resume)?;
+    let info = dataset_info(options, features, library);
+    let resuming = resumes(out, args.resume);
+    let mut sink = open_sink(out, &info, sink_options.as_ref(), args.resume)?;
+    crate::interrupt::writing(out, true);
     if resuming {
         let next = sink.next_episode_index();
-        eprintln!("resuming {} at episode {next}", args.out.display());
+        eprintln!("resuming {} at episode {next}", out.display());
     }
     let mut bars = progress::Bars::new(&options.tasks);
-    let report = collect(&options, &library, sink.as_mut(), &mut bars).map_err(|e| {
-        let resumable = surgvla::export::DatasetDir::is_interrupted(&args.out);
+    let report = collect(options, library, sink.as_mut(), &mut bars).map_err(|e| {
+        let resumable = surgvla::export::DatasetDir::is_interrupted(out);
         CliError::from(e).resumable(resumable)
     })?;
     bars.clear();
-    let path = args.out.join(surgvla::collect::run::REPORT);
+    let path = out.join(surgvla::collect::run::REPORT);
     progress::print_summary(&report)?;
     say!(
         "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
         report.dataset.episodes,
         report.dataset.frames,
-        args.out.display(),
+        out.display(),
         report.dataset.files,
         report.dataset.bytes as f64 / 1e6,
         path.display()

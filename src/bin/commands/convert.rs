@@ -176,6 +176,7 @@ pub(crate) fn open_output(
         created: !out.exists(),
     };
     let sink = open_sink(out, info, options, resume)?;
+    crate::interrupt::writing(out, true);
     if output.resuming {
         eprintln!(
             "resuming {} at episode {}",

@@ -184,6 +184,7 @@ fn write_output(
         say!("{} is complete already", path.display());
         return Ok(());
     }
+    crate::interrupt::writing(path, true);
     let bar = crate::progress::episode_bar(output.order.len() as u64, "editing");
     let mut trimmed = crate::memory::Trimmer::default();
     let (summary, reencoded) = planned

@@ -102,7 +102,7 @@ pub(crate) struct EvalArgs {
     /// The dataset whose episodes `--policy replay` plays (any format `convert` reads).
     #[arg(long)]
     dataset: Option<PathBuf>,
-    /// Tasks: "all" or a comma-separated list of names or ids.
+    /// Tasks: "all" or a comma-separated list of names, ids (T1-1) and levels (L1: its tasks).
     #[arg(long, default_value = "all", value_parser = parse_tasks)]
     tasks: TaskList,
     /// Trials per task (the benchmark uses 50).

@@ -33,6 +33,7 @@ pub(crate) struct MergeArgs {
 /// `surgvla merge INPUT... --out DIR`.
 pub(crate) fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     let created = !args.out.exists();
+    crate::interrupt::writing(&args.out, true);
     let bar = crate::progress::episode_bar(0, "merging");
     let threads = args.threads.unwrap_or(0);
     let summary = surgvla::export::merge(&mut MergeRequest {
