@@ -84,6 +84,18 @@ enum Command {
     Tasks,
 }
 
+/// A PNG file to write (`--out` of the charts and pictures): a name ending in `.png`, since
+/// the bytes written are PNG (a `.jpg` name would hold PNG bytes).
+pub(crate) fn png_path(text: &str) -> Result<std::path::PathBuf, String> {
+    let path = std::path::PathBuf::from(text);
+    match path.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("png") => Ok(path),
+        _ => Err(format!(
+            "{text:?}: surgvla draws PNG; give a file name ending in .png"
+        )),
+    }
+}
+
 /// `--threads N` of every command, checked in this one place: 0 means one per core, and at most
 /// [`surgvla::collect::slot::MAX_THREADS_PER_CORE`] per core (a bad value exits 2).
 pub(crate) fn threads_arg(text: &str) -> Result<usize, String> {

@@ -510,6 +510,19 @@ fn references_bound_the_table_the_expert_near_all_and_noop_none() {
     ]);
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("holds no results.json"), "{stderr}");
+    // A chart is PNG: a name that says otherwise is refused before anything is read.
+    let jpg = out.join("chart.jpg");
+    let (code, _, stderr) = surgvla(&[
+        "report",
+        &expert_dir.display().to_string(),
+        "--out",
+        &jpg.display().to_string(),
+    ]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains("ending in .png") && !jpg.exists(),
+        "{stderr}"
+    );
 }
 
 /// The chart's bars follow the numbers: read at the places the layout puts each run's bar.

@@ -10,7 +10,7 @@ use surgvla::view::contact_sheet;
 #[derive(clap::Args, Debug)]
 pub(crate) struct ContactSheetArgs {
     /// Output PNG.
-    #[arg(long, default_value = "contact_sheet.png")]
+    #[arg(long, default_value = "contact_sheet.png", value_parser = crate::app::png_path)]
     out: PathBuf,
     /// Seed of every scene.
     #[arg(long, default_value_t = 0)]

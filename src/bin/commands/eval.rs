@@ -136,9 +136,10 @@ pub(crate) struct EvalArgs {
     /// core).
     #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
-    /// Failed trials per task to record as MCAP under OUT/failures/.
-    #[arg(long, default_value_t = 3)]
-    record_failures: usize,
+    /// Failed trials per task to record as MCAP under OUT/failures/ [default: 3 for a served
+    /// policy, 0 for the built-in ones, whose failures any run reproduces from their seeds].
+    #[arg(long, value_name = "N")]
+    record_failures: Option<usize>,
     /// The results folder (results.json, results.csv, results.md, failures/): new or empty.
     #[arg(long, default_value = "eval")]
     out: PathBuf,
@@ -221,7 +222,10 @@ impl EvalArgs {
             replan_steps: self.replan_steps.map(|k| k as usize),
             timeout: Duration::from_secs_f64(self.timeout_secs),
             threads: threads.max(1),
-            recordings_per_task: self.record_failures,
+            recordings_per_task: self.record_failures.unwrap_or(match self.policy {
+                PolicyArg::Remote(_) => 3,
+                _ => 0,
+            }),
             out: self.out.clone(),
             replace: self.replace,
             suite,

@@ -17,7 +17,7 @@ pub(crate) struct InfoArgs {
     pub json: bool,
     /// Also draw the dataset as PNG: a histogram of episode lengths per task, and the range
     /// of each state and action dimension (reads every episode: LeRobot and RLDS datasets).
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png", value_parser = crate::app::png_path)]
     pub plot: Option<PathBuf>,
 }
 

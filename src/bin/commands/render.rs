@@ -33,7 +33,7 @@ pub(crate) struct RenderArgs {
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=100_000))]
     steps: u32,
     /// Output PNG for the RGB image.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::app::png_path)]
     out: PathBuf,
     /// Also write the depth, colour-mapped (near bright, far dark, background black).
     #[arg(long)]

@@ -12,11 +12,11 @@ pub(crate) struct ReportArgs {
     #[arg(required = true, num_args = 1..)]
     results: Vec<PathBuf>,
     /// The chart to write (PNG).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::app::png_path)]
     out: PathBuf,
     /// Also draw the survival cascade here (PNG): per task, the share of trials that reached
     /// each stage of its chain, with its 95 % interval, runs side by side.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::app::png_path)]
     cascade: Option<PathBuf>,
     /// The chart's title. A perturbation suite's run is drawn as a task x variant heatmap
     /// (success, interval and change from the unperturbed run per cell).
