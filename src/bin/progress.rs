@@ -268,10 +268,11 @@ impl CollectProgress for Bars {
     }
 }
 
-/// Prints the per-task table and the time shares.
+/// Prints the per-task table (80 columns: the longest name, `needle_pick_distractors`, is 23)
+/// and the time shares.
 pub(crate) fn print_summary(report: &CollectReport) -> std::io::Result<()> {
     say!(
-        "{:<5} {:<24} {:>8} {:>7} {:>8} {:>7} {:>7} {:>8}",
+        "{:<5} {:<23} {:>8} {:>7} {:>8} {:>7} {:>7} {:>8}",
         "task",
         "name",
         "episodes",
@@ -289,7 +290,7 @@ pub(crate) fn print_summary(report: &CollectReport) -> std::io::Result<()> {
             .copied()
             .unwrap_or_default();
         say!(
-            "{:<5} {:<24} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
+            "{:<5} {:<23} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
             task.code,
             task.name,
             task.episodes,
@@ -304,7 +305,7 @@ pub(crate) fn print_summary(report: &CollectReport) -> std::io::Result<()> {
     let attempts: u64 = report.tasks.iter().map(|t| t.attempts).sum();
     let successes: u64 = report.tasks.iter().map(|t| t.expert_successes).sum();
     say!(
-        "{:<5} {:<24} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
+        "{:<5} {:<23} {:>8} {:>7} {:>8} {:>6.1}% {:>7.1} {:>8.0}",
         "all",
         "",
         report.episodes,
@@ -315,8 +316,8 @@ pub(crate) fn print_summary(report: &CollectReport) -> std::io::Result<()> {
         t.frames_per_sec
     );
     say!(
-        "CPU time ({} threads): physics {:.1} s, rendering {:.1} s, image encoding {:.1} s, statistics {:.1} s, tables and files {:.1} s, final metadata {:.1} s",
-        report.threads,
+        "CPU time ({}): physics {:.1} s, rendering {:.1} s, image encoding {:.1} s, statistics {:.1} s, tables and files {:.1} s, final metadata {:.1} s",
+        crate::say::n(report.threads as u64, "thread"),
         t.physics_cpu_secs,
         t.render_cpu_secs,
         t.encode_cpu_secs,
@@ -353,10 +354,10 @@ pub(crate) fn print_expert_table(report: &CollectReport) -> std::io::Result<()> 
     }
     say!(
         "expert = attempts whose expert run succeeded; replay = of those, replays that failed; \
-         steps = mean episode length. {:.1} s wall, physics {:.1} CPU-s on {} threads",
+         steps = mean episode length. {:.1} s wall, physics {:.1} CPU-s on {}",
         report.timing.wall_secs,
         report.timing.physics_cpu_secs,
-        report.threads
+        crate::say::n(report.threads as u64, "thread")
     );
     Ok(())
 }

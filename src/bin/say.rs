@@ -9,3 +9,11 @@ macro_rules! say {
         writeln!(std::io::stdout(), $($arg)*)?
     }};
 }
+
+/// `count` and `noun`, plural unless the count is one: "1 episode", "2 episodes".
+pub(crate) fn n(count: impl Into<u64>, noun: &str) -> String {
+    match count.into() {
+        1 => format!("1 {noun}"),
+        count => format!("{count} {noun}s"),
+    }
+}

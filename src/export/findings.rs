@@ -125,10 +125,21 @@ pub struct Facts {
     pub features: Vec<FeatureFact>,
     /// Episodes per task (language instruction), when known.
     pub tasks: BTreeMap<String, u64>,
+    /// Episodes per surgvla task id, with the instructions they were given (one task id may
+    /// have several: paraphrases, T2-3's colours; two ids may share one: T1-1 and T2-1), when
+    /// the dataset records its episodes' task ids.
+    pub task_ids: BTreeMap<String, TaskIdFact>,
     /// The program that wrote it, when it says.
     pub generator: Option<String>,
     /// How surgvla collected it (seed, tasks, options); None (null in JSON) when not ours.
     pub collection: Option<Collection>,
+}
+
+/// One surgvla task id's episodes and instructions (see [`Facts::task_ids`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct TaskIdFact {
+    pub episodes: u64,
+    pub instructions: std::collections::BTreeSet<String>,
 }
 
 /// One feature as declared.

@@ -363,7 +363,7 @@ fn per_level_datasets_equal_their_levels_collected_alone() {
         "--out",
         &text(&out),
     ]);
-    assert!(stdout.contains("wrote 3 episodes") && stdout.contains("wrote 1 episodes"));
+    assert!(stdout.contains("wrote 3 episodes") && stdout.contains("wrote 1 episode,"));
     run(&[
         "collect",
         "--tasks",

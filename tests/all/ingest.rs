@@ -185,7 +185,7 @@ fn shards_take_contiguous_inputs() {
     let root = temp_root("ingest-shards");
     let (code, stdout, stderr) = ingest(&root.join("0"), &["--shard", "0/2"]);
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("ingested 2 episodes") && stdout.contains("from 1 recordings"));
+    assert!(stdout.contains("ingested 2 episodes") && stdout.contains("from 1 recording "));
     assert!(root.join("0/meta/sync/ros1_raw_lz4.bag.json").is_file());
     assert!(!root.join("0/meta/sync/single_png.mcap.json").exists());
     // 2 inputs over 3 shards: the first holds none.

@@ -117,11 +117,11 @@ fn collect_into(
     let path = out.join(surgvla::collect::run::REPORT);
     progress::print_summary(&report)?;
     say!(
-        "wrote {} episodes, {} frames to {} ({} files, {:.1} MB); report {}",
-        report.dataset.episodes,
-        report.dataset.frames,
+        "wrote {}, {} to {} ({}, {:.1} MB); report {}",
+        crate::say::n(report.dataset.episodes, "episode"),
+        crate::say::n(report.dataset.frames, "frame"),
         out.display(),
-        report.dataset.files,
+        crate::say::n(report.dataset.files, "file"),
         report.dataset.bytes as f64 / 1e6,
         path.display()
     );

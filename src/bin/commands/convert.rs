@@ -224,12 +224,12 @@ pub(crate) fn run_convert(args: &ConvertArgs) -> Result<(), CliError> {
         .map_err(|e| output.failed(e, &args.out))?;
     bar.finish_and_clear();
     say!(
-        "converted {} episodes, {} frames from {} to {} ({} files, {:.1} MB)",
-        summary.episodes,
-        summary.frames,
+        "converted {}, {} from {} to {} ({}, {:.1} MB)",
+        crate::say::n(summary.episodes, "episode"),
+        crate::say::n(summary.frames, "frame"),
         args.input.display(),
         args.out.display(),
-        summary.files,
+        crate::say::n(summary.files, "file"),
         summary.bytes as f64 / 1e6
     );
     if args.verify {

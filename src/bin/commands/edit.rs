@@ -199,11 +199,11 @@ fn write_output(
         .as_ref()
         .map_or(String::new(), |s| format!("split {s}: "));
     say!(
-        "{split}wrote {} episodes, {} frames to {} ({} files, {:.1} MB)",
-        summary.episodes,
-        summary.frames,
+        "{split}wrote {}, {} to {} ({}, {:.1} MB)",
+        crate::say::n(summary.episodes, "episode"),
+        crate::say::n(summary.frames, "frame"),
         path.display(),
-        summary.files,
+        crate::say::n(summary.files, "file"),
         summary.bytes as f64 / 1e6
     );
     for (episode, feature) in &reencoded {
@@ -222,9 +222,9 @@ fn dry_run(planned: &Planned, args: &EditArgs) -> Result<(), CliError> {
     let found = surgvla::export::edit::dry_run(planned)?;
     for output in &found.outputs {
         say!(
-            "would write {} episodes, {} frames to {} (about {:.1} MB); encode again: {}",
-            output.episodes,
-            output.frames,
+            "would write {}, {} to {} (about {:.1} MB); encode again: {}",
+            crate::say::n(output.episodes, "episode"),
+            crate::say::n(output.frames, "frame"),
             output.path.display(),
             output.estimated_bytes as f64 / 1e6,
             listed(&output.reencode)

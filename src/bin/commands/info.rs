@@ -45,6 +45,7 @@ pub(crate) fn run_info(args: &InfoArgs) -> Result<(), CliError> {
             "robot_type": facts.robot_type,
             "features": facts.features,
             "tasks": facts.tasks,
+            "task_ids": facts.task_ids,
             "generator": facts.generator,
             "collection": facts.collection,
             "quick_check_errors": report.errors.len(),
@@ -78,7 +79,17 @@ pub(crate) fn run_info(args: &InfoArgs) -> Result<(), CliError> {
             feature.shape
         );
     }
-    if !facts.tasks.is_empty() {
+    if !facts.task_ids.is_empty() {
+        say!("tasks (episodes, instructions)");
+        for (id, fact) in &facts.task_ids {
+            let instructions: Vec<&str> = fact.instructions.iter().map(String::as_str).collect();
+            say!(
+                "  {id:<6} {:>6}  {}",
+                fact.episodes,
+                instructions.join(" | ")
+            );
+        }
+    } else if !facts.tasks.is_empty() {
         say!("tasks (episodes)");
         for (task, episodes) in &facts.tasks {
             say!("  {episodes:>6}  {task}");

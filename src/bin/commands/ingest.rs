@@ -312,11 +312,12 @@ pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
     for (path, report) in source.reports() {
         let gaps: usize = report.streams.iter().map(|s| s.gaps.len()).sum();
         eprintln!(
-            "{}: {} episodes, {} frames, {} frames not written, {gaps} gaps",
+            "{}: {}, {}, {} not written, {}",
             path.display(),
-            report.episodes.len(),
-            report.episodes.iter().sum::<usize>(),
-            report.dropped_frames
+            crate::say::n(report.episodes.len() as u64, "episode"),
+            crate::say::n(report.episodes.iter().sum::<usize>() as u64, "frame"),
+            crate::say::n(report.dropped_frames as u64, "frame"),
+            crate::say::n(gaps as u64, "gap")
         );
     }
     let mut files = source.sync_files(args.to.0)?;
@@ -337,12 +338,15 @@ pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
     let summary =
         write(args, &mut source, sink.as_mut(), files).map_err(|e| output.failed(e, &args.out))?;
     say!(
-        "ingested {} episodes, {} frames from {} recordings into {} ({} files, {:.1} MB)",
-        summary.episodes,
-        summary.frames,
-        args.inputs().map_or(0, <[PathBuf]>::len),
+        "ingested {}, {} from {} into {} ({}, {:.1} MB)",
+        crate::say::n(summary.episodes, "episode"),
+        crate::say::n(summary.frames, "frame"),
+        crate::say::n(
+            args.inputs().map_or(0, <[PathBuf]>::len) as u64,
+            "recording"
+        ),
         args.out.display(),
-        summary.files,
+        crate::say::n(summary.files, "file"),
         summary.bytes as f64 / 1e6
     );
     if args.verify {

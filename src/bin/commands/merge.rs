@@ -55,12 +55,12 @@ pub(crate) fn run_merge(args: &MergeArgs) -> Result<(), CliError> {
     })?;
     bar.finish_and_clear();
     say!(
-        "merged {} datasets: {} episodes, {} frames into {} ({} files, {:.1} MB)",
-        args.inputs.len(),
-        summary.episodes,
-        summary.frames,
+        "merged {}: {}, {} into {} ({}, {:.1} MB)",
+        crate::say::n(args.inputs.len() as u64, "dataset"),
+        crate::say::n(summary.episodes, "episode"),
+        crate::say::n(summary.frames, "frame"),
         args.out.display(),
-        summary.files,
+        crate::say::n(summary.files, "file"),
         summary.bytes as f64 / 1e6
     );
     Ok(())

@@ -8,7 +8,7 @@ use surgvla::task::TaskId;
 #[derive(clap::Args, Debug)]
 pub(crate) struct RecordArgs {
     /// Task name (gauze_pick, ...) or id (T1-1, ...).
-    #[arg(long)]
+    #[arg(long, default_value = "gauze_pick")]
     task: TaskId,
     /// Episode seed: decides the spawn positions.
     #[arg(long, default_value_t = 0)]

@@ -153,11 +153,11 @@ pub(crate) fn run_validate(args: &ValidateArgs) -> Result<(), CliError> {
 
 fn print_report(report: &Report) -> Result<(), CliError> {
     say!(
-        "{}: {} dataset, {} episodes, {} frames{}",
+        "{}: {} dataset, {}, {}{}",
         place(&report.path),
         report.format,
-        report.episodes,
-        report.frames,
+        crate::say::n(report.episodes, "episode"),
+        crate::say::n(report.frames, "frame"),
         if report.valid { ": valid" } else { "" }
     );
     for (label, findings) in [("error", &report.errors), ("warning", &report.warnings)] {

@@ -205,6 +205,15 @@ fn learn_tasks(tasks: &[String], entries: &[EpisodeEntry], findings: &Findings) 
             if let Some(task) = entry.tasks.first() {
                 *facts.tasks.entry(task.clone()).or_default() += 1;
             }
+            let id = entry
+                .provenance
+                .get("surgvla/task_id")
+                .and_then(Value::as_str);
+            if let Some(id) = id.filter(|id| !id.is_empty()) {
+                let fact = facts.task_ids.entry(id.to_string()).or_default();
+                fact.episodes += 1;
+                fact.instructions.extend(entry.tasks.iter().cloned());
+            }
         }
     });
 }
