@@ -316,7 +316,7 @@ pub(crate) fn run_ingest(args: &IngestArgs) -> Result<(), CliError> {
             path.display(),
             crate::say::n(report.episodes.len() as u64, "episode"),
             crate::say::n(report.episodes.iter().sum::<usize>() as u64, "frame"),
-            crate::say::n(report.dropped_frames as u64, "frame"),
+            crate::say::n(report.dropped_frames, "frame"),
             crate::say::n(gaps as u64, "gap")
         );
     }
