@@ -34,6 +34,8 @@ pub const PLOT_HEIGHT_PX: usize = 240;
 const TOP_PX: usize = 56;
 const LEFT_PX: usize = 56;
 const BAR_PX: usize = 14;
+/// The height a bar of 0 % is drawn (so that it shows, as a stub on the axis).
+pub const MIN_BAR_PX: usize = 2;
 const CATEGORY_GAP_PX: usize = 18;
 /// Characters of a category's label under its bars.
 const LABEL_CHARS: usize = 6;
@@ -161,19 +163,24 @@ pub fn rate_chart(chart: &RateChart) -> (Canvas, BarLayout) {
                 continue;
             };
             let x = layout.bar_x(c, s);
-            canvas.fill(
-                x + 1,
-                BarLayout::y_of(rate.value),
-                x + BAR_PX - 1,
-                BarLayout::zero_y(),
-                colour,
-            );
-            // The interval: a whisker with caps, over the bar's middle.
+            // A rate of 0 % (or one too small to see) still shows: a stub of MIN_BAR_PX.
+            let zero = BarLayout::zero_y();
+            let top_y = BarLayout::y_of(rate.value).min(zero - MIN_BAR_PX);
+            canvas.fill(x + 1, top_y, x + BAR_PX - 1, zero, colour);
+            // The interval: a black whisker 3 px wide in a white halo, with caps, over the
+            // bar's middle: it stands out on the bar and on the background alike.
             let middle = x + BAR_PX / 2;
             let (top, bottom) = (BarLayout::y_of(rate.high), BarLayout::y_of(rate.low));
-            canvas.vline(middle, top, bottom, DARK);
-            canvas.hline(middle - 3, middle + 3, top, DARK);
-            canvas.hline(middle - 3, middle + 3, bottom, DARK);
+            canvas.fill(
+                middle - 2,
+                top.saturating_sub(1),
+                middle + 3,
+                bottom + 2,
+                WHITE,
+            );
+            canvas.fill(middle - 1, top, middle + 2, bottom + 1, BLACK);
+            canvas.fill(middle - 3, top, middle + 4, top + 1, BLACK);
+            canvas.fill(middle - 3, bottom, middle + 4, bottom + 1, BLACK);
         }
     }
     category_labels(&mut canvas, chart, &layout);
@@ -337,12 +344,16 @@ mod tests {
         assert_eq!(bar_height(&canvas, &layout, 0, 0), full);
         assert_eq!(bar_height(&canvas, &layout, 1, 0), full / 2);
         assert_eq!(bar_height(&canvas, &layout, 2, 0), full / 4);
-        assert_eq!(bar_height(&canvas, &layout, 0, 1), 0);
+        assert_eq!(bar_height(&canvas, &layout, 0, 1), MIN_BAR_PX, "0 % shows");
         assert_eq!(bar_height(&canvas, &layout, 1, 1), 0, "no value, no bar");
         assert_eq!(bar_height(&canvas, &layout, 2, 1), full * 3 / 4);
-        // The whisker of the second bar reaches 0.6, above the bar's top at 0.5.
+        // The whisker of the second bar reaches 0.6, above the bar's top at 0.5: black, 3 px
+        // wide, in a white halo, inside the bar and above it.
         let middle = layout.bar_x(1, 0) + BarLayout::bar_px() / 2;
-        assert_eq!(canvas.at(middle, BarLayout::y_of(0.6)), Some(DARK));
+        for y in [BarLayout::y_of(0.57), BarLayout::y_of(0.45)] {
+            let row: Vec<_> = (middle - 2..=middle + 2).map(|x| canvas.at(x, y)).collect();
+            assert_eq!(row, [WHITE, BLACK, BLACK, BLACK, WHITE].map(Some), "at {y}");
+        }
     }
 
     #[test]
@@ -363,7 +374,7 @@ mod tests {
         );
     }
 
-    const SNAPSHOT_CRC: &str = "01bce0b9";
+    const SNAPSHOT_CRC: &str = "5a2355a6";
 
     #[test]
     fn histograms_scale_to_their_peak() {

@@ -392,3 +392,33 @@ fn progress_lines_go_to_a_log_at_the_interval_asked() {
     let (code, _, err) = surgvla(&["collect", "--progress-interval", "0", "--out", &out("bad")]);
     assert_eq!(code, 2, "{err}");
 }
+
+/// The README reads on a screen: no line over 400 characters (detail goes to docs/), and its
+/// first code block, the quick start, is at most 15 lines (CI runs it as written).
+#[test]
+fn the_readme_is_readable() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).expect("README.md");
+    for (i, line) in readme.lines().enumerate() {
+        assert!(
+            line.chars().count() <= 400,
+            "README.md line {} is {} characters",
+            i + 1,
+            line.chars().count()
+        );
+    }
+    let start = readme.find("## Start here").expect("a Start here section");
+    let block = readme[start..].split("```").nth(1).expect("a code block");
+    let lines = block
+        .lines()
+        .skip(1)
+        .filter(|l| !l.trim().is_empty())
+        .count();
+    assert!(
+        (2..=15).contains(&lines),
+        "the quick start has {lines} lines"
+    );
+    assert!(
+        block.contains("cargo run --release -- collect") && block.contains("cargo test --release")
+    );
+}
