@@ -157,7 +157,7 @@ impl FromStr for TaskId {
 
 /// A task list that names something that is neither a task nor a level.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown task or level '{given}'; expected all, a level (L1, L2, L3; level1 ...) or tasks: {}", TaskId::ALL.iter().map(|t| format!("{} ({})", t.name(), t.code())).collect::<Vec<_>>().join(", "))]
+#[error("unknown task '{given}'; expected all, a level (L1, L2, L3; level1 ...) or tasks: {}", TaskId::ALL.iter().map(|t| format!("{} ({})", t.name(), t.code())).collect::<Vec<_>>().join(", "))]
 pub struct UnknownTasks {
     pub given: String,
 }
@@ -174,28 +174,27 @@ fn level_of(word: &str) -> Option<u8> {
 
 /// A task list as users write it: `all`, or comma-separated tasks (ids like `T1-1` or names
 /// like `gauze_pick`) and levels (`L1`, `level1`: that level's tasks), mixed, in the order
-/// given, each task once.
+/// given. A level adds the tasks not listed yet; a task named again is kept twice, for the
+/// collection's check to refuse by name.
 pub fn parse_task_list(text: &str) -> Result<Vec<TaskId>, UnknownTasks> {
     if text.trim().eq_ignore_ascii_case("all") {
         return Ok(TaskId::ALL.to_vec());
     }
     let mut tasks: Vec<TaskId> = Vec::new();
     for word in text.split(',') {
-        let named: Vec<TaskId> = match (word.parse::<TaskId>(), level_of(word)) {
-            (Ok(task), _) => vec![task],
-            (Err(_), Some(level)) => TaskId::ALL
-                .into_iter()
-                .filter(|t| t.level() == level)
-                .collect(),
+        match (word.parse::<TaskId>(), level_of(word)) {
+            (Ok(task), _) => tasks.push(task),
+            (Err(_), Some(level)) => {
+                for task in TaskId::ALL.into_iter().filter(|t| t.level() == level) {
+                    if !tasks.contains(&task) {
+                        tasks.push(task);
+                    }
+                }
+            }
             (Err(_), None) => {
                 return Err(UnknownTasks {
                     given: word.trim().to_string(),
                 });
-            }
-        };
-        for task in named {
-            if !tasks.contains(&task) {
-                tasks.push(task);
             }
         }
     }
