@@ -39,11 +39,18 @@ use pyo3::types::PyDict;
 use surgvla::task::TaskId;
 
 /// Runs the `surgvla` command line (`argv[0]` is the program name) and returns its exit code.
-/// Python's own SIGINT handler is the caller's to lift (the console script restores the default,
-/// so Ctrl-C stops the command as it stops the binary).
+/// Python's own SIGINT handler stays unless the caller asks for the command's
+/// ([`catch_interrupts`], as the console script does).
 #[pyfunction]
 fn cli(py: Python<'_>, argv: Vec<String>) -> u8 {
     py.detach(|| app::run(argv.into_iter().map(std::ffi::OsString::from)))
+}
+
+/// Ctrl-C and SIGTERM handled as the binary handles them: the command says what it kept and
+/// the process exits 130 (the console script, a process that only runs the command, calls it).
+#[pyfunction]
+fn catch_interrupts() {
+    interrupt::install();
 }
 
 /// The tasks in benchmark order: dicts of `id` ("T1-1"), `name` ("gauze_pick"), `level`,
@@ -82,6 +89,7 @@ fn suites(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cli, m)?)?;
+    m.add_function(wrap_pyfunction!(catch_interrupts, m)?)?;
     m.add_function(wrap_pyfunction!(tasks, m)?)?;
     m.add_function(wrap_pyfunction!(suites, m)?)?;
     m.add_class::<vector::VectorCore>()?;

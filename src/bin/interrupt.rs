@@ -1,7 +1,7 @@
 //! What an interruption (Ctrl-C, SIGTERM) leaves: a command that writes a dataset names it
-//! here ([`writing`]) before its long work, and the binary's handler (`surgvla.rs`, a thread
-//! waiting on the signals) prints [`message`] once and exits 130, the README's code for it.
-//! The Python module's console script installs no handler: Python keeps its own.
+//! here ([`writing`]) before its long work, and the handler ([`install`]: a thread waiting on
+//! the signals, started by the binary's `main` and by the Python module's console script)
+//! prints [`message`] once and exits 130, the README's code for it.
 
 use std::path::Path;
 use std::sync::Mutex;
@@ -27,11 +27,30 @@ pub(crate) fn writing(out: &Path, resumable: bool) {
 }
 
 /// The line an interruption prints (`signal`: its name).
-// The binary's handler reads it; the Python module compiles this file too and installs none.
-#[allow(dead_code)]
 pub(crate) fn message(signal: &str) -> String {
     match WRITING.lock().unwrap_or_else(|e| e.into_inner()).as_deref() {
         Some(writing) => format!("interrupted ({signal}): {writing}"),
         None => format!("interrupted ({signal})"),
     }
+}
+
+/// Ctrl-C and SIGTERM: say what the interruption leaves ([`message`]) and exit 130. What was
+/// being written stays as an interrupted run's folder (marker and checkpoint), which
+/// `--resume` continues, as after any other stop.
+pub(crate) fn install() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
+        return;
+    };
+    std::thread::spawn(move || {
+        if let Some(signal) = signals.forever().next() {
+            let name = if signal == SIGINT {
+                "Ctrl-C"
+            } else {
+                "SIGTERM"
+            };
+            eprintln!("\n{}", message(name));
+            std::process::exit(130);
+        }
+    });
 }
