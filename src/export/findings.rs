@@ -349,15 +349,21 @@ impl Findings {
 
 /// Bytes of every file under `path` (the file's size for a file).
 pub fn disk_bytes(path: &Path) -> u64 {
+    bytes_where(path, &|_| true)
+}
+
+/// Bytes of the files under `path` (or of `path`, a file) that `wanted` takes; a symbolic link
+/// counts as itself, never followed.
+pub fn bytes_where(path: &Path, wanted: &dyn Fn(&Path) -> bool) -> u64 {
     match std::fs::symlink_metadata(path) {
         Ok(m) if m.is_dir() => std::fs::read_dir(path)
             .into_iter()
             .flatten()
             .flatten()
-            .map(|e| disk_bytes(&e.path()))
+            .map(|e| bytes_where(&e.path(), wanted))
             .sum(),
-        Ok(m) => m.len(),
-        Err(_) => 0,
+        Ok(m) if wanted(path) => m.len(),
+        _ => 0,
     }
 }
 

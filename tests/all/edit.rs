@@ -20,20 +20,22 @@ fn video_input() -> &'static Path {
     static ROOT: OnceLock<crate::util::TempRoot> = OnceLock::new();
     ROOT.get_or_init(|| {
         let root = temp_root("edit-video-input");
-        let (code, _, err) = surgvla(&[
-            "collect",
-            "--tasks",
-            "T1-1,T2-1",
-            "--episodes-per-task",
-            "3",
-            "--video",
-            "av1",
-            "--out",
-            text(&root),
-        ]);
-        assert_eq!(code, 0, "{err}");
+        collect(&root, &["T1-1,T2-1", "3", "--video", "av1"]);
         root
     })
+}
+
+/// `collect --tasks TASKS --episodes-per-task N [FLAGS...] --out out`, which must succeed
+/// (`args`: the tasks, the count, then any flags).
+fn collect(out: &Path, args: &[&str]) {
+    let [tasks, count, flags @ ..] = args else {
+        panic!("collect needs the tasks and a count: {args:?}");
+    };
+    let mut all = vec!["collect", "--tasks", tasks, "--episodes-per-task", count];
+    all.extend(flags);
+    all.extend(["--out", text(out)]);
+    let (code, _, err) = surgvla(&all);
+    assert_eq!(code, 0, "{all:?}: {err}");
 }
 
 fn episodes(root: &Path) -> Vec<Episode> {
@@ -374,18 +376,7 @@ fn an_episode_starting_mid_gop_is_named_then_encoded_again_on_request() {
 fn a_killed_edit_resumes_to_the_uninterrupted_bytes() {
     let root = temp_root("edit-killed");
     let input = root.join("input");
-    let (code, _, err) = surgvla(&[
-        "collect",
-        "--tasks",
-        "T1-1",
-        "--episodes-per-task",
-        "8",
-        "--data-file-mb",
-        "1",
-        "--out",
-        text(&input),
-    ]);
-    assert_eq!(code, 0, "{err}");
+    collect(&input, &["T1-1", "8", "--data-file-mb", "1"]);
     let edit = |out: &Path, drop: &str, extra: &[&str]| {
         let mut args = vec!["edit", text(&input), "--drop", drop, "--out", text(out)];
         args.extend(extra);
@@ -452,18 +443,7 @@ fn metadata_other_tools_wrote_is_carried_over() {
 fn an_rlds_dataset_is_edited_in_its_own_format() {
     let root = temp_root("edit-rlds");
     let input = root.join("input");
-    let (code, _, err) = surgvla(&[
-        "collect",
-        "--tasks",
-        "T1-1",
-        "--episodes-per-task",
-        "3",
-        "--format",
-        "rlds",
-        "--out",
-        text(&input),
-    ]);
-    assert_eq!(code, 0, "{err}");
+    collect(&input, &["T1-1", "3", "--format", "rlds"]);
     let out = root.join("out");
     let (code, stdout, err) = surgvla(&[
         "edit",

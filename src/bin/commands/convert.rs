@@ -34,12 +34,8 @@ pub(crate) struct ConvertArgs {
     /// Worker threads encoding episodes (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
-    /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
-    fps: Option<u32>,
-    /// The robot type of an input that states none (default "unknown").
-    #[arg(long)]
-    robot_type: Option<String>,
+    #[command(flatten)]
+    unstated: Unstated,
     /// Leave features out, comma-separated: depth, mask, environment_state (surgvla's optional
     /// features) or any feature key of the input (e.g. observation.images.depth of another
     /// tool's dataset), checked against its features before anything is written.
@@ -85,6 +81,28 @@ pub(crate) struct ConvertArgs {
     formats: FormatArgs,
 }
 
+/// What an input may not state (another tool's RLDS dataset): `convert` and `edit` take it.
+#[derive(Args, Debug)]
+pub(crate) struct Unstated {
+    /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    fps: Option<u32>,
+    /// The robot type of an input that states none (default "unknown").
+    #[arg(long)]
+    robot_type: Option<String>,
+}
+
+impl Unstated {
+    /// The reader's options with these values.
+    pub(crate) fn source_options(&self) -> surgvla::export::SourceOptions {
+        surgvla::export::SourceOptions {
+            fps: self.fps,
+            robot_type: self.robot_type.clone(),
+            ..Default::default()
+        }
+    }
+}
+
 /// `--intrinsics FX,FY,CX,CY`: four numbers, focal lengths positive.
 fn parse_intrinsics(text: &str) -> Result<[f64; 4], String> {
     let values: Vec<f64> = text
@@ -116,12 +134,11 @@ impl ConvertArgs {
         Ok(ConvertInput {
             path: self.input.clone(),
             source: surgvla::export::SourceOptions {
-                fps: self.fps,
-                robot_type: self.robot_type.clone(),
                 map,
                 float64_as_float32: self.cast == Some(Cast::Float32),
                 // ConvertInput::open gives the reader the --without list.
                 without: Vec::new(),
+                ..self.unstated.source_options()
             },
             shard: self.shard,
             without: self.without.clone(),

@@ -76,12 +76,8 @@ pub(crate) struct EditArgs {
     /// Worker threads (default and 0: one per core; at most 8 per core).
     #[arg(long, value_parser = crate::app::threads_arg)]
     threads: Option<usize>,
-    /// Steps per second of an input that stores none (an RLDS dataset another tool wrote).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
-    fps: Option<u32>,
-    /// The robot type of an input that states none.
-    #[arg(long)]
-    robot_type: Option<String>,
+    #[command(flatten)]
+    unstated: crate::commands::convert::Unstated,
 }
 
 /// `OLD=NEW`, both non-empty.
@@ -98,11 +94,7 @@ impl EditArgs {
     fn request(&self) -> EditRequest {
         EditRequest {
             input: self.input.clone(),
-            source: surgvla::export::SourceOptions {
-                fps: self.fps,
-                robot_type: self.robot_type.clone(),
-                ..Default::default()
-            },
+            source: self.unstated.source_options(),
             out: self.out.clone(),
             selection: Selection {
                 keep: self.keep.clone(),

@@ -378,6 +378,7 @@ fn stratified(
     shares: &[(String, f64)],
     seed: u64,
 ) -> Vec<(Option<String>, Vec<u64>)> {
+    let kept: std::collections::BTreeSet<u64> = kept.iter().copied().collect();
     let mut by_task: BTreeMap<String, Vec<u64>> = BTreeMap::new();
     for episode in listed.iter().filter(|e| kept.contains(&e.meta.index)) {
         let key = if episode.meta.task_code.is_empty() {

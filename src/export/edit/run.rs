@@ -85,7 +85,7 @@ impl EditRequest {
 pub fn plan(request: &EditRequest) -> Result<Planned, ConvertError> {
     let (format, found) =
         crate::export::registry::detect_readable(&request.input).map_err(ConvertError::Read)?;
-    let mut source = crate::export::open::open_source_with(&found.root, &request.source)
+    let source = crate::export::open::open_source_with(&found.root, &request.source)
         .map_err(ConvertError::Read)?;
     let options: Arc<dyn SinkOptions> = match format.options_like(&found, source.info()) {
         Some(options) => Arc::from(options.map_err(ConvertError::Read)?),
@@ -98,8 +98,10 @@ pub fn plan(request: &EditRequest) -> Result<Planned, ConvertError> {
         }
     };
     let carried = format.carried_files(&found).map_err(ConvertError::Read)?;
-    let mut listed = Vec::with_capacity(source.len() as usize);
-    while let Some(skimmed) = source.skim() {
+    // The input as the outputs read it (features removed): its episodes listed, its info.
+    let mut reading = request.reading().open(options.as_ref())?;
+    let mut listed = Vec::with_capacity(reading.len() as usize);
+    while let Some(skimmed) = reading.skim() {
         listed.push(skimmed.map_err(ConvertError::Read)?);
     }
     let wants_findings = (request.selection.keep.iter())
@@ -111,7 +113,6 @@ pub fn plan(request: &EditRequest) -> Result<Planned, ConvertError> {
         BTreeMap::new()
     };
     let chosen = choose(&listed, &request.selection, &flagged).map_err(usage)?;
-    let reading = request.reading().open(options.as_ref())?;
     let mut info = reading.info().clone();
     request.changes.apply_to_info(&mut info).map_err(usage)?;
     let outputs = outputs(request, &chosen, &info);
@@ -431,7 +432,9 @@ pub fn dry_run(planned: &Planned) -> Result<DryRun, ConvertError> {
         }
         index += 1;
     }
-    let video_total = video_bytes_of(&planned.request.input);
+    let video_total = crate::export::findings::bytes_where(&planned.request.input, &|p| {
+        p.extension().is_some_and(|e| e == "mp4")
+    });
     let other_bytes = input_bytes.saturating_sub(video_total);
     let outputs = (planned.outputs.iter())
         .map(|output| {
@@ -458,20 +461,6 @@ pub fn dry_run(planned: &Planned) -> Result<DryRun, ConvertError> {
         })
         .collect();
     Ok(DryRun { outputs })
-}
-
-/// Bytes of the MP4 files under `path`.
-fn video_bytes_of(path: &Path) -> u64 {
-    match std::fs::symlink_metadata(path) {
-        Ok(m) if m.is_dir() => std::fs::read_dir(path)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .map(|e| video_bytes_of(&e.path()))
-            .sum(),
-        Ok(m) if path.extension().is_some_and(|e| e == "mp4") => m.len(),
-        _ => 0,
-    }
 }
 
 /// Whether `path` holds a finished dataset: a folder with files and no interrupted run's

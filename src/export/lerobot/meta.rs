@@ -350,6 +350,20 @@ impl FeatureStatsJson {
 }
 
 impl InfoJson {
+    /// `splits` as episode ranges by name ("from:to"); a range that does not parse is left out
+    /// (validate reports it).
+    pub fn split_ranges(&self) -> Vec<(String, std::ops::Range<u64>)> {
+        (self.splits.iter().flatten())
+            .filter_map(|(name, range)| {
+                let (from, to) = range.split_once(':')?;
+                Some((
+                    name.clone(),
+                    from.trim().parse().ok()?..to.trim().parse().ok()?,
+                ))
+            })
+            .collect()
+    }
+
     /// Reads `meta/info.json`'s text leniently: only text that is not a JSON object fails.
     pub fn parse(bytes: &[u8]) -> Result<InfoJson, serde_json::Error> {
         serde_json::from_slice(bytes)

@@ -803,23 +803,10 @@ fn read_tasks(root: &Path, v21: bool) -> Result<Vec<String>, ExportError> {
     })
 }
 
-/// info.json's `splits` ("from:to" episode ranges by name), unless they are the one `train`
-/// split of every episode (what a dataset without splits says); a range that does not parse is
-/// left out (validate reports it).
+/// info.json's `splits`, unless they are the one `train` split of every episode (what a
+/// dataset without splits says).
 fn splits_of(info: &super::meta::InfoJson, episodes: u64) -> Vec<(String, std::ops::Range<u64>)> {
-    let Some(splits) = &info.splits else {
-        return Vec::new();
-    };
-    let ranges: Vec<(String, std::ops::Range<u64>)> = splits
-        .iter()
-        .filter_map(|(name, range)| {
-            let (from, to) = range.split_once(':')?;
-            Some((
-                name.clone(),
-                from.trim().parse().ok()?..to.trim().parse().ok()?,
-            ))
-        })
-        .collect();
+    let ranges = info.split_ranges();
     match &ranges[..] {
         [(name, range)] if name == "train" && *range == (0..episodes) => Vec::new(),
         _ => ranges,

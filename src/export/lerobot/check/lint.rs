@@ -80,15 +80,7 @@ fn dataset(known: &Known<'_>) -> LintDataset {
             }
         })
         .collect();
-    let splits = (known.info.splits.iter().flatten())
-        .filter_map(|(name, range)| {
-            let (from, to) = range.split_once(':')?;
-            Some((
-                name.clone(),
-                from.trim().parse().ok()?..to.trim().parse().ok()?,
-            ))
-        })
-        .collect();
+    let splits = known.info.split_ranges();
     let seeds = (known.entries.iter().enumerate())
         .filter_map(|(i, entry)| {
             let seed = entry.provenance.get("surgvla/seed")?.as_u64()?;
