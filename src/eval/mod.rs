@@ -17,6 +17,7 @@
 
 pub mod agents;
 pub mod chart;
+mod journal;
 pub mod numpy;
 mod options;
 pub mod perturb;

@@ -64,6 +64,9 @@ pub struct EvalOptions {
     pub out: PathBuf,
     /// Replace an earlier run's results in `out` (never other files).
     pub replace: bool,
+    /// Continue an interrupted run of the same evaluation in `out` from the trials its
+    /// journal holds.
+    pub resume: bool,
     pub camera: Camera,
     /// The variants to run each task's trials under, in order (None: the unperturbed trials
     /// only); each variant's trials share the unperturbed ones' seeds.
@@ -89,6 +92,7 @@ impl Default for EvalOptions {
             recordings_per_task: 3,
             out: PathBuf::from("eval"),
             replace: false,
+            resume: false,
             camera: Camera::endoscope(),
             suite: None,
             render_builtin: false,

@@ -40,7 +40,9 @@ pub const CONTACT_M: f64 = 0.001;
 pub const ON_TARGET_M: f64 = 0.004;
 
 /// Why a trial failed, by class.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum FailureClass {
     PolicyError,
@@ -81,6 +83,23 @@ impl FailureClass {
     }
 }
 
+/// A stage's or event's name: one of a fixed few (an alias, so that serde's derive reads it
+/// through the `deserialize_with` given rather than borrowing it from the input).
+pub type Name = &'static str;
+
+/// A stage's name as read back (a resumed evaluation's journal): one of the chains' names.
+fn known_stage<'de, D: serde::Deserializer<'de>>(d: D) -> Result<&'static str, D::Error> {
+    let name = <std::borrow::Cow<'de, str> as serde::Deserialize>::deserialize(d)?;
+    std::iter::once("none")
+        .chain(
+            TaskId::ALL
+                .into_iter()
+                .flat_map(|t| stages(t).iter().copied()),
+        )
+        .find(|s| *s == name)
+        .ok_or_else(|| serde::de::Error::custom(format!("no stage is named {name:?}")))
+}
+
 /// The stages of `task`, in order.
 pub fn stages(task: TaskId) -> &'static [&'static str] {
     match task {
@@ -102,10 +121,11 @@ pub fn stages(task: TaskId) -> &'static [&'static str] {
 }
 
 /// What a trial reached, and its precision figures.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrialProgress {
     /// The furthest stage reached ("none" before the first).
-    pub stage: &'static str,
+    #[serde(deserialize_with = "known_stage")]
+    pub stage: Name,
     /// Stages reached / stages of the task, in [0, 1]; 1 exactly on success.
     pub progress: f64,
     /// Why it failed (None on success).

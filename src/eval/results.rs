@@ -40,7 +40,7 @@ pub fn wilson_interval(successes: u32, trials: u32) -> (f64, f64) {
 }
 
 /// One trial.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct TrialResult {
     pub task_id: String,
     /// The perturbation variant the trial ran under ("none": unperturbed).
@@ -83,16 +83,26 @@ pub struct TrialResult {
 }
 
 /// One contact event of a trial (`sim::history::ContactEvent`, named).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct TrialEvent {
     /// The control step it happened at (0: before the first).
     pub step: u64,
     /// `grasped`, `released`, `entered_vessel_from_above`, `entered_vessel_through_wall`,
     /// `closed_in_vessel`.
-    pub event: &'static str,
+    #[serde(deserialize_with = "known_event")]
+    pub event: crate::eval::progress::Name,
     /// The object grasped or released.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub object: Option<String>,
+}
+
+/// An event's name as read back (a resumed evaluation's journal).
+fn known_event<'de, D: serde::Deserializer<'de>>(d: D) -> Result<&'static str, D::Error> {
+    let name = <std::borrow::Cow<'de, str> as serde::Deserialize>::deserialize(d)?;
+    (crate::sim::history::ContactKind::ALL.into_iter())
+        .map(crate::sim::history::ContactKind::name)
+        .find(|n| *n == name)
+        .ok_or_else(|| serde::de::Error::custom(format!("no event is named {name:?}")))
 }
 
 /// One task's row.
@@ -259,6 +269,10 @@ pub struct EvalReport {
     /// CRC-32 and its variants in order (absent: unperturbed trials only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub suite: Option<serde_json::Value>,
+    /// Trials an interrupted run had scored, which `--resume` took from its journal (never in
+    /// the results: a resumed run's equal an uninterrupted one's).
+    #[serde(skip)]
+    pub resumed_trials: usize,
 }
 
 /// The version of results.json's layout (`schemas/eval_results.schema.json`).
@@ -311,6 +325,7 @@ impl EvalReport {
             generator: format!("surgvla {}", env!("CARGO_PKG_VERSION")),
             success_rules: crate::task::success::RULE_SET.into(),
             suite: None,
+            resumed_trials: 0,
         }
     }
 
@@ -523,6 +538,34 @@ impl EvalReport {
         text
     }
 
+    /// The per-task table as the terminal shows it: aligned columns, as `collect` prints its
+    /// table (results.md has [`EvalReport::table`], in Markdown).
+    pub fn terminal_table(&self) -> String {
+        let head = [
+            "task",
+            "name",
+            "trials",
+            "successes",
+            "rate",
+            "95 % CI",
+            "mean steps",
+        ];
+        let rows: Vec<Vec<String>> = (self.tasks.iter())
+            .map(|t| {
+                vec![
+                    self.label(t),
+                    t.name.clone(),
+                    t.trials.to_string(),
+                    t.successes.to_string(),
+                    format!("{:.1} %", 100.0 * t.success_rate),
+                    format!("{:.1}-{:.1} %", 100.0 * t.ci95_low, 100.0 * t.ci95_high),
+                    (t.mean_steps_success).map_or_else(|| "-".into(), |s| format!("{s:.1}")),
+                ]
+            })
+            .collect();
+        aligned(&head, &rows, 2)
+    }
+
     /// `results.md`: the paper-style row, the per-task table, the options and the recordings.
     pub fn markdown(&self) -> String {
         let mut text = format!("# surgvla eval: {}\n\n", self.policy);
@@ -589,6 +632,38 @@ impl EvalReport {
         }
         text
     }
+}
+
+/// `head` and `rows` as columns padded to their widest cell, one space apart: the first `left`
+/// columns flush left (names), the rest flush right (numbers).
+pub fn aligned(head: &[&str], rows: &[Vec<String>], left: usize) -> String {
+    let cells = |row: &[String]| row.iter().map(|c| c.chars().count()).collect::<Vec<_>>();
+    let mut widths: Vec<usize> = head.iter().map(|h| h.chars().count()).collect();
+    for row in rows {
+        for (w, c) in widths.iter_mut().zip(cells(row)) {
+            *w = (*w).max(c);
+        }
+    }
+    let line = |row: &[String]| {
+        let padded: Vec<String> = (row.iter().zip(&widths).enumerate())
+            .map(|(i, (cell, w))| {
+                if i < left {
+                    format!("{cell:<w$}")
+                } else {
+                    format!("{cell:>w$}")
+                }
+            })
+            .collect();
+        padded.join(" ").trim_end().to_string()
+    };
+    let head: Vec<String> = head.iter().map(|h| h.to_string()).collect();
+    let mut text = line(&head);
+    text.push('\n');
+    for row in rows {
+        text.push_str(&line(row));
+        text.push('\n');
+    }
+    text
 }
 
 #[cfg(test)]

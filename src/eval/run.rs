@@ -9,6 +9,7 @@
 use super::agents::{
     Agent, Command, ExpertAgent, NoopAgent, RandomAgent, RemoteAgent, ReplayLibrary,
 };
+use super::journal::{JOURNAL, Journal};
 use super::numpy::metadata_json;
 use super::options::{EvalError, EvalOptions, PolicyChoice};
 use super::perturb::{Dimensions, Drawn, Suite, Variant};
@@ -300,7 +301,8 @@ pub fn evaluate(
     }
     let mut prepared = prepare(choice, options)?;
     // Held until the results are written: no other run writes into the folder meanwhile.
-    let _lock = claim_out(options)?;
+    let (_lock, mut journal) = claim_out(options, &identity(choice, options))?;
+    let resumed_trials = journal.count();
     let mut rows = Vec::new();
     let mut trials = Vec::new();
     for (v, variant) in options.variants().iter().enumerate() {
@@ -308,15 +310,23 @@ pub fn evaluate(
         for &task in &options.tasks {
             let setups = setups(options, task, variant)?;
             let offset = v as u32 * options.trials;
-            let progress = &|task, done| progress(task, offset + done);
-            let mut results = match &mut prepared {
-                Prepared::Remote(policy) => run_remote(policy, &setups, options, progress)?,
-                Prepared::Builtin(builtin) => run_builtin(builtin, &setups, options, progress)?,
+            let progress: Progress = &|task, done| progress(task, offset + done);
+            let done = journal.done(&name, task.code()).to_vec();
+            let results = match &mut prepared {
+                _ if done.len() == setups.len() => {
+                    progress(task, options.trials);
+                    done
+                }
+                Prepared::Remote(policy) => {
+                    let run = (&setups[..], options, progress);
+                    run_remote(policy, run, &done, &mut journal)?
+                }
+                Prepared::Builtin(builtin) => {
+                    let results = run_builtin(builtin, &setups, options, progress)?;
+                    journal.record(&results)?;
+                    results
+                }
             };
-            for (result, setup) in results.iter_mut().zip(&setups) {
-                result.variant.clone_from(&name);
-                result.perturbation = setup.drawn.values.clone();
-            }
             let mut row = TaskResult::of(task, &results);
             row.variant.clone_from(&name);
             rows.push(row);
@@ -336,6 +346,7 @@ pub fn evaluate(
         trials,
     );
     report.suite = options.suite.as_ref().map(Suite::json);
+    report.resumed_trials = resumed_trials;
     for (name, text) in [
         ("results.json", report.json()),
         ("results.csv", report.csv()),
@@ -397,10 +408,28 @@ fn results_png(report: &EvalReport, options: &EvalOptions) -> Result<Vec<u8>, Ev
 const RESULT_FILES: [&str; 4] = ["results.json", "results.csv", "results.md", "results.png"];
 const FAILURES: &str = "failures";
 
-/// Takes `options.out` for this run: created if needed and locked; refused when it holds files
-/// that are not results, or an earlier run's results unless `replace` (then those are removed:
-/// the results files and the failure recordings, nothing else, never through a link).
-fn claim_out(options: &EvalOptions) -> Result<std::fs::File, EvalError> {
+/// What names a run in its journal: what shapes its results (the policy, the options, the
+/// suite, the recordings kept, the camera, surgvla's version).
+fn identity(choice: &PolicyChoice, options: &EvalOptions) -> serde_json::Value {
+    serde_json::json!({
+        "evaluation": options_json(choice, options),
+        "suite": options.suite.as_ref().map(Suite::json),
+        "recordings_per_task": options.recordings_per_task,
+        "render_builtin": options.render_builtin,
+        "camera": format!("{:?}", options.camera),
+        "generator": format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+    })
+}
+
+/// Takes `options.out` for this run (created if needed and locked) and opens its journal:
+/// refused when it holds files that are not results, or an earlier run's results or journal,
+/// unless `resume` (an interrupted run of the same evaluation, continued from its journal) or
+/// `replace` (then those are removed: the results files, the journal and the failure
+/// recordings, nothing else, never through a link).
+fn claim_out(
+    options: &EvalOptions,
+    identity: &serde_json::Value,
+) -> Result<(std::fs::File, Journal), EvalError> {
     let out = &options.out;
     let write = |source| EvalError::Write {
         path: out.clone(),
@@ -414,7 +443,8 @@ fn claim_out(options: &EvalOptions) -> Result<std::fs::File, EvalError> {
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
         let kind = entry.file_type().ok();
-        let file = kind.is_some_and(|k| k.is_file()) && RESULT_FILES.contains(&name.as_str());
+        let file = kind.is_some_and(|k| k.is_file())
+            && (RESULT_FILES.contains(&name.as_str()) || name == JOURNAL);
         let failures = kind.is_some_and(|k| k.is_dir()) && name == FAILURES;
         if !(file || failures) {
             return Err(EvalError::Options(format!(
@@ -424,14 +454,23 @@ fn claim_out(options: &EvalOptions) -> Result<std::fs::File, EvalError> {
         }
         ours.push(entry.path());
     }
-    if ours.is_empty() {
-        return Ok(lock);
+    let journaled = ours.iter().any(|p| p.ends_with(JOURNAL));
+    if options.resume && journaled {
+        return Ok((lock, Journal::resume(out, identity)?));
     }
-    if !options.replace {
-        return Err(EvalError::Options(format!(
-            "{} holds the results of another run; give --replace to replace them, or choose an empty or new folder",
-            out.display()
-        )));
+    if !ours.is_empty() && !options.replace {
+        let finished = ours.iter().any(|p| p.ends_with("results.json"));
+        return Err(EvalError::Options(match super::journal::scored(out) {
+            Some(trials) if !finished => format!(
+                "{} holds an interrupted evaluation ({trials} trial{} scored); give --resume to continue it, or --replace to start over",
+                out.display(),
+                if trials == 1 { "" } else { "s" }
+            ),
+            _ => format!(
+                "{} holds the results of another run; give --replace to replace them, or choose an empty or new folder",
+                out.display()
+            ),
+        }));
     }
     for path in ours {
         if path.ends_with(FAILURES) {
@@ -441,7 +480,7 @@ fn claim_out(options: &EvalOptions) -> Result<std::fs::File, EvalError> {
                 .map_err(|e| write(crate::export::ExportError::io(&path)(e)))?;
         }
     }
-    Ok(lock)
+    Ok((lock, Journal::create(out, identity)?))
 }
 
 /// Removes the failure recordings (`*.mcap` files) of an earlier run, then the folder if empty.
@@ -559,6 +598,10 @@ fn run_builtin(
             })
             .collect::<Result<_, EvalError>>()
     })?;
+    for (result, setup) in results.iter_mut().zip(setups) {
+        result.variant.clone_from(&setup.variant);
+        result.perturbation = setup.drawn.values.clone();
+    }
     let failed: Vec<usize> = (0..results.len())
         .filter(|&i| !results[i].success)
         .collect();
@@ -616,13 +659,14 @@ fn builtin_trial(
     Ok(outcome)
 }
 
-/// Trials of one task with a remote policy, one at a time, rendered; the first failures are
-/// kept and recorded.
+/// Trials of one task with a remote policy, one at a time, rendered, each journaled once
+/// scored; the first failures are kept and recorded. Trials in `done` (a resumed run's) are
+/// not run again.
 fn run_remote(
     policy: &mut RemotePolicy,
-    setups: &[TrialSetup],
-    options: &EvalOptions,
-    progress: Progress,
+    (setups, options, progress): (&[TrialSetup], &EvalOptions, Progress),
+    done: &[TrialResult],
+    journal: &mut Journal,
 ) -> Result<Vec<TrialResult>, EvalError> {
     let mut results = Vec::with_capacity(setups.len());
     let mut recorded = 0;
@@ -632,15 +676,24 @@ fn run_remote(
     );
     for (i, setup) in setups.iter().enumerate() {
         let instance = &setup.instance;
+        if let Some(scored) = done.iter().find(|t| t.trial == i as u32) {
+            recorded += usize::from(scored.recording.is_some());
+            progress(instance.task, i as u32 + 1);
+            results.push(scored.clone());
+            continue;
+        }
         let env = Env::from_instance(instance.clone(), &trial_env(options, setup, true));
         let mut agent = RemoteAgent::new(policy, options.send, options.replan_steps, size);
         let record = recorded < options.recordings_per_task;
         let outcome = run_trial(env, instance, i as u32, &mut agent, record);
         let mut result = outcome.result;
+        result.variant.clone_from(&setup.variant);
+        result.perturbation = setup.drawn.values.clone();
         if let (false, Some(episode)) = (result.success, outcome.episode) {
             result.recording = Some(save_recording(options, setup, &episode)?);
             recorded += 1;
         }
+        journal.record(std::slice::from_ref(&result))?;
         progress(instance.task, i as u32 + 1);
         results.push(result);
     }

@@ -66,6 +66,15 @@ pub enum ContactKind {
 }
 
 impl ContactKind {
+    /// Every kind.
+    pub const ALL: [ContactKind; 5] = [
+        ContactKind::Grasped,
+        ContactKind::Released,
+        ContactKind::EnteredVesselFromAbove,
+        ContactKind::EnteredVesselThroughWall,
+        ContactKind::ClosedInVessel,
+    ];
+
     /// Its name in results (snake case).
     pub fn name(self) -> &'static str {
         match self {

@@ -121,6 +121,58 @@ fn dropped_episodes_leave_and_the_rest_are_copied_with_exact_statistics() {
     assert_eq!(code, 0, "{err}");
 }
 
+/// The data files of `root` written again with at most `rows` rows per row group, which then
+/// start and end mid-episode, and with or without statistics (other writers' layouts).
+fn regroup(root: &Path, rows: usize, statistics: bool) {
+    use parquet::file::properties::{EnabledStatistics, WriterProperties};
+    for file in surgvla::export::lerobot::read::data_files(root).expect("data files") {
+        let batches = surgvla::export::lerobot::read::read_parquet(&file).expect("read");
+        let enabled = if statistics {
+            EnabledStatistics::Chunk
+        } else {
+            EnabledStatistics::None
+        };
+        let properties = WriterProperties::builder()
+            .set_max_row_group_row_count(Some(rows))
+            .set_statistics_enabled(enabled)
+            .build();
+        let mut bytes = Vec::new();
+        let mut writer =
+            parquet::arrow::ArrowWriter::try_new(&mut bytes, batches[0].schema(), Some(properties))
+                .expect("writer");
+        for batch in &batches {
+            writer.write(batch).expect("write");
+        }
+        writer.close().expect("close");
+        std::fs::write(&file, bytes).expect("write file");
+    }
+}
+
+#[test]
+fn row_groups_that_are_not_one_episode_each_read_and_edit_alike() {
+    let input = video_input();
+    let original = episodes(input);
+    // Groups of 7 and 25 rows (several episodes each, or one episode across several), and one
+    // group per file without the statistics that say which episode a group holds.
+    for (rows, statistics) in [(7, true), (25, true), (100_000, false)] {
+        let root = temp_root("edit-regrouped");
+        for (relative, bytes) in tree(input) {
+            let path = root.join(relative);
+            std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+            std::fs::write(path, bytes).expect("copy");
+        }
+        regroup(&root, rows, statistics);
+        let all: Vec<usize> = (0..original.len()).collect();
+        assert_holds(&episodes(&root), &original, &all);
+        let out = temp_root("edit-regrouped-out");
+        let (code, stdout, err) =
+            surgvla(&["edit", text(&root), "--drop", "1,4", "--out", text(&out)]);
+        assert_eq!(code, 0, "{rows} rows a group: {err}");
+        assert!(stdout.contains("keeping 4 of 6 episodes"), "{stdout}");
+        assert_holds(&episodes(&out), &original, &[0, 2, 3, 5]);
+    }
+}
+
 #[test]
 fn selectors_splits_renames_and_instructions_compose() {
     let input = video_input();

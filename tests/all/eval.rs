@@ -681,12 +681,22 @@ fn the_command_prints_the_eight_task_table_and_refuses_bad_policies() {
     let (code, stdout, stderr) =
         surgvla(&["eval", "--policy", "expert", "--trials", "2", "--out", &dir]);
     assert_eq!(code, 0, "{stderr}");
-    let rows: Vec<&str> = stdout.lines().filter(|l| l.starts_with("| T")).collect();
-    assert_eq!(rows.len(), 8, "{stdout}");
+    // Aligned columns, as collect prints them (results.md has the Markdown table).
+    let head = "task name trials successes rate 95 % CI mean steps";
     assert!(
-        rows.iter().all(|r| r.contains("| 2 | 2 | 100.0 % |")),
+        (stdout.lines()).any(|l| l.split_whitespace().collect::<Vec<_>>().join(" ") == head),
         "{stdout}"
     );
+    let rows: Vec<&str> = stdout.lines().filter(|l| l.starts_with('T')).collect();
+    assert_eq!(rows.len(), 8, "{stdout}");
+    assert!(
+        (rows.iter()).all(|r| r.split_whitespace().skip(2).take(3).eq(["2", "2", "100.0"])),
+        "{stdout}"
+    );
+    // Each column is aligned: the rates end at the same place on every row.
+    let ends: Vec<usize> = rows.iter().map(|r| r.find(" %").expect("rate")).collect();
+    assert!(ends.iter().all(|e| *e == ends[0]), "{stdout}");
+    assert!(rows.iter().all(|r| r.len() <= 80), "{stdout}");
     assert!(
         stdout.contains("mean success rate 100.0 % over 8 tasks (16 of 16 trials)"),
         "{stdout}"
@@ -795,6 +805,146 @@ fn a_policy_that_never_answers_fails_the_run() {
         stderr.contains("every trial of T1-1 failed on policy errors"),
         "{stderr}"
     );
-    assert!(stdout.contains("| T1-1"), "{stdout}");
+    assert!(stdout.lines().any(|l| l.starts_with("T1-1 ")), "{stdout}");
     assert!(root.join("results/results.json").is_file());
+}
+
+/// `args` (an eval) run to the end in `out`.
+fn eval_into(out: &std::path::Path, args: &[&str]) -> (i32, String, String) {
+    let dir = out.display().to_string();
+    let mut all = vec!["eval"];
+    all.extend(args);
+    all.extend(["--out", &dir]);
+    surgvla(&all)
+}
+
+/// The journal of `out` cut after its first `keep` trials, with half of the next line (what an
+/// interruption leaves), and the results files gone.
+fn interrupt_after(out: &std::path::Path, keep: usize) {
+    let journal = out.join(".eval-journal.jsonl");
+    let text = std::fs::read_to_string(&journal).expect("journal");
+    let lines: Vec<&str> = text.lines().collect();
+    assert!(lines.len() > keep + 1, "{} lines", lines.len());
+    let mut cut: String = lines[..=keep].iter().map(|l| format!("{l}\n")).collect();
+    cut.push_str(&lines[keep + 1][..lines[keep + 1].len() / 2]);
+    std::fs::write(&journal, cut).expect("cut");
+    for name in ["results.json", "results.csv", "results.md", "results.png"] {
+        std::fs::remove_file(out.join(name)).expect("remove");
+    }
+}
+
+#[test]
+fn an_interrupted_evaluation_resumes_to_the_uninterrupted_bytes() {
+    let root = temp_root("eval-resume");
+    let args = [
+        "--policy",
+        "random",
+        "--tasks",
+        "T1-1,T1-2",
+        "--trials",
+        "3",
+        "--record-failures",
+        "1",
+    ];
+    let (whole, cut) = (root.join("whole"), root.join("cut"));
+    for out in [&whole, &cut] {
+        let (code, _, err) = eval_into(out, &args);
+        assert_eq!(code, 0, "{err}");
+    }
+    interrupt_after(&cut, 3);
+    // Without --resume, the folder is said to hold an interrupted run, not another run's results.
+    let (code, _, err) = eval_into(&cut, &args);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("holds an interrupted evaluation (3 trials scored); give --resume"),
+        "{err}"
+    );
+    // Another evaluation's journal is refused.
+    let mut other = args.to_vec();
+    other[5] = "4";
+    other.push("--resume");
+    let (code, _, err) = eval_into(&cut, &other);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("another evaluation's"), "{err}");
+    let mut resumed = args.to_vec();
+    resumed.push("--resume");
+    let (code, out, err) = eval_into(&cut, &resumed);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("resumed: 3 trials scored"), "{out}");
+    assert_eq!(crate::util::tree(&cut), crate::util::tree(&whole));
+    // Resuming a finished run scores nothing again and writes the same results.
+    let (code, out, err) = eval_into(&cut, &resumed);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("resumed: 6 trials scored"), "{out}");
+    assert_eq!(crate::util::tree(&cut), crate::util::tree(&whole));
+}
+
+#[test]
+fn a_served_policys_evaluation_resumes_trial_by_trial() {
+    let root = temp_root("eval-remote-resume");
+    let (url, seen) = serve(vec![Reply::Chunk(8)]);
+    let choice = PolicyChoice::Remote { url };
+    let (whole, cut) = (root.join("whole"), root.join("cut"));
+    for out in [&whole, &cut] {
+        let options = options(out, &[TaskId::GauzePick, TaskId::NeedlePick], 2);
+        evaluate(&choice, &options, &|_, _| {}).expect("eval");
+    }
+    interrupt_after(&cut, 1);
+    let asked = seen.lock().expect("log").len();
+    let mut options = options(&cut, &[TaskId::GauzePick, TaskId::NeedlePick], 2);
+    options.resume = true;
+    let report = evaluate(&choice, &options, &|_, _| {}).expect("resumed");
+    assert_eq!(report.resumed_trials, 1);
+    // Three trials of 100 steps, 13 chunks of 8 actions each, were run again; the first was not.
+    assert_eq!(seen.lock().expect("log").len() - asked, 39);
+    assert_eq!(crate::util::tree(&cut), crate::util::tree(&whole));
+}
+
+#[test]
+fn ctrl_c_in_an_evaluation_exits_130_and_resume_finishes_it() {
+    let root = temp_root("eval-ctrl-c");
+    let args = [
+        "--policy",
+        "random",
+        "--tasks",
+        "L1",
+        "--trials",
+        "2",
+        "--threads",
+        "1",
+    ];
+    let (whole, cut) = (root.join("whole"), root.join("cut"));
+    let (code, _, err) = eval_into(&whole, &args);
+    assert_eq!(code, 0, "{err}");
+    let dir = cut.display().to_string();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_surgvla"))
+        .arg("eval")
+        .args(args)
+        .args(["--out", &dir])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // Interrupted once the first task's trials are journaled (three tasks remain).
+    let journal = cut.join(".eval-journal.jsonl");
+    let scored = || std::fs::read_to_string(&journal).map_or(0, |t| t.lines().count());
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while scored() < 3 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let signal = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(signal.success());
+    let output = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(130), "{err}");
+    assert!(err.contains("--resume"), "{err}");
+    let mut resumed = args.to_vec();
+    resumed.push("--resume");
+    let (code, out, err) = eval_into(&cut, &resumed);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("resumed:"), "{out}");
+    assert_eq!(crate::util::tree(&cut), crate::util::tree(&whole));
 }

@@ -433,6 +433,9 @@ fn a_data_directory_of_several_datasets_lists_them() {
     let one = data_dir.join("bridge_like");
     let (code, out, err) = surgvla(&["info", path(&one)]);
     assert_eq!(code, 0, "{out}{err}");
+    // Its tasks are listed by task id, with their episodes and instructions.
+    assert!(out.contains("tasks (episodes, instructions)"), "{out}");
+    assert!(out.contains("  T1-1        2  pick up the gauze"), "{out}");
     let out_dir = temp_root("rlds-several-out");
     run_ok(&[
         "convert",

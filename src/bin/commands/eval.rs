@@ -144,8 +144,12 @@ pub(crate) struct EvalArgs {
     #[arg(long, default_value = "eval")]
     out: PathBuf,
     /// Replace an earlier run's results in --out (never other files).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "resume")]
     replace: bool,
+    /// Continue an interrupted run of this evaluation in --out from the trials it scored
+    /// (kept in --out/.eval-journal.jsonl); the results equal an uninterrupted run's.
+    #[arg(long)]
+    resume: bool,
     /// Run every task under each variant of a perturbation suite (the unperturbed trials
     /// first; every variant on the same seeds). docs/eval.md lists the dimensions and levels.
     #[arg(long, value_enum, conflicts_with = "perturb")]
@@ -228,6 +232,7 @@ impl EvalArgs {
             }),
             out: self.out.clone(),
             replace: self.replace,
+            resume: self.resume,
             suite,
             render_builtin: self.render_images,
             ..EvalOptions::default()
@@ -240,15 +245,22 @@ pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
     let options = args.options()?;
     let variants = options.variants().len() as u32;
     let bars = TrialBars::new(&options.tasks, options.trials * variants);
+    crate::interrupt::writing(&options.out, true);
     let report = evaluate(&choice, &options, &|task, done| bars.set(task, done));
     bars.clear();
     let report = report?;
+    if report.resumed_trials > 0 {
+        say!(
+            "resumed: {} scored by the interrupted run",
+            crate::say::n(report.resumed_trials as u64, "trial")
+        );
+    }
     say!("policy: {}", report.policy);
     match report.variants_markdown() {
         // A suite's rows are many: the grid here, every row in results.md.
         Some(grid) => say!("{}", grid.trim_end()),
         None => {
-            say!("{}", report.table().trim_end());
+            say!("{}", report.terminal_table().trim_end());
             say!("{}", report.stages_markdown().trim_end());
         }
     }

@@ -26,6 +26,7 @@ pub mod openh;
 mod options;
 mod parts;
 pub mod read;
+mod rows;
 mod table;
 pub mod work;
 mod writer;

@@ -3,10 +3,12 @@
 //! with the real lerobot loader in `tests/interop/`.
 
 use super::meta::StatsJson;
+pub use super::rows::footer_problem;
+use super::rows::{Next, Row, column, invalid, open_parquet_metadata, vector};
 use super::table::StoredEpisode;
 use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
-    FeatureValue, ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, Step, VideoCodec,
+    ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, VideoCodec,
 };
 use crate::export::bounded::read_json;
 use crate::export::error::ExportError;
@@ -18,8 +20,8 @@ use crate::media::demux::VideoReader;
 use crate::media::image::decode_png_sized;
 use crate::media::tiff::decode_f32_tiff;
 use arrow_array::{
-    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
-    LargeStringArray, RecordBatch, StringArray, StructArray,
+    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, RecordBatch,
+    StructArray,
 };
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::{Map, Value};
@@ -41,78 +43,12 @@ pub struct StoredFrame {
     pub images: Vec<(String, Vec<u8>)>,
 }
 
-/// Rows a parquet file may claim per byte of its size. Real files hold far fewer (an episode's
-/// row carries a few hundred bytes); a delta-encoded constant column compresses to about a bit
-/// per row. A footer claiming more rows, or column chunks beyond the end of the file, is refused
-/// before any of it is allocated.
-const MAX_ROWS_PER_BYTE: u64 = 64;
-
-/// What is wrong with a parquet footer given the file's size, if anything: row counts that the
-/// file cannot hold, column chunks at negative offsets or sizes (the parquet crate asserts on
-/// them), outside the file, or together larger than it (chunks never share bytes: thousands of
-/// row groups pointing at the same bytes would make every reader's work unbounded).
-pub fn footer_problem(
-    metadata: &parquet::file::metadata::ParquetMetaData,
-    file_bytes: u64,
-) -> Option<String> {
-    let mut rows: u64 = 0;
-    let mut chunk_bytes: u64 = 0;
-    for (g, group) in metadata.row_groups().iter().enumerate() {
-        let Ok(group_rows) = u64::try_from(group.num_rows()) else {
-            return Some(format!("row group {g} claims {} rows", group.num_rows()));
-        };
-        rows = rows.saturating_add(group_rows);
-        for column in group.columns() {
-            let start = column
-                .dictionary_page_offset()
-                .unwrap_or_else(|| column.data_page_offset());
-            let (Ok(start), Ok(length)) = (
-                u64::try_from(start),
-                u64::try_from(column.compressed_size()),
-            ) else {
-                return Some(format!(
-                    "row group {g} places column {} at bytes {start}..+{}",
-                    column.column_path(),
-                    column.compressed_size()
-                ));
-            };
-            if column.data_page_offset() < 0
-                || start.checked_add(length).is_none_or(|end| end > file_bytes)
-            {
-                return Some(format!(
-                    "row group {g} places column {} at bytes {start}..+{length}, beyond the file's {file_bytes}",
-                    column.column_path()
-                ));
-            }
-            chunk_bytes = chunk_bytes.saturating_add(length);
-        }
-    }
-    if chunk_bytes > file_bytes {
-        return Some(format!(
-            "its column chunks claim {chunk_bytes} bytes in a file of {file_bytes} (chunks that share bytes)"
-        ));
-    }
-    if rows > file_bytes.saturating_mul(MAX_ROWS_PER_BYTE) {
-        return Some(format!(
-            "its footer claims {rows} rows in a file of {file_bytes} bytes"
-        ));
-    }
-    // The file's own count is the sum of its row groups' (readers differ on which they trust).
-    let stated = metadata.file_metadata().num_rows();
-    (u64::try_from(stated) != Ok(rows))
-        .then(|| format!("its footer claims {stated} rows where its row groups hold {rows}"))
-}
-
 /// A parquet file's reader builder, its footer checked ([`footer_problem`]) first.
 pub fn open_parquet(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>, ExportError> {
-    let file = crate::export::bounded::open_regular(path)?;
-    let file_bytes = file.metadata().map_err(ExportError::io(path))?.len();
-    let builder =
-        ParquetRecordBatchReaderBuilder::try_new(file).map_err(ExportError::parquet(path))?;
-    if let Some(problem) = footer_problem(builder.metadata(), file_bytes) {
-        return Err(invalid(path, problem));
-    }
-    Ok(builder)
+    let (file, metadata) = open_parquet_metadata(path)?;
+    Ok(ParquetRecordBatchReaderBuilder::new_with_metadata(
+        file, metadata,
+    ))
 }
 
 /// Reads every record batch of a parquet file.
@@ -165,31 +101,6 @@ pub fn parquet_files(data: &Path) -> Result<Vec<PathBuf>, ExportError> {
     Ok(files)
 }
 
-fn column<'a, T: 'static>(
-    batch: &'a RecordBatch,
-    name: &str,
-    path: &Path,
-) -> Result<&'a T, ExportError> {
-    batch
-        .column_by_name(name)
-        .and_then(|c| c.as_any().downcast_ref::<T>())
-        .ok_or_else(|| {
-            ExportError::InvalidEpisode(format!(
-                "{}: column {name} missing or of the wrong type",
-                path.display()
-            ))
-        })
-}
-
-fn vector(list: &FixedSizeListArray, row: usize) -> Vec<f32> {
-    let values = list.value(row);
-    values
-        .as_any()
-        .downcast_ref::<Float32Array>()
-        .map(|v| v.values().to_vec())
-        .unwrap_or_default()
-}
-
 /// Reads every frame of the dataset at `root`, in index order.
 pub fn read_frames(root: &Path, image_keys: &[&str]) -> Result<Vec<StoredFrame>, ExportError> {
     let mut frames = Vec::new();
@@ -240,13 +151,6 @@ pub fn read_frames(root: &Path, image_keys: &[&str]) -> Result<Vec<StoredFrame>,
         }
     }
     Ok(frames)
-}
-
-fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
-    ExportError::InvalidDataset {
-        path: path.to_path_buf(),
-        problem: problem.into(),
-    }
 }
 
 /// `meta/info.json`, typed (leniently: see [`super::meta`]).
@@ -486,93 +390,6 @@ fn kept_info(kind: FeatureKind, info: Option<&Map<String, Value>>) -> Map<String
     }
 }
 
-/// Each row's value of an [`FeatureKind::Other`] feature, as stored.
-fn other_values(
-    batch: &RecordBatch,
-    feature: &FeatureSpec,
-    path: &Path,
-) -> Result<Vec<FeatureValue>, ExportError> {
-    let name = feature.name.as_str();
-    let column = batch
-        .column_by_name(name)
-        .ok_or_else(|| invalid(path, format!("column {name} is missing")))?;
-    let n: usize = feature.shape.iter().product();
-    let rows = batch.num_rows();
-    let bad = || {
-        invalid(
-            path,
-            format!(
-                "column {name} is not a {:?} of shape {:?}",
-                feature.dtype, feature.shape
-            ),
-        )
-    };
-    let any = column.as_any();
-    let (values, offset): (&dyn Array, usize) = match any.downcast_ref::<FixedSizeListArray>() {
-        Some(list) if list.value_length() as usize == n => {
-            (list.values().as_ref(), list.offset() * n)
-        }
-        Some(_) => return Err(bad()),
-        None if n == 1 => (column.as_ref(), 0),
-        None if matches!(feature.dtype, Dtype::Image | Dtype::String) => (column.as_ref(), 0),
-        None => return Err(bad()),
-    };
-    let chunk = |row: usize| offset + row * n..offset + (row + 1) * n;
-    Ok(match feature.dtype {
-        Dtype::Image => {
-            let images = any.downcast_ref::<StructArray>().ok_or_else(bad)?;
-            let bytes = images
-                .column_by_name("bytes")
-                .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
-                .ok_or_else(bad)?;
-            (0..rows)
-                .map(|r| FeatureValue::Image(bytes.value(r).to_vec()))
-                .collect()
-        }
-        Dtype::Float32 | Dtype::Float64 => {
-            let singles = values.as_any().downcast_ref::<Float32Array>();
-            let doubles = values.as_any().downcast_ref::<Float64Array>();
-            (0..rows)
-                .map(|r| match (feature.dtype, singles, doubles) {
-                    (Dtype::Float32, Some(a), _) => {
-                        Ok(FeatureValue::Float32(a.values()[chunk(r)].to_vec()))
-                    }
-                    // float64 read as float32 (`--cast float32`).
-                    (Dtype::Float32, _, Some(a)) => Ok(FeatureValue::Float32(
-                        a.values()[chunk(r)].iter().map(|&v| v as f32).collect(),
-                    )),
-                    (Dtype::Float64, _, Some(a)) => {
-                        Ok(FeatureValue::Float64(a.values()[chunk(r)].to_vec()))
-                    }
-                    _ => Err(bad()),
-                })
-                .collect::<Result<_, _>>()?
-        }
-        Dtype::Int64 => {
-            let a = values
-                .as_any()
-                .downcast_ref::<Int64Array>()
-                .ok_or_else(bad)?;
-            (0..rows)
-                .map(|r| FeatureValue::Int64(a.values()[chunk(r)].to_vec()))
-                .collect()
-        }
-        Dtype::String => {
-            let text = |r: usize| {
-                if let Some(a) = any.downcast_ref::<StringArray>() {
-                    Some(a.value(r).to_string())
-                } else {
-                    let a = any.downcast_ref::<LargeStringArray>()?;
-                    Some(a.value(r).to_string())
-                }
-            };
-            (0..rows)
-                .map(|r| text(r).map(FeatureValue::Text).ok_or_else(bad))
-                .collect::<Result<_, _>>()?
-        }
-    })
-}
-
 /// One cell of an episodes table as JSON (numbers, strings, booleans, lists of them).
 fn cell(column: &dyn Array, row: usize) -> Value {
     use arrow_array::{BooleanArray, ListArray, StringArray};
@@ -739,20 +556,6 @@ fn episode_rows_v21(root: &Path) -> Result<Vec<StoredEpisode>, ExportError> {
     Ok(rows)
 }
 
-/// A decoded frame row.
-struct Row {
-    episode: i64,
-    task: i64,
-    step: Step,
-    /// The row's `timestamp` (seconds), if the data has the column.
-    timestamp_secs: Option<f64>,
-    /// The encoded bytes of the RGB, mask and depth images, in the order of [`step_images`]:
-    /// decoded when the episode is put together ([`decode_row`]), never for a skipped one.
-    images: Vec<Vec<u8>>,
-    /// The data file the row is in.
-    file: std::sync::Arc<Path>,
-}
-
 /// Reads a LeRobot dataset (v3.0 or v2.1, image mode) episode by episode.
 pub struct LeRobotSource {
     root: PathBuf,
@@ -767,12 +570,8 @@ pub struct LeRobotSource {
     video_path: String,
     /// The video file read last, kept open for the next episode in it.
     video: Option<(PathBuf, VideoReader)>,
-    files: std::vec::IntoIter<PathBuf>,
-    /// The open data file and its batches.
-    batches: Option<(
-        PathBuf,
-        parquet::arrow::arrow_reader::ParquetRecordBatchReader,
-    )>,
+    /// The data files' rows.
+    data: super::rows::DataRows,
     /// Steps read past the end of the episode being assembled.
     pending: std::collections::VecDeque<Row>,
     /// Stored encodings a conversion will not copy (see [`EpisodeSource::drop_stored`]).
@@ -894,8 +693,7 @@ impl LeRobotSource {
                 .to_string(),
             video: None,
             tasks,
-            files: data_files(root)?.into_iter(),
-            batches: None,
+            data: super::rows::DataRows::new(data_files(root)?),
             pending: Default::default(),
             unused_stored: Vec::new(),
             returned: 0,
@@ -1024,38 +822,11 @@ impl LeRobotSource {
             file: Some(path),
         })
     }
-
-    /// The next batch of rows, or None at the end.
-    fn next_rows(&mut self) -> Result<Option<Vec<Row>>, ExportError> {
-        loop {
-            if self.batches.is_none() {
-                let Some(path) = self.files.next() else {
-                    return Ok(None);
-                };
-                let parquet_error = ExportError::parquet(&path);
-                let reader = open_parquet(&path)?
-                    .with_batch_size(64)
-                    .build()
-                    .map_err(&parquet_error)?;
-                self.batches = Some((path, reader));
-            }
-            let Some((path, reader)) = self.batches.as_mut() else {
-                continue;
-            };
-            match reader.next() {
-                Some(batch) => {
-                    let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
-                    return rows_of(&batch, path, &self.info).map(Some);
-                }
-                None => self.batches = None,
-            }
-        }
-    }
 }
 
 /// The image features surgvla decodes into steps (RGB, mask, depth), in feature order: a
 /// [`Row`] holds their encoded bytes.
-fn step_images(info: &DatasetInfo) -> impl Iterator<Item = &FeatureSpec> {
+pub(super) fn step_images(info: &DatasetInfo) -> impl Iterator<Item = &FeatureSpec> {
     info.features
         .iter()
         .filter(|f| f.in_steps() && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
@@ -1112,73 +883,6 @@ fn decode_row(
     Ok(kept)
 }
 
-/// Decodes a batch of frame rows into steps.
-fn rows_of(batch: &RecordBatch, path: &Path, info: &DatasetInfo) -> Result<Vec<Row>, ExportError> {
-    let file: std::sync::Arc<Path> = std::sync::Arc::from(path);
-    let episode = column::<Int64Array>(batch, "episode_index", path)?;
-    let task = column::<Int64Array>(batch, "task_index", path)?;
-    let timestamp = batch
-        .column_by_name("timestamp")
-        .and_then(|c| c.as_any().downcast_ref::<Float32Array>());
-    let mut steps: Vec<Row> = (0..batch.num_rows())
-        .map(|row| Row {
-            episode: episode.value(row),
-            task: task.value(row),
-            timestamp_secs: timestamp
-                .filter(|t| t.is_valid(row))
-                .map(|t| f64::from(t.value(row))),
-            step: Step::empty(),
-            images: Vec::new(),
-            file: file.clone(),
-        })
-        .collect();
-    for feature in info.features.iter().filter(|f| f.in_steps()) {
-        let name = feature.name.as_str();
-        if feature.kind == FeatureKind::Other {
-            let values = other_values(batch, feature, path)?;
-            for (row, value) in steps.iter_mut().zip(values) {
-                row.step.other.push(value);
-            }
-            continue;
-        }
-        match feature.dtype {
-            Dtype::Image => {
-                let images = column::<StructArray>(batch, name, path)?;
-                let bytes = images
-                    .column_by_name("bytes")
-                    .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
-                    .ok_or_else(|| invalid(path, format!("{name} has no image bytes")))?;
-                for (row, Row { images, .. }) in steps.iter_mut().enumerate() {
-                    images.push(bytes.value(row).to_vec());
-                }
-            }
-            _ => {
-                let list = column::<FixedSizeListArray>(batch, name, path)?;
-                for (row, Row { step, .. }) in steps.iter_mut().enumerate() {
-                    let values = vector(list, row);
-                    let target: &mut [f32] = match feature.kind {
-                        FeatureKind::State => &mut step.state,
-                        FeatureKind::Action => &mut step.action,
-                        _ => &mut step.environment_state,
-                    };
-                    if values.len() != target.len() {
-                        return Err(invalid(
-                            path,
-                            format!(
-                                "{name} row {row} has {} values, not {}",
-                                values.len(),
-                                target.len()
-                            ),
-                        ));
-                    }
-                    target.copy_from_slice(&values);
-                }
-            }
-        }
-    }
-    Ok(steps)
-}
-
 impl LeRobotSource {
     /// After the last row: None, once the episodes read agree with info.json's total.
     fn end<T>(&mut self) -> Option<Result<T, ExportError>> {
@@ -1201,13 +905,36 @@ impl LeRobotSource {
 /// [`LeRobotSource::take_episode`]).
 type TakenEpisode = (i64, Vec<Row>, Option<StoredEpisode>);
 
+/// How much of an episode's rows [`LeRobotSource::take_episode`] reads.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Take {
+    /// Every column.
+    Whole,
+    /// Every column but the images.
+    Light,
+    /// Nothing the row groups' statistics can tell without reading (no rows returned).
+    Skip,
+}
+
 impl LeRobotSource {
-    /// The next episode's index, its rows (images still encoded; each its task) and its row of
-    /// the episodes table; None after the last.
-    fn take_episode(&mut self) -> Option<Result<TakenEpisode, ExportError>> {
+    /// The next episode's index, its rows (images still encoded unless `take` leaves them
+    /// out; each its task) and its row of the episodes table; None after the last.
+    fn take_episode(&mut self, take: Take) -> Option<Result<TakenEpisode, ExportError>> {
         if self.ended {
             return None;
         }
+        match self.take_rows(take) {
+            Ok((Some(index), rows)) => self.taken(index, rows),
+            Ok((None, _)) => self.end(),
+            Err(error) => {
+                self.ended = true;
+                Some(Err(error))
+            }
+        }
+    }
+
+    /// The next episode's index (None: the data is done) and its rows.
+    fn take_rows(&mut self, take: Take) -> Result<(Option<i64>, Vec<Row>), ExportError> {
         let mut rows = Vec::new();
         let mut current: Option<i64> = None;
         loop {
@@ -1221,18 +948,33 @@ impl LeRobotSource {
                 }
                 continue;
             }
-            match self.next_rows() {
-                Ok(Some(batch)) => self.pending.extend(batch),
-                Ok(None) => break,
-                Err(error) => {
-                    self.ended = true;
-                    return Some(Err(error));
+            match self.data.next()? {
+                None => break,
+                // A group of one episode, the statistics say: passed over or read lightly.
+                Some(Next::Episode(episode)) if take != Take::Whole => {
+                    if current.is_some_and(|e| e != episode) {
+                        break;
+                    }
+                    if take == Take::Skip {
+                        current = Some(episode);
+                        self.data.skip_group();
+                    } else {
+                        let group = self.data.read_group(&self.info, false)?;
+                        self.pending.extend(group);
+                    }
+                }
+                Some(_) => {
+                    if let Some(batch) = self.data.read_batch(&self.info)? {
+                        self.pending.extend(batch);
+                    }
                 }
             }
         }
-        let Some(index) = current else {
-            return self.end();
-        };
+        Ok((current, rows))
+    }
+
+    /// Episode `index` taken: checked to come next, with its row of the episodes table.
+    fn taken(&mut self, index: i64, rows: Vec<Row>) -> Option<Result<TakenEpisode, ExportError>> {
         if index < 0 || index as u64 != self.returned {
             self.ended = true;
             return Some(Err(invalid(
@@ -1254,11 +996,12 @@ impl LeRobotSource {
         }
     }
 }
+
 impl Iterator for LeRobotSource {
     type Item = Result<Episode, ExportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        let (index, rows, row) = match self.take_episode()? {
+        let (index, rows, row) = match self.take_episode(Take::Whole)? {
             Ok(taken) => taken,
             Err(error) => return Some(Err(error)),
         };
@@ -1388,19 +1131,20 @@ impl EpisodeSource for LeRobotSource {
 
     /// The episode's rows are read, but its images are never decoded nor its video read.
     fn skip_episode(&mut self) -> Option<Result<(), ExportError>> {
-        self.take_episode().map(|taken| taken.map(|_| ()))
+        self.take_episode(Take::Skip).map(|taken| taken.map(|_| ()))
     }
 
-    /// The episode's rows are read for their tasks; its images are never decoded nor its
-    /// video read.
+    /// The episode's rows are read for their tasks, without their images (nor its video).
     fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
-        let skimmed = self.take_episode()?.and_then(|(index, rows, row)| {
-            let tasks: Vec<i64> = rows.iter().map(|r| r.task).collect();
-            Ok(crate::export::source::Skimmed {
-                meta: self.meta(index, &tasks, row.as_ref())?,
-                steps: rows.len() as u64,
-            })
-        });
+        let skimmed = self
+            .take_episode(Take::Light)?
+            .and_then(|(index, rows, row)| {
+                let tasks: Vec<i64> = rows.iter().map(|r| r.task).collect();
+                Ok(crate::export::source::Skimmed {
+                    meta: self.meta(index, &tasks, row.as_ref())?,
+                    steps: rows.len() as u64,
+                })
+            });
         if skimmed.is_err() {
             self.ended = true;
         }

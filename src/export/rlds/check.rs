@@ -75,6 +75,7 @@ fn scan_shard(
                 if let Some(Feature::Int64(first)) = example.get("steps/is_first") {
                     steps += first.len() as u64;
                 }
+                learn_tasks(&example, findings);
                 if let Some(leaves) = leaves {
                     for (step, check, message) in
                         check_record(leaves, &example, !quick || count == 0)
@@ -253,6 +254,29 @@ fn listed_shards(
     (expected, lengths)
 }
 
+/// What `info` lists of an episode (a record): its first instruction, and its task id with all
+/// its instructions when it records one (surgvla's `episode_metadata/task_id`).
+fn learn_tasks(example: &BTreeMap<String, Feature>, findings: &Findings) {
+    let text = |key: &str| match example.get(key) {
+        Some(Feature::Bytes(values)) => (values.iter())
+            .map(|v| String::from_utf8_lossy(v).into_owned())
+            .collect(),
+        _ => Vec::new(),
+    };
+    let instructions = text("steps/language_instruction");
+    let task_id = text("episode_metadata/task_id").into_iter().next();
+    findings.learn(|facts| {
+        if let Some(first) = instructions.first() {
+            *facts.tasks.entry(first.clone()).or_default() += 1;
+        }
+        if let Some(id) = task_id.filter(|id| !id.is_empty()) {
+            let fact = facts.task_ids.entry(id).or_default();
+            fact.episodes += 1;
+            fact.instructions.extend(instructions.iter().cloned());
+        }
+    });
+}
+
 /// What `info` prints: the features as `features.json` declares them, and our metadata.
 fn learn_facts(leaves: Option<&BTreeMap<String, Leaf>>, surgvla: &Value, findings: &Findings) {
     findings.learn(|facts| {
@@ -308,12 +332,6 @@ fn check_our_episodes(
         match episode {
             Ok(episode) => {
                 check_semantics(&episode, &semantics, &At::default(), findings);
-                findings.learn(|facts| {
-                    *facts
-                        .tasks
-                        .entry(episode.meta.instruction.clone())
-                        .or_default() += 1
-                });
                 episode_index += 1;
             }
             Err(error) => {

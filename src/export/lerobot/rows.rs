@@ -1,0 +1,479 @@
+//! A LeRobot dataset's data files read row group by row group ([`DataRows`]): frame rows
+//! ([`Row`]) with their images still encoded, and for what only lists or passes over episodes,
+//! less. surgvla (and lerobot through pyarrow) writes each episode as whole row groups whose
+//! `episode_index` statistics name it; such a group is passed over without reading a byte of
+//! it ([`DataRows::skip_group`]), or read without its image columns
+//! ([`DataRows::read_group`], `images: false`), which are nearly all of a file's bytes. A group
+//! whose statistics name no single episode is read whole, 64 rows at a time, and the rows say
+//! where each episode ends.
+//!
+//! Here too: a parquet footer checked before anything it claims is allocated
+//! ([`footer_problem`]), and the typed column access the readers share.
+
+use crate::episode::{Dtype, FeatureKind, FeatureSpec, FeatureValue, Step};
+use crate::export::error::ExportError;
+use crate::export::info::DatasetInfo;
+use arrow_array::{
+    Array, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    LargeStringArray, RecordBatch, StringArray, StructArray,
+};
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::{
+    ArrowReaderMetadata, ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder,
+};
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+/// Rows read at a time from a group read whole: a few rows' images, not an episode's.
+const BATCH_ROWS: usize = 64;
+/// Rows read at a time from a group read without its images (a few hundred bytes a row).
+const LIGHT_BATCH_ROWS: usize = 4096;
+
+/// One frame's row as stored.
+pub(super) struct Row {
+    pub episode: i64,
+    pub task: i64,
+    pub step: Step,
+    /// The row's `timestamp` (seconds), if the data has the column.
+    pub timestamp_secs: Option<f64>,
+    /// The encoded bytes of the RGB, mask and depth images, in the order of
+    /// [`super::read::step_images`]: decoded when the episode is put together, never for a
+    /// skipped one; empty when the row was read without its images.
+    pub images: Vec<Vec<u8>>,
+    /// The data file the row is in.
+    pub file: std::sync::Arc<Path>,
+}
+
+/// What comes next in the data files.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) enum Next {
+    /// A row group whose statistics say it holds episode `episode` only.
+    Episode(i64),
+    /// Rows whose episodes only reading them tells (a group read whole, or one whose
+    /// statistics name no single episode): [`DataRows::read_batch`].
+    Rows,
+}
+
+/// An open data file.
+struct OpenFile {
+    path: PathBuf,
+    file: File,
+    metadata: ArrowReaderMetadata,
+    /// The row group read next.
+    group: usize,
+    /// A group being read whole, 64 rows at a time.
+    reader: Option<ParquetRecordBatchReader>,
+}
+
+/// The data files, in order, read as [`Next`] says.
+pub(super) struct DataRows {
+    files: std::vec::IntoIter<PathBuf>,
+    open: Option<OpenFile>,
+}
+
+impl DataRows {
+    pub(super) fn new(files: Vec<PathBuf>) -> Self {
+        DataRows {
+            files: files.into_iter(),
+            open: None,
+        }
+    }
+
+    /// What comes next (None: the files are done), opening the next file when one is done.
+    pub(super) fn next(&mut self) -> Result<Option<Next>, ExportError> {
+        loop {
+            if let Some(open) = &self.open {
+                if open.reader.is_some() {
+                    return Ok(Some(Next::Rows));
+                }
+                let groups = open.metadata.metadata().row_groups();
+                if let Some(group) = groups.get(open.group) {
+                    return Ok(Some(
+                        single_episode(group).map_or(Next::Rows, Next::Episode),
+                    ));
+                }
+            }
+            let Some(path) = self.files.next() else {
+                self.open = None;
+                return Ok(None);
+            };
+            let (file, metadata) = open_parquet_metadata(&path)?;
+            self.open = Some(OpenFile {
+                path,
+                file,
+                metadata,
+                group: 0,
+                reader: None,
+            });
+        }
+    }
+
+    /// Passes over the next row group unread.
+    pub(super) fn skip_group(&mut self) {
+        if let Some(open) = &mut self.open {
+            open.group += 1;
+        }
+    }
+
+    /// Every row of the next row group, with its images or without.
+    pub(super) fn read_group(
+        &mut self,
+        info: &DatasetInfo,
+        images: bool,
+    ) -> Result<Vec<Row>, ExportError> {
+        let Some(open) = &mut self.open else {
+            return Ok(Vec::new());
+        };
+        let batch_rows = if images { BATCH_ROWS } else { LIGHT_BATCH_ROWS };
+        let mut reader = open.reader(info, images, batch_rows)?;
+        let mut rows = Vec::new();
+        for batch in &mut reader {
+            let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
+            rows.extend(rows_of(&batch, &open.path, info, images)?);
+        }
+        Ok(rows)
+    }
+
+    /// The next 64 rows of the group being read whole (started when none is); None when the
+    /// files are done.
+    pub(super) fn read_batch(
+        &mut self,
+        info: &DatasetInfo,
+    ) -> Result<Option<Vec<Row>>, ExportError> {
+        loop {
+            if self.next()?.is_none() {
+                return Ok(None);
+            }
+            let Some(open) = &mut self.open else {
+                return Ok(None);
+            };
+            if open.reader.is_none() {
+                let reader = open.reader(info, true, BATCH_ROWS)?;
+                open.reader = Some(reader);
+            }
+            let Some(reader) = &mut open.reader else {
+                continue;
+            };
+            match reader.next() {
+                Some(batch) => {
+                    let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
+                    return rows_of(&batch, &open.path, info, true).map(Some);
+                }
+                None => open.reader = None,
+            }
+        }
+    }
+}
+
+impl OpenFile {
+    /// A reader of the next row group (which it passes), with its image columns or without.
+    fn reader(
+        &mut self,
+        info: &DatasetInfo,
+        images: bool,
+        batch_rows: usize,
+    ) -> Result<ParquetRecordBatchReader, ExportError> {
+        let group = self.group;
+        self.group += 1;
+        let file = self.file.try_clone().map_err(ExportError::io(&self.path))?;
+        let mut builder =
+            ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())
+                .with_row_groups(vec![group])
+                .with_batch_size(batch_rows);
+        if !images {
+            let schema = self.metadata.parquet_schema();
+            let is_image = |name: &str| {
+                (info.features.iter()).any(|f| f.name == name && f.dtype == Dtype::Image)
+            };
+            let roots = (schema.root_schema().get_fields().iter().enumerate())
+                .filter(|(_, field)| !is_image(field.name()))
+                .map(|(i, _)| i);
+            builder = builder.with_projection(ProjectionMask::roots(schema, roots));
+        }
+        builder.build().map_err(ExportError::parquet(&self.path))
+    }
+}
+
+/// The one episode a row group's `episode_index` statistics say it holds, if they say so.
+fn single_episode(group: &parquet::file::metadata::RowGroupMetaData) -> Option<i64> {
+    let chunk = (group.columns().iter()).find(|c| c.column_path().string() == "episode_index")?;
+    match chunk.statistics()? {
+        parquet::file::statistics::Statistics::Int64(s) => {
+            let (min, max) = (s.min_opt()?, s.max_opt()?);
+            (min == max && group.num_rows() > 0).then_some(*min)
+        }
+        _ => None,
+    }
+}
+
+/// Decodes a batch of frame rows into steps (`images`: the batch has the image columns, and
+/// each row keeps their bytes).
+fn rows_of(
+    batch: &RecordBatch,
+    path: &Path,
+    info: &DatasetInfo,
+    images: bool,
+) -> Result<Vec<Row>, ExportError> {
+    let file: std::sync::Arc<Path> = std::sync::Arc::from(path);
+    let episode = column::<Int64Array>(batch, "episode_index", path)?;
+    let task = column::<Int64Array>(batch, "task_index", path)?;
+    let timestamp = batch
+        .column_by_name("timestamp")
+        .and_then(|c| c.as_any().downcast_ref::<Float32Array>());
+    let mut steps: Vec<Row> = (0..batch.num_rows())
+        .map(|row| Row {
+            episode: episode.value(row),
+            task: task.value(row),
+            timestamp_secs: timestamp
+                .filter(|t| t.is_valid(row))
+                .map(|t| f64::from(t.value(row))),
+            step: Step::empty(),
+            images: Vec::new(),
+            file: file.clone(),
+        })
+        .collect();
+    for feature in info.features.iter().filter(|f| f.in_steps()) {
+        let name = feature.name.as_str();
+        if feature.dtype == Dtype::Image && !images {
+            continue;
+        }
+        if feature.kind == FeatureKind::Other {
+            let values = other_values(batch, feature, path)?;
+            for (row, value) in steps.iter_mut().zip(values) {
+                row.step.other.push(value);
+            }
+            continue;
+        }
+        match feature.dtype {
+            Dtype::Image => {
+                let images = column::<StructArray>(batch, name, path)?;
+                let bytes = images
+                    .column_by_name("bytes")
+                    .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
+                    .ok_or_else(|| invalid(path, format!("{name} has no image bytes")))?;
+                for (row, Row { images, .. }) in steps.iter_mut().enumerate() {
+                    images.push(bytes.value(row).to_vec());
+                }
+            }
+            _ => {
+                let list = column::<FixedSizeListArray>(batch, name, path)?;
+                for (row, Row { step, .. }) in steps.iter_mut().enumerate() {
+                    let values = vector(list, row);
+                    let target: &mut [f32] = match feature.kind {
+                        FeatureKind::State => &mut step.state,
+                        FeatureKind::Action => &mut step.action,
+                        _ => &mut step.environment_state,
+                    };
+                    if values.len() != target.len() {
+                        return Err(invalid(
+                            path,
+                            format!(
+                                "{name} row {row} has {} values, not {}",
+                                values.len(),
+                                target.len()
+                            ),
+                        ));
+                    }
+                    target.copy_from_slice(&values);
+                }
+            }
+        }
+    }
+    Ok(steps)
+}
+
+/// Rows a parquet file may claim per byte of its size. Real files hold far fewer (an episode's
+/// row carries a few hundred bytes); a delta-encoded constant column compresses to about a bit
+/// per row. A footer claiming more rows, or column chunks beyond the end of the file, is refused
+/// before any of it is allocated.
+const MAX_ROWS_PER_BYTE: u64 = 64;
+
+/// What is wrong with a parquet footer given the file's size, if anything: row counts that the
+/// file cannot hold, column chunks at negative offsets or sizes (the parquet crate asserts on
+/// them), outside the file, or together larger than it (chunks never share bytes: thousands of
+/// row groups pointing at the same bytes would make every reader's work unbounded).
+pub fn footer_problem(
+    metadata: &parquet::file::metadata::ParquetMetaData,
+    file_bytes: u64,
+) -> Option<String> {
+    let mut rows: u64 = 0;
+    let mut chunk_bytes: u64 = 0;
+    for (g, group) in metadata.row_groups().iter().enumerate() {
+        let Ok(group_rows) = u64::try_from(group.num_rows()) else {
+            return Some(format!("row group {g} claims {} rows", group.num_rows()));
+        };
+        rows = rows.saturating_add(group_rows);
+        for column in group.columns() {
+            let start = column
+                .dictionary_page_offset()
+                .unwrap_or_else(|| column.data_page_offset());
+            let (Ok(start), Ok(length)) = (
+                u64::try_from(start),
+                u64::try_from(column.compressed_size()),
+            ) else {
+                return Some(format!(
+                    "row group {g} places column {} at bytes {start}..+{}",
+                    column.column_path(),
+                    column.compressed_size()
+                ));
+            };
+            if column.data_page_offset() < 0
+                || start.checked_add(length).is_none_or(|end| end > file_bytes)
+            {
+                return Some(format!(
+                    "row group {g} places column {} at bytes {start}..+{length}, beyond the file's {file_bytes}",
+                    column.column_path()
+                ));
+            }
+            chunk_bytes = chunk_bytes.saturating_add(length);
+        }
+    }
+    if chunk_bytes > file_bytes {
+        return Some(format!(
+            "its column chunks claim {chunk_bytes} bytes in a file of {file_bytes} (chunks that share bytes)"
+        ));
+    }
+    if rows > file_bytes.saturating_mul(MAX_ROWS_PER_BYTE) {
+        return Some(format!(
+            "its footer claims {rows} rows in a file of {file_bytes} bytes"
+        ));
+    }
+    // The file's own count is the sum of its row groups' (readers differ on which they trust).
+    let stated = metadata.file_metadata().num_rows();
+    (u64::try_from(stated) != Ok(rows))
+        .then(|| format!("its footer claims {stated} rows where its row groups hold {rows}"))
+}
+
+/// A parquet file and its footer, checked ([`footer_problem`]).
+pub(super) fn open_parquet_metadata(
+    path: &Path,
+) -> Result<(File, parquet::arrow::arrow_reader::ArrowReaderMetadata), ExportError> {
+    let file = crate::export::bounded::open_regular(path)?;
+    let file_bytes = file.metadata().map_err(ExportError::io(path))?.len();
+    let metadata =
+        parquet::arrow::arrow_reader::ArrowReaderMetadata::load(&file, Default::default())
+            .map_err(ExportError::parquet(path))?;
+    if let Some(problem) = footer_problem(metadata.metadata(), file_bytes) {
+        return Err(invalid(path, problem));
+    }
+    Ok((file, metadata))
+}
+
+pub(super) fn column<'a, T: 'static>(
+    batch: &'a RecordBatch,
+    name: &str,
+    path: &Path,
+) -> Result<&'a T, ExportError> {
+    batch
+        .column_by_name(name)
+        .and_then(|c| c.as_any().downcast_ref::<T>())
+        .ok_or_else(|| {
+            ExportError::InvalidEpisode(format!(
+                "{}: column {name} missing or of the wrong type",
+                path.display()
+            ))
+        })
+}
+
+pub(super) fn vector(list: &FixedSizeListArray, row: usize) -> Vec<f32> {
+    let values = list.value(row);
+    values
+        .as_any()
+        .downcast_ref::<Float32Array>()
+        .map(|v| v.values().to_vec())
+        .unwrap_or_default()
+}
+
+pub(super) fn invalid(path: &Path, problem: impl Into<String>) -> ExportError {
+    ExportError::InvalidDataset {
+        path: path.to_path_buf(),
+        problem: problem.into(),
+    }
+}
+
+/// Each row's value of an [`FeatureKind::Other`] feature, as stored.
+pub(super) fn other_values(
+    batch: &RecordBatch,
+    feature: &FeatureSpec,
+    path: &Path,
+) -> Result<Vec<FeatureValue>, ExportError> {
+    let name = feature.name.as_str();
+    let column = batch
+        .column_by_name(name)
+        .ok_or_else(|| invalid(path, format!("column {name} is missing")))?;
+    let n: usize = feature.shape.iter().product();
+    let rows = batch.num_rows();
+    let bad = || {
+        invalid(
+            path,
+            format!(
+                "column {name} is not a {:?} of shape {:?}",
+                feature.dtype, feature.shape
+            ),
+        )
+    };
+    let any = column.as_any();
+    let (values, offset): (&dyn Array, usize) = match any.downcast_ref::<FixedSizeListArray>() {
+        Some(list) if list.value_length() as usize == n => {
+            (list.values().as_ref(), list.offset() * n)
+        }
+        Some(_) => return Err(bad()),
+        None if n == 1 => (column.as_ref(), 0),
+        None if matches!(feature.dtype, Dtype::Image | Dtype::String) => (column.as_ref(), 0),
+        None => return Err(bad()),
+    };
+    let chunk = |row: usize| offset + row * n..offset + (row + 1) * n;
+    Ok(match feature.dtype {
+        Dtype::Image => {
+            let images = any.downcast_ref::<StructArray>().ok_or_else(bad)?;
+            let bytes = images
+                .column_by_name("bytes")
+                .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
+                .ok_or_else(bad)?;
+            (0..rows)
+                .map(|r| FeatureValue::Image(bytes.value(r).to_vec()))
+                .collect()
+        }
+        Dtype::Float32 | Dtype::Float64 => {
+            let singles = values.as_any().downcast_ref::<Float32Array>();
+            let doubles = values.as_any().downcast_ref::<Float64Array>();
+            (0..rows)
+                .map(|r| match (feature.dtype, singles, doubles) {
+                    (Dtype::Float32, Some(a), _) => {
+                        Ok(FeatureValue::Float32(a.values()[chunk(r)].to_vec()))
+                    }
+                    // float64 read as float32 (`--cast float32`).
+                    (Dtype::Float32, _, Some(a)) => Ok(FeatureValue::Float32(
+                        a.values()[chunk(r)].iter().map(|&v| v as f32).collect(),
+                    )),
+                    (Dtype::Float64, _, Some(a)) => {
+                        Ok(FeatureValue::Float64(a.values()[chunk(r)].to_vec()))
+                    }
+                    _ => Err(bad()),
+                })
+                .collect::<Result<_, _>>()?
+        }
+        Dtype::Int64 => {
+            let a = values
+                .as_any()
+                .downcast_ref::<Int64Array>()
+                .ok_or_else(bad)?;
+            (0..rows)
+                .map(|r| FeatureValue::Int64(a.values()[chunk(r)].to_vec()))
+                .collect()
+        }
+        Dtype::String => {
+            let text = |r: usize| {
+                if let Some(a) = any.downcast_ref::<StringArray>() {
+                    Some(a.value(r).to_string())
+                } else {
+                    let a = any.downcast_ref::<LargeStringArray>()?;
+                    Some(a.value(r).to_string())
+                }
+            };
+            (0..rows)
+                .map(|r| text(r).map(FeatureValue::Text).ok_or_else(bad))
+                .collect::<Result<_, _>>()?
+        }
+    })
+}
