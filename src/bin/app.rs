@@ -14,11 +14,11 @@ struct Cli {
     #[command(subcommand)]
     command: Command,
     /// Print no progress (no bars on a terminal, no progress lines elsewhere).
-    #[arg(long, global = true)]
+    #[arg(long, global = true, help_heading = "Running")]
     quiet: bool,
     /// When stderr is not a terminal (a log file, a batch job), print a progress line (done,
     /// rate, time left) every this many seconds.
-    #[arg(long, global = true, value_name = "SECS", default_value_t = 10.0, value_parser = progress_interval)]
+    #[arg(long, global = true, value_name = "SECS", default_value_t = 10.0, value_parser = progress_interval, help_heading = "Running")]
     progress_interval: f64,
 }
 

@@ -79,6 +79,7 @@ pub(crate) enum LayoutVersion {
 
 /// Options of the LeRobot format.
 #[derive(Args, Debug)]
+#[command(next_help_heading = "LeRobot")]
 pub(crate) struct LeRobotArgs {
     /// LeRobot: store the endoscope RGB as MP4 video (video mode) instead of PNG: av1 (rav1e,
     /// LeRobot's codec family) or h264 (openh264, faster). `--video` alone means av1.
@@ -126,6 +127,7 @@ impl LeRobotArgs {
 
 /// Options of the RLDS format.
 #[derive(Args, Debug)]
+#[command(next_help_heading = "RLDS")]
 pub(crate) struct RldsArgs {
     /// RLDS: the dataset name, its folder and shard prefix, what `tfds.builder(name)` takes
     /// (snake_case; default surgvla_benchmark).
@@ -210,6 +212,7 @@ impl RldsArgs {
 
 /// Options of the point-cloud formats.
 #[derive(Args, Debug)]
+#[command(next_help_heading = "Point clouds and zarr")]
 pub(crate) struct CloudArgs {
     /// Point clouds: points per frame (default 1024; DP3 also uses 512).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=65_536))]

@@ -67,6 +67,7 @@ pub(crate) enum Gripper {
 
 /// What episodes to make: tasks, counts, seed, scene options, experts.
 #[derive(Args, Debug)]
+#[command(next_help_heading = "Episodes")]
 pub(crate) struct JobArgs {
     /// Tasks: "all" or a comma-separated list of names, ids (T1-1) and levels (L1, level2: that
     /// level's tasks), mixed.
@@ -79,7 +80,7 @@ pub(crate) struct JobArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Worker threads (default and 0: one per core; at most 8 per core).
-    #[arg(long, value_parser = crate::app::threads_arg)]
+    #[arg(long, value_parser = crate::app::threads_arg, help_heading = "Running")]
     pub(crate) threads: Option<usize>,
     /// Distractors in the level-2 pick tasks (T2-1, T2-2).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=3))]

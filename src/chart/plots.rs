@@ -31,7 +31,8 @@ pub struct RateChart {
 
 /// The plot area's height in pixels: a rate of 1 is a bar this tall.
 pub const PLOT_HEIGHT_PX: usize = 240;
-const TOP_PX: usize = 56;
+/// Room above the plot: the title, the legend, and the value labels of bars at 100 %.
+const TOP_PX: usize = 76;
 const LEFT_PX: usize = 56;
 const BAR_PX: usize = 14;
 /// The height a bar of 0 % is drawn (so that it shows, as a stub on the axis).
@@ -183,8 +184,41 @@ pub fn rate_chart(chart: &RateChart) -> (Canvas, BarLayout) {
             canvas.fill(middle - 3, bottom, middle + 4, bottom + 1, BLACK);
         }
     }
+    // Over everything, each bar's value in %, above its whisker: neighbouring series take
+    // turns at two heights, so that their labels (wider than a bar) never meet.
+    for (s, rates) in chart.rates.iter().enumerate() {
+        for (c, rate) in rates.iter().enumerate() {
+            let Some(rate) = rate else {
+                continue;
+            };
+            let (middle, y) = value_label_at(&layout, c, s, rate.high);
+            let label = format!("{:.0}", 100.0 * rate.value);
+            let half = Canvas::text_width(&label, 1) / 2;
+            canvas.fill(
+                middle - half - 1,
+                y - 1,
+                middle + half + 1,
+                y + GLYPH_PX + 1,
+                WHITE,
+            );
+            canvas.text_centred(middle, y, &label, 1, BLACK);
+        }
+    }
     category_labels(&mut canvas, chart, &layout);
     (canvas, layout)
+}
+
+/// Where the value label of the bar of `series` in `category` is drawn: its centre x and top
+/// y, above the whisker's top at `high` (the odd series one line higher).
+pub fn value_label_at(
+    layout: &BarLayout,
+    category: usize,
+    series: usize,
+    high: f64,
+) -> (usize, usize) {
+    let middle = layout.bar_x(category, series) + BAR_PX / 2;
+    let y = BarLayout::y_of(high) - 3 - GLYPH_PX - (series % 2) * (GLYPH_PX + 2);
+    (middle, y)
 }
 
 /// A histogram: `counts` of equal bins spanning [`low`, `high`].
@@ -338,8 +372,8 @@ mod tests {
     fn bars_are_as_tall_as_their_rates_in_their_series_colours() {
         let (canvas, layout) = rate_chart(&chart());
         // Three tasks of two bars: each slot as wide as a 6-character label plus the gap.
-        assert_eq!((canvas.width_px, canvas.height_px), (270, 352));
-        assert_eq!(canvas.pixels.len(), 270 * 352 * 3);
+        assert_eq!((canvas.width_px, canvas.height_px), (270, 372));
+        assert_eq!(canvas.pixels.len(), 270 * 372 * 3);
         let full = PLOT_HEIGHT_PX;
         assert_eq!(bar_height(&canvas, &layout, 0, 0), full);
         assert_eq!(bar_height(&canvas, &layout, 1, 0), full / 2);
@@ -354,6 +388,42 @@ mod tests {
             let row: Vec<_> = (middle - 2..=middle + 2).map(|x| canvas.at(x, y)).collect();
             assert_eq!(row, [WHITE, BLACK, BLACK, BLACK, WHITE].map(Some), "at {y}");
         }
+    }
+
+    #[test]
+    fn every_bar_carries_its_value_in_black_on_white() {
+        let chart = chart();
+        let (canvas, layout) = rate_chart(&chart);
+        for (s, rates) in chart.rates.iter().enumerate() {
+            for (c, rate) in rates.iter().enumerate() {
+                let Some(rate) = rate else { continue };
+                let (middle, y) = value_label_at(&layout, c, s, rate.high);
+                let label = format!("{:.0}", 100.0 * rate.value);
+                let half = Canvas::text_width(&label, 1) / 2;
+                let (mut black, mut white) = (0, 0);
+                for py in y..y + GLYPH_PX {
+                    for px in middle - half..middle + half {
+                        match canvas.at(px, py) {
+                            Some(BLACK) => black += 1,
+                            Some(WHITE) => white += 1,
+                            other => panic!("{other:?} in the label of {c}, {s}"),
+                        }
+                    }
+                }
+                // The font draws a digit with 10 to 40 of its 64 pixels, the rest white.
+                let digits = label.len();
+                assert!(
+                    (10 * digits..=40 * digits).contains(&black) && black + white == 64 * digits,
+                    "{label}: {black} / {white}"
+                );
+                // Clear of the legend, which ends 42 px down.
+                assert!(y > 42, "{label} at {y}");
+            }
+        }
+        // The labels of the two series in one category stand at different heights.
+        let (_, y0) = value_label_at(&layout, 2, 0, 0.35);
+        let (_, y1) = value_label_at(&layout, 2, 1, 0.35);
+        assert!(y0.abs_diff(y1) > GLYPH_PX, "{y0} {y1}");
     }
 
     #[test]
@@ -374,7 +444,7 @@ mod tests {
         );
     }
 
-    const SNAPSHOT_CRC: &str = "5a2355a6";
+    const SNAPSHOT_CRC: &str = "f37483e7";
 
     #[test]
     fn histograms_scale_to_their_peak() {

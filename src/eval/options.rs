@@ -67,6 +67,9 @@ pub struct EvalOptions {
     /// Continue an interrupted run of the same evaluation in `out` from the trials its
     /// journal holds.
     pub resume: bool,
+    /// The policy's name in the results, tables and charts (None: a served policy's own, from
+    /// its metadata, else its URL; a built-in policy's name).
+    pub name: Option<String>,
     pub camera: Camera,
     /// The variants to run each task's trials under, in order (None: the unperturbed trials
     /// only); each variant's trials share the unperturbed ones' seeds.
@@ -93,6 +96,7 @@ impl Default for EvalOptions {
             out: PathBuf::from("eval"),
             replace: false,
             resume: false,
+            name: None,
             camera: Camera::endoscope(),
             suite: None,
             render_builtin: false,

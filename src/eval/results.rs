@@ -251,7 +251,8 @@ fn stage_counts(task: TaskId, trials: &[TrialResult]) -> IndexMap<&'static str, 
 pub struct EvalReport {
     /// [`RESULTS_SCHEMA`]: the version of `schemas/eval_results.schema.json` the file follows.
     pub results_schema: &'static str,
-    /// "expert", "random", "noop", "replay" or the server's URL.
+    /// The policy's name: `--name`, else a served policy's own from its metadata, else its URL;
+    /// "expert", "random", "noop" or "replay" for the built-in ones. (The options keep the URL.)
     pub policy: String,
     /// The server's metadata message (remote policies), arrays summarised.
     pub policy_metadata: serde_json::Value,

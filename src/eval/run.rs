@@ -338,13 +338,10 @@ pub fn evaluate(
         Prepared::Remote(policy) => metadata_json(&policy.metadata),
         _ => serde_json::Value::Null,
     };
-    let mut report = EvalReport::new(
-        choice.name(),
-        metadata,
-        options_json(choice, options),
-        rows,
-        trials,
-    );
+    let label = (options.name.clone())
+        .or_else(|| served_name(&metadata))
+        .unwrap_or_else(|| choice.name());
+    let mut report = EvalReport::new(label, metadata, options_json(choice, options), rows, trials);
     report.suite = options.suite.as_ref().map(Suite::json);
     report.resumed_trials = resumed_trials;
     for (name, text) in [
@@ -356,6 +353,16 @@ pub fn evaluate(
     }
     write(options, "results.png", &results_png(&report, options)?)?;
     Ok(report)
+}
+
+/// The name a policy server gives itself in its metadata (`name`, `policy_name` or `policy`,
+/// the first that is a short text), which labels its results.
+fn served_name(metadata: &serde_json::Value) -> Option<String> {
+    ["name", "policy_name", "policy"].iter().find_map(|key| {
+        let name = metadata.get(key)?.as_str()?.trim();
+        (!name.is_empty() && name.chars().count() <= 64 && !name.contains(char::is_control))
+            .then(|| name.to_string())
+    })
 }
 
 /// `results.png`: the success rates with their intervals, grouped by level; a suite's run as
@@ -415,6 +422,7 @@ fn identity(choice: &PolicyChoice, options: &EvalOptions) -> serde_json::Value {
         "evaluation": options_json(choice, options),
         "suite": options.suite.as_ref().map(Suite::json),
         "recordings_per_task": options.recordings_per_task,
+        "name": options.name,
         "render_builtin": options.render_builtin,
         "camera": format!("{:?}", options.camera),
         "generator": format!("surgvla {}", env!("CARGO_PKG_VERSION")),

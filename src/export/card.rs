@@ -138,6 +138,11 @@ pub struct CardFormat {
     pub tagged: bool,
     /// A glob of the data files (`configs: data_files`), where the format has loadable ones.
     pub data_files: Option<&'static str>,
+    /// How to load the dataset with its real client (Markdown: a sentence and a code block),
+    /// where the format has one.
+    pub loading: Option<String>,
+    /// How the format stores depth (a sentence for the card's conventions).
+    pub depth: &'static str,
     /// Features stored as video, with their codec's name (LeRobot's video mode).
     pub video: Vec<(String, &'static str)>,
 }
@@ -199,6 +204,10 @@ pub fn render(info: &DatasetInfo, tally: &Tally, format: &CardFormat) -> String 
     card.push_str("## Tasks\n\n| task | level | episodes | frames | instructions |\n|---|---:|---:|---:|---|\n");
     card.push_str(&task_rows(tally));
     card.push_str(&feature_rows(info, format));
+    card.push_str(&crate::export::conventions::loading(
+        format.loading.as_deref(),
+    ));
+    card.push_str(&crate::export::conventions::conventions(info, format.depth));
     card.push_str(&how_made(info));
     let camera = &info.camera;
     if camera.fx_px > 0.0 {
@@ -260,7 +269,12 @@ fn citation(info: &DatasetInfo, tally: &Tally) -> String {
         card.push_str("Cite the data's own authors, as its source asks; surgvla converted it and adds no work of its own to cite. Its licence is its owner's: surgvla does not know it.\n");
         return card;
     }
-    card.push_str("The tasks, experts and evaluation protocol are those of the SurgVLA-Bench benchmark (eight laparoscopic tasks in three levels, on the SurRoL simulator): cite its paper when you use this dataset. The dataset itself:\n\n");
+    card.push_str("The tasks, experts and evaluation protocol are those of the SurgVLA-Bench benchmark (eight laparoscopic tasks in three levels, on the SurRoL simulator). Cite its paper when you use this dataset:\n\n");
+    let _ = writeln!(
+        card,
+        "```bibtex\n{}\n```\n\nThe dataset itself:\n",
+        crate::export::conventions::BENCHMARK_BIBTEX
+    );
     let version = info.generator.strip_prefix("surgvla ").unwrap_or("unknown");
     let _ = write!(
         card,
@@ -479,6 +493,8 @@ mod tests {
     }
 
     const LEROBOT: fn() -> CardFormat = || CardFormat {
+        loading: None,
+        depth: "",
         name: "lerobot",
         tagged: false,
         data_files: Some("data/*/*.parquet"),
@@ -505,6 +521,36 @@ mod tests {
         assert_eq!(parse(&card), Some(tally()));
         let ours = render(&info(), &tally(), &LEROBOT());
         assert!(ours.contains("@software{surgvla") && ours.contains("license: apache-2.0"));
+    }
+
+    /// Our data's card: how to load it, what its numbers mean, and the benchmark's paper in
+    /// full; another tool's gets the loading snippet only.
+    #[test]
+    fn a_card_says_how_to_load_the_data_what_it_means_and_whom_to_cite() {
+        let format = CardFormat {
+            loading: Some("With lerobot:\n\n```python\nprint(1)\n```\n".into()),
+            depth: "Stored in metres.",
+            ..LEROBOT()
+        };
+        let card = render(&info(), &tally(), &format);
+        for said in [
+            "## Loading\n\nWith lerobot:\n\n```python\nprint(1)\n```\n",
+            "## Conventions",
+            "title = {SurgVLA-Bench: Towards Evaluating Vision-Language-Action Models for Laparoscopic Surgical Robotics}",
+            "author = {Sun, Jiashuo and He, Yue and Liu, Wenxuan and Mao, Tao and Wang, Jiazheng and Chen, Xiang and Liu, Min}",
+            "eprint = {2606.29247}",
+        ] {
+            assert!(card.contains(said), "{said}\n{card}");
+        }
+        let mut foreign = info();
+        foreign.generator = String::new();
+        foreign.collection = None;
+        let card = render(&foreign, &tally(), &format);
+        assert!(
+            card.contains("## Loading") && !card.contains("## Conventions"),
+            "{card}"
+        );
+        assert!(!card.contains("SurgVLA-Bench: Towards"), "{card}");
     }
 
     #[test]

@@ -26,6 +26,7 @@ pub mod bounded;
 pub mod card;
 pub mod check;
 pub mod collection;
+pub mod conventions;
 pub mod convert;
 pub mod decoded;
 pub mod dir;

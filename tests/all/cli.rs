@@ -59,6 +59,37 @@ fn help_and_version_exit_0() {
     assert_eq!(surgvla(&["tasks"]).0, 0);
 }
 
+/// `collect -h` groups its flags under headings (what the episodes are, the output, how the
+/// run goes, then each format's own), in that order of appearance, none left ungrouped.
+#[test]
+fn collect_help_groups_its_flags_by_purpose_and_format() {
+    let (code, out, err) = surgvla(&["collect", "-h"]);
+    assert_eq!(code, 0, "{err}");
+    let headings: Vec<&str> = (out.lines())
+        .filter(|l| l.ends_with(':') && !l.starts_with(' '))
+        .collect();
+    assert_eq!(
+        headings,
+        [
+            "Options:",
+            "Episodes:",
+            "Running:",
+            "Output:",
+            "LeRobot:",
+            "RLDS:",
+            "Point clouds and zarr:"
+        ],
+        "{out}"
+    );
+    // Only --help is left under the generic "Options:".
+    let options = out.split("Options:\n").nth(1).expect("options");
+    let first_group = options.split("\n\n").next().expect("group");
+    assert_eq!(
+        first_group.trim(),
+        "-h, --help  Print help (see more with '--help')"
+    );
+}
+
 #[test]
 fn render_writes_rgb_depth_and_mask_pngs() {
     let dir = temp_root("render");

@@ -223,6 +223,13 @@ fn a_remote_policy_gets_what_it_was_trained_on_and_chunks_are_replanned() {
         .collect();
     assert_eq!(arrays, &expected);
     assert_eq!(report.policy_metadata["name"], "fake");
+    // Labelled by the name the server gives itself; the options keep its URL.
+    assert_eq!(report.policy, "fake");
+    assert!(
+        (report.options["policy"].as_str()).is_some_and(|u| u.starts_with("ws://")),
+        "{}",
+        report.options
+    );
     assert_eq!(
         report.options["sent"]["observation/environment_state"],
         false
@@ -765,8 +772,13 @@ fn the_results_folder_is_not_shared() {
     let (code, _, stderr) = run(&[]);
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("--replace"), "{stderr}");
-    let (code, _, stderr) = run(&["--replace"]);
+    let (code, _, stderr) = run(&["--replace", "--name", "still arm"]);
     assert_eq!(code, 0, "{stderr}");
+    let results: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("results.json")).expect("results"))
+            .expect("json");
+    assert_eq!(results["policy"], "still arm");
+    assert_eq!(results["options"]["policy"], "noop");
     // Held by another process: refused while the lock lasts.
     let held = std::fs::File::open(&out).expect("open");
     held.try_lock().expect("lock");

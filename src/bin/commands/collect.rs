@@ -18,38 +18,43 @@ pub(crate) struct CollectArgs {
     #[command(flatten)]
     pub(crate) job: JobArgs,
     /// Output folder (must not exist or be empty).
-    #[arg(long, default_value = "data")]
+    #[arg(long, default_value = "data", help_heading = "Output")]
     out: PathBuf,
     /// Output format (each has its own options below).
-    #[arg(long, value_enum, default_value = "lerobot")]
+    #[arg(long, value_enum, default_value = "lerobot", help_heading = "Output")]
     format: Format,
     /// Also store the segmentation mask as an image feature (another 1-channel image).
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     with_mask: bool,
     /// Leave features of the default dataset out, comma-separated: `depth`, `environment_state`.
     /// Training with lerobot-train: `--without depth,environment_state` (docs/training.md, "Train a
     /// policy").
-    #[arg(long, value_enum, value_delimiter = ',')]
+    #[arg(long, value_enum, value_delimiter = ',', help_heading = "Output")]
     without: Vec<Omit>,
     /// This machine's part of the episode list, I/N (0-based): N machines with I = 0..N-1 each
     /// write the I-th contiguous range of episodes as their own dataset.
-    #[arg(long, default_value = "0/1")]
+    #[arg(long, default_value = "0/1", help_heading = "Running")]
     shard: Shard,
     /// Continue an interrupted run in --out (same options and seed): episodes up to its last
     /// checkpoint are kept, the rest are recorded again.
-    #[arg(long)]
+    #[arg(long, help_heading = "Running")]
     resume: bool,
     /// action[6]: "continuous" (1 while commanded open, 0 while closed) or "pulse" (+1/-1 on
     /// the step the command changes, 0 otherwise; for ablations).
-    #[arg(long, value_enum, default_value = "continuous")]
+    #[arg(
+        long,
+        value_enum,
+        default_value = "continuous",
+        help_heading = "Episodes"
+    )]
     gripper_encoding: Gripper,
     /// Randomise light, tissue colour and texture contrast per episode.
-    #[arg(long)]
+    #[arg(long, help_heading = "Episodes")]
     randomize_appearance: bool,
     /// Write one dataset per level of the tasks, as the reference releases its data (and
     /// trains a model per level): OUT/level1, OUT/level2, OUT/level3, each complete with its
     /// card and manifest and equal to `collect --tasks L<N>` into it.
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     per_level: bool,
     #[command(flatten)]
     formats: FormatArgs,

@@ -146,6 +146,11 @@ pub(crate) struct EvalArgs {
     /// Replace an earlier run's results in --out (never other files).
     #[arg(long, conflicts_with = "resume")]
     replace: bool,
+    /// The policy's name in the results, tables and charts [default: a served policy's own,
+    /// from its metadata's `name`, `policy_name` or `policy`, else its URL; a built-in
+    /// policy's name].
+    #[arg(long, value_name = "NAME", value_parser = policy_name)]
+    name: Option<String>,
     /// Continue an interrupted run of this evaluation in --out from the trials it scored
     /// (kept in --out/.eval-journal.jsonl); the results equal an uninterrupted run's.
     #[arg(long)]
@@ -233,6 +238,7 @@ impl EvalArgs {
             out: self.out.clone(),
             replace: self.replace,
             resume: self.resume,
+            name: self.name.clone(),
             suite,
             render_builtin: self.render_images,
             ..EvalOptions::default()
@@ -302,4 +308,13 @@ pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
         )));
     }
     Ok(())
+}
+
+/// `--name`: a label of 1 to 64 characters, no control characters.
+fn policy_name(text: &str) -> Result<String, String> {
+    let name = text.trim();
+    if name.is_empty() || name.chars().count() > 64 || name.contains(char::is_control) {
+        return Err("a name of 1 to 64 characters, without control characters".into());
+    }
+    Ok(name.to_string())
 }

@@ -273,3 +273,15 @@ fn write_episodes_jsonl(
 pub(super) fn video_path(key: &str, chunk: u64, file: u64) -> String {
     format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4")
 }
+
+/// The card's loading snippet for a dataset of `version`: lerobot's own loader (v3.0 since
+/// lerobot 0.4, v2.1 before it).
+pub(super) fn loading_snippet(version: LeRobotVersion) -> String {
+    let (module, lerobot) = match version {
+        LeRobotVersion::V30 => ("lerobot.datasets.lerobot_dataset", "lerobot >= 0.4"),
+        LeRobotVersion::V21 => ("lerobot.common.datasets.lerobot_dataset", "lerobot 0.3"),
+    };
+    format!(
+        "With {lerobot}, from this folder:\n\n```python\nfrom {module} import LeRobotDataset\n\ndataset = LeRobotDataset(\"local/surgvla\", root=\".\")\nframe = dataset[0]  # images as (C, H, W) floats in [0, 1], observation.state, action, task\n```\n"
+    )
+}

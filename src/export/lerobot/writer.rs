@@ -106,6 +106,8 @@ impl FormatWriter for LeRobotFiles {
             name: "lerobot",
             tagged: false,
             data_files: Some("data/*/*.parquet"),
+            loading: Some(super::layout::loading_snippet(self.options.version)),
+            depth: "Stored as float32 TIFF images in metres (`depth_unit: \"m\"` in the feature's info).",
             video: self
                 .video_features
                 .iter()

@@ -452,6 +452,8 @@ impl FormatWriter for McapFiles {
             name: "mcap",
             tagged: true,
             data_files: None,
+            loading: None,
+            depth: "Recorded as 32FC1 images in metres.",
             video: Vec::new(),
         }
     }

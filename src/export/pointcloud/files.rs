@@ -74,6 +74,8 @@ impl FormatWriter for CloudFiles {
             name: self.format.extension(),
             tagged: true,
             data_files: None,
+            loading: None,
+            depth: "Not stored: the point clouds are made from it.",
             video: Vec::new(),
         }
     }

@@ -150,3 +150,13 @@ validates on `train[95%:]`.
         fps = info.fps,
     )
 }
+
+/// The card's loading snippet: `tensorflow_datasets` on the version folder.
+pub(super) fn loading_snippet(options: &RldsOptions) -> String {
+    format!(
+        "With tensorflow_datasets, from this folder (OPENVLA.md shows how to fine-tune OpenVLA on it):\n\n```python\nimport tensorflow_datasets as tfds\n\nbuilder = tfds.builder_from_directory(\"{name}/{version}\")\nfor episode in builder.as_dataset(split=\"train\").take(1):\n    for step in episode[\"steps\"]:\n        image, action = step[\"observation\"][\"{image}\"], step[\"action\"]\n```\n",
+        name = options.name,
+        version = options.version,
+        image = options.keys.image,
+    )
+}

@@ -63,6 +63,8 @@ impl FormatWriter for RldsShards {
             name: "rlds",
             tagged: true,
             data_files: None,
+            loading: Some(super::openvla::loading_snippet(&self.options)),
+            depth: "Stored as 1-channel uint16 PNG in millimetres: divide by 1000 for metres.",
             video: Vec::new(),
         }
     }

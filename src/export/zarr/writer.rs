@@ -208,6 +208,8 @@ impl FormatWriter for ZarrStore {
             name: "zarr",
             tagged: true,
             data_files: None,
+            loading: None,
+            depth: "Stored (with `--zarr-images`) as float32 metres in `data/depth`.",
             video: Vec::new(),
         }
     }

@@ -183,3 +183,18 @@ def test_episode_provenance_loads_through_the_loader(dataset):
     for code, attempts in per_task.items():
         rows = [episodes[e] for e in range(dataset.num_episodes) if episodes[e]["surgvla/task_id"] == code]
         assert sum(r["surgvla/attempts"] for r in rows) == attempts
+
+
+def card_snippet(root):
+    """The Python code block of the dataset card's "Loading" section."""
+    card = (root / "README.md").read_text()
+    return card.split("## Loading", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+
+
+def test_the_cards_loading_snippet_runs_as_written(monkeypatch, info):
+    monkeypatch.chdir(ROOT)
+    scope = {}
+    exec(card_snippet(ROOT), scope)
+    assert len(scope["dataset"]) == info["total_frames"]
+    assert tuple(scope["frame"]["action"].shape) == (7,)
+    assert tuple(scope["frame"][RGB].shape) == (3, 224, 224)

@@ -276,3 +276,14 @@ def test_openvla_standardisation_yields_what_openvla_expects(root):
     actions = np.concatenate(actions)
     q01, q99 = np.quantile(actions[:, :6], [0.01, 0.99], axis=0)
     assert np.all(q99[:3] > q01[:3]), "translation deltas vary"
+
+
+def test_the_cards_loading_snippet_runs_as_written(monkeypatch):
+    """The dataset card's "Loading" code block, run from the dataset's folder as it says."""
+    card = (RLDS / "README.md").read_text()
+    snippet = card.split("## Loading", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(RLDS)
+    scope = {}
+    exec(snippet, scope)
+    assert tuple(scope["image"].shape) == (224, 224, 3)
+    assert tuple(scope["action"].shape) == (7,)
