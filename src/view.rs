@@ -3,8 +3,9 @@
 //! state (object poses, instrument pose), never rapier; the renderer below it knows neither.
 
 use crate::assets::{Appearance, SceneAssets};
+use crate::chart::{Canvas, GLYPH_PX, fit};
 use crate::episode::CameraInfo;
-use crate::render::image::{depth_visualisation, mask_visualisation};
+use crate::render::image::{depth_visualisation, mask_colour, mask_visualisation, plasma};
 use crate::render::{Camera, Frame, RenderOptions, Renderer};
 use crate::scene::InstrumentPose;
 use crate::sim::{SimConfig, Simulator};
@@ -49,27 +50,19 @@ pub struct Sheet {
     pub rgb: Vec<u8>,
 }
 
-impl Sheet {
-    fn new(width_px: u32, height_px: u32) -> Self {
-        Sheet {
-            width_px,
-            height_px,
-            rgb: vec![255; (width_px * height_px * 3) as usize],
-        }
-    }
+/// The contact sheet's margins: the row names and the depth scale on the left, the column
+/// names on top, pixels.
+pub const SHEET_LEFT_PX: u32 = 72;
+pub const SHEET_TOP_PX: u32 = 16;
+/// Between tiles, pixels.
+const SHEET_GAP_PX: u32 = 4;
+/// One mask legend entry's width: a swatch and a name.
+const LEGEND_ENTRY_PX: usize = 22 * GLYPH_PX;
 
-    fn paste(&mut self, x0: u32, y0: u32, width: u32, rgb: &[u8]) {
-        let height = rgb.len() as u32 / 3 / width.max(1);
-        for y in 0..height.min(self.height_px.saturating_sub(y0)) {
-            let row = &rgb[(y * width * 3) as usize..((y + 1) * width * 3) as usize];
-            let start = (((y0 + y) * self.width_px + x0) * 3) as usize;
-            let end = (start + row.len()).min(self.rgb.len());
-            self.rgb[start..end].copy_from_slice(&row[..end - start]);
-        }
-    }
-}
-
-/// The start frame of every task in `tasks` (one column each): RGB, depth and mask rows.
+/// The start frame of every task in `tasks` (one column each, named on top): RGB, depth and
+/// mask rows, named on the left. Each depth tile says its range (its colours run from its
+/// nearest surface, bright, to its farthest, dark, as the scale on the left shows); under the
+/// grid, a legend names the mask's colours.
 pub fn contact_sheet(
     tasks: &[TaskId],
     seed: u64,
@@ -78,24 +71,112 @@ pub fn contact_sheet(
 ) -> Result<Sheet, crate::task::SpawnError> {
     let camera = Camera::endoscope();
     let (w, h) = (camera.width_px, camera.height_px);
-    let gap = 4;
+    let gap = SHEET_GAP_PX;
     let columns = tasks.len() as u32;
-    let mut sheet = Sheet::new(columns * (w + gap) - gap, 3 * (h + gap) - gap);
     let mut renderer = Renderer::new(RenderOptions {
         lighting: appearance.lighting(options.lighting),
         ..options
     });
-    for (column, task) in tasks.iter().enumerate() {
+    let mut frames = Vec::with_capacity(tasks.len());
+    for task in tasks {
         let scene = task.scene(seed)?;
         let sim = Simulator::new(SimConfig::default(), scene.clone());
         let assets = SceneAssets::new(&scene, seed, appearance);
-        let frame = render_simulator(&assets, &mut renderer, &camera, &sim);
-        let x = column as u32 * (w + gap);
-        sheet.paste(x, 0, w, &frame.rgb);
-        sheet.paste(x, h + gap, w, &depth_visualisation(&frame));
-        sheet.paste(x, 2 * (h + gap), w, &mask_visualisation(&frame));
+        frames.push(render_simulator(&assets, &mut renderer, &camera, &sim));
     }
-    Ok(sheet)
+    let mut ids: Vec<u8> = frames.iter().flat_map(|f| f.mask.iter().copied()).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    let grid_w = (columns * (w + gap)).saturating_sub(gap) as usize;
+    let width = SHEET_LEFT_PX as usize + grid_w;
+    let per_row = (width / LEGEND_ENTRY_PX).max(1);
+    let legend_h = 8 + ids.len().div_ceil(per_row) * 14;
+    let grid_h = (3 * (h + gap) - gap) as usize;
+    let height = SHEET_TOP_PX as usize + grid_h + legend_h;
+    let mut canvas = Canvas::new(width, height, [255, 255, 255]);
+    let (left, top) = (SHEET_LEFT_PX as usize, SHEET_TOP_PX as usize);
+    let (tile_w, tile_h, gap) = (w as usize, h as usize, gap as usize);
+    let black = [0, 0, 0];
+    for (column, (task, frame)) in tasks.iter().zip(&frames).enumerate() {
+        let x = left + column * (tile_w + gap);
+        let name = fit(
+            &format!("{} {}", task.code(), task.name()),
+            tile_w / GLYPH_PX,
+        );
+        canvas.text(x, 4, &name, 1, black);
+        canvas.paste(x, top, tile_w, &frame.rgb);
+        let depth_y = top + tile_h + gap;
+        canvas.paste(x, depth_y, tile_w, &depth_visualisation(frame));
+        let range = depth_range_mm(frame);
+        let width = Canvas::text_width(&range, 1);
+        let label_y = depth_y + tile_h - GLYPH_PX - 4;
+        canvas.fill(
+            x + 2,
+            label_y - 2,
+            x + 6 + width,
+            label_y + GLYPH_PX + 2,
+            [255; 3],
+        );
+        canvas.text(x + 4, label_y, &range, 1, black);
+        canvas.paste(
+            x,
+            top + 2 * (tile_h + gap),
+            tile_w,
+            &mask_visualisation(frame),
+        );
+    }
+    sheet_margin(&mut canvas, (tile_h, gap));
+    mask_legend(&mut canvas, &ids, top + grid_h + 8, per_row);
+    Ok(Sheet {
+        width_px: canvas.width_px as u32,
+        height_px: canvas.height_px as u32,
+        rgb: canvas.pixels,
+    })
+}
+
+/// The sheet's left margin: the rows' names, and the depth scale (near, bright, at the top;
+/// far, dark, at the bottom, as each tile spreads its own range).
+fn sheet_margin(canvas: &mut Canvas, (tile_h, gap): (usize, usize)) {
+    let black = [0, 0, 0];
+    let top = SHEET_TOP_PX as usize;
+    for (row, label) in ["RGB", "depth", "mask"].iter().enumerate() {
+        canvas.text(8, top + row * (tile_h + gap) + 8, label, 1, black);
+    }
+    let (bar_top, bar_h) = (top + tile_h + gap + 28, tile_h - 64);
+    for y in 0..bar_h {
+        let t = 1.0 - y as f32 / (bar_h - 1) as f32;
+        canvas.fill(8, bar_top + y, 20, bar_top + y + 1, plasma(t));
+    }
+    canvas.text(24, bar_top, "near", 1, black);
+    canvas.text(24, bar_top + bar_h - GLYPH_PX, "far", 1, black);
+}
+
+/// The mask's legend from `y` down: each id of `ids`, its colour and its name, `per_row` a
+/// row.
+fn mask_legend(canvas: &mut Canvas, ids: &[u8], y: usize, per_row: usize) {
+    let names = mask_ids();
+    for (k, id) in ids.iter().enumerate() {
+        let x = 8 + (k % per_row) * LEGEND_ENTRY_PX;
+        let y = y + (k / per_row) * 14;
+        canvas.fill(x, y, x + 10, y + 10, [0, 0, 0]);
+        canvas.fill(x + 1, y + 1, x + 9, y + 9, mask_colour(*id));
+        let name = (names.iter())
+            .find(|(i, _)| i == id)
+            .map_or("unnamed", |(_, n)| n.as_str());
+        let text = fit(&format!("{id} {name}"), LEGEND_ENTRY_PX / GLYPH_PX - 3);
+        canvas.text(x + 14, y + 1, &text, 1, [0, 0, 0]);
+    }
+}
+
+/// A depth tile's range, nearest to farthest visible surface, millimetres ("" when empty).
+fn depth_range_mm(frame: &Frame) -> String {
+    let valid = frame.depth_m.iter().copied().filter(|z| *z > 0.0);
+    let (near, far) = valid.fold((f32::INFINITY, 0f32), |(lo, hi), z| (lo.min(z), hi.max(z)));
+    if near.is_finite() {
+        format!("{:.0}-{:.0} mm", near * 1e3, far * 1e3)
+    } else {
+        String::new()
+    }
 }
 
 /// The camera as datasets record it (row-major 4 x 4 `world_from_camera`).

@@ -66,6 +66,18 @@ impl Canvas {
         }
     }
 
+    /// Copies an RGB image `width` pixels wide with its top left at (x0, y0), clipped to the
+    /// canvas.
+    pub fn paste(&mut self, x0: usize, y0: usize, width: usize, rgb: &[u8]) {
+        let rows = rgb.len() / 3 / width.max(1);
+        for y in 0..rows.min(self.height_px.saturating_sub(y0)) {
+            let row = &rgb[y * width * 3..(y + 1) * width * 3];
+            let start = ((y0 + y) * self.width_px + x0) * 3;
+            let visible = width.min(self.width_px.saturating_sub(x0)) * 3;
+            self.pixels[start..start + visible].copy_from_slice(&row[..visible]);
+        }
+    }
+
     /// Fills `[x0, x1) x [y0, y1)`, clipped to the canvas.
     pub fn fill(&mut self, x0: usize, y0: usize, x1: usize, y1: usize, colour: Rgb) {
         for y in y0..y1.min(self.height_px) {

@@ -240,6 +240,51 @@ pub struct Range {
 
 const PANEL_W_PX: usize = 200;
 const PANEL_H_PX: usize = 96;
+/// Characters of a range row's label (surgvla's longest names, `tip_pitch_rad`, fit).
+const LABEL_COLUMN_CHARS: usize = 14;
+/// A histogram panel's rows besides its plot: its title, its peak's label, its x axis' labels.
+const PANEL_EXTRA_PX: usize = 50;
+
+/// One histogram panel with its top left at (x0, y0): its title, its bins scaled to the
+/// tallest, the x axis' range in frames and the tallest bin's count.
+fn histogram_panel(canvas: &mut Canvas, histogram: &Histogram, (x0, y0): (usize, usize)) {
+    let peak = histogram.counts.iter().copied().max().unwrap_or(0).max(1);
+    canvas.text(
+        x0,
+        y0,
+        &fit(&histogram.label, PANEL_W_PX / GLYPH_PX),
+        1,
+        BLACK,
+    );
+    let bottom = y0 + 22 + PANEL_H_PX;
+    canvas.hline(x0, x0 + PANEL_W_PX, bottom, BLACK);
+    // A grey line at the tallest bin's height, under the bars.
+    canvas.hline(x0, x0 + PANEL_W_PX, bottom - PANEL_H_PX, GREY);
+    let bins = histogram.counts.len().max(1);
+    let bin_px = PANEL_W_PX / bins;
+    for (b, &count) in histogram.counts.iter().enumerate() {
+        let height = (count as f64 / peak as f64 * PANEL_H_PX as f64).round() as usize;
+        let x = x0 + b * bin_px;
+        canvas.fill(x + 1, bottom - height, x + bin_px, bottom, SERIES[0]);
+    }
+    let low = format!("{:.0}", histogram.low);
+    let high = format!("{:.0}", histogram.high);
+    canvas.text(x0, bottom + 4, &low, 1, DARK);
+    canvas.text(
+        x0 + PANEL_W_PX - Canvas::text_width(&high, 1),
+        bottom + 4,
+        &high,
+        1,
+        DARK,
+    );
+    // The x axis is in frames; the tallest bin's count marks the y axis at its height.
+    canvas.text_centred(x0 + PANEL_W_PX / 2, bottom + 4, "frames", 1, DARK);
+    // Right-aligned just above the grey line at the tallest bin's height.
+    let top = bottom - PANEL_H_PX;
+    let most = format!("{peak} episodes");
+    let width = Canvas::text_width(&most, 1);
+    canvas.text(x0 + PANEL_W_PX - width, top - GLYPH_PX - 2, &most, 1, DARK);
+}
 
 /// `info --plot`: a histogram panel per entry of `histograms` (four to a row), then each
 /// range as a row: its label, its min and max, and a bar placed on the scale shared by its
@@ -253,44 +298,16 @@ pub fn dataset_chart(
     let panel_rows = histograms.len().div_ceil(per_row);
     let range_rows: usize = ranges.iter().map(|(_, r)| r.len() + 2).sum();
     let width = 16 + per_row * (PANEL_W_PX + 16);
-    let height = 32 + panel_rows * (PANEL_H_PX + 40) + range_rows * 12 + 16;
+    let height = 32 + panel_rows * (PANEL_H_PX + PANEL_EXTRA_PX) + range_rows * 12 + 16;
     let mut canvas = Canvas::new(width, height, WHITE);
     canvas.text(8, 8, &fit(title, (width - 16) / GLYPH_PX), 1, BLACK);
     for (k, histogram) in histograms.iter().enumerate() {
         let x0 = 16 + (k % per_row) * (PANEL_W_PX + 16);
-        let y0 = 32 + (k / per_row) * (PANEL_H_PX + 40);
-        let peak = histogram.counts.iter().copied().max().unwrap_or(0).max(1);
-        canvas.text(
-            x0,
-            y0,
-            &fit(&histogram.label, PANEL_W_PX / GLYPH_PX),
-            1,
-            BLACK,
-        );
-        let bottom = y0 + 12 + PANEL_H_PX;
-        canvas.hline(x0, x0 + PANEL_W_PX, bottom, BLACK);
-        let bins = histogram.counts.len().max(1);
-        let bin_px = PANEL_W_PX / bins;
-        for (b, &count) in histogram.counts.iter().enumerate() {
-            let height = (count as f64 / peak as f64 * PANEL_H_PX as f64).round() as usize;
-            let x = x0 + b * bin_px;
-            canvas.fill(x + 1, bottom - height, x + bin_px, bottom, SERIES[0]);
-        }
-        let low = format!("{:.0}", histogram.low);
-        let high = format!("{:.0}", histogram.high);
-        canvas.text(x0, bottom + 4, &low, 1, DARK);
-        canvas.text(
-            x0 + PANEL_W_PX - Canvas::text_width(&high, 1),
-            bottom + 4,
-            &high,
-            1,
-            DARK,
-        );
-        let most = format!("max {peak}");
-        canvas.text_centred(x0 + PANEL_W_PX / 2, bottom + 4, &most, 1, DARK);
+        let y0 = 32 + (k / per_row) * (PANEL_H_PX + PANEL_EXTRA_PX);
+        histogram_panel(&mut canvas, histogram, (x0, y0));
     }
-    let mut y = 32 + panel_rows * (PANEL_H_PX + 40) + 8;
-    let bar_x0 = 16 + 12 * GLYPH_PX + 2 * 10 * GLYPH_PX;
+    let mut y = 32 + panel_rows * (PANEL_H_PX + PANEL_EXTRA_PX) + 8;
+    let bar_x0 = 16 + LABEL_COLUMN_CHARS * GLYPH_PX + 2 * 10 * GLYPH_PX;
     let bar_x1 = width - 16;
     for (group, rows) in ranges {
         if rows.is_empty() {
@@ -312,9 +329,11 @@ pub fn dataset_chart(
         let to_x =
             |v: f64| bar_x0 + (((v - low) / span) * (bar_x1 - bar_x0) as f64).round() as usize;
         for row in rows {
-            canvas.text(16, y, &fit(&row.label, 12), 1, BLACK);
-            canvas.text(16 + 12 * GLYPH_PX, y, &format!("{:>9.3}", row.min), 1, DARK);
-            canvas.text(16 + 22 * GLYPH_PX, y, &format!("{:>9.3}", row.max), 1, DARK);
+            let label_px = LABEL_COLUMN_CHARS * GLYPH_PX;
+            canvas.text(16, y, &fit(&row.label, LABEL_COLUMN_CHARS), 1, BLACK);
+            canvas.text(16 + label_px, y, &format!("{:>9.3}", row.min), 1, DARK);
+            let max_x = 16 + label_px + 10 * GLYPH_PX;
+            canvas.text(max_x, y, &format!("{:>9.3}", row.max), 1, DARK);
             canvas.hline(bar_x0, bar_x1, y + 4, GREY);
             if low.is_finite() && high.is_finite() {
                 canvas.fill(to_x(row.min), y + 1, to_x(row.max) + 1, y + 8, SERIES[1]);
@@ -470,7 +489,7 @@ mod tests {
             ],
         )];
         let canvas = dataset_chart("dataset", &[histogram], &ranges);
-        let bottom = 32 + 12 + PANEL_H_PX;
+        let bottom = 32 + 22 + PANEL_H_PX;
         let x = |bin: usize| 16 + bin * (PANEL_W_PX / 4) + 5;
         let height = |bin: usize| {
             (0..bottom)
@@ -481,5 +500,15 @@ mod tests {
         assert_eq!(height(1), PANEL_H_PX, "the peak fills the panel");
         assert_eq!(height(0), PANEL_H_PX / 4);
         assert_eq!(height(3), 0);
+        // The peak's count is written above the plot, at its right end, not among the x axis'
+        // labels; "frames" names the x axis under it.
+        let dark_in = |x0: usize, x1: usize, y0: usize, y1: usize| {
+            (y0..y1).any(|y| (x0..x1).any(|x| canvas.at(x, y) == Some(DARK)))
+        };
+        let top = bottom - PANEL_H_PX;
+        assert!(dark_in(16 + PANEL_W_PX / 2, 16 + PANEL_W_PX, top - 10, top));
+        let under = bottom + 4..bottom + 4 + GLYPH_PX;
+        let centre = 16 + PANEL_W_PX / 2;
+        assert!(dark_in(centre - 24, centre + 24, under.start, under.end));
     }
 }

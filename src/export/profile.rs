@@ -14,6 +14,9 @@ pub struct Profile {
     /// (min, max) of each state dimension; empty without frames.
     pub state: Vec<(f64, f64)>,
     pub action: Vec<(f64, f64)>,
+    /// Each dimension's name as the dataset gives it (info.json's `names`; empty: none).
+    pub state_names: Vec<String>,
+    pub action_names: Vec<String>,
 }
 
 fn widen(ranges: &mut Vec<(f64, f64)>, values: &[f32]) {
@@ -48,6 +51,14 @@ pub fn profile(source: &mut dyn EpisodeSource) -> Result<Profile, ExportError> {
         .flatten();
     let has_state = info.has(FeatureKind::State);
     let has_action = info.has(FeatureKind::Action);
+    let names = |kind: FeatureKind, name: &str| {
+        (info.features.iter())
+            .find(|f| f.kind == kind || (f.kind == FeatureKind::Other && f.name == name))
+            .map(|f| f.names.clone())
+            .unwrap_or_default()
+    };
+    profile.state_names = names(FeatureKind::State, "observation.state");
+    profile.action_names = names(FeatureKind::Action, "action");
     for episode in &mut *source {
         let episode = episode?;
         let meta = &episode.meta;
@@ -106,33 +117,62 @@ pub fn chart_parts(
                 counts[bin] += 1;
             }
             Histogram {
-                label: format!("{task}: {} episodes, frames", lengths.len()),
+                label: format!("{task}: {} episodes", lengths.len()),
                 counts,
                 low: low as f64,
                 high: high as f64,
             }
         })
         .collect();
-    let ranges = |name: &str, values: &[(f64, f64)]| -> (String, Vec<Range>) {
-        let rows = values
-            .iter()
-            .enumerate()
-            .filter(|(_, (min, max))| min <= max)
-            .map(|(i, &(min, max))| Range {
-                label: format!("{name}[{i}]"),
-                min,
-                max,
-            })
-            .collect();
-        (name.to_string(), rows)
+    // Each dimension named as the dataset names it; dimensions drawn on one scale per unit
+    // (the unit a name ends with: `tip_x_m`, `tip_yaw_rad`), so that centimetres are not
+    // flattened by radians.
+    let ranges = |name: &str, values: &[(f64, f64)], names: &[String]| {
+        let mut groups: Vec<(String, Vec<Range>)> = Vec::new();
+        for (i, &(min, max)) in values.iter().enumerate() {
+            let label = names
+                .get(i)
+                .cloned()
+                .unwrap_or_else(|| format!("{name}[{i}]"));
+            let group = match unit_of(&label) {
+                Some(unit) => format!("{name} ({unit})"),
+                None => name.to_string(),
+            };
+            let range = Range { label, min, max };
+            let index = match groups.iter().position(|(g, _)| *g == group) {
+                Some(index) => index,
+                None => {
+                    groups.push((group, Vec::new()));
+                    groups.len() - 1
+                }
+            };
+            if min <= max {
+                groups[index].1.push(range);
+            }
+        }
+        if groups.is_empty() {
+            groups.push((name.to_string(), Vec::new()));
+        }
+        groups
     };
-    (
-        histograms,
-        vec![
-            ranges("state", &profile.state),
-            ranges("action", &profile.action),
-        ],
-    )
+    let mut groups = ranges("state", &profile.state, &profile.state_names);
+    groups.extend(ranges("action", &profile.action, &profile.action_names));
+    (histograms, groups)
+}
+
+/// The unit a dimension's name ends with (`tip_x_m`: metres), if it names one.
+fn unit_of(name: &str) -> Option<&'static str> {
+    let suffix = name.rsplit_once('_')?.1;
+    [
+        ("m", "m"),
+        ("rad", "rad"),
+        ("deg", "deg"),
+        ("mm", "mm"),
+        ("s", "s"),
+    ]
+    .iter()
+    .find(|(s, _)| *s == suffix)
+    .map(|(_, unit)| *unit)
 }
 
 #[cfg(test)]
@@ -145,6 +185,7 @@ mod tests {
             lengths: vec![("T1-1".into(), vec![30, 30, 39]), ("T3-1".into(), vec![49])],
             state: vec![(-1.0, 2.0)],
             action: vec![(f64::INFINITY, f64::NEG_INFINITY)],
+            ..Profile::default()
         };
         let (histograms, ranges) = chart_parts(&profile, 4);
         // [30, 49] in 4 bins of 5 frames: 30-34, 35-39, 40-44, 45-49.
@@ -218,5 +259,38 @@ mod tests {
         assert_eq!(profiled.state, [(0.0, 2.0), (4.0, 5.0)]);
         assert_eq!(profiled.action, [(-1.0, 3.0)]);
         assert_eq!(profiled.lengths, [("lift".to_string(), vec![2])]);
+    }
+
+    #[test]
+    fn dimensions_are_named_and_drawn_on_one_scale_per_unit() {
+        let names = |n: &[&str]| n.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let profile = Profile {
+            state: vec![(0.5, 0.59), (0.0, 0.01), (-1.6, -1.5), (0.0, 0.7)],
+            action: vec![(-0.01, 0.01), (0.0, 1.0)],
+            state_names: names(&["tip_x_m", "tip_y_m", "tip_roll_rad", "jaw_angle_rad"]),
+            action_names: names(&["dx_m", "gripper"]),
+            ..Profile::default()
+        };
+        let (_, groups) = chart_parts(&profile, 4);
+        let drawn: Vec<(&str, Vec<&str>)> = (groups.iter())
+            .map(|(g, rows)| (g.as_str(), rows.iter().map(|r| r.label.as_str()).collect()))
+            .collect();
+        assert_eq!(
+            drawn,
+            [
+                ("state (m)", vec!["tip_x_m", "tip_y_m"]),
+                ("state (rad)", vec!["tip_roll_rad", "jaw_angle_rad"]),
+                ("action (m)", vec!["dx_m"]),
+                ("action", vec!["gripper"]),
+            ]
+        );
+        // Without names: indices, one scale.
+        let plain = Profile {
+            state: vec![(0.0, 1.0), (2.0, 3.0)],
+            ..Profile::default()
+        };
+        let (_, groups) = chart_parts(&plain, 4);
+        assert_eq!(groups[0].0, "state");
+        assert_eq!(groups[0].1[1].label, "state[1]");
     }
 }

@@ -94,7 +94,7 @@ pub fn write_png_file(
 }
 
 /// A perceptual colour map (approximating "plasma") at t in [0, 1].
-fn plasma(t: f32) -> [u8; 3] {
+pub fn plasma(t: f32) -> [u8; 3] {
     const STOPS: [[f32; 3]; 5] = [
         [13.0, 8.0, 135.0],
         [126.0, 3.0, 168.0],
@@ -121,20 +121,22 @@ pub fn depth_visualisation(frame: &Frame) -> Vec<u8> {
                 return [0, 0, 0];
             }
             let colour = plasma(1.0 - (z - near) / span);
-            // Relief: a surface nearer than the mean of its two neighbours along a row or a
-            // column by more than RELIEF_M (a 1 mm needle wire on the pad; a plane, however
-            // tilted, has none) is drawn lighter, so thin objects show even where the colour
-            // scale cannot resolve them.
+            // Relief: a thin surface (at most 3 pixels across: a 1 mm needle wire on the pad)
+            // with something deeper by more than RELIEF_M on both sides, 1 or 2 pixels away
+            // along a row or a column, is drawn lighter, so thin objects show where the colour
+            // scale cannot resolve them. An object's edge has a deeper side on one side only,
+            // and a plane, however tilted, on neither: neither is outlined.
             let (u, v) = (i % w, i / w);
             let at = |uu: usize, vv: usize| frame.depth_m[vv * w + uu];
-            let mut behind = 0f32;
-            if u > 0 && u + 1 < w && at(u - 1, v) > 0.0 && at(u + 1, v) > 0.0 {
-                behind = behind.max(0.5 * (at(u - 1, v) + at(u + 1, v)));
-            }
-            if v > 0 && v + 1 < h && at(u, v - 1) > 0.0 && at(u, v + 1) > 0.0 {
-                behind = behind.max(0.5 * (at(u, v - 1) + at(u, v + 1)));
-            }
-            if behind - z > RELIEF_M {
+            let deeper = |d: f32| d > 0.0 && d - z > RELIEF_M;
+            let thin = (1..=2).any(|k| {
+                let across_row =
+                    u >= k && u + k < w && deeper(at(u - k, v)) && deeper(at(u + k, v));
+                let across_column =
+                    v >= k && v + k < h && deeper(at(u, v - k)) && deeper(at(u, v + k));
+                across_row || across_column
+            });
+            if thin {
                 colour.map(|c| ((u16::from(c) + 255) / 2) as u8)
             } else {
                 colour
@@ -226,5 +228,39 @@ mod tests {
             brightness(8, 5) > brightness(7, 5) + 60,
             "the ridge is outlined"
         );
+    }
+
+    #[test]
+    fn the_edges_of_a_wide_object_are_not_outlined_but_a_two_pixel_wire_is() {
+        let (w, h) = (24u32, 8u32);
+        // A block 5 mm proud over columns 4..12, a wire 1 mm proud over columns 16..18.
+        let depth_m: Vec<f32> = (0..w * h)
+            .map(|i| match i % w {
+                4..12 => 0.095,
+                16..18 => 0.099,
+                _ => 0.1,
+            })
+            .collect();
+        let frame = Frame {
+            width_px: w,
+            height_px: h,
+            rgb: vec![0; (w * h * 3) as usize],
+            depth_m,
+            mask: vec![1; (w * h) as usize],
+        };
+        let image = depth_visualisation(&frame);
+        let pixel = |u: u32| {
+            let i = ((4 * w + u) * 3) as usize;
+            [image[i], image[i + 1], image[i + 2]]
+        };
+        // The block's edge columns look like its middle: no white outline.
+        assert_eq!(pixel(4), pixel(8));
+        assert_eq!(pixel(11), pixel(8));
+        // Both columns of the wire are drawn lighter than the colour of their depth alone.
+        let colour = plasma(1.0 - (0.099 - 0.095) / 0.005);
+        for u in [16, 17] {
+            assert!(pixel(u).iter().zip(colour).all(|(p, c)| *p >= c), "{u}");
+            assert_ne!(pixel(u), colour, "{u}");
+        }
     }
 }

@@ -144,11 +144,43 @@ fn contact_sheet_writes_one_grid_of_eight_scenes() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("T3-2"));
-    let bytes = std::fs::read(&path).expect("png written");
-    // 8 tiles of 224 with 4 px gaps by 3 rows.
-    let width = u32::from_be_bytes(bytes[16..20].try_into().expect("4 bytes"));
-    let height = u32::from_be_bytes(bytes[20..24].try_into().expect("4 bytes"));
-    assert_eq!((width, height), (8 * 228 - 4, 3 * 228 - 4));
+    // 8 tiles of 224 with 4 px gaps by 3 rows, a margin on the left (row names, the depth
+    // scale) and on top (column names), and the mask's legend under them.
+    let (pixels, width) = crate::util::png_rgb(&path);
+    let (left, top) = (
+        surgvla::view::SHEET_LEFT_PX as usize,
+        surgvla::view::SHEET_TOP_PX as usize,
+    );
+    assert_eq!(width, left + 8 * 228 - 4);
+    let height = pixels.len() / 3 / width;
+    let grid_bottom = top + 3 * 228 - 4;
+    assert!(height > grid_bottom + 14, "{height}: no legend");
+    let at = |x: usize, y: usize| {
+        let i = (y * width + x) * 3;
+        [pixels[i], pixels[i + 1], pixels[i + 2]]
+    };
+    let black_in = |x0: usize, x1: usize, y0: usize, y1: usize| {
+        (y0..y1).any(|y| (x0..x1).any(|x| at(x, y) == [0, 0, 0]))
+    };
+    // Each column is named over its tile; the rows are named in the margin.
+    for column in 0..8 {
+        let x = left + column * 228;
+        assert!(black_in(x, x + 64, 0, top), "column {column} has no name");
+    }
+    for row in 0..3 {
+        let y = top + row * 228;
+        assert!(black_in(0, left, y, y + 24), "row {row} has no name");
+    }
+    // The depth scale runs from the near colour (yellow) down to the far one (dark blue).
+    let (near, far) = (at(10, top + 228 + 30), at(10, top + 2 * 228 - 50));
+    assert!(near[0] > 200 && near[1] > 200, "{near:?}");
+    assert!(far[2] > 100 && far[0] < 60, "{far:?}");
+    // The legend: a swatch of the table's mask colour (id 1) and its name.
+    let table = surgvla::render::image::mask_colour(1);
+    assert!(
+        (grid_bottom..height).any(|y| (0..width).any(|x| at(x, y) == table)),
+        "no legend swatch of the table's colour"
+    );
 }
 
 #[test]

@@ -16,7 +16,8 @@ pub(crate) struct InfoArgs {
     #[arg(long)]
     pub json: bool,
     /// Also draw the dataset as PNG: a histogram of episode lengths per task, and the range
-    /// of each state and action dimension (reads every episode: LeRobot and RLDS datasets).
+    /// of each state and action dimension, named as the dataset names them, on one scale per
+    /// unit (reads every episode: LeRobot and RLDS datasets).
     #[arg(long, value_name = "FILE.png", value_parser = crate::app::png_path)]
     pub plot: Option<PathBuf>,
 }
