@@ -424,8 +424,9 @@ impl EvalReport {
     }
 
     /// The task x variant grid of a perturbed run (None otherwise): each cell the success rate
-    /// with its Wilson interval and the drop from the unperturbed run, a mean column last.
-    pub fn variants_markdown(&self) -> Option<String> {
+    /// with its Wilson interval and the drop from the unperturbed run, a mean column last; as
+    /// (head, rows).
+    fn variants_grid(&self) -> Option<(Vec<String>, Vec<Vec<String>>)> {
         if !self.perturbed() {
             return None;
         }
@@ -439,37 +440,31 @@ impl EvalReport {
                 tasks.push(&t.task_id);
             }
         }
-        let mut text = String::from(
-            "Success rate in % [Wilson 95 % interval] and drop from the unperturbed run, in points, per variant and task:\n\n",
-        );
-        let _ = writeln!(
-            text,
-            "| variant | {} | mean | drop |\n|---|{}---:|---:|",
-            tasks.join(" | "),
-            "---|".repeat(tasks.len())
-        );
+        let mut head = vec!["variant".to_string()];
+        head.extend(tasks.iter().map(|t| t.to_string()));
+        head.extend(["mean".to_string(), "drop".to_string()]);
+        let mut grid = Vec::new();
         for variant in variants {
             let rows: Vec<&TaskResult> = (self.tasks.iter())
                 .filter(|t| t.variant == variant)
                 .collect();
-            let cells: Vec<String> = (tasks.iter())
-                .map(|id| {
-                    rows.iter().find(|t| t.task_id == *id).map_or_else(
-                        || "-".into(),
-                        |t| {
-                            let drop = t.success_drop.map_or_else(String::new, |d| {
-                                format!(" ({})", change(-100.0 * d, 0))
-                            });
-                            format!(
-                                "{:.0} [{:.0}-{:.0}]{drop}",
-                                100.0 * t.success_rate,
-                                100.0 * t.ci95_low,
-                                100.0 * t.ci95_high
-                            )
-                        },
-                    )
-                })
-                .collect();
+            let mut cells = vec![variant.to_string()];
+            cells.extend(tasks.iter().map(|id| {
+                rows.iter().find(|t| t.task_id == *id).map_or_else(
+                    || "-".into(),
+                    |t| {
+                        let drop = t
+                            .success_drop
+                            .map_or_else(String::new, |d| format!(" ({})", change(-100.0 * d, 0)));
+                        format!(
+                            "{:.0} [{:.0}-{:.0}]{drop}",
+                            100.0 * t.success_rate,
+                            100.0 * t.ci95_low,
+                            100.0 * t.ci95_high
+                        )
+                    },
+                )
+            }));
             let n = rows.len().max(1) as f64;
             let mean = rows.iter().map(|t| t.success_rate).sum::<f64>() / n;
             let drops: Vec<f64> = rows.iter().filter_map(|t| t.success_drop).collect();
@@ -478,14 +473,40 @@ impl EvalReport {
             } else {
                 change(-100.0 * drops.iter().sum::<f64>() / drops.len() as f64, 1)
             };
-            let _ = writeln!(
-                text,
-                "| {variant} | {} | {:.1} | {drop} |",
-                cells.join(" | "),
-                100.0 * mean
-            );
+            cells.extend([format!("{:.1}", 100.0 * mean), drop]);
+            grid.push(cells);
+        }
+        Some((head, grid))
+    }
+
+    /// The lead-in of the variants grid.
+    const GRID_TITLE: &str = "Success rate in % [Wilson 95 % interval] and drop from the unperturbed run, in points, per variant and task:";
+
+    /// [`EvalReport::variants_grid`] as a Markdown table (results.md).
+    pub fn variants_markdown(&self) -> Option<String> {
+        let (head, rows) = self.variants_grid()?;
+        let mut text = format!("{}\n\n", Self::GRID_TITLE);
+        let _ = writeln!(
+            text,
+            "| {} |\n|---|{}---:|---:|",
+            head.join(" | "),
+            "---|".repeat(head.len() - 3)
+        );
+        for row in rows {
+            let _ = writeln!(text, "| {} |", row.join(" | "));
         }
         Some(text)
+    }
+
+    /// [`EvalReport::variants_grid`] in aligned columns, as the terminal shows it.
+    pub fn variants_terminal(&self) -> Option<String> {
+        let (head, rows) = self.variants_grid()?;
+        let head: Vec<&str> = head.iter().map(String::as_str).collect();
+        Some(format!(
+            "{}\n{}",
+            Self::GRID_TITLE,
+            aligned(&head, &rows, 1)
+        ))
     }
 
     /// The precision and safety means per task, as a Markdown table ("-" where no trial has the

@@ -218,6 +218,11 @@ fn collect_writes_a_lerobot_dataset_and_refuses_to_overwrite_it() {
     let (code, stdout, stderr) = surgvla(&args);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("wrote 2 episodes"), "{stdout}");
+    // The stages' times are said to be summed over threads; the process's CPU time beside.
+    assert!(stdout.contains("time per stage, summed over "), "{stdout}");
+    if cfg!(target_os = "linux") {
+        assert!(stdout.contains("CPU time of the process: "), "{stdout}");
+    }
     assert!(out.join("meta/info.json").exists());
     let (code, _, stderr) = surgvla(&args);
     assert_eq!(

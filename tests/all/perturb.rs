@@ -283,9 +283,15 @@ fn the_command_runs_a_suite_records_it_and_draws_its_heatmap() {
     }
     let (code, stdout, stderr) = run(&["--perturb", "none", "--perturb", "smoke=1,blur=2"]);
     assert_eq!(code, 0, "{stderr}");
+    // The grid in aligned columns on the terminal (results.md has it in Markdown).
+    let row = (stdout.lines())
+        .find(|l| l.starts_with("smoke=1,blur=2 "))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(row.contains(" 0 [0-66] (±0)"), "{stdout}");
+    let markdown = std::fs::read_to_string(out.join("run/results.md")).unwrap();
     assert!(
-        stdout.contains("| smoke=1,blur=2 | 0 [0-66] (±0) |"),
-        "{stdout}"
+        markdown.contains("| smoke=1,blur=2 | 0 [0-66] (±0) |"),
+        "{markdown}"
     );
     let dir = out.join("run");
     let json: serde_json::Value =

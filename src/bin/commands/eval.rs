@@ -262,7 +262,7 @@ pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
         );
     }
     say!("policy: {}", report.policy);
-    match report.variants_markdown() {
+    match report.variants_terminal() {
         // A suite's rows are many: the grid here, every row in results.md.
         Some(grid) => say!("{}", grid.trim_end()),
         None => {
