@@ -196,6 +196,17 @@ mod tests {
         assert_eq!(&bytes[1..4], b"PNG");
     }
 
+    /// A `w` x `h` frame of `depth_m`, black, every pixel of mask id 1.
+    fn depth_frame(w: u32, h: u32, depth_m: Vec<f32>) -> Frame {
+        Frame {
+            width_px: w,
+            height_px: h,
+            rgb: vec![0; (w * h * 3) as usize],
+            depth_m,
+            mask: vec![1; (w * h) as usize],
+        }
+    }
+
     #[test]
     fn the_depth_image_outlines_thin_relief_but_not_a_tilted_plane() {
         let (w, h) = (16u32, 16u32);
@@ -206,14 +217,7 @@ mod tests {
                 0.1 + 0.002 * v as f32 - if u == 8 { 0.001 } else { 0.0 }
             })
             .collect();
-        let frame = Frame {
-            width_px: w,
-            height_px: h,
-            rgb: vec![0; (w * h * 3) as usize],
-            depth_m,
-            mask: vec![1; (w * h) as usize],
-        };
-        let image = depth_visualisation(&frame);
+        let image = depth_visualisation(&depth_frame(w, h, depth_m));
         let brightness = |u: u32, v: u32| -> u32 {
             let i = ((v * w + u) * 3) as usize;
             image[i..i + 3].iter().map(|c| u32::from(*c)).sum()
@@ -241,14 +245,7 @@ mod tests {
                 _ => 0.1,
             })
             .collect();
-        let frame = Frame {
-            width_px: w,
-            height_px: h,
-            rgb: vec![0; (w * h * 3) as usize],
-            depth_m,
-            mask: vec![1; (w * h) as usize],
-        };
-        let image = depth_visualisation(&frame);
+        let image = depth_visualisation(&depth_frame(w, h, depth_m));
         let pixel = |u: u32| {
             let i = ((4 * w + u) * 3) as usize;
             [image[i], image[i + 1], image[i + 2]]
