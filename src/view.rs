@@ -168,8 +168,24 @@ fn mask_legend(canvas: &mut Canvas, ids: &[u8], y: usize, per_row: usize) {
     }
 }
 
+/// The mask ids a frame shows, each with its object's name ("6 gauze"), in id order.
+pub fn mask_ids_in(frame: &Frame) -> Vec<String> {
+    let mut ids: Vec<u8> = frame.mask.clone();
+    ids.sort_unstable();
+    ids.dedup();
+    let names = mask_ids();
+    (ids.iter())
+        .map(|id| {
+            let name = (names.iter())
+                .find(|(i, _)| i == id)
+                .map_or("unnamed", |(_, n)| n.as_str());
+            format!("{id} {name}")
+        })
+        .collect()
+}
+
 /// A depth tile's range, nearest to farthest visible surface, millimetres ("" when empty).
-fn depth_range_mm(frame: &Frame) -> String {
+pub fn depth_range_mm(frame: &Frame) -> String {
     let valid = frame.depth_m.iter().copied().filter(|z| *z > 0.0);
     let (near, far) = valid.fold((f32::INFINITY, 0f32), |(lo, hi), z| (lo.min(z), hi.max(z)));
     if near.is_finite() {

@@ -116,6 +116,19 @@ fn render_writes_rgb_depth_and_mask_pngs() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("triangles"));
+    // The depth image's scale and the mask's legend are said, the images pixel-aligned.
+    assert!(
+        stdout.contains(" mm, nearest bright (yellow) to farthest dark (blue)"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("mask ids 0 background, 1 table, 2 tray"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("6 gauze") && stdout.contains("17 distractor_needle"),
+        "{stdout}"
+    );
     for path in [&rgb, &depth, &mask] {
         let bytes = std::fs::read(path).expect("png written");
         assert_eq!(&bytes[1..4], b"PNG");

@@ -132,11 +132,22 @@ pub(crate) fn run_render(args: &RenderArgs) -> Result<(), CliError> {
         .apply(&mut frame, u64::from(args.steps), &mut pools);
     let (w, h) = (frame.width_px, frame.height_px);
     write_png_file(&args.out, w, h, 3, &frame.rgb)?;
+    // The images stay pixel-aligned with the RGB: their scale and legend are said here.
     if let Some(path) = &args.depth {
         write_png_file(path, w, h, 3, &depth_visualisation(&frame))?;
+        say!(
+            "{}: depth {}, nearest bright (yellow) to farthest dark (blue), nothing in range black",
+            path.display(),
+            surgvla::view::depth_range_mm(&frame)
+        );
     }
     if let Some(path) = &args.mask {
         write_png_file(path, w, h, 3, &mask_visualisation(&frame))?;
+        say!(
+            "{}: mask ids {} (colours as in contact-sheet's legend)",
+            path.display(),
+            surgvla::view::mask_ids_in(&frame).join(", ")
+        );
     }
     say!(
         "{} ({}){}, seed {}, step {}: {} triangles, wrote {}",
