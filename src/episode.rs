@@ -621,6 +621,50 @@ pub struct SceneMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// An episode's rows as a file of its source stores them, for a sink writing the same format
+/// to copy them as stored instead of encoding the steps again (LeRobot: a data file's row
+/// group, its column chunks copied compressed). The steps lack the pixels of the image features
+/// in the stored rows ([`StoredRows::holds_pixels`]): only such a sink can write the episode.
+#[derive(Clone)]
+pub struct StoredRows {
+    /// (its column's key in the stored rows, the feature's key now) of every feature the
+    /// stored rows hold: a feature renamed since keeps its stored column.
+    pub columns: Vec<(String, String)>,
+    /// The format's own description of where the rows are (downcast by its sink).
+    pub handle: std::sync::Arc<dyn std::any::Any + Send + Sync>,
+}
+
+impl StoredRows {
+    /// The stored column of feature `name` (its key now).
+    pub fn column_of(&self, name: &str) -> Option<&str> {
+        (self.columns.iter())
+            .find(|(_, now)| now == name)
+            .map(|(stored, _)| stored.as_str())
+    }
+
+    /// Whether feature `name`'s pixels are in the stored rows only (an image feature the rows
+    /// hold).
+    pub fn holds_pixels(&self, feature: &FeatureSpec) -> bool {
+        feature.dtype == Dtype::Image
+            && feature.in_steps()
+            && self.column_of(&feature.name).is_some()
+    }
+}
+
+impl std::fmt::Debug for StoredRows {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StoredRows")
+            .field("columns", &self.columns)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PartialEq for StoredRows {
+    fn eq(&self, other: &Self) -> bool {
+        self.columns == other.columns && std::sync::Arc::ptr_eq(&self.handle, &other.handle)
+    }
+}
+
 /// A recorded episode.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Episode {
@@ -634,6 +678,9 @@ pub struct Episode {
     /// (a recording ingested): a writer takes it instead of decoding every image again.
     /// Empty for most sources.
     pub image_stats: Vec<(String, PixelStats)>,
+    /// The rows as the source's file stores them, when the source was asked to leave them
+    /// there (an edit writing the input's format): see [`StoredRows`]. None for most sources.
+    pub stored_rows: Option<StoredRows>,
 }
 
 impl Episode {
@@ -709,6 +756,18 @@ impl Episode {
         height_px: usize,
         features: &[FeatureSpec],
     ) -> Result<(), String> {
+        // Pixels left in the stored rows are the sink's to copy, not the steps'.
+        let in_steps: Vec<FeatureSpec>;
+        let features = match &self.stored_rows {
+            Some(stored) => {
+                in_steps = (features.iter())
+                    .filter(|f| !stored.holds_pixels(f))
+                    .cloned()
+                    .collect();
+                &in_steps[..]
+            }
+            None => features,
+        };
         for (i, step) in self.steps.iter().enumerate() {
             step_pixels_fit(step, width_px, height_px, features)
                 .map_err(|problem| format!("episode {} step {i}: {problem}", self.meta.index))?;

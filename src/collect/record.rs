@@ -252,6 +252,7 @@ pub fn render_replay_with<E>(
         episode: Episode {
             encoded: Vec::new(),
             image_stats: Vec::new(),
+            stored_rows: None,
             meta: EpisodeMeta {
                 index,
                 task_code: task.code().into(),

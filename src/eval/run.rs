@@ -189,6 +189,7 @@ fn run_trial(
     let episode = record.then(|| Episode {
         encoded: Vec::new(),
         image_stats: Vec::new(),
+        stored_rows: None,
         meta: EpisodeMeta {
             index: u64::from(trial),
             task_code: task.code().into(),

@@ -287,6 +287,10 @@ impl EpisodeSource for Without {
         self.inner.drop_stored(unused);
     }
 
+    fn leave_rows_stored(&mut self) {
+        self.inner.leave_rows_stored();
+    }
+
     fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
         self.inner.skim()
     }

@@ -158,6 +158,7 @@ mod tests {
                     steps: Vec::new(),
                     encoded: Vec::new(),
                     image_stats: Vec::new(),
+                    stored_rows: None,
                 })
             })
         }

@@ -236,6 +236,7 @@ mod tests {
             steps: vec![step([0.0, 5.0], -1.0), step([2.0, 4.0], 3.0)],
             encoded: Vec::new(),
             image_stats: Vec::new(),
+            stored_rows: None,
         };
         struct One(Option<Episode>, crate::export::info::DatasetInfo);
         impl Iterator for One {

@@ -437,6 +437,7 @@ mod tests {
             steps,
             encoded: Vec::new(),
             image_stats: Vec::new(),
+            stored_rows: None,
         };
         Box::new(Foreign {
             info,

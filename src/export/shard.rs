@@ -109,6 +109,10 @@ impl EpisodeSource for Sharded {
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.inner.drop_stored(unused);
     }
+
+    fn leave_rows_stored(&mut self) {
+        self.inner.leave_rows_stored();
+    }
 }
 
 #[cfg(test)]
@@ -161,6 +165,7 @@ mod tests {
                     steps: Vec::new(),
                     encoded: Vec::new(),
                     image_stats: Vec::new(),
+                    stored_rows: None,
                 })
             })
         }

@@ -21,6 +21,10 @@ pub trait EpisodeSource: Iterator<Item = Result<Episode, ExportError>> {
     /// again says so before reading, so that no episode in flight holds its frames twice.
     /// Sources that keep none ignore it.
     fn drop_stored(&mut self, _unused: &[crate::episode::ImageEncoding]) {}
+    /// From now on, leaves each episode's rows in the source's files where a sink of the same
+    /// format can copy them ([`Episode::stored_rows`]; their pixels then stay there): what an
+    /// edit writing the input's format asks. Sources that cannot ignore it.
+    fn leave_rows_stored(&mut self) {}
     /// Passes over the next episode (None after the last): what a shard does with the
     /// episodes before its range. Reading and dropping it by default; a source that can skip
     /// without decoding does so.

@@ -213,6 +213,9 @@ impl VectorStats {
 #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct ImageStats {
     running: Vec<Running>,
+    /// Stored trimmed to the span of bins that count ([`trimmed`]): a depth episode's 8,192
+    /// bins are mostly empty.
+    #[serde(with = "trimmed")]
     histograms: Vec<Vec<u64>>,
     /// Value of bin `b` is `b * bin_width + offset` (u8 channels: b / 255).
     bin_width: f64,
@@ -238,6 +241,14 @@ impl ImageStats {
             bin_width: DEPTH_RANGE_M / DEPTH_BINS as f64,
             frames: 0,
         }
+    }
+
+    /// Whether `other` has these statistics' channels, bins and bin width (merging it adds
+    /// like to like).
+    pub fn same_shape(&self, other: &ImageStats) -> bool {
+        self.running.len() == other.running.len()
+            && self.bin_width.to_bits() == other.bin_width.to_bits()
+            && (self.histograms.iter().map(Vec::len)).eq(other.histograms.iter().map(Vec::len))
     }
 
     /// Folds in another image series' statistics.
@@ -464,6 +475,111 @@ impl ImageStats {
             out.insert(name.into(), per(&|c, _| self.quantile(c, q)));
         }
         Value::Object(out)
+    }
+}
+
+/// Histograms stored as the span of bins that count: `{"bins": N, "from": first, "counts":
+/// [...]}` (an empty one: `{"bins": N, "from": 0, "counts": []}`). A plain array of N counts
+/// (what surgvla stored before) reads too. A stored histogram is untrusted: more than
+/// [`MAX_BINS`] bins, or counts past its end, are refused.
+mod trimmed {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    /// The most bins a stored histogram may declare (ours have 256 or 8,192).
+    pub(super) const MAX_BINS: usize = 1 << 16;
+
+    #[derive(Serialize)]
+    struct Span<'a> {
+        bins: usize,
+        from: usize,
+        counts: &'a [u64],
+    }
+
+    /// One stored histogram: a plain array of counts, or a span (read without serde's
+    /// buffering of untagged enums: these are the bulk of an episodes table).
+    struct Stored(Vec<u64>);
+
+    impl<'de> Deserialize<'de> for Stored {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            d.deserialize_any(StoredVisitor)
+        }
+    }
+
+    struct StoredVisitor;
+
+    impl<'de> serde::de::Visitor<'de> for StoredVisitor {
+        type Value = Stored;
+
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("a histogram: an array of counts, or {bins, from, counts}")
+        }
+
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Stored, A::Error> {
+            let mut counts = Vec::with_capacity(seq.size_hint().unwrap_or(0).min(MAX_BINS));
+            while let Some(count) = seq.next_element::<u64>()? {
+                if counts.len() == MAX_BINS {
+                    return Err(serde::de::Error::custom(format!(
+                        "a histogram of more than {MAX_BINS} bins"
+                    )));
+                }
+                counts.push(count);
+            }
+            Ok(Stored(counts))
+        }
+
+        fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Stored, A::Error> {
+            let (mut bins, mut from, mut counts) = (None, None, None::<Stored>);
+            while let Some(key) = map.next_key::<std::borrow::Cow<'de, str>>()? {
+                match key.as_ref() {
+                    "bins" => bins = Some(map.next_value::<usize>()?),
+                    "from" => from = Some(map.next_value::<usize>()?),
+                    "counts" => counts = Some(map.next_value::<Stored>()?),
+                    _ => {
+                        map.next_value::<serde::de::IgnoredAny>()?;
+                    }
+                }
+            }
+            let (Some(bins), Some(from), Some(Stored(counts))) = (bins, from, counts) else {
+                return Err(serde::de::Error::custom(
+                    "a histogram span without bins, from or counts",
+                ));
+            };
+            if bins > MAX_BINS || from.saturating_add(counts.len()) > bins {
+                return Err(serde::de::Error::custom(format!(
+                    "a histogram of more than {MAX_BINS} bins, or counts past its last bin"
+                )));
+            }
+            let mut full = vec![0; bins];
+            full[from..from + counts.len()].copy_from_slice(&counts);
+            Ok(Stored(full))
+        }
+    }
+
+    pub(super) fn serialize<S: Serializer>(
+        histograms: &[Vec<u64>],
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        let spans: Vec<Span<'_>> = histograms
+            .iter()
+            .map(|h| {
+                let from = h.iter().position(|&c| c != 0).unwrap_or(h.len());
+                let to = h
+                    .iter()
+                    .rposition(|&c| c != 0)
+                    .map_or(from, |last| last + 1);
+                Span {
+                    bins: h.len(),
+                    from: if from == to { 0 } else { from },
+                    counts: &h[from..to],
+                }
+            })
+            .collect();
+        spans.serialize(s)
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<u64>>, D::Error> {
+        let stored = Vec::<Stored>::deserialize(d)?;
+        Ok(stored.into_iter().map(|Stored(counts)| counts).collect())
     }
 }
 
@@ -722,6 +838,50 @@ fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn image_statistics_store_only_the_bins_that_count_and_read_back_alike() {
+        let mut depth = ImageStats::depth();
+        depth.push_depth(&[0.1, 0.1005, 0.12, 0.3]);
+        let stored = serde_json::to_value(&depth).expect("json");
+        let span = &stored["histograms"][0];
+        assert_eq!(span["bins"], json!(DEPTH_BINS));
+        // 0.1 m is bin 1638, 0.3 m bin 4915: the span between them, nothing around it.
+        assert_eq!(span["from"], json!(1638));
+        assert_eq!(
+            span["counts"].as_array().map(Vec::len),
+            Some(4915 - 1638 + 1)
+        );
+        let back: ImageStats = serde_json::from_value(stored).expect("read back");
+        assert!(back.same_shape(&depth));
+        assert_eq!(back.to_json(), depth.to_json());
+        assert_eq!(back.histograms, depth.histograms);
+        // Empty statistics, and the full arrays surgvla stored before.
+        let empty = ImageStats::unit_scaled(3);
+        let text = serde_json::to_string(&empty).expect("json");
+        assert!(
+            text.contains(r#"{"bins":256,"from":0,"counts":[]}"#),
+            "{text}"
+        );
+        let mut value = serde_json::to_value(&depth).expect("json");
+        value["histograms"] = json!([{"bins": 256, "from": 0, "counts": []}]);
+        let back: ImageStats = serde_json::from_value(value).expect("an empty span");
+        assert_eq!(back.histograms, vec![vec![0; 256]]);
+        let mut full = serde_json::to_value(&depth).expect("json");
+        full["histograms"] = json!([depth.histograms[0].clone()]);
+        let back: ImageStats = serde_json::from_value(full).expect("full arrays");
+        assert_eq!(back.histograms, depth.histograms);
+        assert!(!back.same_shape(&ImageStats::unit_scaled(1)));
+        // A hostile accumulator: too many bins, counts past the end.
+        for bad in [
+            json!({"bins": 1u64 << 40, "from": 0, "counts": []}),
+            json!({"bins": 4, "from": 3, "counts": [1, 2]}),
+        ] {
+            let mut value = serde_json::to_value(&depth).expect("json");
+            value["histograms"] = json!([bad]);
+            assert!(serde_json::from_value::<ImageStats>(value).is_err());
+        }
+    }
 
     #[test]
     fn summaries_merge_by_count_and_meet_exact_statistics() {

@@ -195,6 +195,7 @@ impl<'a> Making<'a> {
             steps,
             encoded: Vec::new(),
             image_stats,
+            stored_rows: None,
         };
         if last {
             self.instruction = None;

@@ -1016,6 +1016,7 @@ mod tests {
         assert_eq!(carried.image_stats[0].0, "observation.images.left");
         let decoded = Episode {
             image_stats: Vec::new(),
+            stored_rows: None,
             ..carried.clone()
         };
         let mut written = Vec::new();

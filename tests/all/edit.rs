@@ -173,6 +173,130 @@ fn row_groups_that_are_not_one_episode_each_read_and_edit_alike() {
     }
 }
 
+/// A copy of `input` whose data files are written again one row group per episode with
+/// snappy (surgvla writes zstd): a row group the edit copies keeps snappy.
+fn snappy_copy(input: &Path) -> crate::util::TempRoot {
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    use parquet::basic::Compression;
+    use parquet::file::properties::WriterProperties;
+    let root = temp_root("edit-snappy");
+    for (relative, bytes) in tree(input) {
+        let path = root.join(relative);
+        std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+        std::fs::write(path, bytes).expect("copy");
+    }
+    for file in surgvla::export::lerobot::read::data_files(&root).expect("data files") {
+        let reader = || {
+            ParquetRecordBatchReaderBuilder::try_new(std::fs::File::open(&file).expect("open"))
+                .expect("reader")
+        };
+        let groups = reader().metadata().num_row_groups();
+        let schema = reader().schema().clone();
+        let properties = WriterProperties::builder()
+            .set_compression(Compression::SNAPPY)
+            .build();
+        let mut bytes = Vec::new();
+        let mut writer = parquet::arrow::ArrowWriter::try_new(&mut bytes, schema, Some(properties))
+            .expect("writer");
+        for group in 0..groups {
+            for batch in reader()
+                .with_row_groups(vec![group])
+                .build()
+                .expect("build")
+            {
+                writer.write(&batch.expect("batch")).expect("write");
+            }
+            writer.flush().expect("one group per episode");
+        }
+        writer.close().expect("close");
+        std::fs::write(&file, bytes).expect("write file");
+    }
+    root
+}
+
+/// The compression of each column chunk of `root`'s data files, by column path, per group.
+fn codecs(root: &Path) -> Vec<Vec<(String, parquet::basic::Compression)>> {
+    use parquet::file::reader::FileReader;
+    let mut all = Vec::new();
+    for file in surgvla::export::lerobot::read::data_files(root).expect("data files") {
+        let reader = parquet::file::reader::SerializedFileReader::new(
+            std::fs::File::open(&file).expect("open"),
+        )
+        .expect("footer");
+        for group in reader.metadata().row_groups() {
+            all.push(
+                (group.columns().iter())
+                    .map(|c| (c.column_path().string(), c.compression()))
+                    .collect(),
+            );
+        }
+    }
+    all
+}
+
+#[test]
+fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
+    use parquet::basic::Compression;
+    let original = episodes(video_input());
+    let input = snappy_copy(video_input());
+    // The same input without the depth images' exact statistics: its edit must read the
+    // pixels (to count them) and writes every row again.
+    let decoding = temp_root("edit-decoding-input");
+    for (relative, bytes) in tree(&input) {
+        let path = decoding.join(relative);
+        std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+        std::fs::write(path, bytes).expect("copy");
+    }
+    let table = decoding.join("meta/episodes/chunk-000/file-000.parquet");
+    rewrite_parquet(&table, |batch| {
+        let rows = batch.num_rows();
+        let nulls: ArrayRef = Arc::new(arrow_array::StringArray::new_null(rows));
+        with_column(batch, "surgvla/pixel_stats/observation.images.depth", nulls)
+    });
+    let (copied, decoded) = (temp_root("edit-copied"), temp_root("edit-decoded"));
+    for (from, to) in [(&*input, &copied), (&*decoding, &decoded)] {
+        let (code, _, err) = surgvla(&["edit", text(from), "--drop", "1,3-4", "--out", text(to)]);
+        assert_eq!(code, 0, "{err}");
+    }
+    // Copied: every column but the five surgvla numbers anew keeps the input's snappy.
+    let renumbered = [
+        "timestamp",
+        "frame_index",
+        "episode_index",
+        "index",
+        "task_index",
+    ];
+    let groups = codecs(&copied);
+    assert_eq!(groups.len(), 3, "one row group per kept episode");
+    for group in &groups {
+        for (column, codec) in group {
+            let anew = renumbered.contains(&column.as_str());
+            let expected = if anew {
+                Compression::ZSTD(Default::default())
+            } else {
+                Compression::SNAPPY
+            };
+            assert_eq!(
+                std::mem::discriminant(codec),
+                std::mem::discriminant(&expected),
+                "{column}: {codec:?}"
+            );
+        }
+    }
+    assert!((codecs(&decoded).iter().flatten()).all(|(_, c)| !matches!(c, Compression::SNAPPY)));
+    // Both read as the input's episodes 0, 2 and 5, renumbered, with the same statistics.
+    assert_holds(&episodes(&copied), &original, &[0, 2, 5]);
+    assert_holds(&episodes(&decoded), &original, &[0, 2, 5]);
+    let stats = |root: &Path| std::fs::read(root.join("meta/stats.json")).expect("stats");
+    assert_eq!(text_of(&stats(&copied)), text_of(&stats(&decoded)));
+    let (code, _, err) = surgvla(&["validate", text(&copied)]);
+    assert_eq!(code, 0, "{err}");
+}
+
+fn text_of(bytes: &[u8]) -> &str {
+    std::str::from_utf8(bytes).expect("utf-8")
+}
+
 #[test]
 fn selectors_splits_renames_and_instructions_compose() {
     let input = video_input();

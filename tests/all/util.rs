@@ -128,6 +128,7 @@ pub(crate) fn foreign_dataset() -> (surgvla::export::DatasetInfo, Vec<surgvla::e
         .map(|index| surgvla::episode::Episode {
             encoded: Vec::new(),
             image_stats: Vec::new(),
+            stored_rows: None,
             meta: EpisodeMeta {
                 index,
                 task_code: String::new(),

@@ -86,6 +86,11 @@ impl Changes {
             for (name, _) in episode.image_stats.iter_mut().filter(|(n, _)| n == old) {
                 *name = new.clone();
             }
+            if let Some(stored) = &mut episode.stored_rows {
+                for (_, now) in stored.columns.iter_mut().filter(|(_, n)| n == old) {
+                    *now = new.clone();
+                }
+            }
         }
     }
 }

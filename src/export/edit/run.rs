@@ -245,16 +245,23 @@ fn history(request: &EditRequest, episodes: usize, total: usize) -> String {
 }
 
 impl Planned {
-    /// The source of output `k`'s episodes: the input, chosen and changed.
-    pub fn source(&self, k: usize) -> Result<Picked, ConvertError> {
+    /// The source of output `k`'s episodes: the input, chosen and changed; `leave_stored`:
+    /// their rows left in the input's files where the writer can copy them (for writing, not
+    /// for comparing pixels).
+    pub fn source(&self, k: usize, leave_stored: bool) -> Result<Picked, ConvertError> {
         let output = &self.outputs[k];
         let reading = self.request.reading();
         let options = self.options.clone();
         let exact = self.request.exact_stats;
         let open: super::picked::Opener = Box::new(move || {
-            let source = reading.open(options.as_ref()).map_err(|e| match e {
+            let mut source = reading.open(options.as_ref()).map_err(|e| match e {
                 ConvertError::Read(e) | ConvertError::Write(e) | ConvertError::Input(e) => e,
             })?;
+            // The output is the input's format: what the edit does not change is copied as
+            // stored where the source can leave it so.
+            if leave_stored {
+                source.leave_rows_stored();
+            }
             Ok(if exact {
                 Box::new(ExactStats::new(source)) as Box<dyn EpisodeSource + Send>
             } else {
@@ -296,7 +303,7 @@ impl Planned {
         progress: &mut (dyn FnMut(u64) + Send),
     ) -> Result<(Summary, Vec<(u64, String)>), ConvertError> {
         let output = &self.outputs[k];
-        let mut source = self.source(k)?;
+        let mut source = self.source(k, true)?;
         let reencoded = source.reencoded();
         let mut sink = crate::export::open::open_sink(
             &output.path,
@@ -316,7 +323,7 @@ impl Planned {
     /// bytes; video encoded again: decoded, within the lossy tolerance); the differences.
     pub fn verify(&self, k: usize, reencoded: bool) -> Result<Vec<String>, ConvertError> {
         let output = &self.outputs[k];
-        let mut source = self.source(k)?;
+        let mut source = self.source(k, false)?;
         if !reencoded {
             let summary = Summary::default();
             return crate::export::verify::verify_output(&mut source, &output.path, &summary);
@@ -374,6 +381,10 @@ impl EpisodeSource for ExactStats {
 
     fn drop_stored(&mut self, unused: &[ImageEncoding]) {
         self.inner.drop_stored(unused);
+    }
+
+    fn leave_rows_stored(&mut self) {
+        self.inner.leave_rows_stored();
     }
 }
 

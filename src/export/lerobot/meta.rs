@@ -156,12 +156,59 @@ pub type StatsJson = indexmap::IndexMap<String, FeatureStatsJson>;
 /// One statistic's numbers, nested as lerobot writes them: a list per element for vectors
 /// (`[d]`), (C, 1, 1) lists for images, `[n]` for the count. Numbers keep their JSON spelling
 /// (an integer count stays an integer); a non-finite value is written as null.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum StatValue {
     Null,
     Number(Number),
     List(Vec<StatValue>),
+}
+
+/// Read by what the JSON holds, without trying each variant in turn (an episodes table holds
+/// thousands of these).
+impl<'de> Deserialize<'de> for StatValue {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = StatValue;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number, null, or a list of them")
+            }
+
+            fn visit_unit<E>(self) -> Result<StatValue, E> {
+                Ok(StatValue::Null)
+            }
+
+            fn visit_none<E>(self) -> Result<StatValue, E> {
+                Ok(StatValue::Null)
+            }
+
+            fn visit_u64<E>(self, v: u64) -> Result<StatValue, E> {
+                Ok(StatValue::Number(v.into()))
+            }
+
+            fn visit_i64<E>(self, v: i64) -> Result<StatValue, E> {
+                Ok(StatValue::Number(v.into()))
+            }
+
+            fn visit_f64<E>(self, v: f64) -> Result<StatValue, E> {
+                Ok(StatValue::number(v))
+            }
+
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<StatValue, A::Error> {
+                let mut items = Vec::new();
+                while let Some(item) = seq.next_element::<StatValue>()? {
+                    items.push(item);
+                }
+                Ok(StatValue::List(items))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 impl StatValue {
@@ -421,6 +468,17 @@ impl InfoJson {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stat_values_read_as_written() {
+        let text = r#"[[[0.5]],[[1]],null,-3,[],1e300]"#;
+        let value: StatValue = serde_json::from_str(text).expect("read");
+        let written = serde_json::to_string(&value).expect("write");
+        assert_eq!(written, r#"[[[0.5]],[[1]],null,-3,[],1e+300]"#);
+        assert_eq!(value.depth(), 3);
+        assert!(serde_json::from_str::<StatValue>(r#"{"a": 1}"#).is_err());
+        assert!(serde_json::from_str::<StatValue>(r#""text""#).is_err());
+    }
 
     #[test]
     fn wrong_types_read_as_absent_and_unknown_keys_stay() {

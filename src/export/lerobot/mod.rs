@@ -18,6 +18,7 @@
 
 mod carry;
 pub mod check;
+mod copy;
 mod format;
 mod layout;
 pub mod merge;

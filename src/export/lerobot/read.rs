@@ -8,13 +8,14 @@ use super::rows::{Next, Row, column, invalid, open_parquet_metadata, vector};
 use super::table::StoredEpisode;
 use crate::episode::{
     Dtype, EncodedFeature, EncodedFrame, Episode, EpisodeMeta, FeatureKind, FeatureSpec,
-    ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, VideoCodec,
+    ImageEncoding, MAX_OBJECTS, POSE_VALUES, PixelStats, StoredRows, VideoCodec,
 };
 use crate::export::bounded::read_json;
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::paths::{self, Field};
 use crate::export::source::EpisodeSource;
+use crate::export::stats::{FeatureStats, ImageStats};
 use crate::media::decode;
 use crate::media::demux::VideoReader;
 use crate::media::image::decode_png_sized;
@@ -45,7 +46,7 @@ pub struct StoredFrame {
 
 /// A parquet file's reader builder, its footer checked ([`footer_problem`]) first.
 pub fn open_parquet(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>, ExportError> {
-    let (file, metadata) = open_parquet_metadata(path)?;
+    let (file, metadata) = open_parquet_metadata(path, false)?;
     Ok(ParquetRecordBatchReaderBuilder::new_with_metadata(
         file, metadata,
     ))
@@ -576,6 +577,12 @@ pub struct LeRobotSource {
     pending: std::collections::VecDeque<Row>,
     /// Stored encodings a conversion will not copy (see [`EpisodeSource::drop_stored`]).
     unused_stored: Vec<ImageEncoding>,
+    /// Whether episodes are read with their rows left in the data files where the writer can
+    /// copy them ([`EpisodeSource::leave_rows_stored`]).
+    leave_stored: bool,
+    /// The row group the episode being taken was read from without its images, if its rows
+    /// may be copied.
+    stored: Option<super::copy::StoredGroup>,
     /// Episodes returned so far.
     returned: u64,
     /// Whether the end (or a count that disagrees with info.json) was reported.
@@ -696,6 +703,8 @@ impl LeRobotSource {
             data: super::rows::DataRows::new(data_files(root)?),
             pending: Default::default(),
             unused_stored: Vec::new(),
+            leave_stored: false,
+            stored: None,
             returned: 0,
             ended: false,
             info,
@@ -912,6 +921,9 @@ enum Take {
     Whole,
     /// Every column but the images.
     Light,
+    /// Every column but the images when a row group holds the whole episode (the group kept
+    /// in [`LeRobotSource::stored`] for copying), else every column.
+    Stored,
     /// Nothing the row groups' statistics can tell without reading (no rows returned).
     Skip,
 }
@@ -935,6 +947,7 @@ impl LeRobotSource {
 
     /// The next episode's index (None: the data is done) and its rows.
     fn take_rows(&mut self, take: Take) -> Result<(Option<i64>, Vec<Row>), ExportError> {
+        self.stored = None;
         let mut rows = Vec::new();
         let mut current: Option<i64> = None;
         loop {
@@ -958,8 +971,17 @@ impl LeRobotSource {
                     if take == Take::Skip {
                         current = Some(episode);
                         self.data.skip_group();
+                    } else if take == Take::Stored && current.is_some() {
+                        // The episode goes on in another group: read whole (the rows of the
+                        // first, read without images, get them back in `stored_episode`).
+                        let group = self.data.read_group(&self.info, true)?;
+                        self.pending.extend(group);
                     } else {
-                        let group = self.data.read_group(&self.info, false)?;
+                        if take == Take::Stored {
+                            self.stored = self.data.stored_group();
+                        }
+                        let images = take == Take::Stored && self.stored.is_none();
+                        let group = self.data.read_group(&self.info, images)?;
                         self.pending.extend(group);
                     }
                 }
@@ -1001,13 +1023,26 @@ impl Iterator for LeRobotSource {
     type Item = Result<Episode, ExportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        let (index, rows, row) = match self.take_episode(Take::Whole)? {
+        let take = if self.leave_stored {
+            Take::Stored
+        } else {
+            Take::Whole
+        };
+        let (index, mut rows, row) = match self.take_episode(take)? {
             Ok(taken) => taken,
             Err(error) => return Some(Err(error)),
+        };
+        let (image_stats, stored_rows) = match self.stored_rows(&mut rows, row.as_ref()) {
+            Ok(taken) => taken,
+            Err(error) => {
+                self.ended = true;
+                return Some(Err(error));
+            }
         };
         let row_tasks: Vec<i64> = rows.iter().map(|r| r.task).collect();
         let stored_keys: Vec<(String, FeatureKind)> = step_images(&self.info)
             .filter(|f| !self.unused_stored.contains(&ImageEncoding::of_kind(f.kind)))
+            .filter(|f| stored_rows.as_ref().is_none_or(|s| !s.holds_pixels(f)))
             .map(|f| (f.name.clone(), f.kind))
             .collect();
         let mut stored: Vec<Vec<EncodedFrame>> = vec![Vec::new(); stored_keys.len()];
@@ -1061,10 +1096,75 @@ impl Iterator for LeRobotSource {
         };
         Some(Ok(Episode {
             encoded,
-            image_stats: Vec::new(),
+            image_stats,
+            stored_rows,
             meta,
             steps,
         }))
+    }
+}
+
+/// Exact pixel statistics by image feature.
+type ImageStatsOf = Vec<(String, PixelStats)>;
+
+/// The exact pixel statistics the episodes-table row `row` stores for the image features in
+/// the steps (surgvla's datasets), those of the shape the feature's statistics have.
+fn exact_image_stats(row: &StoredEpisode, info: &DatasetInfo) -> Vec<(String, PixelStats)> {
+    step_images(info)
+        .filter_map(|f| {
+            let exact: Value = serde_json::from_str(row.pixel_stats.get(&f.name)?).ok()?;
+            let parsed = serde_json::from_value::<ImageStats>(exact.clone()).ok()?;
+            match FeatureStats::for_feature(f) {
+                FeatureStats::Image(like) if parsed.same_shape(&like) => {
+                    Some((f.name.clone(), PixelStats::Exact(exact)))
+                }
+                _ => None,
+            }
+        })
+        .collect()
+}
+
+impl LeRobotSource {
+    /// The episode just taken's images' exact statistics (from its episodes-table row `row`),
+    /// and its rows left in their data file for copying, when one whole row group holds them
+    /// and every image has exact statistics (so that nothing needs the pixels); otherwise the
+    /// images its first rows were read without, read now.
+    fn stored_rows(
+        &mut self,
+        rows: &mut [Row],
+        row: Option<&StoredEpisode>,
+    ) -> Result<(ImageStatsOf, Option<StoredRows>), ExportError> {
+        let image_stats = row.map_or_else(Vec::new, |row| exact_image_stats(row, &self.info));
+        let stored = self.stored_rows_of(rows, &image_stats)?;
+        Ok((image_stats, stored))
+    }
+
+    /// [`LeRobotSource::stored_rows`] given the statistics.
+    fn stored_rows_of(
+        &mut self,
+        rows: &mut [Row],
+        image_stats: &[(String, PixelStats)],
+    ) -> Result<Option<StoredRows>, ExportError> {
+        let Some(group) = self.stored.take() else {
+            return Ok(None);
+        };
+        let all_stats =
+            step_images(&self.info).all(|f| image_stats.iter().any(|(name, _)| *name == f.name));
+        if group.rows() == rows.len() as u64 && all_stats {
+            let columns = (self.info.features.iter())
+                .filter(|f| f.in_steps())
+                .map(|f| (f.name.clone(), f.name.clone()))
+                .collect();
+            return Ok(Some(StoredRows {
+                columns,
+                handle: std::sync::Arc::new(group),
+            }));
+        }
+        let images = super::rows::stored_images(&group, &self.info)?;
+        for (row, images) in rows.iter_mut().zip(images) {
+            row.images = images;
+        }
+        Ok(None)
     }
 }
 
@@ -1123,6 +1223,19 @@ impl EpisodeSource for LeRobotSource {
 
     fn drop_stored(&mut self, unused: &[ImageEncoding]) {
         self.unused_stored = unused.to_vec();
+    }
+
+    /// Rows are left stored only where every image in the parquet is surgvla's (RGB, depth,
+    /// mask): another tool's images carry statistics only their pixels give.
+    fn leave_rows_stored(&mut self) {
+        let parquet: Vec<FeatureSpec> = (self.info.features.iter())
+            .filter(|f| f.in_steps())
+            .cloned()
+            .collect();
+        if (parquet.iter()).all(|f| f.dtype != Dtype::Image || f.kind != FeatureKind::Other) {
+            self.leave_stored = true;
+            self.data.leave_stored(super::table::frame_schema(&parquet));
+        }
     }
 
     fn len(&self) -> u64 {

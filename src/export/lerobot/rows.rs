@@ -59,6 +59,8 @@ struct OpenFile {
     path: PathBuf,
     file: File,
     metadata: ArrowReaderMetadata,
+    /// Whether its row groups can be copied by the writer (see [`DataRows::leave_stored`]).
+    copyable: bool,
     /// The row group read next.
     group: usize,
     /// A group being read whole, 64 rows at a time.
@@ -69,6 +71,9 @@ struct OpenFile {
 pub(super) struct DataRows {
     files: std::vec::IntoIter<PathBuf>,
     open: Option<OpenFile>,
+    /// The schema the writer would give the frame rows, when row groups are to be offered
+    /// for copying ([`DataRows::leave_stored`]).
+    copy: Option<arrow_schema::SchemaRef>,
 }
 
 impl DataRows {
@@ -76,7 +81,27 @@ impl DataRows {
         DataRows {
             files: files.into_iter(),
             open: None,
+            copy: None,
         }
+    }
+
+    /// From the next file opened on, offers a row group for copying ([`DataRows::stored_group`])
+    /// when its file stores the columns as the writer of `schema` would.
+    pub(super) fn leave_stored(&mut self, schema: arrow_schema::SchemaRef) {
+        self.copy = Some(schema);
+    }
+
+    /// The row group read next, for the writer to copy, if its file allows.
+    pub(super) fn stored_group(&self) -> Option<super::copy::StoredGroup> {
+        let open = self
+            .open
+            .as_ref()
+            .filter(|o| o.copyable && o.reader.is_none())?;
+        (open.group < open.metadata.metadata().num_row_groups()).then(|| super::copy::StoredGroup {
+            file: std::sync::Arc::from(open.path.as_path()),
+            metadata: open.metadata.metadata().clone(),
+            row_group: open.group,
+        })
     }
 
     /// What comes next (None: the files are done), opening the next file when one is done.
@@ -97,11 +122,15 @@ impl DataRows {
                 self.open = None;
                 return Ok(None);
             };
-            let (file, metadata) = open_parquet_metadata(&path)?;
+            let (file, metadata) = open_parquet_metadata(&path, self.copy.is_some())?;
+            let copyable = (self.copy.as_ref()).is_some_and(|schema| {
+                super::copy::matches_writer(metadata.parquet_schema(), schema)
+            });
             self.open = Some(OpenFile {
                 path,
                 file,
                 metadata,
+                copyable,
                 group: 0,
                 reader: None,
             });
@@ -181,17 +210,52 @@ impl OpenFile {
                 .with_row_groups(vec![group])
                 .with_batch_size(batch_rows);
         if !images {
-            let schema = self.metadata.parquet_schema();
-            let is_image = |name: &str| {
-                (info.features.iter()).any(|f| f.name == name && f.dtype == Dtype::Image)
-            };
-            let roots = (schema.root_schema().get_fields().iter().enumerate())
-                .filter(|(_, field)| !is_image(field.name()))
-                .map(|(i, _)| i);
-            builder = builder.with_projection(ProjectionMask::roots(schema, roots));
+            builder = builder.with_projection(light_projection(&self.metadata, info));
         }
         builder.build().map_err(ExportError::parquet(&self.path))
     }
+}
+
+/// The columns a row needs without its images: the default columns and the features' other
+/// values (not the images, nor columns `info` leaves out).
+fn light_projection(metadata: &ArrowReaderMetadata, info: &DatasetInfo) -> ProjectionMask {
+    let schema = metadata.parquet_schema();
+    let wanted = |name: &str| {
+        super::table::DEFAULT_COLUMNS.contains(&name)
+            || (info.features.iter())
+                .any(|f| f.name == name && f.in_steps() && f.dtype != Dtype::Image)
+    };
+    let roots = (schema.root_schema().get_fields().iter().enumerate())
+        .filter(|(_, field)| wanted(field.name()))
+        .map(|(i, _)| i);
+    ProjectionMask::roots(schema, roots)
+}
+
+/// The image bytes of `stored`'s rows (per row, in [`super::read::step_images`] order), read
+/// again: for rows first read without them whose group could not be copied after all.
+pub(super) fn stored_images(
+    stored: &super::copy::StoredGroup,
+    info: &DatasetInfo,
+) -> Result<Vec<Vec<Vec<u8>>>, ExportError> {
+    let path = &stored.file;
+    let file = crate::export::bounded::open_regular(path)?;
+    let metadata = ArrowReaderMetadata::try_new(stored.metadata.clone(), Default::default())
+        .map_err(ExportError::parquet(path))?;
+    let reader = ParquetRecordBatchReaderBuilder::new_with_metadata(file, metadata)
+        .with_row_groups(vec![stored.row_group])
+        .with_batch_size(BATCH_ROWS)
+        .build()
+        .map_err(ExportError::parquet(path))?;
+    let mut images = Vec::new();
+    for batch in reader {
+        let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
+        images.extend(
+            rows_of(&batch, path, info, true)?
+                .into_iter()
+                .map(|r| r.images),
+        );
+    }
+    Ok(images)
 }
 
 /// The one episode a row group's `episode_index` statistics say it holds, if they say so.
@@ -344,15 +408,26 @@ pub fn footer_problem(
         .then(|| format!("its footer claims {stated} rows where its row groups hold {rows}"))
 }
 
-/// A parquet file and its footer, checked ([`footer_problem`]).
+/// A parquet file and its footer, checked ([`footer_problem`]); `whole`: with its page index
+/// and pages' encodings, as a copy of its row groups needs.
 pub(super) fn open_parquet_metadata(
     path: &Path,
+    whole: bool,
 ) -> Result<(File, parquet::arrow::arrow_reader::ArrowReaderMetadata), ExportError> {
     let file = crate::export::bounded::open_regular(path)?;
     let file_bytes = file.metadata().map_err(ExportError::io(path))?.len();
-    let metadata =
-        parquet::arrow::arrow_reader::ArrowReaderMetadata::load(&file, Default::default())
-            .map_err(ExportError::parquet(path))?;
+    let policy = if whole {
+        parquet::file::metadata::PageIndexPolicy::Optional
+    } else {
+        parquet::file::metadata::PageIndexPolicy::Skip
+    };
+    // For copying, the whole footer as written: the page index, and the pages' encodings
+    // listed (not summed up as a mask, which a writer cannot write back).
+    let options = parquet::arrow::arrow_reader::ArrowReaderOptions::new()
+        .with_page_index_policy(policy)
+        .with_encoding_stats_as_mask(!whole);
+    let metadata = parquet::arrow::arrow_reader::ArrowReaderMetadata::load(&file, options)
+        .map_err(ExportError::parquet(path))?;
     if let Some(problem) = footer_problem(metadata.metadata(), file_bytes) {
         return Err(invalid(path, problem));
     }

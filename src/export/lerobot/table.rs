@@ -252,7 +252,7 @@ pub(super) fn frame_batch(
 /// The default columns (timestamp, frame, episode and dataset indices, task) of rows of
 /// episode `episode_index` from its `first_step`-th step, the dataset's `first_index`-th frame
 /// on, one per task index.
-fn default_columns(
+pub(super) fn default_columns(
     episode_index: u64,
     (first_index, first_step): (u64, usize),
     task_indices: &[u64],
@@ -541,10 +541,10 @@ impl StoredEpisode {
                 continue;
             }
             if let Some(key) = name.strip_prefix(PIXEL_STATS) {
+                // Parsed where it is used (an accumulator that does not parse is left out
+                // there); only what cannot be one is dropped here.
                 let exact = match value {
-                    Value::String(text) => serde_json::from_str::<serde::de::IgnoredAny>(&text)
-                        .is_ok()
-                        .then_some(text),
+                    Value::String(text) => text.trim_start().starts_with('{').then_some(text),
                     Value::Object(_) => Some(value.to_string()),
                     _ => None,
                 };

@@ -137,11 +137,14 @@ impl EpisodeWork<'_> {
     /// What becomes of each image feature stored in the parquet, by name: bytes the source
     /// stored in the feature's encoding are copied (PNG and TIFF are lossless: the pixels are
     /// the same whatever compression made them); other features' images are stored as they
-    /// came (not here).
+    /// came (not here); images left in the source's stored rows are copied with them (not
+    /// here either).
     fn image_plans(&self, episode: &Episode) -> Result<Vec<(String, ImagePlan)>, ExportError> {
+        let elsewhere =
+            |f: &FeatureSpec| (episode.stored_rows.as_ref()).is_some_and(|s| s.holds_pixels(f));
         self.parquet_features
             .iter()
-            .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+            .filter(|f| f.dtype == Dtype::Image && f.kind != FeatureKind::Other && !elsewhere(f))
             .map(|feature| {
                 let kind = feature.kind;
                 let plan = match episode.stored_frames(&feature.name, ImageEncoding::of_kind(kind))
@@ -202,7 +205,7 @@ impl EpisodeWork<'_> {
     pub fn feature_stats(&self, episode: &Episode) -> EpisodeStats {
         let kinds = self.step_kinds();
         let mut total = fresh_feature_stats(&self.info.features);
-        skip_carried(episode, &mut total);
+        let carried = skip_carried(&self.info.features, episode, &mut total);
         // Frames in chunks in parallel: each frame's statistics on their own (their sums are
         // folded in frame order below), its images' pixel counts into its chunk's histograms
         // (integers: any order).
@@ -246,7 +249,7 @@ impl EpisodeWork<'_> {
                 }
             }
         }
-        self.carried_stats(episode, &mut total);
+        self.carried_stats(episode, carried, &mut total);
         total
     }
 
@@ -264,16 +267,25 @@ impl EpisodeWork<'_> {
     /// encoded here from its pixels had them in the steps; a copied video brings its source's
     /// statistics. Images in the steps whose statistics the episode carries
     /// ([`Episode::image_stats`]) take them too.
-    fn carried_stats(&self, episode: &Episode, total: &mut EpisodeStats) {
+    fn carried_stats(
+        &self,
+        episode: &Episode,
+        carried: Vec<Option<ImageStats>>,
+        total: &mut EpisodeStats,
+    ) {
         let features = &self.info.features;
-        for (feature, (_, t)) in features.iter().zip(total.iter_mut()) {
-            let carried = if feature.in_steps() {
-                carried_image_stats(episode, &feature.name)
-            } else {
-                episode
-                    .encoded_video(&feature.name)
-                    .and_then(|e| e.pixel_stats.as_ref())
-            };
+        // (None for every feature when the episode was not known ahead.)
+        let carried = carried.into_iter().chain(std::iter::repeat_with(|| None));
+        for ((feature, (_, t)), carried) in features.iter().zip(total.iter_mut()).zip(carried) {
+            if feature.in_steps() {
+                if let Some(exact) = carried {
+                    *t = FeatureStats::Image(exact);
+                }
+                continue;
+            }
+            let carried = episode
+                .encoded_video(&feature.name)
+                .and_then(|e| e.pixel_stats.as_ref());
             match carried {
                 Some(PixelStats::Exact(value)) => {
                     if let Ok(exact) = serde_json::from_value::<ImageStats>(value.clone()) {
@@ -368,21 +380,47 @@ fn fold_frame(
     }
 }
 
-/// The exact statistics `episode` carries for its image feature `name`, if any.
-fn carried_image_stats<'a>(episode: &'a Episode, name: &str) -> Option<&'a PixelStats> {
-    (episode.image_stats.iter())
-        .find(|(n, stats)| n == name && matches!(stats, PixelStats::Exact(_)))
-        .map(|(_, stats)| stats)
+/// The exact statistics `episode` carries for its image feature `feature` in the steps, if
+/// any, in the shape the feature's statistics have (a stored accumulator is the input's word:
+/// one of another shape is left out, and the pixels counted instead).
+fn carried_image_stats(episode: &Episode, feature: &FeatureSpec) -> Option<ImageStats> {
+    let value = (episode.image_stats.iter()).find_map(|(n, stats)| match stats {
+        PixelStats::Exact(value) if *n == feature.name => Some(value),
+        _ => None,
+    })?;
+    let exact = serde_json::from_value::<ImageStats>(value.clone()).ok()?;
+    match FeatureStats::for_feature(feature) {
+        FeatureStats::Image(like) if exact.same_shape(&like) => Some(exact),
+        _ => None,
+    }
 }
 
 /// Leaves out of the frame-by-frame statistics (no image decoded) the images whose exact
-/// statistics `episode` carries: [`EpisodeWork::carried_stats`] puts them in afterwards.
-fn skip_carried(episode: &Episode, total: &mut EpisodeStats) {
-    for (name, stats) in total.iter_mut() {
-        if carried_image_stats(episode, name).is_some() {
+/// statistics `episode` carries, and returns those (per feature): [`EpisodeWork::carried_stats`]
+/// puts them in afterwards.
+fn skip_carried(
+    features: &[FeatureSpec],
+    episode: &Episode,
+    total: &mut EpisodeStats,
+) -> Vec<Option<ImageStats>> {
+    let all = carried_all(features, episode);
+    for ((_, stats), carried) in total.iter_mut().zip(&all) {
+        if carried.is_some() {
             *stats = FeatureStats::Vector(VectorStats::new(0));
         }
     }
+    all
+}
+
+/// Per feature, the exact statistics `episode` carries for its images in the steps, if any.
+fn carried_all(features: &[FeatureSpec], episode: &Episode) -> Vec<Option<ImageStats>> {
+    (features.iter())
+        .map(|feature| {
+            (feature.in_steps() && !episode.image_stats.is_empty())
+                .then(|| carried_image_stats(episode, feature))
+                .flatten()
+        })
+        .collect()
 }
 
 /// Empty statistics of `features`.
@@ -511,7 +549,7 @@ impl StatsFold {
     pub(super) fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
         let mut total = fresh_feature_stats(&work.info.features);
         if let Some(episode) = episode {
-            skip_carried(episode, &mut total);
+            skip_carried(&work.info.features, episode, &mut total);
         }
         let histograms = total
             .iter()
@@ -544,7 +582,9 @@ impl StatsFold {
                 t.add_histograms(h);
             }
         }
-        work.carried_stats(episode, &mut self.total);
+        // What the episode carries at its end (a recording's last part: the whole episode's).
+        let carried = carried_all(&work.info.features, episode);
+        work.carried_stats(episode, carried, &mut self.total);
         self.total
     }
 }

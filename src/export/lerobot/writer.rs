@@ -6,7 +6,7 @@ use super::meta::InfoJson;
 use super::meta::{FeatureStatsJson, StatsJson};
 use super::options::{CODEBASE_VERSION, LeRobotOptions, VideoOptions};
 use super::table::{DEFAULT_COLUMNS, Provenance, frame_schema};
-use super::table::{EpisodeRow, KeyedSpan, VideoSpan, frame_batch};
+use super::table::{EpisodeRow, KeyedSpan, VideoSpan, default_columns, frame_batch};
 use super::work::{EpisodeStats, EpisodeWork, fresh_stats};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
 use crate::export::dir::RunOptions;
@@ -22,7 +22,6 @@ use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
 use serde_json::{Value, json};
 use std::collections::HashMap;
-use std::fs::File;
 
 /// Where rows were written: the data file's place, and whether it is full.
 pub(super) struct Written {
@@ -33,7 +32,7 @@ pub(super) struct Written {
 
 /// The data file being written.
 struct OpenFile {
-    writer: ArrowWriter<File>,
+    writer: super::copy::DataFile,
     chunk: u64,
     file: u64,
     pending: PendingFile,
@@ -355,6 +354,7 @@ impl LeRobotFiles {
             let (handle, pending) = dir.create_file(&version.data_path(chunk, file))?;
             let writer =
                 ArrowWriter::try_new(handle, self.schema.clone(), Some(self.writer_properties()))
+                    .and_then(|w| super::copy::DataFile::new(w, self.schema.clone()))
                     .map_err(ExportError::parquet(&pending.path))?;
             self.open = Some(OpenFile {
                 writer,
@@ -614,15 +614,24 @@ impl LeRobotFiles {
         } else {
             self.append_videos(dir, info, &video_frames)?
         };
-        let batch = frame_batch(
-            &self.parquet_columns(),
-            episode,
-            images,
-            (first_index, 0),
-            &task_indices,
-            info.fps,
-        )?;
-        let written = self.write_rows(dir, &batch)?;
+        let written = match &episode.stored_rows {
+            Some(stored) => {
+                let defaults =
+                    default_columns(meta.index, (first_index, 0), &task_indices, info.fps);
+                self.copy_rows(dir, stored, &defaults)?
+            }
+            None => {
+                let batch = frame_batch(
+                    &self.parquet_columns(),
+                    episode,
+                    images,
+                    (first_index, 0),
+                    &task_indices,
+                    info.fps,
+                )?;
+                self.write_rows(dir, &batch)?
+            }
+        };
         let length = episode.steps.len() as u64;
         self.episode_done(
             dir,
@@ -649,8 +658,33 @@ impl LeRobotFiles {
         let version = self.options.version;
         let open = self.open_file(dir)?;
         let parquet_error = ExportError::parquet(&open.pending.path);
-        open.writer.write(batch).map_err(&parquet_error)?;
-        open.writer.flush().map_err(&parquet_error)?;
+        open.writer.write_batch(batch).map_err(&parquet_error)?;
+        Ok(Written {
+            chunk: open.chunk,
+            file: open.file,
+            full: version.file_is_full(open.writer.bytes_written() as u64, limit),
+        })
+    }
+
+    /// [`LeRobotWriter::write_rows`] for an episode whose rows its source left stored: the
+    /// stored row group copied, its default columns `defaults` encoded
+    /// ([`super::copy::DataFile::copy_group`]).
+    fn copy_rows(
+        &mut self,
+        dir: &mut DatasetDir,
+        stored: &crate::episode::StoredRows,
+        defaults: &[arrow_array::ArrayRef],
+    ) -> Result<Written, ExportError> {
+        let Some(group) = stored.handle.downcast_ref::<super::copy::StoredGroup>() else {
+            return Err(ExportError::Internal(
+                "an episode's rows are stored in another format's file".into(),
+            ));
+        };
+        let limit = self.options.data_file_size_mb * 1024 * 1024;
+        let version = self.options.version;
+        let open = self.open_file(dir)?;
+        (open.writer.copy_group(group, stored, defaults))
+            .map_err(ExportError::parquet(&open.pending.path))?;
         Ok(Written {
             chunk: open.chunk,
             file: open.file,
@@ -724,12 +758,16 @@ impl LeRobotFiles {
         episode_stats: Vec<(String, crate::export::stats::FeatureStats)>,
     ) -> (StatsJson, Vec<(String, Value)>) {
         let mut stats_json = StatsJson::new();
-        // A video feature's exact statistics travel with the episode (surgvla's datasets), so
-        // that merging or converting it later, without decoding the video, gives the same
-        // statistics.
+        // An image feature's exact statistics travel with the episode (surgvla's datasets), so
+        // that merging, converting or editing it later, without decoding its video or images,
+        // gives the same statistics.
         let mut pixel_stats = Vec::new();
-        for ((name, total), (_, this)) in self.state.stats.iter_mut().zip(episode_stats) {
-            if info.is_ours() && self.video_features.iter().any(|(key, _)| key == name) {
+        let kept: Vec<bool> = (self.state.stats.iter())
+            .map(|(name, _)| info.is_ours() && self.has_pixel_stats(name))
+            .collect();
+        let totals = self.state.stats.iter_mut().zip(episode_stats).zip(kept);
+        for (((name, total), (_, this)), kept) in totals {
+            if kept {
                 let exact = match &this {
                     crate::export::stats::FeatureStats::Image(s) => {
                         serde_json::to_value(s).unwrap_or(Value::Null)
@@ -744,6 +782,14 @@ impl LeRobotFiles {
             total.merge(&this);
         }
         (stats_json, pixel_stats)
+    }
+
+    /// Whether the episodes table keeps feature `name`'s exact pixel statistics: a video
+    /// feature, or one of surgvla's images (RGB, depth, mask) in the parquet.
+    fn has_pixel_stats(&self, name: &str) -> bool {
+        self.video_features.iter().any(|(key, _)| key == name)
+            || (self.parquet_features.iter())
+                .any(|f| f.name == name && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
     }
 
     /// The per-episode work's view of this writer.

@@ -466,6 +466,7 @@ impl Reading {
         Ok(Episode {
             encoded: Vec::new(),
             image_stats: Vec::new(),
+            stored_rows: None,
             meta: EpisodeMeta {
                 task_changes,
                 fields: fields_of(&self.episode_leaves, &example),

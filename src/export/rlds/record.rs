@@ -674,6 +674,7 @@ pub fn decode_episode(layout: &StepLayout, bytes: &[u8]) -> Result<Episode, Stri
     let encoded = stored_jpeg(layout, &rgb);
     Ok(Episode {
         image_stats: Vec::new(),
+        stored_rows: None,
         meta,
         steps,
         encoded,
@@ -771,6 +772,7 @@ mod tests {
         Episode {
             encoded: Vec::new(),
             image_stats: Vec::new(),
+            stored_rows: None,
             meta: EpisodeMeta {
                 index: 3,
                 task_code: "T1-1".into(),

@@ -567,6 +567,7 @@ impl Context<'_> {
                 steps,
                 encoded: Vec::new(),
                 image_stats: Vec::new(),
+                stored_rows: None,
             };
             check_semantics(&episode, &semantics, &At::file(file), self.findings);
         }

@@ -1,0 +1,487 @@
+//! A data file written row group by row group, where a row group is either encoded from
+//! arrays ([`DataFile::write_batch`], what `ArrowWriter` does) or copied from a row group the
+//! reader left in its file ([`DataFile::copy_group`]): every column chunk but the default
+//! columns' copied as stored (compressed, with its page index), the default columns
+//! (timestamps, frame, episode, dataset and task indices) encoded for the episode's new place.
+//! No pixel is decompressed, decoded or compressed again.
+//!
+//! The reader offers a group for copying ([`StoredGroup`]) only when its file's columns have
+//! the types this writer gives them ([`matches_writer`]), so that a copied chunk reads as the
+//! writer's own would.
+
+use super::table::DEFAULT_COLUMNS;
+use crate::episode::StoredRows;
+use arrow_array::{ArrayRef, RecordBatch};
+use arrow_schema::SchemaRef;
+use parquet::arrow::ArrowSchemaConverter;
+use parquet::arrow::arrow_writer::{ArrowRowGroupWriterFactory, compute_leaves};
+use parquet::column::writer::ColumnCloseResult;
+use parquet::errors::ParquetError;
+use parquet::file::metadata::{ColumnChunkMetaData, ParquetMetaData};
+use parquet::file::writer::SerializedFileWriter;
+use parquet::schema::types::{ColumnDescPtr, ColumnDescriptor, SchemaDescriptor};
+use std::fs::File;
+use std::path::Path;
+use std::sync::Arc;
+
+/// Where an episode's rows are stored: one whole row group of a data file (its footer read
+/// with the page index).
+pub(super) struct StoredGroup {
+    pub(super) file: Arc<Path>,
+    pub(super) metadata: Arc<ParquetMetaData>,
+    pub(super) row_group: usize,
+}
+
+impl StoredGroup {
+    /// The group's rows.
+    pub(super) fn rows(&self) -> u64 {
+        (self.metadata.row_groups().get(self.row_group))
+            .map_or(0, |g| u64::try_from(g.num_rows()).unwrap_or(0))
+    }
+}
+
+/// A data file being written (see the module overview).
+pub(super) struct DataFile {
+    writer: SerializedFileWriter<File>,
+    factory: ArrowRowGroupWriterFactory,
+    schema: SchemaRef,
+    groups: usize,
+}
+
+/// A column chunk of a row group being put together.
+enum Chunk {
+    Encoded(Box<parquet::arrow::arrow_writer::ArrowColumnChunk>),
+    Copied(Box<ColumnCloseResult>),
+}
+
+impl DataFile {
+    /// The writer `ArrowWriter` would be (its Arrow schema in the footer), taken apart.
+    pub(super) fn new(
+        writer: parquet::arrow::ArrowWriter<File>,
+        schema: SchemaRef,
+    ) -> Result<Self, ParquetError> {
+        let (writer, factory) = writer.into_serialized_writer()?;
+        Ok(DataFile {
+            writer,
+            factory,
+            schema,
+            groups: 0,
+        })
+    }
+
+    pub(super) fn bytes_written(&self) -> usize {
+        self.writer.bytes_written()
+    }
+
+    pub(super) fn close(self) -> Result<(), ParquetError> {
+        self.writer.close().map(|_| ())
+    }
+
+    /// Appends `batch` as a row group of its own, encoded (the bytes `ArrowWriter::write` and
+    /// `flush` give).
+    pub(super) fn write_batch(&mut self, batch: &RecordBatch) -> Result<(), ParquetError> {
+        let columns: Vec<Option<&ArrayRef>> = batch.columns().iter().map(Some).collect();
+        let chunks = self.encode(&columns)?;
+        self.append(
+            chunks
+                .into_iter()
+                .map(|c| c.map(|c| Chunk::Encoded(Box::new(c))))
+                .collect(),
+            None,
+        )
+    }
+
+    /// Appends `stored`'s row group, its columns named as `rows` says: the default columns
+    /// encoded from `defaults` (in [`DEFAULT_COLUMNS`] order), every other column copied.
+    pub(super) fn copy_group(
+        &mut self,
+        stored: &StoredGroup,
+        rows: &StoredRows,
+        defaults: &[ArrayRef],
+    ) -> Result<(), ParquetError> {
+        let fields = self.schema.fields();
+        let columns: Vec<Option<&ArrayRef>> = fields
+            .iter()
+            .map(|f| {
+                let position = DEFAULT_COLUMNS.iter().position(|d| d == f.name())?;
+                defaults.get(position)
+            })
+            .collect();
+        let mut chunks: Vec<Option<Chunk>> = (self.encode(&columns)?.into_iter())
+            .map(|c| c.map(|c| Chunk::Encoded(Box::new(c))))
+            .collect();
+        let input = stored.metadata.file_metadata().schema_descr();
+        let group = (stored.metadata.row_groups().get(stored.row_group))
+            .ok_or_else(|| ParquetError::General(format!("no row group {}", stored.row_group)))?;
+        let output = self.writer.schema_descr();
+        for (leaf, chunk_slot) in chunks.iter_mut().enumerate() {
+            if chunk_slot.is_some() {
+                continue;
+            }
+            let descr = output.column(leaf);
+            let parts = descr.path().parts();
+            let stored_name = (parts.first())
+                .and_then(|name| rows.column_of(name))
+                .ok_or_else(|| {
+                    ParquetError::General(format!("no stored column for {}", descr.path()))
+                })?;
+            let found = (0..input.num_columns()).find(|&j| {
+                let theirs = input.column(j);
+                let theirs = theirs.path().parts();
+                theirs.first().map(String::as_str) == Some(stored_name) && theirs[1..] == parts[1..]
+            });
+            let Some(j) = found.filter(|&j| same_leaf(&input.column(j), &descr)) else {
+                return Err(ParquetError::General(format!(
+                    "the stored rows have no column {stored_name} of {}'s type",
+                    descr.path()
+                )));
+            };
+            let chunk = group.column(j);
+            // The page index travels with the chunk when it points inside it (the input's word).
+            let offset_index = of_group(stored.metadata.offset_index(), stored.row_group, j)
+                .filter(|index| pages_inside(index, chunk));
+            let column_index = offset_index
+                .as_ref()
+                .and_then(|_| of_group(stored.metadata.column_index(), stored.row_group, j));
+            *chunk_slot = Some(Chunk::Copied(Box::new(ColumnCloseResult {
+                bytes_written: u64::try_from(chunk.compressed_size()).unwrap_or(0),
+                rows_written: stored.rows(),
+                metadata: renamed(chunk, descr)?,
+                bloom_filter: None,
+                column_index,
+                offset_index,
+            })));
+        }
+        let file = File::open(&stored.file)?;
+        self.append(chunks, Some(&file))
+    }
+
+    /// Each of `columns` (one per field; None: not encoded here) encoded as its leaves'
+    /// chunks (None for a field's leaves not encoded).
+    fn encode(
+        &mut self,
+        columns: &[Option<&ArrayRef>],
+    ) -> Result<Vec<Option<parquet::arrow::arrow_writer::ArrowColumnChunk>>, ParquetError> {
+        let mut writers = self.factory.create_column_writers(self.groups)?.into_iter();
+        let mut chunks = Vec::new();
+        for (field, column) in self.schema.fields().iter().zip(columns) {
+            let leaves: Vec<Option<parquet::arrow::arrow_writer::ArrowLeafColumn>> = match column {
+                Some(column) => compute_leaves(field, column)?
+                    .into_iter()
+                    .map(Some)
+                    .collect(),
+                None => (0..leaf_count(field.data_type())).map(|_| None).collect(),
+            };
+            for leaf in leaves {
+                let mut writer = (writers.next())
+                    .ok_or_else(|| ParquetError::General("more leaves than columns".into()))?;
+                chunks.push(match leaf {
+                    Some(leaf) => {
+                        writer.write(&leaf)?;
+                        Some(writer.close()?)
+                    }
+                    None => None,
+                });
+            }
+        }
+        Ok(chunks)
+    }
+
+    /// Appends one row group of `chunks` (every leaf's, in order); copied ones are read from
+    /// `input`.
+    fn append(
+        &mut self,
+        chunks: Vec<Option<Chunk>>,
+        input: Option<&File>,
+    ) -> Result<(), ParquetError> {
+        let mut group = self.writer.next_row_group()?;
+        for chunk in chunks {
+            match (chunk, input) {
+                (Some(Chunk::Encoded(chunk)), _) => chunk.append_to_row_group(&mut group)?,
+                (Some(Chunk::Copied(close)), Some(input)) => group.append_column(input, *close)?,
+                _ => return Err(ParquetError::General("a column chunk missing".into())),
+            }
+        }
+        group.close()?;
+        self.groups += 1;
+        Ok(())
+    }
+}
+
+/// Row group `group`'s entry for column `column` in a page index.
+fn of_group<T: Clone>(all: Option<&Vec<Vec<T>>>, group: usize, column: usize) -> Option<T> {
+    all?.get(group)?.get(column).cloned()
+}
+
+/// Whether every page `index` locates lies inside `chunk`'s bytes.
+fn pages_inside(
+    index: &parquet::file::page_index::offset_index::OffsetIndexMetaData,
+    chunk: &ColumnChunkMetaData,
+) -> bool {
+    let start = chunk
+        .dictionary_page_offset()
+        .unwrap_or_else(|| chunk.data_page_offset());
+    let end = start.saturating_add(chunk.compressed_size());
+    index.page_locations().iter().all(|page| {
+        let size = i64::from(page.compressed_page_size);
+        page.offset >= start && size >= 0 && page.offset.saturating_add(size) <= end
+    })
+}
+
+/// The parquet leaves a field of `data_type` has (structs: one per field, nested).
+fn leaf_count(data_type: &arrow_schema::DataType) -> usize {
+    use arrow_schema::DataType;
+    match data_type {
+        DataType::Struct(fields) => fields.iter().map(|f| leaf_count(f.data_type())).sum(),
+        DataType::List(f)
+        | DataType::LargeList(f)
+        | DataType::FixedSizeList(f, _)
+        | DataType::Map(f, _) => leaf_count(f.data_type()),
+        _ => 1,
+    }
+}
+
+/// Two leaves store values alike (type, levels, annotations), whatever their names.
+fn same_leaf(a: &ColumnDescriptor, b: &ColumnDescriptor) -> bool {
+    a.physical_type() == b.physical_type()
+        && a.max_def_level() == b.max_def_level()
+        && a.max_rep_level() == b.max_rep_level()
+        && a.logical_type_ref() == b.logical_type_ref()
+        && a.converted_type() == b.converted_type()
+        && a.type_length() == b.type_length()
+}
+
+/// `chunk`'s metadata for the column `descr` (its name now): everything else as stored.
+fn renamed(
+    chunk: &ColumnChunkMetaData,
+    descr: ColumnDescPtr,
+) -> Result<ColumnChunkMetaData, ParquetError> {
+    let mut builder = ColumnChunkMetaData::builder(descr)
+        .set_compression_codec(chunk.compression_codec())
+        .set_encodings_mask(*chunk.encodings_mask())
+        .set_total_compressed_size(chunk.compressed_size())
+        .set_total_uncompressed_size(chunk.uncompressed_size())
+        .set_num_values(chunk.num_values())
+        .set_data_page_offset(chunk.data_page_offset())
+        .set_dictionary_page_offset(chunk.dictionary_page_offset())
+        .set_unencoded_byte_array_data_bytes(chunk.unencoded_byte_array_data_bytes())
+        .set_repetition_level_histogram(chunk.repetition_level_histogram().cloned())
+        .set_definition_level_histogram(chunk.definition_level_histogram().cloned());
+    if let Some(statistics) = chunk.statistics() {
+        let signed = builder_sort_signed(chunk);
+        builder = builder.set_statistics(with_old_min_max(statistics.clone(), signed));
+    }
+    if let Some(stats) = chunk.page_encoding_stats() {
+        builder = builder.set_page_encoding_stats(stats.clone());
+    }
+    if let Some(mask) = chunk.page_encoding_stats_mask() {
+        builder = builder.set_page_encoding_stats_mask(*mask);
+    }
+    builder.build()
+}
+
+/// Whether the column's values sort signed: then parquet's writers also write the deprecated
+/// `min` and `max` statistics, which reading a footer does not remember.
+fn builder_sort_signed(chunk: &ColumnChunkMetaData) -> bool {
+    chunk.column_descr().sort_order().is_signed()
+}
+
+/// `statistics` written with the deprecated `min` and `max` too when `old` (as the column
+/// writer that made them wrote them).
+fn with_old_min_max(
+    statistics: parquet::file::statistics::Statistics,
+    old: bool,
+) -> parquet::file::statistics::Statistics {
+    use parquet::file::statistics::Statistics as S;
+    match statistics {
+        S::Boolean(v) => S::Boolean(v.with_backwards_compatible_min_max(old)),
+        S::Int32(v) => S::Int32(v.with_backwards_compatible_min_max(old)),
+        S::Int64(v) => S::Int64(v.with_backwards_compatible_min_max(old)),
+        S::Int96(v) => S::Int96(v.with_backwards_compatible_min_max(old)),
+        S::Float(v) => S::Float(v.with_backwards_compatible_min_max(old)),
+        S::Double(v) => S::Double(v.with_backwards_compatible_min_max(old)),
+        S::ByteArray(v) => S::ByteArray(v.with_backwards_compatible_min_max(old)),
+        S::FixedLenByteArray(v) => S::FixedLenByteArray(v.with_backwards_compatible_min_max(old)),
+    }
+}
+
+/// Whether `input`'s columns store every non-default column of `writer_schema` (what the writer
+/// writes for the features) as the writer does, by name: then its row groups can be copied.
+pub(super) fn matches_writer(
+    input: &SchemaDescriptor,
+    writer_schema: &arrow_schema::Schema,
+) -> bool {
+    let Ok(expected) = ArrowSchemaConverter::new().convert(writer_schema) else {
+        return false;
+    };
+    expected.columns().iter().all(|want| {
+        let parts = want.path().parts();
+        if parts
+            .first()
+            .is_some_and(|name| DEFAULT_COLUMNS.contains(&name.as_str()))
+        {
+            return true;
+        }
+        input
+            .columns()
+            .iter()
+            .any(|have| have.path().parts() == parts && same_leaf(have, want))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+    use arrow_array::{BinaryArray, Int64Array};
+    use arrow_schema::{DataType, Field, Schema};
+    use parquet::arrow::ArrowWriter;
+    use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
+    use parquet::file::metadata::PageIndexPolicy;
+
+    fn schema(image: &str) -> SchemaRef {
+        let mut fields = vec![Field::new(image, DataType::Binary, true)];
+        fields.extend(
+            DEFAULT_COLUMNS
+                .iter()
+                .map(|c| Field::new(*c, DataType::Int64, true)),
+        );
+        Arc::new(Schema::new(fields))
+    }
+
+    fn batch(schema: &SchemaRef, rng: &mut SplitMix64, rows: usize, first: i64) -> RecordBatch {
+        let images: Vec<Vec<u8>> = (0..rows)
+            .map(|_| (0..300).map(|_| (rng.next_u64() % 7) as u8).collect())
+            .collect();
+        let mut columns: Vec<ArrayRef> =
+            vec![Arc::new(BinaryArray::from_iter_values(images.iter()))];
+        for c in 0..DEFAULT_COLUMNS.len() as i64 {
+            columns.push(Arc::new(Int64Array::from_iter_values(
+                (0..rows as i64).map(|r| first + r * c),
+            )));
+        }
+        RecordBatch::try_new(schema.clone(), columns).expect("batch")
+    }
+
+    fn data_file(path: &Path, schema: &SchemaRef) -> DataFile {
+        let file = File::create(path).expect("create");
+        let writer = ArrowWriter::try_new(file, schema.clone(), None).expect("writer");
+        DataFile::new(writer, schema.clone()).expect("data file")
+    }
+
+    fn metadata(path: &Path) -> Arc<ParquetMetaData> {
+        let file = File::open(path).expect("open");
+        let options = ArrowReaderOptions::new()
+            .with_page_index_policy(PageIndexPolicy::Required)
+            .with_encoding_stats_as_mask(false);
+        ArrowReaderMetadata::load(&file, options)
+            .expect("footer")
+            .metadata()
+            .clone()
+    }
+
+    fn read(path: &Path) -> Vec<RecordBatch> {
+        let file = File::open(path).expect("open");
+        parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
+            .expect("reader")
+            .build()
+            .expect("build")
+            .collect::<Result<_, _>>()
+            .expect("batches")
+    }
+
+    #[test]
+    fn a_copied_row_group_reads_as_its_source_renamed_with_new_default_columns() {
+        let dir = std::env::temp_dir().join(format!("surgvla-copy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let (input, output) = (dir.join("in.parquet"), dir.join("out.parquet"));
+        let mut rng = SplitMix64::new(7);
+        let theirs = schema("depth");
+        let mut file = data_file(&input, &theirs);
+        let groups = [
+            batch(&theirs, &mut rng, 40, 0),
+            batch(&theirs, &mut rng, 25, 100),
+        ];
+        for group in &groups {
+            file.write_batch(group).expect("write");
+        }
+        file.close().expect("close");
+        // The second group copied under a new name, its default columns made anew; an encoded
+        // group before it, so that the copy lands at another offset.
+        let ours = schema("observation.depth");
+        let mut out = data_file(&output, &ours);
+        let fresh = batch(&ours, &mut rng, 10, 500);
+        out.write_batch(&fresh).expect("write");
+        let stored = StoredGroup {
+            file: Arc::from(input.as_path()),
+            metadata: metadata(&input),
+            row_group: 1,
+        };
+        assert_eq!(stored.rows(), 25);
+        let rows = StoredRows {
+            columns: vec![("depth".into(), "observation.depth".into())],
+            handle: Arc::new(()),
+        };
+        let defaults = batch(&ours, &mut rng, 25, 1000).columns()[1..].to_vec();
+        out.copy_group(&stored, &rows, &defaults).expect("copy");
+        out.close().expect("close");
+
+        let read_back = read(&output);
+        assert_eq!(read_back.len(), 1, "35 rows come in one batch");
+        let all = &read_back[0];
+        assert_eq!(all.num_rows(), 35);
+        let copied = all.slice(10, 25);
+        assert_eq!(copied.column(0), groups[1].column(0), "the copied column");
+        assert_eq!(
+            &copied.columns()[1..],
+            &defaults[..],
+            "the default columns made anew"
+        );
+        assert_eq!(all.slice(0, 10).columns(), fresh.columns());
+        // The copied chunk's bytes are the input's, and its page index came along.
+        let copied_meta = metadata(&output);
+        let (a, b) = (
+            stored.metadata.row_group(1).column(0),
+            copied_meta.row_group(1).column(0),
+        );
+        let bytes = |path: &Path, chunk: &ColumnChunkMetaData| {
+            let all = std::fs::read(path).expect("read");
+            let start = chunk
+                .dictionary_page_offset()
+                .unwrap_or(chunk.data_page_offset()) as usize;
+            all[start..start + chunk.compressed_size() as usize].to_vec()
+        };
+        assert_eq!(bytes(&input, a), bytes(&output, b));
+        let offsets = copied_meta.offset_index().expect("offset index");
+        let pages = offsets[1][0].page_locations();
+        assert!(!pages.is_empty());
+        assert!(pages[0].offset >= b.data_page_offset());
+        assert!(
+            copied_meta
+                .column_index()
+                .is_some_and(|c| c[1].len() == DEFAULT_COLUMNS.len() + 1)
+        );
+        // A stored column of another type is refused, not copied.
+        let wrong = StoredRows {
+            columns: vec![("frame_index".into(), "observation.depth".into())],
+            handle: Arc::new(()),
+        };
+        let mut out = data_file(&dir.join("wrong.parquet"), &ours);
+        assert!(out.copy_group(&stored, &wrong, &defaults).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn files_match_the_writer_by_name_and_type() {
+        let theirs = ArrowSchemaConverter::new()
+            .convert(&schema("depth"))
+            .expect("schema");
+        assert!(matches_writer(&theirs, &schema("depth")));
+        assert!(!matches_writer(&theirs, &schema("observation.depth")));
+        let mut fields: Vec<Field> = (schema("depth").fields().iter())
+            .map(|f| f.as_ref().clone())
+            .collect();
+        fields[0] = Field::new("depth", DataType::Utf8, true);
+        assert!(!matches_writer(&theirs, &Schema::new(fields)));
+    }
+}
