@@ -479,20 +479,24 @@ impl ImageStats {
 }
 
 /// Histograms stored as the span of bins that count: `{"bins": N, "from": first, "counts":
-/// [...]}` (an empty one: `{"bins": N, "from": 0, "counts": []}`). A plain array of N counts
-/// (what surgvla stored before) reads too. A stored histogram is untrusted: more than
+/// "c c c ..."}`, the counts decimal and space-separated (an empty one: `{"bins": N, "from": 0,
+/// "counts": ""}`). A plain array of N counts (what surgvla stored before) reads too. A stored histogram is untrusted: more than
 /// [`MAX_BINS`] bins, or counts past its end, are refused.
 mod trimmed {
     use serde::{Deserialize, Deserializer, Serialize, Serializer};
+    use std::fmt::Write;
 
     /// The most bins a stored histogram may declare (ours have 256 or 8,192).
     pub(super) const MAX_BINS: usize = 1 << 16;
 
     #[derive(Serialize)]
-    struct Span<'a> {
+    struct Span {
         bins: usize,
         from: usize,
-        counts: &'a [u64],
+        /// The counts as one string of decimal numbers, space-separated: a JSON value of one
+        /// node instead of thousands (an episodes table holds one per image feature per
+        /// episode, and every pass over its JSON pays per node).
+        counts: String,
     }
 
     /// One stored histogram: a plain array of counts, or a span (read without serde's
@@ -512,6 +516,23 @@ mod trimmed {
 
         fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
             f.write_str("a histogram: an array of counts, or {bins, from, counts}")
+        }
+
+        /// The counts of a span: decimal numbers, space-separated.
+        fn visit_str<E: serde::de::Error>(self, text: &str) -> Result<Stored, E> {
+            let mut counts = Vec::new();
+            for word in text.split_ascii_whitespace() {
+                if counts.len() == MAX_BINS {
+                    return Err(E::custom(format!(
+                        "a histogram of more than {MAX_BINS} bins"
+                    )));
+                }
+                let count = word
+                    .parse::<u64>()
+                    .map_err(|_| E::custom(format!("a histogram count {word:?}")))?;
+                counts.push(count);
+            }
+            Ok(Stored(counts))
         }
 
         fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Stored, A::Error> {
@@ -559,18 +580,23 @@ mod trimmed {
         histograms: &[Vec<u64>],
         s: S,
     ) -> Result<S::Ok, S::Error> {
-        let spans: Vec<Span<'_>> = histograms
+        let spans: Vec<Span> = histograms
             .iter()
             .map(|h| {
                 let from = h.iter().position(|&c| c != 0).unwrap_or(h.len());
-                let to = h
-                    .iter()
-                    .rposition(|&c| c != 0)
-                    .map_or(from, |last| last + 1);
+                let to = (h.iter().rposition(|&c| c != 0)).map_or(from, |last| last + 1);
+                let mut counts = String::with_capacity((to - from) * 4);
+                for (i, count) in h[from..to].iter().enumerate() {
+                    if i > 0 {
+                        counts.push(' ');
+                    }
+                    // Writing to a String cannot fail.
+                    let _ = write!(counts, "{count}");
+                }
                 Span {
                     bins: h.len(),
                     from: if from == to { 0 } else { from },
-                    counts: &h[from..to],
+                    counts,
                 }
             })
             .collect();
@@ -848,10 +874,9 @@ mod tests {
         assert_eq!(span["bins"], json!(DEPTH_BINS));
         // 0.1 m is bin 1638, 0.3 m bin 4915: the span between them, nothing around it.
         assert_eq!(span["from"], json!(1638));
-        assert_eq!(
-            span["counts"].as_array().map(Vec::len),
-            Some(4915 - 1638 + 1)
-        );
+        let counts = span["counts"].as_str().expect("counts");
+        assert_eq!(counts.split(' ').count(), 4915 - 1638 + 1);
+        assert!(counts.starts_with("1 0 0 "), "{counts:.20}");
         let back: ImageStats = serde_json::from_value(stored).expect("read back");
         assert!(back.same_shape(&depth));
         assert_eq!(back.to_json(), depth.to_json());
@@ -860,11 +885,11 @@ mod tests {
         let empty = ImageStats::unit_scaled(3);
         let text = serde_json::to_string(&empty).expect("json");
         assert!(
-            text.contains(r#"{"bins":256,"from":0,"counts":[]}"#),
+            text.contains(r#"{"bins":256,"from":0,"counts":""}"#),
             "{text}"
         );
         let mut value = serde_json::to_value(&depth).expect("json");
-        value["histograms"] = json!([{"bins": 256, "from": 0, "counts": []}]);
+        value["histograms"] = json!([{"bins": 256, "from": 0, "counts": ""}]);
         let back: ImageStats = serde_json::from_value(value).expect("an empty span");
         assert_eq!(back.histograms, vec![vec![0; 256]]);
         let mut full = serde_json::to_value(&depth).expect("json");
@@ -872,9 +897,10 @@ mod tests {
         let back: ImageStats = serde_json::from_value(full).expect("full arrays");
         assert_eq!(back.histograms, depth.histograms);
         assert!(!back.same_shape(&ImageStats::unit_scaled(1)));
-        // A hostile accumulator: too many bins, counts past the end.
+        // A hostile accumulator: too many bins, a count not a number, counts past the end.
         for bad in [
-            json!({"bins": 1u64 << 40, "from": 0, "counts": []}),
+            json!({"bins": 1u64 << 40, "from": 0, "counts": ""}),
+            json!({"bins": 4, "from": 0, "counts": "1 -2"}),
             json!({"bins": 4, "from": 3, "counts": [1, 2]}),
         ] {
             let mut value = serde_json::to_value(&depth).expect("json");

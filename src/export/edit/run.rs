@@ -415,6 +415,8 @@ pub fn dry_run(planned: &Planned) -> Result<DryRun, ConvertError> {
     let input_bytes = crate::export::findings::disk_bytes(&planned.request.input);
     let mut per_episode: BTreeMap<u64, (u64, bool)> = BTreeMap::new();
     let mut source = planned.request.reading().open(planned.options.as_ref())?;
+    // Nothing here needs the frame rows' images.
+    source.leave_rows_stored();
     // Without video there is nothing to copy sample by sample or to encode again.
     let wanted: std::collections::BTreeSet<u64> =
         if crate::export::decoded::Decoded::needed(source.info()) {
