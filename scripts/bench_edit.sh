@@ -32,14 +32,17 @@ drop_json="[${drop_list}]"
 export HF_HUB_OFFLINE=1 HF_HOME="${work}/huggingface"
 
 time_once() { # COMMAND... -> "wall peak_rss_kb" of one run ("killed ..." when it was killed)
-    /usr/bin/time -o "${work}/time" -f "%e %M" "$@" > "${work}/last.log" 2>&1 || {
-        tail -n 20 "${work}/last.log" >&2
-        exit 1
-    }
-    # A command killed by a signal (the kernel's OOM killer) exits through time with 0.
+    local status=0
+    /usr/bin/time -o "${work}/time" -f "%e %M" "$@" > "${work}/last.log" 2>&1 || status=$?
+    # A command killed by a signal (the kernel's OOM killer) is reported, not a failure.
     if grep -q "terminated by signal" "${work}/time"; then
         echo "killed $(tail -n 1 "${work}/time")"
         return
+    fi
+    if [ "${status}" -ne 0 ]; then
+        tail -n 20 "${work}/last.log" >&2
+        echo "failed (exit ${status}): $*" >&2
+        exit 1
     fi
     tail -n 1 "${work}/time"
 }
@@ -68,8 +71,10 @@ lerobot() { # LABEL OUT ARGS... -> lerobot-edit-dataset on a fresh copy of the i
     rm -rf "${work}/copy" "${out}"*
     cp -r "${video}" "${work}/copy"
     sync
-    show "${label}" "$(time_once "${venv}/bin/lerobot-edit-dataset" --repo_id local/input \
+    local result
+    result="$(time_once "${venv}/bin/lerobot-edit-dataset" --repo_id local/input \
         --root "${work}/copy" "$@")"
+    show "${label}" "${result}"
 }
 
 echo "input: ${video} (${episodes} episodes, $(du -sh "${video}" | cut -f1))"

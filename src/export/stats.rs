@@ -220,9 +220,26 @@ pub struct ImageStats {
     /// Value of bin `b` is `b * bin_width + offset` (u8 channels: b / 255).
     bin_width: f64,
     frames: u64,
+    /// The JSON these statistics were read from ([`ImageStats::carried`]), written back as it
+    /// is ([`ImageStats::stored_json`]); forgotten by every change.
+    #[serde(skip)]
+    stored: Option<Value>,
 }
 
 impl ImageStats {
+    /// The statistics `value` stores (an episode carrying them from its input), remembered
+    /// with `value`, so that they are written back as they were read.
+    pub fn carried(value: &Value) -> Option<Self> {
+        let mut stats = <ImageStats as serde::Deserialize>::deserialize(value).ok()?;
+        stats.stored = Some(value.clone());
+        Some(stats)
+    }
+
+    /// The statistics as stored: the JSON they were read from if nothing changed them since.
+    pub fn stored_json(&self) -> Value {
+        (self.stored.clone()).unwrap_or_else(|| serde_json::to_value(self).unwrap_or(Value::Null))
+    }
+
     /// For u8 channels, reported scaled to [0, 1].
     pub fn unit_scaled(channels: usize) -> Self {
         ImageStats {
@@ -230,6 +247,7 @@ impl ImageStats {
             histograms: vec![vec![0; 256]; channels],
             bin_width: 1.0 / 255.0,
             frames: 0,
+            stored: None,
         }
     }
 
@@ -240,6 +258,7 @@ impl ImageStats {
             histograms: vec![vec![0; DEPTH_BINS]],
             bin_width: DEPTH_RANGE_M / DEPTH_BINS as f64,
             frames: 0,
+            stored: None,
         }
     }
 
@@ -253,6 +272,7 @@ impl ImageStats {
 
     /// Folds in another image series' statistics.
     pub fn merge(&mut self, other: &ImageStats) {
+        self.stored = None;
         self.frames += other.frames;
         for (a, b) in self.running.iter_mut().zip(&other.running) {
             a.merge(b);
@@ -266,6 +286,7 @@ impl ImageStats {
 
     /// Adds one interleaved u8 image.
     pub fn push_u8(&mut self, pixels: &[u8]) {
+        self.stored = None;
         let mut histograms = std::mem::take(&mut self.histograms);
         self.push_u8_counting(pixels, &mut histograms);
         self.histograms = histograms;
@@ -273,6 +294,7 @@ impl ImageStats {
 
     /// Adds one depth image (metres).
     pub fn push_depth(&mut self, depth_m: &[f32]) {
+        self.stored = None;
         let mut histograms = std::mem::take(&mut self.histograms);
         self.push_depth_counting(depth_m, &mut histograms);
         self.histograms = histograms;
@@ -287,6 +309,7 @@ impl ImageStats {
             histograms: Vec::new(),
             bin_width: self.bin_width,
             frames: 0,
+            stored: None,
         }
     }
 
@@ -298,6 +321,7 @@ impl ImageStats {
     /// Adds `histograms` (of this shape) to these statistics' counts. Counts are integers, so
     /// the order parts are added in does not change them.
     pub fn add_histograms(&mut self, histograms: &[Vec<u64>]) {
+        self.stored = None;
         for (a, b) in self.histograms.iter_mut().zip(histograms) {
             for (x, y) in a.iter_mut().zip(b) {
                 *x += y;
@@ -307,6 +331,7 @@ impl ImageStats {
 
     /// [`ImageStats::push_u8`] with the pixel counts going to `histograms` (one per channel).
     pub fn push_u8_counting(&mut self, pixels: &[u8], histograms: &mut [Vec<u64>]) {
+        self.stored = None;
         self.frames += 1;
         let channels = self.running.len();
         if channels == 0 {
@@ -326,6 +351,7 @@ impl ImageStats {
         histograms: &mut [Vec<u64>],
         last: &mut LastFrame,
     ) {
+        self.stored = None;
         let Some(counts) = histograms.first_mut().filter(|h| !h.is_empty()) else {
             return self.push_depth_counting(depth_m, histograms);
         };
@@ -365,6 +391,7 @@ impl ImageStats {
         histograms: &mut [Vec<u64>],
         last: &mut LastFrame,
     ) {
+        self.stored = None;
         self.frames += 1;
         let channels = self.running.len();
         if channels == 0 {
@@ -376,6 +403,7 @@ impl ImageStats {
 
     /// One frame's per-channel counts folded into the sums and added to `histograms`.
     fn fold_u8_counts(&mut self, counts: &[[u64; 256]], histograms: &mut [Vec<u64>]) {
+        self.stored = None;
         for (c, (counts, running)) in counts.iter().zip(self.running.iter_mut()).enumerate() {
             running.merge(&fold_counts(counts));
             if let Some(histogram) = histograms.get_mut(c) {
@@ -394,6 +422,7 @@ impl ImageStats {
     /// compiler turns the lanes into vector instructions). The pixel counts go through as many
     /// tables taking turns, so a row of equal depths does not wait on one counter.
     pub fn push_depth_counting(&mut self, depth_m: &[f32], histograms: &mut [Vec<u64>]) {
+        self.stored = None;
         self.frames += 1;
         let counts = histograms.first_mut().filter(|h| !h.is_empty());
         let bins = counts.as_ref().map_or(1, |h| h.len());
@@ -864,6 +893,25 @@ fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn carried_statistics_are_written_back_as_read_until_changed() {
+        let mut depth = ImageStats::depth();
+        depth.push_depth(&[0.05, 0.1, 0.0, 0.2]);
+        let mut stored = serde_json::to_value(&depth).expect("json");
+        // An input's own spelling (a field order, a key of its own) is kept as it is.
+        stored["theirs"] = json!(1);
+        let carried = ImageStats::carried(&stored).expect("carried");
+        assert_eq!(carried.stored_json(), stored);
+        assert!(carried.same_shape(&depth));
+        // Changed, they are written anew.
+        let mut merged = carried.clone();
+        merged.merge(&depth);
+        assert_ne!(merged.stored_json(), stored);
+        assert_eq!(merged.stored_json()["frames"], json!(2));
+        assert!(merged.stored_json().get("theirs").is_none());
+        assert!(ImageStats::carried(&json!({"frames": "two"})).is_none());
+    }
 
     #[test]
     fn image_statistics_store_only_the_bins_that_count_and_read_back_alike() {

@@ -13,21 +13,31 @@ use super::table::DEFAULT_COLUMNS;
 use crate::episode::StoredRows;
 use arrow_array::{ArrayRef, RecordBatch};
 use arrow_schema::SchemaRef;
+use bytes::{Buf, Bytes};
 use parquet::arrow::ArrowSchemaConverter;
 use parquet::arrow::arrow_writer::{ArrowRowGroupWriterFactory, compute_leaves};
 use parquet::column::writer::ColumnCloseResult;
 use parquet::errors::ParquetError;
 use parquet::file::metadata::{ColumnChunkMetaData, ParquetMetaData};
+use parquet::file::reader::{ChunkReader, Length};
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::{ColumnDescPtr, ColumnDescriptor, SchemaDescriptor};
 use std::fs::File;
+use std::io::{BufWriter, Read, Seek, SeekFrom};
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+
+/// A data file's bytes go out a mebibyte at a time: the parquet writer passes copied chunks on
+/// 8 KiB at a time, a system call each without this buffer.
+const WRITE_BUFFER_BYTES: usize = 1 << 20;
 
 /// Where an episode's rows are stored: one whole row group of a data file (its footer read
 /// with the page index).
 pub(super) struct StoredGroup {
     pub(super) file: Arc<Path>,
+    /// The file, opened once by the reader for every group copied from it (its own handle:
+    /// the reader's offset is not moved).
+    pub(super) handle: Arc<Mutex<File>>,
     pub(super) metadata: Arc<ParquetMetaData>,
     pub(super) row_group: usize,
 }
@@ -42,7 +52,7 @@ impl StoredGroup {
 
 /// A data file being written (see the module overview).
 pub(super) struct DataFile {
-    writer: SerializedFileWriter<File>,
+    writer: SerializedFileWriter<BufWriter<File>>,
     factory: ArrowRowGroupWriterFactory,
     schema: SchemaRef,
     groups: usize,
@@ -55,11 +65,16 @@ enum Chunk {
 }
 
 impl DataFile {
-    /// The writer `ArrowWriter` would be (its Arrow schema in the footer), taken apart.
-    pub(super) fn new(
-        writer: parquet::arrow::ArrowWriter<File>,
+    /// Writes `file` as `ArrowWriter` would with `properties` (its Arrow schema in the
+    /// footer), the writer taken apart.
+    pub(super) fn create(
+        file: File,
         schema: SchemaRef,
+        properties: parquet::file::properties::WriterProperties,
     ) -> Result<Self, ParquetError> {
+        let output = BufWriter::with_capacity(WRITE_BUFFER_BYTES, file);
+        let writer =
+            parquet::arrow::ArrowWriter::try_new(output, schema.clone(), Some(properties))?;
         let (writer, factory) = writer.into_serialized_writer()?;
         Ok(DataFile {
             writer,
@@ -152,8 +167,8 @@ impl DataFile {
                 offset_index,
             })));
         }
-        let file = File::open(&stored.file)?;
-        self.append(chunks, Some(&file))
+        let region = Region::read(stored, &chunks)?;
+        self.append(chunks, Some(&region))
     }
 
     /// Each of `columns` (one per field; None: not encoded here) encoded as its leaves'
@@ -192,7 +207,7 @@ impl DataFile {
     fn append(
         &mut self,
         chunks: Vec<Option<Chunk>>,
-        input: Option<&File>,
+        input: Option<&Region>,
     ) -> Result<(), ParquetError> {
         let mut group = self.writer.next_row_group()?;
         for chunk in chunks {
@@ -205,6 +220,80 @@ impl DataFile {
         group.close()?;
         self.groups += 1;
         Ok(())
+    }
+}
+
+/// The bytes of a row group's copied chunks, read in one go (the parquet writer asks for each
+/// chunk by its offset in the file).
+struct Region {
+    /// Where the bytes start in the file.
+    start: u64,
+    bytes: Bytes,
+}
+
+impl Region {
+    /// The span of `chunks`' copied ones in `stored`'s file (checked to lie inside the file
+    /// when its footer was read), read.
+    fn read(stored: &StoredGroup, chunks: &[Option<Chunk>]) -> Result<Region, ParquetError> {
+        let spans = chunks.iter().filter_map(|c| match c {
+            Some(Chunk::Copied(close)) => {
+                let m = &close.metadata;
+                let start = m.dictionary_page_offset().unwrap_or(m.data_page_offset());
+                Some((start, start.saturating_add(m.compressed_size())))
+            }
+            _ => None,
+        });
+        let (start, end) = spans.fold((i64::MAX, 0), |(a, b), (s, e)| (a.min(s), b.max(e)));
+        let start = u64::try_from(start).unwrap_or(0);
+        let length = usize::try_from(end)
+            .ok()
+            .and_then(|end| end.checked_sub(usize::try_from(start).ok()?))
+            .unwrap_or(0);
+        let mut bytes = vec![0; length];
+        if length > 0 {
+            let mut file = stored.handle.lock().unwrap_or_else(|e| e.into_inner());
+            file.seek(SeekFrom::Start(start))?;
+            file.read_exact(&mut bytes)?;
+        }
+        Ok(Region {
+            start,
+            bytes: Bytes::from(bytes),
+        })
+    }
+
+    /// `length` bytes from file offset `start`.
+    fn slice(&self, start: u64, length: usize) -> Result<Bytes, ParquetError> {
+        let from = (start.checked_sub(self.start)).and_then(|f| usize::try_from(f).ok());
+        let range = from.and_then(|from| Some(from..from.checked_add(length)?));
+        match range.filter(|r| r.end <= self.bytes.len()) {
+            Some(range) => Ok(self.bytes.slice(range)),
+            None => Err(ParquetError::EOF(format!(
+                "{length} bytes at {start} lie outside the {} read at {}",
+                self.bytes.len(),
+                self.start
+            ))),
+        }
+    }
+}
+
+impl Length for Region {
+    fn len(&self) -> u64 {
+        self.start + self.bytes.len() as u64
+    }
+}
+
+impl ChunkReader for Region {
+    type T = bytes::buf::Reader<Bytes>;
+
+    fn get_read(&self, start: u64) -> Result<Self::T, ParquetError> {
+        let rest = self.len().saturating_sub(start);
+        Ok(self
+            .slice(start, usize::try_from(rest).unwrap_or(0))?
+            .reader())
+    }
+
+    fn get_bytes(&self, start: u64, length: usize) -> Result<Bytes, ParquetError> {
+        self.slice(start, length)
     }
 }
 
@@ -335,7 +424,6 @@ mod tests {
     use crate::rng::SplitMix64;
     use arrow_array::{BinaryArray, Int64Array};
     use arrow_schema::{DataType, Field, Schema};
-    use parquet::arrow::ArrowWriter;
     use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};
     use parquet::file::metadata::PageIndexPolicy;
 
@@ -365,8 +453,7 @@ mod tests {
 
     fn data_file(path: &Path, schema: &SchemaRef) -> DataFile {
         let file = File::create(path).expect("create");
-        let writer = ArrowWriter::try_new(file, schema.clone(), None).expect("writer");
-        DataFile::new(writer, schema.clone()).expect("data file")
+        DataFile::create(file, schema.clone(), Default::default()).expect("data file")
     }
 
     fn metadata(path: &Path) -> Arc<ParquetMetaData> {
@@ -414,6 +501,7 @@ mod tests {
         out.write_batch(&fresh).expect("write");
         let stored = StoredGroup {
             file: Arc::from(input.as_path()),
+            handle: Arc::new(Mutex::new(File::open(&input).expect("open"))),
             metadata: metadata(&input),
             row_group: 1,
         };

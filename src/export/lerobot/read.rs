@@ -427,7 +427,11 @@ enum EpisodeRows {
     Parquet {
         files: std::vec::IntoIter<PathBuf>,
         reader: Option<parquet::arrow::arrow_reader::ParquetRecordBatchReader>,
+        /// Rows read and put back ([`EpisodeRows::declared_fields`]).
         ready: std::collections::VecDeque<StoredEpisode>,
+        /// The batch read last and its next row: each row is made a [`StoredEpisode`] only
+        /// when asked for (a skipped episode's never is).
+        batch: Option<(RecordBatch, usize)>,
     },
 }
 
@@ -446,6 +450,7 @@ impl EpisodeRows {
             files: files.into_iter(),
             reader: None,
             ready: Default::default(),
+            batch: None,
         })
     }
 
@@ -475,17 +480,34 @@ impl EpisodeRows {
 
     /// The next episode's row, or None after the last.
     fn next_row(&mut self) -> Result<Option<StoredEpisode>, ExportError> {
-        let (files, reader, ready) = match self {
+        self.advance(true)
+    }
+
+    /// Passes over the next episode's row (a skipped episode's), without reading its cells.
+    fn skip_row(&mut self) -> Result<(), ExportError> {
+        self.advance(false).map(|_| ())
+    }
+
+    /// The next episode's row, made a [`StoredEpisode`] if `parse`; None after the last (or
+    /// when not parsed).
+    fn advance(&mut self, parse: bool) -> Result<Option<StoredEpisode>, ExportError> {
+        let (files, reader, ready, batch) = match self {
             EpisodeRows::Loaded(rows) => return Ok(rows.pop_front()),
             EpisodeRows::Parquet {
                 files,
                 reader,
                 ready,
-            } => (files, reader, ready),
+                batch,
+            } => (files, reader, ready, batch),
         };
+        if let Some(row) = ready.pop_front() {
+            return Ok(Some(row));
+        }
         loop {
-            if let Some(row) = ready.pop_front() {
-                return Ok(Some(row));
+            if let Some((read, next)) = batch.as_mut().filter(|(b, n)| *n < b.num_rows()) {
+                let row = *next;
+                *next += 1;
+                return Ok(parse.then(|| stored_episode(read, row)));
             }
             let Some(open) = reader.as_mut() else {
                 let Some(path) = files.next() else {
@@ -500,26 +522,20 @@ impl EpisodeRows {
                 continue;
             };
             match open.next() {
-                Some(batch) => ready.extend(stored_episodes(&batch.map_err(ExportError::Arrow)?)),
+                Some(read) => *batch = Some((read.map_err(ExportError::Arrow)?, 0)),
                 None => *reader = None,
             }
         }
     }
 }
 
-/// The episodes of a batch of v3.0's episodes table.
-fn stored_episodes(batch: &RecordBatch) -> Vec<StoredEpisode> {
+/// Row `row` of a batch of v3.0's episodes table.
+fn stored_episode(batch: &RecordBatch, row: usize) -> StoredEpisode {
     let schema = batch.schema();
-    (0..batch.num_rows())
-        .map(|row| {
-            let columns = schema
-                .fields()
-                .iter()
-                .zip(batch.columns())
-                .map(|(field, column)| (field.name().as_str(), cell(column.as_ref(), row)));
-            StoredEpisode::from_columns(columns)
-        })
-        .collect()
+    let columns = (schema.fields().iter())
+        .zip(batch.columns())
+        .map(|(field, column)| (field.name().as_str(), cell(column.as_ref(), row)));
+    StoredEpisode::from_columns(columns)
 }
 
 /// v2.1's episodes: `episodes.jsonl` in order, each joined with its `episodes_stats.jsonl` line
@@ -936,7 +952,7 @@ impl LeRobotSource {
             return None;
         }
         match self.take_rows(take) {
-            Ok((Some(index), rows)) => self.taken(index, rows),
+            Ok((Some(index), rows)) => self.taken(index, rows, take),
             Ok((None, _)) => self.end(),
             Err(error) => {
                 self.ended = true;
@@ -995,8 +1011,14 @@ impl LeRobotSource {
         Ok((current, rows))
     }
 
-    /// Episode `index` taken: checked to come next, with its row of the episodes table.
-    fn taken(&mut self, index: i64, rows: Vec<Row>) -> Option<Result<TakenEpisode, ExportError>> {
+    /// Episode `index` taken: checked to come next, with its row of the episodes table (not
+    /// read when `take` skips the episode).
+    fn taken(
+        &mut self,
+        index: i64,
+        rows: Vec<Row>,
+        take: Take,
+    ) -> Option<Result<TakenEpisode, ExportError>> {
         if index < 0 || index as u64 != self.returned {
             self.ended = true;
             return Some(Err(invalid(
@@ -1009,7 +1031,12 @@ impl LeRobotSource {
         }
         self.returned += 1;
         // The episodes table's rows come in the data's order: this episode's is the next.
-        match self.episodes.next_row() {
+        let row = if take == Take::Skip {
+            self.episodes.skip_row().map(|()| None)
+        } else {
+            self.episodes.next_row()
+        };
+        match row {
             Ok(row) => Some(Ok((index, rows, row))),
             Err(error) => {
                 self.ended = true;
@@ -1216,6 +1243,46 @@ impl LeRobotSource {
     }
 }
 
+impl LeRobotSource {
+    /// The next episode skimmed from its row groups' statistics alone, when each of its groups
+    /// holds it alone and says its one task ([`super::rows::DataRows::counted_groups`]).
+    fn counted(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
+        if self.ended || !self.pending.is_empty() {
+            return None;
+        }
+        let index = match self.data.next() {
+            Ok(Some(super::rows::Next::Episode(index))) => index,
+            _ => return None,
+        };
+        let groups = self.data.counted_groups(index)?;
+        for _ in &groups {
+            self.data.skip_group();
+        }
+        let tasks: Vec<i64> = (groups.iter())
+            .flat_map(|(rows, task)| std::iter::repeat_n(*task, *rows as usize))
+            .collect();
+        let taken = self.taken(index, Vec::new(), Take::Light)?;
+        Some(self.skimmed(taken.map(|(index, _, row)| (index, tasks, row))))
+    }
+
+    /// An episode taken with its rows' tasks, skimmed; an error ends the reading.
+    fn skimmed(
+        &mut self,
+        taken: Result<(i64, Vec<i64>, Option<StoredEpisode>), ExportError>,
+    ) -> Result<crate::export::source::Skimmed, ExportError> {
+        let skimmed = taken.and_then(|(index, tasks, row)| {
+            Ok(crate::export::source::Skimmed {
+                meta: self.meta(index, &tasks, row.as_ref())?,
+                steps: tasks.len() as u64,
+            })
+        });
+        if skimmed.is_err() {
+            self.ended = true;
+        }
+        skimmed
+    }
+}
+
 impl EpisodeSource for LeRobotSource {
     fn info(&self) -> &DatasetInfo {
         &self.info
@@ -1247,21 +1314,15 @@ impl EpisodeSource for LeRobotSource {
         self.take_episode(Take::Skip).map(|taken| taken.map(|_| ()))
     }
 
-    /// The episode's rows are read for their tasks, without their images (nor its video).
+    /// The episode's tasks and length from its row groups' statistics where they say them
+    /// (nothing read), else from its rows read without their images (nor its video).
     fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
-        let skimmed = self
-            .take_episode(Take::Light)?
-            .and_then(|(index, rows, row)| {
-                let tasks: Vec<i64> = rows.iter().map(|r| r.task).collect();
-                Ok(crate::export::source::Skimmed {
-                    meta: self.meta(index, &tasks, row.as_ref())?,
-                    steps: rows.len() as u64,
-                })
-            });
-        if skimmed.is_err() {
-            self.ended = true;
+        if let Some(counted) = self.counted() {
+            return Some(counted);
         }
-        Some(skimmed)
+        let taken = self.take_episode(Take::Light)?;
+        let tasks = |rows: Vec<Row>| rows.iter().map(|r| r.task).collect();
+        Some(self.skimmed(taken.map(|(index, rows, row)| (index, tasks(rows), row))))
     }
 }
 

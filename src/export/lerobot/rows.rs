@@ -59,8 +59,9 @@ struct OpenFile {
     path: PathBuf,
     file: File,
     metadata: ArrowReaderMetadata,
-    /// Whether its row groups can be copied by the writer (see [`DataRows::leave_stored`]).
-    copyable: bool,
+    /// When its row groups can be copied by the writer (see [`DataRows::leave_stored`]): the
+    /// file opened for the writer to read them from.
+    copyable: Option<std::sync::Arc<std::sync::Mutex<File>>>,
     /// The row group read next.
     group: usize,
     /// A group being read whole, 64 rows at a time.
@@ -93,12 +94,11 @@ impl DataRows {
 
     /// The row group read next, for the writer to copy, if its file allows.
     pub(super) fn stored_group(&self) -> Option<super::copy::StoredGroup> {
-        let open = self
-            .open
-            .as_ref()
-            .filter(|o| o.copyable && o.reader.is_none())?;
+        let open = self.open.as_ref().filter(|o| o.reader.is_none())?;
+        let handle = open.copyable.clone()?;
         (open.group < open.metadata.metadata().num_row_groups()).then(|| super::copy::StoredGroup {
             file: std::sync::Arc::from(open.path.as_path()),
+            handle,
             metadata: open.metadata.metadata().clone(),
             row_group: open.group,
         })
@@ -123,9 +123,13 @@ impl DataRows {
                 return Ok(None);
             };
             let (file, metadata) = open_parquet_metadata(&path, self.copy.is_some())?;
-            let copyable = (self.copy.as_ref()).is_some_and(|schema| {
-                super::copy::matches_writer(metadata.parquet_schema(), schema)
-            });
+            let copyable = match &self.copy {
+                Some(schema) if super::copy::matches_writer(metadata.parquet_schema(), schema) => {
+                    let handle = crate::export::bounded::open_regular(&path)?;
+                    Some(std::sync::Arc::new(std::sync::Mutex::new(handle)))
+                }
+                _ => None,
+            };
             self.open = Some(OpenFile {
                 path,
                 file,
@@ -135,6 +139,28 @@ impl DataRows {
                 reader: None,
             });
         }
+    }
+
+    /// The row groups from the next one on that hold episode `episode` alone, each with its
+    /// rows and its one task, as their statistics say (none read): None when one of them has
+    /// rows of several tasks, when a group of several episodes follows them, or when they reach
+    /// the end of the file (the episode may go on in the next).
+    pub(super) fn counted_groups(&self, episode: i64) -> Option<Vec<(u64, i64)>> {
+        let open = self.open.as_ref().filter(|o| o.reader.is_none())?;
+        let groups = open.metadata.metadata().row_groups().get(open.group..)?;
+        let mut counted = Vec::new();
+        for group in groups {
+            match single_episode(group) {
+                Some(alone) if alone == episode => {}
+                // The next episode's alone: this one ended with the group before.
+                Some(_) if !counted.is_empty() => return Some(counted),
+                // A group mixing episodes may hold more of this one's rows.
+                _ => return None,
+            }
+            let task = single_value(group, "task_index")?;
+            counted.push((u64::try_from(group.num_rows()).ok()?, task));
+        }
+        None
     }
 
     /// Passes over the next row group unread.
@@ -260,11 +286,18 @@ pub(super) fn stored_images(
 
 /// The one episode a row group's `episode_index` statistics say it holds, if they say so.
 fn single_episode(group: &parquet::file::metadata::RowGroupMetaData) -> Option<i64> {
-    let chunk = (group.columns().iter()).find(|c| c.column_path().string() == "episode_index")?;
+    single_value(group, "episode_index")
+}
+
+/// The one value of the integer column `name` in `group`, if its statistics say there is one
+/// (and no null).
+fn single_value(group: &parquet::file::metadata::RowGroupMetaData, name: &str) -> Option<i64> {
+    let chunk = (group.columns().iter()).find(|c| c.column_path().string() == name)?;
     match chunk.statistics()? {
         parquet::file::statistics::Statistics::Int64(s) => {
             let (min, max) = (s.min_opt()?, s.max_opt()?);
-            (min == max && group.num_rows() > 0).then_some(*min)
+            let no_nulls = s.null_count_opt() == Some(0);
+            (min == max && no_nulls && group.num_rows() > 0).then_some(*min)
         }
         _ => None,
     }

@@ -288,7 +288,7 @@ impl EpisodeWork<'_> {
                 .and_then(|e| e.pixel_stats.as_ref());
             match carried {
                 Some(PixelStats::Exact(value)) => {
-                    if let Ok(exact) = serde_json::from_value::<ImageStats>(value.clone()) {
+                    if let Some(exact) = ImageStats::carried(value) {
                         *t = FeatureStats::Image(exact);
                     }
                 }
@@ -388,7 +388,7 @@ fn carried_image_stats(episode: &Episode, feature: &FeatureSpec) -> Option<Image
         PixelStats::Exact(value) if *n == feature.name => Some(value),
         _ => None,
     })?;
-    let exact = serde_json::from_value::<ImageStats>(value.clone()).ok()?;
+    let exact = ImageStats::carried(value)?;
     match FeatureStats::for_feature(feature) {
         FeatureStats::Image(like) if exact.same_shape(&like) => Some(exact),
         _ => None,
@@ -644,13 +644,15 @@ pub struct Prepared {
 }
 
 /// A batch's episodes encode their video features in parallel (one encoder per episode); their
-/// images and statistics are made at append, frames in parallel.
+/// images and statistics are made at append, frames in parallel. An episode whose rows are
+/// copied as stored has nothing to encode, and its statistics (no pixel counted) are made here,
+/// with the batch's others, instead of on the appending thread.
 impl crate::export::writer::EpisodeEncoder<Prepared> for EpisodeWork<'_> {
     fn encode(&self, episode: &Episode) -> Result<Prepared, ExportError> {
         Ok(Prepared {
             video: self.video_frames(episode)?,
             images: None,
-            stats: None,
+            stats: (episode.stored_rows.is_some()).then(|| self.feature_stats(episode)),
             encode_secs: 0.0,
             stats_secs: 0.0,
         })

@@ -16,7 +16,6 @@ use crate::export::info::DatasetInfo;
 use crate::export::sink::Summary;
 use crate::export::writer::{FormatWriter, Writer};
 use crate::media::video::{EncodedFrame, Mp4Writer};
-use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
@@ -352,10 +351,12 @@ impl LeRobotFiles {
             let version = self.options.version;
             let (chunk, file) = version.next_location(&mut self.state.data_files, episode);
             let (handle, pending) = dir.create_file(&version.data_path(chunk, file))?;
-            let writer =
-                ArrowWriter::try_new(handle, self.schema.clone(), Some(self.writer_properties()))
-                    .and_then(|w| super::copy::DataFile::new(w, self.schema.clone()))
-                    .map_err(ExportError::parquet(&pending.path))?;
+            let writer = super::copy::DataFile::create(
+                handle,
+                self.schema.clone(),
+                self.writer_properties(),
+            )
+            .map_err(ExportError::parquet(&pending.path))?;
             self.open = Some(OpenFile {
                 writer,
                 chunk,
@@ -499,7 +500,7 @@ impl LeRobotFiles {
         if self
             .videos
             .iter()
-            .any(|v| version.file_is_full(v.pending.bytes_so_far(), limit))
+            .any(|v| version.file_is_full(v.mp4.bytes_written(), limit))
         {
             self.close_videos(dir)?;
         }
@@ -769,9 +770,7 @@ impl LeRobotFiles {
         for (((name, total), (_, this)), kept) in totals {
             if kept {
                 let exact = match &this {
-                    crate::export::stats::FeatureStats::Image(s) => {
-                        serde_json::to_value(s).unwrap_or(Value::Null)
-                    }
+                    crate::export::stats::FeatureStats::Image(s) => s.stored_json(),
                     _ => Value::Null,
                 };
                 pixel_stats.push((name.clone(), exact));
