@@ -36,7 +36,7 @@ time_once() { # COMMAND... -> "wall peak_rss_kb" of one run ("killed ..." when i
     /usr/bin/time -o "${work}/time" -f "%e %M" "$@" > "${work}/last.log" 2>&1 || status=$?
     # A command killed by a signal (the kernel's OOM killer) is reported, not a failure.
     if grep -q "terminated by signal" "${work}/time"; then
-        echo "killed $(tail -n 1 "${work}/time")"
+        echo "killed $(grep -o "signal [0-9]*" "${work}/time") $(tail -n 1 "${work}/time")"
         return
     fi
     if [ "${status}" -ne 0 ]; then
@@ -48,7 +48,11 @@ time_once() { # COMMAND... -> "wall peak_rss_kb" of one run ("killed ..." when i
 }
 show() { # LABEL "wall rss" (or "killed wall rss")
     case "$2" in
-        killed*) printf '%-48s KILLED (by signal 9: out of memory?) after %s\n' "$1" "${2#killed }" ;;
+        killed*)
+            local rest="${2#killed signal }"
+            printf '%-48s KILLED by signal %s (9: out of memory?) after %s s, peak RSS %s KB\n' \
+                "$1" "${rest%% *}" "$(echo "${rest}" | cut -d' ' -f2)" "${rest##* }"
+            ;;
         *) printf '%-48s wall %8s s  peak RSS %8s KB\n' "$1" "${2%% *}" "${2##* }" ;;
     esac
 }
@@ -68,7 +72,8 @@ best() { # LABEL OUT COMMAND... -> the best wall time and its peak RSS over RUNS
 lerobot() { # LABEL OUT ARGS... -> lerobot-edit-dataset on a fresh copy of the input, once
     local label="$1" out="$2"
     shift 2
-    rm -rf "${work}/copy" "${out}"*
+    # lerobot's datasets cache (tens of GB per split) is not kept from one run to the next.
+    rm -rf "${work}/copy" "${out}"* "${HF_HOME}"
     cp -r "${video}" "${work}/copy"
     sync
     local result
