@@ -21,6 +21,9 @@ use std::sync::Arc;
 /// Slack when matching sample times to an episode's span, seconds (lerobot's own tolerance).
 const TIME_TOLERANCE_SECS: f64 = 1e-4;
 
+/// Bytes read at a time while the sample tables are parsed.
+const TABLE_BUFFER_BYTES: usize = 1 << 16;
+
 /// A sample's place in the file and its presentation time.
 #[derive(Clone, Copy, Debug)]
 struct SampleRef {
@@ -105,18 +108,22 @@ fn codec_of(
 impl VideoReader {
     /// Reads the sample tables of the file's video track (not its media data).
     pub fn open(path: &Path) -> Result<Self, MediaError> {
-        let mut file = crate::files::open_regular(path).map_err(MediaError::io(path))?;
+        let file = crate::files::open_regular(path).map_err(MediaError::io(path))?;
         let size = file.metadata().map_err(MediaError::io(path))?.len();
+        // The tables are read a few bytes at a time: buffered, not a system call each.
+        let mut tables = std::io::BufReader::with_capacity(TABLE_BUFFER_BYTES, file);
         // re_mp4 trusts stsz's sample count and indexes its tables without bounds checks in
         // places: a damaged file must be an error naming it, never a crash or an abort.
         if let Some(problem) =
-            crate::media::mp4scan::check_tables(&mut file, size).map_err(MediaError::io(path))?
+            crate::media::mp4scan::check_tables(&mut tables, size).map_err(MediaError::io(path))?
         {
             return Err(invalid(path, format!("not a readable MP4: {problem}")));
         }
-        file.seek(SeekFrom::Start(0))
+        tables
+            .seek(SeekFrom::Start(0))
             .map_err(MediaError::io(path))?;
-        let parsed = crate::media::mp4scan::quietly(|| Mp4::read(&mut file, size));
+        let parsed = crate::media::mp4scan::quietly(|| Mp4::read(&mut tables, size));
+        let file = tables.into_inner();
         let mp4 = match parsed {
             Ok(Ok(mp4)) => mp4,
             Ok(Err(e)) => return Err(invalid(path, format!("not a readable MP4: {e}"))),

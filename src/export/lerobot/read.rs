@@ -1252,7 +1252,12 @@ impl LeRobotSource {
         }
         let index = match self.data.next() {
             Ok(Some(super::rows::Next::Episode(index))) => index,
-            _ => return None,
+            Ok(_) => return None,
+            // A data file that does not open is named now: reading on would pass over it.
+            Err(error) => {
+                self.ended = true;
+                return Some(Err(error));
+            }
         };
         let groups = self.data.counted_groups(index)?;
         for _ in &groups {
