@@ -90,7 +90,8 @@ pub(crate) struct LeRobotArgs {
     #[arg(long, value_enum)]
     lerobot_version: Option<LayoutVersion>,
     /// LeRobot: size at which a data file is closed and a new one begun, MB (LeRobot's
-    /// data_files_size_in_mb; default 100); each closed file is also a resume checkpoint.
+    /// data_files_size_in_mb; default 100); each closed file is also a resume checkpoint. Video
+    /// files close with it, or when one holds 200 MB of samples (video_files_size_in_mb).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     data_file_mb: Option<u64>,
 }

@@ -29,6 +29,6 @@ pub mod shaping;
 pub mod vector;
 
 pub use agents::SendExtras;
-pub use options::{EvalError, EvalOptions, PolicyChoice, evaluation_spawn_scale};
+pub use options::{EvalError, EvalOptions, PolicyChoice, evaluation_spawn_scale, policy_label};
 pub use results::{EvalReport, TaskResult, wilson_interval};
 pub use run::{evaluate, trial_seed};

@@ -110,6 +110,14 @@ pub fn evaluation_spawn_scale(task: TaskId) -> f64 {
     if task == TaskId::NeedlePick { 3.0 } else { 1.0 }
 }
 
+/// A policy's name as results label it (given with `--policy-name` or served in a policy
+/// server's metadata): trimmed, 1 to 64 characters, no control character; None otherwise.
+pub fn policy_label(text: &str) -> Option<String> {
+    let name = text.trim();
+    (!name.is_empty() && name.chars().count() <= 64 && !name.contains(char::is_control))
+        .then(|| name.to_string())
+}
+
 impl EvalOptions {
     /// The variants each task runs under (the unperturbed one alone without a suite).
     pub fn variants(&self) -> Vec<super::perturb::Variant> {
@@ -177,5 +185,19 @@ impl crate::error::HasKind for EvalError {
     /// Writing the results failed because the disk is full.
     fn is_disk_full(&self) -> bool {
         matches!(self, EvalError::Write { source, .. } if source.is_disk_full())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::policy_label;
+
+    #[test]
+    fn a_policy_label_is_short_trimmed_text() {
+        assert_eq!(policy_label("  pi0-fast \n").as_deref(), Some("pi0-fast"));
+        assert_eq!(policy_label(&"é".repeat(64)).map(|n| n.len()), Some(128));
+        for refused in ["", "   ", "a\u{7}b", "two\nlines", &"x".repeat(65)] {
+            assert_eq!(policy_label(refused), None, "{refused:?}");
+        }
     }
 }

@@ -359,11 +359,9 @@ pub fn evaluate(
 /// The name a policy server gives itself in its metadata (`name`, `policy_name` or `policy`,
 /// the first that is a short text), which labels its results.
 fn served_name(metadata: &serde_json::Value) -> Option<String> {
-    ["name", "policy_name", "policy"].iter().find_map(|key| {
-        let name = metadata.get(key)?.as_str()?.trim();
-        (!name.is_empty() && name.chars().count() <= 64 && !name.contains(char::is_control))
-            .then(|| name.to_string())
-    })
+    ["name", "policy_name", "policy"]
+        .iter()
+        .find_map(|key| super::options::policy_label(metadata.get(key)?.as_str()?))
 }
 
 /// `results.png`: the success rates with their intervals, grouped by level; a suite's run as
@@ -425,8 +423,27 @@ fn identity(choice: &PolicyChoice, options: &EvalOptions) -> serde_json::Value {
         "recordings_per_task": options.recordings_per_task,
         "name": options.name,
         "render_builtin": options.render_builtin,
-        "camera": format!("{:?}", options.camera),
+        "camera": camera_json(&options.camera),
         "generator": format!("surgvla {}", env!("CARGO_PKG_VERSION")),
+    })
+}
+
+/// The camera as the journal names it: intrinsics and `world_from_camera` (row-major 4x4).
+fn camera_json(camera: &crate::render::Camera) -> serde_json::Value {
+    let pose = camera.world_from_camera.to_homogeneous();
+    let rows: Vec<[f64; 4]> = (0..4)
+        .map(|r| [pose[(r, 0)], pose[(r, 1)], pose[(r, 2)], pose[(r, 3)]])
+        .collect();
+    serde_json::json!({
+        "width_px": camera.width_px,
+        "height_px": camera.height_px,
+        "fx_px": camera.fx_px,
+        "fy_px": camera.fy_px,
+        "cx_px": camera.cx_px,
+        "cy_px": camera.cy_px,
+        "near_m": camera.near_m,
+        "far_m": camera.far_m,
+        "world_from_camera": rows,
     })
 }
 
@@ -747,4 +764,29 @@ fn save_recording(
     )?;
     write(options, &relative, &bytes)?;
     Ok(relative)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_is_named_by_its_camera_pose_and_intrinsics() {
+        let options = EvalOptions::default();
+        let base = identity(&PolicyChoice::Expert, &options);
+        assert_eq!(base, identity(&PolicyChoice::Expert, &options.clone()));
+        let camera = &base["camera"];
+        assert_eq!(camera["width_px"], options.camera.width_px);
+        assert_eq!(
+            camera["world_from_camera"][3],
+            serde_json::json!([0.0, 0.0, 0.0, 1.0])
+        );
+        let mut moved = options.clone();
+        moved.camera.world_from_camera.translation.vector.x += 0.001;
+        let mut narrower = options.clone();
+        narrower.camera.fx_px *= 1.1;
+        for other in [moved, narrower] {
+            assert_ne!(base, identity(&PolicyChoice::Expert, &other));
+        }
+    }
 }

@@ -196,6 +196,12 @@ pub trait DatasetFormat: Sync {
         Ok(Vec::new())
     }
 
+    /// Whether one dataset records several named splits of its episodes (LeRobot's
+    /// `splits`); else a split is a dataset of its own (RLDS: its one TFDS split).
+    fn records_splits(&self) -> bool {
+        false
+    }
+
     /// Merges datasets of this format into `out`; `None`: the format does not merge.
     fn merge(&self, _request: &mut MergeRequest<'_>) -> Option<Result<Summary, MergeError>> {
         None

@@ -433,12 +433,18 @@ mod tests {
                 .iter()
                 .map(|e| video.append(e).expect("append"))
                 .collect();
-            // What the writer counts (its rolling rule) is what reached the file, buffered or
-            // not (the muxer keeps the samples until it finishes: nothing yet).
+            // What the writer counts (its rolling rule) is every sample's bytes, although the
+            // muxer keeps them in memory until it finishes: the file's size less its boxes.
             let counted = video.bytes_written();
+            let samples: usize = episodes
+                .iter()
+                .flat_map(|e| e.iter())
+                .map(|f| f.data.len())
+                .sum();
             video.finish().expect("finish");
             let size = std::fs::metadata(root.join(name)).expect("size").len();
-            assert!(counted <= size, "{counted} of {size}");
+            assert_eq!(counted, samples as u64);
+            assert!(counted > 0 && counted < size, "{counted} of {size}");
             spans
         };
         let spans = write("a.mp4", &[&encoded, &encoded]);

@@ -323,33 +323,14 @@ pub fn encode_h264(
     encode(Codec::H264, frames, width, height, fps, u32::from(max_qp))
 }
 
-/// The file under an [`Mp4Writer`]'s muxer: buffered (the muxer writes each sample on its
-/// own), counting the bytes it was given (the file's size once flushed).
-struct Mp4Output {
-    file: std::io::BufWriter<File>,
-    bytes: std::sync::Arc<std::sync::atomic::AtomicU64>,
-}
-
-/// Bytes an MP4 file is written in.
+/// Bytes an MP4 file is written in (muxide writes each sample on its own at `finish`).
 const MP4_WRITE_BUFFER_BYTES: usize = 1 << 20;
-
-impl std::io::Write for Mp4Output {
-    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        let written = self.file.write(bytes)?;
-        (self.bytes).fetch_add(written as u64, std::sync::atomic::Ordering::Relaxed);
-        Ok(written)
-    }
-
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.file.flush()
-    }
-}
 
 /// An MP4 file being appended to: the muxer over an open file, and the presentation clock.
 pub struct Mp4Writer {
-    muxer: Muxer<Mp4Output>,
-    /// Bytes given to the file so far.
-    bytes: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    muxer: Muxer<std::io::BufWriter<File>>,
+    /// Sample bytes appended so far: what the file will hold besides its boxes.
+    sample_bytes: u64,
     /// The file's name, for errors.
     path: PathBuf,
     /// Frames written so far (the next frame's presentation time is `frames / fps`).
@@ -380,11 +361,7 @@ impl Mp4Writer {
         (width, height): (usize, usize),
         fps: u32,
     ) -> Result<Self, MediaError> {
-        let bytes = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
-        let output = Mp4Output {
-            file: std::io::BufWriter::with_capacity(MP4_WRITE_BUFFER_BYTES, handle),
-            bytes: bytes.clone(),
-        };
+        let output = std::io::BufWriter::with_capacity(MP4_WRITE_BUFFER_BYTES, handle);
         let muxer = MuxerBuilder::new(output)
             .video(
                 match codec {
@@ -400,7 +377,7 @@ impl Mp4Writer {
             .map_err(mp4_error(&path))?;
         Ok(Mp4Writer {
             muxer,
-            bytes,
+            sample_bytes: 0,
             path,
             frames: 0,
             fps,
@@ -415,6 +392,7 @@ impl Mp4Writer {
             self.muxer
                 .write_video(pts, &frame.data, frame.keyframe)
                 .map_err(mp4_error(&self.path))?;
+            self.sample_bytes += frame.data.len() as u64;
             self.frames += 1;
         }
         Ok((from, self.frames as f64 / f64::from(self.fps)))
@@ -425,10 +403,11 @@ impl Mp4Writer {
         self.frames as f64 / f64::from(self.fps)
     }
 
-    /// The file's size so far (what was written, buffered or not). muxide keeps every sample
-    /// until [`Mp4Writer::finish`], so this stays 0 until then, as the file's size on disk did.
+    /// The file's size so far, less its boxes: the bytes of the samples appended. muxide keeps
+    /// every sample in memory until [`Mp4Writer::finish`], so the file on disk is empty until
+    /// then; this is what a rolling rule must count.
     pub fn bytes_written(&self) -> u64 {
-        self.bytes.load(std::sync::atomic::Ordering::Relaxed)
+        self.sample_bytes
     }
 
     /// Completes the file (the moov box at the end) and writes out what is buffered.
@@ -436,7 +415,7 @@ impl Mp4Writer {
         self.muxer
             .finish_in_place()
             .map_err(mp4_error(&self.path))?;
-        (self.muxer.into_writer().file.into_inner())
+        (self.muxer.into_writer().into_inner())
             .map(|_| ())
             .map_err(|e| MediaError::Io {
                 path: self.path,

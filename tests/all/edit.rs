@@ -654,3 +654,79 @@ fn an_rlds_dataset_is_edited_in_its_own_format() {
     };
     assert_eq!(names(&out), names(&input));
 }
+
+/// An RLDS dataset split by `edit` is one TFDS dataset per split, each holding its episodes in
+/// the split it is named after (what `as_dataset(split="val")` reads), read back, validated and
+/// converted with that name.
+#[test]
+fn an_rlds_split_is_written_under_its_own_split_name() {
+    let root = temp_root("edit-rlds-split");
+    let input = root.join("input");
+    collect(&input, &["T1-1", "3", "--format", "rlds"]);
+    let out = root.join("out");
+    let (code, _, err) = surgvla(&[
+        "edit",
+        text(&input),
+        "--split",
+        "train=0,val=1+2",
+        "--out",
+        text(&out),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let original = episodes(&input);
+    for (split, kept) in [("train", vec![0]), ("val", vec![1, 2])] {
+        let folder = out.join(split);
+        let shards: Vec<String> = (tree(&folder).into_keys())
+            .filter(|n| n.contains(".tfrecord-"))
+            .collect();
+        let shard = format!("surgvla_benchmark-{split}.tfrecord-00000-of-00001");
+        assert!(
+            shards.len() == 1 && shards[0].ends_with(&shard),
+            "{shards:?}"
+        );
+        let version = folder.join("surgvla_benchmark/1.0.0");
+        let dataset_info: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(version.join("dataset_info.json")).expect("dataset_info"),
+        )
+        .expect("json");
+        assert_eq!(dataset_info["splits"][0]["name"], split);
+        let edited = episodes(&folder);
+        let seeds: Vec<u64> = edited.iter().map(|e| e.meta.seed).collect();
+        let expected: Vec<u64> = kept.iter().map(|&i| original[i].meta.seed).collect();
+        assert_eq!(seeds, expected, "{split}");
+        let (code, stdout, err) = surgvla(&["validate", text(&folder)]);
+        assert_eq!(code, 0, "{split}: {stdout}{err}");
+    }
+    // Converted, the split keeps its name (LeRobot's info.json `splits`).
+    let lerobot = root.join("val-lerobot");
+    let (code, _, err) = surgvla(&[
+        "convert",
+        text(&out.join("val")),
+        "--to",
+        "lerobot",
+        "--out",
+        text(&lerobot),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        info_json(&lerobot)["splits"],
+        serde_json::json!({"val": "0:2"})
+    );
+    // One RLDS dataset holds one split: recording several in it is refused, nothing written.
+    let one = root.join("one");
+    let (code, _, err) = surgvla(&[
+        "edit",
+        text(&input),
+        "--split",
+        "train=0,val=1+2",
+        "--splits-in-info",
+        "--out",
+        text(&one),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--splits-in-info") && err.contains("RLDS"),
+        "{err}"
+    );
+    assert!(!one.exists());
+}

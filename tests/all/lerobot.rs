@@ -383,6 +383,72 @@ fn video_mode_writes_one_growing_mp4_and_its_spans() {
 }
 
 #[test]
+fn video_files_roll_over_by_their_samples_and_close_with_the_data_file() {
+    use surgvla::export::lerobot::VideoOptions;
+    // The muxer holds a file's samples until it closes, so its size on disk says nothing: the
+    // writer counts the samples. A video limit of 0 MB fills each file with one episode, while
+    // the data files (100 MB) would hold all three; the data file closes with its video.
+    let root = temp_root("video-rollover");
+    let recorded = episodes(3, 6);
+    let options = LeRobotOptions {
+        video: Some(VideoOptions {
+            file_size_mb: 0,
+            ..VideoOptions::h264()
+        }),
+        ..LeRobotOptions::default()
+    };
+    write(&root, &recorded, options);
+    let whole = temp_root("video-whole");
+    let one_file = LeRobotOptions {
+        video: Some(VideoOptions::h264()),
+        ..LeRobotOptions::default()
+    };
+    write(&whole, &recorded, one_file);
+    let videos = root.join("videos/observation.images.endoscope/chunk-000");
+    for file in 0..3 {
+        assert!(
+            videos.join(format!("file-{file:03}.mp4")).exists(),
+            "{file}"
+        );
+    }
+    assert!(!videos.join("file-003.mp4").exists());
+    assert_eq!(data_files(&root).expect("files").len(), 3);
+    let table =
+        &read_parquet(&root.join("meta/episodes/chunk-000/file-000.parquet")).expect("episodes")[0];
+    let ints = |name: &str| {
+        (table.column_by_name(name))
+            .and_then(|c| c.as_any().downcast_ref::<arrow_array::Int64Array>())
+            .expect(name)
+            .values()
+            .to_vec()
+    };
+    let key = "videos/observation.images.endoscope";
+    assert_eq!(ints(&format!("{key}/file_index")), [0, 1, 2]);
+    assert_eq!(ints("data/file_index"), [0, 1, 2]);
+    let from = (table.column_by_name(&format!("{key}/from_timestamp")))
+        .and_then(|c| c.as_any().downcast_ref::<arrow_array::Float64Array>())
+        .expect("from");
+    assert_eq!(from.values().to_vec(), [0.0, 0.0, 0.0]);
+    // Read back, each episode's samples are the ones written into a single file.
+    let samples = |root: &std::path::Path| -> Vec<Vec<Vec<u8>>> {
+        let source = surgvla::export::open_source(root).expect("open");
+        source
+            .map(|e| {
+                let e = e.expect("episode");
+                let video = e
+                    .encoded_video("observation.images.endoscope")
+                    .expect("video");
+                video.frames.iter().map(|f| f.data.clone()).collect()
+            })
+            .collect()
+    };
+    let rolled = samples(&root);
+    assert_eq!(rolled.len(), 3);
+    assert!(rolled.iter().all(|frames| frames.len() == 6));
+    assert_eq!(rolled, samples(&whole));
+}
+
+#[test]
 fn version_2_1_writes_one_file_per_episode_and_jsonl_metadata() {
     use surgvla::export::lerobot::{LeRobotVersion, VideoOptions};
     let root = temp_root("v21");

@@ -312,9 +312,6 @@ pub(crate) fn run_eval(args: &EvalArgs) -> Result<(), CliError> {
 
 /// `--name`: a label of 1 to 64 characters, no control characters.
 fn policy_name(text: &str) -> Result<String, String> {
-    let name = text.trim();
-    if name.is_empty() || name.chars().count() > 64 || name.contains(char::is_control) {
-        return Err("a name of 1 to 64 characters, without control characters".into());
-    }
-    Ok(name.to_string())
+    surgvla::eval::policy_label(text)
+        .ok_or_else(|| "a name of 1 to 64 characters, without control characters".into())
 }

@@ -97,6 +97,12 @@ pub fn plan(request: &EditRequest) -> Result<Planned, ConvertError> {
             )));
         }
     };
+    if request.splits_in_info && !format.records_splits() {
+        return Err(usage(format!(
+            "--splits-in-info records the splits in one dataset's metadata, which {} has no place for: leave it out to write one dataset per split",
+            format.title()
+        )));
+    }
     let carried = format.carried_files(&found).map_err(ConvertError::Read)?;
     // The input as the outputs read it (features removed): its episodes listed, its info.
     let mut reading = request.reading().open(options.as_ref())?;

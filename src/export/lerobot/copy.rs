@@ -357,7 +357,9 @@ fn renamed(
         .set_repetition_level_histogram(chunk.repetition_level_histogram().cloned())
         .set_definition_level_histogram(chunk.definition_level_histogram().cloned());
     if let Some(statistics) = chunk.statistics() {
-        let signed = builder_sort_signed(chunk);
+        // Columns that sort signed also get the deprecated `min` and `max` from parquet's
+        // writers, which reading a footer does not remember.
+        let signed = chunk.column_descr().sort_order().is_signed();
         builder = builder.set_statistics(with_old_min_max(statistics.clone(), signed));
     }
     if let Some(stats) = chunk.page_encoding_stats() {
@@ -367,12 +369,6 @@ fn renamed(
         builder = builder.set_page_encoding_stats_mask(*mask);
     }
     builder.build()
-}
-
-/// Whether the column's values sort signed: then parquet's writers also write the deprecated
-/// `min` and `max` statistics, which reading a footer does not remember.
-fn builder_sort_signed(chunk: &ColumnChunkMetaData) -> bool {
-    chunk.column_descr().sort_order().is_signed()
 }
 
 /// `statistics` written with the deprecated `min` and `max` too when `old` (as the column

@@ -51,6 +51,10 @@ impl DatasetFormat for LeRobotFormat {
         }
     }
 
+    fn records_splits(&self) -> bool {
+        true
+    }
+
     fn schema_help(&self) -> Option<&'static str> {
         Some("The `features` of LeRobot's meta/info.json")
     }

@@ -488,22 +488,15 @@ impl LeRobotFiles {
         Ok(self.video_spans(&from))
     }
 
-    /// Makes the video files ready for an episode: rolled all together when one is full,
-    /// opened when none is; returns where the episode starts in each, seconds.
+    /// Makes the video files ready for an episode: opened when none is (they close with the
+    /// data file, when either is full: [`LeRobotFiles::episode_done`]); returns where the
+    /// episode starts in each, seconds.
     pub(super) fn ready_videos(
         &mut self,
         dir: &mut DatasetDir,
         info: &DatasetInfo,
     ) -> Result<Vec<f64>, ExportError> {
         let version = self.options.version;
-        let limit = self.video_file_size_mb() * 1024 * 1024;
-        if self
-            .videos
-            .iter()
-            .any(|v| version.file_is_full(v.mp4.bytes_written(), limit))
-        {
-            self.close_videos(dir)?;
-        }
         if self.videos.is_empty() {
             let episode = self.state.episodes;
             let location = version.next_location(&mut self.state.video_files, episode);
@@ -724,9 +717,9 @@ impl LeRobotFiles {
             fields: meta.fields.clone(),
         };
         self.journal(dir, &row)?;
-        if written.full {
-            // Close the video file at the same moment, so that everything written so far is
-            // complete, and record the state.
+        if written.full || self.videos_full() {
+            // A full data or video file closes the others at the same moment, so that
+            // everything written so far is complete, and the state is recorded.
             self.close_file(dir)?;
             self.close_videos(dir)?;
             if self.options.version.checkpoint_due(self.state.episodes) {
@@ -734,6 +727,14 @@ impl LeRobotFiles {
             }
         }
         Ok(())
+    }
+
+    /// Whether a video file being written reached `video_files_size_in_mb` (counting its
+    /// samples: the muxer holds them until the file closes).
+    fn videos_full(&self) -> bool {
+        let limit = self.video_file_size_mb() * 1024 * 1024;
+        (self.videos.iter())
+            .any(|v| (self.options.version).file_is_full(v.mp4.bytes_written(), limit))
     }
 
     /// Appends an episode's row to the journal and counts the episode.

@@ -180,11 +180,12 @@ pub fn check(root: &Path, options: &ValidateOptions, findings: &Findings) -> (u6
     (records, steps)
 }
 
-/// The shards `dataset_info.json`'s train split lists (with their episode counts, as listed),
-/// any other TFRecord file in the folder and a split without shards being findings.
 /// The most shards a split may list (TFDS numbers them with five digits).
 const MAX_SHARDS: usize = 100_000;
 
+/// The shards `dataset_info.json`'s split lists (its `train` split, else its only one: see
+/// [`super::options::read_split`]), with their episode counts as listed; any other TFRecord
+/// file in the folder and a split without shards being findings.
 fn listed_shards(
     root: &Path,
     dataset_info: &Value,
@@ -199,9 +200,9 @@ fn listed_shards(
         );
         return (Vec::new(), Vec::new());
     }
-    let lengths: Vec<Option<u64>> = dataset_info["splits"]
-        .as_array()
-        .and_then(|s| s.iter().find(|s| s["name"] == "train"))
+    let split = super::options::read_split(dataset_info);
+    let split_name = (split.and_then(|s| s["name"].as_str())).unwrap_or("train");
+    let lengths: Vec<Option<u64>> = split
         .and_then(|s| s["shardLengths"].as_array())
         .map(|l| {
             l.iter()
@@ -223,7 +224,7 @@ fn listed_shards(
         return (Vec::new(), Vec::new());
     }
     let expected: Vec<PathBuf> = (0..count)
-        .map(|i| root.join(format!("{name}-train.tfrecord-{i:05}-of-{count:05}")))
+        .map(|i| root.join(format!("{name}-{split_name}.tfrecord-{i:05}-of-{count:05}")))
         .collect();
     let present: Vec<PathBuf> = std::fs::read_dir(root)
         .into_iter()
@@ -240,7 +241,9 @@ fn listed_shards(
             findings.file_error(
                 path,
                 Check::Shards,
-                format!("is not one of the {count} shards dataset_info.json's train split lists"),
+                format!(
+                    "is not one of the {count} shards dataset_info.json's {split_name} split lists"
+                ),
             );
         }
     }
@@ -248,7 +251,7 @@ fn listed_shards(
         findings.file_error(
             &root.join("dataset_info.json"),
             Check::Shards,
-            "the train split lists no shards",
+            format!("the {split_name} split lists no shards"),
         );
     }
     (expected, lengths)

@@ -341,6 +341,7 @@ impl ForeignRldsSource {
         let mut info = DatasetInfo::from_surgvla_json(&Value::Null, fps, robot_type, features);
         info.notes = described(&folder);
         info.notes.extend(notes);
+        info.splits = records.named_split();
         let episode_leaves: BTreeMap<String, Leaf> = (leaves.into_iter())
             .filter(|(k, l)| !k.starts_with("steps/") && episode_field(l))
             .collect();

@@ -10,6 +10,8 @@
 //! OPENVLA.md                                           how to fine-tune OpenVLA on it
 //! surgvla_manifest.json                                every file with size and CRC-32C
 //! ```
+//! The split is `train`, or the one split the dataset's metadata names (`edit --split` writes
+//! one dataset per split): [`options::tfds_split`]; readers take `train`, else the only split.
 //! Shards roll once they reach [`RldsOptions::shard_size_mb`] (TFDS sizes shards from 64 MiB
 //! up) and are written as `<name>-train.tfrecord-NNNNN` until the run finishes: only then is
 //! the count `MMMMM` known, and [`crate::export::DatasetDir::rename_files`] gives them their final names (a

@@ -176,10 +176,10 @@ impl RldsOptions {
         format!("{}/{}", self.name, self.version)
     }
 
-    /// Shard `index` of `count` (`count` None: the name while the run is going on).
-    pub fn shard_path(&self, index: usize, count: Option<usize>) -> String {
+    /// Shard `index` of `count` of `split` (`count` None: the name while the run is going on).
+    pub fn shard_path(&self, split: &str, index: usize, count: Option<usize>) -> String {
         let base = format!(
-            "{}/{}-train.tfrecord-{index:05}",
+            "{}/{}-{split}.tfrecord-{index:05}",
             self.version_dir(),
             self.name
         );
@@ -188,4 +188,32 @@ impl RldsOptions {
             None => base,
         }
     }
+}
+
+/// The TFDS split a dataset's episodes are written in: the one split its metadata names when it
+/// names one (`edit --split` writes a dataset per split), else `train` (several splits in one
+/// dataset are written as one: RLDS here holds one split a dataset).
+pub(super) fn tfds_split(info: &crate::export::info::DatasetInfo) -> &str {
+    match info.splits.as_slice() {
+        [(name, _)] if is_split_name(name) => name,
+        _ => "train",
+    }
+}
+
+/// Whether TFDS reads `name` as a split in a shard's file name (letters, digits, `_`, `-`).
+fn is_split_name(name: &str) -> bool {
+    !name.is_empty() && (name.chars()).all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
+/// The split an RLDS dataset's episodes are read from: `train` when `dataset_info.json` lists
+/// it, else its only split (a split `edit` wrote on its own); None when it lists neither.
+pub(super) fn read_split(dataset_info: &serde_json::Value) -> Option<&serde_json::Value> {
+    let splits = dataset_info["splits"].as_array()?;
+    let only = match splits.as_slice() {
+        [only] => Some(only),
+        _ => None,
+    };
+    (splits.iter().find(|s| s["name"] == "train"))
+        .or(only)
+        .filter(|s| s["name"].as_str().is_some_and(is_split_name))
 }

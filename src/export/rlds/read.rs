@@ -143,12 +143,14 @@ pub struct ShardRecords {
     /// The shard being read: path, reader, episodes expected and read.
     current: Option<(PathBuf, RecordReader<BufReader<File>>, u64, u64)>,
     total: u64,
+    /// The split read ([`super::options::read_split`]).
+    split: String,
     failed: bool,
 }
 
 impl ShardRecords {
-    /// The train split's shards of the version folder `folder`, as `dataset_info.json` lists
-    /// them (every one present).
+    /// The shards of the version folder `folder`'s split (`train`, else its only one), as
+    /// `dataset_info.json` lists them (every one present).
     pub fn open(folder: &Path) -> Result<ShardRecords, ExportError> {
         let info_path = folder.join("dataset_info.json");
         let dataset_info = read_json(&info_path)?;
@@ -161,13 +163,17 @@ impl ShardRecords {
             name: name.to_string(),
             problem,
         })?;
-        let split = dataset_info["splits"]
-            .as_array()
-            .and_then(|splits| splits.iter().find(|s| s["name"] == "train"))
-            .ok_or_else(|| invalid(&info_path, "has no train split"))?;
+        let split = super::options::read_split(&dataset_info)
+            .ok_or_else(|| invalid(&info_path, "has no train split, nor one split alone"))?;
+        let split_name = split["name"].as_str().unwrap_or("train");
         let lengths: Vec<u64> = split["shardLengths"]
             .as_array()
-            .ok_or_else(|| invalid(&info_path, "the train split has no shardLengths"))?
+            .ok_or_else(|| {
+                invalid(
+                    &info_path,
+                    format!("the {split_name} split has no shardLengths"),
+                )
+            })?
             .iter()
             .map(|v| {
                 v.as_str()
@@ -187,7 +193,8 @@ impl ShardRecords {
             .iter()
             .enumerate()
             .map(|(i, &episodes)| {
-                let path = folder.join(format!("{name}-train.tfrecord-{i:05}-of-{count:05}"));
+                let path =
+                    folder.join(format!("{name}-{split_name}.tfrecord-{i:05}-of-{count:05}"));
                 if path.is_file() {
                     Ok(Shard { path, episodes })
                 } else {
@@ -202,6 +209,7 @@ impl ShardRecords {
             shards: shards.into_iter(),
             current: None,
             total: lengths.iter().sum(),
+            split: split_name.to_string(),
             failed: false,
         })
     }
@@ -209,6 +217,15 @@ impl ShardRecords {
     /// Episodes the split holds, by `shardLengths`.
     pub fn total(&self) -> u64 {
         self.total
+    }
+
+    /// The split's name as `info.splits` carries it: none for `train` (every dataset's
+    /// default), else the split covering every episode (a split `edit` wrote on its own).
+    pub fn named_split(&self) -> Vec<(String, std::ops::Range<u64>)> {
+        match self.split.as_str() {
+            "train" => Vec::new(),
+            name => vec![(name.to_string(), 0..self.total)],
+        }
     }
 
     /// The next record decoded by `decode` (a failure names the shard and the record), or None
@@ -328,12 +345,13 @@ impl RldsSource {
             mask: observation.contains_key(&keys.mask),
             environment_state: observation.contains_key(&keys.environment_state),
         };
-        let info = DatasetInfo::from_surgvla_json(
+        let mut info = DatasetInfo::from_surgvla_json(
             &surgvla,
             surgvla["fps"].as_u64().unwrap_or(0) as u32,
             surgvla["robot_type"].as_str().unwrap_or_default(),
             standard_features(height, width, set),
         );
+        info.splits = records.named_split();
         Ok(RldsSource {
             layout: StepLayout::of(&info, &keys),
             info,

@@ -45,6 +45,8 @@ pub type RldsWriter = Writer<RldsShards>;
 /// RLDS's part of [`RldsWriter`].
 pub struct RldsShards {
     options: RldsOptions,
+    /// The TFDS split the episodes go in ([`super::options::tfds_split`]).
+    split: String,
     layout: StepLayout,
     open: Option<OpenShard>,
     state: State,
@@ -105,6 +107,7 @@ impl FormatWriter for RldsShards {
         state: Option<State>,
     ) -> Result<Self, ExportError> {
         Ok(RldsShards {
+            split: super::options::tfds_split(info).to_string(),
             layout: StepLayout {
                 jpeg_quality: options.jpeg_quality,
                 ..StepLayout::of(info, &options.keys)
@@ -201,7 +204,8 @@ impl RldsShards {
     ) -> Result<(), ExportError> {
         if self.open.is_none() {
             let index = self.state.shard_lengths.len();
-            let (file, pending) = dir.create_file(&self.options.shard_path(index, None))?;
+            let (file, pending) =
+                dir.create_file(&self.options.shard_path(&self.split, index, None))?;
             self.open = Some(OpenShard {
                 writer: BufWriter::with_capacity(1 << 20, file),
                 pending,
@@ -279,8 +283,8 @@ impl RldsShards {
         let renames: Vec<(String, String)> = (0..count)
             .map(|i| {
                 (
-                    self.options.shard_path(i, None),
-                    self.options.shard_path(i, Some(count)),
+                    self.options.shard_path(&self.split, i, None),
+                    self.options.shard_path(&self.split, i, Some(count)),
                 )
             })
             .collect();
@@ -407,12 +411,16 @@ mod tests {
     fn shards_get_their_count_only_at_the_end() {
         let options = RldsOptions::default();
         assert_eq!(
-            options.shard_path(3, None),
+            options.shard_path("train", 3, None),
             "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00003"
         );
         assert_eq!(
-            options.shard_path(3, Some(12)),
+            options.shard_path("train", 3, Some(12)),
             "surgvla_benchmark/1.0.0/surgvla_benchmark-train.tfrecord-00003-of-00012"
+        );
+        assert_eq!(
+            options.shard_path("val", 0, Some(1)),
+            "surgvla_benchmark/1.0.0/surgvla_benchmark-val.tfrecord-00000-of-00001"
         );
     }
 }
