@@ -71,6 +71,15 @@ pub fn component(name: &str) -> Result<&str, UnsafeName> {
     Ok(name)
 }
 
+/// Whether `name` is a plain name: 1 to 64 ASCII letters, digits, `_` or `-`. The rule for
+/// names surgvla itself puts in file names and keys (a split, an RLDS observation key, a
+/// camera), where [`component`] would allow more than the reader of the name (TFDS parsing a
+/// shard's file name, a Python attribute) does.
+pub fn is_plain_name(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && (name.chars()).all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
 /// `path` (`/`-separated, as metadata writes it) as a path relative to the dataset folder: not
 /// absolute, and each component safe ([`component`]; an empty one, as in `a//b`, is refused).
 pub fn relative(path: &str) -> Result<PathBuf, UnsafeName> {
@@ -172,6 +181,16 @@ fn index_format(spec: &str) -> Result<(bool, usize), UnsafeName> {
 mod tests {
     use super::*;
     use std::path::Path;
+
+    #[test]
+    fn a_plain_name_is_one_to_64_letters_digits_underscores_or_dashes() {
+        for plain in ["train", "val-2", "wrist_cam", "A", &"x".repeat(64)] {
+            assert!(is_plain_name(plain), "{plain}");
+        }
+        for not_plain in ["", "..", "a/b", "a.b", "val train", "é", &"x".repeat(65)] {
+            assert!(!is_plain_name(not_plain), "{not_plain}");
+        }
+    }
 
     const V30: &str = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4";
 

@@ -690,6 +690,16 @@ fn an_rlds_split_is_written_under_its_own_split_name() {
         )
         .expect("json");
         assert_eq!(dataset_info["splits"][0]["name"], split);
+        // The card's snippet and the OpenVLA guide read the split by its name.
+        let read_as = format!("as_dataset(split=\"{split}\")");
+        for doc in ["README.md", "OPENVLA.md"] {
+            let text = std::fs::read_to_string(folder.join(doc)).expect("doc");
+            assert_eq!(
+                text.contains(&read_as),
+                doc == "README.md" || split != "train",
+                "{split} {doc}"
+            );
+        }
         let edited = episodes(&folder);
         let seeds: Vec<u64> = edited.iter().map(|e| e.meta.seed).collect();
         let expected: Vec<u64> = kept.iter().map(|&i| original[i].meta.seed).collect();

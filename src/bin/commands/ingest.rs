@@ -142,13 +142,9 @@ fn parse_camera(text: &str) -> Result<(String, String), String> {
     let (name, topic) = text
         .split_once('=')
         .ok_or_else(|| format!("{text:?} is not NAME=TOPIC"))?;
-    let valid = !name.is_empty()
-        && name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
-    if !valid {
+    if !surgvla::export::paths::is_plain_name(name) {
         return Err(format!(
-            "camera name {name:?}: letters, digits, _ and - only (it names a feature)"
+            "camera name {name:?}: 1 to 64 letters, digits, _ and - (it names a feature)"
         ));
     }
     if !topic.starts_with('/') {
@@ -174,11 +170,9 @@ fn parse_split(text: &str) -> Result<(String, std::ops::Range<u64>), String> {
     let (name, range) = text
         .split_once('=')
         .ok_or_else(|| format!("{text:?} is not NAME=START:END"))?;
-    let valid = !name.is_empty()
-        && (name.chars()).all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
-    if !valid {
+    if !surgvla::export::paths::is_plain_name(name) {
         return Err(format!(
-            "split name {name:?}: letters, digits, _ and - only"
+            "split name {name:?}: 1 to 64 letters, digits, _ and -"
         ));
     }
     let (start, end) = range

@@ -213,12 +213,7 @@ impl std::str::FromStr for Splits {
                 .split_once('=')
                 .ok_or_else(|| format!("{part:?}: write NAME=SHARE or NAME=INDICES"))?;
             let name = name.trim();
-            if name.is_empty()
-                || name.len() > 64
-                || !name
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
-            {
+            if !crate::export::paths::is_plain_name(name) {
                 return Err(format!(
                     "{name:?}: a split's name is letters, digits, '_' and '-' (it names a folder)"
                 ));

@@ -201,19 +201,27 @@ fn listed_shards(
         return (Vec::new(), Vec::new());
     }
     let split = super::options::read_split(dataset_info);
-    let split_name = (split.and_then(|s| s["name"].as_str())).unwrap_or("train");
-    let lengths: Vec<Option<u64>> = split
-        .and_then(|s| s["shardLengths"].as_array())
-        .map(|l| {
-            l.iter()
-                .map(|v| {
-                    v.as_str()
-                        .and_then(|s| s.parse().ok())
-                        .or_else(|| v.as_u64())
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+    if split.is_none() && !dataset_info.is_null() {
+        findings.file_error(
+            &root.join("dataset_info.json"),
+            Check::Shards,
+            "lists no train split, nor one split alone named with letters, digits, _ or -",
+        );
+    }
+    let (split_name, lengths) = split.map_or(("", Vec::new()), |(split_name, split)| {
+        let lengths: Vec<Option<u64>> = (split["shardLengths"].as_array())
+            .map(|l| {
+                l.iter()
+                    .map(|v| {
+                        v.as_str()
+                            .and_then(|s| s.parse().ok())
+                            .or_else(|| v.as_u64())
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        (split_name, lengths)
+    });
     let count = lengths.len();
     if count > MAX_SHARDS {
         findings.file_error(
@@ -236,18 +244,18 @@ fn listed_shards(
                 .is_some_and(|n| n.to_string_lossy().contains(".tfrecord-"))
         })
         .collect();
+    let stray = match split {
+        Some(_) => {
+            format!("is not one of the {count} shards dataset_info.json's {split_name} split lists")
+        }
+        None => "is a TFRecord shard of no split dataset_info.json lists".to_string(),
+    };
     for path in &present {
         if !expected.contains(path) {
-            findings.file_error(
-                path,
-                Check::Shards,
-                format!(
-                    "is not one of the {count} shards dataset_info.json's {split_name} split lists"
-                ),
-            );
+            findings.file_error(path, Check::Shards, stray.clone());
         }
     }
-    if count == 0 && !dataset_info.is_null() {
+    if count == 0 && split.is_some() {
         findings.file_error(
             &root.join("dataset_info.json"),
             Check::Shards,

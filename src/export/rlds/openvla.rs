@@ -62,7 +62,7 @@ fn gripper_text(info: &DatasetInfo) -> (&'static str, &'static str, &'static str
 }
 
 /// The guide for a dataset of `info` written with `options`.
-pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions) -> String {
+pub fn openvla_md(info: &DatasetInfo, options: &RldsOptions, split: &str) -> String {
     let name = &options.name;
     let keys = &options.keys;
     let (gripper, gripper_transform, gripper_note) = gripper_text(info);
@@ -140,9 +140,9 @@ to [-1, 1] and clipped. The gripper is absolute (`absolute_action_mask = [False]
 and is not normalised (`action_normalization_mask = [True] * 6 + [False]`): it stays 1 = open,
 0 = closed, which is what the policy must output. {gripper_note}The deltas are small (millimetres per step),
 so the percentiles, not the units, decide their scale. The state's last element is the jaw
-angle in radians, not 0/1. There is one `train` split; OpenVLA trains on `train[:95%]` and
-validates on `train[95%:]`.
+angle in radians, not 0/1. {splits}
 "#,
+        splits = split_note(split),
         version = options.version,
         generator = info.generator,
         image = keys.image,
@@ -151,10 +151,25 @@ validates on `train[95%:]`.
     )
 }
 
-/// The card's loading snippet: `tensorflow_datasets` on the version folder.
-pub(super) fn loading_snippet(options: &RldsOptions) -> String {
+/// What the guide says of the dataset's one TFDS split ([`super::options::tfds_split`]).
+fn split_note(split: &str) -> String {
+    if split == "train" {
+        "There is one `train` split; OpenVLA trains on `train[:95%]` and\nvalidates on \
+         `train[95%:]`."
+            .into()
+    } else {
+        format!(
+            "There is one split, `{split}` (`surgvla edit --split` writes one dataset per \
+             split): OpenVLA fine-tunes on a split named `train`, so fine-tune on the dataset \
+             holding `train` and read this one with `as_dataset(split=\"{split}\")`."
+        )
+    }
+}
+
+/// The card's loading snippet: `tensorflow_datasets` on the version folder, reading `split`.
+pub(super) fn loading_snippet(options: &RldsOptions, split: &str) -> String {
     format!(
-        "With tensorflow_datasets, from this folder (OPENVLA.md shows how to fine-tune OpenVLA on it):\n\n```python\nimport tensorflow_datasets as tfds\n\nbuilder = tfds.builder_from_directory(\"{name}/{version}\")\nfor episode in builder.as_dataset(split=\"train\").take(1):\n    for step in episode[\"steps\"]:\n        image, action = step[\"observation\"][\"{image}\"], step[\"action\"]\n```\n",
+        "With tensorflow_datasets, from this folder (OPENVLA.md shows how to fine-tune OpenVLA on it):\n\n```python\nimport tensorflow_datasets as tfds\n\nbuilder = tfds.builder_from_directory(\"{name}/{version}\")\nfor episode in builder.as_dataset(split=\"{split}\").take(1):\n    for step in episode[\"steps\"]:\n        image, action = step[\"observation\"][\"{image}\"], step[\"action\"]\n```\n",
         name = options.name,
         version = options.version,
         image = options.keys.image,

@@ -3,6 +3,7 @@
 
 use crate::export::dir::RunOptions;
 use crate::export::error::ExportError;
+use crate::export::paths;
 use crate::media::image::PngLevel;
 use serde::{Deserialize, Serialize};
 
@@ -128,13 +129,9 @@ impl RldsOptions {
             &keys.environment_state,
         ];
         for (i, key) in all.iter().enumerate() {
-            let ok = !key.is_empty()
-                && key
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
-            if !ok {
+            if !crate::export::paths::is_plain_name(key) {
                 return bad(format!(
-                    "RLDS observation key {key:?} must be non-empty letters, digits, _ or -"
+                    "RLDS observation key {key:?} must be 1 to 64 letters, digits, _ or -"
                 ));
             }
             if all[..i].contains(key) {
@@ -193,27 +190,62 @@ impl RldsOptions {
 /// The TFDS split a dataset's episodes are written in: the one split its metadata names when it
 /// names one (`edit --split` writes a dataset per split), else `train` (several splits in one
 /// dataset are written as one: RLDS here holds one split a dataset).
-pub(super) fn tfds_split(info: &crate::export::info::DatasetInfo) -> &str {
-    match info.splits.as_slice() {
-        [(name, _)] if is_split_name(name) => name,
+pub(super) fn tfds_split(splits: &[(String, std::ops::Range<u64>)]) -> &str {
+    match splits {
+        [(name, _)] if paths::is_plain_name(name) => name,
         _ => "train",
     }
 }
 
-/// Whether TFDS reads `name` as a split in a shard's file name (letters, digits, `_`, `-`).
-fn is_split_name(name: &str) -> bool {
-    !name.is_empty() && (name.chars()).all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
-}
-
-/// The split an RLDS dataset's episodes are read from: `train` when `dataset_info.json` lists
-/// it, else its only split (a split `edit` wrote on its own); None when it lists neither.
-pub(super) fn read_split(dataset_info: &serde_json::Value) -> Option<&serde_json::Value> {
+/// The split an RLDS dataset's episodes are read from, with its name: `train` when
+/// `dataset_info.json` lists it, else its only split (a split `edit` wrote on its own); None
+/// when it lists neither, or the split's name is not plain ([`paths::is_plain_name`]: it
+/// becomes part of a shard's file name).
+pub(super) fn read_split(dataset_info: &serde_json::Value) -> Option<(&str, &serde_json::Value)> {
     let splits = dataset_info["splits"].as_array()?;
     let only = match splits.as_slice() {
         [only] => Some(only),
         _ => None,
     };
-    (splits.iter().find(|s| s["name"] == "train"))
-        .or(only)
-        .filter(|s| s["name"].as_str().is_some_and(is_split_name))
+    let split = (splits.iter().find(|s| s["name"] == "train")).or(only)?;
+    let name = split["name"].as_str().filter(|n| paths::is_plain_name(n))?;
+    Some((name, split))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::{Value, json};
+
+    #[test]
+    fn a_dataset_is_written_and_read_in_one_split_whose_name_is_safe_in_a_file_name() {
+        let mut named: Vec<(String, std::ops::Range<u64>)> = Vec::new();
+        assert_eq!(tfds_split(&named), "train");
+        named = vec![("val-2".into(), 0..4)];
+        assert_eq!(tfds_split(&named), "val-2");
+        named.push(("test".into(), 4..6));
+        assert_eq!(
+            tfds_split(&named),
+            "train",
+            "several splits are written as one"
+        );
+        named = vec![("../x".into(), 0..4)];
+        assert_eq!(tfds_split(&named), "train");
+        let read = |splits: Value| {
+            read_split(&json!({ "splits": splits })).map(|(name, _)| name.to_string())
+        };
+        assert_eq!(
+            read(json!([{"name": "test"}, {"name": "train"}])),
+            Some("train".to_string())
+        );
+        assert_eq!(read(json!([{"name": "val"}])), Some("val".to_string()));
+        assert_eq!(read(json!([{"name": "val"}, {"name": "test"}])), None);
+        for unsafe_name in ["../../x", "a/b", "", "val.tfrecord"] {
+            assert_eq!(
+                read(json!([{ "name": unsafe_name }])),
+                None,
+                "{unsafe_name}"
+            );
+        }
+    }
 }

@@ -163,9 +163,12 @@ impl ShardRecords {
             name: name.to_string(),
             problem,
         })?;
-        let split = super::options::read_split(&dataset_info)
-            .ok_or_else(|| invalid(&info_path, "has no train split, nor one split alone"))?;
-        let split_name = split["name"].as_str().unwrap_or("train");
+        let (split_name, split) = super::options::read_split(&dataset_info).ok_or_else(|| {
+            invalid(
+                &info_path,
+                "has no train split, nor one split alone named with letters, digits, _ or -",
+            )
+        })?;
         let lengths: Vec<u64> = split["shardLengths"]
             .as_array()
             .ok_or_else(|| {

@@ -65,7 +65,7 @@ impl FormatWriter for RldsShards {
             name: "rlds",
             tagged: true,
             data_files: None,
-            loading: Some(super::openvla::loading_snippet(&self.options)),
+            loading: Some(super::openvla::loading_snippet(&self.options, &self.split)),
             depth: "Stored as 1-channel uint16 PNG in millimetres: divide by 1000 for metres.",
             video: Vec::new(),
         }
@@ -107,7 +107,7 @@ impl FormatWriter for RldsShards {
         state: Option<State>,
     ) -> Result<Self, ExportError> {
         Ok(RldsShards {
-            split: super::options::tfds_split(info).to_string(),
+            split: super::options::tfds_split(&info.splits).to_string(),
             layout: StepLayout {
                 jpeg_quality: options.jpeg_quality,
                 ..StepLayout::of(info, &options.keys)
@@ -322,7 +322,7 @@ impl RldsShards {
             Self::write_file(dir, &mut summary, &relative, &bytes)?;
         }
         if ours {
-            let guide = openvla_md(info, &self.options);
+            let guide = openvla_md(info, &self.options, &self.split);
             Self::write_file(dir, &mut summary, OPENVLA_GUIDE, guide.as_bytes())?;
         }
         Ok(summary)

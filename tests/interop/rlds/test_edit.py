@@ -59,3 +59,16 @@ def test_each_split_is_a_dataset_read_under_its_own_split_name(tmp_path):
         assert len(episodes) == 3, split
         seen += [index_of(e, original) for e in episodes]
     assert sorted(seen) == list(range(len(original)))
+
+
+def test_a_split_datasets_card_snippet_reads_its_own_split(tmp_path, monkeypatch):
+    """The "Loading" code block of the `val` dataset's card, run from its folder as written."""
+    out = edit(tmp_path, "--split", "train=0.5,val=0.5")
+    card = (out / "val" / "README.md").read_text()
+    snippet = card.split("## Loading", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    assert 'split="val"' in snippet
+    monkeypatch.chdir(out / "val")
+    scope = {}
+    exec(snippet, scope)
+    assert tuple(scope["image"].shape) == (224, 224, 3)
+    assert tuple(scope["action"].shape) == (7,)
