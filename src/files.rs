@@ -19,6 +19,27 @@ const OPEN_NONBLOCKING: i32 = 0o4000;
 #[cfg(target_os = "macos")]
 const OPEN_NONBLOCKING: i32 = 0x0004;
 
+/// Reads `buf.len()` bytes of `file` from byte `offset` on, without using (or moving) the
+/// handle's position: threads may read through one handle at once, with no lock.
+pub fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::FileExt::read_exact_at(file, buf, offset)
+    }
+    #[cfg(windows)]
+    {
+        let mut done = 0;
+        while done < buf.len() {
+            let at = offset.saturating_add(done as u64);
+            match std::os::windows::fs::FileExt::seek_read(file, &mut buf[done..], at)? {
+                0 => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+                read => done += read,
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Opens `path` (links followed) for reading if it is a regular file. Anything else (a FIFO,
 /// a socket, a device, a directory) is refused with [`std::io::ErrorKind::InvalidInput`]
 /// before it is opened, as opening a FIFO waits for a writer for ever; the file is then opened

@@ -209,9 +209,20 @@ impl VectorStats {
     }
 }
 
-/// Statistics of an image feature, per channel, from histograms.
-#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+/// Statistics of an image feature, per channel, from histograms ([`ImageCounts`]), with the
+/// JSON they were read from when an episode carried them ([`ImageStats::carried`]), written
+/// back as it was read ([`ImageStats::stored_json`]) until the counts change. Every change
+/// goes through `DerefMut`, which forgets that JSON: no way of changing the counts can leave
+/// it stale.
+#[derive(Clone, Debug)]
 pub struct ImageStats {
+    counts: ImageCounts,
+    stored: Option<Value>,
+}
+
+/// An image feature's per-channel sums and histograms: what [`ImageStats`] holds and stores.
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
+pub struct ImageCounts {
     running: Vec<Running>,
     /// Stored trimmed to the span of bins that count ([`trimmed`]): a depth episode's 8,192
     /// bins are mostly empty.
@@ -220,59 +231,94 @@ pub struct ImageStats {
     /// Value of bin `b` is `b * bin_width + offset` (u8 channels: b / 255).
     bin_width: f64,
     frames: u64,
-    /// The JSON these statistics were read from ([`ImageStats::carried`]), written back as it
-    /// is ([`ImageStats::stored_json`]); forgotten by every change.
-    #[serde(skip)]
-    stored: Option<Value>,
+}
+
+impl std::ops::Deref for ImageStats {
+    type Target = ImageCounts;
+
+    fn deref(&self) -> &ImageCounts {
+        &self.counts
+    }
+}
+
+impl std::ops::DerefMut for ImageStats {
+    /// The counts, to change: the JSON they were read from no longer says them.
+    fn deref_mut(&mut self) -> &mut ImageCounts {
+        self.stored = None;
+        &mut self.counts
+    }
+}
+
+impl From<ImageCounts> for ImageStats {
+    fn from(counts: ImageCounts) -> Self {
+        ImageStats {
+            counts,
+            stored: None,
+        }
+    }
+}
+
+impl serde::Serialize for ImageStats {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        self.counts.serialize(s)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for ImageStats {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        ImageCounts::deserialize(d).map(ImageStats::from)
+    }
 }
 
 impl ImageStats {
     /// The statistics `value` stores (an episode carrying them from its input), remembered
     /// with `value`, so that they are written back as they were read.
     pub fn carried(value: &Value) -> Option<Self> {
-        let mut stats = <ImageStats as serde::Deserialize>::deserialize(value).ok()?;
-        stats.stored = Some(value.clone());
-        Some(stats)
+        let counts = <ImageCounts as serde::Deserialize>::deserialize(value).ok()?;
+        Some(ImageStats {
+            counts,
+            stored: Some(value.clone()),
+        })
     }
 
     /// The statistics as stored: the JSON they were read from if nothing changed them since.
     pub fn stored_json(&self) -> Value {
-        (self.stored.clone()).unwrap_or_else(|| serde_json::to_value(self).unwrap_or(Value::Null))
+        (self.stored.clone())
+            .unwrap_or_else(|| serde_json::to_value(&self.counts).unwrap_or(Value::Null))
     }
 
     /// For u8 channels, reported scaled to [0, 1].
     pub fn unit_scaled(channels: usize) -> Self {
-        ImageStats {
+        ImageStats::from(ImageCounts {
             running: vec![Running::default(); channels],
             histograms: vec![vec![0; 256]; channels],
             bin_width: 1.0 / 255.0,
             frames: 0,
-            stored: None,
-        }
+        })
     }
 
     /// For depth in metres.
     pub fn depth() -> Self {
-        ImageStats {
+        ImageStats::from(ImageCounts {
             running: vec![Running::default()],
             histograms: vec![vec![0; DEPTH_BINS]],
             bin_width: DEPTH_RANGE_M / DEPTH_BINS as f64,
             frames: 0,
-            stored: None,
-        }
+        })
     }
+}
 
+impl ImageCounts {
     /// Whether `other` has these statistics' channels, bins and bin width (merging it adds
     /// like to like).
-    pub fn same_shape(&self, other: &ImageStats) -> bool {
+    pub fn same_shape(&self, other: &ImageCounts) -> bool {
         self.running.len() == other.running.len()
             && self.bin_width.to_bits() == other.bin_width.to_bits()
             && (self.histograms.iter().map(Vec::len)).eq(other.histograms.iter().map(Vec::len))
     }
 
     /// Folds in another image series' statistics.
-    pub fn merge(&mut self, other: &ImageStats) {
-        self.stored = None;
+    pub fn merge(&mut self, other: &ImageCounts) {
         self.frames += other.frames;
         for (a, b) in self.running.iter_mut().zip(&other.running) {
             a.merge(b);
@@ -286,7 +332,6 @@ impl ImageStats {
 
     /// Adds one interleaved u8 image.
     pub fn push_u8(&mut self, pixels: &[u8]) {
-        self.stored = None;
         let mut histograms = std::mem::take(&mut self.histograms);
         self.push_u8_counting(pixels, &mut histograms);
         self.histograms = histograms;
@@ -294,7 +339,6 @@ impl ImageStats {
 
     /// Adds one depth image (metres).
     pub fn push_depth(&mut self, depth_m: &[f32]) {
-        self.stored = None;
         let mut histograms = std::mem::take(&mut self.histograms);
         self.push_depth_counting(depth_m, &mut histograms);
         self.histograms = histograms;
@@ -304,13 +348,12 @@ impl ImageStats {
     /// histogram set kept elsewhere (see [`ImageStats::push_u8_counting`]). Merging it adds no
     /// counts.
     pub fn without_histograms(&self) -> ImageStats {
-        ImageStats {
+        ImageStats::from(ImageCounts {
             running: vec![Running::default(); self.running.len()],
             histograms: Vec::new(),
             bin_width: self.bin_width,
             frames: 0,
-            stored: None,
-        }
+        })
     }
 
     /// Empty histograms of these statistics' shape.
@@ -321,7 +364,6 @@ impl ImageStats {
     /// Adds `histograms` (of this shape) to these statistics' counts. Counts are integers, so
     /// the order parts are added in does not change them.
     pub fn add_histograms(&mut self, histograms: &[Vec<u64>]) {
-        self.stored = None;
         for (a, b) in self.histograms.iter_mut().zip(histograms) {
             for (x, y) in a.iter_mut().zip(b) {
                 *x += y;
@@ -331,7 +373,6 @@ impl ImageStats {
 
     /// [`ImageStats::push_u8`] with the pixel counts going to `histograms` (one per channel).
     pub fn push_u8_counting(&mut self, pixels: &[u8], histograms: &mut [Vec<u64>]) {
-        self.stored = None;
         self.frames += 1;
         let channels = self.running.len();
         if channels == 0 {
@@ -351,7 +392,6 @@ impl ImageStats {
         histograms: &mut [Vec<u64>],
         last: &mut LastFrame,
     ) {
-        self.stored = None;
         let Some(counts) = histograms.first_mut().filter(|h| !h.is_empty()) else {
             return self.push_depth_counting(depth_m, histograms);
         };
@@ -391,7 +431,6 @@ impl ImageStats {
         histograms: &mut [Vec<u64>],
         last: &mut LastFrame,
     ) {
-        self.stored = None;
         self.frames += 1;
         let channels = self.running.len();
         if channels == 0 {
@@ -403,7 +442,6 @@ impl ImageStats {
 
     /// One frame's per-channel counts folded into the sums and added to `histograms`.
     fn fold_u8_counts(&mut self, counts: &[[u64; 256]], histograms: &mut [Vec<u64>]) {
-        self.stored = None;
         for (c, (counts, running)) in counts.iter().zip(self.running.iter_mut()).enumerate() {
             running.merge(&fold_counts(counts));
             if let Some(histogram) = histograms.get_mut(c) {
@@ -422,7 +460,6 @@ impl ImageStats {
     /// compiler turns the lanes into vector instructions). The pixel counts go through as many
     /// tables taking turns, so a row of equal depths does not wait on one counter.
     pub fn push_depth_counting(&mut self, depth_m: &[f32], histograms: &mut [Vec<u64>]) {
-        self.stored = None;
         self.frames += 1;
         let counts = histograms.first_mut().filter(|h| !h.is_empty());
         let bins = counts.as_ref().map_or(1, |h| h.len());
@@ -910,6 +947,24 @@ mod tests {
         assert_ne!(merged.stored_json(), stored);
         assert_eq!(merged.stored_json()["frames"], json!(2));
         assert!(merged.stored_json().get("theirs").is_none());
+        // Whichever way the counts change, the JSON read is forgotten.
+        let changes: [&dyn Fn(&mut ImageStats); 4] = [
+            &|s| s.push_depth(&[0.3]),
+            &|s| {
+                let mut histograms = s.empty_histograms();
+                s.push_depth_counting(&[0.3], &mut histograms);
+            },
+            &|s| {
+                let histograms = s.empty_histograms();
+                s.add_histograms(&histograms);
+            },
+            &|s| s.merge(&ImageStats::depth()),
+        ];
+        for change in changes {
+            let mut changed = carried.clone();
+            change(&mut changed);
+            assert!(changed.stored_json().get("theirs").is_none());
+        }
         assert!(ImageStats::carried(&json!({"frames": "two"})).is_none());
     }
 

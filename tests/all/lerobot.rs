@@ -869,6 +869,61 @@ fn a_reader_takes_the_episodes_table_a_batch_at_a_time_and_keeps_each_row_with_i
     assert!(source.next().is_none());
 }
 
+/// `skim` reads the episodes table without its statistics columns; a whole episode asked for
+/// after skimming, skipping or at a batch boundary still gets its row whole (its video's pixel
+/// statistics among it): the same episodes as a reader that only ever took whole ones.
+#[test]
+fn episodes_taken_after_skimming_still_carry_their_statistics() {
+    use surgvla::export::lerobot::{Codec, VideoOptions};
+    let root = temp_root("skim-then-take");
+    let options = LeRobotOptions {
+        video: Some(VideoOptions {
+            codec: Codec::H264,
+            ..VideoOptions::default()
+        }),
+        ..LeRobotOptions::default()
+    };
+    write(&root, &episodes(70, 2), options);
+    let whole: Vec<Episode> = surgvla::export::open_source(&root)
+        .expect("source")
+        .map(|e| e.expect("readable"))
+        .collect();
+    assert_eq!(whole.len(), 70);
+    for episode in &whole {
+        let videos: Vec<_> = (episode.encoded.iter())
+            .filter(|e| matches!(e.encoding, surgvla::episode::ImageEncoding::Video(_)))
+            .collect();
+        assert!(
+            !videos.is_empty() && videos.iter().all(|v| v.pixel_stats.is_some()),
+            "a video's episodes carry its pixel statistics: {:?}",
+            (episode.encoded.iter())
+                .map(|e| (&e.feature, &e.encoding, e.pixel_stats.is_some()))
+                .collect::<Vec<_>>()
+        );
+    }
+    for (skimmed, skipped) in [(0, 0), (3, 0), (65, 0), (64, 2), (0, 69)] {
+        let mut source = surgvla::export::open_source(&root).expect("source");
+        for expected in &whole[..skimmed] {
+            let skim = source.skim().expect("an episode").expect("skimmed");
+            assert_eq!(skim.meta, expected.meta);
+            assert_eq!(skim.steps, expected.steps.len() as u64);
+        }
+        for _ in 0..skipped {
+            source.skip_episode().expect("an episode").expect("skipped");
+        }
+        for expected in &whole[skimmed + skipped..] {
+            let read = source.next().expect("an episode").expect("readable");
+            // (Not assert_eq: an episode's Debug is megabytes.)
+            assert!(
+                &read == expected,
+                "skimmed {skimmed}, skipped {skipped}: episode {} differs",
+                expected.meta.index
+            );
+        }
+        assert!(source.next().is_none());
+    }
+}
+
 #[test]
 fn a_manifest_made_stale_by_another_tools_rewrite_is_a_warning_and_damage_stays_an_error() {
     let root = temp_root("stale-manifest");

@@ -707,6 +707,18 @@ fn other_format_defects_are_each_named() {
         })
     });
     assert_found(&report, "shard_lengths", shard, "wrong shardLengths");
+    // Splits without `train`, and more than one: no split to read, and the shard is stray.
+    let (_c2b, report) = broken(&version, |r| {
+        edit_json(&r.join("dataset_info.json"), |v| {
+            let mut val = v["splits"][0].clone();
+            val["name"] = "val".into();
+            let mut test = val.clone();
+            test["name"] = "test".into();
+            v["splits"] = serde_json::json!([val, test]);
+        })
+    });
+    assert_found(&report, "shards", "dataset_info.json", "no split to read");
+    assert_found(&report, "shards", shard, "a shard of no split");
     let (_c3, report) = broken(&version, |r| {
         use surgvla::export::rlds::example::{Feature, decode_example, encode_example};
         use surgvla::export::rlds::tfrecord::{RecordReader, write_record};

@@ -23,9 +23,9 @@ use parquet::file::reader::{ChunkReader, Length};
 use parquet::file::writer::SerializedFileWriter;
 use parquet::schema::types::{ColumnDescPtr, ColumnDescriptor, SchemaDescriptor};
 use std::fs::File;
-use std::io::{BufWriter, Read, Seek, SeekFrom};
+use std::io::BufWriter;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 /// A data file's bytes go out a mebibyte at a time: the parquet writer passes copied chunks on
 /// 8 KiB at a time, a system call each without this buffer.
@@ -35,9 +35,9 @@ const WRITE_BUFFER_BYTES: usize = 1 << 20;
 /// with the page index).
 pub(super) struct StoredGroup {
     pub(super) file: Arc<Path>,
-    /// The file, opened once by the reader for every group copied from it (its own handle:
-    /// the reader's offset is not moved).
-    pub(super) handle: Arc<Mutex<File>>,
+    /// The file, opened once by the reader for every group copied from it (its own handle,
+    /// read at offsets: [`crate::files::read_exact_at`]).
+    pub(super) handle: Arc<File>,
     pub(super) metadata: Arc<ParquetMetaData>,
     pub(super) row_group: usize,
 }
@@ -251,9 +251,7 @@ impl Region {
             .unwrap_or(0);
         let mut bytes = vec![0; length];
         if length > 0 {
-            let mut file = stored.handle.lock().unwrap_or_else(|e| e.into_inner());
-            file.seek(SeekFrom::Start(start))?;
-            file.read_exact(&mut bytes)?;
+            crate::files::read_exact_at(&stored.handle, &mut bytes, start)?;
         }
         Ok(Region {
             start,
@@ -497,7 +495,7 @@ mod tests {
         out.write_batch(&fresh).expect("write");
         let stored = StoredGroup {
             file: Arc::from(input.as_path()),
-            handle: Arc::new(Mutex::new(File::open(&input).expect("open"))),
+            handle: Arc::new(File::open(&input).expect("open")),
             metadata: metadata(&input),
             row_group: 1,
         };

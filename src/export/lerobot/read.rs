@@ -426,13 +426,65 @@ enum EpisodeRows {
     Loaded(std::collections::VecDeque<StoredEpisode>),
     Parquet {
         files: std::vec::IntoIter<PathBuf>,
-        reader: Option<parquet::arrow::arrow_reader::ParquetRecordBatchReader>,
-        /// Rows read and put back ([`EpisodeRows::declared_fields`]).
-        ready: std::collections::VecDeque<StoredEpisode>,
-        /// The batch read last and its next row: each row is made a [`StoredEpisode`] only
-        /// when asked for (a skipped episode's never is).
-        batch: Option<(RecordBatch, usize)>,
+        open: Option<OpenTable>,
+        /// Whether a whole row was asked for: files are then opened with every column.
+        whole: bool,
     },
+}
+
+/// How much of an episode's row [`EpisodeRows::advance`] reads.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum RowPart {
+    /// Nothing (the episode is skipped).
+    Skip,
+    /// What an episode's metadata needs: no statistics (what `skim` reads; the statistics
+    /// columns are most of the table's bytes).
+    Meta,
+    /// Every column.
+    Whole,
+}
+
+/// A file of v3.0's episodes table being read.
+struct OpenTable {
+    path: PathBuf,
+    reader: parquet::arrow::arrow_reader::ParquetRecordBatchReader,
+    /// The batch read last and its next row: each row is made a [`StoredEpisode`] only when
+    /// asked for (a skipped episode's never is).
+    batch: Option<(RecordBatch, usize)>,
+    /// Rows of the file passed on so far.
+    passed: usize,
+}
+
+impl OpenTable {
+    /// `path` opened at row `offset`, with every column or only the metadata's.
+    fn open(path: PathBuf, meta_only: bool, offset: usize) -> Result<Self, ExportError> {
+        let builder = open_parquet(&path)?;
+        let builder = if meta_only {
+            let keep: Vec<usize> = (builder.schema().fields().iter().enumerate())
+                .filter(|(_, f)| !is_statistics_column(f.name()))
+                .map(|(i, _)| i)
+                .collect();
+            let mask = parquet::arrow::ProjectionMask::roots(builder.parquet_schema(), keep);
+            builder.with_projection(mask)
+        } else {
+            builder
+        };
+        let reader = (builder.with_batch_size(64).with_offset(offset))
+            .build()
+            .map_err(ExportError::parquet(&path))?;
+        Ok(OpenTable {
+            path,
+            reader,
+            batch: None,
+            passed: offset,
+        })
+    }
+}
+
+/// Whether an episodes table's column holds statistics (LeRobot's `stats/...`, surgvla's
+/// pixel accumulators), which an episode's metadata does not need.
+fn is_statistics_column(name: &str) -> bool {
+    name.starts_with("stats/") || name.starts_with(super::table::PIXEL_STATS)
 }
 
 impl EpisodeRows {
@@ -448,20 +500,35 @@ impl EpisodeRows {
         }
         Ok(EpisodeRows::Parquet {
             files: files.into_iter(),
-            reader: None,
-            ready: Default::default(),
-            batch: None,
+            open: None,
+            whole: false,
         })
     }
 
     /// The per-episode values another tool's dataset carries in its episodes table (columns
-    /// that are not LeRobot's or surgvla's), declared from the first episode's row, which is
-    /// read and kept for [`EpisodeRows::next_row`].
-    fn declared_fields(&mut self) -> Result<Vec<crate::episode::EpisodeField>, ExportError> {
-        let Some(first) = self.next_row()? else {
+    /// that are not LeRobot's or surgvla's), declared from the first episode's row (read on
+    /// its own: the rows are read from the first on as they are asked for).
+    fn declared_fields(&self) -> Result<Vec<crate::episode::EpisodeField>, ExportError> {
+        let first = match self {
+            EpisodeRows::Loaded(rows) => rows.front().cloned(),
+            EpisodeRows::Parquet { files, .. } => match files.as_slice().first() {
+                Some(path) => {
+                    let mut table = OpenTable::open(path.clone(), true, 0)?;
+                    let batch = (table.reader.next())
+                        .transpose()
+                        .map_err(ExportError::Arrow)?;
+                    table.batch = batch.map(|b| (b, 0));
+                    (table.batch.as_ref())
+                        .filter(|(b, _)| b.num_rows() > 0)
+                        .map(|(b, _)| stored_episode(b, 0))
+                }
+                None => None,
+            },
+        };
+        let Some(first) = first else {
             return Ok(Vec::new());
         };
-        let declared = (first.fields.iter())
+        Ok((first.fields.iter())
             .filter_map(|(key, value)| {
                 let (dtype, len) = crate::episode::FieldDtype::of_json(value)?;
                 Some(crate::episode::EpisodeField {
@@ -470,60 +537,56 @@ impl EpisodeRows {
                     len,
                 })
             })
-            .collect();
-        match self {
-            EpisodeRows::Loaded(rows) => rows.push_front(first),
-            EpisodeRows::Parquet { ready, .. } => ready.push_front(first),
-        }
-        Ok(declared)
+            .collect())
     }
 
     /// The next episode's row, or None after the last.
     fn next_row(&mut self) -> Result<Option<StoredEpisode>, ExportError> {
-        self.advance(true)
+        self.advance(RowPart::Whole)
+    }
+
+    /// The next episode's row without its statistics ([`RowPart::Meta`]).
+    fn meta_row(&mut self) -> Result<Option<StoredEpisode>, ExportError> {
+        self.advance(RowPart::Meta)
     }
 
     /// Passes over the next episode's row (a skipped episode's), without reading its cells.
     fn skip_row(&mut self) -> Result<(), ExportError> {
-        self.advance(false).map(|_| ())
+        self.advance(RowPart::Skip).map(|_| ())
     }
 
-    /// The next episode's row, made a [`StoredEpisode`] if `parse`; None after the last (or
-    /// when not parsed).
-    fn advance(&mut self, parse: bool) -> Result<Option<StoredEpisode>, ExportError> {
-        let (files, reader, ready, batch) = match self {
+    /// The next episode's row, as much of it as `part` asks; None after the last (or when
+    /// skipped). A file is read without its statistics columns until a whole row is asked
+    /// for; from then on with every column (the file being read opened again at its next
+    /// row), so a reader that mixes the two opens a file at most twice.
+    fn advance(&mut self, part: RowPart) -> Result<Option<StoredEpisode>, ExportError> {
+        let (files, open, whole) = match self {
             EpisodeRows::Loaded(rows) => return Ok(rows.pop_front()),
-            EpisodeRows::Parquet {
-                files,
-                reader,
-                ready,
-                batch,
-            } => (files, reader, ready, batch),
+            EpisodeRows::Parquet { files, open, whole } => (files, open, whole),
         };
-        if let Some(row) = ready.pop_front() {
-            return Ok(Some(row));
+        if part == RowPart::Whole && !*whole {
+            *whole = true;
+            if let Some(table) = open.take() {
+                *open = Some(OpenTable::open(table.path, false, table.passed)?);
+            }
         }
         loop {
-            if let Some((read, next)) = batch.as_mut().filter(|(b, n)| *n < b.num_rows()) {
-                let row = *next;
-                *next += 1;
-                return Ok(parse.then(|| stored_episode(read, row)));
-            }
-            let Some(open) = reader.as_mut() else {
+            let Some(table) = open.as_mut() else {
                 let Some(path) = files.next() else {
                     return Ok(None);
                 };
-                *reader = Some(
-                    open_parquet(&path)?
-                        .with_batch_size(64)
-                        .build()
-                        .map_err(ExportError::parquet(&path))?,
-                );
+                *open = Some(OpenTable::open(path, !*whole, 0)?);
                 continue;
             };
-            match open.next() {
-                Some(read) => *batch = Some((read.map_err(ExportError::Arrow)?, 0)),
-                None => *reader = None,
+            if let Some((read, next)) = table.batch.as_mut().filter(|(b, n)| *n < b.num_rows()) {
+                let row = *next;
+                *next += 1;
+                table.passed += 1;
+                return Ok((part != RowPart::Skip).then(|| stored_episode(read, row)));
+            }
+            match table.reader.next() {
+                Some(read) => table.batch = Some((read.map_err(ExportError::Arrow)?, 0)),
+                None => *open = None,
             }
         }
     }
@@ -697,7 +760,7 @@ impl LeRobotSource {
         info.omitted = read.omitted;
         info.carried_keys = info_json.other.clone();
         info.splits = splits_of(&info_json, info_json.total_episodes.unwrap_or(0));
-        let mut episodes = EpisodeRows::open(root, v21)?;
+        let episodes = EpisodeRows::open(root, v21)?;
         info.episode_fields = episodes.declared_fields()?;
         Ok(LeRobotSource {
             root: root.to_path_buf(),
@@ -1031,10 +1094,10 @@ impl LeRobotSource {
         }
         self.returned += 1;
         // The episodes table's rows come in the data's order: this episode's is the next.
-        let row = if take == Take::Skip {
-            self.episodes.skip_row().map(|()| None)
-        } else {
-            self.episodes.next_row()
+        let row = match take {
+            Take::Skip => self.episodes.skip_row().map(|()| None),
+            Take::Light => self.episodes.meta_row(),
+            Take::Whole | Take::Stored => self.episodes.next_row(),
         };
         match row {
             Ok(row) => Some(Ok((index, rows, row))),

@@ -61,7 +61,7 @@ struct OpenFile {
     metadata: ArrowReaderMetadata,
     /// When its row groups can be copied by the writer (see [`DataRows::leave_stored`]): the
     /// file opened for the writer to read them from.
-    copyable: Option<std::sync::Arc<std::sync::Mutex<File>>>,
+    copyable: Option<std::sync::Arc<File>>,
     /// The row group read next.
     group: usize,
     /// A group being read whole, 64 rows at a time.
@@ -126,7 +126,7 @@ impl DataRows {
             let copyable = match &self.copy {
                 Some(schema) if super::copy::matches_writer(metadata.parquet_schema(), schema) => {
                     let handle = crate::export::bounded::open_regular(&path)?;
-                    Some(std::sync::Arc::new(std::sync::Mutex::new(handle)))
+                    Some(std::sync::Arc::new(handle))
                 }
                 _ => None,
             };
