@@ -777,8 +777,8 @@ fn other_features_round_trip_unchanged() {
             assert_eq!(others, wanted, "{version:?}");
             assert_eq!(read.meta.fields, expected.meta.fields, "{version:?}");
         }
-        let declared: Vec<&str> = (source.info().episode_fields.iter())
-            .map(|f| f.key.as_str())
+        let declared: Vec<String> = (source.info().episode_fields.iter())
+            .map(|f| f.key.clone())
             .collect();
         assert_eq!(
             declared,
@@ -787,6 +787,27 @@ fn other_features_round_trip_unchanged() {
         assert!(source.next().is_none());
         let report = surgvla::export::validate::validate(&root, &Default::default()).expect("runs");
         assert!(report.valid, "{version:?}: {:#?}", report.errors);
+        if version == surgvla::export::lerobot::LeRobotVersion::V30 {
+            // Declared from the first row there is, behind an empty first file of the table.
+            let table = root.join("meta/episodes/chunk-000");
+            let (first, second) = (
+                table.join("file-000.parquet"),
+                table.join("file-001.parquet"),
+            );
+            std::fs::rename(&first, &second).expect("rename");
+            let none = read_parquet(&second).expect("read")[0].slice(0, 0);
+            let mut bytes = Vec::new();
+            let mut writer = parquet::arrow::ArrowWriter::try_new(&mut bytes, none.schema(), None)
+                .expect("writer");
+            writer.write(&none).expect("write");
+            writer.close().expect("close");
+            std::fs::write(&first, bytes).expect("write");
+            let source = surgvla::export::open_source(&root).expect("source");
+            let keys: Vec<String> = (source.info().episode_fields.iter())
+                .map(|f| f.key.clone())
+                .collect();
+            assert_eq!(keys, declared);
+        }
     }
 }
 

@@ -511,19 +511,22 @@ impl EpisodeRows {
     fn declared_fields(&self) -> Result<Vec<crate::episode::EpisodeField>, ExportError> {
         let first = match self {
             EpisodeRows::Loaded(rows) => rows.front().cloned(),
-            EpisodeRows::Parquet { files, .. } => match files.as_slice().first() {
-                Some(path) => {
+            EpisodeRows::Parquet { files, .. } => {
+                let mut first = None;
+                // The first row of the first file holding one (a file may be empty).
+                for path in files.as_slice() {
                     let mut table = OpenTable::open(path.clone(), true, 0)?;
-                    let batch = (table.reader.next())
-                        .transpose()
-                        .map_err(ExportError::Arrow)?;
-                    table.batch = batch.map(|b| (b, 0));
-                    (table.batch.as_ref())
-                        .filter(|(b, _)| b.num_rows() > 0)
-                        .map(|(b, _)| stored_episode(b, 0))
+                    let batch = (table.reader.by_ref())
+                        .map(|b| b.map_err(ExportError::Arrow))
+                        .find(|b| b.as_ref().map_or(true, |b| b.num_rows() > 0))
+                        .transpose()?;
+                    first = batch.map(|b| stored_episode(&b, 0));
+                    if first.is_some() {
+                        break;
+                    }
                 }
-                None => None,
-            },
+                first
+            }
         };
         let Some(first) = first else {
             return Ok(Vec::new());
