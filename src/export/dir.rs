@@ -134,6 +134,43 @@ impl FileRecord {
     }
 }
 
+/// A writer that counts the bytes through it and their CRC-32C (what [`checksum`] would read
+/// back), for [`DatasetDir::commit_summed`].
+pub struct Checksummed<W> {
+    inner: W,
+    bytes: u64,
+    crc: u32,
+}
+
+impl<W: Write> Checksummed<W> {
+    pub fn new(inner: W) -> Self {
+        Checksummed {
+            inner,
+            bytes: 0,
+            crc: 0,
+        }
+    }
+
+    /// The bytes written and their CRC-32C.
+    pub fn sums(&self) -> (u64, u32) {
+        (self.bytes, self.crc)
+    }
+}
+
+impl<W: Write> Write for Checksummed<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        let written = buf.get(..n).unwrap_or(buf);
+        self.crc = crc32c::crc32c_append(self.crc, written);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
 /// The size and CRC-32C of a whole file.
 pub(crate) fn checksum(mut file: impl Read, path: &Path) -> Result<(u64, u32), ExportError> {
     let mut buffer = vec![0u8; 1 << 20];
@@ -595,6 +632,19 @@ impl DatasetDir {
             .map_err(ExportError::io(&pending.path))?;
         let file = File::open(&pending.path).map_err(ExportError::io(&pending.path))?;
         let (bytes, crc) = checksum(file, &pending.path)?;
+        self.record(FileRecord::new(self.relative(&pending.path), bytes, crc));
+        Ok(bytes)
+    }
+
+    /// [`DatasetDir::commit`] for a file written through a [`Checksummed`] writer: its size and
+    /// CRC-32C as counted while it was written, not read back.
+    pub fn commit_summed(
+        &mut self,
+        pending: PendingFile,
+        (bytes, crc): (u64, u32),
+    ) -> Result<u64, ExportError> {
+        std::fs::rename(&pending.temporary, &pending.path)
+            .map_err(ExportError::io(&pending.path))?;
         self.record(FileRecord::new(self.relative(&pending.path), bytes, crc));
         Ok(bytes)
     }
@@ -1069,6 +1119,25 @@ mod tests {
         RunOptions::recorded(&serde_json::json!({"seed": seed, "format": "lerobot"}))
     }
 
+    /// What a checksummed writer counts is what reading the bytes back gives, however they
+    /// were split into writes.
+    #[test]
+    fn a_checksummed_writer_counts_what_reading_back_gives() {
+        let mut rng = crate::rng::SplitMix64::new(7);
+        let bytes: Vec<u8> = (0..100_000).map(|_| rng.next_u64() as u8).collect();
+        let mut writer = Checksummed::new(Vec::new());
+        let mut at = 0;
+        while at < bytes.len() {
+            let n = (1 + rng.next_u64() % 9_000) as usize;
+            let end = (at + n).min(bytes.len());
+            writer.write_all(&bytes[at..end]).expect("write");
+            at = end;
+        }
+        let sums = writer.sums();
+        assert_eq!(writer.inner, bytes);
+        assert_eq!(sums, checksum(&bytes[..], Path::new("x")).expect("read"));
+        assert_ne!(sums.1, 0);
+    }
     #[test]
     fn a_checkpoint_larger_than_other_metadata_resumes() {
         // A large collection's checkpoint (statistics reservoirs) is over the 32 MiB cap of

@@ -11,6 +11,7 @@
 
 use super::table::DEFAULT_COLUMNS;
 use crate::episode::StoredRows;
+use crate::export::dir::Checksummed;
 use arrow_array::{ArrayRef, RecordBatch};
 use arrow_schema::SchemaRef;
 use bytes::{Buf, Bytes};
@@ -52,10 +53,77 @@ impl StoredGroup {
 
 /// A data file being written (see the module overview).
 pub(super) struct DataFile {
-    writer: SerializedFileWriter<BufWriter<File>>,
+    writer: SerializedFileWriter<BufWriter<Checksummed<File>>>,
     factory: ArrowRowGroupWriterFactory,
     schema: SchemaRef,
     groups: usize,
+    /// The writers of the default columns alone, for a copied group (making a writer for every
+    /// column, a compressor each, cost more than encoding the default columns).
+    defaults: DefaultColumns,
+}
+
+/// The default columns of a data file's schema, with a factory of their column writers alone
+/// (the same properties: the chunks they make are the whole file's writer's).
+struct DefaultColumns {
+    factory: ArrowRowGroupWriterFactory,
+    /// Per default column, in schema order: its place in [`DEFAULT_COLUMNS`], its field, and
+    /// its first leaf among the file's.
+    columns: Vec<(usize, arrow_schema::FieldRef, usize)>,
+    /// Leaves in the file's schema.
+    leaves: usize,
+}
+
+impl DefaultColumns {
+    fn new(
+        schema: &SchemaRef,
+        properties: parquet::file::properties::WriterProperties,
+    ) -> Result<Self, ParquetError> {
+        let mut columns = Vec::new();
+        let mut leaves = 0;
+        for field in schema.fields() {
+            if let Some(place) = DEFAULT_COLUMNS.iter().position(|d| d == field.name()) {
+                columns.push((place, field.clone(), leaves));
+            }
+            leaves += leaf_count(field.data_type());
+        }
+        let fields: Vec<arrow_schema::FieldRef> =
+            columns.iter().map(|(_, f, _)| f.clone()).collect();
+        let alone = Arc::new(arrow_schema::Schema::new(fields));
+        let writer =
+            parquet::arrow::ArrowWriter::try_new(std::io::sink(), alone, Some(properties))?;
+        let (_, factory) = writer.into_serialized_writer()?;
+        Ok(DefaultColumns {
+            factory,
+            columns,
+            leaves,
+        })
+    }
+
+    /// The chunks of one row group's leaves (None for every leaf but the default columns'):
+    /// `defaults`, in [`DEFAULT_COLUMNS`] order, encoded for row group `group`.
+    fn encode(
+        &self,
+        group: usize,
+        defaults: &[ArrayRef],
+    ) -> Result<Vec<Option<Chunk>>, ParquetError> {
+        let mut chunks: Vec<Option<Chunk>> = (0..self.leaves).map(|_| None).collect();
+        let mut writers = self.factory.create_column_writers(group)?.into_iter();
+        for (place, field, first_leaf) in &self.columns {
+            let column = defaults.get(*place).ok_or_else(|| {
+                ParquetError::General(format!("no values for default column {}", field.name()))
+            })?;
+            for (k, leaf) in compute_leaves(field, column)?.into_iter().enumerate() {
+                let mut writer = (writers.next())
+                    .ok_or_else(|| ParquetError::General("more leaves than columns".into()))?;
+                writer.write(&leaf)?;
+                let slot = chunks
+                    .get_mut(first_leaf + k)
+                    .ok_or_else(|| ParquetError::General("a leaf past the schema's".into()))?;
+                *slot = Some(Chunk::Encoded(Box::new(writer.close()?)));
+            }
+        }
+        Ok(chunks)
+    }
 }
 
 /// A column chunk of a row group being put together.
@@ -72,7 +140,8 @@ impl DataFile {
         schema: SchemaRef,
         properties: parquet::file::properties::WriterProperties,
     ) -> Result<Self, ParquetError> {
-        let output = BufWriter::with_capacity(WRITE_BUFFER_BYTES, file);
+        let output = BufWriter::with_capacity(WRITE_BUFFER_BYTES, Checksummed::new(file));
+        let defaults = DefaultColumns::new(&schema, properties.clone())?;
         let writer =
             parquet::arrow::ArrowWriter::try_new(output, schema.clone(), Some(properties))?;
         let (writer, factory) = writer.into_serialized_writer()?;
@@ -81,6 +150,7 @@ impl DataFile {
             factory,
             schema,
             groups: 0,
+            defaults,
         })
     }
 
@@ -88,8 +158,13 @@ impl DataFile {
         self.writer.bytes_written()
     }
 
-    pub(super) fn close(self) -> Result<(), ParquetError> {
-        self.writer.close().map(|_| ())
+    /// Writes the footer and closes the file; returns its size and CRC-32C (for
+    /// [`crate::export::dir::DatasetDir::commit_summed`]).
+    pub(super) fn close(self) -> Result<(u64, u32), ParquetError> {
+        let buffered = self.writer.into_inner()?;
+        let summed = (buffered.into_inner())
+            .map_err(|e| ParquetError::External(Box::new(e.into_error())))?;
+        Ok(summed.sums())
     }
 
     /// Appends `batch` as a row group of its own, encoded (the bytes `ArrowWriter::write` and
@@ -114,17 +189,7 @@ impl DataFile {
         rows: &StoredRows,
         defaults: &[ArrayRef],
     ) -> Result<(), ParquetError> {
-        let fields = self.schema.fields();
-        let columns: Vec<Option<&ArrayRef>> = fields
-            .iter()
-            .map(|f| {
-                let position = DEFAULT_COLUMNS.iter().position(|d| d == f.name())?;
-                defaults.get(position)
-            })
-            .collect();
-        let mut chunks: Vec<Option<Chunk>> = (self.encode(&columns)?.into_iter())
-            .map(|c| c.map(|c| Chunk::Encoded(Box::new(c))))
-            .collect();
+        let mut chunks = self.defaults.encode(self.groups, defaults)?;
         let input = stored.metadata.file_metadata().schema_descr();
         let group = (stored.metadata.row_groups().get(stored.row_group))
             .ok_or_else(|| ParquetError::General(format!("no row group {}", stored.row_group)))?;

@@ -123,7 +123,7 @@ impl LeRobotVersion {
         self,
         dir: &mut DatasetDir,
         m: &Metadata<'_>,
-        rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
+        rows: impl Iterator<Item = Result<EpisodeRow, ExportError>> + Send,
     ) -> Result<(u64, u64), ExportError> {
         let mut files = Vec::new();
         let mut written = (0u64, 0u64);
@@ -198,7 +198,7 @@ const ROWS_PER_GROUP: usize = 256;
 fn write_episodes_parquet(
     dir: &mut DatasetDir,
     relative: &str,
-    mut rows: impl Iterator<Item = Result<EpisodeRow, ExportError>>,
+    mut rows: impl Iterator<Item = Result<EpisodeRow, ExportError>> + Send,
     video_keys: &[String],
 ) -> Result<u64, ExportError> {
     let (file, pending) = dir.create_file(relative)?;
@@ -215,14 +215,19 @@ fn write_episodes_parquet(
     let mut writer =
         ArrowWriter::try_new(file, batch.schema(), Some(snappy())).map_err(&parquet_error)?;
     loop {
-        writer.write(&batch).map_err(&parquet_error)?;
-        writer.flush().map_err(&parquet_error)?;
-        if batch.num_rows() < ROWS_PER_GROUP {
-            break;
-        }
-        batch = next_batch()?;
-        if batch.num_rows() == 0 {
-            break;
+        let last = batch.num_rows() < ROWS_PER_GROUP;
+        // The next batch is made while this one is written.
+        let (written, next) = rayon::join(
+            || {
+                writer.write(&batch)?;
+                writer.flush()
+            },
+            || (!last).then(&mut next_batch).transpose(),
+        );
+        written.map_err(&parquet_error)?;
+        match next? {
+            Some(next) if next.num_rows() > 0 => batch = next,
+            _ => break,
         }
     }
     writer.close().map_err(&parquet_error)?;

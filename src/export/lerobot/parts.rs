@@ -102,7 +102,7 @@ impl LeRobotFiles {
             meta,
             (open.first_index, length),
             written,
-            stats,
+            (stats, None),
             videos,
         )?;
         Ok(encode_secs)

@@ -2,6 +2,7 @@
 //! threads while the writer holds its non-shareable parquet state: image encoding (PNG, TIFF),
 //! video encoding, and the episode's statistics.
 
+use super::meta::FeatureStatsJson;
 use super::options::LeRobotOptions;
 use super::table::{DEFAULT_COLUMNS, EncodedImages, ImageColumn};
 use crate::episode::{
@@ -18,6 +19,38 @@ use rayon::prelude::*;
 
 /// Statistics per feature, then per default column, in column order.
 pub(super) type EpisodeStats = Vec<(String, FeatureStats)>;
+
+/// An episode's statistics as its row of the episodes table records them, per feature: its
+/// statistics object (none for text, which has none), and its exact pixel statistics where the
+/// table keeps them.
+pub(super) type RowStats = Vec<(Option<FeatureStatsJson>, Option<serde_json::Value>)>;
+
+/// One feature's entry of [`RowStats`]: `stats` as the row records them, for a feature that is
+/// text or not, whose exact pixel statistics the table keeps or not.
+pub(super) fn row_entry(
+    stats: &FeatureStats,
+    text: bool,
+    keeps_pixels: bool,
+) -> (Option<FeatureStatsJson>, Option<serde_json::Value>) {
+    let exact = keeps_pixels.then(|| match stats {
+        FeatureStats::Image(s) => s.stored_json(),
+        _ => serde_json::Value::Null,
+    });
+    let json = (!text).then(|| FeatureStatsJson::from_value(stats.to_json()));
+    (json, exact)
+}
+
+/// Whether the episodes table keeps feature `name`'s exact pixel statistics: a video feature,
+/// or one of surgvla's images (RGB, depth, mask) in the parquet.
+pub(super) fn keeps_pixel_stats(
+    video_features: &[(String, VideoCodec)],
+    parquet_features: &[FeatureSpec],
+    name: &str,
+) -> bool {
+    video_features.iter().any(|(key, _)| key == name)
+        || (parquet_features.iter())
+            .any(|f| f.name == name && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
+}
 
 /// Empty statistics for `features` and the default columns.
 pub(super) fn fresh_stats(features: &[FeatureSpec]) -> EpisodeStats {
@@ -206,51 +239,26 @@ impl EpisodeWork<'_> {
         let kinds = self.step_kinds();
         let mut total = fresh_feature_stats(&self.info.features);
         let carried = skip_carried(&self.info.features, episode, &mut total);
-        // Frames in chunks in parallel: each frame's statistics on their own (their sums are
-        // folded in frame order below), its images' pixel counts into its chunk's histograms
-        // (integers: any order).
-        let chunk_stats = |chunk: &[Step]| {
-            let mut histograms: Vec<Vec<Vec<u64>>> = total
-                .iter()
-                .map(|(_, s)| match s {
-                    FeatureStats::Image(s) => s.empty_histograms(),
-                    _ => Vec::new(),
-                })
-                .collect();
-            let mut last = vec![LastFrame::default(); total.len()];
-            let frames = chunk
-                .iter()
-                .map(|step| self.frame_stats(&total, &kinds, step, &mut histograms, &mut last))
-                .collect();
-            (frames, histograms)
-        };
-        let chunks: Vec<ChunkStats> = if self.parallel {
-            episode
-                .steps
-                .par_chunks(STATS_CHUNK_FRAMES)
-                .map(chunk_stats)
-                .collect()
+        let counts_pixels = (total.iter().zip(&kinds))
+            .any(|((_, s), kind)| kind.is_some() && matches!(s, FeatureStats::Image(_)));
+        if counts_pixels {
+            fold_in_chunks(&episode.steps, &kinds, &mut total, self.parallel);
         } else {
-            episode
-                .steps
-                .chunks(STATS_CHUNK_FRAMES)
-                .map(chunk_stats)
-                .collect()
-        };
-        for (frames, histograms) in chunks {
-            for frame in frames {
-                for ((_, t), (_, f)) in total.iter_mut().zip(frame) {
-                    t.merge(&f);
-                }
-            }
-            for ((_, t), h) in total.iter_mut().zip(&histograms) {
-                if let FeatureStats::Image(t) = t {
-                    t.add_histograms(h);
-                }
-            }
+            fold_in_order(&episode.steps, &kinds, &mut total);
         }
         self.carried_stats(episode, carried, &mut total);
         total
+    }
+
+    /// `stats` (an episode's, per feature) as its row of the episodes table records them.
+    pub(super) fn row_stats(&self, stats: &EpisodeStats) -> RowStats {
+        (stats.iter())
+            .map(|(name, stats)| {
+                let keeps_pixels = self.info.is_ours()
+                    && keeps_pixel_stats(self.video_features, self.parquet_features, name);
+                row_entry(stats, self.info.is_text(name), keeps_pixels)
+            })
+            .collect()
     }
 
     /// Each feature's kind when its values are in the steps; `None` for a feature whose pixels
@@ -301,31 +309,87 @@ impl EpisodeWork<'_> {
             }
         }
     }
+}
 
-    /// One frame's statistics of the features, shaped as `shape` (the episode's), with its
-    /// images' pixel counts added to `histograms` (per feature) instead of its own.
-    fn frame_stats(
-        &self,
-        shape: &EpisodeStats,
-        kinds: &[Option<FeatureKind>],
-        step: &Step,
-        histograms: &mut [Vec<Vec<u64>>],
-        last: &mut [LastFrame],
-    ) -> EpisodeStats {
-        let mut stats: EpisodeStats = shape
-            .iter()
-            .map(|(name, s)| {
-                let empty = match s {
-                    FeatureStats::Image(s) => FeatureStats::Image(s.without_histograms()),
-                    FeatureStats::Vector(s) => FeatureStats::Vector(VectorStats::new(s.elements())),
-                    other => other.clone(),
-                };
-                (name.clone(), empty)
+/// Folds `steps` into `total` (per feature): frames in chunks (in parallel when `parallel`),
+/// each frame's statistics on their own (their sums folded in frame order, so the result does
+/// not depend on the thread count), its images' pixel counts into its chunk's histograms
+/// (integers: any order).
+fn fold_in_chunks(
+    steps: &[Step],
+    kinds: &[Option<FeatureKind>],
+    total: &mut EpisodeStats,
+    parallel: bool,
+) {
+    let shape = &*total;
+    let chunk_stats = |chunk: &[Step]| {
+        let mut histograms: Vec<Vec<Vec<u64>>> = (shape.iter())
+            .map(|(_, s)| match s {
+                FeatureStats::Image(s) => s.empty_histograms(),
+                _ => Vec::new(),
             })
             .collect();
-        fold_frame(&mut stats, kinds, step, histograms, last);
-        stats
+        let mut last = vec![LastFrame::default(); shape.len()];
+        let frames = (chunk.iter())
+            .map(|step| frame_stats(shape, kinds, step, &mut histograms, &mut last))
+            .collect();
+        (frames, histograms)
+    };
+    let chunks: Vec<ChunkStats> = if parallel {
+        steps
+            .par_chunks(STATS_CHUNK_FRAMES)
+            .map(chunk_stats)
+            .collect()
+    } else {
+        steps.chunks(STATS_CHUNK_FRAMES).map(chunk_stats).collect()
+    };
+    for (frames, histograms) in chunks {
+        for frame in frames {
+            for ((_, t), (_, f)) in total.iter_mut().zip(frame) {
+                t.merge(&f);
+            }
+        }
+        for ((_, t), h) in total.iter_mut().zip(&histograms) {
+            if let FeatureStats::Image(t) = t {
+                t.add_histograms(h);
+            }
+        }
     }
+}
+
+/// [`fold_in_chunks`] when no pixel is counted (no image in the steps, or every image's
+/// statistics carried): each frame's values pushed into `total` in frame order, the same sums
+/// and samples as merging each frame's own statistics, without making them.
+fn fold_in_order(steps: &[Step], kinds: &[Option<FeatureKind>], total: &mut EpisodeStats) {
+    let mut histograms = vec![Vec::new(); total.len()];
+    let mut last = vec![LastFrame::default(); total.len()];
+    for step in steps {
+        fold_frame(total, kinds, step, &mut histograms, &mut last);
+    }
+}
+
+/// One frame's statistics of the features, shaped as `shape` (the episode's), with its
+/// images' pixel counts added to `histograms` (per feature) instead of its own.
+fn frame_stats(
+    shape: &EpisodeStats,
+    kinds: &[Option<FeatureKind>],
+    step: &Step,
+    histograms: &mut [Vec<Vec<u64>>],
+    last: &mut [LastFrame],
+) -> EpisodeStats {
+    let mut stats: EpisodeStats = shape
+        .iter()
+        .map(|(name, s)| {
+            let empty = match s {
+                FeatureStats::Image(s) => FeatureStats::Image(s.without_histograms()),
+                FeatureStats::Vector(s) => FeatureStats::Vector(VectorStats::new(s.elements())),
+                other => other.clone(),
+            };
+            (name.clone(), empty)
+        })
+        .collect();
+    fold_frame(&mut stats, kinds, step, histograms, last);
+    stats
 }
 
 /// Folds one frame into `stats` (per feature): each image's own sums merged in, its pixel
@@ -638,6 +702,9 @@ pub struct Prepared {
     /// The features' statistics ([`EpisodeWork::feature_stats`]), made ahead; `None`: at
     /// append.
     pub stats: Option<EpisodeStats>,
+    /// Those statistics as the episode's row records them ([`EpisodeWork::row_stats`]), made
+    /// with them.
+    pub row_stats: Option<RowStats>,
     /// Seconds the detached encoder spent on the images and on the statistics.
     pub encode_secs: f64,
     pub stats_secs: f64,
@@ -649,10 +716,12 @@ pub struct Prepared {
 /// with the batch's others, instead of on the appending thread.
 impl crate::export::writer::EpisodeEncoder<Prepared> for EpisodeWork<'_> {
     fn encode(&self, episode: &Episode) -> Result<Prepared, ExportError> {
+        let stats = (episode.stored_rows.is_some()).then(|| self.feature_stats(episode));
         Ok(Prepared {
             video: self.video_frames(episode)?,
             images: None,
-            stats: (episode.stored_rows.is_some()).then(|| self.feature_stats(episode)),
+            row_stats: stats.as_ref().map(|s| self.row_stats(s)),
+            stats,
             encode_secs: 0.0,
             stats_secs: 0.0,
         })
@@ -688,6 +757,10 @@ pub struct SharedWork(pub std::sync::Arc<OwnedWork>);
 impl crate::export::writer::EpisodeEncoder<Prepared> for SharedWork {
     fn encode(&self, episode: &Episode) -> Result<Prepared, ExportError> {
         let work = self.0.work();
+        if episode.stored_rows.is_some() {
+            // Rows copied as stored: nothing to encode but the statistics, as in a batch.
+            return work.encode(episode);
+        }
         let started = std::time::Instant::now();
         let video = work.video_frames(episode)?;
         let video_secs = started.elapsed().as_secs_f64();
@@ -695,6 +768,7 @@ impl crate::export::writer::EpisodeEncoder<Prepared> for SharedWork {
         Ok(Prepared {
             video,
             images: Some(finished.images),
+            row_stats: Some(work.row_stats(&finished.stats)),
             stats: Some(finished.stats),
             encode_secs: video_secs + finished.encode_secs,
             stats_secs: finished.stats_secs,
@@ -797,6 +871,7 @@ impl crate::export::writer::EpisodeFrames<Prepared> for FrameStream {
         Ok(Prepared {
             video: Vec::new(),
             images: Some(finished.images),
+            row_stats: Some(work.row_stats(&finished.stats)),
             stats: Some(finished.stats),
             encode_secs: finished.encode_secs,
             stats_secs: finished.stats_secs,
@@ -826,4 +901,52 @@ fn other_rgb(
         )));
     }
     Ok(pixels)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    /// Folding frames straight into the totals gives the statistics that merging each frame's
+    /// own gives, bit for bit (sums, extremes, the reservoir's samples), past the reservoir's
+    /// size.
+    #[test]
+    fn frames_folded_in_order_equal_frames_merged_in_chunks() {
+        let mut rng = SplitMix64::new(11);
+        let mut value = move || (rng.next_u64() % 20_000) as f32 / 7.0 - 1_000.0;
+        let kinds = [
+            Some(FeatureKind::State),
+            Some(FeatureKind::Action),
+            Some(FeatureKind::Other),
+            Some(FeatureKind::Other),
+        ];
+        let fresh = || -> EpisodeStats {
+            [("state", 7), ("action", 7), ("f64", 2), ("i64", 3)]
+                .into_iter()
+                .map(|(n, k)| (n.to_string(), FeatureStats::Vector(VectorStats::new(k))))
+                .collect()
+        };
+        let steps: Vec<Step> = (0..crate::export::stats::RESERVOIR + 300)
+            .map(|_| Step {
+                state: std::array::from_fn(|_| value()),
+                action: std::array::from_fn(|_| value()),
+                other: vec![
+                    FeatureValue::Float64(vec![f64::from(value()) / 3.0, f64::from(value())]),
+                    FeatureValue::Int64((0..3).map(|_| value() as i64).collect()),
+                ],
+                ..Step::empty()
+            })
+            .collect();
+        let (mut in_order, mut in_chunks, mut in_parallel) = (fresh(), fresh(), fresh());
+        fold_in_order(&steps, &kinds, &mut in_order);
+        fold_in_chunks(&steps, &kinds, &mut in_chunks, false);
+        fold_in_chunks(&steps, &kinds, &mut in_parallel, true);
+        let json = |stats: &EpisodeStats| -> Vec<String> {
+            stats.iter().map(|(_, s)| s.to_json().to_string()).collect()
+        };
+        assert_eq!(json(&in_order), json(&in_chunks));
+        assert_eq!(json(&in_order), json(&in_parallel));
+        assert!(json(&in_order)[0].contains(&format!("\"count\":[{}]", steps.len())));
+    }
 }

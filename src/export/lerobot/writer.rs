@@ -7,7 +7,7 @@ use super::meta::{FeatureStatsJson, StatsJson};
 use super::options::{CODEBASE_VERSION, LeRobotOptions, VideoOptions};
 use super::table::{DEFAULT_COLUMNS, Provenance, frame_schema};
 use super::table::{EpisodeRow, KeyedSpan, VideoSpan, default_columns, frame_batch};
-use super::work::{EpisodeStats, EpisodeWork, fresh_stats};
+use super::work::{EpisodeStats, EpisodeWork, RowStats, fresh_stats, keeps_pixel_stats, row_entry};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
 use crate::export::dir::RunOptions;
 use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
@@ -372,8 +372,8 @@ impl LeRobotFiles {
     fn close_file(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         if let Some(open) = self.open.take() {
             let path = open.pending.path.clone();
-            open.writer.close().map_err(ExportError::parquet(&path))?;
-            let bytes = dir.commit(open.pending)?;
+            let sums = open.writer.close().map_err(ExportError::parquet(&path))?;
+            let bytes = dir.commit_summed(open.pending, sums)?;
             self.state.summary.files += 1;
             self.state.summary.bytes += bytes;
         }
@@ -588,6 +588,7 @@ impl LeRobotFiles {
             video: video_frames,
             images,
             stats,
+            row_stats,
             encode_secs: encoded_ahead_secs,
             stats_secs,
         } = prepared;
@@ -633,7 +634,7 @@ impl LeRobotFiles {
             meta,
             (first_index, length),
             written,
-            episode_stats,
+            (episode_stats, row_stats),
             videos,
         )?;
         self.apart_secs.0 += encoded_ahead_secs;
@@ -687,9 +688,9 @@ impl LeRobotFiles {
     }
 
     /// Records an episode whose rows (the dataset's frames `first_index` on, `length` of them)
-    /// and videos are written, the last rows as `written`: its statistics folded in, its row
-    /// journaled; the data and video files close together when the data file is full (a
-    /// checkpoint).
+    /// and videos are written, the last rows as `written`: its statistics folded in (with, when
+    /// they were made ahead, the first features' as its row records them), its row journaled;
+    /// the data and video files close together when the data file is full (a checkpoint).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn episode_done(
         &mut self,
@@ -698,10 +699,10 @@ impl LeRobotFiles {
         meta: &crate::episode::EpisodeMeta,
         (first_index, length): (u64, u64),
         written: Written,
-        episode_stats: Vec<(String, crate::export::stats::FeatureStats)>,
+        (episode_stats, row_stats): (EpisodeStats, Option<RowStats>),
         videos: Vec<KeyedSpan>,
     ) -> Result<(), ExportError> {
-        let (stats_json, pixel_stats) = self.fold_stats(info, episode_stats);
+        let (stats_json, pixel_stats) = self.fold_stats(info, episode_stats, row_stats);
         let row = EpisodeRow {
             episode_index: meta.index,
             tasks: meta.instructions().into_iter().map(String::from).collect(),
@@ -752,44 +753,36 @@ impl LeRobotFiles {
     }
 
     /// Folds an episode's statistics into the dataset's; returns them as its row records them,
-    /// with the exact pixel statistics of its video features (surgvla's datasets: so that
-    /// merging or converting it later, without decoding the video, gives the same statistics).
+    /// with the exact pixel statistics of its image features (surgvla's datasets: so that
+    /// merging, converting or editing it later, without decoding its video or images, gives the
+    /// same statistics). `made`: the first features' entries of the row, made ahead.
     fn fold_stats(
         &mut self,
         info: &DatasetInfo,
-        episode_stats: Vec<(String, crate::export::stats::FeatureStats)>,
+        episode_stats: EpisodeStats,
+        made: Option<RowStats>,
     ) -> (StatsJson, Vec<(String, Value)>) {
         let mut stats_json = StatsJson::new();
-        // An image feature's exact statistics travel with the episode (surgvla's datasets), so
-        // that merging, converting or editing it later, without decoding its video or images,
-        // gives the same statistics.
         let mut pixel_stats = Vec::new();
-        let kept: Vec<bool> = (self.state.stats.iter())
-            .map(|(name, _)| info.is_ours() && self.has_pixel_stats(name))
-            .collect();
-        let totals = self.state.stats.iter_mut().zip(episode_stats).zip(kept);
-        for (((name, total), (_, this)), kept) in totals {
-            if kept {
-                let exact = match &this {
-                    crate::export::stats::FeatureStats::Image(s) => s.stored_json(),
-                    _ => Value::Null,
-                };
+        let made = made.into_iter().flatten().map(Some);
+        let totals = (self.state.stats.iter_mut())
+            .zip(episode_stats)
+            .zip(made.chain(std::iter::repeat_with(|| None)));
+        for (((name, total), (_, this)), made) in totals {
+            let (json, exact) = made.unwrap_or_else(|| {
+                let keeps_pixels = info.is_ours()
+                    && keeps_pixel_stats(&self.video_features, &self.parquet_features, name);
+                row_entry(&this, info.is_text(name), keeps_pixels)
+            });
+            if let Some(exact) = exact {
                 pixel_stats.push((name.clone(), exact));
             }
-            if !info.is_text(name) {
-                stats_json.insert(name.clone(), FeatureStatsJson::from_value(this.to_json()));
+            if let Some(json) = json {
+                stats_json.insert(name.clone(), json);
             }
             total.merge(&this);
         }
         (stats_json, pixel_stats)
-    }
-
-    /// Whether the episodes table keeps feature `name`'s exact pixel statistics: a video
-    /// feature, or one of surgvla's images (RGB, depth, mask) in the parquet.
-    fn has_pixel_stats(&self, name: &str) -> bool {
-        self.video_features.iter().any(|(key, _)| key == name)
-            || (self.parquet_features.iter())
-                .any(|f| f.name == name && f.dtype == Dtype::Image && f.kind != FeatureKind::Other)
     }
 
     /// The per-episode work's view of this writer.
@@ -845,19 +838,50 @@ impl LeRobotFiles {
             video_keys: &video_keys,
         };
         let mut summary = self.state.summary.clone();
-        let rows = dir.journal_lines(EPISODES_JOURNAL)?.map(|line| {
-            let line = line?;
-            serde_json::from_str::<EpisodeRow>(&line).map_err(|source| ExportError::Json {
+        let parse = |line: &String| {
+            serde_json::from_str::<EpisodeRow>(line).map_err(|source| ExportError::Json {
                 path: EPISODES_JOURNAL.into(),
                 source,
             })
-        });
+        };
+        let rows = parsed_in_parallel(dir.journal_lines(EPISODES_JOURNAL)?, &parse);
         let (files, bytes) = self.options.version.write_metadata(dir, &metadata, rows)?;
         summary.files += files;
         summary.bytes += bytes;
         Ok(summary)
     }
 }
+
+/// Journal lines read in chunks of [`PARSED_AT_ONCE`] lines (held in memory at once), each chunk
+/// parsed on the pool's threads; the rows in order, then a read or parse error where it was.
+fn parsed_in_parallel<'a, T: Send + 'a>(
+    mut lines: impl Iterator<Item = Result<String, ExportError>> + Send + 'a,
+    parse: &'a (dyn Fn(&String) -> Result<T, ExportError> + Sync),
+) -> impl Iterator<Item = Result<T, ExportError>> + Send + 'a {
+    use rayon::prelude::*;
+    let mut parsed = std::collections::VecDeque::new();
+    std::iter::from_fn(move || {
+        if parsed.is_empty() {
+            let mut chunk = Vec::with_capacity(PARSED_AT_ONCE);
+            let mut failed = None;
+            for line in lines.by_ref().take(PARSED_AT_ONCE) {
+                match line {
+                    Ok(line) => chunk.push(line),
+                    Err(error) => {
+                        failed = Some(error);
+                        break;
+                    }
+                }
+            }
+            parsed.extend(chunk.par_iter().map(parse).collect::<Vec<_>>());
+            parsed.extend(failed.map(Err));
+        }
+        parsed.pop_front()
+    })
+}
+
+/// Journal lines [`parsed_in_parallel`] at once.
+const PARSED_AT_ONCE: usize = 64;
 
 /// The `features` object of info.json for these features (defaults appended): what
 /// `schemas/lerobot_features.json` records.
@@ -893,4 +917,45 @@ fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> 
         );
     }
     features
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Lines parsed chunk by chunk on the pool come back in order, past a chunk's end, and a
+    /// read error stops them where it was.
+    #[test]
+    fn journal_lines_parsed_in_parallel_keep_their_order_and_errors() {
+        let count = 3 * PARSED_AT_ONCE + 5;
+        let parse = |line: &String| {
+            line.parse::<usize>()
+                .map_err(|e| ExportError::Internal(format!("{line}: {e}")))
+        };
+        let lines = (0..count).map(|i| Ok(i.to_string()));
+        let rows: Vec<usize> = parsed_in_parallel(lines, &parse)
+            .collect::<Result<_, _>>()
+            .expect("every line parses");
+        assert_eq!(rows, (0..count).collect::<Vec<_>>());
+        let failing = PARSED_AT_ONCE + 3;
+        let lines = (0..count).map(move |i| {
+            if i == failing {
+                Err(ExportError::Internal("unreadable".into()))
+            } else {
+                Ok(i.to_string())
+            }
+        });
+        let read: Vec<Result<usize, ExportError>> = parsed_in_parallel(lines, &parse).collect();
+        let first_error = read.iter().position(Result::is_err).expect("an error");
+        assert_eq!(first_error, failing);
+        assert!(
+            read[..failing]
+                .iter()
+                .enumerate()
+                .all(|(i, r)| matches!(r, Ok(v) if *v == i))
+        );
+        let bad = (0..2).map(|i| Ok(if i == 1 { "x".into() } else { i.to_string() }));
+        let parsed: Vec<_> = parsed_in_parallel(bad, &parse).collect();
+        assert!(matches!(parsed[..], [Ok(0), Err(_)]));
+    }
 }
