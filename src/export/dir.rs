@@ -1138,6 +1138,7 @@ mod tests {
         assert_eq!(sums, checksum(&bytes[..], Path::new("x")).expect("read"));
         assert_ne!(sums.1, 0);
     }
+
     #[test]
     fn a_checkpoint_larger_than_other_metadata_resumes() {
         // A large collection's checkpoint (statistics reservoirs) is over the 32 MiB cap of
