@@ -15,7 +15,8 @@
 //!   ([`FileRecord`]). [`DatasetDir::save_checkpoint`] first makes the files finished since the
 //!   last checkpoint durable (fsync of the files, their folders and the marker), then records
 //!   them with the format's state. At the end, `meta/surgvla_manifest.json` ([`MANIFEST`]) lists
-//!   every file of the dataset with its size and checksum.
+//!   every file of the dataset with its size and checksum. Large files are written behind
+//!   ([`WrittenBehind`]), so that the checkpoint's fsync finds them mostly on disk already.
 //! - **Resume.** [`DatasetDir::resume`] refuses changed options before touching the folder,
 //!   takes the lock, verifies every file the checkpoint lists (refusing, with the file named, if
 //!   one is missing, truncated or changed) and deletes whatever was written after it.
@@ -168,6 +169,96 @@ impl<W: Write> Write for Checksummed<W> {
 
     fn flush(&mut self) -> std::io::Result<()> {
         self.inner.flush()
+    }
+}
+
+impl<W> Checksummed<W> {
+    /// The writer it counted for.
+    pub fn into_inner(self) -> W {
+        self.inner
+    }
+}
+
+/// Bytes of a file written between two requests of [`WrittenBehind`] to put them on disk.
+const WRITE_BEHIND_BYTES: u64 = 16 << 20;
+
+/// A large file written behind: every [`WRITE_BEHIND_BYTES`] written, a helper thread has the
+/// kernel write what it holds of the file to disk (`sync_data` on a second handle) while the
+/// writing goes on, so the checkpoint that makes the closed file durable finds little left to
+/// write and does not stall the run. A helper's error comes back from the next write or from
+/// [`WrittenBehind::finish`] (the kernel reports a failed write-back once: it is not lost).
+pub struct WrittenBehind {
+    file: File,
+    since_request: u64,
+    helper: Option<std::thread::JoinHandle<std::io::Result<()>>>,
+    /// Requests made so far.
+    requests: u64,
+}
+
+impl WrittenBehind {
+    pub fn new(file: File) -> Self {
+        WrittenBehind {
+            file,
+            since_request: 0,
+            helper: None,
+            requests: 0,
+        }
+    }
+
+    /// Waits for the last request; its error, if any. Returns the requests made.
+    pub fn finish(mut self) -> std::io::Result<u64> {
+        self.reap(true)?;
+        Ok(self.requests)
+    }
+
+    /// The finished helper's result (`wait`: waits for a running one).
+    fn reap(&mut self, wait: bool) -> std::io::Result<()> {
+        match self.helper.take() {
+            Some(helper) if wait || helper.is_finished() => helper
+                .join()
+                .unwrap_or_else(|_| Err(std::io::Error::other("a write-behind helper panicked"))),
+            running => {
+                self.helper = running;
+                Ok(())
+            }
+        }
+    }
+}
+
+impl Write for WrittenBehind {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.file.write(buf)?;
+        self.since_request += n as u64;
+        if self.since_request >= WRITE_BEHIND_BYTES {
+            self.reap(false)?;
+            // One request at a time: a disk slower than the writing gets the next one later.
+            if self.helper.is_none() {
+                self.since_request = 0;
+                // No second handle or no thread to spare (a limit of the system) leaves the
+                // work to the checkpoint's fsync: writing behind only saves time.
+                let helper = (self.file.try_clone()).and_then(|handle| {
+                    std::thread::Builder::new()
+                        .name("surgvla-write-behind".into())
+                        .spawn(move || handle.sync_data())
+                });
+                if let Ok(helper) = helper {
+                    self.helper = Some(helper);
+                    self.requests += 1;
+                }
+            }
+        }
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush()
+    }
+}
+
+impl Drop for WrittenBehind {
+    /// No helper outlives its file's writer (an error was someone else's to report).
+    fn drop(&mut self) {
+        let _ = self.reap(true);
     }
 }
 
@@ -1121,6 +1212,34 @@ mod tests {
 
     /// What a checksummed writer counts is what reading the bytes back gives, however they
     /// were split into writes.
+    /// A file written behind holds exactly what was written, and asked the kernel to put it
+    /// on disk as it went (one request per 16 MiB at most, none left running).
+    #[test]
+    fn a_file_written_behind_holds_its_bytes_and_asked_for_disk_on_the_way() {
+        let root = std::env::temp_dir().join(format!("surgvla-behind-{}", std::process::id()));
+        std::fs::create_dir_all(&root).expect("folder");
+        let path = root.join("big.bin");
+        let mut rng = crate::rng::SplitMix64::new(5);
+        let bytes: Vec<u8> = (0..(40 << 20) + 12_345)
+            .map(|_| rng.next_u64() as u8)
+            .collect();
+        let mut writer = WrittenBehind::new(File::create(&path).expect("file"));
+        let mut at = 0;
+        while at < bytes.len() {
+            let n = (1 + rng.next_u64() % (3 << 20)) as usize;
+            let end = (at + n).min(bytes.len());
+            writer.write_all(&bytes[at..end]).expect("write");
+            at = end;
+        }
+        let requests = writer.finish().expect("every request succeeded");
+        assert!(
+            (1..=2).contains(&requests),
+            "{requests} requests for 40 MiB"
+        );
+        assert!(std::fs::read(&path).expect("read") == bytes);
+        std::fs::remove_dir_all(&root).expect("clean up");
+    }
+
     #[test]
     fn a_checksummed_writer_counts_what_reading_back_gives() {
         let mut rng = crate::rng::SplitMix64::new(7);

@@ -593,9 +593,8 @@ mod trimmed {
                         "a histogram of more than {MAX_BINS} bins"
                     )));
                 }
-                let count = word
-                    .parse::<u64>()
-                    .map_err(|_| E::custom(format!("a histogram count {word:?}")))?;
+                let count = parse_count(word.as_bytes())
+                    .ok_or_else(|| E::custom(format!("a histogram count {word:?}")))?;
                 counts.push(count);
             }
             Ok(Stored(counts))
@@ -640,6 +639,20 @@ mod trimmed {
             full[from..from + counts.len()].copy_from_slice(&counts);
             Ok(Stored(full))
         }
+    }
+
+    /// A count as `u64::from_str` reads it (decimal digits, a `+` before them allowed, no
+    /// overflow), digit by digit: an episodes table holds thousands of them per episode.
+    pub(super) fn parse_count(word: &[u8]) -> Option<u64> {
+        let digits = word.strip_prefix(b"+").unwrap_or(word);
+        if digits.is_empty() {
+            return None;
+        }
+        digits.iter().try_fold(0u64, |n, &b| {
+            b.is_ascii_digit()
+                .then(|| n.checked_mul(10)?.checked_add(u64::from(b - b'0')))
+                .flatten()
+        })
     }
 
     pub(super) fn serialize<S: Serializer>(
@@ -930,6 +943,46 @@ fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A stored count reads as `u64::from_str` reads it: digits, signs, overflow, other bytes
+    /// (edge cases and seeded random words).
+    #[test]
+    fn histogram_counts_read_as_the_standard_parser_reads_them() {
+        let mut words: Vec<String> = [
+            "0",
+            "7",
+            "+7",
+            "-7",
+            "+",
+            "",
+            "00012",
+            "18446744073709551615",
+            "18446744073709551616",
+            "99999999999999999999",
+            "1e3",
+            "1.0",
+            " 1",
+            "١",
+        ]
+        .map(String::from)
+        .to_vec();
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let alphabet = b"0123456789+-. x";
+        for _ in 0..2_000 {
+            let len = (rng.next_u64() % 22) as usize;
+            let word = (0..len)
+                .map(|_| alphabet[(rng.next_u64() % alphabet.len() as u64) as usize] as char)
+                .collect();
+            words.push(word);
+        }
+        for word in &words {
+            assert_eq!(
+                trimmed::parse_count(word.as_bytes()),
+                word.parse::<u64>().ok(),
+                "{word:?}"
+            );
+        }
+    }
 
     #[test]
     fn carried_statistics_are_written_back_as_read_until_changed() {

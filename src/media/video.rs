@@ -11,6 +11,7 @@ use openh264::encoder::{
 };
 use openh264::formats::{RgbSliceU8, YUVBuffer};
 use std::fs::File;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// One encoded frame (Annex B bytes for H.264, OBUs for AV1).
@@ -327,8 +328,8 @@ pub fn encode_h264(
 const MP4_WRITE_BUFFER_BYTES: usize = 1 << 20;
 
 /// An MP4 file being appended to: the muxer over an open file, and the presentation clock.
-pub struct Mp4Writer {
-    muxer: Muxer<std::io::BufWriter<File>>,
+pub struct Mp4Writer<W: Write = File> {
+    muxer: Muxer<std::io::BufWriter<W>>,
     /// Sample bytes appended so far: what the file will hold besides its boxes.
     sample_bytes: u64,
     /// The file's name, for errors.
@@ -352,10 +353,10 @@ fn mp4_error(path: &Path) -> impl Fn(muxide::api::MuxerError) -> MediaError + '_
     }
 }
 
-impl Mp4Writer {
-    /// Starts an MP4 in `handle`; `path` names it in errors.
+impl<W: Write> Mp4Writer<W> {
+    /// Starts an MP4 in `handle` (a file, or a writer over one); `path` names it in errors.
     pub fn create(
-        handle: File,
+        handle: W,
         path: PathBuf,
         codec: Codec,
         (width, height): (usize, usize),
@@ -410,17 +411,16 @@ impl Mp4Writer {
         self.sample_bytes
     }
 
-    /// Completes the file (the moov box at the end) and writes out what is buffered.
-    pub fn finish(mut self) -> Result<(), MediaError> {
+    /// Completes the file (the moov box at the end), writes out what is buffered, and gives
+    /// back the handle it was created with.
+    pub fn finish(mut self) -> Result<W, MediaError> {
         self.muxer
             .finish_in_place()
             .map_err(mp4_error(&self.path))?;
-        (self.muxer.into_writer().into_inner())
-            .map(|_| ())
-            .map_err(|e| MediaError::Io {
-                path: self.path,
-                source: e.into_error(),
-            })
+        (self.muxer.into_writer().into_inner()).map_err(|e| MediaError::Io {
+            path: self.path,
+            source: e.into_error(),
+        })
     }
 }
 

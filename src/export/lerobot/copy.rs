@@ -11,7 +11,7 @@
 
 use super::table::DEFAULT_COLUMNS;
 use crate::episode::StoredRows;
-use crate::export::dir::Checksummed;
+use crate::export::dir::{Checksummed, WrittenBehind};
 use arrow_array::{ArrayRef, RecordBatch};
 use arrow_schema::SchemaRef;
 use bytes::{Buf, Bytes};
@@ -53,7 +53,7 @@ impl StoredGroup {
 
 /// A data file being written (see the module overview).
 pub(super) struct DataFile {
-    writer: SerializedFileWriter<BufWriter<Checksummed<File>>>,
+    writer: SerializedFileWriter<BufWriter<Checksummed<WrittenBehind>>>,
     factory: ArrowRowGroupWriterFactory,
     schema: SchemaRef,
     groups: usize,
@@ -140,7 +140,10 @@ impl DataFile {
         schema: SchemaRef,
         properties: parquet::file::properties::WriterProperties,
     ) -> Result<Self, ParquetError> {
-        let output = BufWriter::with_capacity(WRITE_BUFFER_BYTES, Checksummed::new(file));
+        let output = BufWriter::with_capacity(
+            WRITE_BUFFER_BYTES,
+            Checksummed::new(WrittenBehind::new(file)),
+        );
         let defaults = DefaultColumns::new(&schema, properties.clone())?;
         let writer =
             parquet::arrow::ArrowWriter::try_new(output, schema.clone(), Some(properties))?;
@@ -164,7 +167,9 @@ impl DataFile {
         let buffered = self.writer.into_inner()?;
         let summed = (buffered.into_inner())
             .map_err(|e| ParquetError::External(Box::new(e.into_error())))?;
-        Ok(summed.sums())
+        let sums = summed.sums();
+        (summed.into_inner().finish()).map_err(|e| ParquetError::External(Box::new(e)))?;
+        Ok(sums)
     }
 
     /// Appends `batch` as a row group of its own, encoded (the bytes `ArrowWriter::write` and

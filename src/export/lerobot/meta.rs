@@ -340,9 +340,34 @@ pub struct FeatureStatsJson {
 }
 
 impl FeatureStatsJson {
-    /// The statistics `value` holds, leniently (nothing when it is not an object).
+    /// The statistics `value` holds, leniently (nothing when it is not an object): what
+    /// deserializing it gives, each key taken as it is (the derived reader buffers a whole
+    /// object for the statistics it does not name, and every episode's row passes here).
     pub fn from_value(value: Value) -> FeatureStatsJson {
-        serde_json::from_value(value).unwrap_or_default()
+        let Value::Object(entries) = value else {
+            return FeatureStatsJson::default();
+        };
+        let mut stats = FeatureStatsJson::default();
+        for (key, value) in entries {
+            let slot = match key.as_str() {
+                "min" => &mut stats.min,
+                "max" => &mut stats.max,
+                "mean" => &mut stats.mean,
+                "std" => &mut stats.std,
+                "count" => &mut stats.count,
+                "q01" => &mut stats.q01,
+                "q10" => &mut stats.q10,
+                "q50" => &mut stats.q50,
+                "q90" => &mut stats.q90,
+                "q99" => &mut stats.q99,
+                _ => {
+                    stats.other.insert(key, value);
+                    continue;
+                }
+            };
+            *slot = serde_json::from_value(value).ok();
+        }
+        stats
     }
 
     /// The named statistics present, in order (the unknown ones are not listed).
@@ -525,6 +550,19 @@ mod tests {
             FeatureStatsJson::from_value(serde_json::json!([1])),
             FeatureStatsJson::default()
         );
+        // The same as the derived reader, for every kind of value in every place.
+        for text in [
+            r#"{"min":"low","max":[1.5],"mean":null,"std":[[1,2],[3]],"count":[7],"extra":{"a":1}}"#,
+            r#"{"zz":[1],"q99":[true],"q50":[0.5,null],"q01":-3,"q10":18446744073709551615}"#,
+            r#"{"q90":{"x":1},"count":"12","min":[[[-0.25]]],"other":null}"#,
+            "[1]",
+            "7",
+        ] {
+            let value: Value = serde_json::from_str(text).unwrap();
+            let derived: FeatureStatsJson =
+                serde_json::from_value(value.clone()).unwrap_or_default();
+            assert_eq!(FeatureStatsJson::from_value(value), derived, "{text}");
+        }
         let mut set = FeatureStatsJson::default();
         set.set("q50", StatValue::number(f64::NAN));
         set.set("q42", StatValue::list([2.0]));

@@ -87,7 +87,7 @@ impl LeRobotFiles {
             .collect::<Result<Vec<_>, _>>()?;
         self.append_video_packets(&tail)?;
         let videos = self.video_spans(&open.video_from);
-        let mut stats = open.fold.finish(&self.work(info), episode);
+        let mut stats = open.fold.finish_at_end(&self.work(info), episode);
         stats.extend(default_stats(
             open.index,
             f64::from(info.fps),

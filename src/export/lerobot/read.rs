@@ -1206,7 +1206,7 @@ fn exact_image_stats(row: &StoredEpisode, info: &DatasetInfo) -> Vec<(String, Pi
     step_images(info)
         .filter_map(|f| {
             let exact: Value = serde_json::from_str(row.pixel_stats.get(&f.name)?).ok()?;
-            let parsed = serde_json::from_value::<ImageStats>(exact.clone()).ok()?;
+            let parsed = <ImageStats as serde::Deserialize>::deserialize(&exact).ok()?;
             match FeatureStats::for_feature(f) {
                 FeatureStats::Image(like) if parsed.same_shape(&like) => {
                     Some((f.name.clone(), PixelStats::Exact(exact)))

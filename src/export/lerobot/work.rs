@@ -236,18 +236,17 @@ impl EpisodeWork<'_> {
     /// Statistics of the episode's features, in feature order: frames in parallel, folded in
     /// frame order (so the result does not depend on the thread count).
     pub fn feature_stats(&self, episode: &Episode) -> EpisodeStats {
-        let kinds = self.step_kinds();
-        let mut total = fresh_feature_stats(&self.info.features);
-        let carried = skip_carried(&self.info.features, episode, &mut total);
-        let counts_pixels = (total.iter().zip(&kinds))
-            .any(|((_, s), kind)| kind.is_some() && matches!(s, FeatureStats::Image(_)));
-        if counts_pixels {
-            fold_in_chunks(&episode.steps, &kinds, &mut total, self.parallel);
+        let mut fold = StatsFold::new(self, Some(episode));
+        if fold.counts_pixels() {
+            fold_in_chunks(&episode.steps, &fold.kinds, &mut fold.total, self.parallel);
         } else {
-            fold_in_order(&episode.steps, &kinds, &mut total);
+            // No pixel counted: each frame's values pushed in frame order, the same sums and
+            // samples as merging each frame's own statistics, without making them.
+            for step in &episode.steps {
+                fold.push(step);
+            }
         }
-        self.carried_stats(episode, carried, &mut total);
-        total
+        fold.finish(self, episode)
     }
 
     /// `stats` (an episode's, per feature) as its row of the episodes table records them.
@@ -354,17 +353,6 @@ fn fold_in_chunks(
                 t.add_histograms(h);
             }
         }
-    }
-}
-
-/// [`fold_in_chunks`] when no pixel is counted (no image in the steps, or every image's
-/// statistics carried): each frame's values pushed into `total` in frame order, the same sums
-/// and samples as merging each frame's own statistics, without making them.
-fn fold_in_order(steps: &[Step], kinds: &[Option<FeatureKind>], total: &mut EpisodeStats) {
-    let mut histograms = vec![Vec::new(); total.len()];
-    let mut last = vec![LastFrame::default(); total.len()];
-    for step in steps {
-        fold_frame(total, kinds, step, &mut histograms, &mut last);
     }
 }
 
@@ -607,14 +595,26 @@ pub(super) struct StatsFold {
     histograms: Vec<Vec<Vec<u64>>>,
     /// Per feature, the last frame's pixels and counts.
     last: Vec<LastFrame>,
+    /// The exact image statistics the episode known ahead carries (per feature), read once:
+    /// left out of the fold, put in at [`StatsFold::finish`].
+    carried: Option<Vec<Option<ImageStats>>>,
 }
 
 impl StatsFold {
+    /// For `work`'s features; `episode` when it is known ahead, for the statistics it
+    /// carries.
     pub(super) fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
         let mut total = fresh_feature_stats(&work.info.features);
-        if let Some(episode) = episode {
-            skip_carried(&work.info.features, episode, &mut total);
-        }
+        let carried = episode.map(|episode| skip_carried(&work.info.features, episode, &mut total));
+        StatsFold::of(work.step_kinds(), total, carried)
+    }
+
+    /// Folding into `total` (per feature, `kinds` their place in the steps).
+    fn of(
+        kinds: Vec<Option<FeatureKind>>,
+        total: EpisodeStats,
+        carried: Option<Vec<Option<ImageStats>>>,
+    ) -> Self {
         let histograms = total
             .iter()
             .map(|(_, s)| match s {
@@ -623,11 +623,19 @@ impl StatsFold {
             })
             .collect();
         StatsFold {
-            kinds: work.step_kinds(),
+            kinds,
             last: vec![LastFrame::default(); total.len()],
             total,
             histograms,
+            carried,
         }
+    }
+
+    /// Whether a frame's pixels are counted (an image in the steps whose statistics the
+    /// episode does not carry).
+    fn counts_pixels(&self) -> bool {
+        (self.total.iter().zip(&self.kinds))
+            .any(|((_, s), kind)| kind.is_some() && matches!(s, FeatureStats::Image(_)))
     }
 
     pub(super) fn push(&mut self, step: &Step) {
@@ -640,14 +648,32 @@ impl StatsFold {
         );
     }
 
+    /// The episode's statistics: the folded frames', and those `episode` carries (the
+    /// episode known ahead's, read when the fold began).
     pub(super) fn finish(mut self, work: &EpisodeWork<'_>, episode: &Episode) -> EpisodeStats {
+        let carried =
+            (self.carried.take()).unwrap_or_else(|| carried_all(&work.info.features, episode));
+        self.finish_with(work, episode, carried)
+    }
+
+    /// [`StatsFold::finish`] for an episode that carries its statistics at its end (a
+    /// recording's last part: the whole episode's), read again from `at_end`.
+    pub(super) fn finish_at_end(self, work: &EpisodeWork<'_>, at_end: &Episode) -> EpisodeStats {
+        let carried = carried_all(&work.info.features, at_end);
+        self.finish_with(work, at_end, carried)
+    }
+
+    fn finish_with(
+        mut self,
+        work: &EpisodeWork<'_>,
+        episode: &Episode,
+        carried: Vec<Option<ImageStats>>,
+    ) -> EpisodeStats {
         for ((_, t), h) in self.total.iter_mut().zip(&self.histograms) {
             if let FeatureStats::Image(t) = t {
                 t.add_histograms(h);
             }
         }
-        // What the episode carries at its end (a recording's last part: the whole episode's).
-        let carried = carried_all(&work.info.features, episode);
         work.carried_stats(episode, carried, &mut self.total);
         self.total
     }
@@ -938,8 +964,13 @@ mod tests {
                 ..Step::empty()
             })
             .collect();
-        let (mut in_order, mut in_chunks, mut in_parallel) = (fresh(), fresh(), fresh());
-        fold_in_order(&steps, &kinds, &mut in_order);
+        let (mut in_chunks, mut in_parallel) = (fresh(), fresh());
+        let mut fold = StatsFold::of(kinds.to_vec(), fresh(), None);
+        assert!(!fold.counts_pixels());
+        for step in &steps {
+            fold.push(step);
+        }
+        let in_order = fold.total;
         fold_in_chunks(&steps, &kinds, &mut in_chunks, false);
         fold_in_chunks(&steps, &kinds, &mut in_parallel, true);
         let json = |stats: &EpisodeStats| -> Vec<String> {

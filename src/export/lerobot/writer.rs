@@ -10,7 +10,7 @@ use super::table::{EpisodeRow, KeyedSpan, VideoSpan, default_columns, frame_batc
 use super::work::{EpisodeStats, EpisodeWork, RowStats, fresh_stats, keeps_pixel_stats, row_entry};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
 use crate::export::dir::RunOptions;
-use crate::export::dir::{DatasetDir, FileCounter, PendingFile};
+use crate::export::dir::{Checksummed, DatasetDir, FileCounter, PendingFile, WrittenBehind};
 use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::sink::Summary;
@@ -39,7 +39,8 @@ struct OpenFile {
 
 /// A video file being written: its MP4 and its place.
 struct VideoFile {
-    mp4: Mp4Writer,
+    /// Counted as written, for [`DatasetDir::commit_summed`].
+    mp4: Mp4Writer<Checksummed<WrittenBehind>>,
     pending: PendingFile,
     chunk: u64,
     file: u64,
@@ -505,7 +506,13 @@ impl LeRobotFiles {
                 let relative = version.video_path(&key, location.0, location.1);
                 let (handle, pending) = dir.create_file(&relative)?;
                 self.videos.push(VideoFile {
-                    mp4: Mp4Writer::create(handle, pending.path.clone(), codec, size, info.fps)?,
+                    mp4: Mp4Writer::create(
+                        Checksummed::new(WrittenBehind::new(handle)),
+                        pending.path.clone(),
+                        codec,
+                        size,
+                        info.fps,
+                    )?,
                     pending,
                     chunk: location.0,
                     file: location.1,
@@ -545,8 +552,10 @@ impl LeRobotFiles {
 
     fn close_videos(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         for video in std::mem::take(&mut self.videos) {
-            video.mp4.finish()?;
-            self.state.summary.bytes += dir.commit(video.pending)?;
+            let summed = video.mp4.finish()?;
+            let sums = summed.sums();
+            (summed.into_inner().finish()).map_err(ExportError::io(&video.pending.path))?;
+            self.state.summary.bytes += dir.commit_summed(video.pending, sums)?;
             self.state.summary.files += 1;
         }
         Ok(())
@@ -853,15 +862,18 @@ impl LeRobotFiles {
 }
 
 /// Journal lines read in chunks of [`PARSED_AT_ONCE`] lines (held in memory at once), each chunk
-/// parsed on the pool's threads; the rows in order, then a read or parse error where it was.
+/// parsed on the pool's threads; the rows in order, then a read or parse error where it was
+/// (nothing is read after a read error).
 fn parsed_in_parallel<'a, T: Send + 'a>(
     mut lines: impl Iterator<Item = Result<String, ExportError>> + Send + 'a,
     parse: &'a (dyn Fn(&String) -> Result<T, ExportError> + Sync),
 ) -> impl Iterator<Item = Result<T, ExportError>> + Send + 'a {
     use rayon::prelude::*;
     let mut parsed = std::collections::VecDeque::new();
+    // Set at a read error: nothing is read after it.
+    let mut done = false;
     std::iter::from_fn(move || {
-        if parsed.is_empty() {
+        if parsed.is_empty() && !done {
             let mut chunk = Vec::with_capacity(PARSED_AT_ONCE);
             let mut failed = None;
             for line in lines.by_ref().take(PARSED_AT_ONCE) {
@@ -873,6 +885,7 @@ fn parsed_in_parallel<'a, T: Send + 'a>(
                     }
                 }
             }
+            done = failed.is_some();
             parsed.extend(chunk.par_iter().map(parse).collect::<Vec<_>>());
             parsed.extend(failed.map(Err));
         }
@@ -948,6 +961,11 @@ mod tests {
         let read: Vec<Result<usize, ExportError>> = parsed_in_parallel(lines, &parse).collect();
         let first_error = read.iter().position(Result::is_err).expect("an error");
         assert_eq!(first_error, failing);
+        assert_eq!(
+            read.len(),
+            failing + 1,
+            "nothing is read after a read error"
+        );
         assert!(
             read[..failing]
                 .iter()
