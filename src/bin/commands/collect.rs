@@ -107,8 +107,9 @@ fn collect_into(
     let sink_options = args.formats.sink_options(args.format, "--format")?;
     let info = dataset_info(options, features, library);
     let resuming = resumes(out, args.resume);
-    let mut sink = open_sink(out, &info, sink_options.as_ref(), args.resume)?;
+    // Said before the folder exists: an interruption in between must still name `--resume`.
     crate::interrupt::writing(out, true);
+    let mut sink = open_sink(out, &info, sink_options.as_ref(), args.resume)?;
     if resuming {
         let next = sink.next_episode_index();
         eprintln!("resuming {} at episode {next}", out.display());

@@ -192,8 +192,9 @@ pub(crate) fn open_output(
         resuming: resumes(out, resume),
         created: !out.exists(),
     };
-    let sink = open_sink(out, info, options, resume)?;
+    // Said before the folder exists: an interruption in between must still name `--resume`.
     crate::interrupt::writing(out, true);
+    let sink = open_sink(out, info, options, resume)?;
     if output.resuming {
         eprintln!(
             "resuming {} at episode {}",
