@@ -156,6 +156,21 @@ impl<W: Write> Checksummed<W> {
     pub fn sums(&self) -> (u64, u32) {
         (self.bytes, self.crc)
     }
+
+    /// The writer it counted for.
+    pub fn into_inner(self) -> W {
+        self.inner
+    }
+}
+
+impl Checksummed<WrittenBehind> {
+    /// A file written behind, closed: its size and CRC-32C (for [`DatasetDir::commit_summed`])
+    /// once its last write-behind request is done, or that request's error.
+    pub fn finish(self) -> std::io::Result<(u64, u32)> {
+        let sums = self.sums();
+        self.inner.finish()?;
+        Ok(sums)
+    }
 }
 
 impl<W: Write> Write for Checksummed<W> {
@@ -169,13 +184,6 @@ impl<W: Write> Write for Checksummed<W> {
 
     fn flush(&mut self) -> std::io::Result<()> {
         self.inner.flush()
-    }
-}
-
-impl<W> Checksummed<W> {
-    /// The writer it counted for.
-    pub fn into_inner(self) -> W {
-        self.inner
     }
 }
 
@@ -1210,8 +1218,6 @@ mod tests {
         RunOptions::recorded(&serde_json::json!({"seed": seed, "format": "lerobot"}))
     }
 
-    /// What a checksummed writer counts is what reading the bytes back gives, however they
-    /// were split into writes.
     /// A file written behind holds exactly what was written, and asked the kernel to put it
     /// on disk as it went (one request per 16 MiB at most, none left running).
     #[test]
@@ -1240,6 +1246,8 @@ mod tests {
         std::fs::remove_dir_all(&root).expect("clean up");
     }
 
+    /// What a checksummed writer counts is what reading the bytes back gives, however they
+    /// were split into writes, in memory and in a file written behind.
     #[test]
     fn a_checksummed_writer_counts_what_reading_back_gives() {
         let mut rng = crate::rng::SplitMix64::new(7);
@@ -1256,6 +1264,16 @@ mod tests {
         assert_eq!(writer.inner, bytes);
         assert_eq!(sums, checksum(&bytes[..], Path::new("x")).expect("read"));
         assert_ne!(sums.1, 0);
+        let root = scratch("checksummed-behind");
+        std::fs::create_dir_all(&root).expect("folder");
+        let path = root.join("counted.bin");
+        let mut file = Checksummed::new(WrittenBehind::new(File::create(&path).expect("file")));
+        file.write_all(&bytes).expect("write");
+        let closed = file.finish().expect("closed");
+        let reread = checksum(File::open(&path).expect("open"), &path).expect("read");
+        assert_eq!(closed, reread);
+        assert_eq!(closed, sums);
+        std::fs::remove_dir_all(&root).expect("clean up");
     }
 
     #[test]

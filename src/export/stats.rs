@@ -27,14 +27,69 @@ pub const QUANTILES: [(&str, f64); 5] = [
     ("q99", 0.99),
 ];
 
-/// Running statistics of one scalar series.
+/// Running statistics of one scalar series (in a checkpoint, a value JSON cannot hold, such as
+/// an empty series' infinite minimum or a NaN in the data, is written as text).
 #[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug)]
 struct Running {
     count: u64,
+    #[serde(with = "any_f64")]
     sum: f64,
+    #[serde(with = "any_f64")]
     sum_sq: f64,
+    #[serde(with = "any_f64")]
     min: f64,
+    #[serde(with = "any_f64")]
     max: f64,
+}
+
+/// A float64 in JSON, infinities and NaN included: finite ones as numbers, others as the text
+/// `"inf"`, `"-inf"` or `"NaN"` (JSON has no number for them; serde_json writes null).
+mod any_f64 {
+    use serde::{Deserializer, Serializer};
+
+    pub(super) fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        match *v {
+            v if v.is_finite() => s.serialize_f64(v),
+            v if v.is_nan() => s.serialize_str("NaN"),
+            v if v > 0.0 => s.serialize_str("inf"),
+            _ => s.serialize_str("-inf"),
+        }
+    }
+
+    struct Visitor;
+
+    impl serde::de::Visitor<'_> for Visitor {
+        type Value = f64;
+
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("a number, or \"inf\", \"-inf\" or \"NaN\"")
+        }
+
+        fn visit_f64<E>(self, v: f64) -> Result<f64, E> {
+            Ok(v)
+        }
+
+        fn visit_u64<E>(self, v: u64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+
+        fn visit_i64<E>(self, v: i64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+
+        fn visit_str<E: serde::de::Error>(self, text: &str) -> Result<f64, E> {
+            match text {
+                "inf" => Ok(f64::INFINITY),
+                "-inf" => Ok(f64::NEG_INFINITY),
+                "NaN" => Ok(f64::NAN),
+                _ => Err(E::custom(format!("a statistic {text:?}"))),
+            }
+        }
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        d.deserialize_any(Visitor)
+    }
 }
 
 impl Default for Running {
@@ -97,6 +152,7 @@ impl Running {
 #[derive(serde::Serialize, serde::Deserialize, Clone, Debug)]
 pub struct VectorStats {
     running: Vec<Running>,
+    #[serde(with = "f32_bits")]
     reservoirs: Vec<Vec<f32>>,
     seen: u64,
     rng: SplitMix64,
@@ -121,6 +177,14 @@ impl VectorStats {
             reservoirs: vec![Vec::new(); len],
             seen: 0,
             rng: SplitMix64::stream(0, "stats reservoir"),
+        }
+    }
+
+    /// Makes room for `frames` more frames' values (as many as the reservoir takes).
+    pub fn reserve(&mut self, frames: usize) {
+        let room = RESERVOIR.saturating_sub(self.seen as usize).min(frames);
+        for reservoir in &mut self.reservoirs {
+            reservoir.reserve(room);
         }
     }
 
@@ -153,7 +217,8 @@ impl VectorStats {
         }
         let rows = other.reservoirs.first().map_or(0, Vec::len);
         for row in 0..rows {
-            self.sample(other.reservoirs.iter().map(|r| r[row]));
+            // (Rows of equal length unless a checkpoint was altered: a short one is passed.)
+            self.sample(other.reservoirs.iter().filter_map(|r| r.get(row).copied()));
         }
     }
 
@@ -167,9 +232,15 @@ impl VectorStats {
             (j < RESERVOIR).then_some(j)
         };
         for (i, v) in values.enumerate().take(self.reservoirs.len()) {
+            let reservoir = &mut self.reservoirs[i];
             match slot {
-                Some(s) if s == self.reservoirs[i].len() => self.reservoirs[i].push(v),
-                Some(s) => self.reservoirs[i][s] = v,
+                Some(s) if s == reservoir.len() => reservoir.push(v),
+                Some(s) => {
+                    // (Past the end only in a reservoir read from an altered checkpoint.)
+                    if let Some(kept) = reservoir.get_mut(s) {
+                        *kept = v;
+                    }
+                }
                 None => {}
             }
         }
@@ -586,18 +657,7 @@ mod trimmed {
 
         /// The counts of a span: decimal numbers, space-separated.
         fn visit_str<E: serde::de::Error>(self, text: &str) -> Result<Stored, E> {
-            let mut counts = Vec::new();
-            for word in text.split_ascii_whitespace() {
-                if counts.len() == MAX_BINS {
-                    return Err(E::custom(format!(
-                        "a histogram of more than {MAX_BINS} bins"
-                    )));
-                }
-                let count = parse_count(word.as_bytes())
-                    .ok_or_else(|| E::custom(format!("a histogram count {word:?}")))?;
-                counts.push(count);
-            }
-            Ok(Stored(counts))
+            parse_counts(text).map(Stored).map_err(E::custom)
         }
 
         fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Stored, A::Error> {
@@ -641,18 +701,42 @@ mod trimmed {
         }
     }
 
-    /// A count as `u64::from_str` reads it (decimal digits, a `+` before them allowed, no
-    /// overflow), digit by digit: an episodes table holds thousands of them per episode.
-    pub(super) fn parse_count(word: &[u8]) -> Option<u64> {
-        let digits = word.strip_prefix(b"+").unwrap_or(word);
-        if digits.is_empty() {
-            return None;
+    /// The counts of a span's text as `split_ascii_whitespace` and `u64::from_str` read them
+    /// (decimal digits, a `+` before them allowed, no overflow), in one pass over the bytes:
+    /// an episodes table holds thousands of them per episode. At most [`MAX_BINS`] counts.
+    pub(super) fn parse_counts(text: &str) -> Result<Vec<u64>, String> {
+        let bytes = text.as_bytes();
+        let mut counts = Vec::with_capacity((bytes.len() / 2 + 1).min(MAX_BINS));
+        let mut at = 0;
+        while at < bytes.len() {
+            if bytes[at].is_ascii_whitespace() {
+                at += 1;
+                continue;
+            }
+            let start = at;
+            if bytes[at] == b'+' {
+                at += 1;
+            }
+            let digits = at;
+            let mut count = Some(0u64);
+            while let Some(&b) = bytes.get(at).filter(|b| b.is_ascii_digit()) {
+                count = count.and_then(|n| n.checked_mul(10)?.checked_add(u64::from(b - b'0')));
+                at += 1;
+            }
+            let ends = bytes.get(at).is_none_or(u8::is_ascii_whitespace);
+            let (Some(count), true, true) = (count, at > digits, ends) else {
+                let end = (bytes[start..].iter())
+                    .position(u8::is_ascii_whitespace)
+                    .map_or(bytes.len(), |n| start + n);
+                let word = String::from_utf8_lossy(&bytes[start..end]);
+                return Err(format!("a histogram count {word:?}"));
+            };
+            if counts.len() == MAX_BINS {
+                return Err(format!("a histogram of more than {MAX_BINS} bins"));
+            }
+            counts.push(count);
         }
-        digits.iter().try_fold(0u64, |n, &b| {
-            b.is_ascii_digit()
-                .then(|| n.checked_mul(10)?.checked_add(u64::from(b - b'0')))
-                .flatten()
-        })
+        Ok(counts)
     }
 
     pub(super) fn serialize<S: Serializer>(
@@ -685,6 +769,93 @@ mod trimmed {
     pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<u64>>, D::Error> {
         let stored = Vec::<Stored>::deserialize(d)?;
         Ok(stored.into_iter().map(|Stored(counts)| counts).collect())
+    }
+}
+
+/// A checkpoint's reservoirs of float32 values: each one string of the values' bits, 8 hex
+/// digits a value (written and read several times faster than decimal numbers, and exact for
+/// every value, NaN included). A list of numbers (what surgvla wrote before) reads too.
+mod f32_bits {
+    use serde::{Deserializer, Serializer};
+
+    const HEX: &[u8; 16] = b"0123456789abcdef";
+
+    pub(super) fn serialize<S: Serializer>(
+        reservoirs: &[Vec<f32>],
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        s.collect_seq(reservoirs.iter().map(|values| {
+            let mut text = Vec::with_capacity(values.len() * 8);
+            for v in values {
+                let bits = v.to_bits();
+                text.extend((0..8).rev().map(|k| HEX[(bits >> (4 * k)) as usize & 15]));
+            }
+            // Hex digits are ASCII.
+            String::from_utf8(text).unwrap_or_default()
+        }))
+    }
+
+    /// One reservoir's values from its hex text.
+    pub(super) fn parse(text: &str) -> Result<Vec<f32>, String> {
+        let bytes = text.as_bytes();
+        if !bytes.len().is_multiple_of(8) {
+            return Err(format!(
+                "a reservoir of {} hex digits (not 8 a value)",
+                bytes.len()
+            ));
+        }
+        (bytes.chunks_exact(8))
+            .map(|digits| {
+                let bits = digits.iter().try_fold(0u32, |bits, &d| {
+                    Some(bits << 4 | char::from(d).to_digit(16)?)
+                });
+                bits.map(f32::from_bits).ok_or_else(|| {
+                    format!("a reservoir value {:?}", String::from_utf8_lossy(digits))
+                })
+            })
+            .collect()
+    }
+
+    struct Reservoir(Vec<f32>);
+
+    impl<'de> serde::Deserialize<'de> for Reservoir {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            d.deserialize_any(ReservoirVisitor)
+        }
+    }
+
+    struct ReservoirVisitor;
+
+    impl<'de> serde::de::Visitor<'de> for ReservoirVisitor {
+        type Value = Reservoir;
+
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("a reservoir: float32 bits in hex, or a list of numbers")
+        }
+
+        fn visit_str<E: serde::de::Error>(self, text: &str) -> Result<Reservoir, E> {
+            parse(text).map(Reservoir).map_err(E::custom)
+        }
+
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(
+            self,
+            mut seq: A,
+        ) -> Result<Reservoir, A::Error> {
+            let hint = seq
+                .size_hint()
+                .unwrap_or(0)
+                .min(crate::export::stats::RESERVOIR);
+            let mut values = Vec::with_capacity(hint);
+            while let Some(v) = seq.next_element::<f32>()? {
+                values.push(v);
+            }
+            Ok(Reservoir(values))
+        }
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<f32>>, D::Error> {
+        let stored = <Vec<Reservoir> as serde::Deserialize>::deserialize(d)?;
+        Ok(stored.into_iter().map(|Reservoir(values)| values).collect())
     }
 }
 
@@ -948,13 +1119,14 @@ mod tests {
     /// (edge cases and seeded random words).
     #[test]
     fn histogram_counts_read_as_the_standard_parser_reads_them() {
-        let mut words: Vec<String> = [
+        let mut texts: Vec<String> = [
             "0",
             "7",
             "+7",
             "-7",
             "+",
             "",
+            "   ",
             "00012",
             "18446744073709551615",
             "18446744073709551616",
@@ -962,26 +1134,126 @@ mod tests {
             "1e3",
             "1.0",
             " 1",
-            "١",
+            "1 2\t3\n4\r5\x0c6",
+            "1  +2 ",
+            "++7",
+            "7+",
+            "\u{661}",
+            "1 \u{a0}2",
         ]
         .map(String::from)
         .to_vec();
         let mut rng = crate::rng::SplitMix64::new(3);
-        let alphabet = b"0123456789+-. x";
-        for _ in 0..2_000 {
-            let len = (rng.next_u64() % 22) as usize;
-            let word = (0..len)
+        let alphabet = b"0123456789+-. x\t\n";
+        for _ in 0..4_000 {
+            let len = (rng.next_u64() % 40) as usize;
+            let text = (0..len)
                 .map(|_| alphabet[(rng.next_u64() % alphabet.len() as u64) as usize] as char)
                 .collect();
-            words.push(word);
+            texts.push(text);
         }
-        for word in &words {
-            assert_eq!(
-                trimmed::parse_count(word.as_bytes()),
-                word.parse::<u64>().ok(),
-                "{word:?}"
+        // Long valid spans too (most random words are not counts).
+        for _ in 0..200 {
+            let len = (rng.next_u64() % 300) as usize;
+            let text: Vec<String> = (0..len)
+                .map(|_| (rng.next_u64() >> (rng.next_u64() % 64)).to_string())
+                .collect();
+            texts.push(text.join(" "));
+        }
+        let mut valid = 0;
+        for text in &texts {
+            let standard: Result<Vec<u64>, _> = text
+                .split_ascii_whitespace()
+                .map(str::parse::<u64>)
+                .collect();
+            let ours = trimmed::parse_counts(text);
+            assert_eq!(ours.as_ref().ok(), standard.as_ref().ok(), "{text:?}");
+            if let Err(message) = ours {
+                let bad = (text.split_ascii_whitespace())
+                    .find(|w| w.parse::<u64>().is_err())
+                    .expect("a bad word");
+                assert!(
+                    message.contains(&format!("{bad:?}")),
+                    "{message} for {text:?}"
+                );
+            } else {
+                valid += 1;
+            }
+        }
+        assert!(valid > 300, "{valid} valid texts of {}", texts.len());
+        let too_many = vec!["1"; trimmed::MAX_BINS + 1].join(" ");
+        assert!(trimmed::parse_counts(&too_many).is_err());
+        assert_eq!(
+            trimmed::parse_counts(&too_many[2..]).map(|c| c.len()),
+            Ok(trimmed::MAX_BINS)
+        );
+    }
+
+    /// A checkpoint's reservoirs come back bit for bit (NaN, infinities, -0 and subnormals
+    /// included), from the hex form and from the list of numbers written before; a damaged
+    /// hex text is refused, and an altered reservoir never panics a merge.
+    #[test]
+    fn reservoirs_round_trip_through_a_checkpoint_bit_for_bit() {
+        let mut rng = crate::rng::SplitMix64::new(11);
+        let mut stats = VectorStats::new(3);
+        let specials = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -0.0,
+            f32::MIN_POSITIVE / 4.0,
+        ];
+        for k in 0..12_000 {
+            let v = f32::from_bits(rng.next_u64() as u32);
+            let special = specials[k % specials.len()];
+            stats.push(&[v, special, k as f32 * 0.25]);
+        }
+        let text = serde_json::to_string(&stats).expect("write");
+        let back: VectorStats = serde_json::from_str(&text).expect("read");
+        let bits = |s: &VectorStats| -> Vec<Vec<u32>> {
+            (s.reservoirs.iter())
+                .map(|r| r.iter().map(|v| v.to_bits()).collect())
+                .collect()
+        };
+        assert_eq!(bits(&back), bits(&stats));
+        assert_eq!(back.reservoirs[0].len(), RESERVOIR);
+        assert_eq!(back.seen, stats.seen);
+        // Running sums with NaN and infinities, and an empty series' infinite bounds.
+        let running = |s: &VectorStats| -> Vec<[u64; 5]> {
+            (s.running.iter())
+                .map(|r| {
+                    let b = |v: f64| if v.is_nan() { u64::MAX } else { v.to_bits() };
+                    [r.count, b(r.sum), b(r.sum_sq), b(r.min), b(r.max)]
+                })
+                .collect()
+        };
+        assert_eq!(running(&back), running(&stats));
+        assert!(back.running[1].sum.is_nan());
+        let empty = VectorStats::new(2);
+        let read: VectorStats =
+            serde_json::from_str(&serde_json::to_string(&empty).expect("write")).expect("read");
+        assert_eq!(running(&read), running(&empty));
+        assert_eq!(read.running[0].min, f64::INFINITY);
+        // The list of numbers written before.
+        let mut old = serde_json::to_value(&stats).expect("value");
+        old["reservoirs"] = serde_json::json!([[1.5, -2.0], [0.0, 3.25], [7.0, 8.0]]);
+        let read: VectorStats = serde_json::from_value(old.clone()).expect("read");
+        assert_eq!(read.reservoirs[1], vec![0.0, 3.25]);
+        for bad in ["3fc0000", "3fc0000g", "+fc00000"] {
+            old["reservoirs"] = serde_json::json!([bad, "", ""]);
+            assert!(
+                serde_json::from_value::<VectorStats>(old.clone()).is_err(),
+                "{bad}"
             );
         }
+        // Reservoirs of unequal length (an altered checkpoint) merge without a panic.
+        old["reservoirs"] = serde_json::json!([[1.0], [], [2.0, 3.0]]);
+        let altered: VectorStats = serde_json::from_value(old).expect("read");
+        let mut total = VectorStats::new(3);
+        total.merge(&altered);
+        total.merge(&stats);
+        let mut again = altered.clone();
+        again.merge(&stats);
     }
 
     #[test]

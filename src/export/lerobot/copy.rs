@@ -167,9 +167,9 @@ impl DataFile {
         let buffered = self.writer.into_inner()?;
         let summed = (buffered.into_inner())
             .map_err(|e| ParquetError::External(Box::new(e.into_error())))?;
-        let sums = summed.sums();
-        (summed.into_inner().finish()).map_err(|e| ParquetError::External(Box::new(e)))?;
-        Ok(sums)
+        summed
+            .finish()
+            .map_err(|e| ParquetError::External(Box::new(e)))
     }
 
     /// Appends `batch` as a row group of its own, encoded (the bytes `ArrowWriter::write` and

@@ -252,12 +252,19 @@ impl EpisodeWork<'_> {
     /// `stats` (an episode's, per feature) as its row of the episodes table records them.
     pub(super) fn row_stats(&self, stats: &EpisodeStats) -> RowStats {
         (stats.iter())
-            .map(|(name, stats)| {
-                let keeps_pixels = self.info.is_ours()
-                    && keeps_pixel_stats(self.video_features, self.parquet_features, name);
-                row_entry(stats, self.info.is_text(name), keeps_pixels)
-            })
+            .map(|(name, stats)| self.row_entry(name, stats))
             .collect()
+    }
+
+    /// Feature `name`'s entry of [`RowStats`].
+    pub(super) fn row_entry(
+        &self,
+        name: &str,
+        stats: &FeatureStats,
+    ) -> (Option<FeatureStatsJson>, Option<serde_json::Value>) {
+        let keeps_pixels = self.info.is_ours()
+            && keeps_pixel_stats(self.video_features, self.parquet_features, name);
+        row_entry(stats, self.info.is_text(name), keeps_pixels)
     }
 
     /// Each feature's kind when its values are in the steps; `None` for a feature whose pixels
@@ -310,6 +317,16 @@ impl EpisodeWork<'_> {
     }
 }
 
+/// Per feature of `stats`, the empty pixel-count histograms of its images (none for others).
+fn empty_histograms(stats: &EpisodeStats) -> Vec<Vec<Vec<u64>>> {
+    (stats.iter())
+        .map(|(_, s)| match s {
+            FeatureStats::Image(s) => s.empty_histograms(),
+            _ => Vec::new(),
+        })
+        .collect()
+}
+
 /// Folds `steps` into `total` (per feature): frames in chunks (in parallel when `parallel`),
 /// each frame's statistics on their own (their sums folded in frame order, so the result does
 /// not depend on the thread count), its images' pixel counts into its chunk's histograms
@@ -322,12 +339,7 @@ fn fold_in_chunks(
 ) {
     let shape = &*total;
     let chunk_stats = |chunk: &[Step]| {
-        let mut histograms: Vec<Vec<Vec<u64>>> = (shape.iter())
-            .map(|(_, s)| match s {
-                FeatureStats::Image(s) => s.empty_histograms(),
-                _ => Vec::new(),
-            })
-            .collect();
+        let mut histograms = empty_histograms(shape);
         let mut last = vec![LastFrame::default(); shape.len()];
         let frames = (chunk.iter())
             .map(|step| frame_stats(shape, kinds, step, &mut histograms, &mut last))
@@ -592,6 +604,7 @@ impl OpenEpisode {
 pub(super) struct StatsFold {
     kinds: Vec<Option<FeatureKind>>,
     total: EpisodeStats,
+    /// Per feature, the pixel counts of its images (empty until a frame is pushed).
     histograms: Vec<Vec<Vec<u64>>>,
     /// Per feature, the last frame's pixels and counts.
     last: Vec<LastFrame>,
@@ -606,6 +619,11 @@ impl StatsFold {
     pub(super) fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
         let mut total = fresh_feature_stats(&work.info.features);
         let carried = episode.map(|episode| skip_carried(&work.info.features, episode, &mut total));
+        for (_, stats) in &mut total {
+            if let (FeatureStats::Vector(stats), Some(episode)) = (stats, episode) {
+                stats.reserve(episode.steps.len());
+            }
+        }
         StatsFold::of(work.step_kinds(), total, carried)
     }
 
@@ -615,18 +633,11 @@ impl StatsFold {
         total: EpisodeStats,
         carried: Option<Vec<Option<ImageStats>>>,
     ) -> Self {
-        let histograms = total
-            .iter()
-            .map(|(_, s)| match s {
-                FeatureStats::Image(s) => s.empty_histograms(),
-                _ => Vec::new(),
-            })
-            .collect();
         StatsFold {
             kinds,
             last: vec![LastFrame::default(); total.len()],
             total,
-            histograms,
+            histograms: Vec::new(),
             carried,
         }
     }
@@ -639,6 +650,10 @@ impl StatsFold {
     }
 
     pub(super) fn push(&mut self, step: &Step) {
+        // (Made at the first frame: a fold whose frames are counted in chunks has none.)
+        if self.histograms.is_empty() {
+            self.histograms = empty_histograms(&self.total);
+        }
         fold_frame(
             &mut self.total,
             &self.kinds,

@@ -7,7 +7,7 @@ use super::meta::{FeatureStatsJson, StatsJson};
 use super::options::{CODEBASE_VERSION, LeRobotOptions, VideoOptions};
 use super::table::{DEFAULT_COLUMNS, Provenance, frame_schema};
 use super::table::{EpisodeRow, KeyedSpan, VideoSpan, default_columns, frame_batch};
-use super::work::{EpisodeStats, EpisodeWork, RowStats, fresh_stats, keeps_pixel_stats, row_entry};
+use super::work::{EpisodeStats, EpisodeWork, RowStats, fresh_stats};
 use crate::episode::{Dtype, Episode, FeatureKind, FeatureSpec, VideoCodec};
 use crate::export::dir::RunOptions;
 use crate::export::dir::{Checksummed, DatasetDir, FileCounter, PendingFile, WrittenBehind};
@@ -552,9 +552,8 @@ impl LeRobotFiles {
 
     fn close_videos(&mut self, dir: &mut DatasetDir) -> Result<(), ExportError> {
         for video in std::mem::take(&mut self.videos) {
-            let summed = video.mp4.finish()?;
-            let sums = summed.sums();
-            (summed.into_inner().finish()).map_err(ExportError::io(&video.pending.path))?;
+            let sums =
+                (video.mp4.finish()?.finish()).map_err(ExportError::io(&video.pending.path))?;
             self.state.summary.bytes += dir.commit_summed(video.pending, sums)?;
             self.state.summary.files += 1;
         }
@@ -774,15 +773,14 @@ impl LeRobotFiles {
         let mut stats_json = StatsJson::new();
         let mut pixel_stats = Vec::new();
         let made = made.into_iter().flatten().map(Some);
-        let totals = (self.state.stats.iter_mut())
+        // (Taken out while this writer lends itself to the entries' work.)
+        let mut totals = std::mem::take(&mut self.state.stats);
+        let work = self.work(info);
+        let folded = (totals.iter_mut())
             .zip(episode_stats)
             .zip(made.chain(std::iter::repeat_with(|| None)));
-        for (((name, total), (_, this)), made) in totals {
-            let (json, exact) = made.unwrap_or_else(|| {
-                let keeps_pixels = info.is_ours()
-                    && keeps_pixel_stats(&self.video_features, &self.parquet_features, name);
-                row_entry(&this, info.is_text(name), keeps_pixels)
-            });
+        for (((name, total), (_, this)), made) in folded {
+            let (json, exact) = made.unwrap_or_else(|| work.row_entry(name, &this));
             if let Some(exact) = exact {
                 pixel_stats.push((name.clone(), exact));
             }
@@ -791,6 +789,7 @@ impl LeRobotFiles {
             }
             total.merge(&this);
         }
+        self.state.stats = totals;
         (stats_json, pixel_stats)
     }
 
