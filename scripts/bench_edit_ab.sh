@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Two builds of surgvla timed side by side on issue 48's edits, interleaved (this VM's steal
+# time moves single runs by up to 10 %): each round runs the 40 % drop with every binary, then
+# `cp -r` of the first binary's result, and the same `cp -r` followed by `sync` (the kept bytes
+# on disk, as the edit leaves them: it syncs what it writes); then, with `split`, the 80/10/10
+# split with every binary. Prints each run and the means (wall seconds, task-clock ms with
+# `perf` installed). Figures go to BENCHMARKS.md by hand.
+#
+#   scripts/bench_edit_ab.sh DATASET_AV1 ROUNDS OLD_BINARY NEW_BINARY [split]
+#
+# DATASET_AV1: the input scripts/bench_edit.sh makes (the default dataset in AV1 video mode).
+set -euo pipefail
+if [ "$#" -lt 4 ]; then
+    sed -n '2,11p' "$0" >&2
+    exit 2
+fi
+input="$1" rounds="$2" old="$3" new="$4" split="${5:-}"
+work="$(mktemp -d "${TMPDIR:-/tmp}/surgvla-edit-ab.XXXXXX")"
+trap 'rm -rf "${work}"' EXIT
+episodes="$(python3 -c "import json; print(json.load(open('${input}/meta/info.json'))['total_episodes'])")"
+drop="$(python3 -c "print(','.join(str(i) for i in range(${episodes}) if i % 5 in (1, 3)))")"
+
+timed() { # LABEL COMMAND... -> "LABEL wall S cpu MS"
+    local label="$1"
+    shift
+    local cpu=""
+    if command -v perf > /dev/null; then
+        perf stat -x, -e task-clock -o "${work}/stat" /usr/bin/time -f "%e" -o "${work}/wall" \
+            "$@" > /dev/null 2>&1 || { echo "failed: $*" >&2; exit 1; }
+        cpu="$(grep task-clock "${work}/stat" | cut -d, -f1)"
+    else
+        /usr/bin/time -f "%e" -o "${work}/wall" "$@" > /dev/null 2>&1 ||
+            { echo "failed: $*" >&2; exit 1; }
+    fi
+    echo "${label} wall $(cat "${work}/wall") cpu ${cpu:-0}"
+}
+
+for _ in $(seq "${rounds}"); do
+    for binary in old new; do
+        rm -rf "${work}/drop-${binary}"
+        sync
+        path="${old}"
+        [ "${binary}" = new ] && path="${new}"
+        timed "drop-${binary}" "${path}" edit "${input}" --drop "${drop}" --out "${work}/drop-${binary}"
+    done
+    rm -rf "${work}/copy"
+    sync
+    timed "cp" cp -r "${work}/drop-old" "${work}/copy"
+    rm -rf "${work}/copy"
+    sync
+    timed "cp+sync" sh -c "cp -r '${work}/drop-old' '${work}/copy' && sync"
+    if [ "${split}" = split ]; then
+        for binary in old new; do
+            rm -rf "${work}/split-${binary}"
+            sync
+            path="${old}"
+            [ "${binary}" = new ] && path="${new}"
+            timed "split-${binary}" "${path}" edit "${input}" \
+                --split train=0.8,val=0.1,test=0.1 --out "${work}/split-${binary}"
+        done
+    fi
+done | tee "${work}/runs" | sort | awk '
+    { print; wall[$1] += $3; cpu[$1] += $5; n[$1]++ }
+    END { for (k in wall) printf "MEAN %-10s wall %.3f s  cpu %.0f ms  (%d runs)\n", k, wall[k] / n[k], cpu[k] / n[k], n[k] }'
