@@ -175,15 +175,15 @@ impl DataFile {
     /// Appends `batch` as a row group of its own, encoded (the bytes `ArrowWriter::write` and
     /// `flush` give).
     pub(super) fn write_batch(&mut self, batch: &RecordBatch) -> Result<(), ParquetError> {
-        let columns: Vec<Option<&ArrayRef>> = batch.columns().iter().map(Some).collect();
-        let chunks = self.encode(&columns)?;
-        self.append(
-            chunks
-                .into_iter()
-                .map(|c| c.map(|c| Chunk::Encoded(Box::new(c))))
-                .collect(),
-            None,
-        )
+        write_group(
+            &mut self.writer,
+            &self.factory,
+            &self.schema,
+            batch,
+            self.groups,
+        )?;
+        self.groups += 1;
+        Ok(())
     }
 
     /// Appends `stored`'s row group, its columns named as `rows` says: the default columns
@@ -241,37 +241,6 @@ impl DataFile {
         self.append(chunks, Some(&region))
     }
 
-    /// Each of `columns` (one per field; None: not encoded here) encoded as its leaves'
-    /// chunks (None for a field's leaves not encoded).
-    fn encode(
-        &mut self,
-        columns: &[Option<&ArrayRef>],
-    ) -> Result<Vec<Option<parquet::arrow::arrow_writer::ArrowColumnChunk>>, ParquetError> {
-        let mut writers = self.factory.create_column_writers(self.groups)?.into_iter();
-        let mut chunks = Vec::new();
-        for (field, column) in self.schema.fields().iter().zip(columns) {
-            let leaves: Vec<Option<parquet::arrow::arrow_writer::ArrowLeafColumn>> = match column {
-                Some(column) => compute_leaves(field, column)?
-                    .into_iter()
-                    .map(Some)
-                    .collect(),
-                None => (0..leaf_count(field.data_type())).map(|_| None).collect(),
-            };
-            for leaf in leaves {
-                let mut writer = (writers.next())
-                    .ok_or_else(|| ParquetError::General("more leaves than columns".into()))?;
-                chunks.push(match leaf {
-                    Some(leaf) => {
-                        writer.write(&leaf)?;
-                        Some(writer.close()?)
-                    }
-                    None => None,
-                });
-            }
-        }
-        Ok(chunks)
-    }
-
     /// Appends one row group of `chunks` (every leaf's, in order); copied ones are read from
     /// `input`.
     fn append(
@@ -291,6 +260,44 @@ impl DataFile {
         self.groups += 1;
         Ok(())
     }
+}
+
+/// Appends `batch` as row group `group` of a file of `schema`, its columns encoded in parallel
+/// (the episodes table has hundreds of small ones): the bytes `ArrowWriter::write` and `flush`
+/// give.
+pub(super) fn write_group<W: std::io::Write + Send>(
+    writer: &mut parquet::file::writer::SerializedFileWriter<W>,
+    factory: &ArrowRowGroupWriterFactory,
+    schema: &arrow_schema::Schema,
+    batch: &RecordBatch,
+    group: usize,
+) -> Result<(), ParquetError> {
+    use rayon::prelude::*;
+    let mut leaves = Vec::new();
+    for (field, column) in schema.fields().iter().zip(batch.columns()) {
+        leaves.extend(compute_leaves(field, column)?);
+    }
+    let columns = factory.create_column_writers(group)?;
+    if columns.len() != leaves.len() {
+        return Err(ParquetError::General(format!(
+            "{} leaves for {} columns",
+            leaves.len(),
+            columns.len()
+        )));
+    }
+    let chunks = (columns.into_par_iter())
+        .zip(leaves)
+        .map(|(mut column, leaf)| {
+            column.write(&leaf)?;
+            column.close()
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut row_group = writer.next_row_group()?;
+    for chunk in chunks {
+        chunk.append_to_row_group(&mut row_group)?;
+    }
+    row_group.close()?;
+    Ok(())
 }
 
 /// The bytes of a row group's copied chunks, read in one go (the parquet writer asks for each

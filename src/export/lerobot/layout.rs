@@ -10,13 +10,13 @@
 //! meta/stats.json, meta/surgvla.json, meta/info.json (last) in both
 //! ```
 
+use super::copy::write_group;
 use super::meta::StatsJson;
 use super::options::LeRobotVersion;
 use super::table::{EpisodeRow, episodes_batch, tasks_batch};
 use crate::export::dir::{DatasetDir, FileCounter};
 use crate::export::error::ExportError;
 use parquet::arrow::ArrowWriter;
-use parquet::arrow::arrow_writer::{ArrowRowGroupWriterFactory, compute_leaves};
 use parquet::basic::Compression;
 use parquet::file::properties::WriterProperties;
 use serde_json::{Value, json};
@@ -213,15 +213,16 @@ fn write_episodes_parquet(
     };
     // The first batch (empty when there are no episodes) gives the schema.
     let mut batch = next_batch()?;
+    let schema = batch.schema();
     let writer =
-        ArrowWriter::try_new(file, batch.schema(), Some(snappy())).map_err(&parquet_error)?;
+        ArrowWriter::try_new(file, schema.clone(), Some(snappy())).map_err(&parquet_error)?;
     let (mut writer, factory) = writer.into_serialized_writer().map_err(&parquet_error)?;
     let mut groups = 0;
     loop {
         let last = batch.num_rows() < ROWS_PER_GROUP;
         // The next batch is made while this one is written.
         let (written, next) = rayon::join(
-            || write_group(&mut writer, &factory, &batch, groups),
+            || write_group(&mut writer, &factory, &schema, &batch, groups),
             || (!last).then(&mut next_batch).transpose(),
         );
         written.map_err(&parquet_error)?;
@@ -233,42 +234,6 @@ fn write_episodes_parquet(
     }
     writer.close().map_err(&parquet_error)?;
     dir.commit(pending)
-}
-
-/// Appends `batch` as row group `group`, its columns encoded in parallel (the episodes table
-/// has hundreds of small ones): the bytes `ArrowWriter::write` and `flush` give.
-fn write_group<W: Write + Send>(
-    writer: &mut parquet::file::writer::SerializedFileWriter<W>,
-    factory: &ArrowRowGroupWriterFactory,
-    batch: &arrow_array::RecordBatch,
-    group: usize,
-) -> Result<(), parquet::errors::ParquetError> {
-    use rayon::prelude::*;
-    let mut leaves = Vec::new();
-    for (field, column) in batch.schema().fields().iter().zip(batch.columns()) {
-        leaves.extend(compute_leaves(field, column)?);
-    }
-    let columns = factory.create_column_writers(group)?;
-    if columns.len() != leaves.len() {
-        return Err(parquet::errors::ParquetError::General(format!(
-            "{} leaves for {} columns",
-            leaves.len(),
-            columns.len()
-        )));
-    }
-    let chunks = (columns.into_par_iter())
-        .zip(leaves)
-        .map(|(mut column, leaf)| {
-            column.write(&leaf)?;
-            column.close()
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut row_group = writer.next_row_group()?;
-    for chunk in chunks {
-        chunk.append_to_row_group(&mut row_group)?;
-    }
-    row_group.close()?;
-    Ok(())
 }
 
 /// v2.1's `episodes.jsonl` and `episodes_stats.jsonl`, one line per episode, in one pass.

@@ -349,23 +349,12 @@ impl FeatureStatsJson {
         };
         let mut stats = FeatureStatsJson::default();
         for (key, value) in entries {
-            let slot = match key.as_str() {
-                "min" => &mut stats.min,
-                "max" => &mut stats.max,
-                "mean" => &mut stats.mean,
-                "std" => &mut stats.std,
-                "count" => &mut stats.count,
-                "q01" => &mut stats.q01,
-                "q10" => &mut stats.q10,
-                "q50" => &mut stats.q50,
-                "q90" => &mut stats.q90,
-                "q99" => &mut stats.q99,
-                _ => {
+            match stats.slot(&key) {
+                Some(slot) => *slot = serde_json::from_value(value).ok(),
+                None => {
                     stats.other.insert(key, value);
-                    continue;
                 }
-            };
-            *slot = serde_json::from_value(value).ok();
+            }
         }
         stats
     }
@@ -396,9 +385,9 @@ impl FeatureStatsJson {
             .find_map(|(n, v)| (n == name).then_some(v))
     }
 
-    /// Sets the statistic `name` (an unknown name goes to `other`).
-    pub fn set(&mut self, name: &str, value: StatValue) {
-        let slot = match name {
+    /// The field of the statistic called `name`, if this model names it.
+    fn slot(&mut self, name: &str) -> Option<&mut Option<StatValue>> {
+        Some(match name {
             "min" => &mut self.min,
             "max" => &mut self.max,
             "mean" => &mut self.mean,
@@ -409,15 +398,21 @@ impl FeatureStatsJson {
             "q50" => &mut self.q50,
             "q90" => &mut self.q90,
             "q99" => &mut self.q99,
-            _ => {
+            _ => return None,
+        })
+    }
+
+    /// Sets the statistic `name` (an unknown name goes to `other`).
+    pub fn set(&mut self, name: &str, value: StatValue) {
+        match self.slot(name) {
+            Some(slot) => *slot = Some(value),
+            None => {
                 self.other.insert(
                     name.to_string(),
                     serde_json::to_value(&value).unwrap_or(Value::Null),
                 );
-                return;
             }
-        };
-        *slot = Some(value);
+        }
     }
 }
 
