@@ -6,9 +6,9 @@
 use crate::episode::{Episode, FeatureKind, ImageEncoding, MAX_OBJECTS, POSE_VALUES};
 use crate::error::ErrorKind;
 use crate::export::error::ExportError;
-use crate::export::pipeline::{Episodes, in_order};
+use crate::export::pipeline::{Episodes, in_order, in_order_prepared};
 use crate::export::sink::EpisodeSink;
-use crate::export::sink::{Sidecar, Summary};
+use crate::export::sink::{Pipelined, Sidecar, Summary};
 use crate::export::source::{EpisodePart, EpisodeSource};
 
 /// Which side of a conversion failed.
@@ -95,13 +95,32 @@ fn copy(
         return sink.finish_with(sidecar).map_err(ConvertError::Write);
     }
     let mut episodes = Episodes::of(vec![source]).skipping(skip);
-    let mut write = |mut batch: Vec<Episode>| {
-        for episode in &mut batch {
-            episode.encoded.retain(|e| !unused.contains(&e.encoding));
-        }
-        sink.write_batch(&batch).map_err(ConvertError::Write)
+    let keep_used = |mut episode: Episode| {
+        episode.encoded.retain(|e| !unused.contains(&e.encoding));
+        episode
     };
-    in_order(&mut episodes, ConvertError::Read, &mut write, progress)?;
+    if let Some(Pipelined { encoder, sink }) = sink.pipelined() {
+        // Each batch is read and encoded while the one before is appended.
+        let prepare = |episode: Episode| {
+            let episode = keep_used(episode);
+            let encoded = encoder.encode(&episode).map_err(ConvertError::Write)?;
+            Ok((episode, encoded))
+        };
+        let mut append = |batch| sink.write_encoded(batch).map_err(ConvertError::Write);
+        in_order_prepared(
+            &mut episodes,
+            ConvertError::Read,
+            &prepare,
+            &mut append,
+            progress,
+        )?;
+    } else {
+        let mut write = |batch: Vec<Episode>| {
+            let batch: Vec<Episode> = batch.into_iter().map(keep_used).collect();
+            sink.write_batch(&batch).map_err(ConvertError::Write)
+        };
+        in_order(&mut episodes, ConvertError::Read, &mut write, progress)?;
+    }
     sink.finish_with(sidecar).map_err(ConvertError::Write)
 }
 

@@ -4,6 +4,8 @@
 //! consumer in batches of one episode per worker thread of the current pool, reading the next
 //! batch while the consumer works on this one (reading is partly serial: parquet rows, image
 //! decoding), so batches arrive in order and the output is as if episodes went one by one.
+//! [`in_order_prepared`] also prepares each episode read on the reading side (`convert` into a
+//! sink with a detached encoder encodes there, and the consuming thread only appends).
 
 use crate::episode::Episode;
 use crate::export::error::ExportError;
@@ -91,15 +93,39 @@ pub fn in_order<E: Send>(
     consume: &mut (dyn FnMut(Vec<Episode>) -> Result<(), E> + Send),
     progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<(), E> {
+    in_order_prepared(episodes, read_error, &Ok, consume, progress)
+}
+
+/// [`in_order`], each episode read handed to `prepare` on the reading side, the batch's
+/// episodes in parallel (a sink's detached encoder: the thread that consumes then only
+/// appends, while the next batch is read and encoded). An error of `prepare` stops the pass
+/// as a read error does.
+pub fn in_order_prepared<T: Send, E: Send>(
+    episodes: &mut Episodes<'_>,
+    read_error: impl Fn(ExportError) -> E,
+    prepare: &(dyn Fn(Episode) -> Result<T, E> + Sync),
+    consume: &mut (dyn FnMut(Vec<T>) -> Result<(), E> + Send),
+    progress: &mut (dyn FnMut(u64) + Send),
+) -> Result<(), E> {
+    use rayon::prelude::*;
     let size = rayon::current_num_threads().max(1);
-    let mut next = episodes.next_batch(size).map_err(&read_error)?;
+    // (A read error is made the caller's on this thread: `read_error` need not be `Sync`.)
+    let read = |episodes: &mut Episodes<'_>| -> Result<Result<Vec<T>, E>, ExportError> {
+        let batch = episodes.next_batch(size)?;
+        Ok(if batch.len() < 2 {
+            batch.into_iter().map(prepare).collect()
+        } else {
+            batch.into_par_iter().map(prepare).collect()
+        })
+    };
+    let mut next = read(episodes).map_err(&read_error)??;
     while !next.is_empty() {
         let batch = std::mem::take(&mut next);
         let read_through = episodes.read;
-        let (consumed, read) = rayon::join(|| consume(batch), || episodes.next_batch(size));
+        let (consumed, read) = rayon::join(|| consume(batch), || read(episodes));
         consumed?;
         progress(read_through);
-        next = read.map_err(&read_error)?;
+        next = read.map_err(&read_error)??;
     }
     progress(episodes.read);
     Ok(())
@@ -239,5 +265,38 @@ mod tests {
         });
         assert!(result.expect_err("broken").contains("broken"));
         assert_eq!(consumed, [0, 1, 2, 3], "the batches before the error");
+    }
+
+    #[test]
+    fn prepared_episodes_arrive_in_order_and_a_prepare_error_stops_after_the_batches_before() {
+        for threads in 1..=3 {
+            let pool = crate::threads::pool(threads).expect("pool");
+            let mut source = numbers(0, 9, None);
+            let (mut consumed, mut heard) = (Vec::new(), Vec::new());
+            let result = pool.install(|| {
+                in_order_prepared(
+                    &mut Episodes::of(vec![&mut source]),
+                    |e| e.to_string(),
+                    &|episode| match episode.meta.index {
+                        7 => Err("unpreparable 7".to_string()),
+                        i => Ok(i * 10),
+                    },
+                    &mut |batch| {
+                        consumed.extend(batch);
+                        Ok(())
+                    },
+                    &mut |read| heard.push(read),
+                )
+            });
+            assert_eq!(
+                result,
+                Err("unpreparable 7".to_string()),
+                "{threads} threads"
+            );
+            let before = 7 - 7 % threads as u64;
+            let expected: Vec<u64> = (0..before).map(|i| i * 10).collect();
+            assert_eq!(consumed, expected, "{threads} threads");
+            assert_eq!(heard.last().copied().unwrap_or(0), before);
+        }
     }
 }

@@ -1,7 +1,8 @@
 //! What a format's writer is to its callers: [`EpisodeSink`] (consecutive episodes in, a
-//! [`Summary`] out, `finish` safe twice), its extension for collect's pipeline
-//! ([`PipelinedSink`]: encoders detached from the sink, whose [`Encoded`] tickets the sink
-//! redeems), and the checks every sink makes before it writes an episode.
+//! [`Summary`] out, `finish` safe twice), its extension for pipelines that encode apart from it,
+//! collect's and convert's ([`PipelinedSink`]: encoders detached from the sink, whose
+//! [`Encoded`] tickets the sink redeems), and the checks every sink makes before it writes an
+//! episode.
 
 use crate::episode::{Episode, Pixels, Step};
 use crate::export::error::ExportError;
@@ -109,7 +110,8 @@ pub trait EpisodeSink {
     fn timing(&self) -> SinkTiming {
         SinkTiming::default()
     }
-    /// The sink's pipelined side, when it can encode apart from itself (collect's pipeline);
+    /// The sink's pipelined side, when it can encode apart from itself (collect's and convert's
+    /// pipelines);
     /// `None`: it encodes inside [`EpisodeSink::write_batch`].
     fn pipelined(&mut self) -> Option<Pipelined<'_>> {
         None

@@ -201,6 +201,10 @@ struct Detached<T> {
 
 impl<T: Send + 'static> DetachedEncoder for Detached<T> {
     fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError> {
+        // Another dataset's episodes come here too (`convert`): checked before they are encoded.
+        episode
+            .validate_structure(&self.features)
+            .map_err(ExportError::InvalidEpisode)?;
         let (width, height) = self.image_size;
         episode
             .validate_pixels(width, height, &self.features)
