@@ -93,7 +93,9 @@ pub fn in_order<E: Send>(
     consume: &mut (dyn FnMut(Vec<Episode>) -> Result<(), E> + Send),
     progress: &mut (dyn FnMut(u64) + Send),
 ) -> Result<(), E> {
-    in_order_prepared(episodes, read_error, &Ok, consume, progress)
+    let size = rayon::current_num_threads().max(1);
+    let read = |episodes: &mut Episodes<'_>| episodes.next_batch(size).map(Ok);
+    in_order_read(episodes, read_error, read, consume, progress)
 }
 
 /// [`in_order`], each episode read handed to `prepare` on the reading side, the batch's
@@ -118,6 +120,17 @@ pub fn in_order_prepared<T: Send, E: Send>(
             batch.into_par_iter().map(prepare).collect()
         })
     };
+    in_order_read(episodes, read_error, read, consume, progress)
+}
+
+/// The pass both share: each batch `read` makes consumed while the next one is read.
+fn in_order_read<T: Send, E: Send>(
+    episodes: &mut Episodes<'_>,
+    read_error: impl Fn(ExportError) -> E,
+    read: impl Fn(&mut Episodes<'_>) -> Result<Result<Vec<T>, E>, ExportError> + Sync,
+    consume: &mut (dyn FnMut(Vec<T>) -> Result<(), E> + Send),
+    progress: &mut (dyn FnMut(u64) + Send),
+) -> Result<(), E> {
     let mut next = read(episodes).map_err(&read_error)??;
     while !next.is_empty() {
         let batch = std::mem::take(&mut next);

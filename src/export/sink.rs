@@ -111,8 +111,7 @@ pub trait EpisodeSink {
         SinkTiming::default()
     }
     /// The sink's pipelined side, when it can encode apart from itself (collect's and convert's
-    /// pipelines);
-    /// `None`: it encodes inside [`EpisodeSink::write_batch`].
+    /// pipelines); `None`: it encodes inside [`EpisodeSink::write_batch`].
     fn pipelined(&mut self) -> Option<Pipelined<'_>> {
         None
     }
@@ -135,16 +134,8 @@ pub struct Pipelined<'a> {
     pub sink: &'a mut (dyn PipelinedSink + Send),
 }
 
-/// What every sink checks before it writes an episode: that the dataset is not finished yet,
-/// that the episode is the `expected` one (episodes come in index order), and that its steps
-/// hold the dataset's features.
-pub(crate) fn check_episode(
-    info: &DatasetInfo,
-    finished: bool,
-    episode: &Episode,
-    expected: u64,
-    pixels: bool,
-) -> Result<(), ExportError> {
+/// That the dataset is not finished yet and that `episode` is the `expected` one.
+fn check_order(finished: bool, episode: &Episode, expected: u64) -> Result<(), ExportError> {
     if finished {
         return Err(ExportError::Internal(
             "an episode arrived after the dataset was finished".into(),
@@ -156,6 +147,14 @@ pub(crate) fn check_episode(
             episode.meta.index
         )));
     }
+    Ok(())
+}
+
+/// That an episode's video can be copied as it is (exit 2 if not: the user's choice), that its
+/// steps hold the dataset's features and that its images have the dataset's size. Where the
+/// episode is encoded apart from its sink, its encoder checks this and the sink only the order
+/// ([`check_batch_order`]).
+pub(crate) fn check_content(info: &DatasetInfo, episode: &Episode) -> Result<(), ExportError> {
     // Video that cannot be copied (the user's choice to copy it, not a defect): exit 2.
     if let Some(video) = episode.encoded.iter().find(|e| {
         e.shown.is_some()
@@ -172,26 +171,35 @@ pub(crate) fn check_episode(
     episode
         .validate_structure(&info.features)
         .map_err(ExportError::InvalidEpisode)?;
-    if pixels {
-        let (width, height) = info.image_size();
-        episode
-            .validate_pixels(width, height, &info.features)
-            .map_err(ExportError::InvalidEpisode)?;
-    }
-    Ok(())
+    let (width, height) = info.image_size();
+    episode
+        .validate_pixels(width, height, &info.features)
+        .map_err(ExportError::InvalidEpisode)
 }
 
-/// [`check_episode`] for consecutive episodes starting at `first`.
+/// What every sink checks before it writes consecutive episodes starting at `first`: that
+/// the dataset is not finished yet, that the episodes are the expected ones (episodes come in
+/// index order), and their content ([`check_content`]).
 pub(crate) fn check_batch(
     info: &DatasetInfo,
     finished: bool,
     episodes: &[Episode],
     first: u64,
-    pixels: bool,
+) -> Result<(), ExportError> {
+    check_batch_order(finished, episodes, first)?;
+    (episodes.iter()).try_for_each(|episode| check_content(info, episode))
+}
+
+/// [`check_order`] for consecutive episodes starting at `first` (alone: where their content
+/// was checked when they were encoded).
+pub(crate) fn check_batch_order(
+    finished: bool,
+    episodes: &[Episode],
+    first: u64,
 ) -> Result<(), ExportError> {
     (first..)
         .zip(episodes)
-        .try_for_each(|(index, episode)| check_episode(info, finished, episode, index, pixels))
+        .try_for_each(|(index, episode)| check_order(finished, episode, index))
 }
 
 /// Makes the files to write beside a finished dataset from its summary: (relative path, bytes)

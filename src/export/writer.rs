@@ -21,7 +21,7 @@ use crate::export::sink::PipelinedSink;
 use crate::export::sink::Sidecar;
 use crate::export::sink::SinkTiming;
 use crate::export::sink::Summary;
-use crate::export::sink::check_batch;
+use crate::export::sink::{check_batch, check_batch_order, check_content};
 use rayon::prelude::*;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -190,25 +190,19 @@ impl<T> Held<T> {
     }
 }
 
-/// A format's detached encoder as a sink's (what it makes held for the writer), with what it
-/// checks the episodes' images against.
+/// A format's detached encoder as a sink's (what it makes held for the writer), with the
+/// dataset it checks the episodes against.
 struct Detached<T> {
     encoder: std::sync::Arc<dyn EpisodeEncoder<T> + Send>,
     held: std::sync::Arc<Held<T>>,
-    image_size: (usize, usize),
-    features: Vec<crate::episode::FeatureSpec>,
+    info: DatasetInfo,
 }
 
 impl<T: Send + 'static> DetachedEncoder for Detached<T> {
     fn encode(&self, episode: &Episode) -> Result<Encoded, ExportError> {
-        // Another dataset's episodes come here too (`convert`): checked before they are encoded.
-        episode
-            .validate_structure(&self.features)
-            .map_err(ExportError::InvalidEpisode)?;
-        let (width, height) = self.image_size;
-        episode
-            .validate_pixels(width, height, &self.features)
-            .map_err(ExportError::InvalidEpisode)?;
+        // Another dataset's episodes come here too (`convert`): checked before they are
+        // encoded, as the sink checks those it encodes itself; the sink checks their order.
+        check_content(&self.info, episode)?;
         Ok(self.held.hold(self.encoder.encode(episode)?))
     }
 
@@ -302,8 +296,7 @@ impl<F: FormatWriter> Writer<F> {
             let detached: std::sync::Arc<dyn DetachedEncoder> = std::sync::Arc::new(Detached {
                 encoder,
                 held: held.clone(),
-                image_size: info.image_size(),
-                features: info.features.clone(),
+                info: info.clone(),
             });
             detached
         });
@@ -349,7 +342,6 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
             self.finished.is_some(),
             episodes,
             self.format.episodes(),
-            true,
         )?;
         let started = Instant::now();
         let encoded: Vec<F::Encoded> = {
@@ -382,7 +374,6 @@ impl<F: FormatWriter> EpisodeSink for Writer<F> {
             self.finished.is_some(),
             std::slice::from_ref(&part.episode),
             self.format.episodes(),
-            true,
         )?;
         let appending = Instant::now();
         if part.last {
@@ -453,14 +444,8 @@ impl<F: FormatWriter> PipelinedSink for Writer<F> {
     /// Appends in order what the detached encoder made of each episode.
     fn write_encoded(&mut self, episodes: Vec<(Episode, Encoded)>) -> Result<(), ExportError> {
         let (episodes, encoded): (Vec<Episode>, Vec<Encoded>) = episodes.into_iter().unzip();
-        // The detached encoder checked the images' sizes before it encoded them.
-        check_batch(
-            &self.info,
-            self.finished.is_some(),
-            &episodes,
-            self.format.episodes(),
-            false,
-        )?;
+        // The detached encoder checked each episode's content before it encoded it.
+        check_batch_order(self.finished.is_some(), &episodes, self.format.episodes())?;
         let held = self.held.clone();
         self.append_all(&episodes, encoded.iter().map(|e| held.redeem(e)))
     }

@@ -258,7 +258,8 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
         let (code, _, err) = surgvla(&["edit", text(from), "--drop", "1,3-4", "--out", text(to)]);
         assert_eq!(code, 0, "{err}");
     }
-    // Copied: every column but the five surgvla numbers anew keeps the input's snappy.
+    // Copied: every column but the five surgvla numbers anew keeps the input's snappy; those
+    // five are stored uncompressed (no codec made per episode).
     let renumbered = [
         "timestamp",
         "frame_index",
@@ -272,7 +273,7 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
         for (column, codec) in group {
             let anew = renumbered.contains(&column.as_str());
             let expected = if anew {
-                Compression::ZSTD(Default::default())
+                Compression::UNCOMPRESSED
             } else {
                 Compression::SNAPPY
             };

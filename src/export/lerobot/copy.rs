@@ -88,9 +88,16 @@ impl DefaultColumns {
         }
         let fields: Vec<arrow_schema::FieldRef> =
             columns.iter().map(|(_, f, _)| f.clone()).collect();
+        // Stored without compression: a zstd codec costs more to make (its contexts ask the
+        // CPU for its features, which a virtual machine answers slowly) than a copied episode's
+        // few hundred bytes of indices gain from it.
+        let properties = (fields.iter()).fold(properties.into_builder(), |builder, field| {
+            let column = parquet::schema::types::ColumnPath::new(vec![field.name().clone()]);
+            builder.set_column_compression(column, parquet::basic::Compression::UNCOMPRESSED)
+        });
         let alone = Arc::new(arrow_schema::Schema::new(fields));
         let writer =
-            parquet::arrow::ArrowWriter::try_new(std::io::sink(), alone, Some(properties))?;
+            parquet::arrow::ArrowWriter::try_new(std::io::sink(), alone, Some(properties.build()))?;
         let (_, factory) = writer.into_serialized_writer()?;
         Ok(DefaultColumns {
             factory,
@@ -238,22 +245,18 @@ impl DataFile {
             })));
         }
         let region = Region::read(stored, &chunks)?;
-        self.append(chunks, Some(&region))
+        self.append(chunks, &region)
     }
 
     /// Appends one row group of `chunks` (every leaf's, in order); copied ones are read from
     /// `input`.
-    fn append(
-        &mut self,
-        chunks: Vec<Option<Chunk>>,
-        input: Option<&Region>,
-    ) -> Result<(), ParquetError> {
+    fn append(&mut self, chunks: Vec<Option<Chunk>>, input: &Region) -> Result<(), ParquetError> {
         let mut group = self.writer.next_row_group()?;
         for chunk in chunks {
-            match (chunk, input) {
-                (Some(Chunk::Encoded(chunk)), _) => chunk.append_to_row_group(&mut group)?,
-                (Some(Chunk::Copied(close)), Some(input)) => group.append_column(input, *close)?,
-                _ => return Err(ParquetError::General("a column chunk missing".into())),
+            match chunk {
+                Some(Chunk::Encoded(chunk)) => chunk.append_to_row_group(&mut group)?,
+                Some(Chunk::Copied(close)) => group.append_column(input, *close)?,
+                None => return Err(ParquetError::General("a column chunk missing".into())),
             }
         }
         group.close()?;

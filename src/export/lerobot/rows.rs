@@ -236,18 +236,25 @@ impl OpenFile {
                 .with_row_groups(vec![group])
                 .with_batch_size(batch_rows);
         if !images {
-            builder = builder.with_projection(light_projection(&self.metadata, info));
+            builder =
+                builder.with_projection(light_projection(self.metadata.parquet_schema(), info));
         }
         builder.build().map_err(ExportError::parquet(&self.path))
     }
 }
 
-/// The columns a row needs without its images: the default columns and the features' other
-/// values (not the images, nor columns `info` leaves out).
-fn light_projection(metadata: &ArrowReaderMetadata, info: &DatasetInfo) -> ProjectionMask {
-    let schema = metadata.parquet_schema();
+/// The default columns a [`Row`] holds (`rows_of`): the others (`index`, `frame_index`) are
+/// written anew from the rows' places.
+const ROW_COLUMNS: [&str; 3] = ["episode_index", "task_index", "timestamp"];
+
+/// The columns a row needs without its images: [`ROW_COLUMNS`] and the features' other values
+/// (not the images, nor columns `info` leaves out). Each column read costs a decompressor.
+fn light_projection(
+    schema: &parquet::schema::types::SchemaDescriptor,
+    info: &DatasetInfo,
+) -> ProjectionMask {
     let wanted = |name: &str| {
-        super::table::DEFAULT_COLUMNS.contains(&name)
+        ROW_COLUMNS.contains(&name)
             || (info.features.iter())
                 .any(|f| f.name == name && f.in_steps() && f.dtype != Dtype::Image)
     };
@@ -584,4 +591,36 @@ pub(super) fn other_values(
                 .collect::<Result<_, _>>()?
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::{FeatureSet, standard_features};
+
+    #[test]
+    fn rows_read_without_images_leave_out_the_images_and_the_indices_made_anew() {
+        let features = standard_features(8, 8, FeatureSet::default());
+        let info = DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 5, "r", features);
+        let arrow = super::super::table::frame_schema(&info.features);
+        let schema = parquet::arrow::ArrowSchemaConverter::new()
+            .convert(&arrow)
+            .expect("parquet schema");
+        let mask = light_projection(&schema, &info);
+        let read: Vec<String> = (0..schema.num_columns())
+            .filter(|&leaf| mask.leaf_included(leaf))
+            .map(|leaf| schema.column(leaf).path().parts()[0].clone())
+            .collect();
+        assert_eq!(
+            read,
+            [
+                "observation.state",
+                "observation.environment_state",
+                "action",
+                "timestamp",
+                "episode_index",
+                "task_index",
+            ]
+        );
+    }
 }
