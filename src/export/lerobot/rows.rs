@@ -243,8 +243,8 @@ impl OpenFile {
     }
 }
 
-/// The default columns a [`Row`] holds (`rows_of`): the others (`index`, `frame_index`) are
-/// written anew from the rows' places.
+/// The default columns a [`Row`] holds, read by `rows_of` (episode, task, timestamp): the others
+/// (`index`, `frame_index`) are written anew from the rows' places.
 const ROW_COLUMNS: [&str; 3] = ["episode_index", "task_index", "timestamp"];
 
 /// The columns a row needs without its images: [`ROW_COLUMNS`] and the features' other values
@@ -319,10 +319,11 @@ fn rows_of(
     images: bool,
 ) -> Result<Vec<Row>, ExportError> {
     let file: std::sync::Arc<Path> = std::sync::Arc::from(path);
-    let episode = column::<Int64Array>(batch, "episode_index", path)?;
-    let task = column::<Int64Array>(batch, "task_index", path)?;
+    let [episode_column, task_column, timestamp_column] = ROW_COLUMNS;
+    let episode = column::<Int64Array>(batch, episode_column, path)?;
+    let task = column::<Int64Array>(batch, task_column, path)?;
     let timestamp = batch
-        .column_by_name("timestamp")
+        .column_by_name(timestamp_column)
         .and_then(|c| c.as_any().downcast_ref::<Float32Array>());
     let mut steps: Vec<Row> = (0..batch.num_rows())
         .map(|row| Row {
