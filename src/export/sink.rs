@@ -206,3 +206,67 @@ pub(crate) fn check_batch_order(
 /// each.
 pub type Sidecar<'a> =
     &'a mut (dyn FnMut(&Summary) -> Result<Vec<(String, Vec<u8>)>, ExportError> + Send);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::episode::{
+        Dtype, EncodedFeature, EpisodeMeta, FeatureKind, FeatureSpec, ImageEncoding, VideoCodec,
+    };
+
+    /// A dataset with one video camera, and an episode at `index` whose video is copyable or
+    /// not (frames not one per row in presentation order).
+    fn with_video(index: u64, copyable: bool) -> (DatasetInfo, Episode) {
+        let camera = FeatureSpec {
+            name: "observation.images.endoscope".into(),
+            kind: FeatureKind::Rgb,
+            dtype: Dtype::Image,
+            shape: vec![4, 4, 3],
+            video: Some(VideoCodec::Av1),
+            info: Default::default(),
+            names: Vec::new(),
+        };
+        let info = DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 5, "r", vec![camera]);
+        let episode = Episode {
+            meta: EpisodeMeta::foreign(index, "lift".into()),
+            steps: vec![crate::episode::Step::empty()],
+            encoded: vec![EncodedFeature {
+                feature: "observation.images.endoscope".into(),
+                encoding: ImageEncoding::Video(VideoCodec::Av1),
+                frames: vec![crate::episode::EncodedFrame {
+                    data: vec![0],
+                    keyframe: true,
+                }],
+                pixel_stats: None,
+                shown: (!copyable).then(|| vec![0]),
+                file: None,
+            }],
+            image_stats: Vec::new(),
+            stored_rows: None,
+        };
+        (info, episode)
+    }
+
+    /// A batch's order is checked before any episode's content: an episode out of order is
+    /// reported (exit 1) even when an earlier one's video cannot be copied (exit 2), which is
+    /// reported when the order is right.
+    #[test]
+    fn a_batch_reports_its_order_before_its_content() {
+        let (info, uncopyable) = with_video(0, false);
+        let (_, late) = with_video(2, true);
+        let (_, next) = with_video(1, true);
+        let mixed = check_batch(&info, false, &[uncopyable.clone(), late], 0);
+        assert!(
+            matches!(mixed, Err(ExportError::InvalidEpisode(_))),
+            "{mixed:?}"
+        );
+        let content = check_batch(&info, false, &[uncopyable, next.clone()], 0);
+        assert!(
+            matches!(content, Err(ExportError::InvalidOptions(_))),
+            "{content:?}"
+        );
+        let (_, first) = with_video(0, true);
+        let fine = check_batch(&info, false, &[first, next], 0);
+        assert!(fine.is_ok(), "{fine:?}");
+    }
+}

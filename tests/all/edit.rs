@@ -214,8 +214,9 @@ fn snappy_copy(input: &Path) -> crate::util::TempRoot {
     root
 }
 
-/// The compression of each column chunk of `root`'s data files, by column path, per group.
-fn codecs(root: &Path) -> Vec<Vec<(String, parquet::basic::Compression)>> {
+/// The compression of each column chunk of `root`'s data files, and whether it has a
+/// dictionary, by column path, per group.
+fn codecs(root: &Path) -> Vec<Vec<(String, parquet::basic::Compression, bool)>> {
     use parquet::file::reader::FileReader;
     let mut all = Vec::new();
     for file in surgvla::export::lerobot::read::data_files(root).expect("data files") {
@@ -226,7 +227,10 @@ fn codecs(root: &Path) -> Vec<Vec<(String, parquet::basic::Compression)>> {
         for group in reader.metadata().row_groups() {
             all.push(
                 (group.columns().iter())
-                    .map(|c| (c.column_path().string(), c.compression()))
+                    .map(|c| {
+                        let dictionary = c.dictionary_page_offset().is_some();
+                        (c.column_path().string(), c.compression(), dictionary)
+                    })
                     .collect(),
             );
         }
@@ -259,7 +263,8 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
         assert_eq!(code, 0, "{err}");
     }
     // Copied: every column but the five surgvla numbers anew keeps the input's snappy; those
-    // five are stored uncompressed (no codec made per episode).
+    // five are stored uncompressed (no codec made per episode), and those whose values differ
+    // row by row without a dictionary.
     let renumbered = [
         "timestamp",
         "frame_index",
@@ -270,8 +275,10 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
     let groups = codecs(&copied);
     assert_eq!(groups.len(), 3, "one row group per kept episode");
     for group in &groups {
-        for (column, codec) in group {
+        for (column, codec, dictionary) in group {
             let anew = renumbered.contains(&column.as_str());
+            let distinct = ["timestamp", "frame_index", "index"].contains(&column.as_str());
+            assert_eq!(*dictionary, !distinct, "{column}: a dictionary");
             let expected = if anew {
                 Compression::UNCOMPRESSED
             } else {
@@ -284,7 +291,8 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
             );
         }
     }
-    assert!((codecs(&decoded).iter().flatten()).all(|(_, c)| !matches!(c, Compression::SNAPPY)));
+    let decoded_codecs = codecs(&decoded);
+    assert!((decoded_codecs.iter().flatten()).all(|(_, c, _)| !matches!(c, Compression::SNAPPY)));
     // Both read as the input's episodes 0, 2 and 5, renumbered, with the same statistics.
     assert_holds(&episodes(&copied), &original, &[0, 2, 5]);
     assert_holds(&episodes(&decoded), &original, &[0, 2, 5]);

@@ -17,6 +17,7 @@ use arrow_schema::SchemaRef;
 use bytes::{Buf, Bytes};
 use parquet::arrow::ArrowSchemaConverter;
 use parquet::arrow::arrow_writer::{ArrowRowGroupWriterFactory, compute_leaves};
+use parquet::basic::Compression;
 use parquet::column::writer::ColumnCloseResult;
 use parquet::errors::ParquetError;
 use parquet::file::metadata::{ColumnChunkMetaData, ParquetMetaData};
@@ -31,6 +32,10 @@ use std::sync::Arc;
 /// A data file's bytes go out a mebibyte at a time: the parquet writer passes copied chunks on
 /// 8 KiB at a time, a system call each without this buffer.
 const WRITE_BUFFER_BYTES: usize = 1 << 20;
+
+/// The default columns whose values differ from row to row within an episode, which a copied
+/// group stores without a dictionary.
+const DISTINCT_PER_ROW: [&str; 3] = ["timestamp", "frame_index", "index"];
 
 /// Where an episode's rows are stored: one whole row group of a data file (its footer read
 /// with the page index).
@@ -90,10 +95,14 @@ impl DefaultColumns {
             columns.iter().map(|(_, f, _)| f.clone()).collect();
         // Stored without compression: a zstd codec costs more to make (its contexts ask the
         // CPU for its features, which a virtual machine answers slowly) than a copied episode's
-        // few hundred bytes of indices gain from it.
+        // few hundred bytes of indices gain from it. Columns whose values differ row by row
+        // (the timestamp, frame and dataset indices) are stored plain: a dictionary of every
+        // value is larger than the values, and slower to build.
         let properties = (fields.iter()).fold(properties.into_builder(), |builder, field| {
             let column = parquet::schema::types::ColumnPath::new(vec![field.name().clone()]);
-            builder.set_column_compression(column, parquet::basic::Compression::UNCOMPRESSED)
+            let distinct = DISTINCT_PER_ROW.contains(&field.name().as_str());
+            (builder.set_column_compression(column.clone(), Compression::UNCOMPRESSED))
+                .set_column_dictionary_enabled(column, !distinct)
         });
         let alone = Arc::new(arrow_schema::Schema::new(fields));
         let writer =

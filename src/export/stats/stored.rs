@@ -141,15 +141,44 @@ pub(super) mod trimmed {
     }
 
     /// The counts of a span's text (decimal words between ASCII whitespace), at most
-    /// [`MAX_BINS`] of them.
+    /// [`MAX_BINS`] of them, each read as `u64::from_str` reads it. Words of up to 19 digits
+    /// (every count a histogram of ours holds) are read digit by digit; any other word goes to
+    /// `from_str`, which decides. An episodes table holds thousands of counts per episode, and
+    /// an edit reads every kept episode's.
     pub(crate) fn parse_counts(text: &str) -> Result<Vec<u64>, String> {
-        let mut counts = Vec::new();
-        for word in text.split_ascii_whitespace() {
+        /// Digits that cannot overflow a u64 (10^19 - 1 < 2^64).
+        const SAFE_DIGITS: usize = 19;
+        let bytes = text.as_bytes();
+        // A word and its separator take two bytes at least.
+        let mut counts = Vec::with_capacity((bytes.len() / 2 + 1).min(MAX_BINS));
+        let mut at = 0;
+        while at < bytes.len() {
+            if bytes[at].is_ascii_whitespace() {
+                at += 1;
+                continue;
+            }
+            let start = at;
+            let (mut value, mut digits_only) = (0u64, true);
+            while let Some(&byte) = bytes.get(at).filter(|b| !b.is_ascii_whitespace()) {
+                let digit = byte.wrapping_sub(b'0');
+                if digit < 10 && at - start < SAFE_DIGITS {
+                    value = value * 10 + u64::from(digit);
+                } else {
+                    digits_only = false;
+                }
+                at += 1;
+            }
             if counts.len() == MAX_BINS {
                 return Err(format!("a histogram of more than {MAX_BINS} bins"));
             }
-            let count = word.parse::<u64>();
-            counts.push(count.map_err(|_| format!("a histogram count {word:?}"))?);
+            if digits_only {
+                counts.push(value);
+            } else {
+                // The word ends at ASCII whitespace or the text's end: a char boundary.
+                let word = &text[start..at];
+                let count = word.parse::<u64>();
+                counts.push(count.map_err(|_| format!("a histogram count {word:?}"))?);
+            }
         }
         Ok(counts)
     }
@@ -307,6 +336,32 @@ mod tests {
                     .expect("a bad word");
                 assert!(message.contains(&format!("{bad:?}")), "{message}");
             }
+        }
+        // Seeded random texts of words a histogram holds and words it does not: 19 and 20
+        // digits (the fast path's edge), signs, other bytes, every ASCII space.
+        let mut rng = crate::rng::SplitMix64::new(48);
+        let pieces = [
+            "0", "7", "+", "-", "1", "9", "00", "x", ".", "\u{661}", "\u{a0}", " ", "\t", "\n",
+        ];
+        for _ in 0..2000 {
+            let words = (rng.next_u64() % 6) as usize;
+            let mut text = String::new();
+            for _ in 0..words {
+                match rng.next_u64() % 4 {
+                    0 => text.push_str(&(rng.next_u64() >> (rng.next_u64() % 64)).to_string()),
+                    1 => text.push_str(&"9".repeat(18 + (rng.next_u64() % 3) as usize)),
+                    2 => text.push_str(&format!("{}{}", u64::MAX, rng.next_u64() % 10)),
+                    _ => (0..1 + rng.next_u64() % 4).for_each(|_| {
+                        text.push_str(pieces[(rng.next_u64() % pieces.len() as u64) as usize])
+                    }),
+                }
+                text.push_str([" ", "\t", "  ", "\r\n"][(rng.next_u64() % 4) as usize]);
+            }
+            let expected: Result<Vec<u64>, _> = text
+                .split_ascii_whitespace()
+                .map(str::parse::<u64>)
+                .collect();
+            assert_eq!(trimmed::parse_counts(&text).ok(), expected.ok(), "{text:?}");
         }
         let too_many = vec!["1"; trimmed::MAX_BINS + 1].join(" ");
         assert!(trimmed::parse_counts(&too_many).is_err());
