@@ -2,7 +2,7 @@
 //! datasets in image mode) and the low-level helpers the round-trip tests use. Interop is proven
 //! with the real lerobot loader in `tests/interop/`.
 
-use super::meta::StatsJson;
+use super::meta::{StatValue, StatsJson};
 pub use super::rows::footer_problem;
 use super::rows::{Next, Row, column, invalid, open_parquet_metadata, vector};
 use super::table::StoredEpisode;
@@ -595,13 +595,57 @@ impl EpisodeRows {
     }
 }
 
-/// Row `row` of a batch of v3.0's episodes table.
+/// Row `row` of a batch of v3.0's episodes table. The statistics columns (most of its cells)
+/// are read straight into [`StatValue`]s, not through JSON.
 fn stored_episode(batch: &RecordBatch, row: usize) -> StoredEpisode {
     let schema = batch.schema();
+    let is_stat = |name: &str| name.starts_with(super::table::STATS);
     let columns = (schema.fields().iter())
         .zip(batch.columns())
+        .filter(|(field, _)| !is_stat(field.name()))
         .map(|(field, column)| (field.name().as_str(), cell(column.as_ref(), row)));
-    StoredEpisode::from_columns(columns)
+    let mut episode = StoredEpisode::from_columns(columns);
+    for (field, column) in schema.fields().iter().zip(batch.columns()) {
+        if is_stat(field.name()) {
+            episode.set_stat(field.name(), stat_cell(column.as_ref(), row));
+        }
+    }
+    episode
+}
+
+/// One cell of an episodes table's statistics column, as [`cell`] then `StatValue`'s
+/// deserializer read it: numbers (a non-finite one as null), nulls, and lists of them; None
+/// when it holds text or booleans (a statistic left out).
+fn stat_cell(column: &dyn Array, row: usize) -> Option<StatValue> {
+    use arrow_array::{ListArray, cast::AsArray};
+    let any = column.as_any();
+    if column.is_null(row) {
+        return Some(StatValue::Null);
+    }
+    let items = |values: &dyn Array, range: std::ops::Range<usize>| {
+        range
+            .map(|i| stat_cell(values, i))
+            .collect::<Option<Vec<_>>>()
+    };
+    if let Some(a) = any.downcast_ref::<Int64Array>() {
+        Some(StatValue::Number(a.value(row).into()))
+    } else if let Some(a) = any.downcast_ref::<Float64Array>() {
+        Some(StatValue::number(a.value(row)))
+    } else if let Some(a) = any.downcast_ref::<Float32Array>() {
+        Some(StatValue::number(f64::from(a.value(row))))
+    } else if let Some(a) = any.downcast_ref::<ListArray>() {
+        let offsets = a.value_offsets();
+        let (from, to) = (offsets[row] as usize, offsets[row + 1] as usize);
+        items(a.values().as_ref(), from..to).map(StatValue::List)
+    } else if let Some(a) = column.as_fixed_size_list_opt() {
+        let len = a.value_length() as usize;
+        items(a.values().as_ref(), row * len..(row + 1) * len).map(StatValue::List)
+    } else if column.as_string_opt::<i32>().is_some() || column.as_boolean_opt().is_some() {
+        None
+    } else {
+        // A type `cell` does not read, which it reads as null.
+        Some(StatValue::Null)
+    }
 }
 
 /// v2.1's episodes: `episodes.jsonl` in order, each joined with its `episodes_stats.jsonl` line
@@ -1401,6 +1445,82 @@ impl EpisodeSource for LeRobotSource {
 mod tests {
     use super::*;
     use std::sync::Arc;
+
+    /// A statistics cell read straight into a `StatValue` is what reading it as JSON and
+    /// deserializing gives, for every type an episodes table may hold (numbers of each kind,
+    /// non-finite ones, nulls at each depth, nested and fixed-size lists, sliced arrays, text,
+    /// booleans, a type neither reads), on seeded random values.
+    #[test]
+    fn statistics_cells_read_straight_as_through_json() {
+        use arrow_array::builder::{Float64Builder, ListBuilder};
+        use arrow_array::{ArrayRef, BooleanArray, Int32Array, ListArray, StringArray};
+        let mut rng = crate::rng::SplitMix64::new(4);
+        let mut value = || match rng.next_u64() % 8 {
+            0 => None,
+            1 => Some(f64::NAN),
+            2 => Some(f64::INFINITY),
+            _ => Some((rng.next_u64() % 2001) as f64 / 8.0 - 125.0),
+        };
+        // Lists of 0-3 numbers (nulls among them, and null lists), then (C, 1, 1) lists of them.
+        let mut flat = ListBuilder::new(Float64Builder::new());
+        let mut nested = ListBuilder::new(ListBuilder::new(Float64Builder::new()));
+        for row in 0..64 {
+            for _ in 0..row % 4 {
+                flat.values().append_option(value());
+                nested.values().values().append_option(value());
+                nested.values().append(true);
+            }
+            flat.append(row % 9 != 5);
+            nested.append(row % 11 != 7);
+        }
+        let floats: Vec<Option<f64>> = (0..64).map(|_| value()).collect();
+        let fixed = arrow_array::FixedSizeListArray::try_new(
+            Arc::new(arrow_schema::Field::new(
+                "item",
+                arrow_schema::DataType::Float32,
+                true,
+            )),
+            2,
+            Arc::new(Float32Array::from_iter(
+                floats.iter().map(|v| v.map(|v| v as f32)),
+            )),
+            None,
+        )
+        .expect("fixed");
+        let columns: Vec<ArrayRef> = vec![
+            Arc::new(Float64Array::from(floats.clone())),
+            Arc::new(Int64Array::from_iter(
+                (0..64).map(|i| Some(i * 977 - 30_000)),
+            )),
+            Arc::new(flat.finish()),
+            Arc::new(flat_slice(&nested.finish())),
+            Arc::new(fixed.slice(3, 20)),
+            Arc::new(StringArray::from_iter((0..64).map(|i| Some(i.to_string())))),
+            Arc::new(BooleanArray::from_iter((0..64).map(|i| Some(i % 2 == 0)))),
+            Arc::new(Int32Array::from_iter((0..64).map(Some))),
+            Arc::new(ListArray::from_iter_primitive::<
+                arrow_array::types::Int32Type,
+                _,
+                _,
+            >((0..64).map(|i| Some(vec![Some(i)])))),
+        ];
+        for column in &columns {
+            for row in 0..column.len() {
+                let through_json = serde_json::from_value::<StatValue>(cell(column.as_ref(), row));
+                assert_eq!(
+                    stat_cell(column.as_ref(), row),
+                    through_json.ok(),
+                    "{:?} row {row}",
+                    column.data_type()
+                );
+            }
+        }
+    }
+
+    /// `list` from its fifth row on (an array whose offsets do not start at 0).
+    fn flat_slice(list: &arrow_array::ListArray) -> arrow_array::ListArray {
+        list.slice(5, list.len() - 5)
+    }
 
     /// A real footer, and the size of its file.
     fn footer() -> (parquet::file::metadata::ParquetMetaData, u64) {

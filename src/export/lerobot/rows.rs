@@ -180,11 +180,11 @@ impl DataRows {
             return Ok(Vec::new());
         };
         let batch_rows = if images { BATCH_ROWS } else { LIGHT_BATCH_ROWS };
-        let mut reader = open.reader(info, images, batch_rows)?;
+        let (mut reader, episode) = open.reader(info, images, batch_rows)?;
         let mut rows = Vec::new();
         for batch in &mut reader {
             let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
-            rows.extend(rows_of(&batch, &open.path, info, images)?);
+            rows.extend(rows_of(&batch, &open.path, info, images, episode)?);
         }
         Ok(rows)
     }
@@ -203,7 +203,7 @@ impl DataRows {
                 return Ok(None);
             };
             if open.reader.is_none() {
-                let reader = open.reader(info, true, BATCH_ROWS)?;
+                let (reader, _) = open.reader(info, true, BATCH_ROWS)?;
                 open.reader = Some(reader);
             }
             let Some(reader) = &mut open.reader else {
@@ -212,7 +212,7 @@ impl DataRows {
             match reader.next() {
                 Some(batch) => {
                     let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
-                    return rows_of(&batch, &open.path, info, true).map(Some);
+                    return rows_of(&batch, &open.path, info, true, None).map(Some);
                 }
                 None => open.reader = None,
             }
@@ -221,13 +221,16 @@ impl DataRows {
 }
 
 impl OpenFile {
-    /// A reader of the next row group (which it passes), with its image columns or without.
+    /// A reader of the next row group (which it passes), with its image columns or without;
+    /// without them, the `episode_index` column is left out when the group's statistics say its
+    /// one episode, which is returned. Each column read costs a decompressor, and the writer
+    /// numbers the episode anew anyway (its task is read: it goes into the result).
     fn reader(
         &mut self,
         info: &DatasetInfo,
         images: bool,
         batch_rows: usize,
-    ) -> Result<ParquetRecordBatchReader, ExportError> {
+    ) -> Result<(ParquetRecordBatchReader, Option<i64>), ExportError> {
         let group = self.group;
         self.group += 1;
         let file = self.file.try_clone().map_err(ExportError::io(&self.path))?;
@@ -235,11 +238,43 @@ impl OpenFile {
             ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())
                 .with_row_groups(vec![group])
                 .with_batch_size(batch_rows);
+        let mut episode = None;
         if !images {
-            builder =
-                builder.with_projection(light_projection(self.metadata.parquet_schema(), info));
+            let groups = self.metadata.metadata().row_groups();
+            episode = groups.get(group).and_then(single_episode);
+            let schema = self.metadata.parquet_schema();
+            builder = builder.with_projection(light_projection(schema, info, episode));
         }
-        builder.build().map_err(ExportError::parquet(&self.path))
+        let reader = builder.build().map_err(ExportError::parquet(&self.path))?;
+        Ok((reader, episode))
+    }
+}
+
+/// An integer column of a batch, or the one value a row group's statistics give it.
+enum Ints<'a> {
+    One(i64),
+    Read(&'a Int64Array),
+}
+
+impl Ints<'_> {
+    /// Column `name` of `batch`, unless `known` gives its value.
+    fn of<'a>(
+        batch: &'a RecordBatch,
+        name: &str,
+        known: Option<i64>,
+        path: &Path,
+    ) -> Result<Ints<'a>, ExportError> {
+        match known {
+            Some(value) => Ok(Ints::One(value)),
+            None => column::<Int64Array>(batch, name, path).map(Ints::Read),
+        }
+    }
+
+    fn value(&self, row: usize) -> i64 {
+        match self {
+            Ints::One(value) => *value,
+            Ints::Read(column) => column.value(row),
+        }
     }
 }
 
@@ -247,14 +282,18 @@ impl OpenFile {
 /// (`index`, `frame_index`) are written anew from the rows' places.
 const ROW_COLUMNS: [&str; 3] = ["episode_index", "task_index", "timestamp"];
 
-/// The columns a row needs without its images: [`ROW_COLUMNS`] and the features' other values
-/// (not the images, nor columns `info` leaves out). Each column read costs a decompressor.
+/// The columns a row needs without its images: [`ROW_COLUMNS`] (but the episode's when the
+/// group's statistics give it, `episode`), and the features' other values (not the images, nor
+/// columns `info` leaves out). Each column read costs a decompressor.
 fn light_projection(
     schema: &parquet::schema::types::SchemaDescriptor,
     info: &DatasetInfo,
+    episode: Option<i64>,
 ) -> ProjectionMask {
+    let [episode_column, ..] = ROW_COLUMNS;
+    let given = |name: &str| name == episode_column && episode.is_some();
     let wanted = |name: &str| {
-        ROW_COLUMNS.contains(&name)
+        (ROW_COLUMNS.contains(&name) && !given(name))
             || (info.features.iter())
                 .any(|f| f.name == name && f.in_steps() && f.dtype != Dtype::Image)
     };
@@ -283,7 +322,7 @@ pub(super) fn stored_images(
     for batch in reader {
         let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
         images.extend(
-            rows_of(&batch, path, info, true)?
+            rows_of(&batch, path, info, true, None)?
                 .into_iter()
                 .map(|r| r.images),
         );
@@ -311,16 +350,18 @@ fn single_value(group: &parquet::file::metadata::RowGroupMetaData, name: &str) -
 }
 
 /// Decodes a batch of frame rows into steps (`images`: the batch has the image columns, and
-/// each row keeps their bytes).
+/// each row keeps their bytes; `known_episode`: the episode of every row, when the batch
+/// leaves its column out).
 fn rows_of(
     batch: &RecordBatch,
     path: &Path,
     info: &DatasetInfo,
     images: bool,
+    known_episode: Option<i64>,
 ) -> Result<Vec<Row>, ExportError> {
     let file: std::sync::Arc<Path> = std::sync::Arc::from(path);
     let [episode_column, task_column, timestamp_column] = ROW_COLUMNS;
-    let episode = column::<Int64Array>(batch, episode_column, path)?;
+    let episode = Ints::of(batch, episode_column, known_episode, path)?;
     let task = column::<Int64Array>(batch, task_column, path)?;
     let timestamp = batch
         .column_by_name(timestamp_column)
@@ -607,21 +648,22 @@ mod tests {
         let schema = parquet::arrow::ArrowSchemaConverter::new()
             .convert(&arrow)
             .expect("parquet schema");
-        let mask = light_projection(&schema, &info);
-        let read: Vec<String> = (0..schema.num_columns())
-            .filter(|&leaf| mask.leaf_included(leaf))
-            .map(|leaf| schema.column(leaf).path().parts()[0].clone())
-            .collect();
-        assert_eq!(
-            read,
-            [
-                "observation.state",
-                "observation.environment_state",
-                "action",
-                "timestamp",
-                "episode_index",
-                "task_index",
-            ]
-        );
+        let read = |episode: Option<i64>| -> Vec<String> {
+            let mask = light_projection(&schema, &info, episode);
+            (0..schema.num_columns())
+                .filter(|&leaf| mask.leaf_included(leaf))
+                .map(|leaf| schema.column(leaf).path().parts()[0].clone())
+                .collect()
+        };
+        let vectors = [
+            "observation.state",
+            "observation.environment_state",
+            "action",
+            "timestamp",
+        ];
+        let indices = ["episode_index", "task_index"];
+        assert_eq!(read(None), [&vectors[..], &indices].concat());
+        // A group whose statistics give its episode does not read it; its task is read.
+        assert_eq!(read(Some(3)), [&vectors[..], &["task_index"]].concat());
     }
 }

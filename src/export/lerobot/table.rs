@@ -551,13 +551,8 @@ impl StoredEpisode {
                 if let Some(exact) = exact {
                     episode.pixel_stats.insert(key.to_string(), exact);
                 }
-            } else if let Some((feature, stat)) =
-                name.strip_prefix("stats/").and_then(|n| n.rsplit_once('/'))
-            {
-                if let Ok(value) = serde_json::from_value::<StatValue>(value) {
-                    let entry = episode.stats.entry(feature.to_string()).or_default();
-                    entry.set(stat, value);
-                }
+            } else if name.starts_with(STATS) {
+                episode.set_stat(name, serde_json::from_value::<StatValue>(value).ok());
             } else if let Some((key, part)) = name
                 .strip_prefix("videos/")
                 .and_then(|n| n.rsplit_once('/'))
@@ -588,7 +583,20 @@ impl StoredEpisode {
         }
         episode
     }
+
+    /// Puts in the statistic of column `name` (`stats/<feature>/<stat>`): `value`, None when
+    /// the cell is not numbers (left out).
+    pub(super) fn set_stat(&mut self, name: &str, value: Option<StatValue>) {
+        let place = name.strip_prefix(STATS).and_then(|n| n.rsplit_once('/'));
+        if let (Some((feature, stat)), Some(value)) = (place, value) {
+            let entry = self.stats.entry(feature.to_string()).or_default();
+            entry.set(stat, value);
+        }
+    }
 }
+
+/// The prefix of an episodes table's statistics columns (`stats/<feature>/<stat>`).
+pub(super) const STATS: &str = "stats/";
 
 /// A video feature's span.
 #[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
