@@ -291,8 +291,7 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
             );
         }
     }
-    let decoded_codecs = codecs(&decoded);
-    assert!((decoded_codecs.iter().flatten()).all(|(_, c, _)| !matches!(c, Compression::SNAPPY)));
+    assert!((codecs(&decoded).iter().flatten()).all(|(_, c, _)| !matches!(c, Compression::SNAPPY)));
     // Both read as the input's episodes 0, 2 and 5, renumbered, with the same statistics.
     assert_holds(&episodes(&copied), &original, &[0, 2, 5]);
     assert_holds(&episodes(&decoded), &original, &[0, 2, 5]);
