@@ -151,9 +151,10 @@ impl ImageEncoding {
 /// whose pixels nothing here decodes).
 #[derive(Clone, Debug, PartialEq)]
 pub enum PixelStats {
-    /// The exact accumulator of the writer that saw the pixels (surgvla's own datasets):
+    /// The exact accumulator of the writer that saw the pixels (surgvla's own datasets), as
+    /// JSON text (one JSON value; tens of kilobytes of histograms, parsed where it is merged):
     /// merging these gives the same statistics as the pixels would.
-    Exact(serde_json::Value),
+    Exact(String),
     /// LeRobot's per-episode summary (min, max, mean, std, count, quantiles), all another
     /// tool's dataset has: merged by count, quantiles approximated.
     Summary(serde_json::Value),

@@ -235,9 +235,9 @@ pub fn exact_video_stats(episode: &mut Episode, info: &DatasetInfo) -> Result<()
         for rgb in decode_feature(encoded, &target, index, steps)? {
             stats.push_u8(&rgb);
         }
-        let value = serde_json::to_value(&stats)
+        let text = serde_json::to_string(&stats)
             .map_err(|e| ExportError::Internal(format!("statistics: {e}")))?;
-        encoded.pixel_stats = Some(PixelStats::Exact(value));
+        encoded.pixel_stats = Some(PixelStats::Exact(text));
     }
     Ok(())
 }
@@ -374,7 +374,7 @@ pub fn reencode_uncopyable(
             crate::media::video::encode(codec, &frames, width, height, info.fps, quality)?;
         encoded.shown = None;
         encoded.pixel_stats = Some(PixelStats::Exact(
-            serde_json::to_value(&stats)
+            serde_json::to_string(&stats)
                 .map_err(|e| ExportError::Internal(format!("statistics: {e}")))?,
         ));
         done.push(encoded.feature.clone());

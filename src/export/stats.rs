@@ -8,8 +8,10 @@
 
 use crate::rng::SplitMix64;
 
+mod stated;
 mod stored;
-use serde_json::{Value, json};
+use serde_json::Value;
+pub use stated::{MOMENTS, Stated};
 
 /// Values kept per vector element for quantiles: full after a few hundred episodes, so peak
 /// memory (and a checkpoint's size) stays flat in episodes; q01's rank error from such a sample
@@ -198,16 +200,10 @@ impl VectorStats {
         }
     }
 
-    /// The statistics as LeRobot's JSON: each stat a list of per-element values.
-    pub fn to_json(&self) -> Value {
+    /// The statistics as LeRobot states them: each stat a list of per-element values.
+    pub fn stated(&self) -> Stated {
         let per =
             |f: &dyn Fn(&Running) -> f64| -> Vec<f64> { self.running.iter().map(f).collect() };
-        let mut out = serde_json::Map::new();
-        out.insert("min".into(), json!(per(&|r| r.finite_min())));
-        out.insert("max".into(), json!(per(&|r| r.finite_max())));
-        out.insert("mean".into(), json!(per(&|r| r.mean())));
-        out.insert("std".into(), json!(per(&|r| r.std())));
-        out.insert("count".into(), json!([self.seen]));
         let sorted: Vec<Vec<f32>> = self
             .reservoirs
             .iter()
@@ -217,18 +213,24 @@ impl VectorStats {
                 s
             })
             .collect();
-        for (name, q) in QUANTILES {
-            out.insert(
-                name.into(),
-                json!(
-                    sorted
-                        .iter()
-                        .map(|s| quantile_sorted(s, q))
-                        .collect::<Vec<f64>>()
-                ),
-            );
+        Stated {
+            image: false,
+            moments: [
+                per(&|r| r.finite_min()),
+                per(&|r| r.finite_max()),
+                per(&|r| r.mean()),
+                per(&|r| r.std()),
+            ],
+            count: self.seen,
+            quantiles: (QUANTILES.iter())
+                .map(|&(name, q)| (name, sorted.iter().map(|s| quantile_sorted(s, q)).collect()))
+                .collect(),
         }
-        Value::Object(out)
+    }
+
+    /// The statistics as LeRobot's JSON: each stat a list of per-element values.
+    pub fn to_json(&self) -> Value {
+        self.stated().to_json()
     }
 }
 
@@ -240,7 +242,8 @@ impl VectorStats {
 #[derive(Clone, Debug)]
 pub struct ImageStats {
     counts: ImageCounts,
-    stored: Option<Value>,
+    /// The JSON text the counts were read from.
+    stored: Option<String>,
 }
 
 /// An image feature's per-channel sums and histograms: what [`ImageStats`] holds and stores.
@@ -294,20 +297,22 @@ impl<'de> serde::Deserialize<'de> for ImageStats {
 }
 
 impl ImageStats {
-    /// The statistics `value` stores (an episode carrying them from its input), remembered
-    /// with `value`, so that they are written back as they were read.
-    pub fn carried(value: &Value) -> Option<Self> {
-        let counts = <ImageCounts as serde::Deserialize>::deserialize(value).ok()?;
+    /// The statistics the JSON text `text` stores (an episode carrying them from its input),
+    /// remembered with `text`, so that they are written back as they were read.
+    pub fn carried(text: &str) -> Option<Self> {
+        let counts = serde_json::from_str::<ImageCounts>(text).ok()?;
         Some(ImageStats {
             counts,
-            stored: Some(value.clone()),
+            stored: Some(text.to_owned()),
         })
     }
 
-    /// The statistics as stored: the JSON they were read from if nothing changed them since.
-    pub fn stored_json(&self) -> Value {
-        (self.stored.clone())
-            .unwrap_or_else(|| serde_json::to_value(&self.counts).unwrap_or(Value::Null))
+    /// The statistics as stored, as JSON text: the text they were read from if nothing changed
+    /// them since.
+    pub fn stored_json(&self) -> String {
+        (self.stored.clone()).unwrap_or_else(|| {
+            serde_json::to_string(&self.counts).unwrap_or_else(|_| "null".into())
+        })
     }
 
     /// For u8 channels, reported scaled to [0, 1].
@@ -543,27 +548,32 @@ impl ImageCounts {
         (histogram.len() - 1) as f64 * self.bin_width
     }
 
+    /// The statistics as LeRobot states them: each stat per channel (nested (C, 1, 1));
+    /// count = frames.
+    pub fn stated(&self) -> Stated {
+        let per = |f: &dyn Fn(usize, &Running) -> f64| -> Vec<f64> {
+            (self.running.iter().enumerate())
+                .map(|(c, r)| f(c, r))
+                .collect()
+        };
+        Stated {
+            image: true,
+            moments: [
+                per(&|_, r| r.finite_min()),
+                per(&|_, r| r.finite_max()),
+                per(&|_, r| r.mean()),
+                per(&|_, r| r.std()),
+            ],
+            count: self.frames,
+            quantiles: (QUANTILES.iter())
+                .map(|&(name, q)| (name, per(&|c, _| self.quantile(c, q))))
+                .collect(),
+        }
+    }
+
     /// The statistics as LeRobot's JSON: each stat a (C, 1, 1) nested list; count = frames.
     pub fn to_json(&self) -> Value {
-        let per = |f: &dyn Fn(usize, &Running) -> f64| -> Value {
-            json!(
-                self.running
-                    .iter()
-                    .enumerate()
-                    .map(|(c, r)| vec![vec![f(c, r)]])
-                    .collect::<Vec<_>>()
-            )
-        };
-        let mut out = serde_json::Map::new();
-        out.insert("min".into(), per(&|_, r| r.finite_min()));
-        out.insert("max".into(), per(&|_, r| r.finite_max()));
-        out.insert("mean".into(), per(&|_, r| r.mean()));
-        out.insert("std".into(), per(&|_, r| r.std()));
-        out.insert("count".into(), json!([self.frames]));
-        for (name, q) in QUANTILES {
-            out.insert(name.into(), per(&|c, _| self.quantile(c, q)));
-        }
-        Value::Object(out)
+        self.stated().to_json()
     }
 }
 
@@ -822,6 +832,7 @@ fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::json;
 
     /// A checkpoint's reservoirs come back bit for bit (NaN, infinities, -0 and subnormals
     /// included), from the hex form and from the list of numbers written before; a damaged
@@ -895,17 +906,21 @@ mod tests {
         let mut depth = ImageStats::depth();
         depth.push_depth(&[0.05, 0.1, 0.0, 0.2]);
         let mut stored = serde_json::to_value(&depth).expect("json");
-        // An input's own spelling (a field order, a key of its own) is kept as it is.
+        // An input's own spelling (a field order, a key of its own, spaces) is kept as it is.
         stored["theirs"] = json!(1);
+        let stored = serde_json::to_string_pretty(&stored).expect("text");
         let carried = ImageStats::carried(&stored).expect("carried");
         assert_eq!(carried.stored_json(), stored);
         assert!(carried.same_shape(&depth));
-        // Changed, they are written anew.
+        let json =
+            |s: &ImageStats| -> Value { serde_json::from_str(&s.stored_json()).expect("json") };
+        // Changed, they are written anew (compact).
         let mut merged = carried.clone();
         merged.merge(&depth);
         assert_ne!(merged.stored_json(), stored);
-        assert_eq!(merged.stored_json()["frames"], json!(2));
-        assert!(merged.stored_json().get("theirs").is_none());
+        assert_eq!(json(&merged)["frames"], json!(2));
+        assert!(json(&merged).get("theirs").is_none());
+        assert_eq!(merged.stored_json(), json(&merged).to_string());
         // Whichever way the counts change, the JSON read is forgotten.
         let changes: [&dyn Fn(&mut ImageStats); 4] = [
             &|s| s.push_depth(&[0.3]),
@@ -922,9 +937,12 @@ mod tests {
         for change in changes {
             let mut changed = carried.clone();
             change(&mut changed);
-            assert!(changed.stored_json().get("theirs").is_none());
+            assert!(json(&changed).get("theirs").is_none());
         }
-        assert!(ImageStats::carried(&json!({"frames": "two"})).is_none());
+        assert!(ImageStats::carried(r#"{"frames": "two"}"#).is_none());
+        // Anything after the one value is not statistics.
+        let trailing = format!("{stored} {{}}");
+        assert!(ImageStats::carried(&trailing).is_none());
     }
 
     #[test]
@@ -1391,16 +1409,9 @@ impl SummaryStats {
         }
     }
 
-    /// The statistics as LeRobot's JSON (images nested (C, 1, 1)).
-    pub fn to_json(&self) -> Value {
+    /// The statistics as LeRobot states them (images nested (C, 1, 1)).
+    pub fn stated(&self) -> Stated {
         let weight = (self.count as f64).max(1.0);
-        let shape = |values: Vec<f64>| -> Value {
-            if self.image {
-                json!(values.iter().map(|v| vec![vec![*v]]).collect::<Vec<_>>())
-            } else {
-                json!(values)
-            }
-        };
         let mean: Vec<f64> = self.weighted_mean.iter().map(|v| v / weight).collect();
         let std: Vec<f64> = self
             .weighted_square
@@ -1408,19 +1419,19 @@ impl SummaryStats {
             .zip(&mean)
             .map(|(sq, m)| (sq / weight - m * m).max(0.0).sqrt())
             .collect();
-        let mut out = serde_json::Map::new();
-        out.insert("min".into(), shape(self.min.clone()));
-        out.insert("max".into(), shape(self.max.clone()));
-        out.insert("mean".into(), shape(mean));
-        out.insert("std".into(), shape(std));
-        out.insert("count".into(), json!([self.count]));
-        for ((name, _), q) in QUANTILES.iter().zip(&self.weighted_quantiles) {
-            out.insert(
-                (*name).into(),
-                shape(q.iter().map(|v| v / weight).collect()),
-            );
+        Stated {
+            image: self.image,
+            moments: [self.min.clone(), self.max.clone(), mean, std],
+            count: self.count,
+            quantiles: (QUANTILES.iter().zip(&self.weighted_quantiles))
+                .map(|((name, _), q)| (*name, q.iter().map(|v| v / weight).collect()))
+                .collect(),
         }
-        Value::Object(out)
+    }
+
+    /// The statistics as LeRobot's JSON (images nested (C, 1, 1)).
+    pub fn to_json(&self) -> Value {
+        self.stated().to_json()
     }
 }
 
@@ -1481,12 +1492,17 @@ impl FeatureStats {
         }
     }
 
+    /// The statistics as LeRobot states them.
+    pub fn stated(&self) -> Stated {
+        match self {
+            FeatureStats::Vector(s) => s.stated(),
+            FeatureStats::Image(s) => s.stated(),
+            FeatureStats::Summary(s) => s.stated(),
+        }
+    }
+
     /// The statistics as LeRobot's JSON.
     pub fn to_json(&self) -> Value {
-        match self {
-            FeatureStats::Vector(s) => s.to_json(),
-            FeatureStats::Image(s) => s.to_json(),
-            FeatureStats::Summary(s) => s.to_json(),
-        }
+        self.stated().to_json()
     }
 }

@@ -171,7 +171,7 @@ impl<'a> Making<'a> {
         let image_stats = (self.preset.cameras.iter())
             .zip(stats)
             .filter_map(|((name, _), stats)| {
-                let exact = serde_json::to_value(stats).ok()?;
+                let exact = serde_json::to_string(&stats).ok()?;
                 Some((
                     format!("observation.images.{name}"),
                     PixelStats::Exact(exact),

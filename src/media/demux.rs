@@ -44,6 +44,8 @@ pub struct VideoReader {
     pub height_px: u32,
     /// Shared with readers [`VideoReader::reopen`] makes.
     samples: Arc<Vec<SampleRef>>,
+    /// Positions in `samples` by presentation time ([`by_time`]), shared the same way.
+    by_time: Arc<Vec<usize>>,
     /// What a keyframe lacking its parameters gets in front: the AV1 configuration OBUs, or
     /// H.264's SPS and PPS as Annex B.
     parameters: Arc<Vec<u8>>,
@@ -178,6 +180,7 @@ impl VideoReader {
             codec,
             width_px: u32::from(track.width),
             height_px: u32::from(track.height),
+            by_time: Arc::new(by_time(&samples)),
             samples: Arc::new(samples),
             parameters: Arc::new(parameters),
             length_size,
@@ -196,6 +199,7 @@ impl VideoReader {
             width_px: self.width_px,
             height_px: self.height_px,
             samples: Arc::clone(&self.samples),
+            by_time: Arc::clone(&self.by_time),
             parameters: Arc::clone(&self.parameters),
             length_size: self.length_size,
             reorders: self.reorders,
@@ -211,12 +215,10 @@ impl VideoReader {
         self.samples.is_empty()
     }
 
-    /// The samples presented in `[from_secs, to_secs)`.
+    /// The samples presented in `[from_secs, to_secs)`, in decode order.
     fn in_span(&self, from_secs: f64, to_secs: f64) -> impl Iterator<Item = &SampleRef> {
-        self.samples.iter().filter(move |s| {
-            s.time_secs >= from_secs - TIME_TOLERANCE_SECS
-                && s.time_secs < to_secs - TIME_TOLERANCE_SECS
-        })
+        (positions_in_span(&self.samples, &self.by_time, from_secs, to_secs).into_iter())
+            .map(|i| &self.samples[i])
     }
 
     /// How many frames `[from_secs, to_secs)` holds, and whether the first is a keyframe (true
@@ -261,14 +263,10 @@ impl VideoReader {
     /// the presentation times of every picture they give (sorted). Empty when the span holds
     /// no picture.
     pub fn decodable(&mut self, from_secs: f64, to_secs: f64) -> Result<DecodableSpan, MediaError> {
-        let inside = |s: &SampleRef| {
-            s.time_secs >= from_secs - TIME_TOLERANCE_SECS
-                && s.time_secs < to_secs - TIME_TOLERANCE_SECS
-        };
-        let Some(first) = self.samples.iter().position(inside) else {
+        let inside = positions_in_span(&self.samples, &self.by_time, from_secs, to_secs);
+        let (Some(&first), Some(&last)) = (inside.first(), inside.last()) else {
             return Ok(DecodableSpan::default());
         };
-        let last = self.samples.iter().rposition(inside).unwrap_or(first);
         let Some(start) = self.samples[..=first].iter().rposition(|s| s.keyframe) else {
             return Err(invalid(
                 &self.path,
@@ -397,10 +395,85 @@ fn has_h264_sps(annex_b: &[u8]) -> bool {
         .any(|w| w[..3] == [0, 0, 1] && w[3] & 0x1f == 7)
 }
 
+/// The positions of `samples` in order of presentation time (ties in decode order), those
+/// without a time (NaN) left out: what [`positions_in_span`] searches.
+fn by_time(samples: &[SampleRef]) -> Vec<usize> {
+    let mut positions: Vec<usize> = (0..samples.len())
+        .filter(|&i| !samples[i].time_secs.is_nan())
+        .collect();
+    positions.sort_by(|&a, &b| samples[a].time_secs.total_cmp(&samples[b].time_secs));
+    positions
+}
+
+/// The positions (decode order) of the samples presented in `[from_secs, to_secs)`, within
+/// [`TIME_TOLERANCE_SECS`]: two binary searches of `by_time` (from [`by_time`]), not a pass
+/// over every sample of the file for each episode's span.
+fn positions_in_span(
+    samples: &[SampleRef],
+    by_time: &[usize],
+    from_secs: f64,
+    to_secs: f64,
+) -> Vec<usize> {
+    let (low, high) = (
+        from_secs - TIME_TOLERANCE_SECS,
+        to_secs - TIME_TOLERANCE_SECS,
+    );
+    if low.is_nan() || high.is_nan() {
+        // No time is at or after NaN.
+        return Vec::new();
+    }
+    let before = |low: f64| by_time.partition_point(|&i| samples[i].time_secs < low);
+    let (start, end) = (before(low), before(high));
+    let mut positions = by_time.get(start..end).unwrap_or_default().to_vec();
+    positions.sort_unstable();
+    positions
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::media::video::{Mp4Writer, encode};
+
+    /// The binary searches find exactly the samples a pass over all of them finds, in decode
+    /// order: seeded files of times out of order, repeated, negative, NaN and infinite.
+    #[test]
+    fn spans_found_by_time_are_those_a_pass_finds() {
+        let mut rng = crate::rng::SplitMix64::stream(5, "sample times");
+        let odd = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -0.0, 0.0];
+        for case in 0..300 {
+            let count = (rng.next_u64() % 40) as usize;
+            let samples: Vec<SampleRef> = (0..count)
+                .map(|index| SampleRef {
+                    index,
+                    offset: 0,
+                    size: 0,
+                    time_secs: match rng.next_u64() % 6 {
+                        0 => odd[(rng.next_u64() % odd.len() as u64) as usize],
+                        1 => (rng.next_u64() % 5) as f64 * 0.2,
+                        _ => rng.uniform(-1.0, 9.0),
+                    },
+                    keyframe: true,
+                })
+                .collect();
+            let sorted = by_time(&samples);
+            for _ in 0..20 {
+                let mut bound = || match rng.next_u64() % 5 {
+                    0 => odd[(rng.next_u64() % odd.len() as u64) as usize],
+                    1 => (rng.next_u64() % 5) as f64 * 0.2 + TIME_TOLERANCE_SECS,
+                    _ => rng.uniform(-2.0, 10.0),
+                };
+                let (from, to) = (bound(), bound());
+                let passed: Vec<usize> = (0..count)
+                    .filter(|&i| {
+                        let t = samples[i].time_secs;
+                        t >= from - TIME_TOLERANCE_SECS && t < to - TIME_TOLERANCE_SECS
+                    })
+                    .collect();
+                let found = positions_in_span(&samples, &sorted, from, to);
+                assert_eq!(found, passed, "case {case}: {from}..{to}");
+            }
+        }
+    }
 
     fn frames(n: u8) -> Vec<Vec<u8>> {
         (0..n)

@@ -65,6 +65,9 @@ pub(super) struct DataFile {
     /// The writers of the default columns alone, for a copied group (making a writer for every
     /// column, a compressor each, cost more than encoding the default columns).
     defaults: DefaultColumns,
+    /// The buffer the last copied group's bytes were read into, kept for the next one's (a
+    /// new one would be zeroed first, each time).
+    spare: Vec<u8>,
 }
 
 /// The default columns of a data file's schema, with a factory of their column writers alone
@@ -170,6 +173,7 @@ impl DataFile {
             schema,
             groups: 0,
             defaults,
+            spare: Vec::new(),
         })
     }
 
@@ -253,8 +257,10 @@ impl DataFile {
                 offset_index,
             })));
         }
-        let region = Region::read(stored, &chunks)?;
-        self.append(chunks, &region)
+        let region = Region::read(stored, &chunks, std::mem::take(&mut self.spare))?;
+        let appended = self.append(chunks, &region);
+        self.spare = region.into_buffer();
+        appended
     }
 
     /// Appends one row group of `chunks` (every leaf's, in order); copied ones are read from
@@ -317,13 +323,20 @@ pub(super) fn write_group<W: std::io::Write + Send>(
 struct Region {
     /// Where the bytes start in the file.
     start: u64,
+    /// The buffer they were read into: they are its first `length` bytes.
     bytes: Bytes,
+    length: usize,
 }
 
 impl Region {
     /// The span of `chunks`' copied ones in `stored`'s file (checked to lie inside the file
-    /// when its footer was read), read.
-    fn read(stored: &StoredGroup, chunks: &[Option<Chunk>]) -> Result<Region, ParquetError> {
+    /// when its footer was read), read into `buffer` (grown as needed, its bytes past the span
+    /// left as they were).
+    fn read(
+        stored: &StoredGroup,
+        chunks: &[Option<Chunk>],
+        buffer: Vec<u8>,
+    ) -> Result<Region, ParquetError> {
         let spans = chunks.iter().filter_map(|c| match c {
             Some(Chunk::Copied(close)) => {
                 let m = &close.metadata;
@@ -338,26 +351,43 @@ impl Region {
             .ok()
             .and_then(|end| end.checked_sub(usize::try_from(start).ok()?))
             .unwrap_or(0);
-        let mut bytes = vec![0; length];
+        Region::read_span(&stored.handle, start, length, buffer)
+    }
+
+    /// `length` bytes of `file` from `start`, read into `buffer` (grown as needed).
+    fn read_span(
+        file: &File,
+        start: u64,
+        length: usize,
+        mut buffer: Vec<u8>,
+    ) -> Result<Region, ParquetError> {
+        if buffer.len() < length {
+            buffer.resize(length, 0);
+        }
         if length > 0 {
-            crate::files::read_exact_at(&stored.handle, &mut bytes, start)?;
+            crate::files::read_exact_at(file, &mut buffer[..length], start)?;
         }
         Ok(Region {
             start,
-            bytes: Bytes::from(bytes),
+            bytes: Bytes::from(buffer),
+            length,
         })
+    }
+
+    /// The buffer back, once the bytes handed out are gone (empty if one is still held).
+    fn into_buffer(self) -> Vec<u8> {
+        self.bytes.try_into_mut().map(Vec::from).unwrap_or_default()
     }
 
     /// `length` bytes from file offset `start`.
     fn slice(&self, start: u64, length: usize) -> Result<Bytes, ParquetError> {
         let from = (start.checked_sub(self.start)).and_then(|f| usize::try_from(f).ok());
         let range = from.and_then(|from| Some(from..from.checked_add(length)?));
-        match range.filter(|r| r.end <= self.bytes.len()) {
+        match range.filter(|r| r.end <= self.length) {
             Some(range) => Ok(self.bytes.slice(range)),
             None => Err(ParquetError::EOF(format!(
                 "{length} bytes at {start} lie outside the {} read at {}",
-                self.bytes.len(),
-                self.start
+                self.length, self.start
             ))),
         }
     }
@@ -365,7 +395,7 @@ impl Region {
 
 impl Length for Region {
     fn len(&self) -> u64 {
-        self.start + self.bytes.len() as u64
+        self.start + self.length as u64
     }
 }
 
@@ -505,6 +535,34 @@ pub(super) fn matches_writer(
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
+
+    /// A region read into the last one's buffer holds its own bytes alone (not the longer
+    /// last one's past them), and gives the buffer back for the next.
+    #[test]
+    fn a_region_reuses_its_buffer_and_reads_only_its_span() {
+        let path = std::env::temp_dir().join(format!("surgvla-region-{}", std::process::id()));
+        let content: Vec<u8> = (0..=255u8).cycle().take(4096).collect();
+        std::fs::write(&path, &content).expect("write");
+        let file = File::open(&path).expect("open");
+        std::fs::remove_file(&path).expect("removed (still open)");
+        let mut buffer = Vec::new();
+        for (start, length) in [(100u64, 3000usize), (7, 10), (0, 0), (4000, 96), (1, 4095)] {
+            let region = Region::read_span(&file, start, length, buffer).expect("read");
+            assert_eq!(region.len(), start + length as u64);
+            let at = usize::try_from(start).expect("small");
+            let whole = region.get_bytes(start, length).expect("inside");
+            assert_eq!(&whole[..], &content[at..at + length]);
+            let mut read = Vec::new();
+            std::io::Read::read_to_end(&mut region.get_read(start).expect("reader"), &mut read)
+                .expect("read");
+            assert_eq!(read, &content[at..at + length], "nothing past the span");
+            assert!(region.get_bytes(start, length + 1).is_err());
+            assert!(region.get_bytes(start.wrapping_sub(1), 1).is_err());
+            drop((whole, read));
+            buffer = region.into_buffer();
+            assert!(buffer.len() >= length, "the buffer comes back");
+        }
+    }
     use arrow_array::{BinaryArray, Int64Array};
     use arrow_schema::{DataType, Field, Schema};
     use parquet::arrow::arrow_reader::{ArrowReaderMetadata, ArrowReaderOptions};

@@ -259,7 +259,11 @@ fn write_episodes_jsonl(
             line[key.as_str()] = value.clone();
         }
         for (key, value) in &e.pixel_stats {
-            line[format!("{}{key}", super::table::PIXEL_STATS)] = value.clone();
+            let value = serde_json::from_str(value.get()).map_err(|source| ExportError::Json {
+                path: episodes_pending.path.clone(),
+                source,
+            })?;
+            line[format!("{}{key}", super::table::PIXEL_STATS)] = value;
         }
         writeln!(episodes, "{line}").map_err(ExportError::io(&episodes_pending.path))?;
         let line = json!({"episode_index": e.episode_index, "stats": e.stats});

@@ -749,7 +749,9 @@ fn splits_of(info: &super::meta::InfoJson, episodes: u64) -> Vec<(String, std::o
 /// accumulator, else lerobot's per-episode summary.
 fn stored_pixel_stats(row: &StoredEpisode, key: &str) -> Option<PixelStats> {
     match (row.pixel_stats.get(key), row.stats.get(key)) {
-        (Some(exact), _) => serde_json::from_str(exact).ok().map(PixelStats::Exact),
+        // Kept as the text it is (one JSON value), parsed where it is merged.
+        (Some(exact), _) => (serde_json::from_str::<serde::de::IgnoredAny>(exact).ok())
+            .map(|_| PixelStats::Exact(exact.clone())),
         (None, Some(summary)) => serde_json::to_value(summary).ok().map(PixelStats::Summary),
         (None, None) => None,
     }
@@ -1249,11 +1251,11 @@ type ImageStatsOf = Vec<(String, PixelStats)>;
 fn exact_image_stats(row: &StoredEpisode, info: &DatasetInfo) -> Vec<(String, PixelStats)> {
     step_images(info)
         .filter_map(|f| {
-            let exact: Value = serde_json::from_str(row.pixel_stats.get(&f.name)?).ok()?;
-            let parsed = <ImageStats as serde::Deserialize>::deserialize(&exact).ok()?;
+            let exact = row.pixel_stats.get(&f.name)?;
+            let parsed = serde_json::from_str::<ImageStats>(exact).ok()?;
             match FeatureStats::for_feature(f) {
                 FeatureStats::Image(like) if parsed.same_shape(&like) => {
-                    Some((f.name.clone(), PixelStats::Exact(exact)))
+                    Some((f.name.clone(), PixelStats::Exact(exact.clone())))
                 }
                 _ => None,
             }

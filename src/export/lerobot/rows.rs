@@ -180,11 +180,11 @@ impl DataRows {
             return Ok(Vec::new());
         };
         let batch_rows = if images { BATCH_ROWS } else { LIGHT_BATCH_ROWS };
-        let (mut reader, episode) = open.reader(info, images, batch_rows)?;
+        let (mut reader, known) = open.reader(info, images, batch_rows)?;
         let mut rows = Vec::new();
         for batch in &mut reader {
             let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
-            rows.extend(rows_of(&batch, &open.path, info, images, episode)?);
+            rows.extend(rows_of(&batch, &open.path, info, images, known)?);
         }
         Ok(rows)
     }
@@ -212,7 +212,7 @@ impl DataRows {
             match reader.next() {
                 Some(batch) => {
                     let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
-                    return rows_of(&batch, &open.path, info, true, None).map(Some);
+                    return rows_of(&batch, &open.path, info, true, Known::default()).map(Some);
                 }
                 None => open.reader = None,
             }
@@ -222,15 +222,15 @@ impl DataRows {
 
 impl OpenFile {
     /// A reader of the next row group (which it passes), with its image columns or without;
-    /// without them, the `episode_index` column is left out when the group's statistics say its
-    /// one episode, which is returned. Each column read costs a decompressor, and the writer
-    /// numbers the episode anew anyway (its task is read: it goes into the result).
+    /// without them, the `episode_index` and `task_index` columns are left out when the group's
+    /// statistics say their one value, which is returned. Each column read costs a
+    /// decompressor, and the writer numbers the episode anew anyway.
     fn reader(
         &mut self,
         info: &DatasetInfo,
         images: bool,
         batch_rows: usize,
-    ) -> Result<(ParquetRecordBatchReader, Option<i64>), ExportError> {
+    ) -> Result<(ParquetRecordBatchReader, Known), ExportError> {
         let group = self.group;
         self.group += 1;
         let file = self.file.try_clone().map_err(ExportError::io(&self.path))?;
@@ -238,15 +238,33 @@ impl OpenFile {
             ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())
                 .with_row_groups(vec![group])
                 .with_batch_size(batch_rows);
-        let mut episode = None;
+        let mut known = Known::default();
         if !images {
-            let groups = self.metadata.metadata().row_groups();
-            episode = groups.get(group).and_then(single_episode);
+            if let Some(group) = self.metadata.metadata().row_groups().get(group) {
+                known = Known::of(group);
+            }
             let schema = self.metadata.parquet_schema();
-            builder = builder.with_projection(light_projection(schema, info, episode));
+            builder = builder.with_projection(light_projection(schema, info, known));
         }
         let reader = builder.build().map_err(ExportError::parquet(&self.path))?;
-        Ok((reader, episode))
+        Ok((reader, known))
+    }
+}
+
+/// The one episode and the one task of a row group's rows, where its statistics say them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Known {
+    episode: Option<i64>,
+    task: Option<i64>,
+}
+
+impl Known {
+    fn of(group: &parquet::file::metadata::RowGroupMetaData) -> Known {
+        let [_, task_column, _] = ROW_COLUMNS;
+        Known {
+            episode: single_episode(group),
+            task: single_value(group, task_column),
+        }
     }
 }
 
@@ -282,16 +300,19 @@ impl Ints<'_> {
 /// (`index`, `frame_index`) are written anew from the rows' places.
 const ROW_COLUMNS: [&str; 3] = ["episode_index", "task_index", "timestamp"];
 
-/// The columns a row needs without its images: [`ROW_COLUMNS`] (but the episode's when the
-/// group's statistics give it, `episode`), and the features' other values (not the images, nor
-/// columns `info` leaves out). Each column read costs a decompressor.
+/// The columns a row needs without its images: [`ROW_COLUMNS`] (but the episode's and the
+/// task's when the group's statistics give them, `known`), and the features' other values (not
+/// the images, nor columns `info` leaves out). Each column read costs a decompressor.
 fn light_projection(
     schema: &parquet::schema::types::SchemaDescriptor,
     info: &DatasetInfo,
-    episode: Option<i64>,
+    known: Known,
 ) -> ProjectionMask {
-    let [episode_column, ..] = ROW_COLUMNS;
-    let given = |name: &str| name == episode_column && episode.is_some();
+    let [episode_column, task_column, _] = ROW_COLUMNS;
+    let given = |name: &str| {
+        (name == episode_column && known.episode.is_some())
+            || (name == task_column && known.task.is_some())
+    };
     let wanted = |name: &str| {
         (ROW_COLUMNS.contains(&name) && !given(name))
             || (info.features.iter())
@@ -322,7 +343,7 @@ pub(super) fn stored_images(
     for batch in reader {
         let batch = super::table::fixed_size_lists(batch.map_err(ExportError::Arrow)?);
         images.extend(
-            rows_of(&batch, path, info, true, None)?
+            rows_of(&batch, path, info, true, Known::default())?
                 .into_iter()
                 .map(|r| r.images),
         );
@@ -350,19 +371,19 @@ fn single_value(group: &parquet::file::metadata::RowGroupMetaData, name: &str) -
 }
 
 /// Decodes a batch of frame rows into steps (`images`: the batch has the image columns, and
-/// each row keeps their bytes; `known_episode`: the episode of every row, when the batch
-/// leaves its column out).
+/// each row keeps their bytes; `known`: the episode and the task of every row, where the batch
+/// leaves their columns out).
 fn rows_of(
     batch: &RecordBatch,
     path: &Path,
     info: &DatasetInfo,
     images: bool,
-    known_episode: Option<i64>,
+    known: Known,
 ) -> Result<Vec<Row>, ExportError> {
     let file: std::sync::Arc<Path> = std::sync::Arc::from(path);
     let [episode_column, task_column, timestamp_column] = ROW_COLUMNS;
-    let episode = Ints::of(batch, episode_column, known_episode, path)?;
-    let task = column::<Int64Array>(batch, task_column, path)?;
+    let episode = Ints::of(batch, episode_column, known.episode, path)?;
+    let task = Ints::of(batch, task_column, known.task, path)?;
     let timestamp = batch
         .column_by_name(timestamp_column)
         .and_then(|c| c.as_any().downcast_ref::<Float32Array>());
@@ -648,8 +669,8 @@ mod tests {
         let schema = parquet::arrow::ArrowSchemaConverter::new()
             .convert(&arrow)
             .expect("parquet schema");
-        let read = |episode: Option<i64>| -> Vec<String> {
-            let mask = light_projection(&schema, &info, episode);
+        let read = |episode: Option<i64>, task: Option<i64>| -> Vec<String> {
+            let mask = light_projection(&schema, &info, Known { episode, task });
             (0..schema.num_columns())
                 .filter(|&leaf| mask.leaf_included(leaf))
                 .map(|leaf| schema.column(leaf).path().parts()[0].clone())
@@ -662,8 +683,16 @@ mod tests {
             "timestamp",
         ];
         let indices = ["episode_index", "task_index"];
-        assert_eq!(read(None), [&vectors[..], &indices].concat());
-        // A group whose statistics give its episode does not read it; its task is read.
-        assert_eq!(read(Some(3)), [&vectors[..], &["task_index"]].concat());
+        assert_eq!(read(None, None), [&vectors[..], &indices].concat());
+        // A group whose statistics give its episode or its task does not read them.
+        assert_eq!(
+            read(Some(3), None),
+            [&vectors[..], &["task_index"]].concat()
+        );
+        assert_eq!(
+            read(None, Some(1)),
+            [&vectors[..], &["episode_index"]].concat()
+        );
+        assert_eq!(read(Some(3), Some(1)), vectors);
     }
 }

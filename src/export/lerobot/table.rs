@@ -11,6 +11,7 @@ use arrow_array::{
 };
 use arrow_schema::{DataType, Field, Fields, Schema};
 use serde_json::Value;
+use serde_json::value::RawValue;
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -489,9 +490,10 @@ pub(super) struct EpisodeRow {
     /// Where each video feature's frames are.
     pub videos: Vec<KeyedSpan>,
     /// Per video feature of a surgvla dataset, the exact statistics accumulator of its pixels
-    /// (null when unknown): the `surgvla/pixel_stats/<feature>` column.
+    /// (null when unknown): the `surgvla/pixel_stats/<feature>` column. Held, journaled and
+    /// written as the JSON text it was read or made as ([`raw_json`]).
     #[serde(default)]
-    pub pixel_stats: Vec<(String, Value)>,
+    pub pixel_stats: Vec<(String, Box<RawValue>)>,
     /// Where the episode came from, for surgvla's own episodes only: another tool's dataset
     /// or a robot's recordings get no `surgvla/...` columns rather than placeholders.
     #[serde(default)]
@@ -499,6 +501,11 @@ pub(super) struct EpisodeRow {
     /// Per-episode values another tool's dataset recorded ([`crate::episode::EpisodeMeta::fields`]).
     #[serde(default)]
     pub fields: serde_json::Map<String, Value>,
+}
+
+/// `text` as one JSON value held as its text: null when it is not one.
+pub(super) fn raw_json(text: String) -> Box<RawValue> {
+    RawValue::from_string(text).unwrap_or_else(|_| RawValue::NULL.to_owned())
 }
 
 /// One episode's row of the episodes metadata as a reader sees it (v3.0's parquet row, or v2.1's
@@ -895,8 +902,8 @@ pub(super) fn episodes_batch(
             r.pixel_stats
                 .iter()
                 .find(|(k, _)| k == key)
-                .filter(|(_, v)| !v.is_null())
-                .map(|(_, v)| v.to_string())
+                .filter(|(_, v)| v.get() != "null")
+                .map(|(_, v)| v.get())
         });
         columns.push((
             format!("{PIXEL_STATS}{key}"),

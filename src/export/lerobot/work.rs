@@ -23,7 +23,7 @@ pub(super) type EpisodeStats = Vec<(String, FeatureStats)>;
 /// An episode's statistics as its row of the episodes table records them, per feature: its
 /// statistics object (none for text, which has none), and its exact pixel statistics where the
 /// table keeps them.
-pub(super) type RowStats = Vec<(Option<FeatureStatsJson>, Option<serde_json::Value>)>;
+pub(super) type RowStats = Vec<(Option<FeatureStatsJson>, Option<String>)>;
 
 /// One feature's entry of [`RowStats`]: `stats` as the row records them, for a feature that is
 /// text or not, whose exact pixel statistics the table keeps or not.
@@ -31,12 +31,12 @@ pub(super) fn row_entry(
     stats: &FeatureStats,
     text: bool,
     keeps_pixels: bool,
-) -> (Option<FeatureStatsJson>, Option<serde_json::Value>) {
+) -> (Option<FeatureStatsJson>, Option<String>) {
     let exact = keeps_pixels.then(|| match stats {
         FeatureStats::Image(s) => s.stored_json(),
-        _ => serde_json::Value::Null,
+        _ => "null".to_owned(),
     });
-    let json = (!text).then(|| FeatureStatsJson::from_value(stats.to_json()));
+    let json = (!text).then(|| FeatureStatsJson::from_stated(&stats.stated()));
     (json, exact)
 }
 
@@ -261,7 +261,7 @@ impl EpisodeWork<'_> {
         &self,
         name: &str,
         stats: &FeatureStats,
-    ) -> (Option<FeatureStatsJson>, Option<serde_json::Value>) {
+    ) -> (Option<FeatureStatsJson>, Option<String>) {
         let keeps_pixels = self.info.is_ours()
             && keeps_pixel_stats(self.video_features, self.parquet_features, name);
         row_entry(stats, self.info.is_text(name), keeps_pixels)

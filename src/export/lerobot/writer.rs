@@ -769,7 +769,7 @@ impl LeRobotFiles {
         info: &DatasetInfo,
         episode_stats: EpisodeStats,
         made: Option<RowStats>,
-    ) -> (StatsJson, Vec<(String, Value)>) {
+    ) -> (StatsJson, Vec<(String, Box<serde_json::value::RawValue>)>) {
         let mut stats_json = StatsJson::new();
         let mut pixel_stats = Vec::new();
         let made = made.into_iter().flatten().map(Some);
@@ -782,7 +782,7 @@ impl LeRobotFiles {
         for (((name, total), (_, this)), made) in folded {
             let (json, exact) = made.unwrap_or_else(|| work.row_entry(name, &this));
             if let Some(exact) = exact {
-                pixel_stats.push((name.clone(), exact));
+                pixel_stats.push((name.clone(), super::table::raw_json(exact)));
             }
             if let Some(json) = json {
                 stats_json.insert(name.clone(), json);
