@@ -31,6 +31,30 @@ pub const QUANTILES: [(&str, f64); 5] = [
     ("q99", 0.99),
 ];
 
+/// Bins of a u8 channel's histogram, and their width once scaled to [0, 1].
+const U8_BINS: usize = 256;
+const U8_BIN_WIDTH: f64 = 1.0 / 255.0;
+/// The width of a depth histogram's bins, metres.
+const DEPTH_BIN_WIDTH_M: f64 = DEPTH_RANGE_M / DEPTH_BINS as f64;
+
+/// (channels, bins per channel, bin width) of image feature `feature`'s statistics: u8
+/// channels scaled to [0, 1] (RGB, masks, another dataset's images), or depth in metres; None
+/// for a feature that is not an image.
+fn image_shape(feature: &crate::episode::FeatureSpec) -> Option<(usize, usize, f64)> {
+    use crate::episode::{Dtype, FeatureKind};
+    match feature.kind {
+        FeatureKind::Rgb => Some((3, U8_BINS, U8_BIN_WIDTH)),
+        FeatureKind::Mask => Some((1, U8_BINS, U8_BIN_WIDTH)),
+        FeatureKind::Depth => Some((1, DEPTH_BINS, DEPTH_BIN_WIDTH_M)),
+        FeatureKind::Other if feature.dtype == Dtype::Image => Some((
+            feature.shape.get(2).copied().unwrap_or(1),
+            U8_BINS,
+            U8_BIN_WIDTH,
+        )),
+        _ => None,
+    }
+}
+
 /// Running statistics of one scalar series (in a checkpoint, a value JSON cannot hold, such as
 /// an empty series' infinite minimum or a NaN in the data, is written as text).
 #[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug)]
@@ -209,7 +233,7 @@ impl VectorStats {
             .iter()
             .map(|r| {
                 let mut s = r.clone();
-                s.sort_by(f32::total_cmp);
+                s.sort_unstable_by(f32::total_cmp);
                 s
             })
             .collect();
@@ -317,20 +341,20 @@ impl ImageStats {
 
     /// For u8 channels, reported scaled to [0, 1].
     pub fn unit_scaled(channels: usize) -> Self {
-        ImageStats::from(ImageCounts {
-            running: vec![Running::default(); channels],
-            histograms: vec![vec![0; 256]; channels],
-            bin_width: 1.0 / 255.0,
-            frames: 0,
-        })
+        ImageStats::empty(channels, U8_BINS, U8_BIN_WIDTH)
     }
 
     /// For depth in metres.
     pub fn depth() -> Self {
+        ImageStats::empty(1, DEPTH_BINS, DEPTH_BIN_WIDTH_M)
+    }
+
+    /// No frame counted yet, in `channels` histograms of `bins` bins of `bin_width`.
+    fn empty(channels: usize, bins: usize, bin_width: f64) -> Self {
         ImageStats::from(ImageCounts {
-            running: vec![Running::default()],
-            histograms: vec![vec![0; DEPTH_BINS]],
-            bin_width: DEPTH_RANGE_M / DEPTH_BINS as f64,
+            running: vec![Running::default(); channels],
+            histograms: vec![vec![0; bins]; channels],
+            bin_width,
             frames: 0,
         })
     }
@@ -339,10 +363,23 @@ impl ImageStats {
 impl ImageCounts {
     /// Whether `other` has these statistics' channels, bins and bin width (merging it adds
     /// like to like).
+    #[cfg(test)]
     pub fn same_shape(&self, other: &ImageCounts) -> bool {
         self.running.len() == other.running.len()
             && self.bin_width.to_bits() == other.bin_width.to_bits()
             && (self.histograms.iter().map(Vec::len)).eq(other.histograms.iter().map(Vec::len))
+    }
+
+    /// Whether these have the channels, bins and bin width of `feature`'s statistics
+    /// ([`FeatureStats::for_feature`]'s, which this does not make: a depth feature's hold
+    /// 8,192 bins).
+    pub fn fits(&self, feature: &crate::episode::FeatureSpec) -> bool {
+        image_shape(feature).is_some_and(|(channels, bins, bin_width)| {
+            self.running.len() == channels
+                && self.histograms.len() == channels
+                && self.histograms.iter().all(|h| h.len() == bins)
+                && self.bin_width.to_bits() == bin_width.to_bits()
+        })
     }
 
     /// Folds in another image series' statistics.
@@ -833,6 +870,48 @@ fn count_u8(pixels: &[u8], channels: usize) -> Vec<[u64; 256]> {
 mod tests {
     use super::*;
     use serde_json::json;
+
+    /// Counts fit a feature exactly when they have the shape of the statistics made for it,
+    /// for every kind of image and for features that are not images.
+    #[test]
+    fn image_counts_fit_the_features_whose_statistics_they_shape_like() {
+        use crate::episode::{Dtype, FeatureKind, FeatureSet, FeatureSpec, standard_features};
+        let set = FeatureSet {
+            depth: true,
+            mask: true,
+            environment_state: true,
+        };
+        let mut features = standard_features(8, 8, set);
+        for (channels, dtype) in [(1, Dtype::Image), (3, Dtype::Image), (4, Dtype::Image)] {
+            features.push(FeatureSpec {
+                name: format!("theirs.{channels}"),
+                dtype,
+                shape: vec![8, 8, channels],
+                names: Vec::new(),
+                kind: FeatureKind::Other,
+                video: None,
+                info: Default::default(),
+            });
+        }
+        let kinds: Vec<FeatureKind> = features.iter().map(|f| f.kind).collect();
+        assert!(kinds.contains(&FeatureKind::Depth) && kinds.contains(&FeatureKind::Rgb));
+        let mut images = 0;
+        for a in &features {
+            let FeatureStats::Image(counts) = FeatureStats::for_feature(a) else {
+                continue;
+            };
+            images += 1;
+            for b in &features {
+                let expected = match FeatureStats::for_feature(b) {
+                    FeatureStats::Image(other) => counts.same_shape(&other),
+                    _ => false,
+                };
+                assert_eq!(counts.fits(b), expected, "{} against {}", a.name, b.name);
+            }
+            assert!(counts.fits(a), "{}", a.name);
+        }
+        assert!(images >= 5, "every kind of image was tried");
+    }
 
     /// A checkpoint's reservoirs come back bit for bit (NaN, infinities, -0 and subnormals
     /// included), from the hex form and from the list of numbers written before; a damaged
@@ -1448,18 +1527,13 @@ pub enum FeatureStats {
 impl FeatureStats {
     /// Empty statistics of the right shape for `feature`.
     pub fn for_feature(feature: &crate::episode::FeatureSpec) -> Self {
-        use crate::episode::FeatureKind;
-        match feature.kind {
-            FeatureKind::Rgb => FeatureStats::Image(ImageStats::unit_scaled(3)),
-            FeatureKind::Mask => FeatureStats::Image(ImageStats::unit_scaled(1)),
-            FeatureKind::Depth => FeatureStats::Image(ImageStats::depth()),
-            FeatureKind::Other if feature.dtype == crate::episode::Dtype::Image => {
-                FeatureStats::Image(ImageStats::unit_scaled(
-                    feature.shape.get(2).copied().unwrap_or(1),
-                ))
+        use crate::episode::{Dtype, FeatureKind};
+        match (image_shape(feature), feature.kind) {
+            (Some((channels, bins, bin_width)), _) => {
+                FeatureStats::Image(ImageStats::empty(channels, bins, bin_width))
             }
             // Text has no statistics: no elements to gather (and none written).
-            FeatureKind::Other if feature.dtype == crate::episode::Dtype::String => {
+            (None, FeatureKind::Other) if feature.dtype == Dtype::String => {
                 FeatureStats::Vector(VectorStats::new(0))
             }
             _ => FeatureStats::Vector(VectorStats::new(feature.shape.iter().product())),

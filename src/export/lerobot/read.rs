@@ -15,7 +15,7 @@ use crate::export::error::ExportError;
 use crate::export::info::DatasetInfo;
 use crate::export::paths::{self, Field};
 use crate::export::source::EpisodeSource;
-use crate::export::stats::{FeatureStats, ImageStats};
+use crate::export::stats::ImageStats;
 use crate::media::decode;
 use crate::media::demux::VideoReader;
 use crate::media::image::decode_png_sized;
@@ -1253,12 +1253,9 @@ fn exact_image_stats(row: &StoredEpisode, info: &DatasetInfo) -> Vec<(String, Pi
         .filter_map(|f| {
             let exact = row.pixel_stats.get(&f.name)?;
             let parsed = serde_json::from_str::<ImageStats>(exact).ok()?;
-            match FeatureStats::for_feature(f) {
-                FeatureStats::Image(like) if parsed.same_shape(&like) => {
-                    Some((f.name.clone(), PixelStats::Exact(exact.clone())))
-                }
-                _ => None,
-            }
+            parsed
+                .fits(f)
+                .then(|| (f.name.clone(), PixelStats::Exact(exact.clone())))
         })
         .collect()
 }

@@ -453,27 +453,7 @@ fn carried_image_stats(episode: &Episode, feature: &FeatureSpec) -> Option<Image
         _ => None,
     })?;
     let exact = ImageStats::carried(value)?;
-    match FeatureStats::for_feature(feature) {
-        FeatureStats::Image(like) if exact.same_shape(&like) => Some(exact),
-        _ => None,
-    }
-}
-
-/// Leaves out of the frame-by-frame statistics (no image decoded) the images whose exact
-/// statistics `episode` carries, and returns those (per feature): [`EpisodeWork::carried_stats`]
-/// puts them in afterwards.
-fn skip_carried(
-    features: &[FeatureSpec],
-    episode: &Episode,
-    total: &mut EpisodeStats,
-) -> Vec<Option<ImageStats>> {
-    let all = carried_all(features, episode);
-    for ((_, stats), carried) in total.iter_mut().zip(&all) {
-        if carried.is_some() {
-            *stats = FeatureStats::Vector(VectorStats::new(0));
-        }
-    }
-    all
+    exact.fits(feature).then_some(exact)
 }
 
 /// Per feature, the exact statistics `episode` carries for its images in the steps, if any.
@@ -484,14 +464,6 @@ fn carried_all(features: &[FeatureSpec], episode: &Episode) -> Vec<Option<ImageS
                 .then(|| carried_image_stats(episode, feature))
                 .flatten()
         })
-        .collect()
-}
-
-/// Empty statistics of `features`.
-fn fresh_feature_stats(features: &[FeatureSpec]) -> EpisodeStats {
-    features
-        .iter()
-        .map(|f| (f.name.clone(), FeatureStats::for_feature(f)))
         .collect()
 }
 
@@ -617,8 +589,16 @@ impl StatsFold {
     /// For `work`'s features; `episode` when it is known ahead, for the statistics it
     /// carries.
     pub(super) fn new(work: &EpisodeWork<'_>, episode: Option<&Episode>) -> Self {
-        let mut total = fresh_feature_stats(&work.info.features);
-        let carried = episode.map(|episode| skip_carried(&work.info.features, episode, &mut total));
+        let features = &work.info.features;
+        let carried = episode.map(|episode| carried_all(features, episode));
+        // The images whose statistics the episode carries are left out of the frame-by-frame
+        // statistics (no image decoded): [`EpisodeWork::carried_stats`] puts them in afterwards.
+        let mut total: EpisodeStats = (features.iter().enumerate())
+            .map(|(i, f)| match carried.as_ref().and_then(|c| c.get(i)) {
+                Some(Some(_)) => (f.name.clone(), FeatureStats::Vector(VectorStats::new(0))),
+                _ => (f.name.clone(), FeatureStats::for_feature(f)),
+            })
+            .collect();
         for (_, stats) in &mut total {
             if let (FeatureStats::Vector(stats), Some(episode)) = (stats, episode) {
                 stats.reserve(episode.steps.len());

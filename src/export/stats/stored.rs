@@ -157,6 +157,15 @@ pub(super) mod trimmed {
                 at += 1;
                 continue;
             }
+            if counts.len() == MAX_BINS {
+                return Err(format!("a histogram of more than {MAX_BINS} bins"));
+            }
+            // The commonest word by far (most of a depth histogram's bins are empty).
+            if bytes[at] == b'0' && bytes.get(at + 1).is_none_or(u8::is_ascii_whitespace) {
+                counts.push(0);
+                at += 1;
+                continue;
+            }
             let start = at;
             let (mut value, mut digits_only) = (0u64, true);
             while let Some(&byte) = bytes.get(at).filter(|b| !b.is_ascii_whitespace()) {
@@ -167,9 +176,6 @@ pub(super) mod trimmed {
                     digits_only = false;
                 }
                 at += 1;
-            }
-            if counts.len() == MAX_BINS {
-                return Err(format!("a histogram of more than {MAX_BINS} bins"));
             }
             if digits_only {
                 counts.push(value);
