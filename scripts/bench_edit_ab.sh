@@ -6,19 +6,49 @@
 # split with every binary. Prints each run and the means (wall seconds, task-clock ms with
 # `perf` installed). Figures go to BENCHMARKS.md by hand.
 #
-#   scripts/bench_edit_ab.sh DATASET_AV1 ROUNDS OLD_BINARY NEW_BINARY [split]
+#   scripts/bench_edit_ab.sh DATASET_AV1 ROUNDS OLD_BINARY NEW_BINARY [split] [cold]
 #
 # DATASET_AV1: the input scripts/bench_edit.sh makes (the default dataset in AV1 video mode).
+# The input's pages are first dropped from the page cache and read back in order: how a file's
+# cached pages were made (large folios from a sequential read, or small ones from scattered
+# reads and writes) changes what copying from it costs by up to 10x on this machine, so every
+# run starts from the same state. `cold`: before each edit its input, and before each `cp` the
+# result it copies, are dropped from the page cache (`posix_fadvise` DONTNEED after `sync`):
+# both read from the disk.
 set -euo pipefail
 if [ "$#" -lt 4 ]; then
-    sed -n '2,11p' "$0" >&2
+    sed -n '2,17p' "$0" >&2
     exit 2
 fi
-input="$1" rounds="$2" old="$3" new="$4" split="${5:-}"
+input="$1" rounds="$2" old="$3" new="$4"
+shift 4
+split="" cold=""
+for flag in "$@"; do
+    case "${flag}" in
+    split) split=split ;;
+    cold) cold=cold ;;
+    *) echo "unknown flag ${flag} (split, cold)" >&2; exit 2 ;;
+    esac
+done
 work="$(mktemp -d "${TMPDIR:-/tmp}/surgvla-edit-ab.XXXXXX")"
 trap 'rm -rf "${work}"' EXIT
 episodes="$(python3 -c "import json; print(json.load(open('${input}/meta/info.json'))['total_episodes'])")"
 drop="$(python3 -c "print(','.join(str(i) for i in range(${episodes}) if i % 5 in (1, 3)))")"
+
+uncache() { # DIR [reread]: drop DIR's files from the page cache (and read them back in order)
+    sync
+    python3 - "$@" <<'EOF'
+import os, sys
+for root, _, names in os.walk(sys.argv[1]):
+    for name in sorted(names):
+        fd = os.open(os.path.join(root, name), os.O_RDONLY)
+        os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+        while len(sys.argv) > 2 and os.read(fd, 1 << 20):
+            pass
+        os.close(fd)
+EOF
+}
+uncache "${input}" reread
 
 timed() { # LABEL COMMAND... -> "LABEL wall S cpu MS"
     local label="$1"
@@ -38,20 +68,24 @@ timed() { # LABEL COMMAND... -> "LABEL wall S cpu MS"
 for _ in $(seq "${rounds}"); do
     for binary in old new; do
         rm -rf "${work}/drop-${binary}"
+        if [ -n "${cold}" ]; then uncache "${input}"; fi
         sync
         path="${old}"
         [ "${binary}" = new ] && path="${new}"
         timed "drop-${binary}" "${path}" edit "${input}" --drop "${drop}" --out "${work}/drop-${binary}"
     done
     rm -rf "${work}/copy"
+    if [ -n "${cold}" ]; then uncache "${work}/drop-old"; fi
     sync
     timed "cp" cp -r "${work}/drop-old" "${work}/copy"
     rm -rf "${work}/copy"
+    if [ -n "${cold}" ]; then uncache "${work}/drop-old"; fi
     sync
     timed "cp+sync" sh -c "cp -r '${work}/drop-old' '${work}/copy' && sync"
     if [ "${split}" = split ]; then
         for binary in old new; do
             rm -rf "${work}/split-${binary}"
+            if [ -n "${cold}" ]; then uncache "${input}"; fi
             sync
             path="${old}"
             [ "${binary}" = new ] && path="${new}"
