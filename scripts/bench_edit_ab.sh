@@ -3,8 +3,9 @@
 # time moves single runs by up to 10 %): each round runs the 40 % drop with every binary, then
 # `cp -r` of the first binary's result, and the same `cp -r` followed by `sync` (the kept bytes
 # on disk, as the edit leaves them: it syncs what it writes); then, with `split`, the 80/10/10
-# split with every binary. Prints each run and the means (wall seconds, task-clock ms with
-# `perf` installed). Figures go to BENCHMARKS.md by hand.
+# split with every binary. Prints each run and the means and medians (wall seconds, task-clock
+# ms with `perf` installed): single runs on this VM stray by up to 50 %, so compare medians over
+# 16 rounds or more. Figures go to BENCHMARKS.md by hand.
 #
 #   scripts/bench_edit_ab.sh DATASET_AV1 ROUNDS OLD_BINARY NEW_BINARY [split] [cold]
 #
@@ -17,7 +18,7 @@
 # both read from the disk.
 set -euo pipefail
 if [ "$#" -lt 4 ]; then
-    sed -n '2,17p' "$0" >&2
+    sed -n '2,18p' "$0" >&2
     exit 2
 fi
 input="$1" rounds="$2" old="$3" new="$4"
@@ -93,6 +94,12 @@ for _ in $(seq "${rounds}"); do
                 --split train=0.8,val=0.1,test=0.1 --out "${work}/split-${binary}"
         done
     fi
-done | tee "${work}/runs" | sort | awk '
-    { print; wall[$1] += $3; cpu[$1] += $5; n[$1]++ }
-    END { for (k in wall) printf "MEAN %-10s wall %.3f s  cpu %.0f ms  (%d runs)\n", k, wall[k] / n[k], cpu[k] / n[k], n[k] }'
+done | tee "${work}/runs" | sort -k1,1 -k3,3n | awk '
+    { print; wall[$1] += $3; cpu[$1] += $5; n[$1]++; walls[$1, n[$1]] = $3 }
+    END {
+        for (k in wall) {
+            # The runs of a label come sorted by wall time: the median is the middle one(s).
+            m = n[k]; median = (walls[k, int((m + 1) / 2)] + walls[k, int(m / 2) + 1]) / 2
+            printf "MEAN %-10s wall %.3f s (median %.3f s)  cpu %.0f ms  (%d runs)\n", k, wall[k] / m, median, cpu[k] / m, m
+        }
+    }'

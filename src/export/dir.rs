@@ -21,8 +21,9 @@
 //!   takes the lock, verifies every file the checkpoint lists (refusing, with the file named, if
 //!   one is missing, truncated or changed) and deletes whatever was written after it.
 //! - **Journals.** Append-only files of per-episode records ([`DatasetDir::append`]) that a
-//!   format reads back when it finishes, so what it keeps in memory does not grow with the
-//!   number of episodes; a checkpoint records their length and checksum, resume cuts them back.
+//!   format reads back when it finishes (all it did not hold within a bound), so what it keeps
+//!   in memory does not grow past that bound with the number of episodes; a checkpoint
+//!   records their length and checksum, resume cuts them back.
 //! - **Rolling.** [`FileCounter`] numbers rolled files `chunk/file` the LeRobot way.
 
 use crate::export::collection::{RecordedShard, SHARD_KEY};

@@ -1102,6 +1102,39 @@ mod tests {
         assert!(SummaryStats::from_json(&json!({"count": [1]})).is_none());
     }
 
+    /// One part's summary is stated as it was read, to the last bit, however its numbers
+    /// round when weighted by its count (a kept episode's row keeps what another tool wrote);
+    /// two parts merged are pooled.
+    #[test]
+    fn one_summary_is_stated_as_read_and_two_are_pooled() {
+        let mut rng = crate::rng::SplitMix64::new(48);
+        let mut uniform = || (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        for round in 0..200 {
+            let values = |f: &mut dyn FnMut() -> f64| -> Vec<Value> {
+                (0..3).map(|_| json!([[f()]])).collect()
+            };
+            let mut stats = serde_json::Map::new();
+            for name in ["min", "max", "mean", "std"]
+                .into_iter()
+                .chain(QUANTILES.iter().map(|(n, _)| *n))
+            {
+                stats.insert(name.into(), Value::Array(values(&mut uniform)));
+            }
+            stats.insert("count".into(), json!([1 + round * 37]));
+            let read = Value::Object(stats);
+            let one = SummaryStats::from_json(&read).expect("a summary");
+            assert_eq!(one.to_json(), read, "round {round}");
+            let mut two = one.clone();
+            two.merge(&one);
+            let pooled = two.to_json();
+            assert_eq!(pooled["count"], json!([2 * (1 + round * 37)]));
+            let (mean, pooled_mean) = (flat(&read["mean"]), flat(&pooled["mean"]));
+            for (m, p) in mean.iter().zip(&pooled_mean) {
+                assert!((m - p).abs() <= 1e-15, "round {round}: {m} vs {p}");
+            }
+        }
+    }
+
     #[test]
     fn vector_stats_match_direct_computation() {
         let mut stats = VectorStats::new(2);
@@ -1407,6 +1440,18 @@ pub struct SummaryStats {
     weighted_quantiles: Vec<Vec<f64>>,
     /// Whether each statistic nests as (C, 1, 1) (images) rather than a flat list.
     image: bool,
+    /// The one part read, as read (none once parts are merged): stated as it was, where
+    /// weighting by the count and dividing by it again could move a number by a rounding.
+    #[serde(default)]
+    one_part: Option<OnePart>,
+}
+
+/// A [`SummaryStats`] part's mean, standard deviation and quantiles (per element), as read.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+struct OnePart {
+    mean: Vec<f64>,
+    std: Vec<f64>,
+    quantiles: Vec<Vec<f64>>,
 }
 
 /// Every number of a (nested) JSON list, in order.
@@ -1450,11 +1495,15 @@ impl SummaryStats {
                 .map(|(m, s)| (s * s + m * m) * weight)
                 .collect(),
             weighted_mean: mean.iter().map(|m| m * weight).collect(),
-            weighted_quantiles: quantiles
-                .into_iter()
+            weighted_quantiles: (quantiles.iter())
                 .map(|q| q.iter().map(|v| v * weight).collect())
                 .collect(),
             image: matches!(&stats["mean"], Value::Array(a) if a.first().is_some_and(Value::is_array)),
+            one_part: Some(OnePart {
+                mean,
+                std,
+                quantiles,
+            }),
         })
     }
 
@@ -1468,6 +1517,7 @@ impl SummaryStats {
             return;
         }
         self.count += other.count;
+        self.one_part = None;
         let add = |a: &mut Vec<f64>, b: &Vec<f64>| a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
         self.min
             .iter_mut()
@@ -1491,19 +1541,32 @@ impl SummaryStats {
     /// The statistics as LeRobot states them (images nested (C, 1, 1)).
     pub fn stated(&self) -> Stated {
         let weight = (self.count as f64).max(1.0);
-        let mean: Vec<f64> = self.weighted_mean.iter().map(|v| v / weight).collect();
-        let std: Vec<f64> = self
-            .weighted_square
-            .iter()
-            .zip(&mean)
-            .map(|(sq, m)| (sq / weight - m * m).max(0.0).sqrt())
-            .collect();
+        let OnePart {
+            mean,
+            std,
+            quantiles,
+        } = self.one_part.clone().unwrap_or_else(|| {
+            let mean: Vec<f64> = self.weighted_mean.iter().map(|v| v / weight).collect();
+            let std = (self.weighted_square.iter().zip(&mean))
+                .map(|(sq, m)| (sq / weight - m * m).max(0.0).sqrt())
+                .collect();
+            let quantiles = (self.weighted_quantiles.iter())
+                .map(|q| q.iter().map(|v| v / weight).collect())
+                .collect();
+            OnePart {
+                mean,
+                std,
+                quantiles,
+            }
+        });
         Stated {
             image: self.image,
             moments: [self.min.clone(), self.max.clone(), mean, std],
             count: self.count,
-            quantiles: (QUANTILES.iter().zip(&self.weighted_quantiles))
-                .map(|((name, _), q)| (*name, q.iter().map(|v| v / weight).collect()))
+            quantiles: QUANTILES
+                .iter()
+                .map(|(name, _)| *name)
+                .zip(quantiles)
                 .collect(),
         }
     }

@@ -301,6 +301,51 @@ fn kept_row_groups_are_copied_as_stored_and_read_as_an_edit_that_decodes() {
     assert_eq!(code, 0, "{err}");
 }
 
+/// Where a video feature has no exact pixel statistics (a dataset lerobot wrote), its
+/// per-episode statistics are the episodes table's own, carried to the kept episodes' rows:
+/// the table's statistics columns are read for the video features (only).
+#[test]
+fn a_video_features_stored_statistics_travel_without_its_exact_ones() {
+    let input = temp_root("edit-summary-input");
+    for (relative, bytes) in tree(video_input()) {
+        let path = input.join(relative);
+        std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+        std::fs::write(path, bytes).expect("copy");
+    }
+    let table = |root: &Path| root.join("meta/episodes/chunk-000/file-000.parquet");
+    let video = "observation.images.endoscope";
+    rewrite_parquet(&table(&input), |batch| {
+        let nulls: ArrayRef = Arc::new(arrow_array::StringArray::new_null(batch.num_rows()));
+        with_column(batch, &format!("surgvla/pixel_stats/{video}"), nulls)
+    });
+    let out = temp_root("edit-summary");
+    let (code, _, err) = surgvla(&["edit", text(&input), "--drop", "1,4", "--out", text(&out)]);
+    assert_eq!(code, 0, "{err}");
+    let read = |root: &Path| {
+        surgvla::export::lerobot::read::read_parquet(&table(root)).expect("episodes table")
+    };
+    let (before, after) = (read(&input), read(&out));
+    let (before, after) = (&before[0], &after[0]);
+    let stats: Vec<String> = (before.schema().fields().iter())
+        .map(|f| f.name().clone())
+        .filter(|name| name.starts_with(&format!("stats/{video}/")))
+        .collect();
+    assert_eq!(stats.len(), 10, "{stats:?}");
+    for name in &stats {
+        let (was, now) = (
+            before.column_by_name(name).expect("input column"),
+            after.column_by_name(name).expect("output column"),
+        );
+        for (row, kept) in [0, 2, 3, 5].into_iter().enumerate() {
+            assert_eq!(
+                now.slice(row, 1).to_data(),
+                was.slice(kept, 1).to_data(),
+                "{name}: episode {kept}"
+            );
+        }
+    }
+}
+
 fn text_of(bytes: &[u8]) -> &str {
     std::str::from_utf8(bytes).expect("utf-8")
 }

@@ -426,9 +426,12 @@ enum EpisodeRows {
     Loaded(std::collections::VecDeque<StoredEpisode>),
     Parquet {
         files: std::vec::IntoIter<PathBuf>,
-        open: Option<OpenTable>,
-        /// Whether a whole row was asked for: files are then opened with every column.
+        open: Option<Box<OpenTable>>,
+        /// Whether a whole row was asked for: files are then opened with every column a row
+        /// uses ([`Wanted`]).
         whole: bool,
+        /// The video features, whose LeRobot statistics a whole row reads.
+        videos: Vec<String>,
     },
 }
 
@@ -455,20 +458,38 @@ struct OpenTable {
     passed: usize,
 }
 
+/// The columns of an episodes table a reader decodes.
+#[derive(Clone, Copy)]
+enum Wanted<'a> {
+    /// The metadata's (no statistics).
+    Meta,
+    /// The metadata's, surgvla's exact pixel statistics, and LeRobot's statistics of these
+    /// features only (the video features: [`stored_pixel_stats`] is their one reader; every
+    /// other feature's statistics are made from its values).
+    Whole(&'a [String]),
+}
+
+impl Wanted<'_> {
+    fn reads(self, column: &str) -> bool {
+        match (self, column.strip_prefix(super::table::STATS)) {
+            (Wanted::Meta, _) => !is_statistics_column(column),
+            (Wanted::Whole(_), None) => true,
+            (Wanted::Whole(summaries), Some(stat)) => (stat.rsplit_once('/'))
+                .is_some_and(|(feature, _)| summaries.iter().any(|f| f == feature)),
+        }
+    }
+}
+
 impl OpenTable {
-    /// `path` opened at row `offset`, with every column or only the metadata's.
-    fn open(path: PathBuf, meta_only: bool, offset: usize) -> Result<Self, ExportError> {
+    /// `path` opened at row `offset`, with the columns `wanted`.
+    fn open(path: PathBuf, wanted: Wanted<'_>, offset: usize) -> Result<Self, ExportError> {
         let builder = open_parquet(&path)?;
-        let builder = if meta_only {
-            let keep: Vec<usize> = (builder.schema().fields().iter().enumerate())
-                .filter(|(_, f)| !is_statistics_column(f.name()))
-                .map(|(i, _)| i)
-                .collect();
-            let mask = parquet::arrow::ProjectionMask::roots(builder.parquet_schema(), keep);
-            builder.with_projection(mask)
-        } else {
-            builder
-        };
+        let keep: Vec<usize> = (builder.schema().fields().iter().enumerate())
+            .filter(|(_, f)| wanted.reads(f.name()))
+            .map(|(i, _)| i)
+            .collect();
+        let mask = parquet::arrow::ProjectionMask::roots(builder.parquet_schema(), keep);
+        let builder = builder.with_projection(mask);
         let reader = (builder.with_batch_size(64).with_offset(offset))
             .build()
             .map_err(ExportError::parquet(&path))?;
@@ -490,7 +511,7 @@ fn is_statistics_column(name: &str) -> bool {
 impl EpisodeRows {
     /// Opens the metadata; v3.0's files are checked to open as parquet now, so a damaged one
     /// stops a command before it writes anything.
-    fn open(root: &Path, v21: bool) -> Result<Self, ExportError> {
+    fn open(root: &Path, v21: bool, videos: Vec<String>) -> Result<Self, ExportError> {
         if v21 {
             return Ok(EpisodeRows::Loaded(episode_rows_v21(root)?.into()));
         }
@@ -502,6 +523,7 @@ impl EpisodeRows {
             files: files.into_iter(),
             open: None,
             whole: false,
+            videos,
         })
     }
 
@@ -515,7 +537,7 @@ impl EpisodeRows {
                 let mut first = None;
                 // The first row of the first file holding one (a file may be empty).
                 for path in files.as_slice() {
-                    let mut table = OpenTable::open(path.clone(), true, 0)?;
+                    let mut table = OpenTable::open(path.clone(), Wanted::Meta, 0)?;
                     let batch = (table.reader.by_ref())
                         .map(|b| b.map_err(ExportError::Arrow))
                         .find(|b| b.as_ref().map_or(true, |b| b.num_rows() > 0))
@@ -560,17 +582,34 @@ impl EpisodeRows {
 
     /// The next episode's row, as much of it as `part` asks; None after the last (or when
     /// skipped). A file is read without its statistics columns until a whole row is asked
-    /// for; from then on with every column (the file being read opened again at its next
-    /// row), so a reader that mixes the two opens a file at most twice.
+    /// for; from then on with every column a row uses ([`Wanted::Whole`]; the file being read
+    /// opened again at its next row), so a reader that mixes the two opens a file at most
+    /// twice.
     fn advance(&mut self, part: RowPart) -> Result<Option<StoredEpisode>, ExportError> {
-        let (files, open, whole) = match self {
+        let (files, open, whole, videos) = match self {
             EpisodeRows::Loaded(rows) => return Ok(rows.pop_front()),
-            EpisodeRows::Parquet { files, open, whole } => (files, open, whole),
+            EpisodeRows::Parquet {
+                files,
+                open,
+                whole,
+                videos,
+            } => (files, open, whole, videos),
+        };
+        let wanted = |whole: bool| {
+            if whole {
+                Wanted::Whole(videos)
+            } else {
+                Wanted::Meta
+            }
         };
         if part == RowPart::Whole && !*whole {
             *whole = true;
             if let Some(table) = open.take() {
-                *open = Some(OpenTable::open(table.path, false, table.passed)?);
+                *open = Some(Box::new(OpenTable::open(
+                    table.path,
+                    wanted(true),
+                    table.passed,
+                )?));
             }
         }
         loop {
@@ -578,7 +617,7 @@ impl EpisodeRows {
                 let Some(path) = files.next() else {
                     return Ok(None);
                 };
-                *open = Some(OpenTable::open(path, !*whole, 0)?);
+                *open = Some(Box::new(OpenTable::open(path, wanted(*whole), 0)?));
                 continue;
             };
             if let Some((read, next)) = table.batch.as_mut().filter(|(b, n)| *n < b.num_rows()) {
@@ -809,7 +848,10 @@ impl LeRobotSource {
         info.omitted = read.omitted;
         info.carried_keys = info_json.other.clone();
         info.splits = splits_of(&info_json, info_json.total_episodes.unwrap_or(0));
-        let episodes = EpisodeRows::open(root, v21)?;
+        let videos = (info.features.iter().filter(|f| f.video.is_some()))
+            .map(|f| f.name.clone())
+            .collect();
+        let episodes = EpisodeRows::open(root, v21, videos)?;
         info.episode_fields = episodes.declared_fields()?;
         Ok(LeRobotSource {
             root: root.to_path_buf(),
@@ -1444,6 +1486,37 @@ impl EpisodeSource for LeRobotSource {
 mod tests {
     use super::*;
     use std::sync::Arc;
+
+    /// A row's metadata reads no statistics; a whole row reads surgvla's exact pixel
+    /// statistics and LeRobot's statistics of the video features only (a feature's name may
+    /// hold a slash; a feature whose name starts another's is not it).
+    #[test]
+    fn a_whole_row_reads_the_statistics_of_the_video_features_only() {
+        let videos = [
+            "observation.images.left".to_string(),
+            "cam/wrist".to_string(),
+        ];
+        let columns = [
+            ("episode_index", true, true),
+            ("videos/observation.images.left/from_timestamp", true, true),
+            ("surgvla/pixel_stats/observation.images.depth", false, true),
+            ("stats/observation.images.left/mean", false, true),
+            ("stats/cam/wrist/q01", false, true),
+            ("stats/observation.images.depth/mean", false, false),
+            ("stats/observation.state/std", false, false),
+            ("stats/observation.images.left2/mean", false, false),
+            ("stats/cam/q01", false, false),
+            ("stats/", false, false),
+        ];
+        for (column, meta, whole) in columns {
+            assert_eq!(Wanted::Meta.reads(column), meta, "{column} in the metadata");
+            assert_eq!(
+                Wanted::Whole(&videos).reads(column),
+                whole,
+                "{column} in a row"
+            );
+        }
+    }
 
     /// A statistics cell read straight into a `StatValue` is what reading it as JSON and
     /// deserializing gives, for every type an episodes table may hold (numbers of each kind,

@@ -47,8 +47,62 @@ struct VideoFile {
 }
 
 /// The journal of episode rows (one JSON line per episode), read back when the dataset
-/// finishes: the writer keeps no per-episode state in memory.
+/// finishes, but for the rows this run still holds ([`HeldRows`]).
 const EPISODES_JOURNAL: &str = "meta/.surgvla-episodes.jsonl";
+
+/// The most journal text whose rows a run holds in memory as well (about twice this in
+/// memory): past it, it holds none and finishing parses the whole journal, so that the memory a
+/// run needs stays bounded however many episodes it writes.
+const HELD_ROWS_BYTES: usize = 16 << 20;
+
+/// The rows this run journaled, held so that finishing need not parse their lines back (what
+/// finishing an edit spent most of its time on). The journal stays the record: a resumed run
+/// parses the lines an earlier run wrote.
+struct HeldRows<T> {
+    /// Journal lines before the first held row (written by earlier runs).
+    after: u64,
+    rows: Vec<T>,
+    /// Journal text of the held rows.
+    bytes: usize,
+}
+
+impl<T> HeldRows<T> {
+    /// None held yet, `after` journal lines written before.
+    fn after(after: u64) -> Self {
+        HeldRows {
+            after,
+            rows: Vec::new(),
+            bytes: 0,
+        }
+    }
+
+    /// Holds `row`, journaled as a line of `line_bytes`; false (and none to be held any more)
+    /// once the held rows' lines would pass `limit` bytes.
+    fn hold(&mut self, row: T, line_bytes: usize, limit: usize) -> bool {
+        self.bytes = self.bytes.saturating_add(line_bytes);
+        if self.bytes > limit {
+            return false;
+        }
+        self.rows.push(row);
+        true
+    }
+}
+
+/// The episodes table's rows: the journal's lines written before `held`'s rows, parsed, then
+/// those rows; every line parsed when none are held, or when they are not the journal's last
+/// `written` - `after` rows (which they always are: the check keeps a slip from losing rows).
+fn journal_then_held<'a, T: Send + 'a>(
+    lines: impl Iterator<Item = Result<String, ExportError>> + Send + 'a,
+    parse: &'a (dyn Fn(&String) -> Result<T, ExportError> + Sync),
+    held: Option<HeldRows<T>>,
+    written: u64,
+) -> impl Iterator<Item = Result<T, ExportError>> + Send + 'a {
+    let (before, rows) = (held.filter(|h| h.after + h.rows.len() as u64 == written))
+        .map_or((usize::MAX, Vec::new()), |h| {
+            (usize::try_from(h.after).unwrap_or(usize::MAX), h.rows)
+        });
+    parsed_in_parallel(lines.take(before), parse).chain(rows.into_iter().map(Ok))
+}
 
 /// The writer's state: everything a checkpoint records besides the files (which the
 /// [`DatasetDir`] records). It is saved at moments when every data and video file written so
@@ -89,6 +143,8 @@ pub struct LeRobotFiles {
     apart_secs: (f64, f64),
     /// The episode being appended part by part, after its first part.
     pub(super) parts: Option<super::work::OpenEpisode>,
+    /// None once past [`HELD_ROWS_BYTES`] (or finished).
+    held: Option<HeldRows<EpisodeRow>>,
 }
 
 impl FormatWriter for LeRobotFiles {
@@ -142,6 +198,7 @@ impl FormatWriter for LeRobotFiles {
                 .collect();
             writer.state = state;
         }
+        writer.held = Some(HeldRows::after(writer.state.episodes));
         Ok(writer)
     }
 
@@ -322,6 +379,7 @@ impl LeRobotFiles {
             task_lookup: HashMap::new(),
             apart_secs: (0.0, 0.0),
             parts: None,
+            held: None,
         }
     }
 
@@ -725,7 +783,7 @@ impl LeRobotFiles {
             provenance: info.is_ours().then(|| Provenance::of(meta)),
             fields: meta.fields.clone(),
         };
-        self.journal(dir, &row)?;
+        self.journal(dir, row)?;
         if written.full || self.videos_full() {
             // A full data or video file closes the others at the same moment, so that
             // everything written so far is complete, and the state is recorded.
@@ -746,9 +804,10 @@ impl LeRobotFiles {
             .any(|v| (self.options.version).file_is_full(v.mp4.bytes_written(), limit))
     }
 
-    /// Appends an episode's row to the journal and counts the episode.
-    fn journal(&mut self, dir: &mut DatasetDir, row: &EpisodeRow) -> Result<(), ExportError> {
-        let line = serde_json::to_vec(row).map_err(|source| ExportError::Json {
+    /// Appends an episode's row to the journal, holds it while [`HeldRows`] may, and counts
+    /// the episode.
+    fn journal(&mut self, dir: &mut DatasetDir, row: EpisodeRow) -> Result<(), ExportError> {
+        let line = serde_json::to_vec(&row).map_err(|source| ExportError::Json {
             path: dir.path(EPISODES_JOURNAL),
             source,
         })?;
@@ -757,6 +816,11 @@ impl LeRobotFiles {
         self.state.total_frames += row.length;
         self.state.summary.episodes += 1;
         self.state.summary.frames += row.length;
+        if let Some(held) = &mut self.held
+            && !held.hold(row, line.len(), HELD_ROWS_BYTES)
+        {
+            self.held = None;
+        }
         Ok(())
     }
 
@@ -852,7 +916,8 @@ impl LeRobotFiles {
                 source,
             })
         };
-        let rows = parsed_in_parallel(dir.journal_lines(EPISODES_JOURNAL)?, &parse);
+        let lines = dir.journal_lines(EPISODES_JOURNAL)?;
+        let rows = journal_then_held(lines, &parse, self.held.take(), self.state.episodes);
         let (files, bytes) = self.options.version.write_metadata(dir, &metadata, rows)?;
         summary.files += files;
         summary.bytes += bytes;
@@ -934,6 +999,41 @@ fn feature_map(feature_specs: &[FeatureSpec]) -> serde_json::Map<String, Value> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Rows are held until their journal lines pass the limit, then none are; the table's
+    /// rows are the journal's earlier lines then the held rows, or every line when none are
+    /// held or the held ones do not end the journal.
+    #[test]
+    fn held_rows_follow_the_journal_lines_before_them() {
+        let mut held = HeldRows::after(3);
+        assert!(held.hold(3, 10, 25) && held.hold(4, 10, 25));
+        assert!(!held.hold(5, 10, 25), "30 bytes pass the limit");
+        assert_eq!(held.rows, [3, 4]);
+        let parse = |line: &String| {
+            line.parse::<usize>()
+                .map_err(|e| ExportError::Internal(format!("{line}: {e}")))
+        };
+        // The journal's lines, the held ones written as "1000 + row" to tell them apart.
+        let journal = || (0..5).map(|i| Ok(if i < 3 { i } else { 1000 + i }.to_string()));
+        let rows = |held, written| {
+            journal_then_held(journal(), &parse, held, written)
+                .collect::<Result<Vec<usize>, _>>()
+                .expect("rows")
+        };
+        let two = || {
+            let mut held = HeldRows::after(3);
+            assert!(held.hold(3, 1, 10) && held.hold(4, 1, 10));
+            held
+        };
+        assert_eq!(rows(Some(two()), 5), [0, 1, 2, 3, 4]);
+        assert_eq!(rows(None, 5), [0, 1, 2, 1003, 1004]);
+        assert_eq!(
+            rows(Some(two()), 6),
+            [0, 1, 2, 1003, 1004],
+            "not the last rows"
+        );
+        assert_eq!(rows(Some(HeldRows::after(5)), 5), [0, 1, 2, 1003, 1004]);
+    }
 
     /// Lines parsed chunk by chunk on the pool come back in order, past a chunk's end, and a
     /// read error stops them where it was.
