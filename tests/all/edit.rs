@@ -17,9 +17,9 @@ fn text(p: &Path) -> &str {
 
 /// Six AV1 episodes (T1-1 and T2-1, three each), made once for the module.
 fn video_input() -> &'static Path {
-    static ROOT: OnceLock<crate::util::TempRoot> = OnceLock::new();
+    static ROOT: OnceLock<std::path::PathBuf> = OnceLock::new();
     ROOT.get_or_init(|| {
-        let root = temp_root("edit-video-input");
+        let root = crate::util::shared_root("edit-video-input");
         collect(&root, &["T1-1,T2-1", "3", "--video", "av1"]);
         root
     })

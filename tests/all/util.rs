@@ -28,6 +28,48 @@ pub(crate) fn temp_root(name: &str) -> TempRoot {
     TempRoot(std::env::temp_dir().join(format!("surgvla-{name}-{}-{n}", std::process::id())))
 }
 
+/// The folder (not created) of a dataset the tests of one module share, made once and held in
+/// a static. A static is never dropped, so a [`TempRoot`] there would outlive every run: this
+/// one lives in Cargo's scratch folder for integration tests (`target/tmp`), named by the
+/// run's process, and the runs that ended (their process gone) leave theirs to be removed by
+/// the next one that asks for the same name.
+pub(crate) fn shared_root(name: &str) -> PathBuf {
+    let scratch = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let prefix = format!("surgvla-{name}-");
+    for entry in std::fs::read_dir(scratch).into_iter().flatten().flatten() {
+        let file = entry.file_name();
+        let ended = (file.to_str())
+            .and_then(|file| file.strip_prefix(&prefix))
+            .and_then(|pid| pid.parse::<u32>().ok())
+            .is_some_and(|pid| !Path::new(&format!("/proc/{pid}")).exists());
+        if ended {
+            std::fs::remove_dir_all(entry.path()).ok();
+        }
+    }
+    scratch.join(format!("{prefix}{}", std::process::id()))
+}
+
+#[test]
+fn a_shared_root_removes_those_of_ended_runs_only() {
+    let scratch = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    // No process has this number (Linux's pids stop at 2^22).
+    let ended = scratch.join(format!("surgvla-sweep-test-{}", u32::MAX));
+    let running = scratch.join(format!("surgvla-sweep-test-{}", std::process::id()));
+    let other = scratch.join(format!("surgvla-sweep-other-{}", u32::MAX));
+    for dir in [&ended, &running, &other] {
+        std::fs::create_dir_all(dir.join("data")).expect("mkdir");
+    }
+    assert_eq!(shared_root("sweep-test"), running);
+    assert!(!ended.exists(), "an ended run's folder stays");
+    assert!(
+        running.exists() && other.exists(),
+        "a live or other folder went"
+    );
+    for dir in [&running, &other] {
+        std::fs::remove_dir_all(dir).expect("clean up");
+    }
+}
+
 /// See [`temp_root`].
 #[derive(Debug)]
 pub(crate) struct TempRoot(PathBuf);

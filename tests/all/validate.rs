@@ -19,7 +19,6 @@ fn path(p: &Path) -> &str {
 
 /// The good datasets, made once: LeRobot v3.0, v2.1, RLDS, zarr, MCAP (2 episodes).
 struct Corpus {
-    _root: crate::util::TempRoot,
     lerobot: PathBuf,
     lerobot21: PathBuf,
     rlds: PathBuf,
@@ -32,7 +31,7 @@ struct Corpus {
 fn corpus() -> &'static Corpus {
     static CORPUS: OnceLock<Corpus> = OnceLock::new();
     CORPUS.get_or_init(|| {
-        let root = temp_root("validate-corpus");
+        let root = crate::util::shared_root("validate-corpus");
         let lerobot = root.join("lerobot");
         let small = ["--tasks", "T1-1,T3-1", "--episodes-per-task", "1"];
         let run = |args: &[&str]| {
@@ -65,7 +64,6 @@ fn corpus() -> &'static Corpus {
         args.extend(small);
         run(&args);
         Corpus {
-            _root: root,
             lerobot,
             lerobot21,
             rlds,
