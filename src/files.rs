@@ -40,6 +40,64 @@ pub fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Resul
     }
 }
 
+/// Bytes a reader has the kernel read ahead of where it reads ([`ReadAhead`]).
+pub const READ_AHEAD_BYTES: u64 = 4 << 20;
+
+/// A reader's window of read-ahead in one file: the kernel is asked to bring the next
+/// [`READ_AHEAD_BYTES`] into the page cache in the background ([`read_ahead`]), each byte once.
+/// A reader that skips parts of a file (an edit's dropped episodes, the large columns it copies
+/// rather than reads) defeats the kernel's own read-ahead, and each of its small reads would
+/// wait for the disk.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ReadAhead {
+    /// Where the file was asked to be read to.
+    asked_to: u64,
+}
+
+impl ReadAhead {
+    /// About to read `file` at byte `at`: asks for it to be read ahead up to
+    /// [`READ_AHEAD_BYTES`] past `at` (not past `end`), leaving out what was asked before.
+    /// Returns the span asked for, if any.
+    pub fn reading(&mut self, file: &File, at: u64, end: u64) -> Option<std::ops::Range<u64>> {
+        let ahead = at.saturating_add(READ_AHEAD_BYTES).min(end);
+        let from = self.asked_to.max(at);
+        (ahead > from).then(|| {
+            read_ahead(file, from, ahead - from);
+            self.asked_to = ahead;
+            from..ahead
+        })
+    }
+}
+
+/// Asks the kernel to bring `len` bytes of `file` from byte `offset` into the page cache in
+/// the background (`posix_fadvise` WILLNEED), for reads that come soon. Advice only: an error
+/// changes nothing, and other systems do nothing.
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)]
+pub fn read_ahead(file: &File, offset: u64, len: u64) {
+    use std::os::fd::AsRawFd;
+    /// `POSIX_FADV_WILLNEED` (fcntl.h).
+    const WILL_NEED: i32 = 3;
+    unsafe extern "C" {
+        fn posix_fadvise(fd: i32, offset: i64, len: i64, advice: i32) -> i32;
+    }
+    // (A length of 0 would mean "to the end of the file".)
+    let (Ok(offset), Ok(len)) = (i64::try_from(offset), i64::try_from(len)) else {
+        return;
+    };
+    if len > 0 {
+        // SAFETY: posix_fadvise takes a descriptor and three integers and reads no memory of
+        // ours; the descriptor is open for as long as `file` is borrowed.
+        unsafe {
+            posix_fadvise(file.as_raw_fd(), offset, len, WILL_NEED);
+        }
+    }
+}
+
+/// Other systems read ahead on their own terms.
+#[cfg(not(target_os = "linux"))]
+pub fn read_ahead(_file: &File, _offset: u64, _len: u64) {}
+
 /// Opens `path` (links followed) for reading if it is a regular file. Anything else (a FIFO,
 /// a socket, a device, a directory) is refused with [`std::io::ErrorKind::InvalidInput`]
 /// before it is opened, as opening a FIFO waits for a writer for ever; the file is then opened
@@ -168,6 +226,109 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<u64, WriteError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each byte is asked for once, never past the end given, from where the reader is.
+    #[test]
+    fn a_read_ahead_window_asks_for_each_byte_once() {
+        let root = std::env::temp_dir().join(format!("surgvla-ahead-{}", std::process::id()));
+        std::fs::create_dir_all(&root).unwrap();
+        let path = root.join("f.bin");
+        std::fs::write(&path, b"x").unwrap();
+        let file = File::open(&path).unwrap();
+        let window = READ_AHEAD_BYTES;
+        let mut ahead = ReadAhead::default();
+        assert_eq!(ahead.reading(&file, 0, u64::MAX), Some(0..window));
+        assert_eq!(
+            ahead.reading(&file, 10, u64::MAX),
+            Some(window..window + 10)
+        );
+        assert_eq!(ahead.reading(&file, 10, u64::MAX), None, "asked already");
+        // Capped at the end, then nothing more once the end is asked for.
+        assert_eq!(
+            ahead.reading(&file, 100, 500),
+            None,
+            "the end lies in what was asked"
+        );
+        assert_eq!(
+            ahead.reading(&file, 3 * window, 3 * window + 7),
+            Some(3 * window..3 * window + 7)
+        );
+        assert_eq!(ahead.reading(&file, 3 * window + 7, 3 * window + 7), None);
+        // A reader that jumps back asks for nothing it asked for before.
+        assert_eq!(ahead.reading(&file, 0, u64::MAX), None);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// The advice has the kernel read what it names: a page dropped from the page cache is
+    /// back in it after [`read_ahead`], without being read (`mincore` of a mapping of the
+    /// file, which reads nothing, says which pages are cached).
+    #[cfg(target_os = "linux")]
+    #[test]
+    #[allow(unsafe_code)]
+    fn read_ahead_brings_the_pages_it_names_into_the_page_cache() {
+        use std::os::fd::AsRawFd;
+        unsafe extern "C" {
+            fn posix_fadvise(fd: i32, offset: i64, len: i64, advice: i32) -> i32;
+            fn mmap(
+                at: *mut u8,
+                len: usize,
+                prot: i32,
+                flags: i32,
+                fd: i32,
+                offset: i64,
+            ) -> *mut u8;
+            fn mincore(at: *mut u8, len: usize, resident: *mut u8) -> i32;
+            fn munmap(at: *mut u8, len: usize) -> i32;
+        }
+        const DONT_NEED: i32 = 4;
+        const PROT_READ: i32 = 1;
+        const MAP_SHARED: i32 = 1;
+        const PAGE: u64 = 4096;
+        let cached = |file: &File, offset: u64| -> bool {
+            let len = usize::try_from(file.metadata().unwrap().len()).unwrap();
+            let mut resident = vec![0u8; len.div_ceil(PAGE as usize)];
+            // SAFETY: a read-only mapping of the whole open file, never dereferenced, unmapped
+            // before returning; `resident` has one byte per page of it.
+            unsafe {
+                let at = mmap(
+                    std::ptr::null_mut(),
+                    len,
+                    PROT_READ,
+                    MAP_SHARED,
+                    file.as_raw_fd(),
+                    0,
+                );
+                assert!(!at.is_null() && at as isize != -1, "mmap");
+                assert_eq!(mincore(at, len, resident.as_mut_ptr()), 0, "mincore");
+                munmap(at, len);
+            }
+            resident[(offset / PAGE) as usize] & 1 == 1
+        };
+        let root = std::env::temp_dir().join(format!("surgvla-ahead-cache-{}", std::process::id()));
+        std::fs::create_dir_all(&root).unwrap();
+        let path = root.join("f.bin");
+        std::fs::write(&path, vec![7u8; 16 << 20]).unwrap();
+        let file = File::open(&path).unwrap();
+        file.sync_all().unwrap();
+        // SAFETY: a descriptor and integers; no memory of ours is read.
+        unsafe { posix_fadvise(file.as_raw_fd(), 0, 0, DONT_NEED) };
+        let probe = 6 << 20;
+        assert!(
+            !cached(&file, probe),
+            "{} keeps a file's pages cached after DONTNEED: this test needs a disk-backed temporary folder",
+            root.display()
+        );
+        read_ahead(&file, 5 << 20, 2 << 20);
+        let asked = std::time::Instant::now();
+        while !cached(&file, probe) && asked.elapsed() < std::time::Duration::from_secs(20) {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert!(
+            cached(&file, probe),
+            "the page read ahead is not in the page cache"
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 
     #[test]
     fn atomic_writes_leave_the_file_or_nothing() {

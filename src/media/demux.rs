@@ -53,6 +53,8 @@ pub struct VideoReader {
     length_size: usize,
     /// Whether presentation order differs from decode order (B-frames).
     pub reorders: bool,
+    /// The episodes after the one read lie after its samples: the kernel reads them meanwhile.
+    read_ahead: crate::files::ReadAhead,
 }
 
 /// A span's samples as a decoder needs them: in decode order, from a keyframe, with the
@@ -185,6 +187,7 @@ impl VideoReader {
             parameters: Arc::new(parameters),
             length_size,
             reorders,
+            read_ahead: crate::files::ReadAhead::default(),
         })
     }
 
@@ -203,6 +206,7 @@ impl VideoReader {
             parameters: Arc::clone(&self.parameters),
             length_size: self.length_size,
             reorders: self.reorders,
+            read_ahead: crate::files::ReadAhead::default(),
         })
     }
 
@@ -310,6 +314,7 @@ impl VideoReader {
                 })
                 .collect();
         }
+        self.read_ahead.reading(&self.file, end, u64::MAX);
         let all = self.read(start, span)?;
         (samples.iter())
             .map(|s| {

@@ -66,6 +66,9 @@ struct OpenFile {
     group: usize,
     /// A group being read whole, 64 rows at a time.
     reader: Option<ParquetRecordBatchReader>,
+    /// The light columns a copy reads are small reads between large columns it does not, so
+    /// the kernel's own read-ahead never starts: asked for by the reader.
+    read_ahead: crate::files::ReadAhead,
 }
 
 /// The data files, in order, read as [`Next`] says.
@@ -137,6 +140,7 @@ impl DataRows {
                 copyable,
                 group: 0,
                 reader: None,
+                read_ahead: crate::files::ReadAhead::default(),
             });
         }
     }
@@ -233,6 +237,7 @@ impl OpenFile {
     ) -> Result<(ParquetRecordBatchReader, Known), ExportError> {
         let group = self.group;
         self.group += 1;
+        self.read_ahead(group);
         let file = self.file.try_clone().map_err(ExportError::io(&self.path))?;
         let mut builder =
             ParquetRecordBatchReaderBuilder::new_with_metadata(file, self.metadata.clone())
@@ -249,6 +254,29 @@ impl OpenFile {
         let reader = builder.build().map_err(ExportError::parquet(&self.path))?;
         Ok((reader, known))
     }
+}
+
+impl OpenFile {
+    /// Has the kernel read the file ahead from row group `group`, which is about to be read.
+    fn read_ahead(&mut self, group: usize) {
+        let groups = self.metadata.metadata().row_groups();
+        if let (Some(this), Some(last)) = (groups.get(group), groups.last()) {
+            let (at, end) = (group_span(this).start, group_span(last).end);
+            self.read_ahead.reading(&self.file, at, end);
+        }
+    }
+}
+
+/// Where a row group's column chunks lie in its file, in bytes.
+fn group_span(group: &parquet::file::metadata::RowGroupMetaData) -> std::ops::Range<u64> {
+    let chunks = group.columns().iter().map(|c| {
+        let start = c.dictionary_page_offset().unwrap_or(c.data_page_offset());
+        let start = u64::try_from(start).unwrap_or(0);
+        let size = u64::try_from(c.compressed_size()).unwrap_or(0);
+        start..start.saturating_add(size)
+    });
+    let (start, end) = chunks.fold((u64::MAX, 0), |(a, b), c| (a.min(c.start), b.max(c.end)));
+    start.min(end)..end
 }
 
 /// The one episode and the one task of a row group's rows, where its statistics say them.
@@ -660,6 +688,40 @@ pub(super) fn other_values(
 mod tests {
     use super::*;
     use crate::episode::{FeatureSet, standard_features};
+
+    /// A row group's span covers each of its column chunks and no other group's.
+    #[test]
+    fn a_row_groups_span_covers_its_chunks_and_no_other_groups() {
+        use arrow_array::{ArrayRef, Int64Array, RecordBatch};
+        let a: ArrayRef = std::sync::Arc::new(Int64Array::from_iter_values(0..100));
+        let b: ArrayRef =
+            std::sync::Arc::new(Int64Array::from_iter_values((0..100).map(|v| v * 7)));
+        let batch = RecordBatch::try_from_iter([("a", a), ("b", b)]).expect("batch");
+        let mut bytes = Vec::new();
+        let mut writer =
+            parquet::arrow::ArrowWriter::try_new(&mut bytes, batch.schema(), None).expect("writer");
+        for _ in 0..3 {
+            writer.write(&batch).expect("write");
+            writer.flush().expect("a row group");
+        }
+        writer.close().expect("footer");
+        let metadata = parquet::file::metadata::ParquetMetaDataReader::new()
+            .parse_and_finish(&bytes::Bytes::from(bytes.clone()))
+            .expect("footer");
+        let spans: Vec<_> = metadata.row_groups().iter().map(group_span).collect();
+        assert_eq!(spans.len(), 3);
+        for (group, span) in metadata.row_groups().iter().zip(&spans) {
+            for chunk in group.columns() {
+                let (start, size) = chunk.byte_range();
+                assert!(span.start <= start && start + size <= span.end, "{span:?}");
+            }
+        }
+        assert!(
+            spans.windows(2).all(|w| w[0].end <= w[1].start),
+            "{spans:?}"
+        );
+        assert!(spans[0].start >= 4 && spans[2].end <= bytes.len() as u64);
+    }
 
     #[test]
     fn rows_read_without_images_leave_out_the_images_and_the_indices_made_anew() {

@@ -384,12 +384,16 @@ impl LeRobotFiles {
     }
 
     fn writer_properties(&self) -> WriterProperties {
+        // The per-frame vectors and indices are a few hundred bytes per episode and column:
+        // snappy, as LeRobot's own files, since a zstd codec costs every reader more to make
+        // (its contexts ask the CPU for its features, which a virtual machine answers slowly)
+        // than it saves on so few bytes, and a reader makes one per column and row group.
         let mut builder = WriterProperties::builder()
-            .set_compression(Compression::ZSTD(ZstdLevel::try_new(1).unwrap_or_default()))
+            .set_compression(Compression::SNAPPY)
             .set_created_by(format!("surgvla {}", env!("CARGO_PKG_VERSION")))
             .set_max_row_group_row_count(None);
-        // PNG bytes are already deflated: store them as they are. Raw float TIFF depth keeps
-        // zstd. No dictionaries for image bytes.
+        // PNG bytes are already deflated: store them as they are. Raw float TIFF depth, large
+        // and compressible, is zstd's. No dictionaries for image bytes.
         for feature in self
             .parquet_features
             .iter()
@@ -397,9 +401,12 @@ impl LeRobotFiles {
         {
             let column = ColumnPath::new(vec![feature.name.clone(), "bytes".into()]);
             builder = builder.set_column_dictionary_enabled(column.clone(), false);
-            if feature.kind != FeatureKind::Depth {
-                builder = builder.set_column_compression(column, Compression::UNCOMPRESSED);
-            }
+            let compression = if feature.kind == FeatureKind::Depth {
+                Compression::ZSTD(ZstdLevel::try_new(1).unwrap_or_default())
+            } else {
+                Compression::UNCOMPRESSED
+            };
+            builder = builder.set_column_compression(column, compression);
         }
         builder.build()
     }
