@@ -279,14 +279,17 @@ mod tests {
             ) -> *mut u8;
             fn mincore(at: *mut u8, len: usize, resident: *mut u8) -> i32;
             fn munmap(at: *mut u8, len: usize) -> i32;
+            fn sysconf(name: i32) -> i64;
         }
         const DONT_NEED: i32 = 4;
         const PROT_READ: i32 = 1;
         const MAP_SHARED: i32 = 1;
-        const PAGE: u64 = 4096;
+        const PAGE_SIZE: i32 = 30;
+        // SAFETY: sysconf takes an integer and reads no memory of ours.
+        let page = u64::try_from(unsafe { sysconf(PAGE_SIZE) }).unwrap();
         let cached = |file: &File, offset: u64| -> bool {
             let len = usize::try_from(file.metadata().unwrap().len()).unwrap();
-            let mut resident = vec![0u8; len.div_ceil(PAGE as usize)];
+            let mut resident = vec![0u8; len.div_ceil(page as usize)];
             // SAFETY: a read-only mapping of the whole open file, never dereferenced, unmapped
             // before returning; `resident` has one byte per page of it.
             unsafe {
@@ -302,7 +305,7 @@ mod tests {
                 assert_eq!(mincore(at, len, resident.as_mut_ptr()), 0, "mincore");
                 munmap(at, len);
             }
-            resident[(offset / PAGE) as usize] & 1 == 1
+            resident[(offset / page) as usize] & 1 == 1
         };
         let root = std::env::temp_dir().join(format!("surgvla-ahead-cache-{}", std::process::id()));
         std::fs::create_dir_all(&root).unwrap();
