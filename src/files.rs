@@ -1,9 +1,10 @@
 //! The lowest level of bytes on disk, shared by the renderer, the formats and the readers of
 //! other people's files: PNG encoding ([`encode_png`], every colour type surgvla writes), atomic
 //! file writes ([`write_atomically`]: a temporary `.name.partial` beside the file, renamed when
-//! complete, so a crash never leaves a truncated file under its final name), and the one way an
+//! complete, so a crash never leaves a truncated file under its final name), the one way an
 //! input file is opened ([`open_regular`]: regular files only, so a FIFO, socket or device never
-//! blocks or feeds a reader). Imports nothing of the crate.
+//! blocks or feeds a reader), and reading ahead for readers that skip ([`ReadAhead`]: the
+//! kernel's own read-ahead stops where reads are not in order). Imports nothing of the crate.
 
 mod pixels;
 
