@@ -318,6 +318,22 @@ pub(super) fn write_group<W: std::io::Write + Send>(
     Ok(())
 }
 
+/// Where `chunks` lie in their file, in bytes: from the first one's start (its dictionary page,
+/// if any) to the last one's end; empty for no chunks. Offsets a footer gives negative count as
+/// 0 (a footer is checked when read: `footer_problem`).
+pub(super) fn chunks_span<'a>(
+    chunks: impl IntoIterator<Item = &'a ColumnChunkMetaData>,
+) -> std::ops::Range<u64> {
+    let spans = chunks.into_iter().map(|c| {
+        let start = c.dictionary_page_offset().unwrap_or(c.data_page_offset());
+        let start = u64::try_from(start).unwrap_or(0);
+        let size = u64::try_from(c.compressed_size()).unwrap_or(0);
+        start..start.saturating_add(size)
+    });
+    let (start, end) = spans.fold((u64::MAX, 0), |(a, b), c| (a.min(c.start), b.max(c.end)));
+    start.min(end)..end
+}
+
 /// The bytes of a row group's copied chunks, read in one go (the parquet writer asks for each
 /// chunk by its offset in the file).
 struct Region {
@@ -337,21 +353,13 @@ impl Region {
         chunks: &[Option<Chunk>],
         buffer: Vec<u8>,
     ) -> Result<Region, ParquetError> {
-        let spans = chunks.iter().filter_map(|c| match c {
-            Some(Chunk::Copied(close)) => {
-                let m = &close.metadata;
-                let start = m.dictionary_page_offset().unwrap_or(m.data_page_offset());
-                Some((start, start.saturating_add(m.compressed_size())))
-            }
+        let copied = chunks.iter().filter_map(|c| match c {
+            Some(Chunk::Copied(close)) => Some(&close.metadata),
             _ => None,
         });
-        let (start, end) = spans.fold((i64::MAX, 0), |(a, b), (s, e)| (a.min(s), b.max(e)));
-        let start = u64::try_from(start).unwrap_or(0);
-        let length = usize::try_from(end)
-            .ok()
-            .and_then(|end| end.checked_sub(usize::try_from(start).ok()?))
-            .unwrap_or(0);
-        Region::read_span(&stored.handle, start, length, buffer)
+        let span = chunks_span(copied);
+        let length = usize::try_from(span.end - span.start).unwrap_or(0);
+        Region::read_span(&stored.handle, span.start, length, buffer)
     }
 
     /// `length` bytes of `file` from `start`, read into `buffer` (grown as needed).
@@ -535,6 +543,39 @@ pub(super) fn matches_writer(
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
+
+    /// The span of chunks runs from the first one's dictionary page (or its data, without one)
+    /// to the last byte of any of them, whatever their order; no chunks span nothing.
+    #[test]
+    fn chunks_span_from_the_first_page_to_the_last_byte() {
+        let schema = parquet::schema::parser::parse_message_type(
+            "message m { required int64 a; required int64 b; required int64 c; }",
+        )
+        .expect("schema");
+        let descr = SchemaDescriptor::new(Arc::new(schema));
+        let chunk = |leaf: usize, dictionary: Option<i64>, data: i64, size: i64| {
+            ColumnChunkMetaData::builder(descr.column(leaf))
+                .set_dictionary_page_offset(dictionary)
+                .set_data_page_offset(data)
+                .set_total_compressed_size(size)
+                .build()
+                .expect("chunk")
+        };
+        let (a, b, c) = (
+            chunk(0, None, 4, 100),
+            chunk(1, Some(104), 150, 96),
+            chunk(2, None, 200, 10),
+        );
+        assert_eq!(chunks_span([&a, &b, &c]), 4..210);
+        assert_eq!(
+            chunks_span([&c, &b]),
+            104..210,
+            "the dictionary page starts b"
+        );
+        assert_eq!(chunks_span([&b, &a]), 4..200);
+        assert_eq!(chunks_span([&a]), 4..104);
+        assert!(chunks_span(std::iter::empty()).is_empty());
+    }
 
     /// A region read into the last one's buffer holds its own bytes alone (not the longer
     /// last one's past them), and gives the buffer back for the next.

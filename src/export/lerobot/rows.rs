@@ -269,14 +269,7 @@ impl OpenFile {
 
 /// Where a row group's column chunks lie in its file, in bytes.
 fn group_span(group: &parquet::file::metadata::RowGroupMetaData) -> std::ops::Range<u64> {
-    let chunks = group.columns().iter().map(|c| {
-        let start = c.dictionary_page_offset().unwrap_or(c.data_page_offset());
-        let start = u64::try_from(start).unwrap_or(0);
-        let size = u64::try_from(c.compressed_size()).unwrap_or(0);
-        start..start.saturating_add(size)
-    });
-    let (start, end) = chunks.fold((u64::MAX, 0), |(a, b), c| (a.min(c.start), b.max(c.end)));
-    start.min(end)..end
+    super::copy::chunks_span(group.columns())
 }
 
 /// The one episode and the one task of a row group's rows, where its statistics say them.
