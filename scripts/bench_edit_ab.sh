@@ -7,7 +7,7 @@
 # ms with `perf` installed): single runs on this VM stray by up to 50 %, so compare medians over
 # 16 rounds or more. Figures go to BENCHMARKS.md by hand.
 #
-#   scripts/bench_edit_ab.sh DATASET_AV1 ROUNDS OLD_BINARY NEW_BINARY [split] [cold]
+#   scripts/bench_edit_ab.sh DATASET_AV1 ROUNDS OLD_BINARY NEW_BINARY [split] [cold] [slowdisk]
 #
 # DATASET_AV1: the input scripts/bench_edit.sh makes (the default dataset in AV1 video mode).
 # The input's pages are first dropped from the page cache and read back in order: how a file's
@@ -15,24 +15,34 @@
 # reads and writes) changes what copying from it costs by up to 10x on this machine, so every
 # run starts from the same state. `cold`: before each edit its input, and before each `cp` the
 # result it copies, are dropped from the page cache (`posix_fadvise` DONTNEED after `sync`):
-# both read from the disk.
+# both read from the disk. `slowdisk` (implies `cold`; root, Linux cgroups): every command
+# reads the input's disk at 200 MiB/s at most (a cgroup's blkio throttle, or io.max), as a
+# network or spinning disk would serve it: where the disk, not the CPU, sets the pace.
 set -euo pipefail
 if [ "$#" -lt 4 ]; then
-    sed -n '2,18p' "$0" >&2
+    sed -n '2,21p' "$0" >&2
     exit 2
 fi
 input="$1" rounds="$2" old="$3" new="$4"
 shift 4
-split="" cold=""
+split="" cold="" slowdisk=""
 for flag in "$@"; do
     case "${flag}" in
     split) split=split ;;
     cold) cold=cold ;;
-    *) echo "unknown flag ${flag} (split, cold)" >&2; exit 2 ;;
+    slowdisk) slowdisk=slowdisk cold=cold ;;
+    *) echo "unknown flag ${flag} (split, cold, slowdisk)" >&2; exit 2 ;;
     esac
 done
 work="$(mktemp -d "${TMPDIR:-/tmp}/surgvla-edit-ab.XXXXXX")"
-trap 'rm -rf "${work}"' EXIT
+group=""
+leave_group() { # moves this shell back to the root cgroup and removes the throttled one
+    if [ -n "${group}" ]; then
+        echo $$ > "$(dirname "${group}")/cgroup.procs"
+        rmdir "${group}"
+    fi
+}
+trap 'leave_group; rm -rf "${work}"' EXIT
 episodes="$(python3 -c "import json; print(json.load(open('${input}/meta/info.json'))['total_episodes'])")"
 drop="$(python3 -c "print(','.join(str(i) for i in range(${episodes}) if i % 5 in (1, 3)))")"
 
@@ -50,6 +60,27 @@ for root, _, names in os.walk(sys.argv[1]):
 EOF
 }
 uncache "${input}" reread
+
+throttle() { # from now on this shell and its commands read the input's disk at 200 MiB/s
+    local device parent numbers rate=$((200 << 20))
+    device="$(findmnt -no SOURCE -T "${input}")"
+    parent="$(lsblk -ndo PKNAME "${device}" 2> /dev/null || true)"
+    if [ -n "${parent}" ]; then device="/dev/${parent}"; fi
+    numbers="$(lsblk -ndo MAJ:MIN "${device}" | tr -d ' ')"
+    if [ -d /sys/fs/cgroup/blkio ]; then
+        group="/sys/fs/cgroup/blkio/surgvla-bench-$$"
+        mkdir "${group}"
+        echo "${numbers} ${rate}" > "${group}/blkio.throttle.read_bps_device"
+    else
+        group="/sys/fs/cgroup/surgvla-bench-$$"
+        echo +io > /sys/fs/cgroup/cgroup.subtree_control
+        mkdir "${group}"
+        echo "${numbers} rbps=${rate}" > "${group}/io.max"
+    fi
+    echo $$ > "${group}/cgroup.procs"
+    echo "reads from ${device} (${numbers}) at ${rate} bytes/s at most" >&2
+}
+if [ -n "${slowdisk}" ]; then throttle; fi
 
 timed() { # LABEL COMMAND... -> "LABEL wall S cpu MS"
     local label="$1"

@@ -828,6 +828,30 @@ pub fn step_pixels_fit(
     Ok(())
 }
 
+/// An episode of no steps, `index` of task T1-1 with seed `seed`: what the sources tests make
+/// give.
+#[cfg(test)]
+pub(crate) fn empty_episode(index: u64, seed: u64) -> Episode {
+    Episode {
+        meta: EpisodeMeta {
+            index,
+            task_code: "T1-1".into(),
+            task_name: "gauze_pick".into(),
+            level: 1,
+            instruction: String::new(),
+            seed,
+            attempts: 1,
+            success: true,
+            task_changes: Vec::new(),
+            fields: serde_json::Map::new(),
+        },
+        steps: Vec::new(),
+        encoded: Vec::new(),
+        image_stats: Vec::new(),
+        stored_rows: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

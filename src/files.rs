@@ -4,7 +4,9 @@
 //! complete, so a crash never leaves a truncated file under its final name), the one way an
 //! input file is opened ([`open_regular`]: regular files only, so a FIFO, socket or device never
 //! blocks or feeds a reader), and reading ahead for readers that skip ([`ReadAhead`]: the
-//! kernel's own read-ahead stops where reads are not in order). Imports nothing of the crate.
+//! kernel's own read-ahead stops where reads are not in order; one that knows what it will
+//! skip names only what it will read: [`ReadAhead::reading_spans`]). Imports nothing of the
+//! crate.
 
 mod pixels;
 
@@ -45,10 +47,12 @@ pub fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Resul
 pub const READ_AHEAD_BYTES: u64 = 4 << 20;
 
 /// A reader's window of read-ahead in one file: the kernel is asked to bring the next
-/// [`READ_AHEAD_BYTES`] into the page cache in the background ([`read_ahead`]), each byte once.
-/// A reader that skips parts of a file (an edit's dropped episodes, the large columns it copies
-/// rather than reads) defeats the kernel's own read-ahead, and each of its small reads would
-/// wait for the disk.
+/// [`READ_AHEAD_BYTES`] the reader will read into the page cache in the background
+/// ([`read_ahead`]), each byte once. A reader that skips parts of a file (an edit's dropped
+/// episodes, the large columns it copies rather than reads) defeats the kernel's own
+/// read-ahead, and each of its small reads would wait for the disk. One that knows the parts
+/// it will skip names only those it will read ([`ReadAhead::reading_spans`]), so that what it
+/// skips is not read from the disk.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ReadAhead {
     /// Where the file was asked to be read to.
@@ -60,13 +64,40 @@ impl ReadAhead {
     /// [`READ_AHEAD_BYTES`] past `at` (not past `end`), leaving out what was asked before.
     /// Returns the span asked for, if any.
     pub fn reading(&mut self, file: &File, at: u64, end: u64) -> Option<std::ops::Range<u64>> {
-        let ahead = at.saturating_add(READ_AHEAD_BYTES).min(end);
-        let from = self.asked_to.max(at);
-        (ahead > from).then(|| {
-            read_ahead(file, from, ahead - from);
-            self.asked_to = ahead;
-            from..ahead
-        })
+        self.reading_spans(file, std::iter::once(at..end)).pop()
+    }
+
+    /// About to read `file` where the first of `spans` starts, and then the rest of them (in
+    /// the file's order, the parts between them to be skipped): asks for the first
+    /// [`READ_AHEAD_BYTES`] of them to be read ahead, leaving out what was asked before and
+    /// what lies between them. Returns the spans asked for (adjacent ones as one).
+    pub fn reading_spans(
+        &mut self,
+        file: &File,
+        spans: impl IntoIterator<Item = std::ops::Range<u64>>,
+    ) -> Vec<std::ops::Range<u64>> {
+        let mut left = READ_AHEAD_BYTES;
+        let mut asked: Vec<std::ops::Range<u64>> = Vec::new();
+        for span in spans {
+            if left == 0 {
+                break;
+            }
+            let end = span.end.min(span.start.saturating_add(left));
+            left -= end.saturating_sub(span.start);
+            let from = self.asked_to.max(span.start);
+            if end <= from {
+                continue;
+            }
+            self.asked_to = end;
+            match asked.last_mut() {
+                Some(last) if last.end == from => last.end = end,
+                _ => asked.push(from..end),
+            }
+        }
+        for span in &asked {
+            read_ahead(file, span.start, span.end - span.start);
+        }
+        asked
     }
 }
 
@@ -260,75 +291,58 @@ mod tests {
         std::fs::remove_dir_all(&root).unwrap();
     }
 
+    /// Spans to be read are asked for up to a window's worth of their own bytes, what lies
+    /// between them left out, adjacent ones in one piece, each byte once.
+    #[test]
+    fn a_read_ahead_of_spans_leaves_out_what_lies_between_them() {
+        let root = std::env::temp_dir().join(format!("surgvla-spans-{}", std::process::id()));
+        std::fs::create_dir_all(&root).unwrap();
+        let path = root.join("f.bin");
+        std::fs::write(&path, b"x").unwrap();
+        let file = File::open(&path).unwrap();
+        let mb = 1 << 20;
+        assert_eq!(
+            READ_AHEAD_BYTES,
+            4 * mb,
+            "the spans below are a window's worth"
+        );
+        let mut ahead = ReadAhead::default();
+        let spans = [0..mb, 2 * mb..3 * mb, 3 * mb..4 * mb, 10 * mb..13 * mb];
+        assert_eq!(
+            ahead.reading_spans(&file, spans.clone()),
+            vec![0..mb, 2 * mb..4 * mb, 10 * mb..11 * mb]
+        );
+        // Read on to the second: the window reaches 1 MiB further into the last.
+        assert_eq!(
+            ahead.reading_spans(&file, spans[1..].iter().cloned()),
+            vec![11 * mb..12 * mb]
+        );
+        let first = std::iter::once(0..mb);
+        assert_eq!(ahead.reading_spans(&file, first), vec![], "asked already");
+        assert_eq!(ahead.reading_spans(&file, []), vec![]);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
     /// The advice has the kernel read what it names: a page dropped from the page cache is
-    /// back in it after [`read_ahead`], without being read (`mincore` of a mapping of the
-    /// file, which reads nothing, says which pages are cached).
+    /// back in it after [`read_ahead`], without being read.
     #[cfg(target_os = "linux")]
     #[test]
-    #[allow(unsafe_code)]
     fn read_ahead_brings_the_pages_it_names_into_the_page_cache() {
-        use std::os::fd::AsRawFd;
-        unsafe extern "C" {
-            fn posix_fadvise(fd: i32, offset: i64, len: i64, advice: i32) -> i32;
-            fn mmap(
-                at: *mut u8,
-                len: usize,
-                prot: i32,
-                flags: i32,
-                fd: i32,
-                offset: i64,
-            ) -> *mut u8;
-            fn mincore(at: *mut u8, len: usize, resident: *mut u8) -> i32;
-            fn munmap(at: *mut u8, len: usize) -> i32;
-            fn sysconf(name: i32) -> i64;
-        }
-        const DONT_NEED: i32 = 4;
-        const PROT_READ: i32 = 1;
-        const MAP_SHARED: i32 = 1;
-        const PAGE_SIZE: i32 = 30;
-        // SAFETY: sysconf takes an integer and reads no memory of ours.
-        let page = u64::try_from(unsafe { sysconf(PAGE_SIZE) }).unwrap();
-        let cached = |file: &File, offset: u64| -> bool {
-            let len = usize::try_from(file.metadata().unwrap().len()).unwrap();
-            let mut resident = vec![0u8; len.div_ceil(page as usize)];
-            // SAFETY: a read-only mapping of the whole open file, never dereferenced, unmapped
-            // before returning; `resident` has one byte per page of it.
-            unsafe {
-                let at = mmap(
-                    std::ptr::null_mut(),
-                    len,
-                    PROT_READ,
-                    MAP_SHARED,
-                    file.as_raw_fd(),
-                    0,
-                );
-                assert!(!at.is_null() && at as isize != -1, "mmap");
-                assert_eq!(mincore(at, len, resident.as_mut_ptr()), 0, "mincore");
-                munmap(at, len);
-            }
-            resident[(offset / page) as usize] & 1 == 1
-        };
         let root = std::env::temp_dir().join(format!("surgvla-ahead-cache-{}", std::process::id()));
         std::fs::create_dir_all(&root).unwrap();
         let path = root.join("f.bin");
         std::fs::write(&path, vec![7u8; 16 << 20]).unwrap();
         let file = File::open(&path).unwrap();
-        file.sync_all().unwrap();
-        // SAFETY: a descriptor and integers; no memory of ours is read.
-        unsafe { posix_fadvise(file.as_raw_fd(), 0, 0, DONT_NEED) };
+        page_cache::drop(&file);
         let probe = 6 << 20;
         assert!(
-            !cached(&file, probe),
+            !page_cache::cached(&file, probe),
             "{} keeps a file's pages cached after DONTNEED: this test needs a disk-backed temporary folder",
             root.display()
         );
         read_ahead(&file, 5 << 20, 2 << 20);
-        let asked = std::time::Instant::now();
-        while !cached(&file, probe) && asked.elapsed() < std::time::Duration::from_secs(20) {
-            std::thread::sleep(std::time::Duration::from_millis(5));
-        }
         assert!(
-            cached(&file, probe),
+            page_cache::comes_into(&file, probe, 20),
             "the page read ahead is not in the page cache"
         );
         std::fs::remove_dir_all(&root).unwrap();
@@ -362,5 +376,72 @@ mod tests {
             assert_eq!(&png[1..4], b"PNG");
         }
         assert!(encode_png(3, 2, PngPixels::Rgb8, &[0; 5], PngLevel::Fast).is_err());
+    }
+}
+
+/// The page cache as tests see it: a file's pages dropped from it, and whether one is in it
+/// (`mincore` of a mapping of the file, which reads nothing).
+#[cfg(test)]
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)]
+pub(crate) mod page_cache {
+    use std::fs::File;
+    use std::os::fd::AsRawFd;
+
+    unsafe extern "C" {
+        fn posix_fadvise(fd: i32, offset: i64, len: i64, advice: i32) -> i32;
+        fn mmap(at: *mut u8, len: usize, prot: i32, flags: i32, fd: i32, offset: i64) -> *mut u8;
+        fn mincore(at: *mut u8, len: usize, resident: *mut u8) -> i32;
+        fn munmap(at: *mut u8, len: usize) -> i32;
+        fn sysconf(name: i32) -> i64;
+    }
+    const DONT_NEED: i32 = 4;
+    const PROT_READ: i32 = 1;
+    const MAP_SHARED: i32 = 1;
+    const PAGE_SIZE: i32 = 30;
+
+    /// Writes `file`'s dirty pages and drops all of them from the page cache.
+    pub(crate) fn drop(file: &File) {
+        file.sync_all().expect("sync");
+        // SAFETY: a descriptor and integers; no memory of ours is read.
+        unsafe { posix_fadvise(file.as_raw_fd(), 0, 0, DONT_NEED) };
+    }
+
+    /// Whether the page holding byte `offset` of `file` is in the page cache.
+    pub(crate) fn cached(file: &File, offset: u64) -> bool {
+        // SAFETY: sysconf takes an integer and reads no memory of ours.
+        let page = usize::try_from(unsafe { sysconf(PAGE_SIZE) }).expect("page size");
+        let len = usize::try_from(file.metadata().expect("metadata").len()).expect("length");
+        let mut resident = vec![0u8; len.div_ceil(page)];
+        // SAFETY: a read-only mapping of the whole open file, never dereferenced, unmapped
+        // before returning; `resident` has one byte per page of it.
+        unsafe {
+            let at = mmap(
+                std::ptr::null_mut(),
+                len,
+                PROT_READ,
+                MAP_SHARED,
+                file.as_raw_fd(),
+                0,
+            );
+            assert!(!at.is_null() && at as isize != -1, "mmap");
+            assert_eq!(mincore(at, len, resident.as_mut_ptr()), 0, "mincore");
+            munmap(at, len);
+        }
+        let index = usize::try_from(offset).expect("offset") / page;
+        resident.get(index).is_some_and(|r| r & 1 == 1)
+    }
+
+    /// Whether the page holding byte `offset` comes into the page cache within `secs` seconds
+    /// (a read-ahead is done in the background).
+    pub(crate) fn comes_into(file: &File, offset: u64, secs: u64) -> bool {
+        let asked = std::time::Instant::now();
+        while !cached(file, offset) {
+            if asked.elapsed() > std::time::Duration::from_secs(secs) {
+                return false;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        true
     }
 }

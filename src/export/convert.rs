@@ -310,6 +310,10 @@ impl EpisodeSource for Without {
         self.inner.leave_rows_stored();
     }
 
+    fn taking_only(&mut self, episodes: std::sync::Arc<std::collections::BTreeSet<u64>>) {
+        self.inner.taking_only(episodes);
+    }
+
     fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
         self.inner.skim()
     }

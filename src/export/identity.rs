@@ -108,6 +108,10 @@ impl EpisodeSource for Identified {
         self.inner.leave_rows_stored();
     }
 
+    fn taking_only(&mut self, episodes: std::sync::Arc<std::collections::BTreeSet<u64>>) {
+        self.inner.taking_only(episodes);
+    }
+
     fn skim(&mut self) -> Option<Result<crate::export::source::Skimmed, ExportError>> {
         self.inner.skim()
     }

@@ -147,7 +147,6 @@ fn in_order_read<T: Send, E: Send>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::episode::EpisodeMeta;
     use crate::export::info::DatasetInfo;
 
     /// `count` episodes numbered from `first`, failing at `fail_at` when given; counts what
@@ -181,24 +180,10 @@ mod tests {
                     return Err(ExportError::Internal("broken".into()));
                 }
                 self.decoded += 1;
-                Ok(Episode {
-                    meta: EpisodeMeta {
-                        index: self.next - 1,
-                        task_code: "T1-1".into(),
-                        task_name: "gauze_pick".into(),
-                        level: 1,
-                        instruction: String::new(),
-                        seed: 100 + self.next - 1,
-                        attempts: 1,
-                        success: true,
-                        task_changes: Vec::new(),
-                        fields: serde_json::Map::new(),
-                    },
-                    steps: Vec::new(),
-                    encoded: Vec::new(),
-                    image_stats: Vec::new(),
-                    stored_rows: None,
-                })
+                Ok(crate::episode::empty_episode(
+                    self.next - 1,
+                    100 + self.next - 1,
+                ))
             })
         }
     }

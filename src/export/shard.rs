@@ -118,7 +118,6 @@ impl EpisodeSource for Sharded {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::episode::EpisodeMeta;
     use serde_json::json;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -149,24 +148,7 @@ mod tests {
             (self.next < self.total).then(|| {
                 self.next += 1;
                 self.decoded.fetch_add(1, Ordering::Relaxed);
-                Ok(Episode {
-                    meta: EpisodeMeta {
-                        index: self.next - 1,
-                        task_code: "T1-1".into(),
-                        task_name: "gauze_pick".into(),
-                        level: 1,
-                        instruction: String::new(),
-                        seed: self.next - 1,
-                        attempts: 1,
-                        success: true,
-                        task_changes: Vec::new(),
-                        fields: serde_json::Map::new(),
-                    },
-                    steps: Vec::new(),
-                    encoded: Vec::new(),
-                    image_stats: Vec::new(),
-                    stored_rows: None,
-                })
+                Ok(crate::episode::empty_episode(self.next - 1, self.next - 1))
             })
         }
     }

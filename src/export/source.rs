@@ -25,6 +25,11 @@ pub trait EpisodeSource: Iterator<Item = Result<Episode, ExportError>> {
     /// format can copy them ([`Episode::stored_rows`]; their pixels then stay there): what an
     /// edit writing the input's format asks. Sources that cannot ignore it.
     fn leave_rows_stored(&mut self) {}
+    /// Says that of the episodes from here on, only `episodes` (by index) will be read, the
+    /// others passed over ([`EpisodeSource::skip_episode`]): a source that reads its files
+    /// ahead then reads ahead theirs alone, and the others' bytes stay on the disk (an edit
+    /// dropping episodes). Sources that do not read ahead ignore it.
+    fn taking_only(&mut self, _episodes: std::sync::Arc<std::collections::BTreeSet<u64>>) {}
     /// Passes over the next episode (None after the last): what a shard does with the
     /// episodes before its range. Reading and dropping it by default; a source that can skip
     /// without decoding does so.

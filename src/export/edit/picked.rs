@@ -112,6 +112,8 @@ pub struct Picked {
     position: u64,
     /// Input indices, in output order.
     order: Vec<u64>,
+    /// The same, as a set: told to the inner source, which reads ahead theirs alone.
+    taken: Arc<std::collections::BTreeSet<u64>>,
     /// The output index of the next episode.
     next: usize,
     info: DatasetInfo,
@@ -133,12 +135,15 @@ impl Picked {
         changes: Changes,
         uncopyable: Uncopyable,
     ) -> Result<Self, ExportError> {
-        let inner = open()?;
+        let mut inner = open()?;
+        let taken = Arc::new(order.iter().copied().collect());
+        inner.taking_only(Arc::clone(&taken));
         Ok(Picked {
             open,
             inner,
             position: 0,
             order,
+            taken,
             next: 0,
             info,
             changes,
@@ -158,6 +163,7 @@ impl Picked {
         if wanted < self.position {
             self.inner = (self.open)()?;
             self.inner.drop_stored(&self.unused);
+            self.inner.taking_only(Arc::clone(&self.taken));
             self.position = 0;
         }
         while self.position < wanted {
@@ -238,5 +244,81 @@ impl EpisodeSource for Picked {
     fn drop_stored(&mut self, unused: &[crate::episode::ImageEncoding]) {
         self.unused = unused.to_vec();
         self.inner.drop_stored(unused);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    /// A source of `count` empty episodes that notes what it is told it will take.
+    struct Told {
+        info: DatasetInfo,
+        next: u64,
+        count: u64,
+        told: Arc<Mutex<Vec<BTreeSet<u64>>>>,
+    }
+
+    impl Iterator for Told {
+        type Item = Result<Episode, ExportError>;
+
+        fn next(&mut self) -> Option<Self::Item> {
+            (self.next < self.count).then(|| {
+                self.next += 1;
+                Ok(crate::episode::empty_episode(self.next - 1, 0))
+            })
+        }
+    }
+
+    impl EpisodeSource for Told {
+        fn info(&self) -> &DatasetInfo {
+            &self.info
+        }
+
+        fn len(&self) -> u64 {
+            self.count
+        }
+
+        fn taking_only(&mut self, episodes: Arc<BTreeSet<u64>>) {
+            let mut told = self.told.lock().unwrap();
+            told.push(episodes.as_ref().clone());
+        }
+    }
+
+    /// The source is told the episodes the edit takes when it is opened, and again when it is
+    /// opened anew to go back (an output whose episodes are not in the input's order).
+    #[test]
+    fn the_input_is_told_the_episodes_taken_each_time_it_opens() {
+        let info = DatasetInfo::from_surgvla_json(&serde_json::Value::Null, 5, "r", Vec::new());
+        let told: Arc<Mutex<Vec<BTreeSet<u64>>>> = Arc::default();
+        let (opened_info, opened_told) = (info.clone(), Arc::clone(&told));
+        let open: Opener = Box::new(move || {
+            Ok(Box::new(Told {
+                info: opened_info.clone(),
+                next: 0,
+                count: 6,
+                told: Arc::clone(&opened_told),
+            }) as Box<dyn EpisodeSource + Send>)
+        });
+        let mut picked = Picked::new(
+            open,
+            vec![4, 1],
+            info,
+            Changes::default(),
+            Uncopyable::Refuse,
+        )
+        .expect("opens");
+        let taken: BTreeSet<u64> = [1, 4].into_iter().collect();
+        assert_eq!(*told.lock().unwrap(), vec![taken.clone()]);
+        let read: Vec<u64> = (picked.by_ref())
+            .map(|e| e.expect("episode").meta.index)
+            .collect();
+        assert_eq!(read, vec![0, 1], "numbered in the output's order");
+        assert_eq!(
+            *told.lock().unwrap(),
+            vec![taken.clone(), taken],
+            "told again"
+        );
     }
 }

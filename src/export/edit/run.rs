@@ -392,6 +392,10 @@ impl EpisodeSource for ExactStats {
     fn leave_rows_stored(&mut self) {
         self.inner.leave_rows_stored();
     }
+
+    fn taking_only(&mut self, episodes: std::sync::Arc<std::collections::BTreeSet<u64>>) {
+        self.inner.taking_only(episodes);
+    }
 }
 
 /// What [`dry_run`] found: per output, its episodes, frames, estimated bytes, and the
@@ -432,6 +436,7 @@ pub fn dry_run(planned: &Planned) -> Result<DryRun, ConvertError> {
         } else {
             Default::default()
         };
+    source.taking_only(Arc::new(wanted.clone()));
     let mut index = 0u64;
     while wanted.last().is_some_and(|last| index <= *last) {
         let item = if wanted.contains(&index) {

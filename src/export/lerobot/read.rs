@@ -1448,6 +1448,12 @@ impl EpisodeSource for LeRobotSource {
         self.unused_stored = unused.to_vec();
     }
 
+    /// The data files read ahead only where the episodes taken lie (video files are small
+    /// beside them, and read ahead as before).
+    fn taking_only(&mut self, episodes: std::sync::Arc<std::collections::BTreeSet<u64>>) {
+        self.data.taking_only(episodes);
+    }
+
     /// Rows are left stored only where every image in the parquet is surgvla's (RGB, depth,
     /// mask): another tool's images carry statistics only their pixels give.
     fn leave_rows_stored(&mut self) {

@@ -69,7 +69,12 @@ struct OpenFile {
     /// The light columns a copy reads are small reads between large columns it does not, so
     /// the kernel's own read-ahead never starts: asked for by the reader.
     read_ahead: crate::files::ReadAhead,
+    /// The episodes that will be read ([`DataRows::taking_only`]), when others are skipped.
+    taking: Option<Taking>,
 }
+
+/// The episodes a reader will read, by index.
+type Taking = std::sync::Arc<std::collections::BTreeSet<u64>>;
 
 /// The data files, in order, read as [`Next`] says.
 pub(super) struct DataRows {
@@ -78,6 +83,8 @@ pub(super) struct DataRows {
     /// The schema the writer would give the frame rows, when row groups are to be offered
     /// for copying ([`DataRows::leave_stored`]).
     copy: Option<arrow_schema::SchemaRef>,
+    /// The episodes that will be read ([`DataRows::taking_only`]).
+    taking: Option<Taking>,
 }
 
 impl DataRows {
@@ -86,7 +93,18 @@ impl DataRows {
             files: files.into_iter(),
             open: None,
             copy: None,
+            taking: None,
         }
+    }
+
+    /// Only `episodes` will be read from now on, the others' row groups skipped: the reader
+    /// asks for the groups of those episodes alone to be read ahead (the file open now
+    /// included), so that the others' bytes stay on the disk.
+    pub(super) fn taking_only(&mut self, episodes: Taking) {
+        if let Some(open) = &mut self.open {
+            open.taking = Some(std::sync::Arc::clone(&episodes));
+        }
+        self.taking = Some(episodes);
     }
 
     /// From the next file opened on, offers a row group for copying ([`DataRows::stored_group`])
@@ -141,6 +159,7 @@ impl DataRows {
                 group: 0,
                 reader: None,
                 read_ahead: crate::files::ReadAhead::default(),
+                taking: self.taking.clone(),
             });
         }
     }
@@ -257,13 +276,27 @@ impl OpenFile {
 }
 
 impl OpenFile {
-    /// Has the kernel read the file ahead from row group `group`, which is about to be read.
+    /// Has the kernel read the file ahead from row group `group`, which is about to be read:
+    /// the groups after it of the episodes taken alone, when [`DataRows::taking_only`] named
+    /// them (a group its statistics do not give one episode of counts as taken).
     fn read_ahead(&mut self, group: usize) {
         let groups = self.metadata.metadata().row_groups();
-        if let (Some(this), Some(last)) = (groups.get(group), groups.last()) {
-            let (at, end) = (group_span(this).start, group_span(last).end);
-            self.read_ahead.reading(&self.file, at, end);
-        }
+        let Some((this, after)) = groups.get(group..).and_then(|g| g.split_first()) else {
+            return;
+        };
+        let Some(taking) = &self.taking else {
+            if let Some(last) = groups.last() {
+                let (at, end) = (group_span(this).start, group_span(last).end);
+                self.read_ahead.reading(&self.file, at, end);
+            }
+            return;
+        };
+        let taken = |g: &&parquet::file::metadata::RowGroupMetaData| {
+            single_episode(g).is_none_or(|e| u64::try_from(e).is_ok_and(|e| taking.contains(&e)))
+        };
+        let spans = std::iter::once(this).chain(after.iter().filter(taken));
+        self.read_ahead
+            .reading_spans(&self.file, spans.map(group_span));
     }
 }
 
@@ -681,6 +714,70 @@ pub(super) fn other_values(
 mod tests {
     use super::*;
     use crate::episode::{FeatureSet, standard_features};
+
+    /// A reader told which episodes it takes has nothing of the others' row groups read from
+    /// the disk: its read-ahead asks for the groups taken ahead of it alone, and reading a
+    /// group in order reads nothing past it (`mincore` says which pages are cached).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn the_groups_of_episodes_not_taken_stay_on_the_disk() {
+        use crate::files::page_cache;
+        use arrow_array::{ArrayRef, BinaryArray, Int64Array, RecordBatch};
+        let root = std::env::temp_dir().join(format!("surgvla-taking-{}", std::process::id()));
+        std::fs::create_dir_all(&root).expect("folder");
+        let path = root.join("file-000.parquet");
+        // Five episodes, a row group of 1.5 MiB each (bytes no codec shrinks).
+        let mut rng = crate::rng::SplitMix64::new(48);
+        let batches: Vec<RecordBatch> = (0..5i64)
+            .map(|episode| {
+                let blob: Vec<u8> = (0..3 << 19).map(|_| rng.next_u64() as u8).collect();
+                let index: ArrayRef = std::sync::Arc::new(Int64Array::from(vec![episode]));
+                let blob: ArrayRef = std::sync::Arc::new(BinaryArray::from(vec![blob.as_slice()]));
+                RecordBatch::try_from_iter([("episode_index", index), ("blob", blob)])
+                    .expect("batch")
+            })
+            .collect();
+        let mut bytes = Vec::new();
+        let mut writer =
+            parquet::arrow::ArrowWriter::try_new(&mut bytes, batches[0].schema(), None)
+                .expect("writer");
+        for batch in &batches {
+            writer.write(batch).expect("write");
+            writer.flush().expect("a row group");
+        }
+        writer.close().expect("footer");
+        std::fs::write(&path, &bytes).expect("file");
+        page_cache::drop(&File::open(&path).expect("open"));
+        let mut rows = DataRows::new(vec![path.clone()]);
+        rows.taking_only(std::sync::Arc::new([0, 3, 4].into_iter().collect()));
+        assert_eq!(rows.next().expect("opens"), Some(Next::Episode(0)));
+        let open = rows.open.as_mut().expect("open");
+        let spans: Vec<_> = (open.metadata.metadata().row_groups().iter())
+            .map(group_span)
+            .collect();
+        let middle = |k: usize| (spans[k].start + spans[k].end) / 2;
+        // Group 0 read as the reader reads it: its read-ahead asked for, then in order.
+        open.read_ahead(0);
+        let mut buffer = vec![0u8; 64 << 10];
+        let mut at = spans[0].start;
+        while at < spans[0].end {
+            let n = buffer.len().min((spans[0].end - at) as usize);
+            crate::files::read_exact_at(&open.file, &mut buffer[..n], at).expect("read");
+            at += n as u64;
+        }
+        let file = File::open(&path).expect("open");
+        assert!(
+            page_cache::comes_into(&file, middle(3), 20),
+            "episode 3 read ahead"
+        );
+        for k in [1, 2] {
+            assert!(
+                !page_cache::comes_into(&file, middle(k), 1),
+                "episode {k}'s group, not taken, was read"
+            );
+        }
+        std::fs::remove_dir_all(&root).expect("removed");
+    }
 
     /// A row group's span covers each of its column chunks and no other group's.
     #[test]
