@@ -276,23 +276,20 @@ impl OpenFile {
 }
 
 impl OpenFile {
-    /// Has the kernel read the file ahead from row group `group`, which is about to be read:
-    /// the groups after it of the episodes taken alone, when [`DataRows::taking_only`] named
-    /// them (a group its statistics do not give one episode of counts as taken).
+    /// Has the kernel read the file ahead from row group `group`, which is about to be read,
+    /// through the groups after it (adjacent ones in one piece): those of the episodes taken
+    /// alone, when [`DataRows::taking_only`] named them (a group its statistics do not give
+    /// one episode of counts as taken).
     fn read_ahead(&mut self, group: usize) {
         let groups = self.metadata.metadata().row_groups();
         let Some((this, after)) = groups.get(group..).and_then(|g| g.split_first()) else {
             return;
         };
-        let Some(taking) = &self.taking else {
-            if let Some(last) = groups.last() {
-                let (at, end) = (group_span(this).start, group_span(last).end);
-                self.read_ahead.reading(&self.file, at, end);
-            }
-            return;
-        };
+        let taking = self.taking.as_deref();
         let taken = |g: &&parquet::file::metadata::RowGroupMetaData| {
-            single_episode(g).is_none_or(|e| u64::try_from(e).is_ok_and(|e| taking.contains(&e)))
+            let taken =
+                |e: i64| taking.is_none_or(|t| u64::try_from(e).is_ok_and(|e| t.contains(&e)));
+            single_episode(g).is_none_or(taken)
         };
         let spans = std::iter::once(this).chain(after.iter().filter(taken));
         self.read_ahead
